@@ -1,0 +1,149 @@
+//! The virtual bench: a known material on a known shape under a known light, rendered the way
+//! the rig's cameras would see it. The device simulators serve these images, and tests and
+//! `brdfd capture --simulate` use them, so a user without hardware runs the whole flow.
+//!
+//! Defaults are embedded so the binary needs no data folder: the NBRDF fits of the 10
+//! evaluation test materials (derived data, see `test_materials.json` for provenance) and a
+//! procedural studio environment written for this project.
+
+use crate::core::envmap::{EnvMap, LightSet};
+use crate::core::geometry::{Camera, PixelGeometry, SceneGeometry, Shape};
+use crate::core::merl::MerlBrdf;
+use crate::core::nbrdf::NbrdfSet;
+use crate::core::raster::Raster;
+use crate::core::render::render_merl;
+use crate::core::Result;
+
+/// The evaluation's test materials (DESIGN.md section 4), embedded for the simulator.
+pub const TEST_MATERIALS: [&str; 10] = [
+    "black-soft-plastic",
+    "nickel",
+    "blue-metallic-paint",
+    "gold-metallic-paint",
+    "blue-fabric",
+    "chrome-steel",
+    "green-latex",
+    "red-specular-plastic",
+    "white-paint",
+    "pearl-paint",
+];
+
+/// Short names a bench operator types, mapped to MERL names.
+const ALIASES: [(&str, &str); 6] = [
+    ("gold", "gold-metallic-paint"),
+    ("chrome", "chrome-steel"),
+    ("plastic", "red-specular-plastic"),
+    ("paint", "white-paint"),
+    ("fabric", "blue-fabric"),
+    ("latex", "green-latex"),
+];
+
+/// Lights used to render simulated photos: finer than the estimate's default, so the
+/// estimate's own compression counts as error, as it would with a real camera.
+pub const PHOTO_LIGHTS: usize = 8_192;
+
+pub fn embedded_materials() -> NbrdfSet {
+    NbrdfSet::from_json(
+        include_str!("test_materials.json"),
+        "embedded test materials",
+    )
+    .expect("embedded materials are checked by tests")
+}
+
+/// MERL name for a material name or alias.
+pub fn resolve_material(name: &str) -> &str {
+    ALIASES
+        .iter()
+        .find(|(a, _)| *a == name)
+        .map_or(name, |(_, m)| m)
+}
+
+/// A procedural studio: sky gradient, warm floor, a large soft key light front-right, a cooler
+/// fill light left and a small bright window behind. Asymmetric on purpose, so orientation
+/// errors show. Radiance in arbitrary linear units.
+pub fn studio_envmap(width: usize) -> EnvMap {
+    let height = width / 2;
+    let mut pixels = Vec::with_capacity(width * height);
+    let lights: [([f64; 3], f64, [f32; 3]); 3] = [
+        // direction, angular radius (rad), radiance
+        (unit([0.6, 0.55, 0.55]), 0.30, [40.0, 38.0, 34.0]),
+        (unit([-0.8, 0.3, -0.3]), 0.45, [6.0, 7.0, 9.0]),
+        (unit([0.1, 0.35, -0.95]), 0.08, [300.0, 300.0, 280.0]),
+    ];
+    for y in 0..height {
+        for x in 0..width {
+            let d = crate::core::envmap::direction(
+                (x as f64 + 0.5) / width as f64,
+                (y as f64 + 0.5) / height as f64,
+                0.0,
+            );
+            let mut l = if d[1] > 0.0 {
+                let t = d[1] as f32;
+                [0.6 + 0.2 * t, 0.7 + 0.3 * t, 0.9 + 0.6 * t]
+            } else {
+                [0.35, 0.28, 0.2]
+            };
+            for (dir, radius, rad) in &lights {
+                let cos = d.iter().zip(dir).map(|(a, b)| a * b).sum::<f64>();
+                if cos > radius.cos() {
+                    for c in 0..3 {
+                        l[c] += rad[c];
+                    }
+                }
+            }
+            pixels.push(l);
+        }
+    }
+    EnvMap::from_pixels(width, height, pixels, "procedural studio")
+        .expect("procedural map is finite")
+}
+
+fn unit(v: [f64; 3]) -> [f64; 3] {
+    crate::core::brdf::normalize(v)
+}
+
+/// The simulated rig's geometry: an orthographic camera on a unit sphere.
+pub fn default_geometry(size: usize) -> SceneGeometry {
+    SceneGeometry {
+        camera: Camera::eval_orthographic(size),
+        shape: Some(Shape::unit_sphere()),
+        normal_map: None,
+    }
+}
+
+/// A material under a light, seen by a camera.
+pub struct VirtualBench {
+    pub material_name: String,
+    pub material: MerlBrdf,
+    pub env: EnvMap,
+    /// Yaw of the panorama in the world, radians.
+    pub yaw: f64,
+    pub geometry: SceneGeometry,
+}
+
+impl VirtualBench {
+    /// A bench with an embedded test material (name or alias) under the studio map.
+    pub fn embedded(material: &str, size: usize) -> Result<VirtualBench> {
+        let set = embedded_materials();
+        let name = resolve_material(material);
+        let fit = set.get(name)?;
+        Ok(VirtualBench {
+            material_name: name.to_string(),
+            material: MerlBrdf::tabulate(fit),
+            env: studio_envmap(512),
+            yaw: 0.0,
+            geometry: default_geometry(size),
+        })
+    }
+
+    pub fn pixels(&self) -> Result<PixelGeometry> {
+        let (w, h) = self.geometry.camera.size();
+        self.geometry.pixels(w, h)
+    }
+
+    /// The linear radiance the object camera records (before any camera response).
+    pub fn photo(&self) -> Result<Raster> {
+        let lights: LightSet = self.env.compressed(PHOTO_LIGHTS, self.yaw);
+        Ok(render_merl(&self.pixels()?, &lights, &self.material))
+    }
+}

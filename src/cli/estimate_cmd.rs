@@ -1,0 +1,209 @@
+//! `brdfd estimate` and `brdfd render`.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context};
+use brdfd::core::basis::Basis;
+use brdfd::core::bivariate::Bivariate;
+use brdfd::core::envmap::{EnvMap, DEFAULT_LIGHTS};
+use brdfd::core::estimate::{
+    estimate as run_estimate, EstimateOptions, SelectionMethod, DEFAULT_MAX_CANDIDATES,
+};
+use brdfd::core::merl::MerlBrdf;
+use brdfd::core::nbrdf::NbrdfSet;
+use brdfd::core::raster::Raster;
+use brdfd::core::render::{render_bivariate, render_merl};
+use brdfd::core::select::SwapParams;
+use brdfd::results::write_results;
+
+use super::GeometryArgs;
+
+#[derive(clap::Args)]
+pub struct EstimateArgs {
+    /// The object photo: linear EXR, or sRGB PNG/JPEG (decoded to linear).
+    #[arg(long)]
+    pub photo: PathBuf,
+    /// The environment map (Radiance .hdr or OpenEXR), equirectangular.
+    #[arg(long)]
+    pub env: PathBuf,
+    /// Yaw of the panorama about +Y, degrees (right-handed).
+    #[arg(long, default_value_t = 0.0)]
+    pub yaw: f64,
+    #[command(flatten)]
+    pub geometry: GeometryArgs,
+    /// Pixels to use: a number, or `all`.
+    #[arg(long, default_value = "20")]
+    pub pixels: String,
+    #[arg(long, value_enum, default_value = "fast")]
+    pub method: MethodArg,
+    /// Regularised solve with this ridge strength (see the README); plain least squares if absent.
+    #[arg(long)]
+    pub ridge: Option<f64>,
+    /// Basis stem (STEM.exr + STEM.json); the embedded default if absent.
+    #[arg(long)]
+    pub basis: Option<PathBuf>,
+    /// Lights the map is compressed to.
+    #[arg(long, default_value_t = DEFAULT_LIGHTS)]
+    pub lights: usize,
+    #[arg(long, default_value_t = DEFAULT_MAX_CANDIDATES)]
+    pub max_candidates: usize,
+    /// Seed of the paper's random restarts.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Output folder.
+    #[arg(long, default_value = "estimate")]
+    pub out: PathBuf,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy)]
+pub enum MethodArg {
+    Fast,
+    Paper,
+}
+
+pub fn parse_pixels(s: &str) -> anyhow::Result<Option<usize>> {
+    if s == "all" {
+        return Ok(None);
+    }
+    let n: usize = s
+        .parse()
+        .with_context(|| format!("--pixels takes a number or `all`, got {s:?}"))?;
+    if n == 0 {
+        bail!("--pixels must be at least 1");
+    }
+    Ok(Some(n))
+}
+
+pub fn load_basis(path: &Option<PathBuf>) -> anyhow::Result<Basis> {
+    Ok(match path {
+        Some(p) => Basis::read(p).with_context(|| format!("reading basis {}", p.display()))?,
+        None => Basis::embedded(),
+    })
+}
+
+pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
+    let total = std::time::Instant::now();
+    let basis = load_basis(&a.basis)?;
+    let photo = Raster::read(&a.photo).with_context(|| "reading the photo")?;
+    let env = EnvMap::load(&a.env).with_context(|| "reading the environment map")?;
+    let lights = env.compressed(a.lights, a.yaw.to_radians());
+    let geometry = a.geometry.scene()?.pixels(photo.width, photo.height)?;
+    let method = match a.method {
+        MethodArg::Fast => SelectionMethod::Fast,
+        MethodArg::Paper => SelectionMethod::Paper,
+    };
+    let options = EstimateOptions {
+        pixel_count: parse_pixels(&a.pixels)?,
+        method,
+        swap: SwapParams {
+            seed: a.seed,
+            ..SwapParams::default()
+        },
+        max_candidates: a.max_candidates,
+        ridge: a.ridge,
+    };
+    let est = run_estimate(&basis, &geometry, &lights, &photo, &options)?;
+    let files = write_results(
+        &a.out,
+        &basis,
+        &est,
+        if a.method as u8 == 0 { "fast" } else { "paper" },
+        &geometry,
+        &lights,
+    )?;
+    print_estimate(&est.names, &est.solution.coefficients);
+    println!(
+        "{} of {} candidate pixels, condition number {:.2}, relative residual {:.4}, {:.2} s",
+        est.selection.pixels.len(),
+        est.candidates,
+        est.solution.condition,
+        est.solution.relative_residual,
+        total.elapsed().as_secs_f64()
+    );
+    println!("wrote {}", files.coefficients.display());
+    Ok(())
+}
+
+pub fn print_estimate(names: &[String], coefficients: &[f64]) {
+    println!("coefficients:");
+    for (n, c) in names.iter().zip(coefficients) {
+        println!("  {n:>5} = {c:+.6}");
+    }
+}
+
+#[derive(clap::Args)]
+pub struct RenderArgs {
+    /// An NBRDF material name (from --nbrdf, or the embedded test materials).
+    #[arg(long, conflicts_with_all = ["merl", "coefficients"])]
+    pub material: Option<String>,
+    #[arg(long)]
+    pub nbrdf: Option<PathBuf>,
+    /// A MERL .binary file.
+    #[arg(long)]
+    pub merl: Option<PathBuf>,
+    /// A coefficients.json from `brdfd estimate` (rendered on --basis or the embedded basis).
+    #[arg(long)]
+    pub coefficients: Option<PathBuf>,
+    #[arg(long)]
+    pub basis: Option<PathBuf>,
+    /// The environment map; the procedural studio if absent.
+    #[arg(long)]
+    pub env: Option<PathBuf>,
+    #[arg(long, default_value_t = 0.0)]
+    pub yaw: f64,
+    #[command(flatten)]
+    pub geometry: GeometryArgs,
+    /// Image size for built-in shapes.
+    #[arg(long, default_value_t = 256)]
+    pub size: usize,
+    #[arg(long, default_value_t = 16384)]
+    pub lights: usize,
+    /// Output image: .exr (linear) or .png (tone-mapped sRGB).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+pub fn render(a: RenderArgs) -> anyhow::Result<()> {
+    let env = match &a.env {
+        Some(p) => EnvMap::load(p)?,
+        None => brdfd::bench::studio_envmap(512),
+    };
+    let lights = env.compressed(a.lights, a.yaw.to_radians());
+    let geometry = a.geometry.scene()?.pixels(a.size, a.size)?;
+    let img = if let Some(name) = &a.material {
+        let set = match &a.nbrdf {
+            Some(p) => NbrdfSet::read(p)?,
+            None => brdfd::bench::embedded_materials(),
+        };
+        let table = MerlBrdf::tabulate(set.get(brdfd::bench::resolve_material(name))?);
+        render_merl(&geometry, &lights, &table)
+    } else if let Some(p) = &a.merl {
+        render_merl(&geometry, &lights, &MerlBrdf::read(p)?)
+    } else if let Some(p) = &a.coefficients {
+        let basis = load_basis(&a.basis)?;
+        let text =
+            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+        let v: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("parsing {}", p.display()))?;
+        let coeffs: Vec<f64> = serde_json::from_value(v["coefficients"].clone())
+            .with_context(|| format!("{}: field `coefficients`", p.display()))?;
+        if v["basis_id"].as_str() != Some(basis.header.id.as_str()) {
+            bail!(
+                "{} was estimated on basis {}, not {}; pass that basis with --basis",
+                p.display(),
+                v["basis_id"],
+                basis.header.id
+            );
+        }
+        let b: Bivariate = basis.reconstruct(&coeffs);
+        render_bivariate(&geometry, &lights, &b)
+    } else {
+        bail!("say what to render: --material, --merl or --coefficients");
+    };
+    match a.out.extension().and_then(|e| e.to_str()) {
+        Some("exr") => img.write_exr(&a.out)?,
+        _ => img.write_png(&a.out, img.auto_exposure())?,
+    }
+    println!("wrote {}", a.out.display());
+    Ok(())
+}

@@ -1,0 +1,84 @@
+//! Command-line definitions (clap) and dispatch. Each subcommand's work lives in the library;
+//! this module turns raw arguments into the library's typed options.
+
+mod basis_cmd;
+mod capture;
+mod estimate_cmd;
+mod geometry_args;
+mod perf;
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+
+pub use geometry_args::GeometryArgs;
+
+#[derive(Parser)]
+#[command(
+    name = "brdfd",
+    version,
+    about = "BRDF acquisition with a DSLR and a 360° camera, estimated on a data-driven basis"
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Build or inspect PCA bases.
+    Basis {
+        #[command(subcommand)]
+        command: basis_cmd::BasisCommand,
+    },
+    /// Estimate a BRDF from a photo, an environment map and the object's geometry.
+    Estimate(estimate_cmd::EstimateArgs),
+    /// Render a BRDF (MERL file, NBRDF material, or an estimate) on a geometry under a map.
+    Render(estimate_cmd::RenderArgs),
+    /// Run the evaluation protocol (DESIGN.md section 4) and write tables and figures.
+    Eval(EvalArgs),
+    /// Capture a material at the bench and estimate its BRDF.
+    Capture(capture::CaptureArgs),
+    /// Measure the speed of the estimation core (medians of repeated runs).
+    Bench(perf::BenchArgs),
+}
+
+#[derive(clap::Args)]
+pub struct EvalArgs {
+    /// The reference data folder (holds merl-nbrdf/ and envmaps/).
+    #[arg(long, default_value = "../shared/data")]
+    pub data: PathBuf,
+    /// Where the tables and figures go.
+    #[arg(long, default_value = "eval")]
+    pub out: PathBuf,
+    /// Image size of the evaluation sphere, in pixels.
+    #[arg(long, default_value_t = 256)]
+    pub size: usize,
+    /// Skip leave-one-out over all 100 materials (it dominates the run time).
+    #[arg(long)]
+    pub no_loo: bool,
+    /// Also measure the grid and normalisation choices (bivariate binning, φd reduction, mean).
+    #[arg(long)]
+    pub choices: bool,
+}
+
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Basis { command } => basis_cmd::run(command),
+        Command::Estimate(a) => estimate_cmd::estimate(a),
+        Command::Render(a) => estimate_cmd::render(a),
+        Command::Eval(a) => {
+            let report = brdfd::core::eval::run(&brdfd::core::eval::EvalConfig {
+                data: a.data,
+                out: a.out,
+                size: a.size,
+                leave_one_out: !a.no_loo,
+                choices: a.choices,
+            })?;
+            println!("{report}");
+            Ok(())
+        }
+        Command::Capture(a) => capture::run(a),
+        Command::Bench(a) => perf::run(a),
+    }
+}

@@ -1,0 +1,145 @@
+//! The isotropic BRDF interface that every source implements (MERL tables, NBRDF fits,
+//! bivariate reductions, estimates), and Rusinkiewicz's change of variables.
+//!
+//! Frame: the surface's local frame has the normal along +Z. Both `wi` (toward the light) and
+//! `wo` (toward the camera) point away from the surface. Angles are in radians. Values are
+//! BRDF values in 1/sr, linear RGB.
+
+/// A 3-vector in f64, used for directions.
+pub type Vec3 = [f64; 3];
+
+/// An isotropic, reciprocal BRDF.
+pub trait IsotropicBrdf: Sync {
+    /// RGB value at Rusinkiewicz angles (θh, θd, φd). Cells a measurement did not cover
+    /// return zero, as light there contributes nothing measurable.
+    fn eval_angles(&self, theta_h: f64, theta_d: f64, phi_d: f64) -> [f64; 3];
+
+    /// Whether the source holds a value at these angles. Analytic and fitted sources cover
+    /// every cell with both directions above the horizon; measured tables may have holes.
+    fn measured(&self, theta_h: f64, theta_d: f64, phi_d: f64) -> bool {
+        above_horizon(theta_h, theta_d, phi_d)
+    }
+
+    /// RGB value for a pair of local directions (normal = +Z). Zero below either horizon.
+    fn eval_dirs(&self, wi: Vec3, wo: Vec3) -> [f64; 3] {
+        if wi[2] <= 0.0 || wo[2] <= 0.0 {
+            return [0.0; 3];
+        }
+        let (th, td, pd) = to_rusinkiewicz(wi, wo);
+        self.eval_angles(th, td, pd)
+    }
+}
+
+pub fn dot(a: Vec3, b: Vec3) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+pub fn cross(a: Vec3, b: Vec3) -> Vec3 {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+pub fn normalize(a: Vec3) -> Vec3 {
+    let n = dot(a, a).sqrt();
+    if n == 0.0 {
+        return a;
+    }
+    [a[0] / n, a[1] / n, a[2] / n]
+}
+
+pub fn add(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+pub fn scale(a: Vec3, s: f64) -> Vec3 {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+
+/// Angle between two unit vectors, accurate near 0 and π (unlike `acos` of the dot product).
+pub fn angle_between(a: Vec3, b: Vec3) -> f64 {
+    cross(a, b)
+        .iter()
+        .map(|c| c * c)
+        .sum::<f64>()
+        .sqrt()
+        .atan2(dot(a, b))
+}
+
+/// Rotate `v` about +Z by `angle`.
+fn rot_z(v: Vec3, angle: f64) -> Vec3 {
+    let (s, c) = angle.sin_cos();
+    [c * v[0] - s * v[1], s * v[0] + c * v[1], v[2]]
+}
+
+/// Rotate `v` about +Y by `angle`.
+fn rot_y(v: Vec3, angle: f64) -> Vec3 {
+    let (s, c) = angle.sin_cos();
+    [c * v[0] + s * v[2], v[1], -s * v[0] + c * v[2]]
+}
+
+/// (θh, θd, φd) for local unit directions `wi`, `wo` (Rusinkiewicz 1998): the half vector's
+/// polar angle, then `wi` expressed in the frame where the half vector is the pole.
+pub fn to_rusinkiewicz(wi: Vec3, wo: Vec3) -> (f64, f64, f64) {
+    let h = normalize(add(wi, wo));
+    let theta_h = angle_between(h, [0.0, 0.0, 1.0]);
+    let phi_h = h[1].atan2(h[0]);
+    let d = rot_y(rot_z(wi, -phi_h), -theta_h);
+    let theta_d = angle_between(d, [0.0, 0.0, 1.0]);
+    let phi_d = d[1].atan2(d[0]);
+    (theta_h, theta_d, phi_d)
+}
+
+/// The inverse of [`to_rusinkiewicz`] with φh = 0: returns (wi, wo).
+pub fn from_rusinkiewicz(theta_h: f64, theta_d: f64, phi_d: f64) -> (Vec3, Vec3) {
+    let h = [theta_h.sin(), 0.0, theta_h.cos()];
+    let d = [
+        theta_d.sin() * phi_d.cos(),
+        theta_d.sin() * phi_d.sin(),
+        theta_d.cos(),
+    ];
+    let wi = rot_y(d, theta_h);
+    let wo = sub(scale(h, 2.0 * dot(wi, h)), wi);
+    (wi, wo)
+}
+
+/// Whether the light and view directions of (θh, θd, φd) are both above the horizon: the
+/// cells a gonioreflectometer can measure.
+pub fn above_horizon(theta_h: f64, theta_d: f64, phi_d: f64) -> bool {
+    let (wi, wo) = from_rusinkiewicz(theta_h, theta_d, phi_d);
+    wi[2] > 0.0 && wo[2] > 0.0
+}
+
+/// An orthonormal tangent frame (t, b, n) for a unit normal, so that local = (t·v, b·v, n·v).
+/// Isotropy makes the choice of tangent irrelevant; this one is continuous except at n = -Y.
+pub fn tangent_frame(n: Vec3) -> (Vec3, Vec3) {
+    let helper = if n[1].abs() < 0.9 {
+        [0.0, 1.0, 0.0]
+    } else {
+        [1.0, 0.0, 0.0]
+    };
+    let t = normalize(cross(helper, n));
+    let b = cross(n, t);
+    (t, b)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rusinkiewicz_round_trip() {
+        // Tolerance: f64 trigonometry on unit vectors, a few ulps per operation.
+        for &(th, td, pd) in &[(0.3, 0.5, 1.0), (0.01, 1.2, -2.0), (1.0, 0.2, 0.4)] {
+            let (wi, wo) = from_rusinkiewicz(th, td, pd);
+            let (a, b, c) = to_rusinkiewicz(wi, wo);
+            assert!((a - th).abs() < 1e-9 && (b - td).abs() < 1e-9 && (c - pd).abs() < 1e-9);
+        }
+    }
+}

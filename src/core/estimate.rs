@@ -1,0 +1,200 @@
+//! The estimate from measurements: photo + lights + geometry + basis → coefficients.
+//! Used by `brdfd estimate`, the evaluation and the capture flow alike.
+
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+
+use super::basis::Basis;
+use super::bivariate::Bivariate;
+use super::envmap::LightSet;
+use super::error::{CoreError, Result};
+use super::geometry::PixelGeometry;
+use super::raster::Raster;
+use super::render::RenderingMatrix;
+use super::select::{self, Blocks, Selection, SwapParams};
+use super::solve::{self, Solution};
+
+/// Candidate pixels considered at most: a 16-megapixel photo holds millions of object pixels,
+/// and conditioning saturates long before this many (see README, "Speed").
+pub const DEFAULT_MAX_CANDIDATES: usize = 50_000;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SelectionMethod {
+    /// The paper's swap search.
+    Paper,
+    /// Our exchange search (default).
+    Fast,
+}
+
+/// What to estimate with.
+#[derive(Clone, Debug)]
+pub struct EstimateOptions {
+    /// Pixels to use; `None` for every candidate.
+    pub pixel_count: Option<usize>,
+    pub method: SelectionMethod,
+    pub swap: SwapParams,
+    pub max_candidates: usize,
+    /// Ridge strength for the regularised solve; `None` for plain least squares.
+    pub ridge: Option<f64>,
+}
+
+impl Default for EstimateOptions {
+    fn default() -> Self {
+        EstimateOptions {
+            pixel_count: Some(20),
+            method: SelectionMethod::Fast,
+            swap: SwapParams::default(),
+            max_candidates: DEFAULT_MAX_CANDIDATES,
+            ridge: None,
+        }
+    }
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Timings {
+    pub rendering_matrix_s: f64,
+    pub selection_s: f64,
+    pub solve_s: f64,
+}
+
+/// The result, as written to `coefficients.json` (plus the basis id the caller adds).
+#[derive(Clone, Debug)]
+pub struct Estimate {
+    pub names: Vec<String>,
+    pub solution: Solution,
+    pub selection: Selection,
+    /// Image positions (x, y) of the chosen pixels.
+    pub chosen: Vec<(u32, u32)>,
+    pub candidates: usize,
+    pub lights: usize,
+    pub timings: Timings,
+}
+
+/// Spreads `max` picks evenly over `0..n` (deterministic, keeps the image's coverage).
+pub fn spread(n: usize, max: usize) -> Vec<usize> {
+    if n <= max {
+        return (0..n).collect();
+    }
+    (0..max).map(|i| i * n / max).collect()
+}
+
+fn secs(d: Duration) -> f64 {
+    d.as_secs_f64()
+}
+
+/// Builds A for the candidate pixels of `geometry` (pixels the photo saw with finite,
+/// non-negative values) under `lights`.
+pub fn candidate_matrix(
+    basis: &Basis,
+    geometry: &PixelGeometry,
+    lights: &LightSet,
+    photo: &Raster,
+    max_candidates: usize,
+) -> Result<(RenderingMatrix, Vec<[f64; 3]>)> {
+    if (photo.width, photo.height) != (geometry.width, geometry.height) {
+        return Err(CoreError::Invalid(format!(
+            "the photo is {}×{} but the geometry is {}×{}",
+            photo.width, photo.height, geometry.width, geometry.height
+        )));
+    }
+    let usable: Vec<_> = geometry
+        .pixels
+        .iter()
+        .filter(|p| {
+            photo
+                .get(p.x as usize, p.y as usize)
+                .iter()
+                .all(|v| v.is_finite() && *v >= 0.0)
+        })
+        .copied()
+        .collect();
+    if usable.is_empty() {
+        return Err(CoreError::Invalid(
+            "no object pixel of the photo is usable (mask empty, or all values negative/NaN)"
+                .into(),
+        ));
+    }
+    let picked: Vec<_> = spread(usable.len(), max_candidates)
+        .into_iter()
+        .map(|i| usable[i])
+        .collect();
+    let model = basis.model();
+    let a = RenderingMatrix::build(
+        &picked,
+        lights,
+        &model.columns,
+        model.offset,
+        basis.header.grid.theta_h_binning,
+    );
+    let observed = picked
+        .iter()
+        .map(|p| photo.get(p.x as usize, p.y as usize).map(|v| v as f64))
+        .collect();
+    Ok((a, observed))
+}
+
+/// Selection and solve on a prepared rendering matrix.
+pub fn estimate_from_matrix(
+    basis: &Basis,
+    a: &RenderingMatrix,
+    observed: &[[f64; 3]],
+    options: &EstimateOptions,
+) -> Result<(Selection, Solution, f64, f64)> {
+    let t = Instant::now();
+    let blocks = Blocks::new(a);
+    let selection = match options.pixel_count {
+        None => select::all_pixels(&blocks),
+        Some(l) => match options.method {
+            SelectionMethod::Paper => select::paper_swap(&blocks, l, &options.swap),
+            SelectionMethod::Fast => select::fast_exchange(&blocks, l),
+        },
+    };
+    let selection_s = secs(t.elapsed());
+    let t = Instant::now();
+    let solution = match options.ridge {
+        None => solve::least_squares(a, &selection.pixels, observed)?,
+        Some(r) => solve::regularised(a, &selection.pixels, observed, &basis.column_prior(), r)?,
+    };
+    Ok((selection, solution, selection_s, secs(t.elapsed())))
+}
+
+/// The whole estimate.
+pub fn estimate(
+    basis: &Basis,
+    geometry: &PixelGeometry,
+    lights: &LightSet,
+    photo: &Raster,
+    options: &EstimateOptions,
+) -> Result<Estimate> {
+    let t = Instant::now();
+    let (a, observed) = candidate_matrix(basis, geometry, lights, photo, options.max_candidates)?;
+    let matrix_s = secs(t.elapsed());
+    let (selection, solution, selection_s, solve_s) =
+        estimate_from_matrix(basis, &a, &observed, options)?;
+    let chosen = selection
+        .pixels
+        .iter()
+        .map(|&p| (a.pixels[p].x, a.pixels[p].y))
+        .collect();
+    Ok(Estimate {
+        names: basis.model().names,
+        solution,
+        selection,
+        chosen,
+        candidates: a.pixels.len(),
+        lights: lights.len(),
+        timings: Timings {
+            rendering_matrix_s: matrix_s,
+            selection_s,
+            solve_s,
+        },
+    })
+}
+
+impl Estimate {
+    pub fn brdf(&self, basis: &Basis) -> Bivariate {
+        basis.reconstruct(&self.solution.coefficients)
+    }
+}

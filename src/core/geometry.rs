@@ -1,0 +1,519 @@
+//! Per-pixel geometry: which pixels see the object, and each one's world normal and view
+//! vector (toward the camera). Comes from a camera model plus a built-in shape, or from a
+//! normal-map EXR. Meshes are not handled here yet.
+//!
+//! Camera frame (OpenGL): the camera looks along its −Z, +Y is up in the image, +X right;
+//! image rows run downward. A pose is given as position, look-at point and up vector in the
+//! world frame (+Y up, DESIGN.md section 3).
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::brdf::{add, cross, dot, normalize, scale, sub, tangent_frame, Vec3};
+use super::error::{CoreError, Result};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Pose {
+    pub position: Vec3,
+    pub look_at: Vec3,
+    #[serde(default = "up_y")]
+    pub up: Vec3,
+}
+
+fn up_y() -> Vec3 {
+    [0.0, 1.0, 0.0]
+}
+
+impl Pose {
+    /// Camera axes in the world: (right, up, forward).
+    fn axes(&self) -> Result<(Vec3, Vec3, Vec3)> {
+        let fwd = normalize(sub(self.look_at, self.position));
+        let right = cross(fwd, self.up);
+        if dot(right, right) < 1e-12 || dot(fwd, fwd) < 0.5 {
+            return Err(CoreError::Invalid(
+                "camera pose: look_at equals position or is parallel to up".into(),
+            ));
+        }
+        let right = normalize(right);
+        Ok((right, cross(right, fwd), fwd))
+    }
+}
+
+/// A camera model with its pose.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum Camera {
+    /// Parallel projection; `extent` is the world width the image covers.
+    Orthographic {
+        width: usize,
+        height: usize,
+        extent: f64,
+        #[serde(flatten)]
+        pose: Pose,
+    },
+    /// Pinhole with intrinsics in pixels (focal lengths and principal point).
+    Pinhole {
+        width: usize,
+        height: usize,
+        fx: f64,
+        fy: f64,
+        cx: f64,
+        cy: f64,
+        #[serde(flatten)]
+        pose: Pose,
+    },
+}
+
+/// A ray from the camera: origin and unit direction (world).
+struct Ray {
+    origin: Vec3,
+    dir: Vec3,
+}
+
+impl Camera {
+    /// The evaluation camera of DESIGN.md section 4: orthographic, looking down −Z at a unit
+    /// sphere at the origin that fills the frame.
+    pub fn eval_orthographic(size: usize) -> Camera {
+        Camera::Orthographic {
+            width: size,
+            height: size,
+            extent: 2.0,
+            pose: Pose {
+                position: [0.0, 0.0, 10.0],
+                look_at: [0.0, 0.0, 0.0],
+                up: up_y(),
+            },
+        }
+    }
+
+    pub fn size(&self) -> (usize, usize) {
+        match self {
+            Camera::Orthographic { width, height, .. } | Camera::Pinhole { width, height, .. } => {
+                (*width, *height)
+            }
+        }
+    }
+
+    /// A copy with a different resolution and the same field of view, so geometry can be
+    /// computed for a photo of any size.
+    pub fn resized(&self, width: usize, height: usize) -> Camera {
+        let mut c = self.clone();
+        match &mut c {
+            Camera::Orthographic {
+                width: w,
+                height: h,
+                ..
+            } => {
+                *w = width;
+                *h = height;
+            }
+            Camera::Pinhole {
+                width: w,
+                height: h,
+                fx,
+                fy,
+                cx,
+                cy,
+                ..
+            } => {
+                let s = width as f64 / *w as f64;
+                let t = height as f64 / *h as f64;
+                *fx *= s;
+                *cx *= s;
+                *fy *= t;
+                *cy *= t;
+                *w = width;
+                *h = height;
+            }
+        }
+        c
+    }
+
+    fn ray(&self, x: usize, y: usize, axes: &(Vec3, Vec3, Vec3)) -> Ray {
+        let (right, up, fwd) = *axes;
+        match self {
+            Camera::Orthographic {
+                width,
+                height,
+                extent,
+                pose,
+            } => {
+                let px = extent / *width as f64;
+                let sx = (x as f64 + 0.5 - *width as f64 / 2.0) * px;
+                let sy = (*height as f64 / 2.0 - y as f64 - 0.5) * px;
+                Ray {
+                    origin: add(pose.position, add(scale(right, sx), scale(up, sy))),
+                    dir: fwd,
+                }
+            }
+            Camera::Pinhole {
+                fx,
+                fy,
+                cx,
+                cy,
+                pose,
+                ..
+            } => {
+                let a = (x as f64 + 0.5 - cx) / fx;
+                let b = -(y as f64 + 0.5 - cy) / fy;
+                Ray {
+                    origin: pose.position,
+                    dir: normalize(add(fwd, add(scale(right, a), scale(up, b)))),
+                }
+            }
+        }
+    }
+
+    fn pose(&self) -> &Pose {
+        match self {
+            Camera::Orthographic { pose, .. } | Camera::Pinhole { pose, .. } => pose,
+        }
+    }
+}
+
+/// A built-in object shape, in world units.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum Shape {
+    Sphere {
+        center: Vec3,
+        radius: f64,
+    },
+    /// A square of side `2·half_size` facing `normal`.
+    Plane {
+        center: Vec3,
+        normal: Vec3,
+        half_size: f64,
+    },
+    /// A corrugated sheet like the paper's sample: height a·sin(2πx/period) over a square of
+    /// side `2·half_size` in its local XY plane, local +Z tilted `tilt_deg` from the world +Z
+    /// toward +Y (a sample leaning back on the bench).
+    Corrugated {
+        center: Vec3,
+        half_size: f64,
+        amplitude: f64,
+        period: f64,
+        tilt_deg: f64,
+    },
+}
+
+impl Shape {
+    pub fn unit_sphere() -> Shape {
+        Shape::Sphere {
+            center: [0.0; 3],
+            radius: 1.0,
+        }
+    }
+
+    /// First hit of a ray: (distance, outward unit normal).
+    fn intersect(&self, ray: &Ray) -> Option<(f64, Vec3)> {
+        match self {
+            Shape::Sphere { center, radius } => {
+                let oc = sub(ray.origin, *center);
+                let b = dot(oc, ray.dir);
+                let c = dot(oc, oc) - radius * radius;
+                let disc = b * b - c;
+                if disc < 0.0 {
+                    return None;
+                }
+                let t = -b - disc.sqrt();
+                (t > 0.0).then(|| {
+                    (
+                        t,
+                        normalize(sub(add(ray.origin, scale(ray.dir, t)), *center)),
+                    )
+                })
+            }
+            Shape::Plane {
+                center,
+                normal,
+                half_size,
+            } => {
+                let n = normalize(*normal);
+                let denom = dot(ray.dir, n);
+                if denom.abs() < 1e-12 {
+                    return None;
+                }
+                let t = dot(sub(*center, ray.origin), n) / denom;
+                let p = sub(add(ray.origin, scale(ray.dir, t)), *center);
+                let (tu, tv) = tangent_frame(n);
+                (t > 0.0 && dot(p, tu).abs() <= *half_size && dot(p, tv).abs() <= *half_size)
+                    .then_some((t, n))
+            }
+            Shape::Corrugated {
+                center,
+                half_size,
+                amplitude,
+                period,
+                tilt_deg,
+            } => corrugated_hit(
+                ray,
+                *center,
+                *half_size,
+                *amplitude,
+                *period,
+                tilt_deg.to_radians(),
+            ),
+        }
+    }
+}
+
+/// Local axes of the corrugated sheet in the world: x stays world X, z tilts toward +Y.
+fn corrugated_axes(tilt: f64) -> (Vec3, Vec3, Vec3) {
+    let (s, c) = tilt.sin_cos();
+    ([1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c])
+}
+
+fn corrugated_hit(
+    ray: &Ray,
+    center: Vec3,
+    half: f64,
+    a: f64,
+    period: f64,
+    tilt: f64,
+) -> Option<(f64, Vec3)> {
+    let (ex, ey, ez) = corrugated_axes(tilt);
+    let to_local = |v: Vec3| [dot(v, ex), dot(v, ey), dot(v, ez)];
+    let o = to_local(sub(ray.origin, center));
+    let d = to_local(ray.dir);
+    let k = 2.0 * std::f64::consts::PI / period;
+    let g = |t: f64| (o[2] + t * d[2]) - a * (k * (o[0] + t * d[0])).sin();
+    // Bracket the slab |z| ≤ a, march in steps well below the period, then bisect.
+    if d[2].abs() < 1e-12 {
+        return None;
+    }
+    let (t0, t1) = {
+        let ta = (a - o[2]) / d[2];
+        let tb = (-a - o[2]) / d[2];
+        (ta.min(tb).max(0.0), ta.max(tb))
+    };
+    if t1 <= t0 {
+        return None;
+    }
+    let horizontal = (d[0] * d[0] + d[1] * d[1]).sqrt().max(1e-9);
+    let step = (period / 64.0 / horizontal).min((t1 - t0) / 8.0).max(1e-9);
+    let mut ta = t0;
+    let mut ga = g(ta);
+    while ta < t1 {
+        let tb = (ta + step).min(t1);
+        let gb = g(tb);
+        if ga == 0.0 || ga.signum() != gb.signum() {
+            let (mut lo, mut hi) = (ta, tb);
+            for _ in 0..60 {
+                let mid = 0.5 * (lo + hi);
+                if g(mid).signum() == ga.signum() {
+                    lo = mid
+                } else {
+                    hi = mid
+                }
+            }
+            let t = 0.5 * (lo + hi);
+            let x = o[0] + t * d[0];
+            let y = o[1] + t * d[1];
+            if x.abs() > half || y.abs() > half {
+                return None;
+            }
+            let slope = a * k * (k * x).cos();
+            let n_local = normalize([-slope, 0.0, 1.0]);
+            let n = add(
+                scale(ex, n_local[0]),
+                add(scale(ey, n_local[1]), scale(ez, n_local[2])),
+            );
+            return Some((t, n));
+        }
+        ta = tb;
+        ga = gb;
+    }
+    None
+}
+
+/// One object pixel: image position, world normal and unit view vector (toward the camera).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GeomPixel {
+    pub x: u32,
+    pub y: u32,
+    pub normal: [f32; 3],
+    pub view: [f32; 3],
+}
+
+/// The object pixels of an image; pixels not listed are outside the mask.
+#[derive(Clone, Debug)]
+pub struct PixelGeometry {
+    pub width: usize,
+    pub height: usize,
+    pub pixels: Vec<GeomPixel>,
+}
+
+/// Pixels whose normal is within this many degrees of perpendicular to the view are dropped:
+/// silhouette pixels mix object and background.
+pub const GRAZING_LIMIT_DEG: f64 = 85.0;
+
+impl PixelGeometry {
+    /// Casts one ray per pixel centre.
+    pub fn rasterize(camera: &Camera, shape: &Shape) -> Result<PixelGeometry> {
+        let axes = camera.pose().axes()?;
+        let (width, height) = camera.size();
+        let min_cos = GRAZING_LIMIT_DEG.to_radians().cos();
+        let mut pixels = Vec::new();
+        for y in 0..height {
+            for x in 0..width {
+                let ray = camera.ray(x, y, &axes);
+                if let Some((_, n)) = shape.intersect(&ray) {
+                    let v = scale(ray.dir, -1.0);
+                    if dot(n, v) > min_cos {
+                        pixels.push(GeomPixel {
+                            x: x as u32,
+                            y: y as u32,
+                            normal: n.map(|c| c as f32),
+                            view: v.map(|c| c as f32),
+                        });
+                    }
+                }
+            }
+        }
+        Ok(PixelGeometry {
+            width,
+            height,
+            pixels,
+        })
+    }
+
+    /// Reads world-frame normals from an EXR (RGB = x, y, z); pixels whose normal has length
+    /// below ½ are outside the mask. View vectors come from `camera`, resized to the map.
+    pub fn from_normal_map(path: &Path, camera: &Camera) -> Result<PixelGeometry> {
+        let map = super::envmap::EnvMap::load_raw_exr(path)?;
+        let camera = camera.resized(map.0, map.1);
+        let axes = camera.pose().axes()?;
+        let min_cos = GRAZING_LIMIT_DEG.to_radians().cos();
+        let mut pixels = Vec::new();
+        for (i, p) in map.2.iter().enumerate() {
+            let n = p.map(|c| c as f64);
+            if p.iter().any(|c| !c.is_finite()) {
+                return Err(CoreError::NonFinite {
+                    what: path.display().to_string(),
+                    x: i % map.0,
+                    y: i / map.0,
+                    channel: 0,
+                    value: p[0],
+                });
+            }
+            if dot(n, n) < 0.25 {
+                continue;
+            }
+            let (x, y) = (i % map.0, i / map.0);
+            let v = scale(camera.ray(x, y, &axes).dir, -1.0);
+            let n = normalize(n);
+            if dot(n, v) > min_cos {
+                pixels.push(GeomPixel {
+                    x: x as u32,
+                    y: y as u32,
+                    normal: n.map(|c| c as f32),
+                    view: v.map(|c| c as f32),
+                });
+            }
+        }
+        Ok(PixelGeometry {
+            width: map.0,
+            height: map.1,
+            pixels,
+        })
+    }
+
+    /// Writes the normals as an EXR that [`PixelGeometry::from_normal_map`] reads back.
+    pub fn write_normal_map(&self, path: &Path) -> Result<()> {
+        let mut img = vec![[0f32; 3]; self.width * self.height];
+        for p in &self.pixels {
+            img[p.y as usize * self.width + p.x as usize] = p.normal;
+        }
+        super::envmap::write_exr(path, self.width, self.height, &img)
+    }
+}
+
+/// Geometry as a rig or the command line describes it: a camera plus a shape or normal map.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneGeometry {
+    pub camera: Camera,
+    #[serde(default)]
+    pub shape: Option<Shape>,
+    #[serde(default)]
+    pub normal_map: Option<PathBuf>,
+}
+
+impl SceneGeometry {
+    /// Reads a TOML geometry file; errors name the file, line and field.
+    pub fn read(path: &Path) -> Result<SceneGeometry> {
+        let text = std::fs::read_to_string(path).map_err(|e| CoreError::io(path, e))?;
+        let mut g: SceneGeometry =
+            toml::from_str(&text).map_err(|e| CoreError::format(path.display(), e.to_string()))?;
+        if let Some(nm) = &g.normal_map {
+            if nm.is_relative() {
+                g.normal_map = Some(path.parent().unwrap_or(Path::new(".")).join(nm));
+            }
+        }
+        Ok(g)
+    }
+
+    /// Per-pixel geometry at the given image size.
+    pub fn pixels(&self, width: usize, height: usize) -> Result<PixelGeometry> {
+        let camera = self.camera.resized(width, height);
+        match (&self.shape, &self.normal_map) {
+            (Some(shape), None) => PixelGeometry::rasterize(&camera, shape),
+            (None, Some(path)) => {
+                let g = PixelGeometry::from_normal_map(path, &camera)?;
+                if (g.width, g.height) != (width, height) {
+                    return Err(CoreError::Invalid(format!(
+                        "normal map {} is {}×{} but the photo is {width}×{height}",
+                        path.display(),
+                        g.width,
+                        g.height
+                    )));
+                }
+                Ok(g)
+            }
+            _ => Err(CoreError::Invalid(
+                "geometry needs exactly one of `shape` or `normal_map`".into(),
+            )),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sphere_normals_face_the_orthographic_camera() {
+        let g = PixelGeometry::rasterize(&Camera::eval_orthographic(64), &Shape::unit_sphere())
+            .unwrap();
+        // π/4 of the frame is disc; the grazing cut removes a thin rim.
+        let frac = g.pixels.len() as f64 / (64.0 * 64.0);
+        assert!(frac > 0.70 && frac < std::f64::consts::FRAC_PI_4, "{frac}");
+        let centre = g.pixels.iter().find(|p| p.x == 32 && p.y == 32).unwrap();
+        assert!(centre.normal[2] > 0.99 && centre.view == [0.0, 0.0, 1.0]);
+        // Image right is world +X, image up is world +Y.
+        let right = g.pixels.iter().find(|p| p.x == 60 && p.y == 32).unwrap();
+        assert!(right.normal[0] > 0.8);
+        let top = g.pixels.iter().find(|p| p.x == 32 && p.y == 4).unwrap();
+        assert!(top.normal[1] > 0.8);
+    }
+
+    #[test]
+    fn corrugated_sheet_has_varied_normals() {
+        let shape = Shape::Corrugated {
+            center: [0.0; 3],
+            half_size: 1.0,
+            amplitude: 0.15,
+            period: 0.5,
+            tilt_deg: 20.0,
+        };
+        let g = PixelGeometry::rasterize(&Camera::eval_orthographic(64), &shape).unwrap();
+        assert!(g.pixels.len() > 2000);
+        let min_x = g.pixels.iter().map(|p| p.normal[0]).fold(1.0f32, f32::min);
+        let max_x = g.pixels.iter().map(|p| p.normal[0]).fold(-1.0f32, f32::max);
+        // Slope a·2π/period ≈ 1.9, so normals swing about ±60° across each ridge.
+        assert!(min_x < -0.7 && max_x > 0.7, "{min_x} {max_x}");
+    }
+}

@@ -1,0 +1,23 @@
+//! The estimation core: the paper's method (Hirasawa et al.) from BRDF data to coefficients.
+//! Synchronous and free of device code: it imports neither tokio nor any driver.
+//!
+//! Data flow: [`merl`]/[`nbrdf`] sources → [`bivariate`] reduction → [`basis`] (PCA) →
+//! [`render`] builds A from [`geometry`] and [`envmap`] lights → [`select`] picks pixels →
+//! [`solve`] gives the coefficients. [`estimate`] runs that chain; [`eval`] measures it.
+
+pub mod basis;
+pub mod bivariate;
+pub mod brdf;
+pub mod envmap;
+pub mod error;
+pub mod estimate;
+pub mod eval;
+pub mod geometry;
+pub mod merl;
+pub mod nbrdf;
+pub mod raster;
+pub mod render;
+pub mod select;
+pub mod solve;
+
+pub use error::{CoreError, Result};

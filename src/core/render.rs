@@ -1,0 +1,538 @@
+//! The rendering equation as a dot product (DESIGN.md section 2), and forward rendering.
+//!
+//! For pixel x with normal n and view v, and lights ωⱼ with radiance Lⱼ and solid angle Δωⱼ:
+//!     Lo(x) = Σⱼ f(θh, θd) · Lⱼ · max(0, n·ωⱼ) · Δωⱼ          (per colour channel)
+//! With f = offset + Σₖ cₖ bₖ each pixel and channel is one row of A, and y = A·c.
+//!
+//! Speed: the inner loop visits every (pixel, light) pair, so it avoids `acos`. It computes
+//! u = |a − b|² = 4 sin²(θ/2), which stays accurate in f32 for tiny angles (where cos θ rounds
+//! to 1), and maps u to its bin through a table with an exact edge check ([`BinLut`]).
+//! Occlusion by the object itself is not modelled: exact for convex shapes (sphere, plane).
+
+use rayon::prelude::*;
+
+use super::bivariate::{
+    theta_d_lower_edge, Bivariate, ThetaHBinning, GRID_CELLS, N_THETA_D, N_THETA_H,
+};
+use super::brdf::IsotropicBrdf;
+use super::envmap::LightSet;
+use super::geometry::{GeomPixel, PixelGeometry};
+use super::merl::{self, MerlBrdf};
+use super::raster::Raster;
+
+/// Pixels per rayon task: large enough to amortise scheduling, small enough to balance 2 cores.
+const PIXELS_PER_TASK: usize = 256;
+/// Most model columns a rendering matrix carries (K up to 10, plus the mean and an offset).
+pub const MAX_COLUMNS: usize = 12;
+
+/// Maps u = 4 sin²(θ/2) to the bin of θ, exactly, for monotone bin edges.
+#[derive(Clone)]
+pub struct BinLut {
+    /// g(u) = u^(1/4) for square-root bins (≈ √θ, where the bins are uniform), √u otherwise.
+    fourth_root: bool,
+    scale: f32,
+    start_bin: Vec<u16>,
+    next_edge_u: Vec<f32>,
+}
+
+fn u_of_theta(theta: f64) -> f64 {
+    let s = (theta / 2.0).sin();
+    4.0 * s * s
+}
+
+impl BinLut {
+    /// `lower_edges[b]` is the smallest θ of bin b (increasing, `lower_edges[0] = 0`).
+    pub fn new(lower_edges: &[f64], fourth_root: bool) -> BinLut {
+        let g = |u: f64| {
+            if fourth_root {
+                u.sqrt().sqrt()
+            } else {
+                u.sqrt()
+            }
+        };
+        let edges_u: Vec<f64> = lower_edges.iter().map(|e| u_of_theta(*e)).collect();
+        let g_max = g(2.0);
+        let mut cells = 256usize;
+        loop {
+            let scale = cells as f64 / g_max;
+            let mut start_bin = Vec::with_capacity(cells + 1);
+            let mut next_edge_u = Vec::with_capacity(cells + 1);
+            let mut ok = true;
+            for q in 0..=cells {
+                let g_lo = q as f64 / scale;
+                let g_hi = (q + 1) as f64 / scale;
+                let u_lo = if fourth_root {
+                    g_lo.powi(4)
+                } else {
+                    g_lo * g_lo
+                };
+                let u_hi = if fourth_root {
+                    g_hi.powi(4)
+                } else {
+                    g_hi * g_hi
+                };
+                let b = edges_u.iter().rposition(|e| *e <= u_lo).unwrap_or(0);
+                let inside = edges_u.iter().filter(|e| **e > u_lo && **e < u_hi).count();
+                ok &= inside <= 1;
+                start_bin.push(b as u16);
+                next_edge_u.push(edges_u.get(b + 1).map_or(f32::INFINITY, |e| *e as f32));
+            }
+            if ok {
+                return BinLut {
+                    fourth_root,
+                    scale: scale as f32,
+                    start_bin,
+                    next_edge_u,
+                };
+            }
+            cells *= 2;
+        }
+    }
+
+    pub fn theta_h(binning: ThetaHBinning) -> BinLut {
+        let edges: Vec<f64> = (0..N_THETA_H).map(|i| binning.lower_edge(i)).collect();
+        BinLut::new(&edges, binning == ThetaHBinning::Sqrt)
+    }
+
+    pub fn theta_d() -> BinLut {
+        let edges: Vec<f64> = (0..N_THETA_D).map(theta_d_lower_edge).collect();
+        BinLut::new(&edges, false)
+    }
+
+    #[inline(always)]
+    pub fn bin(&self, u: f32) -> usize {
+        let g = if self.fourth_root {
+            u.sqrt().sqrt()
+        } else {
+            u.sqrt()
+        };
+        let q = ((g * self.scale) as usize).min(self.start_bin.len() - 1);
+        let b = self.start_bin[q] as usize + (u >= self.next_edge_u[q]) as usize;
+        b.min(N_THETA_H - 1)
+    }
+}
+
+/// Footprint samples per θh bin for [`theta_h_smoothing`]: rings × spokes over the disc.
+const FOOTPRINT_RINGS: usize = 8;
+const FOOTPRINT_SPOKES: usize = 24;
+
+/// Averages over a disc of half vectors of angular radius `rho` around each θh bin centre:
+/// `out[i]` lists (bin, weight) with weights summing to 1. With `rho` below the bin's own
+/// width this is the identity; near the specular peak it spreads a light over the narrow
+/// √-spaced bins its footprint covers.
+pub fn theta_h_smoothing(binning: ThetaHBinning, rho: f64) -> Vec<Vec<(usize, f64)>> {
+    (0..N_THETA_H)
+        .map(|i| {
+            let theta = binning.center(i);
+            let mut weights = vec![0.0; N_THETA_H];
+            let n = (FOOTPRINT_RINGS * FOOTPRINT_SPOKES) as f64;
+            for ring in 0..FOOTPRINT_RINGS {
+                // Equal-area rings: radius ∝ √((k + ½)/rings).
+                let r = rho * ((ring as f64 + 0.5) / FOOTPRINT_RINGS as f64).sqrt();
+                for spoke in 0..FOOTPRINT_SPOKES {
+                    let a =
+                        2.0 * std::f64::consts::PI * (spoke as f64 + 0.5) / FOOTPRINT_SPOKES as f64;
+                    // Spherical law of cosines: polar angle of a point at distance r, bearing a.
+                    let cos_t = theta.cos() * r.cos() + theta.sin() * r.sin() * a.cos();
+                    let t = cos_t.clamp(-1.0, 1.0).acos();
+                    weights[binning.bin(t)] += 1.0 / n;
+                }
+            }
+            weights
+                .into_iter()
+                .enumerate()
+                .filter(|(_, w)| *w > 0.0)
+                .collect()
+        })
+        .collect()
+}
+
+/// Applies [`theta_h_smoothing`] to one channel-planar bivariate vector.
+fn smooth_bivariate(values: &[f64], smoothing: &[Vec<(usize, f64)>]) -> Vec<f64> {
+    let mut out = vec![0.0; values.len()];
+    for c in 0..3 {
+        for (i, row) in smoothing.iter().enumerate() {
+            for jd in 0..N_THETA_D {
+                out[c * GRID_CELLS + i * N_THETA_D + jd] = row
+                    .iter()
+                    .map(|(k, w)| w * values[c * GRID_CELLS + k * N_THETA_D + jd])
+                    .sum();
+            }
+        }
+    }
+    out
+}
+
+/// A light premultiplied for the inner loop: direction and L·Δω per channel.
+#[derive(Clone, Copy)]
+struct PackedLight {
+    dir: [f32; 3],
+    power: [f32; 3],
+}
+
+fn pack(lights: &LightSet) -> Vec<PackedLight> {
+    lights
+        .directions
+        .iter()
+        .zip(&lights.radiance)
+        .zip(&lights.solid_angle)
+        .filter(|((_, l), w)| l.iter().any(|c| *c > 0.0) && **w > 0.0)
+        .map(|((d, l), w)| PackedLight {
+            dir: *d,
+            power: l.map(|c| c * w),
+        })
+        .collect()
+}
+
+#[inline(always)]
+fn dot3(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[inline(always)]
+fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
+    let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    dot3(d, d)
+}
+
+/// Bivariate vectors laid out for the gather: `data[(cell·3 + channel)·m + column]`.
+struct ColumnTable {
+    m: usize,
+    data: Vec<f32>,
+    h_lut: BinLut,
+    d_lut: BinLut,
+}
+
+impl ColumnTable {
+    fn new(columns: &[&[f64]], binning: ThetaHBinning, footprint: f64) -> ColumnTable {
+        let m = columns.len();
+        assert!(m <= MAX_COLUMNS, "at most {MAX_COLUMNS} columns");
+        let smoothing = theta_h_smoothing(binning, footprint);
+        let smoothed: Vec<Vec<f64>> = columns
+            .iter()
+            .map(|c| smooth_bivariate(c, &smoothing))
+            .collect();
+        let mut data = vec![0f32; GRID_CELLS * 3 * m];
+        for g in 0..GRID_CELLS {
+            for c in 0..3 {
+                for (j, col) in smoothed.iter().enumerate() {
+                    data[(g * 3 + c) * m + j] = col[c * GRID_CELLS + g] as f32;
+                }
+            }
+        }
+        ColumnTable {
+            m,
+            data,
+            h_lut: BinLut::theta_h(binning),
+            d_lut: BinLut::theta_d(),
+        }
+    }
+
+    /// Σⱼ over lights of column values × L·Δω·cos, for one pixel: out[c·m + col].
+    fn pixel(&self, px: &GeomPixel, lights: &[PackedLight], out: &mut [f32]) {
+        // A constant column count lets the compiler unroll and vectorise the accumulation.
+        macro_rules! dispatch {
+            ($($m:literal)*) => {
+                match self.m {
+                    $($m => self.pixel_m::<$m>(px, lights, out),)*
+                    _ => unreachable!("column count checked in ColumnTable::new"),
+                }
+            };
+        }
+        dispatch!(1 2 3 4 5 6 7 8 9 10 11 12)
+    }
+
+    #[inline(always)]
+    fn pixel_m<const M: usize>(&self, px: &GeomPixel, lights: &[PackedLight], out: &mut [f32]) {
+        let mut acc = [[0f32; M]; 3];
+        let n = px.normal;
+        let v = px.view;
+        for l in lights {
+            let cos = dot3(n, l.dir);
+            if cos <= 0.0 {
+                continue;
+            }
+            let hs = [l.dir[0] + v[0], l.dir[1] + v[1], l.dir[2] + v[2]];
+            let len2 = dot3(hs, hs);
+            if len2 < 1e-12 {
+                continue;
+            }
+            let inv = 1.0 / len2.sqrt();
+            let h = [hs[0] * inv, hs[1] * inv, hs[2] * inv];
+            let bh = self.h_lut.bin(dist2(n, h));
+            let bd = self.d_lut.bin(dist2(l.dir, h));
+            let start = (bh * N_THETA_D + bd) * 3 * M;
+            let row: &[f32; 3 * 12] = match self.data.get(start..start + 3 * M) {
+                Some(r) => {
+                    let mut buf = [0f32; 36];
+                    buf[..3 * M].copy_from_slice(r);
+                    &{ buf }
+                }
+                None => continue,
+            };
+            for c in 0..3 {
+                let w = l.power[c] * cos;
+                for j in 0..M {
+                    acc[c][j] += w * row[c * M + j];
+                }
+            }
+        }
+        for c in 0..3 {
+            out[c * M..(c + 1) * M].copy_from_slice(&acc[c]);
+        }
+    }
+}
+
+/// A (pixels·3) × m matrix: row `3·p + c` is pixel p, channel c. Optionally with an offset
+/// vector (the fixed mean term) that the estimate subtracts from the observations.
+#[derive(Clone, Debug)]
+pub struct RenderingMatrix {
+    pub columns: usize,
+    pub pixels: Vec<GeomPixel>,
+    /// Row-major, `rows[(3·p + c)·columns + j]`.
+    pub rows: Vec<f32>,
+    pub offset: Option<Vec<f32>>,
+}
+
+impl RenderingMatrix {
+    /// Builds A for the given pixels, model columns and optional offset vector.
+    pub fn build(
+        pixels: &[GeomPixel],
+        lights: &LightSet,
+        columns: &[&[f64]],
+        offset: Option<&[f64]>,
+        binning: ThetaHBinning,
+    ) -> RenderingMatrix {
+        let mut all: Vec<&[f64]> = columns.to_vec();
+        if let Some(o) = offset {
+            all.push(o);
+        }
+        let table = ColumnTable::new(&all, binning, lights.half_vector_footprint());
+        let packed = pack(lights);
+        let m = all.len();
+        let mut raw = vec![0f32; pixels.len() * 3 * m];
+        raw.par_chunks_mut(PIXELS_PER_TASK * 3 * m)
+            .zip(pixels.par_chunks(PIXELS_PER_TASK))
+            .for_each(|(out, px)| {
+                for (o, p) in out.chunks_mut(3 * m).zip(px) {
+                    table.pixel(p, &packed, o);
+                }
+            });
+        let k = columns.len();
+        let (rows, offset) = if offset.is_some() {
+            let mut rows = Vec::with_capacity(pixels.len() * 3 * k);
+            let mut off = Vec::with_capacity(pixels.len() * 3);
+            for r in raw.chunks(m) {
+                rows.extend_from_slice(&r[..k]);
+                off.push(r[k]);
+            }
+            (rows, Some(off))
+        } else {
+            (raw, None)
+        };
+        RenderingMatrix {
+            columns: k,
+            pixels: pixels.to_vec(),
+            rows,
+            offset,
+        }
+    }
+
+    pub fn row(&self, r: usize) -> &[f32] {
+        &self.rows[r * self.columns..(r + 1) * self.columns]
+    }
+
+    /// y = A·c (+ offset): the image this model predicts, per pixel and channel.
+    pub fn predict(&self, coefficients: &[f64]) -> Vec<f64> {
+        (0..self.pixels.len() * 3)
+            .map(|r| {
+                let base = self.offset.as_ref().map_or(0.0, |o| o[r] as f64);
+                base + self
+                    .row(r)
+                    .iter()
+                    .zip(coefficients)
+                    .map(|(a, c)| *a as f64 * c)
+                    .sum::<f64>()
+            })
+            .collect()
+    }
+}
+
+/// Renders a bivariate BRDF through the same kernel as the rendering matrix.
+pub fn render_bivariate(geom: &PixelGeometry, lights: &LightSet, brdf: &Bivariate) -> Raster {
+    let a = RenderingMatrix::build(
+        &geom.pixels,
+        lights,
+        &[&brdf.values],
+        None,
+        brdf.grid.theta_h_binning,
+    );
+    let mut img = Raster::black(geom.width, geom.height);
+    for (p, px) in geom.pixels.iter().enumerate() {
+        img.set(
+            px.x as usize,
+            px.y as usize,
+            [a.rows[3 * p], a.rows[3 * p + 1], a.rows[3 * p + 2]],
+        );
+    }
+    img
+}
+
+/// Renders a full (θh, θd, φd) MERL table: the ground truth path, where φd matters.
+/// φd is the azimuth of ωᵢ about h, measured from the plane of n and h (Rusinkiewicz).
+pub fn render_merl(geom: &PixelGeometry, lights: &LightSet, brdf: &MerlBrdf) -> Raster {
+    // Interleaved f32 RGB: one cache line per lookup instead of three f64 planes; unmeasured
+    // cells become 0 (they contribute nothing).
+    // The θh footprint average as in the rendering matrix, applied per (θd, φd) column.
+    let cells = merl::CELLS;
+    let smoothing = theta_h_smoothing(ThetaHBinning::Sqrt, lights.half_vector_footprint());
+    let mut table = vec![[0f32; 3]; cells];
+    for (i, t) in table.iter_mut().enumerate() {
+        let (kp, rest) = (i % merl::PHI_D_BINS, i / merl::PHI_D_BINS);
+        let (jd, ih) = (rest % merl::THETA_D_BINS, rest / merl::THETA_D_BINS);
+        for (c, v) in t.iter_mut().enumerate() {
+            *v = smoothing[ih]
+                .iter()
+                .map(|(k, w)| w * brdf.cell(c, *k, jd, kp).max(0.0))
+                .sum::<f64>() as f32;
+        }
+    }
+    let h_lut = BinLut::theta_h(ThetaHBinning::Sqrt);
+    let d_lut = BinLut::theta_d();
+    let packed = pack(lights);
+    let shade = |px: &GeomPixel| -> [f32; 3] {
+        let n = px.normal;
+        let v = px.view;
+        let mut acc = [0f64; 3];
+        for l in &packed {
+            let cos = dot3(n, l.dir);
+            if cos <= 0.0 {
+                continue;
+            }
+            let hs = [l.dir[0] + v[0], l.dir[1] + v[1], l.dir[2] + v[2]];
+            let len2 = dot3(hs, hs);
+            if len2 < 1e-12 {
+                continue;
+            }
+            let inv = 1.0 / len2.sqrt();
+            let h = [hs[0] * inv, hs[1] * inv, hs[2] * inv];
+            let bh = h_lut.bin(dist2(n, h));
+            let bd = d_lut.bin(dist2(l.dir, h));
+            // e2 = n × h / |n × h|, e1 = e2 × h; at θh ≈ 0 any frame serves (isotropy).
+            let mut e2 = [
+                n[1] * h[2] - n[2] * h[1],
+                n[2] * h[0] - n[0] * h[2],
+                n[0] * h[1] - n[1] * h[0],
+            ];
+            let s = dot3(e2, e2);
+            if s < 1e-14 {
+                e2 = if n[1].abs() < 0.9 {
+                    [n[2], 0.0, -n[0]]
+                } else {
+                    [0.0, n[2], -n[1]]
+                };
+            }
+            let e1 = [
+                e2[1] * h[2] - e2[2] * h[1],
+                e2[2] * h[0] - e2[0] * h[2],
+                e2[0] * h[1] - e2[1] * h[0],
+            ];
+            let phi = dot3(l.dir, e2).atan2(dot3(l.dir, e1));
+            // φd bin over [0, π) with reciprocity, as merl::phi_d_bin, in f32.
+            let p = if phi < 0.0 {
+                phi + std::f32::consts::PI
+            } else {
+                phi
+            };
+            let kp = ((p * (merl::PHI_D_BINS as f32 / std::f32::consts::PI)) as usize)
+                .min(merl::PHI_D_BINS - 1);
+            let f = table[merl::cell_index(bh, bd, kp)];
+            for c in 0..3 {
+                acc[c] += (f[c] * l.power[c] * cos) as f64;
+            }
+        }
+        acc.map(|x| x as f32)
+    };
+    shade_pixels(geom, shade)
+}
+
+/// Renders any isotropic BRDF by evaluating it per (pixel, light) pair: slow, general, and
+/// independent of the binning shortcuts above.
+pub fn render_full(geom: &PixelGeometry, lights: &LightSet, brdf: &dyn IsotropicBrdf) -> Raster {
+    use super::brdf::tangent_frame;
+    let packed = pack(lights);
+    let shade = |px: &GeomPixel| -> [f32; 3] {
+        let n = px.normal.map(|c| c as f64);
+        let (t, b) = tangent_frame(n);
+        let local = |d: [f32; 3]| {
+            let d = d.map(|c| c as f64);
+            [
+                super::brdf::dot(d, t),
+                super::brdf::dot(d, b),
+                super::brdf::dot(d, n),
+            ]
+        };
+        let wo = local(px.view);
+        let mut acc = [0f64; 3];
+        for l in &packed {
+            let wi = local(l.dir);
+            if wi[2] <= 0.0 {
+                continue;
+            }
+            let f = brdf.eval_dirs(wi, wo);
+            for c in 0..3 {
+                acc[c] += f[c] * l.power[c] as f64 * wi[2];
+            }
+        }
+        acc.map(|x| x as f32)
+    };
+    shade_pixels(geom, shade)
+}
+
+fn shade_pixels(
+    geom: &PixelGeometry,
+    shade: impl Fn(&GeomPixel) -> [f32; 3] + Sync + Send,
+) -> Raster {
+    let values: Vec<[f32; 3]> = geom
+        .pixels
+        .par_iter()
+        .with_min_len(PIXELS_PER_TASK / 4)
+        .map(&shade)
+        .collect();
+    let mut img = Raster::black(geom.width, geom.height);
+    for (px, v) in geom.pixels.iter().zip(values) {
+        img.set(px.x as usize, px.y as usize, v);
+    }
+    img
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lut_matches_direct_binning() {
+        let h = BinLut::theta_h(ThetaHBinning::Sqrt);
+        let d = BinLut::theta_d();
+        // Angles straddling every edge, plus a dense sweep.
+        let mut angles: Vec<f64> = (0..90)
+            .flat_map(|i| {
+                let e = ThetaHBinning::Sqrt.lower_edge(i);
+                [e * (1.0 - 1e-4), e * (1.0 + 1e-4) + 1e-9]
+            })
+            .collect();
+        angles.extend((0..20000).map(|i| i as f64 / 20000.0 * std::f64::consts::FRAC_PI_2));
+        let mut mismatches = 0;
+        for th in angles {
+            let u = u_of_theta(th) as f32;
+            // f32 rounding of u can move an angle within ~1e-7 relative of an edge.
+            let expect_h = merl::theta_h_bin(th);
+            if h.bin(u) != expect_h {
+                mismatches += 1;
+            }
+            assert!(h.bin(u).abs_diff(expect_h) <= 1);
+            assert!(d.bin(u).abs_diff(merl::theta_d_bin(th)) <= 1);
+        }
+        assert!(mismatches <= 4, "{mismatches} mismatches");
+    }
+}

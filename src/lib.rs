@@ -1,0 +1,13 @@
+//! brdfd: BRDF acquisition with simple devices, after Hirasawa et al., "BRDF Estimation with
+//! Simple Measurement and Data-driven Model".
+//!
+//! # Layout
+//! - [`core`]: the estimation core (BRDF sources, bivariate reduction, PCA basis, environment
+//!   maps, geometry, rendering matrix, pixel selection, solve, evaluation). No async, no drivers.
+//! - [`bench`]: the virtual bench: renders what a camera on a simulated rig would see.
+//! - [`results`]: the files an estimate leaves behind.
+//! - `drivers/` (workspace crates, as they land): device protocols and their simulators.
+
+pub mod bench;
+pub mod core;
+pub mod results;

@@ -1,0 +1,102 @@
+//! Writing an estimate's results: `coefficients.json`, the bivariate BRDF as EXR, the full
+//! MERL `.binary`, and a preview render. Used by `brdfd estimate` and the capture flow.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::core::basis::Basis;
+use crate::core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
+use crate::core::envmap::{write_exr, LightSet};
+use crate::core::estimate::{Estimate, Timings};
+use crate::core::geometry::PixelGeometry;
+use crate::core::render::render_bivariate;
+use crate::core::{CoreError, Result};
+
+/// The contents of `coefficients.json`.
+#[derive(Serialize)]
+pub struct CoefficientsFile<'a> {
+    pub basis_id: &'a str,
+    pub k: usize,
+    /// Names of the model columns, in the order of `coefficients`.
+    pub columns: &'a [String],
+    pub coefficients: &'a [f64],
+    /// Pixels used; equal to `candidates` for an all-pixel estimate.
+    pub pixel_count: usize,
+    pub selection_method: &'a str,
+    /// (x, y) image positions of the pixels used (omitted for all-pixel estimates).
+    pub chosen_pixels: Vec<(u32, u32)>,
+    pub condition_number: f64,
+    pub residual_rms: f64,
+    pub relative_residual: f64,
+    pub candidates: usize,
+    pub lights: usize,
+    pub timings: &'a Timings,
+}
+
+/// Paths written by [`write_results`].
+pub struct ResultFiles {
+    pub coefficients: PathBuf,
+    pub brdf_exr: PathBuf,
+    pub merl: PathBuf,
+    pub preview_png: PathBuf,
+}
+
+fn write_bivariate_exr(path: &Path, b: &Bivariate) -> Result<()> {
+    let px: Vec<[f32; 3]> = (0..GRID_CELLS)
+        .map(|g| {
+            [
+                b.values[g] as f32,
+                b.values[GRID_CELLS + g] as f32,
+                b.values[2 * GRID_CELLS + g] as f32,
+            ]
+        })
+        .collect();
+    write_exr(path, N_THETA_D, N_THETA_H, &px)
+}
+
+pub fn write_results(
+    dir: &Path,
+    basis: &Basis,
+    estimate: &Estimate,
+    method: &str,
+    geometry: &PixelGeometry,
+    lights: &LightSet,
+) -> Result<ResultFiles> {
+    std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
+    let brdf = estimate.brdf(basis);
+    let all = estimate.selection.pixels.len() == estimate.candidates;
+    let file = CoefficientsFile {
+        basis_id: &basis.header.id,
+        k: basis.header.k,
+        columns: &estimate.names,
+        coefficients: &estimate.solution.coefficients,
+        pixel_count: estimate.selection.pixels.len(),
+        selection_method: if all { "all" } else { method },
+        chosen_pixels: if all {
+            Vec::new()
+        } else {
+            estimate.chosen.clone()
+        },
+        condition_number: estimate.solution.condition,
+        residual_rms: estimate.solution.residual_rms,
+        relative_residual: estimate.solution.relative_residual,
+        candidates: estimate.candidates,
+        lights: estimate.lights,
+        timings: &estimate.timings,
+    };
+    let files = ResultFiles {
+        coefficients: dir.join("coefficients.json"),
+        brdf_exr: dir.join("brdf-bivariate.exr"),
+        merl: dir.join("brdf.binary"),
+        preview_png: dir.join("preview.png"),
+    };
+    let json = serde_json::to_string_pretty(&file).expect("coefficients serialise");
+    std::fs::write(&files.coefficients, json).map_err(|e| CoreError::io(&files.coefficients, e))?;
+    write_bivariate_exr(&files.brdf_exr, &brdf)?;
+    brdf.to_merl().write(&files.merl)?;
+    let preview = render_bivariate(geometry, lights, &brdf);
+    preview.write_exr(&dir.join("preview.exr"))?;
+    preview.write_png(&files.preview_png, preview.auto_exposure())?;
+    Ok(files)
+}
