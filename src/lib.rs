@@ -8,6 +8,10 @@
 //! - [`results`]: the files an estimate leaves behind.
 //! - `drivers/` (workspace crates, as they land): device protocols and their simulators.
 
+// Matrix and colour-channel loops index several arrays with one index (a[i][j], g[i][j],
+// rows[c][j]); explicit ranges read closer to the maths than zipped iterators there.
+#![allow(clippy::needless_range_loop)]
+
 pub mod bench;
 pub mod core;
 pub mod results;

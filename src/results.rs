@@ -9,7 +9,7 @@ use crate::core::basis::Basis;
 use crate::core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
 use crate::core::envmap::{write_exr, LightSet};
 use crate::core::estimate::{Estimate, Timings};
-use crate::core::geometry::PixelGeometry;
+use crate::core::geometry::{Camera, PixelGeometry, Shape};
 use crate::core::render::render_bivariate;
 use crate::core::{CoreError, Result};
 
@@ -26,6 +26,8 @@ pub struct CoefficientsFile<'a> {
     pub selection_method: &'a str,
     /// (x, y) image positions of the pixels used (omitted for all-pixel estimates).
     pub chosen_pixels: Vec<(u32, u32)>,
+    /// κ of the rows used, with columns scaled by the training spread of their coefficients
+    /// (the quantity the selection minimises).
     pub condition_number: f64,
     pub residual_rms: f64,
     pub relative_residual: f64,
@@ -55,12 +57,15 @@ fn write_bivariate_exr(path: &Path, b: &Bivariate) -> Result<()> {
     write_exr(path, N_THETA_D, N_THETA_H, &px)
 }
 
+/// Size of the preview: the estimate on a sphere, like the paper's Fig. 6, whatever the photo's
+/// size (a full-resolution re-render of a 16-megapixel photo would dominate the run time).
+pub const PREVIEW_SIZE: usize = 256;
+
 pub fn write_results(
     dir: &Path,
     basis: &Basis,
     estimate: &Estimate,
     method: &str,
-    geometry: &PixelGeometry,
     lights: &LightSet,
 ) -> Result<ResultFiles> {
     std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
@@ -78,7 +83,7 @@ pub fn write_results(
         } else {
             estimate.chosen.clone()
         },
-        condition_number: estimate.solution.condition,
+        condition_number: estimate.selection.condition,
         residual_rms: estimate.solution.residual_rms,
         relative_residual: estimate.solution.relative_residual,
         candidates: estimate.candidates,
@@ -95,7 +100,11 @@ pub fn write_results(
     std::fs::write(&files.coefficients, json).map_err(|e| CoreError::io(&files.coefficients, e))?;
     write_bivariate_exr(&files.brdf_exr, &brdf)?;
     brdf.to_merl().write(&files.merl)?;
-    let preview = render_bivariate(geometry, lights, &brdf);
+    let sphere = PixelGeometry::rasterize(
+        &Camera::eval_orthographic(PREVIEW_SIZE),
+        &Shape::unit_sphere(),
+    )?;
+    let preview = render_bivariate(&sphere, lights, &brdf);
     preview.write_exr(&dir.join("preview.exr"))?;
     preview.write_png(&files.preview_png, preview.auto_exposure())?;
     Ok(files)

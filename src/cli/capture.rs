@@ -80,12 +80,12 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
     println!(
         "{} pixels, condition number {:.2}; re-render relative RMSE {:.4}; {:.2} s",
         est.selection.pixels.len(),
-        est.solution.condition,
+        est.selection.condition,
         rerender.relative_rmse(&photo),
         t.elapsed().as_secs_f64()
     );
     if let Some(out) = &a.out {
-        let files = brdfd::results::write_results(out, &basis, &est, "fast", &geometry, &lights)?;
+        let files = brdfd::results::write_results(out, &basis, &est, "fast", &lights)?;
         photo.write_exr(&out.join("photo.exr"))?;
         println!("wrote {}", files.coefficients.display());
     }

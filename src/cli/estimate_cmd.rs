@@ -107,8 +107,10 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         &a.out,
         &basis,
         &est,
-        if a.method as u8 == 0 { "fast" } else { "paper" },
-        &geometry,
+        match a.method {
+            MethodArg::Fast => "fast",
+            MethodArg::Paper => "paper",
+        },
         &lights,
     )?;
     print_estimate(&est.names, &est.solution.coefficients);
@@ -116,7 +118,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         "{} of {} candidate pixels, condition number {:.2}, relative residual {:.4}, {:.2} s",
         est.selection.pixels.len(),
         est.candidates,
-        est.solution.condition,
+        est.selection.condition,
         est.solution.relative_residual,
         total.elapsed().as_secs_f64()
     );

@@ -1,6 +1,212 @@
-//! `brdfd bench`: filled in below.
+//! `brdfd bench`: speed of the estimation core, as medians of repeated runs, with the
+//! machine's core count. Figures go in issue notes and the README, never in timed tests.
+
+use std::time::Instant;
+
+use brdfd::bench::{embedded_materials, studio_envmap};
+use brdfd::core::basis::Basis;
+use brdfd::core::bivariate::{Bivariate, Grid};
+use brdfd::core::envmap::{write_exr, DEFAULT_LIGHTS};
+use brdfd::core::geometry::{Camera, PixelGeometry, Pose, Shape};
+use brdfd::core::render::RenderingMatrix;
+use brdfd::core::select::{self, Blocks, SwapParams};
+
 #[derive(clap::Args)]
-pub struct BenchArgs {}
-pub fn run(_a: BenchArgs) -> anyhow::Result<()> {
+pub struct BenchArgs {
+    /// Repetitions per measurement (the median is reported).
+    #[arg(long, default_value_t = 5)]
+    pub runs: usize,
+    /// Skip the end-to-end estimate on a 4928 × 3264 photo (writes ~200 MB of temporary files).
+    #[arg(long)]
+    pub no_estimate: bool,
+}
+
+fn median_secs(runs: usize, mut f: impl FnMut()) -> f64 {
+    let mut t: Vec<f64> = (0..runs.max(1))
+        .map(|_| {
+            let s = Instant::now();
+            f();
+            s.elapsed().as_secs_f64()
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
+
+fn sphere_pixels(count: usize) -> PixelGeometry {
+    // A disc covers π/4 of the frame; the grazing cut trims a little more.
+    let size = ((count as f64 / 0.76).sqrt().ceil() as usize).max(8);
+    let mut g = PixelGeometry::rasterize(&Camera::eval_orthographic(size), &Shape::unit_sphere())
+        .expect("sphere");
+    g.pixels.truncate(count);
+    g
+}
+
+pub fn run(a: BenchArgs) -> anyhow::Result<()> {
+    let cores = std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1);
+    println!("brdfd bench: {cores} cores, median of {} runs", a.runs);
+    let basis = Basis::embedded();
+    let model = basis.model();
+    let binning = basis.header.grid.theta_h_binning;
+    let map = studio_envmap(1024);
+
+    println!(
+        "\nrendering matrix (K = {}, {} columns incl. mean):",
+        basis.header.k,
+        model.columns.len()
+    );
+    for (pixels, lights) in [
+        (50_000, 4096),
+        (25_000, 4096),
+        (12_500, 4096),
+        (50_000, 2048),
+        (50_000, 8192),
+    ] {
+        let g = sphere_pixels(pixels);
+        let l = map.compressed(lights, 0.0);
+        let s = median_secs(a.runs, || {
+            std::hint::black_box(RenderingMatrix::build(
+                &g.pixels,
+                &l,
+                &model.columns,
+                model.offset,
+                binning,
+            ));
+        });
+        println!(
+            "  {:>6} pixels × {:>5} lights: {s:.3} s  ({:.1} ns per pixel-light pair)",
+            g.pixels.len(),
+            l.len(),
+            s * 1e9 / (g.pixels.len() * l.len()) as f64
+        );
+    }
+
+    println!("\nselection of 20 pixels from 100,000 candidates:");
+    let g = sphere_pixels(100_000);
+    let l = map.compressed(DEFAULT_LIGHTS, 0.0);
+    let am = RenderingMatrix::build(&g.pixels, &l, &model.columns, model.offset, binning);
+    let blocks_s = median_secs(a.runs, || {
+        std::hint::black_box(Blocks::scaled(&am, &basis.column_scales()));
+    });
+    let blocks = Blocks::scaled(&am, &basis.column_scales());
+    let mut fast = None;
+    let fast_s = median_secs(a.runs, || fast = Some(select::fast_exchange(&blocks, 20)));
+    let fast = fast.expect("ran");
+    println!("  per-pixel Gram blocks: {blocks_s:.3} s; fast exchange: {fast_s:.3} s, κ = {:.2} ({} κ evaluations)", fast.condition, fast.evaluations);
+    let paper = select::paper_swap(&blocks, 20, &SwapParams::default());
+    println!(
+        "  paper's swap search (8 restarts, ≤ {} κ per restart): {:.2} s, κ = {:.2} ({} κ evaluations); time ratio paper/fast {:.0}×, κ ratio paper/fast {:.3}",
+        SwapParams::default().max_evaluations,
+        paper.elapsed.as_secs_f64(),
+        paper.condition,
+        paper.evaluations,
+        paper.elapsed.as_secs_f64() / fast_s,
+        paper.condition / fast.condition
+    );
+    let mut random: Vec<f64> = (0..9)
+        .map(|s| select::random_pixels(&blocks, 20, s).condition)
+        .collect();
+    random.sort_by(f64::total_cmp);
+    println!("  random choice: median κ = {:.2}", random[4]);
+
+    println!(
+        "\nbasis build from the {} embedded materials' bivariate reductions (PCA only):",
+        embedded_materials().materials.len()
+    );
+    let set = embedded_materials();
+    let reduce_s = median_secs(a.runs.min(3), || {
+        for m in set.materials.values() {
+            std::hint::black_box(Bivariate::reduce(m, Grid::default()));
+        }
+    });
+    println!("  reduction of 10 NBRDF materials: {reduce_s:.2} s (× 10 for the 100-material build; `brdfd basis build` prints its own total)");
+
+    if !a.no_estimate {
+        estimate_end_to_end(a.runs.min(3))?;
+    }
     Ok(())
+}
+
+/// `brdfd estimate` on a D5100-size photo (4928 × 3264, object on about a third of it) and a
+/// 2048 × 1024 map, as a child process, so decoding and writing count.
+fn estimate_end_to_end(runs: usize) -> anyhow::Result<()> {
+    let dir = tempfile_dir()?;
+    let (w, h) = (4928usize, 3264usize);
+    // Orthographic extent so the unit sphere's disc covers a third of the frame.
+    let radius_px = ((w * h) as f64 / 3.0 / std::f64::consts::PI).sqrt();
+    let extent = w as f64 / radius_px;
+    let camera = Camera::Orthographic {
+        width: w,
+        height: h,
+        extent,
+        pose: Pose {
+            position: [0.0, 0.0, 10.0],
+            look_at: [0.0; 3],
+            up: [0.0, 1.0, 0.0],
+        },
+    };
+    let geometry = brdfd::core::geometry::SceneGeometry {
+        camera: camera.clone(),
+        shape: Some(Shape::unit_sphere()),
+        normal_map: None,
+    };
+    std::fs::write(dir.join("geometry.toml"), toml::to_string(&geometry)?)?;
+    // The photo: a render at one eighth of the size, enlarged; content does not change timing.
+    let small = brdfd::core::render::render_bivariate(
+        &PixelGeometry::rasterize(&camera.resized(w / 8, h / 8), &Shape::unit_sphere())?,
+        &studio_envmap(256).compressed(2048, 0.0),
+        &Bivariate::reduce(
+            embedded_materials().get("gold-metallic-paint")?,
+            Grid::default(),
+        ),
+    );
+    let big: Vec<[f32; 3]> = (0..w * h)
+        .map(|i| {
+            small.get(
+                ((i % w) / 8).min(small.width - 1),
+                ((i / w) / 8).min(small.height - 1),
+            )
+        })
+        .collect();
+    write_exr(&dir.join("photo.exr"), w, h, &big)?;
+    let env = studio_envmap(2048);
+    write_exr(&dir.join("env.exr"), env.width, env.height, &env.pixels)?;
+    let exe = std::env::current_exe()?;
+    let s = median_secs(runs, || {
+        let st = std::process::Command::new(&exe)
+            .args([
+                "estimate",
+                "--photo",
+                "photo.exr",
+                "--env",
+                "env.exr",
+                "--geometry",
+                "geometry.toml",
+                "--pixels",
+                "20",
+                "--out",
+                "est",
+            ])
+            .current_dir(&dir)
+            .output()
+            .expect("brdfd estimate runs");
+        assert!(
+            st.status.success(),
+            "{}",
+            String::from_utf8_lossy(&st.stderr)
+        );
+    });
+    println!(
+        "\n`brdfd estimate` end to end, {w} × {h} photo (object ≈ ⅓), 2048 × 1024 map: {s:.2} s"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(())
+}
+
+fn tempfile_dir() -> anyhow::Result<std::path::PathBuf> {
+    let dir = std::env::temp_dir().join(format!("brdfd-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    Ok(dir)
 }

@@ -302,6 +302,17 @@ impl Basis {
         out
     }
 
+    /// The natural scale of each model column's coefficient, relative to the material's own
+    /// scale: 1 for the mean (or an offset-free first column), the training spread σₖ for
+    /// component k. Pixel selection works on A·diag(scales), where every coefficient is
+    /// equally plausible; otherwise κ mostly measures how differently the columns are scaled.
+    pub fn column_scales(&self) -> Vec<f64> {
+        self.column_prior()
+            .iter()
+            .map(|p| p.unwrap_or(1.0))
+            .collect()
+    }
+
     /// Reconstructs a bivariate BRDF from model coefficients.
     pub fn reconstruct(&self, coefficients: &[f64]) -> Bivariate {
         let model = self.model();

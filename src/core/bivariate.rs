@@ -183,7 +183,7 @@ impl Bivariate {
             );
             if !super::brdf::above_horizon(th, td, pd) {
                 return [
-                    -1.0 * merl::CHANNEL_SCALE[0],
+                    -merl::CHANNEL_SCALE[0],
                     -merl::CHANNEL_SCALE[1],
                     -merl::CHANNEL_SCALE[2],
                 ];

@@ -143,7 +143,7 @@ pub fn estimate_from_matrix(
     options: &EstimateOptions,
 ) -> Result<(Selection, Solution, f64, f64)> {
     let t = Instant::now();
-    let blocks = Blocks::new(a);
+    let blocks = Blocks::scaled(a, &basis.column_scales());
     let selection = match options.pixel_count {
         None => select::all_pixels(&blocks),
         Some(l) => match options.method {

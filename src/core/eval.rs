@@ -1,5 +1,39 @@
-//! The evaluation protocol of DESIGN.md section 4 (filled in below).
-use std::path::PathBuf;
+//! The evaluation protocol of DESIGN.md section 4, made runnable: `brdfd eval`.
+//!
+//! - Materials: the 100 MERL materials as NBRDF fits, tabulated to full (θh, θd, φd) tables, so
+//!   the bivariate approximation counts as error. Test set [`TEST_SET`]; training: the other 90.
+//! - Scene: unit sphere, orthographic camera, `size`² pixels. Ground truth is rendered from the
+//!   full table with [`GT_LIGHTS`] lights; estimates use the default compression
+//!   ([`DEFAULT_LIGHTS`]), so compression error counts too, as it would for a real photo.
+//! - Pixel counts 5, 10, 20 and all; noise-free and with sensor noise ([`add_sensor_noise`]).
+//! - Errors: BRDF error = ‖w⊙(f̂ − f)‖ / ‖w⊙f‖ over the bivariate grid in the basis's cell
+//!   weighting (the "normalised" BRDF of the paper: each material relative to its own scale);
+//!   image error = relative RMSE of the re-render against the ground-truth image.
+//! - Leave-one-out over all 100 materials (basis from the other 99), and a second lighting.
+//!
+//! Selection depends only on the basis, the lights and the geometry, not on the material, so
+//! it runs once per lighting and pixel count, as it would before a real measurement.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use rand::SeedableRng;
+use rand_distr::{Distribution, Poisson};
+
+use super::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
+use super::bivariate::{Bivariate, Grid, GRID_CELLS};
+use super::envmap::{EnvMap, LightSet, DEFAULT_LIGHTS};
+use super::error::{CoreError, Result};
+use super::estimate::{estimate_from_matrix, EstimateOptions, SelectionMethod};
+use super::geometry::{Camera, PixelGeometry, Shape};
+use super::merl::MerlBrdf;
+use super::nbrdf::NbrdfSet;
+use super::raster::Raster;
+use super::render::{render_bivariate, render_merl, RenderingMatrix};
+use super::select::{self, Blocks, Selection};
+use super::solve;
+
 pub const TEST_SET: [&str; 10] = [
     "black-soft-plastic",
     "nickel",
@@ -12,6 +46,21 @@ pub const TEST_SET: [&str; 10] = [
     "white-paint",
     "pearl-paint",
 ];
+
+/// Lights for ground-truth images: twice the estimate's, so the estimate's own compression
+/// shows up as error.
+pub const GT_LIGHTS: usize = 8_192;
+/// Pixel counts of the paper's Fig. 5 (`None` = all pixels).
+pub const PIXEL_COUNTS: [Option<usize>; 4] = [Some(5), Some(10), Some(20), None];
+/// Sensor model for the noisy runs: full-well capacity in electrons at the 12-bit white point.
+pub const FULL_WELL_ELECTRONS: f64 = 20_000.0;
+pub const ADC_LEVELS: f64 = 4095.0;
+/// The image percentile placed at the sensor's white point (a photographer exposes so that
+/// only specular glints clip).
+pub const EXPOSURE_PERCENTILE: f64 = 0.995;
+/// Image size of the leave-one-out runs (100 ground-truth renders).
+pub const LOO_SIZE: usize = 128;
+
 pub struct EvalConfig {
     pub data: PathBuf,
     pub out: PathBuf,
@@ -19,6 +68,657 @@ pub struct EvalConfig {
     pub leave_one_out: bool,
     pub choices: bool,
 }
-pub fn run(_c: &EvalConfig) -> super::Result<String> {
-    Ok(String::new())
+
+/// One row of the results table.
+#[derive(Clone, Debug)]
+pub struct Row {
+    pub lighting: String,
+    pub material: String,
+    pub pixels: Option<usize>,
+    pub noisy: bool,
+    pub brdf_error: f64,
+    pub image_error: f64,
+    pub condition: f64,
+}
+
+/// Shot noise (Poisson in electrons) and 12-bit quantisation, with the exposure set so the
+/// [`EXPOSURE_PERCENTILE`] of the object's values reaches the white point. Clipped values stay
+/// clipped, as on a real sensor.
+pub fn add_sensor_noise(img: &Raster, seed: u64) -> Raster {
+    let mut values: Vec<f32> = img
+        .pixels
+        .iter()
+        .flat_map(|p| p.iter().copied())
+        .filter(|v| *v > 0.0)
+        .collect();
+    if values.is_empty() {
+        return img.clone();
+    }
+    let k = ((values.len() as f64 * EXPOSURE_PERCENTILE) as usize).min(values.len() - 1);
+    let (_, white, _) = values.select_nth_unstable_by(k, f32::total_cmp);
+    let electrons_per_unit = FULL_WELL_ELECTRONS / *white as f64;
+    let electrons_per_dn = FULL_WELL_ELECTRONS / ADC_LEVELS;
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let mut out = img.clone();
+    for p in out.pixels.iter_mut() {
+        for v in p.iter_mut() {
+            if *v <= 0.0 {
+                continue;
+            }
+            let mean = *v as f64 * electrons_per_unit;
+            let e = Poisson::new(mean)
+                .map(|d| d.sample(&mut rng))
+                .unwrap_or(mean);
+            let dn = (e / electrons_per_dn).round().clamp(0.0, ADC_LEVELS);
+            *v = (dn * electrons_per_dn / electrons_per_unit) as f32;
+        }
+    }
+    out
+}
+
+/// ‖w⊙(a − b)‖ / ‖w⊙b‖ over the grid, with the basis's cell weights.
+pub fn brdf_error(estimate: &Bivariate, truth: &Bivariate, weight: CellWeight) -> f64 {
+    let w = weight.weights(truth.grid);
+    let (mut num, mut den) = (0.0, 0.0);
+    for i in 0..estimate.values.len() {
+        let wi = w[i % GRID_CELLS];
+        num += (wi * (estimate.values[i] - truth.values[i])).powi(2);
+        den += (wi * truth.values[i]).powi(2);
+    }
+    (num / den.max(f64::MIN_POSITIVE)).sqrt()
+}
+
+/// A lighting with its two discretisations.
+struct Lighting {
+    gt: LightSet,
+    est: LightSet,
+}
+
+fn load_lighting(data: &Path, name: &str) -> Result<Lighting> {
+    let map = EnvMap::load(&data.join("envmaps").join(format!("{name}.hdr")))?;
+    Ok(Lighting {
+        gt: map.compressed(GT_LIGHTS, 0.0),
+        est: map.compressed(DEFAULT_LIGHTS, 0.0),
+    })
+}
+
+/// A material's ground truth: full table, its bivariate reduction.
+struct Truth {
+    name: String,
+    table: MerlBrdf,
+    bivariate: Bivariate,
+}
+
+fn observations(a: &RenderingMatrix, img: &Raster) -> Vec<[f64; 3]> {
+    a.pixels
+        .iter()
+        .map(|p| img.get(p.x as usize, p.y as usize).map(|v| v as f64))
+        .collect()
+}
+
+/// The default basis settings (the measured choice; see README).
+pub fn default_basis(training: &[(String, Bivariate)]) -> Result<Basis> {
+    Basis::build(
+        training,
+        DEFAULT_K,
+        Normalisation::Rms,
+        CellWeight::SolidAngle,
+        true,
+    )
+}
+
+struct Prepared {
+    a: RenderingMatrix,
+    selections: Vec<(Option<usize>, Selection)>,
+}
+
+fn prepare(basis: &Basis, geometry: &PixelGeometry, lights: &LightSet) -> Prepared {
+    let model = basis.model();
+    let a = RenderingMatrix::build(
+        &geometry.pixels,
+        lights,
+        &model.columns,
+        model.offset,
+        basis.header.grid.theta_h_binning,
+    );
+    let blocks = Blocks::scaled(&a, &basis.column_scales());
+    let selections = PIXEL_COUNTS
+        .iter()
+        .map(|l| {
+            (
+                *l,
+                match l {
+                    Some(n) => select::fast_exchange(&blocks, *n),
+                    None => select::all_pixels(&blocks),
+                },
+            )
+        })
+        .collect();
+    Prepared { a, selections }
+}
+
+/// The image the model predicts for coefficients `c`: A covers every object pixel, so this is
+/// the re-render under the estimate's lights, without rendering again.
+fn predicted_image(a: &RenderingMatrix, c: &[f64], width: usize, height: usize) -> Raster {
+    let y = a.predict(c);
+    let mut img = Raster::black(width, height);
+    for (p, px) in a.pixels.iter().enumerate() {
+        img.set(
+            px.x as usize,
+            px.y as usize,
+            [y[3 * p] as f32, y[3 * p + 1] as f32, y[3 * p + 2] as f32],
+        );
+    }
+    img
+}
+
+/// One estimate: pixel count, reconstructed BRDF, its re-render, condition number.
+type Outcome = (Option<usize>, Bivariate, Raster, f64);
+
+/// Estimates from `photo` with every pixel count.
+fn estimate_all(basis: &Basis, prep: &Prepared, photo: &Raster) -> Result<Vec<Outcome>> {
+    let y = observations(&prep.a, photo);
+    prep.selections
+        .iter()
+        .map(|(l, sel)| {
+            let sol = solve::least_squares(&prep.a, &sel.pixels, &y)?;
+            let img = predicted_image(&prep.a, &sol.coefficients, photo.width, photo.height);
+            Ok((*l, basis.reconstruct(&sol.coefficients), img, sel.condition))
+        })
+        .collect()
+}
+
+fn label(l: Option<usize>) -> String {
+    l.map_or("all".into(), |n| n.to_string())
+}
+
+/// Runs the protocol, writes `results.csv`, `results.md`, `fig5-*.png`, `fig6-*.png` and
+/// (unless disabled) `loo.csv`; returns the Markdown report.
+pub fn run(cfg: &EvalConfig) -> Result<String> {
+    let t0 = Instant::now();
+    std::fs::create_dir_all(&cfg.out).map_err(|e| CoreError::io(&cfg.out, e))?;
+    let nbrdf_path = cfg.data.join("merl-nbrdf").join("merl_nbrdf.json");
+    let set = NbrdfSet::read(&nbrdf_path)?;
+    let grid = Grid::default();
+    let reduced: Vec<(String, Bivariate)> = set
+        .materials
+        .iter()
+        .map(|(n, m)| (n.clone(), Bivariate::reduce(m, grid)))
+        .collect();
+    let training: Vec<(String, Bivariate)> = reduced
+        .iter()
+        .filter(|(n, _)| !TEST_SET.contains(&n.as_str()))
+        .cloned()
+        .collect();
+    let basis = default_basis(&training)?;
+    let geometry =
+        PixelGeometry::rasterize(&Camera::eval_orthographic(cfg.size), &Shape::unit_sphere())?;
+    let truths: Vec<Truth> = TEST_SET
+        .iter()
+        .map(|n| {
+            let table = MerlBrdf::tabulate(set.get(n)?);
+            let bivariate = Bivariate::reduce(&table, grid);
+            Ok(Truth {
+                name: n.to_string(),
+                table,
+                bivariate,
+            })
+        })
+        .collect::<Result<_>>()?;
+
+    let mut rows = Vec::new();
+    let mut floors = Vec::new();
+    let mut fig6: Vec<(String, Vec<Raster>)> = Vec::new();
+    for light_name in ["grace", "courtyard"] {
+        let lighting = load_lighting(&cfg.data, light_name)?;
+        let prep = prepare(&basis, &geometry, &lighting.est);
+        for (i, truth) in truths.iter().enumerate() {
+            let gt = render_merl(&geometry, &lighting.gt, &truth.table);
+            let floor =
+                render_bivariate(&geometry, &lighting.est, &truth.bivariate).relative_rmse(&gt);
+            floors.push((light_name.to_string(), truth.name.clone(), floor));
+            let mut renders = vec![gt.clone()];
+            for noisy in [false, true] {
+                let photo = if noisy {
+                    add_sensor_noise(&gt, 1000 + i as u64)
+                } else {
+                    gt.clone()
+                };
+                for (l, est, re, cond) in estimate_all(&basis, &prep, &photo)? {
+                    rows.push(Row {
+                        lighting: light_name.into(),
+                        material: truth.name.clone(),
+                        pixels: l,
+                        noisy,
+                        brdf_error: brdf_error(&est, &truth.bivariate, basis.header.cell_weight),
+                        image_error: re.relative_rmse(&gt),
+                        condition: cond,
+                    });
+                    if !noisy && light_name == "grace" {
+                        renders.push(re);
+                    }
+                }
+            }
+            if light_name == "grace" {
+                fig6.push((truth.name.clone(), renders));
+            }
+        }
+        write_fig5(
+            &cfg.out.join(format!("fig5-{light_name}.png")),
+            &rows,
+            light_name,
+        )?;
+    }
+    write_fig6(&cfg.out.join("fig6-grace.png"), &fig6)?;
+    write_csv(&cfg.out.join("results.csv"), &rows)?;
+
+    let loo = if cfg.leave_one_out {
+        Some(leave_one_out(cfg, &set, &reduced, grid)?)
+    } else {
+        None
+    };
+    let choices = if cfg.choices {
+        Some(measure_choices(cfg, &set, &reduced)?)
+    } else {
+        None
+    };
+    let report = markdown(
+        &rows,
+        &floors,
+        loo.as_deref(),
+        choices.as_deref(),
+        cfg,
+        t0.elapsed().as_secs_f64(),
+    );
+    std::fs::write(cfg.out.join("results.md"), &report)
+        .map_err(|e| CoreError::io(cfg.out.join("results.md"), e))?;
+    Ok(report)
+}
+
+/// Leave-one-out over all materials, under grace, at [`LOO_SIZE`]: (material, error at 20 px,
+/// error with all pixels, BRDF error at 20 px).
+fn leave_one_out(
+    cfg: &EvalConfig,
+    set: &NbrdfSet,
+    reduced: &[(String, Bivariate)],
+    grid: Grid,
+) -> Result<String> {
+    let lighting = load_lighting(&cfg.data, "grace")?;
+    let geometry =
+        PixelGeometry::rasterize(&Camera::eval_orthographic(LOO_SIZE), &Shape::unit_sphere())?;
+    let mut csv =
+        String::from("material,image_error_20,image_error_all,brdf_error_20,brdf_error_all\n");
+    let mut e20 = Vec::new();
+    let mut eall = Vec::new();
+    for (name, truth_biv) in reduced {
+        let others: Vec<(String, Bivariate)> =
+            reduced.iter().filter(|(n, _)| n != name).cloned().collect();
+        let basis = default_basis(&others)?;
+        let model = basis.model();
+        let a = RenderingMatrix::build(
+            &geometry.pixels,
+            &lighting.est,
+            &model.columns,
+            model.offset,
+            grid.theta_h_binning,
+        );
+        let table = MerlBrdf::tabulate(set.get(name)?);
+        let gt = render_merl(&geometry, &lighting.gt, &table);
+        let y = observations(&a, &gt);
+        let mut out = Vec::new();
+        for count in [Some(20), None] {
+            let opts = EstimateOptions {
+                pixel_count: count,
+                method: SelectionMethod::Fast,
+                ..Default::default()
+            };
+            let (_, sol, _, _) = estimate_from_matrix(&basis, &a, &y, &opts)?;
+            let est = basis.reconstruct(&sol.coefficients);
+            let re = predicted_image(&a, &sol.coefficients, gt.width, gt.height);
+            out.push((
+                re.relative_rmse(&gt),
+                brdf_error(&est, truth_biv, basis.header.cell_weight),
+            ));
+        }
+        let _ = writeln!(
+            csv,
+            "{name},{:.5},{:.5},{:.5},{:.5}",
+            out[0].0, out[1].0, out[0].1, out[1].1
+        );
+        e20.push(out[0].0);
+        eall.push(out[1].0);
+    }
+    std::fs::write(cfg.out.join("loo.csv"), &csv)
+        .map_err(|e| CoreError::io(cfg.out.join("loo.csv"), e))?;
+    let within = e20
+        .iter()
+        .zip(&eall)
+        .filter(|(a, b)| **a <= **b * 1.1)
+        .count();
+    Ok(format!(
+        "Leave-one-out over {} materials (grace, {LOO_SIZE}², basis from the other 99, noise-free): image relative RMSE median {:.3} with 20 pixels, {:.3} with all; 20 pixels within 10% of all pixels for {within} of {} materials. Per material: `loo.csv`.\n",
+        e20.len(),
+        median(&e20),
+        median(&eall),
+        e20.len()
+    ))
+}
+
+/// Measures the grid and normalisation choices: (a) how far each bivariate grid renders from the
+/// full BRDF; (b) image error of all-pixel and 20-pixel estimates for each basis variant.
+fn measure_choices(
+    cfg: &EvalConfig,
+    set: &NbrdfSet,
+    reduced: &[(String, Bivariate)],
+) -> Result<String> {
+    use super::bivariate::{PhiReduction, ThetaHBinning};
+    let size = LOO_SIZE;
+    let lighting = load_lighting(&cfg.data, "grace")?;
+    let geometry =
+        PixelGeometry::rasterize(&Camera::eval_orthographic(size), &Shape::unit_sphere())?;
+    let tables: Vec<(String, MerlBrdf, Raster)> = TEST_SET
+        .iter()
+        .map(|n| {
+            let t = MerlBrdf::tabulate(set.get(n)?);
+            let gt = render_merl(&geometry, &lighting.gt, &t);
+            Ok((n.to_string(), t, gt))
+        })
+        .collect::<Result<_>>()?;
+    let mut out = String::from("| grid (θh binning, φd reduction) | mean image error of the bivariate reduction |\n|---|---|\n");
+    for binning in [ThetaHBinning::Sqrt, ThetaHBinning::Uniform] {
+        for phi in [PhiReduction::ValidMean, PhiReduction::Slice90] {
+            let grid = Grid {
+                theta_h_binning: binning,
+                phi_reduction: phi,
+            };
+            let errs: Vec<f64> = tables
+                .iter()
+                .map(|(_, t, gt)| {
+                    render_bivariate(&geometry, &lighting.gt, &Bivariate::reduce(t, grid))
+                        .relative_rmse(gt)
+                })
+                .collect();
+            let _ = writeln!(out, "| {binning:?}, {phi:?} | {:.4} |", mean(&errs));
+        }
+    }
+    out.push_str("\n| normalisation | cell weight | mean term | mean image error, all pixels | mean image error, 20 pixels | mean BRDF error, all pixels |\n|---|---|---|---|---|---|\n");
+    let training: Vec<(String, Bivariate)> = reduced
+        .iter()
+        .filter(|(n, _)| !TEST_SET.contains(&n.as_str()))
+        .cloned()
+        .collect();
+    for (norm, weight, with_mean) in [
+        (Normalisation::Rms, CellWeight::SolidAngle, true),
+        (Normalisation::Rms, CellWeight::None, true),
+        (Normalisation::Rms, CellWeight::SolidAngle, false),
+        (Normalisation::None, CellWeight::SolidAngle, true),
+        (Normalisation::None, CellWeight::None, true),
+    ] {
+        let basis = Basis::build(&training, DEFAULT_K, norm, weight, with_mean)?;
+        let prep = prepare(&basis, &geometry, &lighting.est);
+        let (mut all, mut twenty, mut brdf) = (Vec::new(), Vec::new(), Vec::new());
+        for (name, _, gt) in &tables {
+            let truth = &reduced
+                .iter()
+                .find(|(n, _)| n == name)
+                .expect("test material reduced")
+                .1;
+            for (l, est, re, _) in estimate_all(&basis, &prep, gt)? {
+                let e = re.relative_rmse(gt);
+                match l {
+                    Some(20) => twenty.push(e),
+                    None => {
+                        all.push(e);
+                        brdf.push(brdf_error(&est, truth, CellWeight::SolidAngle));
+                    }
+                    _ => {}
+                }
+            }
+        }
+        let _ = writeln!(
+            out,
+            "| {norm:?} | {weight:?} | {with_mean} | {:.3} | {:.3} | {:.3} |",
+            mean(&all),
+            mean(&twenty),
+            mean(&brdf)
+        );
+    }
+    Ok(out)
+}
+
+fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len().max(1) as f64
+}
+
+fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    if s.is_empty() {
+        return f64::NAN;
+    }
+    s[s.len() / 2]
+}
+
+fn write_csv(path: &Path, rows: &[Row]) -> Result<()> {
+    let mut s = String::from("lighting,material,pixels,noise,brdf_error,image_error,condition\n");
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{:.5},{:.5},{:.3}",
+            r.lighting,
+            r.material,
+            label(r.pixels),
+            if r.noisy { "sensor" } else { "none" },
+            r.brdf_error,
+            r.image_error,
+            r.condition
+        );
+    }
+    std::fs::write(path, s).map_err(|e| CoreError::io(path, e))
+}
+
+fn markdown(
+    rows: &[Row],
+    floors: &[(String, String, f64)],
+    loo: Option<&str>,
+    choices: Option<&str>,
+    cfg: &EvalConfig,
+    secs: f64,
+) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "Sphere {0}×{0}, orthographic; ground truth from the full 3D table with {GT_LIGHTS} lights; estimates with {DEFAULT_LIGHTS} lights, K = {DEFAULT_K}, fast selection. Run time {secs:.0} s.\n", cfg.size);
+    for lighting in ["grace", "courtyard"] {
+        for noisy in [false, true] {
+            let _ = writeln!(
+                s,
+                "**{lighting}, {}** — image relative RMSE (BRDF error in parentheses)\n",
+                if noisy {
+                    "sensor noise (shot + 12-bit)"
+                } else {
+                    "noise-free"
+                }
+            );
+            s.push_str(
+                "| material | 5 px | 10 px | 20 px | all px | floor |\n|---|---|---|---|---|---|\n",
+            );
+            for m in TEST_SET {
+                let _ = write!(s, "| {m} |");
+                for l in PIXEL_COUNTS {
+                    if let Some(r) = rows.iter().find(|r| {
+                        r.lighting == lighting
+                            && r.material == m
+                            && r.pixels == l
+                            && r.noisy == noisy
+                    }) {
+                        let _ = write!(s, " {:.3} ({:.3}) |", r.image_error, r.brdf_error);
+                    }
+                }
+                let floor = floors
+                    .iter()
+                    .find(|f| f.0 == lighting && f.1 == m)
+                    .map_or(f64::NAN, |f| f.2);
+                let _ = writeln!(s, " {floor:.3} |");
+            }
+            let sel: Vec<&Row> = rows
+                .iter()
+                .filter(|r| r.lighting == lighting && r.noisy == noisy)
+                .collect();
+            let _ = write!(s, "| **median** |");
+            for l in PIXEL_COUNTS {
+                let im: Vec<f64> = sel
+                    .iter()
+                    .filter(|r| r.pixels == l)
+                    .map(|r| r.image_error)
+                    .collect();
+                let br: Vec<f64> = sel
+                    .iter()
+                    .filter(|r| r.pixels == l)
+                    .map(|r| r.brdf_error)
+                    .collect();
+                let _ = write!(s, " {:.3} ({:.3}) |", median(&im), median(&br));
+            }
+            let within = TEST_SET
+                .iter()
+                .filter(|m| {
+                    let get = |l| {
+                        sel.iter()
+                            .find(|r| r.material == **m && r.pixels == l)
+                            .map(|r| r.brdf_error)
+                    };
+                    matches!((get(Some(20)), get(None)), (Some(a), Some(b)) if a <= b * 1.1)
+                })
+                .count();
+            let _ = writeln!(s, " |\n\n20 pixels within 10% of the all-pixel BRDF error: {within} of 10 materials.\n");
+        }
+    }
+    s.push_str("Floor: the image error of the material's own bivariate reduction rendered with the estimate's lights — the best any K, any pixel choice could do.\n\n");
+    if let Some(l) = loo {
+        s.push_str(l);
+        s.push('\n');
+    }
+    if let Some(c) = choices {
+        s.push_str("\n### Measured choices\n\n");
+        s.push_str(c);
+    }
+    s
+}
+
+const COLOURS: [[u8; 3]; 10] = [
+    [31, 119, 180],
+    [255, 127, 14],
+    [44, 160, 44],
+    [214, 39, 40],
+    [148, 103, 189],
+    [140, 86, 75],
+    [227, 119, 194],
+    [127, 127, 127],
+    [188, 189, 34],
+    [23, 190, 207],
+];
+
+/// Fig. 5: BRDF error against pixel count, one line per test material (colours in the order of
+/// [`TEST_SET`]), x = 5, 10, 20, all; y linear from 0 to the largest error.
+fn write_fig5(path: &Path, rows: &[Row], lighting: &str) -> Result<()> {
+    let (w, h, pad) = (640u32, 400u32, 40u32);
+    let mut img = image::RgbImage::from_pixel(w, h, image::Rgb([255, 255, 255]));
+    let sel: Vec<&Row> = rows
+        .iter()
+        .filter(|r| r.lighting == lighting && !r.noisy)
+        .collect();
+    let ymax = sel
+        .iter()
+        .map(|r| r.brdf_error)
+        .fold(0.0f64, f64::max)
+        .max(1e-6);
+    let to_px = |xi: usize, y: f64| -> (i64, i64) {
+        let x = pad as f64 + xi as f64 / 3.0 * (w - 2 * pad) as f64;
+        let yy = (h - pad) as f64 - (y / ymax) * (h - 2 * pad) as f64;
+        (x as i64, yy as i64)
+    };
+    for g in 0..=4 {
+        let y = (h - pad) as f64 - g as f64 / 4.0 * (h - 2 * pad) as f64;
+        line(
+            &mut img,
+            (pad as i64, y as i64),
+            ((w - pad) as i64, y as i64),
+            [220, 220, 220],
+        );
+    }
+    line(
+        &mut img,
+        (pad as i64, pad as i64),
+        (pad as i64, (h - pad) as i64),
+        [0, 0, 0],
+    );
+    line(
+        &mut img,
+        (pad as i64, (h - pad) as i64),
+        ((w - pad) as i64, (h - pad) as i64),
+        [0, 0, 0],
+    );
+    for (mi, m) in TEST_SET.iter().enumerate() {
+        let pts: Vec<(i64, i64)> = PIXEL_COUNTS
+            .iter()
+            .enumerate()
+            .filter_map(|(xi, l)| {
+                sel.iter()
+                    .find(|r| r.material == *m && r.pixels == *l)
+                    .map(|r| to_px(xi, r.brdf_error))
+            })
+            .collect();
+        for p in pts.windows(2) {
+            line(&mut img, p[0], p[1], COLOURS[mi]);
+        }
+        for p in &pts {
+            for dx in -3..=3 {
+                for dy in -3..=3 {
+                    put(&mut img, p.0 + dx, p.1 + dy, COLOURS[mi]);
+                }
+            }
+        }
+    }
+    img.save(path)
+        .map_err(|e| CoreError::format(path.display(), e.to_string()))
+}
+
+fn put(img: &mut image::RgbImage, x: i64, y: i64, c: [u8; 3]) {
+    if x >= 0 && y >= 0 && (x as u32) < img.width() && (y as u32) < img.height() {
+        img.put_pixel(x as u32, y as u32, image::Rgb(c));
+    }
+}
+
+fn line(img: &mut image::RgbImage, a: (i64, i64), b: (i64, i64), c: [u8; 3]) {
+    let steps = (b.0 - a.0).abs().max((b.1 - a.1).abs()).max(1);
+    for i in 0..=steps {
+        let x = a.0 + (b.0 - a.0) * i / steps;
+        let y = a.1 + (b.1 - a.1) * i / steps;
+        put(img, x, y, c);
+        put(img, x, y + 1, c);
+    }
+}
+
+/// Fig. 6: one row per test material: ground truth, then estimates with 5, 10, 20 and all
+/// pixels, each tone-mapped with the ground truth's exposure.
+fn write_fig6(path: &Path, rows: &[(String, Vec<Raster>)]) -> Result<()> {
+    let Some((_, first)) = rows.first() else {
+        return Ok(());
+    };
+    let (tw, th) = (first[0].width as u32, first[0].height as u32);
+    let cols = first.len() as u32;
+    let mut img =
+        image::RgbImage::from_pixel(tw * cols, th * rows.len() as u32, image::Rgb([0, 0, 0]));
+    for (r, (_, renders)) in rows.iter().enumerate() {
+        let exposure = renders[0].auto_exposure();
+        for (c, render) in renders.iter().enumerate() {
+            let tile = render.to_srgb8(exposure);
+            image::imageops::overlay(
+                &mut img,
+                &tile,
+                (c as u32 * tw) as i64,
+                (r as u32 * th) as i64,
+            );
+        }
+    }
+    img.save(path)
+        .map_err(|e| CoreError::format(path.display(), e.to_string()))
 }

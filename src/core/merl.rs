@@ -156,11 +156,7 @@ impl MerlBrdf {
                 if above_horizon(th, td, pd) {
                     source.eval_angles(th, td, pd)
                 } else {
-                    [
-                        -1.0 * CHANNEL_SCALE[0],
-                        -CHANNEL_SCALE[1],
-                        -CHANNEL_SCALE[2],
-                    ]
+                    [-CHANNEL_SCALE[0], -CHANNEL_SCALE[1], -CHANNEL_SCALE[2]]
                 }
             })
             .collect();

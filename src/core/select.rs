@@ -66,6 +66,11 @@ pub struct Blocks {
 
 impl Blocks {
     pub fn new(a: &RenderingMatrix) -> Blocks {
+        Self::scaled(a, &vec![1.0; a.columns])
+    }
+
+    /// Blocks of A·diag(scales): see [`super::basis::Basis::column_scales`].
+    pub fn scaled(a: &RenderingMatrix, scales: &[f64]) -> Blocks {
         let m = a.columns;
         let n = a.pixels.len();
         let mut grams = Vec::with_capacity(n);
@@ -74,7 +79,7 @@ impl Blocks {
             let mut r = [[0.0; MAX_COLUMNS]; 3];
             for (c, rc) in r.iter_mut().enumerate() {
                 for (j, v) in a.row(3 * p + c).iter().enumerate() {
-                    rc[j] = *v as f64;
+                    rc[j] = *v as f64 * scales[j];
                 }
             }
             let mut g = [[0.0; MAX_COLUMNS]; MAX_COLUMNS];

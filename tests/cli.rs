@@ -1,0 +1,280 @@
+//! Drives the real `brdfd` binary in temporary folders, as a user would.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn brdfd(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_brdfd"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("brdfd runs")
+}
+
+fn text(o: &Output) -> (String, String) {
+    (
+        String::from_utf8_lossy(&o.stdout).into_owned(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+/// The README's main command, at a smaller image size.
+#[test]
+fn simulated_capture_prints_coefficients() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = brdfd(
+        &[
+            "capture",
+            "--simulate",
+            "--material",
+            "gold",
+            "--size",
+            "96",
+            "--out",
+            "result",
+        ],
+        dir.path(),
+    );
+    let (out, err) = text(&o);
+    assert!(o.status.success(), "{out}\n{err}");
+    assert!(
+        out.contains("gold-metallic-paint") && out.contains("pc5 ="),
+        "{out}"
+    );
+    let json: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("result/coefficients.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(json["coefficients"].as_array().unwrap().len(), 6);
+    assert_eq!(json["chosen_pixels"].as_array().unwrap().len(), 20);
+    for f in [
+        "brdf-bivariate.exr",
+        "brdf.binary",
+        "preview.png",
+        "preview.exr",
+        "photo.exr",
+    ] {
+        assert!(dir.path().join("result").join(f).is_file(), "{f} missing");
+    }
+}
+
+#[test]
+fn hardware_capture_without_drivers_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = brdfd(&["capture", "--material", "gold"], dir.path());
+    assert!(!o.status.success());
+    assert!(text(&o).1.contains("--simulate"));
+}
+
+/// render → estimate from files → render the estimate: the whole file path of the core.
+#[test]
+fn estimate_from_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let env = dir.path().join("studio.exr");
+    let map = brdfd::bench::studio_envmap(256);
+    brdfd::core::envmap::write_exr(&env, map.width, map.height, &map.pixels).unwrap();
+    let o = brdfd(
+        &[
+            "render",
+            "--material",
+            "pearl-paint",
+            "--env",
+            "studio.exr",
+            "--size",
+            "96",
+            "--out",
+            "photo.exr",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{:?}", text(&o));
+    let o = brdfd(
+        &[
+            "estimate",
+            "--photo",
+            "photo.exr",
+            "--env",
+            "studio.exr",
+            "--shape",
+            "sphere",
+            "--pixels",
+            "20",
+            "--out",
+            "est",
+        ],
+        dir.path(),
+    );
+    let (out, err) = text(&o);
+    assert!(o.status.success(), "{out}\n{err}");
+    let json: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("est/coefficients.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(json["k"], 5);
+    assert_eq!(json["pixel_count"], 20);
+    assert!(json["condition_number"].as_f64().unwrap().is_finite());
+    assert!(json["relative_residual"].as_f64().unwrap() < 0.25);
+    let merl = std::fs::metadata(dir.path().join("est/brdf.binary"))
+        .unwrap()
+        .len();
+    assert_eq!(merl as usize, brdfd::core::merl::FILE_BYTES);
+    let o = brdfd(
+        &[
+            "render",
+            "--coefficients",
+            "est/coefficients.json",
+            "--env",
+            "studio.exr",
+            "--size",
+            "64",
+            "--out",
+            "again.png",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{:?}", text(&o));
+    // The PNG path of the photo reader: sRGB decoded to linear.
+    let o = brdfd(
+        &[
+            "render",
+            "--material",
+            "pearl-paint",
+            "--env",
+            "studio.exr",
+            "--size",
+            "96",
+            "--out",
+            "photo.png",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success());
+    let o = brdfd(
+        &[
+            "estimate",
+            "--photo",
+            "photo.png",
+            "--env",
+            "studio.exr",
+            "--pixels",
+            "all",
+            "--out",
+            "est2",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{:?}", text(&o));
+}
+
+#[test]
+fn bad_inputs_get_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    // A truncated MERL file.
+    std::fs::write(
+        dir.path().join("cut.binary"),
+        [90u8, 0, 0, 0, 90, 0, 0, 0, 180, 0, 0, 0, 1, 2, 3],
+    )
+    .unwrap();
+    let o = brdfd(
+        &["render", "--merl", "cut.binary", "--out", "x.png"],
+        dir.path(),
+    );
+    let err = text(&o).1;
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        err.contains("cut.binary") && err.contains("truncated"),
+        "{err}"
+    );
+    // An environment map with a NaN.
+    let mut px = vec![[1.0f32; 3]; 32 * 16];
+    px[3 * 32 + 7] = [f32::NAN, 0.0, 0.0];
+    brdfd::core::envmap::write_exr(&dir.path().join("nan.exr"), 32, 16, &px).unwrap();
+    brdfd::core::envmap::write_exr(&dir.path().join("photo.exr"), 8, 8, &vec![[0.5f32; 3]; 64])
+        .unwrap();
+    let o = brdfd(
+        &[
+            "estimate",
+            "--photo",
+            "photo.exr",
+            "--env",
+            "nan.exr",
+            "--out",
+            "e",
+        ],
+        dir.path(),
+    );
+    let err = text(&o).1;
+    assert!(err.contains("nan.exr") && err.contains("x=7, y=3"), "{err}");
+    // An unknown material.
+    let o = brdfd(
+        &["capture", "--simulate", "--material", "unobtainium"],
+        dir.path(),
+    );
+    let err = text(&o).1;
+    assert!(
+        err.contains("unobtainium") && err.contains("gold-metallic-paint"),
+        "{err}"
+    );
+    // A geometry file with an unknown field names the file, the line of its table and the field.
+    std::fs::write(dir.path().join("g.toml"), "[camera]\ntype = \"orthographic\"\nwidth = 8\nheight = 8\nextent = 2.0\nposition = [0,0,5]\nlook_at = [0,0,0]\n\n[shape]\ntype = \"sphere\"\ncenter = [0,0,0]\nradius = 1.0\ncolour = \"red\"\n").unwrap();
+    brdfd::core::envmap::write_exr(&dir.path().join("env.exr"), 32, 16, &vec![[1.0f32; 3]; 512])
+        .unwrap();
+    let o = brdfd(
+        &[
+            "estimate",
+            "--photo",
+            "photo.exr",
+            "--env",
+            "env.exr",
+            "--geometry",
+            "g.toml",
+            "--out",
+            "e",
+        ],
+        dir.path(),
+    );
+    let err = text(&o).1;
+    assert!(
+        err.contains("g.toml") && err.contains("colour") && err.contains("line 9"),
+        "{err}"
+    );
+}
+
+#[test]
+fn basis_build_from_merl_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let set = brdfd::bench::embedded_materials();
+    std::fs::create_dir(dir.path().join("merl")).unwrap();
+    for name in ["nickel", "blue-fabric", "white-paint", "pearl-paint"] {
+        brdfd::core::merl::MerlBrdf::tabulate(set.get(name).unwrap())
+            .write(&dir.path().join(format!("merl/{name}.binary")))
+            .unwrap();
+    }
+    let o = brdfd(
+        &[
+            "basis",
+            "build",
+            "--merl-dir",
+            "merl",
+            "--materials",
+            "all",
+            "-k",
+            "2",
+            "--out",
+            "small",
+        ],
+        dir.path(),
+    );
+    let (out, err) = text(&o);
+    assert!(o.status.success(), "{out}\n{err}");
+    assert!(
+        out.contains("from 4 materials") && out.contains("K =  3"),
+        "{out}"
+    );
+    let o = brdfd(&["basis", "show", "small.json"], dir.path());
+    let (out, _) = text(&o);
+    assert!(
+        out.contains("\"nickel\"") && out.contains("\"k\": 2"),
+        "{out}"
+    );
+}
