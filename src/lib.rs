@@ -4,7 +4,7 @@
 //! # Layout
 //! - [`core`]: the estimation core (BRDF sources, bivariate reduction, PCA basis, environment
 //!   maps, geometry, rendering matrix, pixel selection, solve, evaluation). No async, no drivers.
-//! - [`bench`]: the virtual bench: renders what a camera on a simulated rig would see.
+//! - [`bench`](mod@bench): the virtual bench: renders what a camera on a simulated rig would see.
 //! - [`results`]: the files an estimate leaves behind.
 //! - `drivers/` (workspace crates, as they land): device protocols and their simulators.
 

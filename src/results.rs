@@ -59,7 +59,7 @@ fn write_bivariate_exr(path: &Path, b: &Bivariate) -> Result<()> {
 
 /// Size of the preview: the estimate on a sphere, like the paper's Fig. 6, whatever the photo's
 /// size (a full-resolution re-render of a 16-megapixel photo would dominate the run time).
-pub const PREVIEW_SIZE: usize = 256;
+pub const PREVIEW_SIZE: usize = 128;
 
 pub fn write_results(
     dir: &Path,

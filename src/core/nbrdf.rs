@@ -3,7 +3,7 @@
 //!
 //! Input x = (h, d): the half vector (sin θh, 0, cos θh) and the difference vector
 //! (sin θd cos φd, sin θd sin φd, cos θd). Output rgb = exp(mlp(x)) − 1, in 1/sr with MERL's
-//! channel scales already applied. Weight matrices are stored [in][out] (Keras kernels).
+//! channel scales already applied. Weight matrices are stored `[in][out]` (Keras kernels).
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -36,7 +36,7 @@ struct RawMaterial {
     b3: Vec<f64>,
 }
 
-/// One material's fitted network, with weights transposed to [out][in] for the dot products.
+/// One material's fitted network, with weights transposed to `[out][in]` for the dot products.
 #[derive(Clone)]
 pub struct NbrdfMaterial {
     pub name: String,
