@@ -14,20 +14,6 @@ use crate::core::raster::Raster;
 use crate::core::render::render_merl;
 use crate::core::Result;
 
-/// The evaluation's test materials (DESIGN.md section 4), embedded for the simulator.
-pub const TEST_MATERIALS: [&str; 10] = [
-    "black-soft-plastic",
-    "nickel",
-    "blue-metallic-paint",
-    "gold-metallic-paint",
-    "blue-fabric",
-    "chrome-steel",
-    "green-latex",
-    "red-specular-plastic",
-    "white-paint",
-    "pearl-paint",
-];
-
 /// Short names a bench operator types, mapped to MERL names.
 const ALIASES: [(&str, &str); 6] = [
     ("gold", "gold-metallic-paint"),

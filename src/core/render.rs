@@ -195,6 +195,39 @@ fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
     dot3(d, d)
 }
 
+/// What the inner loops need of one (pixel, light) pair.
+struct Pair {
+    /// n·ω, positive.
+    cos: f32,
+    /// The half vector.
+    h: [f32; 3],
+    bh: usize,
+    bd: usize,
+}
+
+/// The half vector and (θh, θd) bins of a pixel (normal n, view v) and a light; `None` when
+/// the light is below the pixel's horizon or opposite the view.
+#[inline(always)]
+fn pair(n: [f32; 3], v: [f32; 3], l: &PackedLight, h_lut: &BinLut, d_lut: &BinLut) -> Option<Pair> {
+    let cos = dot3(n, l.dir);
+    if cos <= 0.0 {
+        return None;
+    }
+    let hs = [l.dir[0] + v[0], l.dir[1] + v[1], l.dir[2] + v[2]];
+    let len2 = dot3(hs, hs);
+    if len2 < 1e-12 {
+        return None;
+    }
+    let inv = 1.0 / len2.sqrt();
+    let h = [hs[0] * inv, hs[1] * inv, hs[2] * inv];
+    Some(Pair {
+        cos,
+        h,
+        bh: h_lut.bin(dist2(n, h)),
+        bd: d_lut.bin(dist2(l.dir, h)),
+    })
+}
+
 /// Bivariate vectors laid out for the gather: `data[(cell·3 + channel)·m + column]`.
 struct ColumnTable {
     m: usize,
@@ -248,19 +281,9 @@ impl ColumnTable {
         let n = px.normal;
         let v = px.view;
         for l in lights {
-            let cos = dot3(n, l.dir);
-            if cos <= 0.0 {
+            let Some(Pair { cos, bh, bd, .. }) = pair(n, v, l, &self.h_lut, &self.d_lut) else {
                 continue;
-            }
-            let hs = [l.dir[0] + v[0], l.dir[1] + v[1], l.dir[2] + v[2]];
-            let len2 = dot3(hs, hs);
-            if len2 < 1e-12 {
-                continue;
-            }
-            let inv = 1.0 / len2.sqrt();
-            let h = [hs[0] * inv, hs[1] * inv, hs[2] * inv];
-            let bh = self.h_lut.bin(dist2(n, h));
-            let bd = self.d_lut.bin(dist2(l.dir, h));
+            };
             // bh, bd < 90, so the slice is always in range; its length is a constant, which
             // lets the compiler drop the bounds checks in the loop below.
             let start = (bh * N_THETA_D + bd) * 3 * M;
@@ -400,19 +423,9 @@ pub fn render_merl(geom: &PixelGeometry, lights: &LightSet, brdf: &MerlBrdf) -> 
         let v = px.view;
         let mut acc = [0f64; 3];
         for l in &packed {
-            let cos = dot3(n, l.dir);
-            if cos <= 0.0 {
+            let Some(Pair { cos, h, bh, bd }) = pair(n, v, l, &h_lut, &d_lut) else {
                 continue;
-            }
-            let hs = [l.dir[0] + v[0], l.dir[1] + v[1], l.dir[2] + v[2]];
-            let len2 = dot3(hs, hs);
-            if len2 < 1e-12 {
-                continue;
-            }
-            let inv = 1.0 / len2.sqrt();
-            let h = [hs[0] * inv, hs[1] * inv, hs[2] * inv];
-            let bh = h_lut.bin(dist2(n, h));
-            let bd = d_lut.bin(dist2(l.dir, h));
+            };
             // e2 = n × h / |n × h|, e1 = e2 × h; at θh ≈ 0 any frame serves (isotropy).
             let mut e2 = [
                 n[1] * h[2] - n[2] * h[1],
