@@ -14,6 +14,20 @@ use brdfd::core::render::{render_bivariate, render_full, render_merl, RenderingM
 use brdfd::core::select::{self, Blocks, SwapParams};
 use brdfd::core::solve;
 
+/// The embedded basis's rendering matrix for a sphere under the studio map.
+fn studio_matrix(basis: &Basis, size: usize) -> RenderingMatrix {
+    let g = sphere(size);
+    let lights = studio_envmap(256).compressed(2048, 0.0);
+    let model = basis.model();
+    RenderingMatrix::build(
+        &g.pixels,
+        &lights,
+        &model.columns,
+        model.offset,
+        basis.header.grid.theta_h_binning,
+    )
+}
+
 fn sphere(size: usize) -> PixelGeometry {
     PixelGeometry::rasterize(&Camera::eval_orthographic(size), &Shape::unit_sphere()).unwrap()
 }
@@ -64,16 +78,7 @@ fn coefficients_inside_the_span_are_recovered() {
         basis.header.grid,
     );
     let c_true = basis.project(&truth);
-    let g = sphere(64);
-    let lights = studio_envmap(256).compressed(2048, 0.0);
-    let model = basis.model();
-    let a = RenderingMatrix::build(
-        &g.pixels,
-        &lights,
-        &model.columns,
-        model.offset,
-        basis.header.grid.theta_h_binning,
-    );
+    let a = studio_matrix(&basis, 64);
     let y: Vec<[f64; 3]> = a
         .predict(&c_true)
         .chunks(3)
@@ -272,16 +277,7 @@ fn compression_keeps_diffuse_renders_unchanged() {
 #[test]
 fn selection_beats_random_and_fast_matches_paper() {
     let basis = Basis::embedded();
-    let g = sphere(48);
-    let lights = studio_envmap(256).compressed(2048, 0.0);
-    let model = basis.model();
-    let a = RenderingMatrix::build(
-        &g.pixels,
-        &lights,
-        &model.columns,
-        model.offset,
-        basis.header.grid.theta_h_binning,
-    );
+    let a = studio_matrix(&basis, 48);
     let blocks = Blocks::scaled(&a, &basis.column_scales());
     let mut random: Vec<f64> = (0..20)
         .map(|s| select::random_pixels(&blocks, 20, s).condition)

@@ -17,7 +17,7 @@
 use std::time::{Duration, Instant};
 
 use rand::seq::SliceRandom;
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 
 use super::render::{RenderingMatrix, MAX_COLUMNS};
 
@@ -418,7 +418,6 @@ pub fn random_pixels(blocks: &Blocks, count: usize, seed: u64) -> Selection {
     let mut pixels: Vec<usize> = (0..blocks.len()).collect();
     pixels.shuffle(&mut rng);
     pixels.truncate(count);
-    let _ = rng.random::<u8>();
     pixels.sort_unstable();
     let condition = blocks.condition(&pixels);
     Selection {
