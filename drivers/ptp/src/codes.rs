@@ -1,0 +1,141 @@
+//! Operation, response, event, property and data-type codes (ISO 15740, plus the Nikon and
+//! Ricoh vendor codes we use). Numbers only; their meaning is in the names.
+
+pub mod op {
+    pub const GET_DEVICE_INFO: u16 = 0x1001;
+    pub const OPEN_SESSION: u16 = 0x1002;
+    pub const CLOSE_SESSION: u16 = 0x1003;
+    pub const GET_STORAGE_IDS: u16 = 0x1004;
+    pub const GET_STORAGE_INFO: u16 = 0x1005;
+    pub const GET_NUM_OBJECTS: u16 = 0x1006;
+    pub const GET_OBJECT_HANDLES: u16 = 0x1007;
+    pub const GET_OBJECT_INFO: u16 = 0x1008;
+    pub const GET_OBJECT: u16 = 0x1009;
+    pub const GET_THUMB: u16 = 0x100A;
+    pub const DELETE_OBJECT: u16 = 0x100B;
+    pub const INITIATE_CAPTURE: u16 = 0x100E;
+    pub const GET_DEVICE_PROP_DESC: u16 = 0x1014;
+    pub const GET_DEVICE_PROP_VALUE: u16 = 0x1015;
+    pub const SET_DEVICE_PROP_VALUE: u16 = 0x1016;
+    pub const GET_PARTIAL_OBJECT: u16 = 0x101B;
+
+    pub const NIKON_INITIATE_CAPTURE_REC_IN_SDRAM: u16 = 0x90C0;
+    pub const NIKON_AF_DRIVE: u16 = 0x90C1;
+    pub const NIKON_CHANGE_CAMERA_MODE: u16 = 0x90C2;
+    pub const NIKON_GET_EVENT: u16 = 0x90C7;
+    pub const NIKON_DEVICE_READY: u16 = 0x90C8;
+    pub const NIKON_GET_VENDOR_PROP_CODES: u16 = 0x90CA;
+    pub const NIKON_INITIATE_CAPTURE_REC_IN_MEDIA: u16 = 0x9207;
+}
+
+pub mod rc {
+    pub const OK: u16 = 0x2001;
+    pub const GENERAL_ERROR: u16 = 0x2002;
+    pub const SESSION_NOT_OPEN: u16 = 0x2003;
+    pub const INVALID_TRANSACTION_ID: u16 = 0x2004;
+    pub const OPERATION_NOT_SUPPORTED: u16 = 0x2005;
+    pub const PARAMETER_NOT_SUPPORTED: u16 = 0x2006;
+    pub const INCOMPLETE_TRANSFER: u16 = 0x2007;
+    pub const INVALID_STORAGE_ID: u16 = 0x2008;
+    pub const INVALID_OBJECT_HANDLE: u16 = 0x2009;
+    pub const DEVICE_PROP_NOT_SUPPORTED: u16 = 0x200A;
+    pub const STORE_FULL: u16 = 0x200C;
+    pub const STORE_READ_ONLY: u16 = 0x200E;
+    pub const ACCESS_DENIED: u16 = 0x200F;
+    pub const NO_THUMBNAIL_PRESENT: u16 = 0x2010;
+    pub const STORE_NOT_AVAILABLE: u16 = 0x2013;
+    pub const DEVICE_BUSY: u16 = 0x2019;
+    pub const INVALID_PARAMETER: u16 = 0x201D;
+    pub const SESSION_ALREADY_OPEN: u16 = 0x201E;
+    pub const TRANSACTION_CANCELLED: u16 = 0x201F;
+
+    /// Human name of a response code, for error messages.
+    pub fn name(code: u16) -> &'static str {
+        match code {
+            OK => "OK",
+            GENERAL_ERROR => "GeneralError",
+            SESSION_NOT_OPEN => "SessionNotOpen",
+            INVALID_TRANSACTION_ID => "InvalidTransactionID",
+            OPERATION_NOT_SUPPORTED => "OperationNotSupported",
+            PARAMETER_NOT_SUPPORTED => "ParameterNotSupported",
+            INCOMPLETE_TRANSFER => "IncompleteTransfer",
+            INVALID_STORAGE_ID => "InvalidStorageID",
+            INVALID_OBJECT_HANDLE => "InvalidObjectHandle",
+            DEVICE_PROP_NOT_SUPPORTED => "DevicePropNotSupported",
+            STORE_FULL => "StoreFull",
+            STORE_READ_ONLY => "StoreReadOnly",
+            ACCESS_DENIED => "AccessDenied",
+            NO_THUMBNAIL_PRESENT => "NoThumbnailPresent",
+            STORE_NOT_AVAILABLE => "StoreNotAvailable",
+            DEVICE_BUSY => "DeviceBusy",
+            INVALID_PARAMETER => "InvalidParameter",
+            SESSION_ALREADY_OPEN => "SessionAlreadyOpen",
+            TRANSACTION_CANCELLED => "TransactionCancelled",
+            0xA001..=0xAFFF => "vendor-specific",
+            _ => "unknown",
+        }
+    }
+}
+
+pub mod event {
+    pub const CANCEL_TRANSACTION: u16 = 0x4001;
+    pub const OBJECT_ADDED: u16 = 0x4002;
+    pub const OBJECT_REMOVED: u16 = 0x4003;
+    pub const STORE_ADDED: u16 = 0x4004;
+    pub const DEVICE_PROP_CHANGED: u16 = 0x4006;
+    pub const DEVICE_INFO_CHANGED: u16 = 0x4008;
+    pub const STORE_FULL: u16 = 0x400A;
+    pub const CAPTURE_COMPLETE: u16 = 0x400D;
+    pub const NIKON_OBJECT_ADDED_IN_SDRAM: u16 = 0xC101;
+    pub const NIKON_CAPTURE_COMPLETE_REC_IN_SDRAM: u16 = 0xC102;
+}
+
+pub mod prop {
+    pub const BATTERY_LEVEL: u16 = 0x5001;
+    pub const IMAGE_SIZE: u16 = 0x5003;
+    pub const COMPRESSION_SETTING: u16 = 0x5004;
+    pub const WHITE_BALANCE: u16 = 0x5005;
+    pub const F_NUMBER: u16 = 0x5007;
+    pub const FOCAL_LENGTH: u16 = 0x5008;
+    pub const EXPOSURE_TIME: u16 = 0x500D;
+    pub const EXPOSURE_PROGRAM_MODE: u16 = 0x500E;
+    pub const EXPOSURE_INDEX: u16 = 0x500F;
+    pub const EXPOSURE_BIAS: u16 = 0x5010;
+    pub const DATE_TIME: u16 = 0x5011;
+    pub const STILL_CAPTURE_MODE: u16 = 0x5013;
+    pub const BURST_NUMBER: u16 = 0x5018;
+    pub const NIKON_RECORDING_MEDIA: u16 = 0xD10B;
+    pub const RICOH_SLEEP: u16 = 0xD80E;
+}
+
+/// Object format codes.
+pub mod format {
+    pub const UNDEFINED: u16 = 0x3000;
+    pub const ASSOCIATION: u16 = 0x3001;
+    pub const EXIF_JPEG: u16 = 0x3801;
+    pub const TIFF: u16 = 0x380D;
+    /// Nikon NEF files are reported as "undefined" by most bodies.
+    pub const RAW: u16 = 0xB101;
+}
+
+/// Vendor extension ids from DeviceInfo.
+pub mod vendor {
+    pub const EASTMAN_KODAK: u32 = 0x1;
+    pub const MICROSOFT: u32 = 0x6;
+    pub const NIKON: u32 = 0xA;
+    pub const CANON: u32 = 0xB;
+}
+
+/// Datatype codes of properties (ISO 15740 table 3).
+pub mod datatype {
+    pub const INT8: u16 = 0x0001;
+    pub const UINT8: u16 = 0x0002;
+    pub const INT16: u16 = 0x0003;
+    pub const UINT16: u16 = 0x0004;
+    pub const INT32: u16 = 0x0005;
+    pub const UINT32: u16 = 0x0006;
+    pub const INT64: u16 = 0x0007;
+    pub const UINT64: u16 = 0x0008;
+    pub const ARRAY_FLAG: u16 = 0x4000;
+    pub const STRING: u16 = 0xFFFF;
+}

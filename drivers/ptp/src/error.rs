@@ -1,0 +1,73 @@
+use std::time::Duration;
+
+use crate::codes::rc;
+
+pub type Result<T, E = PtpError> = std::result::Result<T, E>;
+
+#[derive(Debug, thiserror::Error)]
+pub enum PtpError {
+    /// Bytes from the camera that do not parse. `offset` counts from the start of the
+    /// container or dataset named by `what`.
+    #[error("malformed {what} at byte {offset}: {reason}")]
+    Malformed {
+        what: &'static str,
+        offset: usize,
+        reason: String,
+    },
+    /// The camera answered an operation with a response code other than OK.
+    #[error("camera answered {op:#06x} with {code:#06x} ({})", rc::name(*code))]
+    Response { op: u16, code: u16 },
+    #[error("timed out after {after:?} waiting for {what} (raise `{what}` in the rig's timeouts if the camera is slow)")]
+    Timeout { what: &'static str, after: Duration },
+    /// The camera went away (unplugged, powered off, connection closed).
+    #[error("camera disconnected during {during}")]
+    Disconnected { during: &'static str },
+    /// Another process has the USB interface.
+    #[error("{device} is claimed by another process. On desktop Linux this is usually gvfs-gphoto2-volume-monitor, which mounts cameras automatically: run `pkill -f gvfs-gphoto2-volume-monitor` (or `systemctl --user mask gvfs-gphoto2-volume-monitor` to stop it for good), then unplug and replug the camera")]
+    Claimed { device: String },
+    #[error("no permission to open {device}: install config/udev/70-brdfd.rules (see its header) or run as a user in the plugdev group")]
+    Permission { device: String },
+    #[error("transport error: {0}")]
+    Io(String),
+    #[error("{0}")]
+    Protocol(String),
+    #[error("camera does not support {0}")]
+    Unsupported(String),
+}
+
+impl PtpError {
+    pub fn malformed(what: &'static str, offset: usize, reason: impl Into<String>) -> Self {
+        PtpError::Malformed {
+            what,
+            offset,
+            reason: reason.into(),
+        }
+    }
+
+    /// Errors after which the link itself is suspect, so a reset and a retry may help.
+    pub fn is_link_failure(&self) -> bool {
+        matches!(
+            self,
+            PtpError::Io(_) | PtpError::Disconnected { .. } | PtpError::Timeout { .. } | PtpError::Malformed { .. }
+        )
+    }
+
+    pub fn response_code(&self) -> Option<u16> {
+        match self {
+            PtpError::Response { code, .. } => Some(*code),
+            _ => None,
+        }
+    }
+}
+
+impl From<std::io::Error> for PtpError {
+    fn from(e: std::io::Error) -> Self {
+        use std::io::ErrorKind::*;
+        match e.kind() {
+            UnexpectedEof | ConnectionReset | ConnectionAborted | BrokenPipe | NotConnected => {
+                PtpError::Disconnected { during: "I/O" }
+            }
+            _ => PtpError::Io(e.to_string()),
+        }
+    }
+}

@@ -1,0 +1,53 @@
+//! Simulated devices that speak the real protocols, for tests and for users without
+//! hardware. Their pictures come from an [`ImageSource`] that the estimation side provides
+//! (the virtual bench renderer in `brdfd::bench`), so a simulated capture is a physically
+//! rendered image of a known material.
+
+pub mod ptp;
+
+/// The exposure a simulated camera shoots with, from its current property values.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Shot {
+    pub shutter_s: f64,
+    pub f_number: f64,
+    pub iso: u32,
+    pub raw: bool,
+    /// 1 for the first picture of the simulator's life, then 2, 3, ...
+    pub sequence: u32,
+}
+
+impl Shot {
+    /// Exposure relative to 1 s, f/1, ISO 100: what scales scene radiance to sensor values.
+    pub fn exposure_factor(&self) -> f64 {
+        self.shutter_s * self.iso as f64 / 100.0 / (self.f_number * self.f_number)
+    }
+}
+
+/// Where a simulated camera's pictures come from.
+pub trait ImageSource: Send + Sync {
+    /// The file the camera would write for this shot (a JPEG with EXIF, usually).
+    fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String>;
+    /// Pixel size, for ObjectInfo.
+    fn dimensions(&self) -> (u32, u32);
+}
+
+/// A file of a fixed size with JPEG markers and deterministic filler, for transfer tests and
+/// benchmarks where the picture's content does not matter.
+pub struct SizedPayload {
+    pub bytes: usize,
+}
+
+impl ImageSource for SizedPayload {
+    fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String> {
+        let n = self.bytes.max(4);
+        let mut v: Vec<u8> = (0..n)
+            .map(|i| (i as u32).wrapping_mul(2_654_435_761).wrapping_add(shot.sequence) as u8 >> 1)
+            .collect();
+        v[..2].copy_from_slice(&[0xFF, 0xD8]);
+        v[n - 2..].copy_from_slice(&[0xFF, 0xD9]);
+        Ok(v)
+    }
+    fn dimensions(&self) -> (u32, u32) {
+        (6000, 4000)
+    }
+}

@@ -1,0 +1,221 @@
+//! What the simulated cameras report about themselves. The Nikon D5100 and the THETA V follow
+//! the real cameras' dumps published by libgphoto2 (`shared/data/ptp/device-dumps/`): vendor
+//! extension, model strings, properties with their types, ranges and values.
+
+use brdfd_ptp::codes::{datatype as dt, event, format, op, prop, vendor};
+use brdfd_ptp::dataset::{DeviceInfo, DevicePropDesc, Form, StorageInfo, Value};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Profile {
+    /// A still camera of the generic PTP class: InitiateCapture and events.
+    Generic,
+    /// Nikon D5100: Nikon vendor extension, capture to SDRAM, GetEvent polling.
+    NikonD5100,
+    /// RICOH THETA V on USB.
+    ThetaV,
+}
+
+impl Profile {
+    pub fn parse(s: &str) -> Option<Profile> {
+        Some(match s {
+            "generic" => Profile::Generic,
+            "nikon-d5100" | "d5100" => Profile::NikonD5100,
+            "theta-v" => Profile::ThetaV,
+            _ => return None,
+        })
+    }
+
+    pub const NAMES: [&'static str; 3] = ["generic", "nikon-d5100", "theta-v"];
+
+    pub fn usb_ids(self) -> (u16, u16) {
+        match self {
+            Profile::Generic => (0x1d6b, 0x0104),
+            Profile::NikonD5100 => (0x04b0, 0x0429),
+            Profile::ThetaV => (0x05ca, 0x0368),
+        }
+    }
+}
+
+const STANDARD_OPS: [u16; 16] = [
+    op::GET_DEVICE_INFO,
+    op::OPEN_SESSION,
+    op::CLOSE_SESSION,
+    op::GET_STORAGE_IDS,
+    op::GET_STORAGE_INFO,
+    op::GET_NUM_OBJECTS,
+    op::GET_OBJECT_HANDLES,
+    op::GET_OBJECT_INFO,
+    op::GET_OBJECT,
+    op::GET_THUMB,
+    op::DELETE_OBJECT,
+    op::INITIATE_CAPTURE,
+    op::GET_DEVICE_PROP_DESC,
+    op::GET_DEVICE_PROP_VALUE,
+    op::SET_DEVICE_PROP_VALUE,
+    op::GET_PARTIAL_OBJECT,
+];
+
+pub fn device_info(p: Profile) -> DeviceInfo {
+    let mut ops = STANDARD_OPS.to_vec();
+    let props = properties(p).iter().map(|d| d.code).collect();
+    let events = vec![event::OBJECT_ADDED, event::OBJECT_REMOVED, event::DEVICE_PROP_CHANGED, event::STORE_FULL, event::CAPTURE_COMPLETE];
+    match p {
+        Profile::Generic => DeviceInfo {
+            standard_version: 100,
+            vendor_extension_id: vendor::MICROSOFT,
+            vendor_extension_version: 100,
+            vendor_extension_desc: "microsoft.com: 1.0".into(),
+            operations: ops,
+            events,
+            properties: props,
+            capture_formats: vec![format::EXIF_JPEG],
+            image_formats: vec![format::EXIF_JPEG, format::ASSOCIATION],
+            manufacturer: "brdfd".into(),
+            model: "Simulated still camera".into(),
+            device_version: "1.0".into(),
+            serial_number: "SIM0001".into(),
+            ..Default::default()
+        },
+        Profile::NikonD5100 => {
+            ops.extend([
+                op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM,
+                op::NIKON_AF_DRIVE,
+                op::NIKON_CHANGE_CAMERA_MODE,
+                op::NIKON_GET_EVENT,
+                op::NIKON_DEVICE_READY,
+                op::NIKON_GET_VENDOR_PROP_CODES,
+                op::NIKON_INITIATE_CAPTURE_REC_IN_MEDIA,
+            ]);
+            DeviceInfo {
+                standard_version: 100,
+                vendor_extension_id: vendor::NIKON,
+                vendor_extension_version: 100,
+                vendor_extension_desc: "microsoft.com: 1.0".into(),
+                operations: ops,
+                events,
+                properties: props,
+                capture_formats: vec![format::EXIF_JPEG, format::UNDEFINED],
+                image_formats: vec![format::EXIF_JPEG, format::UNDEFINED, format::ASSOCIATION],
+                manufacturer: "Nikon Corporation".into(),
+                model: "D5100".into(),
+                device_version: "V1.01".into(),
+                serial_number: "0000000000000000000000000005100".into(),
+                ..Default::default()
+            }
+        }
+        Profile::ThetaV => DeviceInfo {
+            standard_version: 100,
+            vendor_extension_id: vendor::MICROSOFT,
+            vendor_extension_version: 110,
+            vendor_extension_desc: String::new(),
+            operations: ops,
+            events,
+            properties: props,
+            capture_formats: vec![format::EXIF_JPEG],
+            image_formats: vec![format::EXIF_JPEG, format::ASSOCIATION],
+            manufacturer: "Ricoh Company, Ltd.".into(),
+            model: "RICOH THETA V".into(),
+            device_version: "3.50.1".into(),
+            serial_number: "00165759".into(),
+            ..Default::default()
+        },
+    }
+}
+
+pub fn storage_info(p: Profile, used: u64) -> StorageInfo {
+    let max = match p {
+        Profile::ThetaV => 21_088_788_480,
+        _ => 16_298_016_768,
+    };
+    StorageInfo {
+        storage_type: 4,
+        filesystem_type: 2,
+        access_capability: 2,
+        max_capacity: max,
+        free_space_bytes: max.saturating_sub(used),
+        free_space_images: (max.saturating_sub(used) / 9_000_000) as u32,
+        description: String::new(),
+        volume_label: match p {
+            Profile::NikonD5100 => "NIKON D5100".into(),
+            _ => String::new(),
+        },
+    }
+}
+
+fn e(code: u16, ty: u16, writable: bool, current: i64, values: &[i64]) -> DevicePropDesc {
+    let v = |x: i64| if matches!(ty, dt::INT8 | dt::INT16 | dt::INT32 | dt::INT64) { Value::Int(x) } else { Value::UInt(x as u64) };
+    DevicePropDesc {
+        code,
+        datatype: ty,
+        writable,
+        factory_default: v(values[0]),
+        current: v(current),
+        form: Form::Enum(values.iter().map(|&x| v(x)).collect()),
+    }
+}
+
+fn range(code: u16, ty: u16, writable: bool, current: u64, min: u64, max: u64) -> DevicePropDesc {
+    DevicePropDesc {
+        code,
+        datatype: ty,
+        writable,
+        factory_default: Value::UInt(current),
+        current: Value::UInt(current),
+        form: Form::Range {
+            min: Value::UInt(min),
+            max: Value::UInt(max),
+            step: Value::UInt(1),
+        },
+    }
+}
+
+/// The D5100's shutter speeds in manual mode, in 1/10000 s (from the real camera's dump;
+/// 0xFFFFFFFF is bulb).
+const D5100_EXPOSURE_TIMES: [i64; 53] = [
+    2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 25, 31, 40, 50, 62, 80, 100, 125, 166, 200, 250, 333, 400, 500, 666, 769, 1000,
+    1250, 1666, 2000, 2500, 3333, 4000, 5000, 6250, 7692, 10000, 13000, 16000, 20000, 25000, 30000, 40000, 50000,
+    60000, 80000, 100000, 130000, 150000, 200000, 250000, 300000, 4294967295,
+];
+const D5100_F_NUMBERS: [i64; 25] = [
+    140, 160, 180, 200, 220, 250, 280, 320, 350, 400, 450, 500, 560, 630, 710, 800, 900, 1000, 1100, 1300, 1400,
+    1600, 1800, 2000, 2200,
+];
+const D5100_ISO: [i64; 23] = [
+    100, 125, 160, 200, 250, 320, 400, 500, 640, 800, 1000, 1250, 1600, 2000, 2500, 3200, 4000, 5000, 6400, 8000,
+    10000, 12800, 25600,
+];
+
+pub fn properties(p: Profile) -> Vec<DevicePropDesc> {
+    match p {
+        Profile::Generic => vec![
+            range(prop::BATTERY_LEVEL, dt::UINT8, false, 100, 0, 100),
+            e(prop::COMPRESSION_SETTING, dt::UINT8, true, 2, &[0, 1, 2]),
+            e(prop::F_NUMBER, dt::UINT16, true, 800, &[280, 400, 560, 800, 1100, 1600]),
+            e(prop::EXPOSURE_TIME, dt::UINT32, true, 100, &[1, 2, 5, 10, 20, 40, 80, 100, 125, 250, 500, 1000, 2000, 4000, 10000, 20000, 40000]),
+            e(prop::EXPOSURE_PROGRAM_MODE, dt::UINT16, false, 1, &[1]),
+            e(prop::EXPOSURE_INDEX, dt::UINT16, true, 100, &[100, 200, 400, 800, 1600]),
+        ],
+        Profile::NikonD5100 => vec![
+            range(prop::BATTERY_LEVEL, dt::UINT8, false, 100, 0, 100),
+            e(prop::COMPRESSION_SETTING, dt::UINT8, true, 2, &[0, 1, 2, 4, 5, 6, 7]),
+            e(prop::WHITE_BALANCE, dt::UINT16, true, 4, &[2, 4, 5, 6, 7, 32784, 32785, 32787]),
+            e(prop::F_NUMBER, dt::UINT16, true, 800, &D5100_F_NUMBERS),
+            range(prop::FOCAL_LENGTH, dt::UINT32, false, 8500, 8500, 8500),
+            e(prop::EXPOSURE_TIME, dt::UINT32, true, 3333, &D5100_EXPOSURE_TIMES),
+            e(prop::EXPOSURE_PROGRAM_MODE, dt::UINT16, false, 1, &[1, 2, 3, 4, 32784, 32785, 32786, 32787, 32788, 32790, 32791, 32792, 32793]),
+            e(prop::EXPOSURE_INDEX, dt::UINT16, true, 100, &D5100_ISO),
+            e(prop::STILL_CAPTURE_MODE, dt::UINT16, true, 1, &[1, 2, 32785, 32788, 32789, 32790]),
+            range(prop::BURST_NUMBER, dt::UINT16, true, 1, 1, 100),
+            range(prop::NIKON_RECORDING_MEDIA, dt::UINT8, true, 1, 0, 2),
+        ],
+        Profile::ThetaV => vec![
+            range(prop::BATTERY_LEVEL, dt::UINT8, false, 98, 0, 100),
+            e(prop::WHITE_BALANCE, dt::UINT16, true, 2, &[2, 4, 32769, 32770, 6, 32800, 32771, 32772, 32773, 32774, 32775, 32776]),
+            e(prop::EXPOSURE_PROGRAM_MODE, dt::UINT16, true, 2, &[1, 2, 4, 32771]),
+            e(prop::EXPOSURE_INDEX, dt::UINT16, true, 100, &[64, 80, 100, 125, 160, 200, 250, 320, 400, 500, 640, 800, 1000, 1250, 1600, 2000, 2500, 3200]),
+            e(prop::STILL_CAPTURE_MODE, dt::UINT16, true, 1, &[1, 3, 32770, 32772, 32773, 32774, 32775]),
+            // Sleep: 1 while asleep; writing 0 wakes the camera.
+            e(prop::RICOH_SLEEP, dt::UINT8, true, 0, &[0, 1]),
+        ],
+    }
+}

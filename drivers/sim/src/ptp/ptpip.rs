@@ -1,0 +1,196 @@
+//! The simulated camera as a PTP/IP server: real TCP, so any PTP/IP client (ours, gphoto2)
+//! can talk to it.
+
+use std::io::Write;
+use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread;
+use std::time::Duration;
+
+use brdfd_ptp::transport::ptpip::{dataphase, read_packet, ty, Packet, DATA_CHUNK, PROTOCOL_VERSION};
+use brdfd_ptp::wire::{Reader, Writer};
+
+use super::{SharedResponder, WireFault};
+
+pub struct Server {
+    pub addr: SocketAddr,
+    stop: Arc<AtomicBool>,
+    thread: Option<thread::JoinHandle<()>>,
+}
+
+impl Server {
+    /// Listens on `addr` (port 0 picks one) and serves until dropped or stopped.
+    pub fn start(addr: &str, responder: SharedResponder) -> std::io::Result<Server> {
+        let listener = TcpListener::bind(addr)?;
+        let addr = listener.local_addr()?;
+        listener.set_nonblocking(true)?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let flag = stop.clone();
+        let thread = thread::Builder::new()
+            .name("sim-ptpip".into())
+            .spawn(move || accept_loop(listener, responder, flag))?;
+        Ok(Server {
+            addr,
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    pub fn stop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+type EventStream = Arc<Mutex<Option<TcpStream>>>;
+
+fn accept_loop(listener: TcpListener, responder: SharedResponder, stop: Arc<AtomicBool>) {
+    // Command connections waiting for their event connection, by connection number.
+    let waiting: Arc<Mutex<Vec<(u32, EventStream)>>> = Arc::default();
+    let mut next_conn = 1u32;
+    while !stop.load(Ordering::SeqCst) {
+        let (mut s, peer) = match listener.accept() {
+            Ok(x) => x,
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                thread::sleep(Duration::from_millis(10));
+                continue;
+            }
+            Err(_) => continue,
+        };
+        let _ = s.set_nonblocking(false);
+        let _ = s.set_nodelay(true);
+        let _ = s.set_read_timeout(Some(Duration::from_secs(5)));
+        let Ok(first) = read_packet(&mut s) else { continue };
+        match first.ty {
+            ty::INIT_COMMAND_REQUEST => {
+                let conn = next_conn;
+                next_conn += 1;
+                let mut w = Writer::new();
+                w.u32(conn).bytes(b"brdfd-simulated!");
+                for u in "brdfd simulated camera".encode_utf16() {
+                    w.u16(u);
+                }
+                w.u16(0).u32(PROTOCOL_VERSION);
+                if s.write_all(&Packet::new(ty::INIT_COMMAND_ACK, w.finish()).to_bytes()).is_err() {
+                    continue;
+                }
+                tracing::debug!("simulated PTP/IP camera: command connection {conn} from {peer}");
+                // A new initiator means the previous connection is gone: its session ends.
+                responder.lock().unwrap().reset();
+                let events: EventStream = Arc::default();
+                waiting.lock().unwrap().push((conn, events.clone()));
+                let r = responder.clone();
+                let stop = stop.clone();
+                thread::spawn(move || serve_commands(s, r, events, stop));
+            }
+            ty::INIT_EVENT_REQUEST => {
+                let conn = Reader::new(&first.body, "InitEventRequest").u32().unwrap_or(0);
+                let slot = waiting.lock().unwrap().iter().find(|(c, _)| *c == conn).map(|(_, e)| e.clone());
+                match slot {
+                    Some(e) => {
+                        let _ = s.write_all(&Packet::new(ty::INIT_EVENT_ACK, vec![]).to_bytes());
+                        *e.lock().unwrap() = Some(s);
+                    }
+                    None => {
+                        let _ = s.write_all(&Packet::new(ty::INIT_FAIL, 1u32.to_le_bytes().to_vec()).to_bytes());
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+}
+
+fn serve_commands(mut s: TcpStream, responder: SharedResponder, events: EventStream, stop: Arc<AtomicBool>) {
+    let _ = s.set_read_timeout(Some(Duration::from_millis(200)));
+    while !stop.load(Ordering::SeqCst) {
+        let p = match read_packet(&mut s) {
+            Ok(p) => p,
+            Err(brdfd_ptp::PtpError::Io(_)) => continue, // read timeout: check the stop flag
+            Err(_) => return,
+        };
+        if p.ty != ty::OPERATION_REQUEST {
+            continue;
+        }
+        let Ok(phase) = Reader::new(&p.body, "OperationRequest").u32() else { return };
+        let Ok(m) = p.message(4) else { return };
+        let data_out = if phase == dataphase::OUT {
+            match read_data_out(&mut s) {
+                Some(d) => Some(d),
+                None => return,
+            }
+        } else {
+            None
+        };
+        let r = responder.lock().unwrap().handle(&m, data_out.as_deref());
+        if let Some(d) = r.delay {
+            thread::sleep(d);
+        }
+        let mut out = Vec::new();
+        if r.fault == Some(WireFault::Silence) {
+            continue;
+        }
+        if let Some(data) = &r.data {
+            let mut w = Writer::new();
+            w.u32(m.tid).u64(data.len() as u64);
+            out.extend(Packet::new(ty::START_DATA, w.finish()).to_bytes());
+            let mut chunks = data.chunks(DATA_CHUNK).peekable();
+            if data.is_empty() {
+                out.extend(Packet::new(ty::END_DATA, m.tid.to_le_bytes().to_vec()).to_bytes());
+            }
+            while let Some(c) = chunks.next() {
+                let kind = if chunks.peek().is_some() { ty::DATA } else { ty::END_DATA };
+                let mut body = m.tid.to_le_bytes().to_vec();
+                body.extend_from_slice(c);
+                out.extend(Packet::new(kind, body).to_bytes());
+            }
+            if let Some(WireFault::DropAfter(n)) = r.fault {
+                // Part of the data, then the connection drops, as when Wi-Fi goes.
+                let _ = s.write_all(&out[..(n + 28).min(out.len())]);
+                let _ = s.shutdown(std::net::Shutdown::Both);
+                return;
+            }
+        }
+        let mut resp = Packet::from_message(ty::OPERATION_RESPONSE, None, &r.response).to_bytes();
+        if r.fault == Some(WireFault::CorruptResponse) {
+            resp[..4].copy_from_slice(&3u32.to_le_bytes());
+        }
+        out.extend(resp);
+        if s.write_all(&out).is_err() {
+            return;
+        }
+        if let Some(e) = events.lock().unwrap().as_mut() {
+            for ev in &r.events {
+                let _ = e.write_all(&Packet::from_message(ty::EVENT, None, ev).to_bytes());
+            }
+        }
+    }
+}
+
+fn read_data_out(s: &mut TcpStream) -> Option<Vec<u8>> {
+    let start = read_packet(s).ok()?;
+    if start.ty != ty::START_DATA {
+        return None;
+    }
+    let mut data = Vec::new();
+    loop {
+        let p = read_packet(s).ok()?;
+        match p.ty {
+            ty::DATA => data.extend_from_slice(p.body.get(4..)?),
+            ty::END_DATA => {
+                data.extend_from_slice(p.body.get(4..)?);
+                return Some(data);
+            }
+            _ => return None,
+        }
+    }
+}

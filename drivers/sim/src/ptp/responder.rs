@@ -1,0 +1,350 @@
+//! The simulated camera's state machine, independent of the link: sessions, storage,
+//! properties, capture, events, and injected faults.
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use brdfd_ptp::codes::{event, format, op, prop, rc};
+use brdfd_ptp::container::Message;
+use brdfd_ptp::dataset::{encode_nikon_events, DevicePropDesc, Form, ObjectInfo, Value};
+use brdfd_ptp::wire::Writer;
+
+use super::profiles::{self, Profile};
+use crate::{ImageSource, Shot};
+
+const STORAGE_ID: u32 = 0x0001_0001;
+const SDRAM_HANDLE: u32 = 0xFFFF_0001;
+const INVALID_DEVICE_PROP_VALUE: u16 = 0x201C;
+
+/// Faults to inject; each is used up when it fires, so a test sets one and watches the
+/// client recover.
+#[derive(Debug, Clone, Default)]
+pub struct Faults {
+    /// Answer the next N operations (after OpenSession) with DeviceBusy.
+    pub busy_storm: u32,
+    /// Drop the link after this many bytes of the next object download.
+    pub disconnect_in_download: Option<usize>,
+    /// Wait this long before the next response.
+    pub stall: Option<Duration>,
+    /// Send the next response with a corrupt length.
+    pub corrupt_next_response: bool,
+    /// USB: halt the bulk-in endpoint once, at the next data phase.
+    pub halt_bulk_in: bool,
+    /// Never answer OpenSession until the link is reset (a wedged camera).
+    pub wedged: bool,
+}
+
+/// What the link must do beyond sending the reply, for faults that live on the wire.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum WireFault {
+    /// Send this many bytes of the data phase, then drop the link.
+    DropAfter(usize),
+    CorruptResponse,
+    HaltBulkIn,
+    /// Say nothing at all.
+    Silence,
+}
+
+pub struct Reply {
+    pub data: Option<Vec<u8>>,
+    pub response: Message,
+    /// Events for the event channel (USB interrupt endpoint, PTP/IP event connection).
+    pub events: Vec<Message>,
+    pub delay: Option<Duration>,
+    pub fault: Option<WireFault>,
+}
+
+struct Object {
+    info: ObjectInfo,
+    data: Vec<u8>,
+}
+
+pub struct Responder {
+    profile: Profile,
+    source: Arc<dyn ImageSource>,
+    session: Option<u32>,
+    props: BTreeMap<u16, DevicePropDesc>,
+    objects: BTreeMap<u32, Object>,
+    next_handle: u32,
+    shots: u32,
+    /// Nikon: events waiting for GetEvent, and DeviceReady polls still to answer busy.
+    nikon_events: Vec<(u16, u32)>,
+    nikon_event_delay: u32,
+    device_ready_busy: u32,
+    pub faults: Faults,
+    /// Operations seen, for tests that check what a client did.
+    pub log: Vec<u16>,
+}
+
+pub type SharedResponder = Arc<Mutex<Responder>>;
+
+impl Responder {
+    pub fn new(profile: Profile, source: Arc<dyn ImageSource>) -> Responder {
+        Responder {
+            profile,
+            source,
+            session: None,
+            props: profiles::properties(profile).into_iter().map(|d| (d.code, d)).collect(),
+            objects: BTreeMap::new(),
+            next_handle: 1,
+            shots: 0,
+            nikon_events: Vec::new(),
+            nikon_event_delay: 0,
+            device_ready_busy: 0,
+            faults: Faults::default(),
+            log: Vec::new(),
+        }
+    }
+
+    pub fn shared(self) -> SharedResponder {
+        Arc::new(Mutex::new(self))
+    }
+
+    pub fn profile(&self) -> Profile {
+        self.profile
+    }
+
+    /// What a Device Reset or a dropped connection does: the session ends.
+    pub fn reset(&mut self) {
+        self.session = None;
+        self.faults.wedged = false;
+        self.device_ready_busy = 0;
+    }
+
+    /// Host-to-device data phases the device expects for an operation.
+    pub fn expects_data_out(code: u16) -> bool {
+        code == op::SET_DEVICE_PROP_VALUE
+    }
+
+    pub fn handle(&mut self, m: &Message, data_out: Option<&[u8]>) -> Reply {
+        self.log.push(m.code);
+        let mut reply = Reply {
+            data: None,
+            response: Message::new(rc::OK, m.tid, &[]),
+            events: Vec::new(),
+            delay: self.faults.stall.take(),
+            fault: None,
+        };
+        if self.faults.wedged && m.code == op::OPEN_SESSION {
+            reply.fault = Some(WireFault::Silence);
+            return reply;
+        }
+        if self.faults.corrupt_next_response {
+            self.faults.corrupt_next_response = false;
+            reply.fault = Some(WireFault::CorruptResponse);
+        }
+        let code = match self.session {
+            None if !matches!(m.code, op::GET_DEVICE_INFO | op::OPEN_SESSION) => rc::SESSION_NOT_OPEN,
+            Some(_) if self.faults.busy_storm > 0 && m.code != op::OPEN_SESSION => {
+                self.faults.busy_storm -= 1;
+                rc::DEVICE_BUSY
+            }
+            _ => self.dispatch(m, data_out, &mut reply),
+        };
+        reply.response.code = code;
+        if code != rc::OK {
+            reply.data = None;
+        }
+        reply
+    }
+
+    fn dispatch(&mut self, m: &Message, data_out: Option<&[u8]>, reply: &mut Reply) -> u16 {
+        let p = |i| m.param(i);
+        match m.code {
+            op::GET_DEVICE_INFO => {
+                reply.data = Some(profiles::device_info(self.profile).encode());
+            }
+            op::OPEN_SESSION => {
+                if p(0) == 0 {
+                    return rc::INVALID_PARAMETER;
+                }
+                if self.session.is_some() {
+                    return rc::SESSION_ALREADY_OPEN;
+                }
+                self.session = Some(p(0));
+            }
+            op::CLOSE_SESSION => self.session = None,
+            op::GET_STORAGE_IDS => reply.data = Some(Writer::new().u32_array(&[STORAGE_ID]).finish()),
+            op::GET_STORAGE_INFO => {
+                if p(0) != STORAGE_ID {
+                    return rc::INVALID_STORAGE_ID;
+                }
+                let used = self.objects.values().map(|o| o.data.len() as u64).sum();
+                reply.data = Some(profiles::storage_info(self.profile, used).encode());
+            }
+            op::GET_NUM_OBJECTS => reply.response.params = vec![self.card_handles().len() as u32],
+            op::GET_OBJECT_HANDLES => reply.data = Some(Writer::new().u32_array(&self.card_handles()).finish()),
+            op::GET_OBJECT_INFO => match self.objects.get(&p(0)) {
+                Some(o) => reply.data = Some(o.info.encode()),
+                None => return rc::INVALID_OBJECT_HANDLE,
+            },
+            op::GET_OBJECT | op::GET_PARTIAL_OBJECT => {
+                let Some(o) = self.objects.get(&p(0)) else {
+                    return rc::INVALID_OBJECT_HANDLE;
+                };
+                let (start, len) = if m.code == op::GET_PARTIAL_OBJECT {
+                    let s = (p(1) as usize).min(o.data.len());
+                    (s, (p(2) as usize).min(o.data.len() - s))
+                } else {
+                    (0, o.data.len())
+                };
+                reply.data = Some(o.data[start..start + len].to_vec());
+                if m.code == op::GET_PARTIAL_OBJECT {
+                    reply.response.params = vec![len as u32];
+                }
+                if let Some(n) = self.faults.disconnect_in_download.take() {
+                    reply.fault = Some(WireFault::DropAfter(n));
+                } else if std::mem::take(&mut self.faults.halt_bulk_in) {
+                    reply.fault = Some(WireFault::HaltBulkIn);
+                }
+                if p(0) == SDRAM_HANDLE && m.code == op::GET_OBJECT && reply.fault.is_none() {
+                    // Nikon frees the SDRAM image once it has been read.
+                    self.objects.remove(&SDRAM_HANDLE);
+                }
+            }
+            op::DELETE_OBJECT => {
+                if self.objects.remove(&p(0)).is_none() {
+                    return rc::INVALID_OBJECT_HANDLE;
+                }
+            }
+            op::GET_DEVICE_PROP_DESC => match self.props.get(&(p(0) as u16)) {
+                Some(d) => reply.data = Some(d.encode()),
+                None => return rc::DEVICE_PROP_NOT_SUPPORTED,
+            },
+            op::GET_DEVICE_PROP_VALUE => match self.props.get(&(p(0) as u16)) {
+                Some(d) => reply.data = Some(d.current.to_bytes(d.datatype)),
+                None => return rc::DEVICE_PROP_NOT_SUPPORTED,
+            },
+            op::SET_DEVICE_PROP_VALUE => return self.set_prop(p(0) as u16, data_out.unwrap_or(&[]), reply),
+            op::INITIATE_CAPTURE => {
+                let h = match self.shoot(false) {
+                    Ok(h) => h,
+                    Err(c) => return c,
+                };
+                reply.events.push(Message::new(event::OBJECT_ADDED, m.tid, &[h]));
+                reply.events.push(Message::new(event::CAPTURE_COMPLETE, m.tid, &[]));
+            }
+            op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM | op::NIKON_INITIATE_CAPTURE_REC_IN_MEDIA if self.is_nikon() => {
+                let sdram = m.code == op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM;
+                let h = match self.shoot(sdram) {
+                    Ok(h) => h,
+                    Err(c) => return c,
+                };
+                // The exposure takes a few polls, as on the real camera.
+                self.nikon_event_delay = 2;
+                self.device_ready_busy = 2;
+                if sdram {
+                    self.nikon_events.push((event::NIKON_OBJECT_ADDED_IN_SDRAM, h));
+                    self.nikon_events.push((event::NIKON_CAPTURE_COMPLETE_REC_IN_SDRAM, 0));
+                } else {
+                    self.nikon_events.push((event::OBJECT_ADDED, h));
+                    self.nikon_events.push((event::CAPTURE_COMPLETE, 0));
+                }
+            }
+            op::NIKON_GET_EVENT if self.is_nikon() => {
+                let events = if self.nikon_event_delay > 0 {
+                    self.nikon_event_delay -= 1;
+                    Vec::new()
+                } else {
+                    std::mem::take(&mut self.nikon_events)
+                };
+                reply.data = Some(encode_nikon_events(&events));
+            }
+            op::NIKON_DEVICE_READY if self.is_nikon() => {
+                if self.device_ready_busy > 0 {
+                    self.device_ready_busy -= 1;
+                    return rc::DEVICE_BUSY;
+                }
+            }
+            op::NIKON_GET_VENDOR_PROP_CODES if self.is_nikon() => {
+                let vendor: Vec<u16> = self.props.keys().copied().filter(|c| *c >= 0xD000).collect();
+                reply.data = Some(Writer::new().u16_array(&vendor).finish());
+            }
+            op::NIKON_CHANGE_CAMERA_MODE | op::NIKON_AF_DRIVE if self.is_nikon() => {}
+            _ => return rc::OPERATION_NOT_SUPPORTED,
+        }
+        rc::OK
+    }
+
+    fn is_nikon(&self) -> bool {
+        self.profile == Profile::NikonD5100
+    }
+
+    fn card_handles(&self) -> Vec<u32> {
+        self.objects.keys().copied().filter(|&h| h != SDRAM_HANDLE).collect()
+    }
+
+    fn int_prop(&self, code: u16, default: i64) -> i64 {
+        self.props.get(&code).and_then(|d| d.current.as_i64()).unwrap_or(default)
+    }
+
+    /// The current exposure, as the camera would shoot it.
+    pub fn shot_settings(&self) -> Shot {
+        Shot {
+            shutter_s: self.int_prop(prop::EXPOSURE_TIME, 100) as f64 / 1e4,
+            f_number: self.int_prop(prop::F_NUMBER, 200) as f64 / 100.0,
+            iso: self.int_prop(prop::EXPOSURE_INDEX, 100) as u32,
+            raw: self.int_prop(prop::COMPRESSION_SETTING, 2) >= 4,
+            sequence: self.shots + 1,
+        }
+    }
+
+    fn shoot(&mut self, sdram: bool) -> Result<u32, u16> {
+        let shot = self.shot_settings();
+        let data = self.source.photo(&shot).map_err(|e| {
+            tracing::error!("simulated camera: image source failed: {e}");
+            rc::GENERAL_ERROR
+        })?;
+        self.shots += 1;
+        let (w, h) = self.source.dimensions();
+        let handle = if sdram {
+            SDRAM_HANDLE
+        } else {
+            self.next_handle += 1;
+            0x2B00_0000 + self.next_handle
+        };
+        let info = ObjectInfo {
+            storage_id: if sdram { 0 } else { STORAGE_ID },
+            format: format::EXIF_JPEG,
+            compressed_size: data.len().min(u32::MAX as usize) as u32,
+            thumb_format: format::EXIF_JPEG,
+            width: w,
+            height: h,
+            bit_depth: 24,
+            filename: format!("DSC_{:04}.JPG", self.shots % 10_000),
+            capture_date: format!("20261122T1200{:02}", self.shots % 60),
+            ..Default::default()
+        };
+        self.objects.insert(handle, Object { info, data });
+        Ok(handle)
+    }
+
+    fn set_prop(&mut self, code: u16, data: &[u8], reply: &mut Reply) -> u16 {
+        let Some(desc) = self.props.get_mut(&code) else {
+            return rc::DEVICE_PROP_NOT_SUPPORTED;
+        };
+        if !desc.writable {
+            return rc::ACCESS_DENIED;
+        }
+        let Ok(v) = Value::from_bytes(data, desc.datatype) else {
+            return INVALID_DEVICE_PROP_VALUE;
+        };
+        let ok = match (&desc.form, v.as_i64()) {
+            (Form::Enum(values), _) => values.contains(&v),
+            (Form::Range { min, max, step }, Some(x)) => {
+                let (a, b, s) = (min.as_i64().unwrap_or(0), max.as_i64().unwrap_or(0), step.as_i64().unwrap_or(1).max(1));
+                (a..=b).contains(&x) && (x - a) % s == 0
+            }
+            _ => true,
+        };
+        if !ok {
+            return INVALID_DEVICE_PROP_VALUE;
+        }
+        if desc.current != v {
+            desc.current = v;
+            reply.events.push(Message::new(event::DEVICE_PROP_CHANGED, 0, &[code as u32]));
+        }
+        rc::OK
+    }
+}

@@ -1,0 +1,223 @@
+//! Our PTP engine against the simulated camera, over the in-memory USB pipe and over PTP/IP
+//! on loopback, including every injected fault.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use brdfd_ptp::codes::op;
+use brdfd_ptp::transport::ptpip::{Initiator, PtpIpTransport};
+use brdfd_ptp::transport::usb::UsbTransport;
+use brdfd_ptp::{Camera, CaptureOptions, PtpError, Target, Timeouts};
+use brdfd_sim::ptp::{ptpip::Server, usb, Profile, Responder, SharedResponder};
+use brdfd_sim::{ImageSource, Shot, SizedPayload};
+
+fn quick() -> Timeouts {
+    Timeouts {
+        command: Duration::from_secs(2),
+        data: Duration::from_secs(2),
+        capture: Duration::from_secs(5),
+        busy: Duration::from_secs(3),
+        poll: Duration::from_millis(5),
+    }
+}
+
+fn responder(profile: Profile, bytes: usize) -> SharedResponder {
+    Responder::new(profile, Arc::new(SizedPayload { bytes })).shared()
+}
+
+fn usb_camera(r: &SharedResponder) -> Camera {
+    Camera::open(Box::new(UsbTransport::new(usb::plug(r.clone()))), quick()).unwrap()
+}
+
+fn ptpip_camera(server: &Server) -> Camera {
+    let t = PtpIpTransport::connect(server.addr, Initiator::default(), Duration::from_secs(2)).unwrap();
+    Camera::open(Box::new(t), quick()).unwrap()
+}
+
+fn expected(bytes: usize, sequence: u32) -> Vec<u8> {
+    let shot = Shot {
+        shutter_s: 0.0,
+        f_number: 1.0,
+        iso: 100,
+        raw: false,
+        sequence,
+    };
+    SizedPayload { bytes }.photo(&shot).unwrap()
+}
+
+fn ops(r: &SharedResponder) -> Vec<u16> {
+    r.lock().unwrap().log.clone()
+}
+
+#[test]
+fn generic_capture_over_usb_downloads_and_deletes() {
+    let r = responder(Profile::Generic, 300_000);
+    let mut cam = usb_camera(&r);
+    assert_eq!(cam.info.model, "Simulated still camera");
+    assert!(!cam.is_nikon());
+    let opts = CaptureOptions {
+        target: Target::Card,
+        delete_after: true,
+    };
+    let shot = cam.capture(&opts, &mut |_, _, _| {}).unwrap();
+    assert_eq!(shot.data, expected(300_000, 1));
+    assert_eq!(shot.info.compressed_size, 300_000);
+    assert!(cam.object_handles(0xFFFF_FFFF).unwrap().is_empty(), "deleted after download");
+    let log = ops(&r);
+    assert!(log.contains(&op::INITIATE_CAPTURE) && log.contains(&op::DELETE_OBJECT));
+}
+
+#[test]
+fn nikon_capture_to_sdram_with_exposure_over_usb() {
+    let r = responder(Profile::NikonD5100, 1_325_014);
+    let mut cam = usb_camera(&r);
+    assert!(cam.is_nikon());
+    assert_eq!(cam.info.vendor_extension_id, 0xA);
+    // 1/60 s is not on the D5100's list: the nearest speed (1/60 = 166 units) is applied.
+    let s = cam.set_shutter(1.0 / 60.0).unwrap();
+    assert!((s - 0.0166).abs() < 1e-9, "{s}");
+    assert_eq!(cam.set_iso(170).unwrap(), 160);
+    assert!((cam.set_f_number(8.0).unwrap() - 8.0).abs() < 1e-9);
+    assert_eq!(cam.set_format(brdfd_ptp::ImageFormat::Raw).unwrap(), brdfd_ptp::ImageFormat::Raw);
+    let mut phases = Vec::new();
+    let shot = cam
+        .capture(&CaptureOptions::default(), &mut |p, _, _| {
+            if phases.last().map(String::as_str) != Some(p) {
+                phases.push(p.to_string())
+            }
+        })
+        .unwrap();
+    assert_eq!(shot.handle, 0xFFFF_0001);
+    assert_eq!(shot.data.len(), 1_325_014);
+    assert_eq!(phases, ["exposure", "download"]);
+    let log = ops(&r);
+    let pos = |c| log.iter().position(|&o| o == c).unwrap();
+    assert!(pos(op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM) < pos(op::NIKON_GET_EVENT));
+    assert!(pos(op::NIKON_GET_EVENT) < pos(op::NIKON_DEVICE_READY));
+    assert!(log.iter().filter(|&&o| o == op::NIKON_DEVICE_READY).count() >= 3, "polled through busy");
+    // The shot was taken with what the setters applied.
+    let shot_settings = r.lock().unwrap().shot_settings();
+    assert_eq!((shot_settings.iso, shot_settings.raw), (160, true));
+}
+
+#[test]
+fn nikon_bracket_over_ptpip() {
+    let r = responder(Profile::NikonD5100, 50_000);
+    let server = Server::start("127.0.0.1:0", r.clone()).unwrap();
+    let mut cam = ptpip_camera(&server);
+    let shots = cam.bracket(&[1.0 / 250.0, 1.0 / 60.0, 1.0 / 15.0], &CaptureOptions::default(), &mut |_, _, _| {}).unwrap();
+    let applied: Vec<f64> = shots.iter().map(|s| s.0).collect();
+    assert_eq!(applied, [0.004, 0.0166, 0.0666]);
+    for (i, (_, s)) in shots.iter().enumerate() {
+        assert_eq!(s.data, expected(50_000, i as u32 + 1));
+    }
+    cam.close().unwrap();
+}
+
+#[test]
+fn generic_capture_over_ptpip_reads_events_from_the_event_connection() {
+    let r = responder(Profile::Generic, 10_000_000);
+    let server = Server::start("127.0.0.1:0", r.clone()).unwrap();
+    let mut cam = ptpip_camera(&server);
+    let mut last = (0, 0);
+    let opts = CaptureOptions {
+        target: Target::Card,
+        delete_after: false,
+    };
+    let shot = cam
+        .capture(&opts, &mut |_, d, t| {
+            assert!(d >= last.0 || t != last.1, "progress goes forward");
+            last = (d, t)
+        })
+        .unwrap();
+    assert_eq!(shot.data, expected(10_000_000, 1));
+    assert_eq!(last, (10_000_000, 10_000_000));
+    // Large files come in GetPartialObject chunks.
+    assert!(ops(&r).iter().filter(|&&o| o == op::GET_PARTIAL_OBJECT).count() >= 3);
+}
+
+#[test]
+fn busy_storm_is_retried() {
+    let r = responder(Profile::NikonD5100, 1000);
+    let mut cam = usb_camera(&r);
+    r.lock().unwrap().faults.busy_storm = 6;
+    let shot = cam.capture(&CaptureOptions::default(), &mut |_, _, _| {}).unwrap();
+    assert_eq!(shot.data.len(), 1000);
+    // A storm longer than the busy timeout ends in a named timeout.
+    r.lock().unwrap().faults.busy_storm = u32::MAX;
+    cam.timeouts.busy = Duration::from_millis(300);
+    let e = cam.storage_ids().unwrap_err();
+    assert!(matches!(e, PtpError::Timeout { what: "busy", .. }), "{e}");
+}
+
+#[test]
+fn disconnect_mid_download_recovers_over_usb_and_ptpip() {
+    for link in ["usb", "ptpip"] {
+        let r = responder(Profile::Generic, 2_000_000);
+        let server = Server::start("127.0.0.1:0", r.clone()).unwrap();
+        let mut cam = if link == "usb" { usb_camera(&r) } else { ptpip_camera(&server) };
+        r.lock().unwrap().faults.disconnect_in_download = Some(700_000);
+        let opts = CaptureOptions {
+            target: Target::Card,
+            delete_after: false,
+        };
+        let shot = cam.capture(&opts, &mut |_, _, _| {}).unwrap();
+        assert_eq!(shot.data, expected(2_000_000, 1), "{link}");
+        let log = ops(&r);
+        assert_eq!(log.iter().filter(|&&o| o == op::OPEN_SESSION).count(), 2, "{link}: session reopened");
+    }
+}
+
+#[test]
+fn halted_endpoint_is_cleared_and_retried() {
+    let r = responder(Profile::Generic, 5000);
+    let mut cam = usb_camera(&r);
+    r.lock().unwrap().faults.halt_bulk_in = true;
+    let opts = CaptureOptions {
+        target: Target::Card,
+        delete_after: false,
+    };
+    assert_eq!(cam.capture(&opts, &mut |_, _, _| {}).unwrap().data.len(), 5000);
+}
+
+#[test]
+fn stalled_camera_times_out_with_the_wait_named() {
+    let r = responder(Profile::Generic, 5000);
+    let mut cam = usb_camera(&r);
+    cam.timeouts.command = Duration::from_millis(200);
+    r.lock().unwrap().faults.stall = Some(Duration::from_millis(600));
+    let e = cam.call(op::GET_STORAGE_IDS, &[]).unwrap_err();
+    assert!(e.to_string().contains("timed out after 200ms waiting for container from camera"), "{e}");
+    // The link recovers with a reset and a new session.
+    std::thread::sleep(Duration::from_millis(500));
+    cam.recover().unwrap();
+    assert_eq!(cam.storage_ids().unwrap(), [0x0001_0001]);
+}
+
+#[test]
+fn corrupt_container_is_an_error_with_offset_not_a_panic() {
+    for link in ["usb", "ptpip"] {
+        let r = responder(Profile::Generic, 5000);
+        let server = Server::start("127.0.0.1:0", r.clone()).unwrap();
+        let mut cam = if link == "usb" { usb_camera(&r) } else { ptpip_camera(&server) };
+        r.lock().unwrap().faults.corrupt_next_response = true;
+        let e = cam.storage_ids().unwrap_err();
+        assert!(matches!(e, PtpError::Malformed { .. }), "{link}: {e}");
+        assert!(e.to_string().contains("at byte"), "{link}: {e}");
+        cam.recover().unwrap();
+        assert_eq!(cam.storage_ids().unwrap(), [0x0001_0001], "{link}");
+    }
+}
+
+#[test]
+fn wedged_camera_is_reset_at_open_and_open_session_tolerates_already_open() {
+    let r = responder(Profile::Generic, 10);
+    r.lock().unwrap().faults.wedged = true;
+    let mut t = quick();
+    t.command = Duration::from_millis(300);
+    let cam = Camera::open(Box::new(UsbTransport::new(usb::plug(r.clone()))), t).unwrap();
+    assert_eq!(cam.info.serial_number, "SIM0001");
+    // A second client finds the session open (the first never closed it) and carries on.
+    let mut second = usb_camera(&r);
+    assert_eq!(second.storage_ids().unwrap().len(), 1);
+}
