@@ -6,6 +6,8 @@
 //! evaluation test materials (derived data, see `test_materials.json` for provenance) and a
 //! procedural studio environment written for this project.
 
+pub mod camera;
+
 use crate::core::envmap::{EnvMap, LightSet};
 use crate::core::geometry::{Camera, PixelGeometry, SceneGeometry, Shape};
 use crate::core::merl::MerlBrdf;

@@ -6,6 +6,8 @@ mod capture;
 mod estimate_cmd;
 mod geometry_args;
 mod perf;
+mod perf_ptp;
+mod sim;
 
 use std::path::PathBuf;
 
@@ -39,8 +41,13 @@ pub enum Command {
     Eval(EvalArgs),
     /// Capture a material at the bench and estimate its BRDF.
     Capture(capture::CaptureArgs),
-    /// Measure the speed of the estimation core (medians of repeated runs).
+    /// Measure the speed of the estimation core and the PTP link (medians of repeated runs).
     Bench(perf::BenchArgs),
+    /// Run a simulated device until stopped.
+    Sim {
+        #[command(subcommand)]
+        command: sim::SimCommand,
+    },
 }
 
 #[derive(clap::Args)]
@@ -80,5 +87,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Capture(a) => capture::run(a),
         Command::Bench(a) => perf::run(a),
+        Command::Sim { command } => sim::run(command),
     }
 }

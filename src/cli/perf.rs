@@ -19,6 +19,10 @@ pub struct BenchArgs {
     /// Skip the end-to-end estimate on a 4928 × 3264 photo (writes ~200 MB of temporary files).
     #[arg(long)]
     pub no_estimate: bool,
+    /// Only the PTP/IP benchmark: a 25 MB capture-and-download from the simulated camera,
+    /// with brdfd's client and with gphoto2.
+    #[arg(long)]
+    pub ptp: bool,
 }
 
 fn median_secs(runs: usize, mut f: impl FnMut()) -> f64 {
@@ -47,6 +51,9 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
         .map(|n| n.get())
         .unwrap_or(1);
     println!("brdfd bench: {cores} cores, median of {} runs", a.runs);
+    if a.ptp {
+        return super::perf_ptp::run(a.runs);
+    }
     let basis = Basis::embedded();
     let model = basis.model();
     let binning = basis.header.grid.theta_h_binning;

@@ -76,7 +76,12 @@ impl Camera {
     }
 
     pub fn describe(&self) -> String {
-        format!("{} {} on {}", self.info.manufacturer, self.info.model, self.link.describe())
+        format!(
+            "{} {} on {}",
+            self.info.manufacturer,
+            self.info.model,
+            self.link.describe()
+        )
     }
 
     /// OpenSession, accepting SessionAlreadyOpen (a previous process left it open). A camera
@@ -85,7 +90,10 @@ impl Camera {
         for attempt in 0..2 {
             self.next_tid = 0;
             let m = Message::new(op::OPEN_SESSION, 0, &[self.session_id]);
-            match self.link.transact(&m, None, self.timeouts.command, &mut |_, _| {}) {
+            match self
+                .link
+                .transact(&m, None, self.timeouts.command, &mut |_, _| {})
+            {
                 Ok((_, r)) if r.code == rc::OK || r.code == rc::SESSION_ALREADY_OPEN => {
                     self.next_tid = 1;
                     return Ok(());
@@ -111,7 +119,10 @@ impl Camera {
 
     /// Resets the link and opens a new session: the recovery after an I/O error.
     pub fn recover(&mut self) -> Result<()> {
-        tracing::warn!("resetting {} and reopening the session", self.link.describe());
+        tracing::warn!(
+            "resetting {} and reopening the session",
+            self.link.describe()
+        );
         self.link.reset()?;
         self.open_session()
     }
@@ -183,7 +194,8 @@ impl Camera {
 
     pub fn data_out(&mut self, code: u16, params: &[u32], data: &[u8]) -> Result<()> {
         let t = self.timeouts.command;
-        self.call_with(code, params, Some(data), t, &mut |_, _| {}).map(|_| ())
+        self.call_with(code, params, Some(data), t, &mut |_, _| {})
+            .map(|_| ())
     }
 
     /// The next event from the camera, waiting up to `timeout`.
@@ -221,7 +233,10 @@ impl Camera {
     }
 
     pub fn prop_value(&mut self, code: u16, datatype: u16) -> Result<Value> {
-        Value::from_bytes(&self.data_in(op::GET_DEVICE_PROP_VALUE, &[code as u32])?, datatype)
+        Value::from_bytes(
+            &self.data_in(op::GET_DEVICE_PROP_VALUE, &[code as u32])?,
+            datatype,
+        )
     }
 
     /// Sets a property and returns the value the camera reports afterwards, which is what
@@ -233,14 +248,23 @@ impl Camera {
                 desc.code
             )));
         }
-        self.data_out(op::SET_DEVICE_PROP_VALUE, &[desc.code as u32], &v.to_bytes(desc.datatype))?;
+        self.data_out(
+            op::SET_DEVICE_PROP_VALUE,
+            &[desc.code as u32],
+            &v.to_bytes(desc.datatype),
+        )?;
         self.prop_value(desc.code, desc.datatype)
     }
 
     /// Downloads an object, in GetPartialObject chunks when the camera supports it and the
     /// file is large, with progress. An I/O failure resets the camera, reopens the session
     /// and resumes (or restarts) the download.
-    pub fn download(&mut self, handle: u32, size: u64, progress: &mut dyn FnMut(u64, u64)) -> Result<Vec<u8>> {
+    pub fn download(
+        &mut self,
+        handle: u32,
+        size: u64,
+        progress: &mut dyn FnMut(u64, u64),
+    ) -> Result<Vec<u8>> {
         let partial = self.info.supports(op::GET_PARTIAL_OBJECT) && size > PARTIAL_CHUNK as u64;
         let mut out = Vec::with_capacity(size as usize);
         let mut attempt = 0;
@@ -250,14 +274,18 @@ impl Camera {
             } else {
                 let t = self.timeouts.data;
                 self.call_with(op::GET_OBJECT, &[handle], None, t, progress)
-                    .and_then(|(d, _)| d.ok_or_else(|| PtpError::Protocol("GetObject returned no data".into())))
+                    .and_then(|(d, _)| {
+                        d.ok_or_else(|| PtpError::Protocol("GetObject returned no data".into()))
+                    })
                     .map(|d| out = d)
             };
             match r {
                 Ok(()) => return Ok(out),
                 Err(e) if e.is_link_failure() && attempt + 1 < DOWNLOAD_ATTEMPTS => {
                     attempt += 1;
-                    tracing::warn!("download of {handle:#010x} failed ({e}); recovering (attempt {attempt})");
+                    tracing::warn!(
+                        "download of {handle:#010x} failed ({e}); recovering (attempt {attempt})"
+                    );
                     self.recover()?;
                 }
                 Err(e) => return Err(e),
@@ -283,9 +311,12 @@ impl Camera {
                 t,
                 &mut |done, _| progress(offset + done, size),
             )?;
-            let data = data.ok_or_else(|| PtpError::Protocol("GetPartialObject returned no data".into()))?;
+            let data =
+                data.ok_or_else(|| PtpError::Protocol("GetPartialObject returned no data".into()))?;
             if data.is_empty() {
-                return Err(PtpError::Protocol(format!("camera returned no bytes at offset {offset} of {size}")));
+                return Err(PtpError::Protocol(format!(
+                    "camera returned no bytes at offset {offset} of {size}"
+                )));
             }
             out.extend_from_slice(&data[..data.len().min((size - offset) as usize)]);
         }

@@ -58,23 +58,32 @@ impl Camera {
     /// Nikon bodies since about 2014 report the Microsoft (MTP) extension id 6, not Nikon's
     /// 0xA (the D5500 recording does), so the manufacturer counts too.
     pub fn is_nikon(&self) -> bool {
-        (self.info.vendor_extension_id == vendor::NIKON || self.info.manufacturer.starts_with("Nikon"))
+        (self.info.vendor_extension_id == vendor::NIKON
+            || self.info.manufacturer.starts_with("Nikon"))
             && (self.info.supports(op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM)
                 || self.info.supports(op::NIKON_INITIATE_CAPTURE_REC_IN_MEDIA))
     }
 
     /// Triggers one exposure and downloads it.
-    pub fn capture(&mut self, opts: &CaptureOptions, progress: CaptureProgress) -> Result<Captured> {
+    pub fn capture(
+        &mut self,
+        opts: &CaptureOptions,
+        progress: CaptureProgress,
+    ) -> Result<Captured> {
         let handle = if self.is_nikon() {
             self.trigger_nikon(opts.target, progress)?
         } else if self.info.supports(op::INITIATE_CAPTURE) {
             self.trigger_generic(progress)?
         } else {
-            return Err(PtpError::Unsupported("remote capture (InitiateCapture)".into()));
+            return Err(PtpError::Unsupported(
+                "remote capture (InitiateCapture)".into(),
+            ));
         };
         let info = self.object_info(handle)?;
         progress("download", 0, info.compressed_size as u64);
-        let data = self.download(handle, info.compressed_size as u64, &mut |d, t| progress("download", d, t))?;
+        let data = self.download(handle, info.compressed_size as u64, &mut |d, t| {
+            progress("download", d, t)
+        })?;
         if data.len() != info.compressed_size as usize && info.compressed_size != u32::MAX {
             return Err(PtpError::Protocol(format!(
                 "downloaded {} bytes of {} ({})",
@@ -92,14 +101,24 @@ impl Camera {
     /// InitiateCapture, then ObjectAdded and CaptureComplete in either order.
     fn trigger_generic(&mut self, progress: CaptureProgress) -> Result<u32> {
         progress("exposure", 0, 0);
-        self.call_with(op::INITIATE_CAPTURE, &[0, 0], None, self.timeouts.capture, &mut |_, _| {})?;
+        self.call_with(
+            op::INITIATE_CAPTURE,
+            &[0, 0],
+            None,
+            self.timeouts.capture,
+            &mut |_, _| {},
+        )?;
         let start = Instant::now();
         let (mut added, mut complete) = (None, false);
         while added.is_none() || !complete {
             let left = self.timeouts.capture.saturating_sub(start.elapsed());
             if left.is_zero() {
                 return Err(PtpError::Timeout {
-                    what: if added.is_none() { "capture" } else { "capture complete" },
+                    what: if added.is_none() {
+                        "capture"
+                    } else {
+                        "capture complete"
+                    },
                     after: self.timeouts.capture,
                 });
             }
@@ -141,10 +160,16 @@ impl Camera {
             for (code, param) in events {
                 match code {
                     event::NIKON_OBJECT_ADDED_IN_SDRAM => {
-                        handle = Some(if param == 0 { NIKON_SDRAM_HANDLE } else { param })
+                        handle = Some(if param == 0 {
+                            NIKON_SDRAM_HANDLE
+                        } else {
+                            param
+                        })
                     }
                     event::OBJECT_ADDED if target == Target::Card => handle = Some(param),
-                    event::STORE_FULL => return Err(PtpError::Protocol("the camera's card is full".into())),
+                    event::STORE_FULL => {
+                        return Err(PtpError::Protocol("the camera's card is full".into()))
+                    }
                     _ => {}
                 }
             }
@@ -158,10 +183,18 @@ impl Camera {
 
     fn wait_device_ready(&mut self, start: Instant) -> Result<()> {
         loop {
-            let (_, r) = self.transact(op::NIKON_DEVICE_READY, &[], None, self.timeouts.command, &mut |_, _| {})?;
+            let (_, r) = self.transact(
+                op::NIKON_DEVICE_READY,
+                &[],
+                None,
+                self.timeouts.command,
+                &mut |_, _| {},
+            )?;
             match r.code {
                 rc::OK => return Ok(()),
-                rc::DEVICE_BUSY if start.elapsed() < self.timeouts.capture => std::thread::sleep(self.timeouts.poll),
+                rc::DEVICE_BUSY if start.elapsed() < self.timeouts.capture => {
+                    std::thread::sleep(self.timeouts.poll)
+                }
                 rc::DEVICE_BUSY => {
                     return Err(PtpError::Timeout {
                         what: "capture",
@@ -189,14 +222,16 @@ impl Camera {
             .min_by(|a, b| distance(*a).total_cmp(&distance(*b)))
             .ok_or_else(|| PtpError::Protocol(format!("property {code:#06x} offers no values")))?;
         let applied = self.set_prop(&desc, &Value::Int(best))?;
-        applied
-            .as_i64()
-            .ok_or_else(|| PtpError::Protocol(format!("property {code:#06x} read back as {applied:?}")))
+        applied.as_i64().ok_or_else(|| {
+            PtpError::Protocol(format!("property {code:#06x} read back as {applied:?}"))
+        })
     }
 
     /// Shutter speed in seconds; returns the speed applied.
     pub fn set_shutter(&mut self, seconds: f64) -> Result<f64> {
-        let v = self.set_nearest(prop::EXPOSURE_TIME, |v| ((v as f64 / 1e4) / seconds).ln().abs())?;
+        let v = self.set_nearest(prop::EXPOSURE_TIME, |v| {
+            ((v as f64 / 1e4) / seconds).ln().abs()
+        })?;
         Ok(v as f64 / 1e4)
     }
 
@@ -223,7 +258,10 @@ impl Camera {
         if !desc.allowed().contains(&want) {
             return Err(PtpError::Unsupported(format!("image format {f:?}")));
         }
-        let got = self.set_prop(&desc, &Value::Int(want))?.as_i64().unwrap_or(-1);
+        let got = self
+            .set_prop(&desc, &Value::Int(want))?
+            .as_i64()
+            .unwrap_or(-1);
         Ok(match got {
             0..=3 => ImageFormat::Jpeg,
             4 => ImageFormat::Raw,
@@ -250,7 +288,11 @@ impl Camera {
         let mut out = Vec::with_capacity(shutters_s.len());
         for (i, &s) in shutters_s.iter().enumerate() {
             let applied = self.set_shutter(s)?;
-            tracing::info!("bracket {}/{}: asked {s} s, camera applied {applied} s", i + 1, shutters_s.len());
+            tracing::info!(
+                "bracket {}/{}: asked {s} s, camera applied {applied} s",
+                i + 1,
+                shutters_s.len()
+            );
             let shot = self.capture(opts, &mut |phase, d, t| progress(phase, d, t))?;
             out.push((applied, shot));
         }

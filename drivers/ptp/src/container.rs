@@ -68,8 +68,13 @@ impl Header {
         let kind_raw = r.u16()?;
         let code = r.u16()?;
         let tid = r.u32()?;
-        let kind = Kind::from_u16(kind_raw)
-            .ok_or_else(|| PtpError::malformed("container header", 4, format!("unknown container type {kind_raw}")))?;
+        let kind = Kind::from_u16(kind_raw).ok_or_else(|| {
+            PtpError::malformed(
+                "container header",
+                4,
+                format!("unknown container type {kind_raw}"),
+            )
+        })?;
         if (length as usize) < HEADER_LEN {
             return Err(PtpError::malformed(
                 "container header",
@@ -115,18 +120,27 @@ pub fn decode_message(h: &Header, payload: &[u8]) -> Result<Message> {
         return Err(PtpError::malformed(
             "container",
             HEADER_LEN + payload.len(),
-            format!("header says {} bytes, got {}", h.length, HEADER_LEN + payload.len()),
+            format!(
+                "header says {} bytes, got {}",
+                h.length,
+                HEADER_LEN + payload.len()
+            ),
         ));
     }
     if payload.len() % 4 != 0 || payload.len() / 4 > MAX_PARAMS {
         return Err(PtpError::malformed(
             "container",
             HEADER_LEN,
-            format!("{} parameter bytes is not 0 to 5 whole parameters", payload.len()),
+            format!(
+                "{} parameter bytes is not 0 to 5 whole parameters",
+                payload.len()
+            ),
         ));
     }
     let mut r = Reader::new(payload, "container parameters");
-    let params = (0..payload.len() / 4).map(|_| r.u32()).collect::<Result<_>>()?;
+    let params = (0..payload.len() / 4)
+        .map(|_| r.u32())
+        .collect::<Result<_>>()?;
     Ok(Message {
         code: h.code,
         tid: h.tid,
@@ -171,9 +185,13 @@ mod tests {
         // unknown type
         assert_eq!(err(&[12, 0, 0, 0, 9, 0, 1, 0x10, 0, 0, 0, 0]).0, 4);
         // length below the header
-        assert!(err(&[4, 0, 0, 0, 1, 0, 1, 0x10, 0, 0, 0, 0]).1.contains("shorter"));
+        assert!(err(&[4, 0, 0, 0, 1, 0, 1, 0x10, 0, 0, 0, 0])
+            .1
+            .contains("shorter"));
         // length beyond the bytes
-        assert!(err(&[20, 0, 0, 0, 3, 0, 1, 0x20, 0, 0, 0, 0]).1.contains("truncated"));
+        assert!(err(&[20, 0, 0, 0, 3, 0, 1, 0x20, 0, 0, 0, 0])
+            .1
+            .contains("truncated"));
         // parameter bytes not a multiple of 4
         assert_eq!(err(&[14, 0, 0, 0, 3, 0, 1, 0x20, 0, 0, 0, 0, 1, 2]).0, 12);
     }

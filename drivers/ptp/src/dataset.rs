@@ -157,7 +157,11 @@ impl ObjectInfo {
             capture_date: r.string()?,
             modification_date: r.string()?,
             // Some cameras end the dataset before Keywords.
-            keywords: if r.remaining() > 0 { r.string()? } else { String::new() },
+            keywords: if r.remaining() > 0 {
+                r.string()?
+            } else {
+                String::new()
+            },
         })
     }
 
@@ -385,7 +389,9 @@ impl DevicePropDesc {
                     max.as_i64().unwrap_or(0),
                     step.as_i64().unwrap_or(1).max(1),
                 );
-                (0..=((b - a) / s).min(100_000)).map(|i| a + i * s).collect()
+                (0..=((b - a) / s).min(100_000))
+                    .map(|i| a + i * s)
+                    .collect()
             }
             Form::None => self.current.as_i64().into_iter().collect(),
         }

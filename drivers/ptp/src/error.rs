@@ -48,7 +48,10 @@ impl PtpError {
     pub fn is_link_failure(&self) -> bool {
         matches!(
             self,
-            PtpError::Io(_) | PtpError::Disconnected { .. } | PtpError::Timeout { .. } | PtpError::Malformed { .. }
+            PtpError::Io(_)
+                | PtpError::Disconnected { .. }
+                | PtpError::Timeout { .. }
+                | PtpError::Malformed { .. }
         )
     }
 

@@ -60,7 +60,10 @@ impl<'a> Reader<'a> {
             return Err(PtpError::malformed(
                 self.what,
                 at,
-                format!("array of {n} elements does not fit in {} bytes", self.remaining()),
+                format!(
+                    "array of {n} elements does not fit in {} bytes",
+                    self.remaining()
+                ),
             ));
         }
         Ok(n)

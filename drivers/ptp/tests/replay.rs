@@ -13,11 +13,14 @@ use brdfd_ptp::transport::usb::{BulkPipe, Endpoint, PipeError, UsbTransport};
 use brdfd_ptp::{Camera, CaptureOptions, Timeouts};
 
 fn recording() -> Option<Vec<u8>> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/ptp/nikon-d5500-capture.pcapng");
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/ptp/nikon-d5500-capture.pcapng");
     match std::fs::read(&p) {
         Ok(b) => Some(b),
         Err(_) => {
-            eprintln!("skipping: shared/data/ptp/nikon-d5500-capture.pcapng is missing (CI has it)");
+            eprintln!(
+                "skipping: shared/data/ptp/nikon-d5500-capture.pcapng is missing (CI has it)"
+            );
             None
         }
     }
@@ -30,7 +33,10 @@ fn bulk_transfers(pcap: &[u8]) -> Vec<(u8, Vec<u8>)> {
     let mut off = 0;
     while off + 12 <= pcap.len() {
         let (ty, len) = (u32_at(off), u32_at(off + 4) as usize);
-        assert!(len >= 12 && off + len <= pcap.len(), "pcapng block at {off}");
+        assert!(
+            len >= 12 && off + len <= pcap.len(),
+            "pcapng block at {off}"
+        );
         if ty == 1 {
             let link = u16::from_le_bytes([pcap[off + 8], pcap[off + 9]]);
             assert_eq!(link, 249, "USBPcap link type");
@@ -106,7 +112,10 @@ fn every_recorded_container_decodes() {
         let ok = resp_h.code == brdfd_ptp::codes::rc::OK;
         // A failed request may still carry an empty data phase (GetObjectInfo of an empty
         // SDRAM slot does): only decode data the camera vouched for.
-        let data = c.iter().find(|(h, _)| h.kind == Kind::Data && ok).map(|(_, p)| p.as_slice());
+        let data = c
+            .iter()
+            .find(|(h, _)| h.kind == Kind::Data && ok)
+            .map(|(_, p)| p.as_slice());
         seen.insert(t.command.code);
         match (t.command.code, data) {
             (op::GET_DEVICE_INFO, Some(d)) => {
@@ -144,7 +153,13 @@ fn every_recorded_container_decodes() {
             _ => {}
         }
     }
-    for code in [op::OPEN_SESSION, op::GET_DEVICE_INFO, op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM, op::NIKON_DEVICE_READY, op::GET_OBJECT] {
+    for code in [
+        op::OPEN_SESSION,
+        op::GET_DEVICE_INFO,
+        op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM,
+        op::NIKON_DEVICE_READY,
+        op::GET_OBJECT,
+    ] {
         assert!(seen.contains(&code), "{code:#06x} in the recording");
     }
 }
@@ -173,7 +188,9 @@ impl BulkPipe for ReplayPipe {
                 let found = self.tx[self.cursor..]
                     .iter()
                     .position(|t| t.command.code == m.code && t.command.params == m.params)
-                    .unwrap_or_else(|| panic!("the camera never answered {:#06x} {:x?}", m.code, m.params));
+                    .unwrap_or_else(|| {
+                        panic!("the camera never answered {:#06x} {:x?}", m.code, m.params)
+                    });
                 let t = &self.tx[self.cursor + found];
                 self.cursor += found + 1;
                 self.issued.lock().unwrap().push(m.code);
@@ -232,11 +249,24 @@ fn nikon_capture_flow_replays_against_a_real_d5500() {
     };
     let mut cam = Camera::open(Box::new(UsbTransport::new(pipe)), t).unwrap();
     assert!(cam.is_nikon());
-    let shot = cam.capture(&CaptureOptions::default(), &mut |_, _, _| {}).unwrap();
-    assert_eq!(shot.handle, 0x2B00_0001, "the handle from ObjectAddedInSdram");
+    let shot = cam
+        .capture(&CaptureOptions::default(), &mut |_, _, _| {})
+        .unwrap();
+    assert_eq!(
+        shot.handle, 0x2B00_0001,
+        "the handle from ObjectAddedInSdram"
+    );
     assert_eq!(shot.data.len(), 1_325_002);
-    assert_eq!(&shot.data[shot.data.len() - 2..], [0xFF, 0xD9], "the whole JPEG");
-    let mut want = vec![op::OPEN_SESSION, op::GET_DEVICE_INFO, op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM];
+    assert_eq!(
+        &shot.data[shot.data.len() - 2..],
+        [0xFF, 0xD9],
+        "the whole JPEG"
+    );
+    let mut want = vec![
+        op::OPEN_SESSION,
+        op::GET_DEVICE_INFO,
+        op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM,
+    ];
     want.extend([op::NIKON_GET_EVENT; 7]);
     want.extend([op::NIKON_DEVICE_READY, op::GET_OBJECT_INFO, op::GET_OBJECT]);
     assert_eq!(*issued.lock().unwrap(), want);

@@ -41,7 +41,12 @@ impl ImageSource for SizedPayload {
     fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String> {
         let n = self.bytes.max(4);
         let mut v: Vec<u8> = (0..n)
-            .map(|i| (i as u32).wrapping_mul(2_654_435_761).wrapping_add(shot.sequence) as u8 >> 1)
+            .map(|i| {
+                (i as u32)
+                    .wrapping_mul(2_654_435_761)
+                    .wrapping_add(shot.sequence) as u8
+                    >> 1
+            })
             .collect();
         v[..2].copy_from_slice(&[0xFF, 0xD8]);
         v[n - 2..].copy_from_slice(&[0xFF, 0xD9]);

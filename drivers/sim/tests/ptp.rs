@@ -30,7 +30,8 @@ fn usb_camera(r: &SharedResponder) -> Camera {
 }
 
 fn ptpip_camera(server: &Server) -> Camera {
-    let t = PtpIpTransport::connect(server.addr, Initiator::default(), Duration::from_secs(2)).unwrap();
+    let t =
+        PtpIpTransport::connect(server.addr, Initiator::default(), Duration::from_secs(2)).unwrap();
     Camera::open(Box::new(t), quick()).unwrap()
 }
 
@@ -62,7 +63,10 @@ fn generic_capture_over_usb_downloads_and_deletes() {
     let shot = cam.capture(&opts, &mut |_, _, _| {}).unwrap();
     assert_eq!(shot.data, expected(300_000, 1));
     assert_eq!(shot.info.compressed_size, 300_000);
-    assert!(cam.object_handles(0xFFFF_FFFF).unwrap().is_empty(), "deleted after download");
+    assert!(
+        cam.object_handles(0xFFFF_FFFF).unwrap().is_empty(),
+        "deleted after download"
+    );
     let log = ops(&r);
     assert!(log.contains(&op::INITIATE_CAPTURE) && log.contains(&op::DELETE_OBJECT));
 }
@@ -78,7 +82,10 @@ fn nikon_capture_to_sdram_with_exposure_over_usb() {
     assert!((s - 0.0166).abs() < 1e-9, "{s}");
     assert_eq!(cam.set_iso(170).unwrap(), 160);
     assert!((cam.set_f_number(8.0).unwrap() - 8.0).abs() < 1e-9);
-    assert_eq!(cam.set_format(brdfd_ptp::ImageFormat::Raw).unwrap(), brdfd_ptp::ImageFormat::Raw);
+    assert_eq!(
+        cam.set_format(brdfd_ptp::ImageFormat::Raw).unwrap(),
+        brdfd_ptp::ImageFormat::Raw
+    );
     let mut phases = Vec::new();
     let shot = cam
         .capture(&CaptureOptions::default(), &mut |p, _, _| {
@@ -94,7 +101,10 @@ fn nikon_capture_to_sdram_with_exposure_over_usb() {
     let pos = |c| log.iter().position(|&o| o == c).unwrap();
     assert!(pos(op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM) < pos(op::NIKON_GET_EVENT));
     assert!(pos(op::NIKON_GET_EVENT) < pos(op::NIKON_DEVICE_READY));
-    assert!(log.iter().filter(|&&o| o == op::NIKON_DEVICE_READY).count() >= 3, "polled through busy");
+    assert!(
+        log.iter().filter(|&&o| o == op::NIKON_DEVICE_READY).count() >= 3,
+        "polled through busy"
+    );
     // The shot was taken with what the setters applied.
     let shot_settings = r.lock().unwrap().shot_settings();
     assert_eq!((shot_settings.iso, shot_settings.raw), (160, true));
@@ -105,7 +115,13 @@ fn nikon_bracket_over_ptpip() {
     let r = responder(Profile::NikonD5100, 50_000);
     let server = Server::start("127.0.0.1:0", r.clone()).unwrap();
     let mut cam = ptpip_camera(&server);
-    let shots = cam.bracket(&[1.0 / 250.0, 1.0 / 60.0, 1.0 / 15.0], &CaptureOptions::default(), &mut |_, _, _| {}).unwrap();
+    let shots = cam
+        .bracket(
+            &[1.0 / 250.0, 1.0 / 60.0, 1.0 / 15.0],
+            &CaptureOptions::default(),
+            &mut |_, _, _| {},
+        )
+        .unwrap();
     let applied: Vec<f64> = shots.iter().map(|s| s.0).collect();
     assert_eq!(applied, [0.004, 0.0166, 0.0666]);
     for (i, (_, s)) in shots.iter().enumerate() {
@@ -133,7 +149,13 @@ fn generic_capture_over_ptpip_reads_events_from_the_event_connection() {
     assert_eq!(shot.data, expected(10_000_000, 1));
     assert_eq!(last, (10_000_000, 10_000_000));
     // Large files come in GetPartialObject chunks.
-    assert!(ops(&r).iter().filter(|&&o| o == op::GET_PARTIAL_OBJECT).count() >= 3);
+    assert!(
+        ops(&r)
+            .iter()
+            .filter(|&&o| o == op::GET_PARTIAL_OBJECT)
+            .count()
+            >= 3
+    );
 }
 
 #[test]
@@ -141,7 +163,9 @@ fn busy_storm_is_retried() {
     let r = responder(Profile::NikonD5100, 1000);
     let mut cam = usb_camera(&r);
     r.lock().unwrap().faults.busy_storm = 6;
-    let shot = cam.capture(&CaptureOptions::default(), &mut |_, _, _| {}).unwrap();
+    let shot = cam
+        .capture(&CaptureOptions::default(), &mut |_, _, _| {})
+        .unwrap();
     assert_eq!(shot.data.len(), 1000);
     // A storm longer than the busy timeout ends in a named timeout.
     r.lock().unwrap().faults.busy_storm = u32::MAX;
@@ -155,7 +179,11 @@ fn disconnect_mid_download_recovers_over_usb_and_ptpip() {
     for link in ["usb", "ptpip"] {
         let r = responder(Profile::Generic, 2_000_000);
         let server = Server::start("127.0.0.1:0", r.clone()).unwrap();
-        let mut cam = if link == "usb" { usb_camera(&r) } else { ptpip_camera(&server) };
+        let mut cam = if link == "usb" {
+            usb_camera(&r)
+        } else {
+            ptpip_camera(&server)
+        };
         r.lock().unwrap().faults.disconnect_in_download = Some(700_000);
         let opts = CaptureOptions {
             target: Target::Card,
@@ -164,7 +192,11 @@ fn disconnect_mid_download_recovers_over_usb_and_ptpip() {
         let shot = cam.capture(&opts, &mut |_, _, _| {}).unwrap();
         assert_eq!(shot.data, expected(2_000_000, 1), "{link}");
         let log = ops(&r);
-        assert_eq!(log.iter().filter(|&&o| o == op::OPEN_SESSION).count(), 2, "{link}: session reopened");
+        assert_eq!(
+            log.iter().filter(|&&o| o == op::OPEN_SESSION).count(),
+            2,
+            "{link}: session reopened"
+        );
     }
 }
 
@@ -177,7 +209,10 @@ fn halted_endpoint_is_cleared_and_retried() {
         target: Target::Card,
         delete_after: false,
     };
-    assert_eq!(cam.capture(&opts, &mut |_, _, _| {}).unwrap().data.len(), 5000);
+    assert_eq!(
+        cam.capture(&opts, &mut |_, _, _| {}).unwrap().data.len(),
+        5000
+    );
 }
 
 #[test]
@@ -187,7 +222,11 @@ fn stalled_camera_times_out_with_the_wait_named() {
     cam.timeouts.command = Duration::from_millis(200);
     r.lock().unwrap().faults.stall = Some(Duration::from_millis(600));
     let e = cam.call(op::GET_STORAGE_IDS, &[]).unwrap_err();
-    assert!(e.to_string().contains("timed out after 200ms waiting for container from camera"), "{e}");
+    assert!(
+        e.to_string()
+            .contains("timed out after 200ms waiting for container from camera"),
+        "{e}"
+    );
     // The link recovers with a reset and a new session.
     std::thread::sleep(Duration::from_millis(500));
     cam.recover().unwrap();
@@ -199,7 +238,11 @@ fn corrupt_container_is_an_error_with_offset_not_a_panic() {
     for link in ["usb", "ptpip"] {
         let r = responder(Profile::Generic, 5000);
         let server = Server::start("127.0.0.1:0", r.clone()).unwrap();
-        let mut cam = if link == "usb" { usb_camera(&r) } else { ptpip_camera(&server) };
+        let mut cam = if link == "usb" {
+            usb_camera(&r)
+        } else {
+            ptpip_camera(&server)
+        };
         r.lock().unwrap().faults.corrupt_next_response = true;
         let e = cam.storage_ids().unwrap_err();
         assert!(matches!(e, PtpError::Malformed { .. }), "{link}: {e}");

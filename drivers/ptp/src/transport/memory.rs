@@ -80,7 +80,12 @@ impl BulkPipe for HostPipe {
         Ok(data.len())
     }
 
-    fn read(&mut self, ep: Endpoint, buf: &mut [u8], timeout: Duration) -> Result<usize, PipeError> {
+    fn read(
+        &mut self,
+        ep: Endpoint,
+        buf: &mut [u8],
+        timeout: Duration,
+    ) -> Result<usize, PipeError> {
         if ep == Endpoint::Interrupt {
             let t = recv(&self.interrupt, timeout)?;
             let n = t.len().min(buf.len());
@@ -100,10 +105,17 @@ impl BulkPipe for HostPipe {
     }
 
     fn clear_halt(&mut self, ep: Endpoint) -> Result<(), PipeError> {
-        self.to_device.send(ToDevice::ClearHalt(ep)).map_err(|_| PipeError::Gone)
+        self.to_device
+            .send(ToDevice::ClearHalt(ep))
+            .map_err(|_| PipeError::Gone)
     }
 
-    fn class_request(&mut self, request: u8, data_out: &[u8], _data_in: usize) -> Result<Vec<u8>, PipeError> {
+    fn class_request(
+        &mut self,
+        request: u8,
+        data_out: &[u8],
+        _data_in: usize,
+    ) -> Result<Vec<u8>, PipeError> {
         let (reply, rx) = channel();
         self.to_device
             .send(ToDevice::Control {
@@ -112,7 +124,9 @@ impl BulkPipe for HostPipe {
                 reply,
             })
             .map_err(|_| PipeError::Gone)?;
-        let answer = rx.recv_timeout(Duration::from_secs(5)).map_err(|_| PipeError::Gone)?;
+        let answer = rx
+            .recv_timeout(Duration::from_secs(5))
+            .map_err(|_| PipeError::Gone)?;
         // Control requests here are resets and cancels: whatever the device had queued
         // for the aborted transaction is void.
         while self.bulk_in.try_recv().is_ok() {}

@@ -54,7 +54,9 @@ impl Packet {
 
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut w = Writer::new();
-        w.u32(8 + self.body.len() as u32).u32(self.ty).bytes(&self.body);
+        w.u32(8 + self.body.len() as u32)
+            .u32(self.ty)
+            .bytes(&self.body);
         w.finish()
     }
 
@@ -69,7 +71,9 @@ impl Packet {
         if r.remaining() % 4 != 0 || r.remaining() / 4 > crate::container::MAX_PARAMS {
             return Err(r.error(format!("{} parameter bytes", r.remaining())));
         }
-        let params = (0..r.remaining() / 4).map(|_| r.u32()).collect::<Result<_>>()?;
+        let params = (0..r.remaining() / 4)
+            .map(|_| r.u32())
+            .collect::<Result<_>>()?;
         Ok(Message { code, tid, params })
     }
 
@@ -92,7 +96,11 @@ pub fn read_packet(r: &mut impl Read) -> Result<Packet> {
     let len = u32::from_le_bytes(head[..4].try_into().unwrap()) as usize;
     let ty = u32::from_le_bytes(head[4..].try_into().unwrap());
     if !(8..=MAX_PACKET).contains(&len) {
-        return Err(PtpError::malformed("PTP/IP packet", 0, format!("length {len} (type {ty})")));
+        return Err(PtpError::malformed(
+            "PTP/IP packet",
+            0,
+            format!("length {len} (type {ty})"),
+        ));
     }
     let mut body = vec![0u8; len - 8];
     r.read_exact(&mut body)?;
@@ -133,7 +141,11 @@ pub struct PtpIpTransport {
 }
 
 impl PtpIpTransport {
-    pub fn connect(addr: impl ToSocketAddrs, initiator: Initiator, timeout: Duration) -> Result<Self> {
+    pub fn connect(
+        addr: impl ToSocketAddrs,
+        initiator: Initiator,
+        timeout: Duration,
+    ) -> Result<Self> {
         let addr = addr
             .to_socket_addrs()?
             .next()
@@ -153,7 +165,10 @@ impl PtpIpTransport {
     fn read_cmd(&mut self, timeout: Duration, during: &'static str) -> Result<Packet> {
         self.cmd.set_read_timeout(Some(timeout))?;
         read_packet(&mut self.cmd).map_err(|e| match e {
-            PtpError::Io(_) => PtpError::Timeout { what: during, after: timeout },
+            PtpError::Io(_) => PtpError::Timeout {
+                what: during,
+                after: timeout,
+            },
             e => e,
         })
     }
@@ -168,7 +183,11 @@ fn tcp(addr: SocketAddr, timeout: Duration) -> Result<TcpStream> {
     Ok(s)
 }
 
-fn handshake(addr: SocketAddr, who: &Initiator, timeout: Duration) -> Result<(TcpStream, TcpStream, String)> {
+fn handshake(
+    addr: SocketAddr,
+    who: &Initiator,
+    timeout: Duration,
+) -> Result<(TcpStream, TcpStream, String)> {
     let mut cmd = tcp(addr, timeout)?;
     let mut w = Writer::new();
     w.bytes(&who.guid);
@@ -187,7 +206,13 @@ fn handshake(addr: SocketAddr, who: &Initiator, timeout: Duration) -> Result<(Tc
                 "camera at {addr} refused the connection (InitFail reason {reason}); if it asks, confirm the pairing on the camera's screen"
             )));
         }
-        t => return Err(PtpError::malformed("InitCommandAck", 4, format!("packet type {t}"))),
+        t => {
+            return Err(PtpError::malformed(
+                "InitCommandAck",
+                4,
+                format!("packet type {t}"),
+            ))
+        }
     }
     let mut r = Reader::new(&ack.body, "InitCommandAck");
     let conn = r.u32()?;
@@ -208,7 +233,11 @@ fn handshake(addr: SocketAddr, who: &Initiator, timeout: Duration) -> Result<(Tc
     evt.set_read_timeout(Some(timeout))?;
     let ack = read_packet(&mut evt)?;
     if ack.ty != ty::INIT_EVENT_ACK {
-        return Err(PtpError::malformed("InitEventAck", 4, format!("packet type {}", ack.ty)));
+        return Err(PtpError::malformed(
+            "InitEventAck",
+            4,
+            format!("packet type {}", ack.ty),
+        ));
     }
     Ok((cmd, evt, name))
 }
@@ -221,7 +250,11 @@ impl Transport for PtpIpTransport {
         response_timeout: Duration,
         progress: Progress,
     ) -> Result<(Option<Vec<u8>>, Message)> {
-        let phase = if data_out.is_some() { dataphase::OUT } else { dataphase::NONE_OR_IN };
+        let phase = if data_out.is_some() {
+            dataphase::OUT
+        } else {
+            dataphase::NONE_OR_IN
+        };
         let mut out = Packet::from_message(ty::OPERATION_REQUEST, Some(phase), op).to_bytes();
         if let Some(data) = data_out {
             let mut w = Writer::new();
@@ -232,7 +265,11 @@ impl Transport for PtpIpTransport {
                 out.extend(Packet::new(ty::END_DATA, op.tid.to_le_bytes().to_vec()).to_bytes());
             }
             while let Some(c) = chunks.next() {
-                let kind = if chunks.peek().is_some() { ty::DATA } else { ty::END_DATA };
+                let kind = if chunks.peek().is_some() {
+                    ty::DATA
+                } else {
+                    ty::END_DATA
+                };
                 let mut body = op.tid.to_le_bytes().to_vec();
                 body.extend_from_slice(c);
                 out.extend(Packet::new(kind, body).to_bytes());
@@ -261,7 +298,9 @@ impl Transport for PtpIpTransport {
                         PtpError::Protocol("data packet without StartData".into())
                     })?;
                     if tid_of(&p)? != op.tid {
-                        return Err(PtpError::Protocol("data packet for another transaction".into()));
+                        return Err(PtpError::Protocol(
+                            "data packet for another transaction".into(),
+                        ));
                     }
                     buf.extend_from_slice(&p.body[4..]);
                     if buf.len() as u64 > total {
@@ -289,8 +328,18 @@ impl Transport for PtpIpTransport {
                     }
                     return Ok((data, m));
                 }
-                ty::CANCEL => return Err(PtpError::Protocol("camera cancelled the transaction".into())),
-                t => return Err(PtpError::malformed("PTP/IP command stream", 4, format!("unexpected packet type {t}"))),
+                ty::CANCEL => {
+                    return Err(PtpError::Protocol(
+                        "camera cancelled the transaction".into(),
+                    ))
+                }
+                t => {
+                    return Err(PtpError::malformed(
+                        "PTP/IP command stream",
+                        4,
+                        format!("unexpected packet type {t}"),
+                    ))
+                }
             }
         }
     }
@@ -301,7 +350,11 @@ impl Transport for PtpIpTransport {
             if self.evt_buf.len() >= 8 {
                 let len = u32::from_le_bytes(self.evt_buf[..4].try_into().unwrap()) as usize;
                 if !(8..=4096).contains(&len) {
-                    return Err(PtpError::malformed("PTP/IP event packet", 0, format!("length {len}")));
+                    return Err(PtpError::malformed(
+                        "PTP/IP event packet",
+                        0,
+                        format!("length {len}"),
+                    ));
                 }
                 if self.evt_buf.len() >= len {
                     let p = read_packet(&mut &self.evt_buf[..len])?;
@@ -309,7 +362,9 @@ impl Transport for PtpIpTransport {
                     match p.ty {
                         ty::EVENT => return Ok(Some(p.message(0)?)),
                         // The camera checks that we are alive.
-                        ty::PROBE_REQUEST => write_packet(&mut self.evt, &Packet::new(ty::PROBE_RESPONSE, vec![]))?,
+                        ty::PROBE_REQUEST => {
+                            write_packet(&mut self.evt, &Packet::new(ty::PROBE_RESPONSE, vec![]))?
+                        }
                         _ => {}
                     }
                     continue;
@@ -322,9 +377,18 @@ impl Transport for PtpIpTransport {
             self.evt.set_read_timeout(Some(left))?;
             let mut buf = [0u8; 512];
             match self.evt.read(&mut buf) {
-                Ok(0) => return Err(PtpError::Disconnected { during: "event read" }),
+                Ok(0) => {
+                    return Err(PtpError::Disconnected {
+                        during: "event read",
+                    })
+                }
                 Ok(n) => self.evt_buf.extend_from_slice(&buf[..n]),
-                Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) =>
+                {
                     return Ok(None)
                 }
                 Err(e) => return Err(e.into()),

@@ -37,17 +37,26 @@ pub trait BulkPipe: Send {
     fn max_packet(&self) -> usize;
     fn write(&mut self, data: &[u8], timeout: Duration) -> Result<usize, PipeError>;
     /// Reads one transfer from the bulk-in or interrupt endpoint.
-    fn read(&mut self, ep: Endpoint, buf: &mut [u8], timeout: Duration) -> Result<usize, PipeError>;
+    fn read(&mut self, ep: Endpoint, buf: &mut [u8], timeout: Duration)
+        -> Result<usize, PipeError>;
     fn clear_halt(&mut self, ep: Endpoint) -> Result<(), PipeError>;
     /// A class-specific control request to the interface. Requests with `data_in` > 0 read
     /// that many bytes back.
-    fn class_request(&mut self, request: u8, data_out: &[u8], data_in: usize) -> Result<Vec<u8>, PipeError>;
+    fn class_request(
+        &mut self,
+        request: u8,
+        data_out: &[u8],
+        data_in: usize,
+    ) -> Result<Vec<u8>, PipeError>;
     fn describe(&self) -> String;
 }
 
 fn pipe_err(e: PipeError, during: &'static str, after: Duration) -> PtpError {
     match e {
-        PipeError::Timeout => PtpError::Timeout { what: during, after },
+        PipeError::Timeout => PtpError::Timeout {
+            what: during,
+            after,
+        },
         PipeError::Gone => PtpError::Disconnected { during },
         PipeError::Stall => PtpError::Io(format!("endpoint stalled during {during}")),
         PipeError::Other(s) => PtpError::Io(format!("{s} during {during}")),
@@ -115,13 +124,18 @@ impl<P: BulkPipe> UsbTransport<P> {
         while self.pending.len() < want {
             let left = timeout.saturating_sub(start.elapsed());
             if left.is_zero() {
-                return Err(PtpError::Timeout { what: during, after: timeout });
+                return Err(PtpError::Timeout {
+                    what: during,
+                    after: timeout,
+                });
             }
             match self.pipe.read(Endpoint::BulkIn, &mut buf, left) {
                 Ok(n) => self.pending.extend_from_slice(&buf[..n]),
                 Err(PipeError::Stall) if !stalled => {
                     stalled = true;
-                    tracing::warn!("bulk-in stalled during {during}; clearing the halt and retrying once");
+                    tracing::warn!(
+                        "bulk-in stalled during {during}; clearing the halt and retrying once"
+                    );
                     self.pipe
                         .clear_halt(Endpoint::BulkIn)
                         .map_err(|e| pipe_err(e, "clear halt", timeout))?;
@@ -215,7 +229,11 @@ impl<P: BulkPipe> Transport for UsbTransport<P> {
             Ok(n) => {
                 let (h, p) = container::decode(&buf[..n])?;
                 if h.kind != Kind::Event {
-                    return Err(PtpError::malformed("event", 4, format!("{:?} container on the interrupt endpoint", h.kind)));
+                    return Err(PtpError::malformed(
+                        "event",
+                        4,
+                        format!("{:?} container on the interrupt endpoint", h.kind),
+                    ));
                 }
                 Ok(Some(container::decode_message(&h, p)?))
             }
@@ -238,12 +256,17 @@ impl<P: BulkPipe> Transport for UsbTransport<P> {
                 .pipe
                 .class_request(class_request::GET_DEVICE_STATUS, &[], 64)
                 .map_err(|e| pipe_err(e, "device status", t))?;
-            if status.len() >= 4 && u16::from_le_bytes([status[2], status[3]]) != crate::codes::rc::DEVICE_BUSY {
+            if status.len() >= 4
+                && u16::from_le_bytes([status[2], status[3]]) != crate::codes::rc::DEVICE_BUSY
+            {
                 return Ok(());
             }
             std::thread::sleep(Duration::from_millis(50));
         }
-        Err(PtpError::Timeout { what: "device status after reset", after: t })
+        Err(PtpError::Timeout {
+            what: "device status after reset",
+            after: t,
+        })
     }
 
     fn describe(&self) -> String {
@@ -269,7 +292,12 @@ mod rusb_pipe {
 
     /// Vendor ids we know make PTP cameras, for devices that do not announce class 6/1/1
     /// at the interface (or announce a vendor class, as some THETA firmwares do).
-    pub const KNOWN_VENDORS: [(u16, &str); 4] = [(0x04b0, "Nikon"), (0x05ca, "Ricoh"), (0x04a9, "Canon"), (0x054c, "Sony")];
+    pub const KNOWN_VENDORS: [(u16, &str); 4] = [
+        (0x04b0, "Nikon"),
+        (0x05ca, "Ricoh"),
+        (0x04a9, "Canon"),
+        (0x054c, "Sony"),
+    ];
 
     #[derive(Debug, Clone)]
     pub struct UsbCameraInfo {
@@ -315,7 +343,10 @@ mod rusb_pipe {
     }
 
     fn still_image_interface(dev: &rusb::Device<rusb::Context>) -> Option<Found> {
-        let config = dev.active_config_descriptor().or_else(|_| dev.config_descriptor(0)).ok()?;
+        let config = dev
+            .active_config_descriptor()
+            .or_else(|_| dev.config_descriptor(0))
+            .ok()?;
         for iface in config.interfaces() {
             for alt in iface.descriptors() {
                 let class = (alt.class_code(), alt.sub_class_code(), alt.protocol_code());
@@ -353,10 +384,21 @@ mod rusb_pipe {
     pub fn list_still_image_devices() -> Result<Vec<UsbCameraInfo>> {
         let ctx = rusb::Context::new().map_err(|e| PtpError::Io(format!("libusb: {e}")))?;
         let mut out = Vec::new();
-        for dev in ctx.devices().map_err(|e| PtpError::Io(format!("libusb: {e}")))?.iter() {
-            let Ok(desc) = dev.device_descriptor() else { continue };
-            let Some(found) = still_image_interface(&dev) else { continue };
-            let vendor = KNOWN_VENDORS.iter().find(|v| v.0 == desc.vendor_id()).map(|v| v.1);
+        for dev in ctx
+            .devices()
+            .map_err(|e| PtpError::Io(format!("libusb: {e}")))?
+            .iter()
+        {
+            let Ok(desc) = dev.device_descriptor() else {
+                continue;
+            };
+            let Some(found) = still_image_interface(&dev) else {
+                continue;
+            };
+            let vendor = KNOWN_VENDORS
+                .iter()
+                .find(|v| v.0 == desc.vendor_id())
+                .map(|v| v.1);
             out.push(UsbCameraInfo {
                 vendor_id: desc.vendor_id(),
                 product_id: desc.product_id(),
@@ -373,13 +415,21 @@ mod rusb_pipe {
     /// omitted), detaching a kernel driver and claiming the interface.
     pub fn open_usb(vendor: Option<u16>, product: Option<u16>) -> Result<RusbPipe> {
         let ctx = rusb::Context::new().map_err(|e| PtpError::Io(format!("libusb: {e}")))?;
-        let devices = ctx.devices().map_err(|e| PtpError::Io(format!("libusb: {e}")))?;
+        let devices = ctx
+            .devices()
+            .map_err(|e| PtpError::Io(format!("libusb: {e}")))?;
         for dev in devices.iter() {
-            let Ok(desc) = dev.device_descriptor() else { continue };
-            if vendor.is_some_and(|v| v != desc.vendor_id()) || product.is_some_and(|p| p != desc.product_id()) {
+            let Ok(desc) = dev.device_descriptor() else {
+                continue;
+            };
+            if vendor.is_some_and(|v| v != desc.vendor_id())
+                || product.is_some_and(|p| p != desc.product_id())
+            {
                 continue;
             }
-            let Some(f) = still_image_interface(&dev) else { continue };
+            let Some(f) = still_image_interface(&dev) else {
+                continue;
+            };
             let name = format!(
                 "usb:{:04x}:{:04x} (bus {} address {})",
                 desc.vendor_id(),
@@ -388,13 +438,19 @@ mod rusb_pipe {
                 dev.address()
             );
             let handle = dev.open().map_err(|e| match e {
-                rusb::Error::Access => PtpError::Permission { device: name.clone() },
+                rusb::Error::Access => PtpError::Permission {
+                    device: name.clone(),
+                },
                 e => PtpError::Io(format!("opening {name}: {e}")),
             })?;
             let _ = handle.set_auto_detach_kernel_driver(true);
             handle.claim_interface(f.interface).map_err(|e| match e {
-                rusb::Error::Busy => PtpError::Claimed { device: name.clone() },
-                rusb::Error::Access => PtpError::Permission { device: name.clone() },
+                rusb::Error::Busy => PtpError::Claimed {
+                    device: name.clone(),
+                },
+                rusb::Error::Access => PtpError::Permission {
+                    device: name.clone(),
+                },
                 e => PtpError::Io(format!("claiming {name}: {e}")),
             })?;
             return Ok(RusbPipe {
@@ -422,9 +478,16 @@ mod rusb_pipe {
             self.max_packet
         }
         fn write(&mut self, data: &[u8], timeout: Duration) -> Result<usize, PipeError> {
-            self.handle.write_bulk(self.bulk_out, data, timeout).map_err(map)
+            self.handle
+                .write_bulk(self.bulk_out, data, timeout)
+                .map_err(map)
         }
-        fn read(&mut self, ep: Endpoint, buf: &mut [u8], timeout: Duration) -> Result<usize, PipeError> {
+        fn read(
+            &mut self,
+            ep: Endpoint,
+            buf: &mut [u8],
+            timeout: Duration,
+        ) -> Result<usize, PipeError> {
             match ep {
                 Endpoint::Interrupt => self.handle.read_interrupt(self.interrupt, buf, timeout),
                 _ => self.handle.read_bulk(self.bulk_in, buf, timeout),
@@ -439,18 +502,36 @@ mod rusb_pipe {
             };
             self.handle.clear_halt(addr).map_err(map)
         }
-        fn class_request(&mut self, request: u8, data_out: &[u8], data_in: usize) -> Result<Vec<u8>, PipeError> {
+        fn class_request(
+            &mut self,
+            request: u8,
+            data_out: &[u8],
+            data_in: usize,
+        ) -> Result<Vec<u8>, PipeError> {
             let t = Duration::from_secs(5);
             let index = self.interface as u16;
             if data_in > 0 {
                 let mut buf = vec![0u8; data_in];
-                let rt = rusb::request_type(Direction::In, rusb::RequestType::Class, rusb::Recipient::Interface);
-                let n = self.handle.read_control(rt, request, 0, index, &mut buf, t).map_err(map)?;
+                let rt = rusb::request_type(
+                    Direction::In,
+                    rusb::RequestType::Class,
+                    rusb::Recipient::Interface,
+                );
+                let n = self
+                    .handle
+                    .read_control(rt, request, 0, index, &mut buf, t)
+                    .map_err(map)?;
                 buf.truncate(n);
                 Ok(buf)
             } else {
-                let rt = rusb::request_type(Direction::Out, rusb::RequestType::Class, rusb::Recipient::Interface);
-                self.handle.write_control(rt, request, 0, index, data_out, t).map_err(map)?;
+                let rt = rusb::request_type(
+                    Direction::Out,
+                    rusb::RequestType::Class,
+                    rusb::Recipient::Interface,
+                );
+                self.handle
+                    .write_control(rt, request, 0, index, data_out, t)
+                    .map_err(map)?;
                 Ok(Vec::new())
             }
         }

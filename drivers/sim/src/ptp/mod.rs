@@ -2,8 +2,8 @@
 //! [`usb`] serves it over the in-memory USB pipe and [`ptpip`] as a PTP/IP server.
 
 mod profiles;
-mod responder;
 pub mod ptpip;
+mod responder;
 pub mod usb;
 
 pub use profiles::Profile;

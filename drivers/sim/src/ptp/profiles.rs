@@ -58,7 +58,13 @@ const STANDARD_OPS: [u16; 16] = [
 pub fn device_info(p: Profile) -> DeviceInfo {
     let mut ops = STANDARD_OPS.to_vec();
     let props = properties(p).iter().map(|d| d.code).collect();
-    let events = vec![event::OBJECT_ADDED, event::OBJECT_REMOVED, event::DEVICE_PROP_CHANGED, event::STORE_FULL, event::CAPTURE_COMPLETE];
+    let events = vec![
+        event::OBJECT_ADDED,
+        event::OBJECT_REMOVED,
+        event::DEVICE_PROP_CHANGED,
+        event::STORE_FULL,
+        event::CAPTURE_COMPLETE,
+    ];
     match p {
         Profile::Generic => DeviceInfo {
             standard_version: 100,
@@ -143,7 +149,13 @@ pub fn storage_info(p: Profile, used: u64) -> StorageInfo {
 }
 
 fn e(code: u16, ty: u16, writable: bool, current: i64, values: &[i64]) -> DevicePropDesc {
-    let v = |x: i64| if matches!(ty, dt::INT8 | dt::INT16 | dt::INT32 | dt::INT64) { Value::Int(x) } else { Value::UInt(x as u64) };
+    let v = |x: i64| {
+        if matches!(ty, dt::INT8 | dt::INT16 | dt::INT32 | dt::INT64) {
+            Value::Int(x)
+        } else {
+            Value::UInt(x as u64)
+        }
+    };
     DevicePropDesc {
         code,
         datatype: ty,
@@ -172,17 +184,18 @@ fn range(code: u16, ty: u16, writable: bool, current: u64, min: u64, max: u64) -
 /// The D5100's shutter speeds in manual mode, in 1/10000 s (from the real camera's dump;
 /// 0xFFFFFFFF is bulb).
 const D5100_EXPOSURE_TIMES: [i64; 53] = [
-    2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 25, 31, 40, 50, 62, 80, 100, 125, 166, 200, 250, 333, 400, 500, 666, 769, 1000,
-    1250, 1666, 2000, 2500, 3333, 4000, 5000, 6250, 7692, 10000, 13000, 16000, 20000, 25000, 30000, 40000, 50000,
-    60000, 80000, 100000, 130000, 150000, 200000, 250000, 300000, 4294967295,
+    2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 25, 31, 40, 50, 62, 80, 100, 125, 166, 200, 250, 333, 400,
+    500, 666, 769, 1000, 1250, 1666, 2000, 2500, 3333, 4000, 5000, 6250, 7692, 10000, 13000, 16000,
+    20000, 25000, 30000, 40000, 50000, 60000, 80000, 100000, 130000, 150000, 200000, 250000,
+    300000, 4294967295,
 ];
 const D5100_F_NUMBERS: [i64; 25] = [
-    140, 160, 180, 200, 220, 250, 280, 320, 350, 400, 450, 500, 560, 630, 710, 800, 900, 1000, 1100, 1300, 1400,
-    1600, 1800, 2000, 2200,
+    140, 160, 180, 200, 220, 250, 280, 320, 350, 400, 450, 500, 560, 630, 710, 800, 900, 1000,
+    1100, 1300, 1400, 1600, 1800, 2000, 2200,
 ];
 const D5100_ISO: [i64; 23] = [
-    100, 125, 160, 200, 250, 320, 400, 500, 640, 800, 1000, 1250, 1600, 2000, 2500, 3200, 4000, 5000, 6400, 8000,
-    10000, 12800, 25600,
+    100, 125, 160, 200, 250, 320, 400, 500, 640, 800, 1000, 1250, 1600, 2000, 2500, 3200, 4000,
+    5000, 6400, 8000, 10000, 12800, 25600,
 ];
 
 pub fn properties(p: Profile) -> Vec<DevicePropDesc> {
@@ -190,30 +203,112 @@ pub fn properties(p: Profile) -> Vec<DevicePropDesc> {
         Profile::Generic => vec![
             range(prop::BATTERY_LEVEL, dt::UINT8, false, 100, 0, 100),
             e(prop::COMPRESSION_SETTING, dt::UINT8, true, 2, &[0, 1, 2]),
-            e(prop::F_NUMBER, dt::UINT16, true, 800, &[280, 400, 560, 800, 1100, 1600]),
-            e(prop::EXPOSURE_TIME, dt::UINT32, true, 100, &[1, 2, 5, 10, 20, 40, 80, 100, 125, 250, 500, 1000, 2000, 4000, 10000, 20000, 40000]),
+            e(
+                prop::F_NUMBER,
+                dt::UINT16,
+                true,
+                800,
+                &[280, 400, 560, 800, 1100, 1600],
+            ),
+            e(
+                prop::EXPOSURE_TIME,
+                dt::UINT32,
+                true,
+                100,
+                &[
+                    1, 2, 5, 10, 20, 40, 80, 100, 125, 250, 500, 1000, 2000, 4000, 10000, 20000,
+                    40000,
+                ],
+            ),
             e(prop::EXPOSURE_PROGRAM_MODE, dt::UINT16, false, 1, &[1]),
-            e(prop::EXPOSURE_INDEX, dt::UINT16, true, 100, &[100, 200, 400, 800, 1600]),
+            e(
+                prop::EXPOSURE_INDEX,
+                dt::UINT16,
+                true,
+                100,
+                &[100, 200, 400, 800, 1600],
+            ),
         ],
         Profile::NikonD5100 => vec![
             range(prop::BATTERY_LEVEL, dt::UINT8, false, 100, 0, 100),
-            e(prop::COMPRESSION_SETTING, dt::UINT8, true, 2, &[0, 1, 2, 4, 5, 6, 7]),
-            e(prop::WHITE_BALANCE, dt::UINT16, true, 4, &[2, 4, 5, 6, 7, 32784, 32785, 32787]),
+            e(
+                prop::COMPRESSION_SETTING,
+                dt::UINT8,
+                true,
+                2,
+                &[0, 1, 2, 4, 5, 6, 7],
+            ),
+            e(
+                prop::WHITE_BALANCE,
+                dt::UINT16,
+                true,
+                4,
+                &[2, 4, 5, 6, 7, 32784, 32785, 32787],
+            ),
             e(prop::F_NUMBER, dt::UINT16, true, 800, &D5100_F_NUMBERS),
             range(prop::FOCAL_LENGTH, dt::UINT32, false, 8500, 8500, 8500),
-            e(prop::EXPOSURE_TIME, dt::UINT32, true, 3333, &D5100_EXPOSURE_TIMES),
-            e(prop::EXPOSURE_PROGRAM_MODE, dt::UINT16, false, 1, &[1, 2, 3, 4, 32784, 32785, 32786, 32787, 32788, 32790, 32791, 32792, 32793]),
+            e(
+                prop::EXPOSURE_TIME,
+                dt::UINT32,
+                true,
+                3333,
+                &D5100_EXPOSURE_TIMES,
+            ),
+            e(
+                prop::EXPOSURE_PROGRAM_MODE,
+                dt::UINT16,
+                false,
+                1,
+                &[
+                    1, 2, 3, 4, 32784, 32785, 32786, 32787, 32788, 32790, 32791, 32792, 32793,
+                ],
+            ),
             e(prop::EXPOSURE_INDEX, dt::UINT16, true, 100, &D5100_ISO),
-            e(prop::STILL_CAPTURE_MODE, dt::UINT16, true, 1, &[1, 2, 32785, 32788, 32789, 32790]),
+            e(
+                prop::STILL_CAPTURE_MODE,
+                dt::UINT16,
+                true,
+                1,
+                &[1, 2, 32785, 32788, 32789, 32790],
+            ),
             range(prop::BURST_NUMBER, dt::UINT16, true, 1, 1, 100),
             range(prop::NIKON_RECORDING_MEDIA, dt::UINT8, true, 1, 0, 2),
         ],
         Profile::ThetaV => vec![
             range(prop::BATTERY_LEVEL, dt::UINT8, false, 98, 0, 100),
-            e(prop::WHITE_BALANCE, dt::UINT16, true, 2, &[2, 4, 32769, 32770, 6, 32800, 32771, 32772, 32773, 32774, 32775, 32776]),
-            e(prop::EXPOSURE_PROGRAM_MODE, dt::UINT16, true, 2, &[1, 2, 4, 32771]),
-            e(prop::EXPOSURE_INDEX, dt::UINT16, true, 100, &[64, 80, 100, 125, 160, 200, 250, 320, 400, 500, 640, 800, 1000, 1250, 1600, 2000, 2500, 3200]),
-            e(prop::STILL_CAPTURE_MODE, dt::UINT16, true, 1, &[1, 3, 32770, 32772, 32773, 32774, 32775]),
+            e(
+                prop::WHITE_BALANCE,
+                dt::UINT16,
+                true,
+                2,
+                &[
+                    2, 4, 32769, 32770, 6, 32800, 32771, 32772, 32773, 32774, 32775, 32776,
+                ],
+            ),
+            e(
+                prop::EXPOSURE_PROGRAM_MODE,
+                dt::UINT16,
+                true,
+                2,
+                &[1, 2, 4, 32771],
+            ),
+            e(
+                prop::EXPOSURE_INDEX,
+                dt::UINT16,
+                true,
+                100,
+                &[
+                    64, 80, 100, 125, 160, 200, 250, 320, 400, 500, 640, 800, 1000, 1250, 1600,
+                    2000, 2500, 3200,
+                ],
+            ),
+            e(
+                prop::STILL_CAPTURE_MODE,
+                dt::UINT16,
+                true,
+                1,
+                &[1, 3, 32770, 32772, 32773, 32774, 32775],
+            ),
             // Sleep: 1 while asleep; writing 0 wakes the camera.
             e(prop::RICOH_SLEEP, dt::UINT8, true, 0, &[0, 1]),
         ],

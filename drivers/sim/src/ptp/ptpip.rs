@@ -8,7 +8,9 @@ use std::sync::{Arc, Mutex};
 use std::thread;
 use std::time::Duration;
 
-use brdfd_ptp::transport::ptpip::{dataphase, read_packet, ty, Packet, DATA_CHUNK, PROTOCOL_VERSION};
+use brdfd_ptp::transport::ptpip::{
+    dataphase, read_packet, ty, Packet, DATA_CHUNK, PROTOCOL_VERSION,
+};
 use brdfd_ptp::wire::{Reader, Writer};
 
 use super::{SharedResponder, WireFault};
@@ -69,7 +71,9 @@ fn accept_loop(listener: TcpListener, responder: SharedResponder, stop: Arc<Atom
         let _ = s.set_nonblocking(false);
         let _ = s.set_nodelay(true);
         let _ = s.set_read_timeout(Some(Duration::from_secs(5)));
-        let Ok(first) = read_packet(&mut s) else { continue };
+        let Ok(first) = read_packet(&mut s) else {
+            continue;
+        };
         match first.ty {
             ty::INIT_COMMAND_REQUEST => {
                 let conn = next_conn;
@@ -80,7 +84,9 @@ fn accept_loop(listener: TcpListener, responder: SharedResponder, stop: Arc<Atom
                     w.u16(u);
                 }
                 w.u16(0).u32(PROTOCOL_VERSION);
-                if s.write_all(&Packet::new(ty::INIT_COMMAND_ACK, w.finish()).to_bytes()).is_err() {
+                if s.write_all(&Packet::new(ty::INIT_COMMAND_ACK, w.finish()).to_bytes())
+                    .is_err()
+                {
                     continue;
                 }
                 tracing::debug!("simulated PTP/IP camera: command connection {conn} from {peer}");
@@ -93,15 +99,24 @@ fn accept_loop(listener: TcpListener, responder: SharedResponder, stop: Arc<Atom
                 thread::spawn(move || serve_commands(s, r, events, stop));
             }
             ty::INIT_EVENT_REQUEST => {
-                let conn = Reader::new(&first.body, "InitEventRequest").u32().unwrap_or(0);
-                let slot = waiting.lock().unwrap().iter().find(|(c, _)| *c == conn).map(|(_, e)| e.clone());
+                let conn = Reader::new(&first.body, "InitEventRequest")
+                    .u32()
+                    .unwrap_or(0);
+                let slot = waiting
+                    .lock()
+                    .unwrap()
+                    .iter()
+                    .find(|(c, _)| *c == conn)
+                    .map(|(_, e)| e.clone());
                 match slot {
                     Some(e) => {
                         let _ = s.write_all(&Packet::new(ty::INIT_EVENT_ACK, vec![]).to_bytes());
                         *e.lock().unwrap() = Some(s);
                     }
                     None => {
-                        let _ = s.write_all(&Packet::new(ty::INIT_FAIL, 1u32.to_le_bytes().to_vec()).to_bytes());
+                        let _ = s.write_all(
+                            &Packet::new(ty::INIT_FAIL, 1u32.to_le_bytes().to_vec()).to_bytes(),
+                        );
                     }
                 }
             }
@@ -110,7 +125,12 @@ fn accept_loop(listener: TcpListener, responder: SharedResponder, stop: Arc<Atom
     }
 }
 
-fn serve_commands(mut s: TcpStream, responder: SharedResponder, events: EventStream, stop: Arc<AtomicBool>) {
+fn serve_commands(
+    mut s: TcpStream,
+    responder: SharedResponder,
+    events: EventStream,
+    stop: Arc<AtomicBool>,
+) {
     let _ = s.set_read_timeout(Some(Duration::from_millis(200)));
     while !stop.load(Ordering::SeqCst) {
         let p = match read_packet(&mut s) {
@@ -121,7 +141,9 @@ fn serve_commands(mut s: TcpStream, responder: SharedResponder, events: EventStr
         if p.ty != ty::OPERATION_REQUEST {
             continue;
         }
-        let Ok(phase) = Reader::new(&p.body, "OperationRequest").u32() else { return };
+        let Ok(phase) = Reader::new(&p.body, "OperationRequest").u32() else {
+            return;
+        };
         let Ok(m) = p.message(4) else { return };
         let data_out = if phase == dataphase::OUT {
             match read_data_out(&mut s) {
@@ -148,7 +170,11 @@ fn serve_commands(mut s: TcpStream, responder: SharedResponder, events: EventStr
                 out.extend(Packet::new(ty::END_DATA, m.tid.to_le_bytes().to_vec()).to_bytes());
             }
             while let Some(c) = chunks.next() {
-                let kind = if chunks.peek().is_some() { ty::DATA } else { ty::END_DATA };
+                let kind = if chunks.peek().is_some() {
+                    ty::DATA
+                } else {
+                    ty::END_DATA
+                };
                 let mut body = m.tid.to_le_bytes().to_vec();
                 body.extend_from_slice(c);
                 out.extend(Packet::new(kind, body).to_bytes());

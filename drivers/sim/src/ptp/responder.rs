@@ -85,7 +85,10 @@ impl Responder {
             profile,
             source,
             session: None,
-            props: profiles::properties(profile).into_iter().map(|d| (d.code, d)).collect(),
+            props: profiles::properties(profile)
+                .into_iter()
+                .map(|d| (d.code, d))
+                .collect(),
             objects: BTreeMap::new(),
             next_handle: 1,
             shots: 0,
@@ -135,7 +138,9 @@ impl Responder {
             reply.fault = Some(WireFault::CorruptResponse);
         }
         let code = match self.session {
-            None if !matches!(m.code, op::GET_DEVICE_INFO | op::OPEN_SESSION) => rc::SESSION_NOT_OPEN,
+            None if !matches!(m.code, op::GET_DEVICE_INFO | op::OPEN_SESSION) => {
+                rc::SESSION_NOT_OPEN
+            }
             Some(_) if self.faults.busy_storm > 0 && m.code != op::OPEN_SESSION => {
                 self.faults.busy_storm -= 1;
                 rc::DEVICE_BUSY
@@ -165,7 +170,9 @@ impl Responder {
                 self.session = Some(p(0));
             }
             op::CLOSE_SESSION => self.session = None,
-            op::GET_STORAGE_IDS => reply.data = Some(Writer::new().u32_array(&[STORAGE_ID]).finish()),
+            op::GET_STORAGE_IDS => {
+                reply.data = Some(Writer::new().u32_array(&[STORAGE_ID]).finish())
+            }
             op::GET_STORAGE_INFO => {
                 if p(0) != STORAGE_ID {
                     return rc::INVALID_STORAGE_ID;
@@ -174,7 +181,9 @@ impl Responder {
                 reply.data = Some(profiles::storage_info(self.profile, used).encode());
             }
             op::GET_NUM_OBJECTS => reply.response.params = vec![self.card_handles().len() as u32],
-            op::GET_OBJECT_HANDLES => reply.data = Some(Writer::new().u32_array(&self.card_handles()).finish()),
+            op::GET_OBJECT_HANDLES => {
+                reply.data = Some(Writer::new().u32_array(&self.card_handles()).finish())
+            }
             op::GET_OBJECT_INFO => match self.objects.get(&p(0)) {
                 Some(o) => reply.data = Some(o.info.encode()),
                 None => return rc::INVALID_OBJECT_HANDLE,
@@ -216,16 +225,24 @@ impl Responder {
                 Some(d) => reply.data = Some(d.current.to_bytes(d.datatype)),
                 None => return rc::DEVICE_PROP_NOT_SUPPORTED,
             },
-            op::SET_DEVICE_PROP_VALUE => return self.set_prop(p(0) as u16, data_out.unwrap_or(&[]), reply),
+            op::SET_DEVICE_PROP_VALUE => {
+                return self.set_prop(p(0) as u16, data_out.unwrap_or(&[]), reply)
+            }
             op::INITIATE_CAPTURE => {
                 let h = match self.shoot(false) {
                     Ok(h) => h,
                     Err(c) => return c,
                 };
-                reply.events.push(Message::new(event::OBJECT_ADDED, m.tid, &[h]));
-                reply.events.push(Message::new(event::CAPTURE_COMPLETE, m.tid, &[]));
+                reply
+                    .events
+                    .push(Message::new(event::OBJECT_ADDED, m.tid, &[h]));
+                reply
+                    .events
+                    .push(Message::new(event::CAPTURE_COMPLETE, m.tid, &[]));
             }
-            op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM | op::NIKON_INITIATE_CAPTURE_REC_IN_MEDIA if self.is_nikon() => {
+            op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM | op::NIKON_INITIATE_CAPTURE_REC_IN_MEDIA
+                if self.is_nikon() =>
+            {
                 let sdram = m.code == op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM;
                 let h = match self.shoot(sdram) {
                     Ok(h) => h,
@@ -235,8 +252,10 @@ impl Responder {
                 self.nikon_event_delay = 2;
                 self.device_ready_busy = 2;
                 if sdram {
-                    self.nikon_events.push((event::NIKON_OBJECT_ADDED_IN_SDRAM, h));
-                    self.nikon_events.push((event::NIKON_CAPTURE_COMPLETE_REC_IN_SDRAM, 0));
+                    self.nikon_events
+                        .push((event::NIKON_OBJECT_ADDED_IN_SDRAM, h));
+                    self.nikon_events
+                        .push((event::NIKON_CAPTURE_COMPLETE_REC_IN_SDRAM, 0));
                 } else {
                     self.nikon_events.push((event::OBJECT_ADDED, h));
                     self.nikon_events.push((event::CAPTURE_COMPLETE, 0));
@@ -258,7 +277,12 @@ impl Responder {
                 }
             }
             op::NIKON_GET_VENDOR_PROP_CODES if self.is_nikon() => {
-                let vendor: Vec<u16> = self.props.keys().copied().filter(|c| *c >= 0xD000).collect();
+                let vendor: Vec<u16> = self
+                    .props
+                    .keys()
+                    .copied()
+                    .filter(|c| *c >= 0xD000)
+                    .collect();
                 reply.data = Some(Writer::new().u16_array(&vendor).finish());
             }
             op::NIKON_CHANGE_CAMERA_MODE | op::NIKON_AF_DRIVE if self.is_nikon() => {}
@@ -272,11 +296,18 @@ impl Responder {
     }
 
     fn card_handles(&self) -> Vec<u32> {
-        self.objects.keys().copied().filter(|&h| h != SDRAM_HANDLE).collect()
+        self.objects
+            .keys()
+            .copied()
+            .filter(|&h| h != SDRAM_HANDLE)
+            .collect()
     }
 
     fn int_prop(&self, code: u16, default: i64) -> i64 {
-        self.props.get(&code).and_then(|d| d.current.as_i64()).unwrap_or(default)
+        self.props
+            .get(&code)
+            .and_then(|d| d.current.as_i64())
+            .unwrap_or(default)
     }
 
     /// The current exposure, as the camera would shoot it.
@@ -333,7 +364,11 @@ impl Responder {
         let ok = match (&desc.form, v.as_i64()) {
             (Form::Enum(values), _) => values.contains(&v),
             (Form::Range { min, max, step }, Some(x)) => {
-                let (a, b, s) = (min.as_i64().unwrap_or(0), max.as_i64().unwrap_or(0), step.as_i64().unwrap_or(1).max(1));
+                let (a, b, s) = (
+                    min.as_i64().unwrap_or(0),
+                    max.as_i64().unwrap_or(0),
+                    step.as_i64().unwrap_or(1).max(1),
+                );
                 (a..=b).contains(&x) && (x - a) % s == 0
             }
             _ => true,
@@ -343,7 +378,9 @@ impl Responder {
         }
         if desc.current != v {
             desc.current = v;
-            reply.events.push(Message::new(event::DEVICE_PROP_CHANGED, 0, &[code as u32]));
+            reply
+                .events
+                .push(Message::new(event::DEVICE_PROP_CHANGED, 0, &[code as u32]));
         }
         rc::OK
     }

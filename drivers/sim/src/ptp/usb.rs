@@ -28,7 +28,11 @@ fn serve(dev: DevicePipe, responder: SharedResponder) {
     let mut pending_op: Option<brdfd_ptp::container::Message> = None;
     while let Ok(msg) = dev.from_host.recv() {
         match msg {
-            ToDevice::Control { request, data: _, reply } => {
+            ToDevice::Control {
+                request,
+                data: _,
+                reply,
+            } => {
                 let answer = match request {
                     class_request::DEVICE_RESET => {
                         responder.lock().unwrap().reset();
@@ -70,14 +74,18 @@ fn serve(dev: DevicePipe, responder: SharedResponder) {
                     let payload = &c[HEADER_LEN..];
                     let reply = match (h.kind, pending_op.take()) {
                         (Kind::Command, _) => {
-                            let Ok(m) = container::decode_message(&h, payload) else { continue };
+                            let Ok(m) = container::decode_message(&h, payload) else {
+                                continue;
+                            };
                             if Responder::expects_data_out(m.code) {
                                 pending_op = Some(m);
                                 continue;
                             }
                             (responder.lock().unwrap().handle(&m, None), m)
                         }
-                        (Kind::Data, Some(m)) => (responder.lock().unwrap().handle(&m, Some(payload)), m),
+                        (Kind::Data, Some(m)) => {
+                            (responder.lock().unwrap().handle(&m, Some(payload)), m)
+                        }
                         _ => continue,
                     };
                     if !send_reply(&dev, reply.0, reply.1.code) {
@@ -118,7 +126,9 @@ fn send_reply(dev: &DevicePipe, r: Reply, code: u16) -> bool {
         }
         if limit.is_some() {
             // The camera dropped off the bus mid-transfer.
-            let _ = dev.bulk_in.send(FromDevice::Fail(PipeError::Other("LIBUSB_ERROR_IO".into())));
+            let _ = dev
+                .bulk_in
+                .send(FromDevice::Fail(PipeError::Other("LIBUSB_ERROR_IO".into())));
             return true;
         }
         if c.len() % MAX_PACKET == 0 && !send(Vec::new()) {
@@ -133,7 +143,12 @@ fn send_reply(dev: &DevicePipe, r: Reply, code: u16) -> bool {
         return false;
     }
     for e in &r.events {
-        let _ = dev.interrupt.send(FromDevice::Transfer(container::encode_message(Kind::Event, e)));
+        let _ = dev
+            .interrupt
+            .send(FromDevice::Transfer(container::encode_message(
+                Kind::Event,
+                e,
+            )));
     }
     true
 }

@@ -1,0 +1,136 @@
+//! The virtual bench as a camera's image source: the rendered radiance, exposed at the shot's
+//! settings, clipped like a sensor, encoded as an sRGB JPEG with the EXIF exposure tags a real
+//! camera writes. The simulated PTP camera serves these files.
+
+use std::sync::OnceLock;
+
+use brdfd_sim::{ImageSource, Shot};
+
+use super::VirtualBench;
+use crate::core::raster::{linear_to_srgb, Raster};
+
+/// Sensor response of the simulated cameras: a pixel value of 1.0 (white) at radiance 1 needs
+/// an exposure factor (t·ISO/100/N²) of 1/SENSOR_GAIN. The rig calibration's default relative
+/// scale between the two simulated cameras is 1 because both use it.
+pub const SENSOR_GAIN: f64 = 1000.0;
+
+pub struct BenchCamera {
+    bench: VirtualBench,
+    make: String,
+    model: String,
+    radiance: OnceLock<Result<Raster, String>>,
+}
+
+impl BenchCamera {
+    pub fn new(bench: VirtualBench, make: &str, model: &str) -> Self {
+        BenchCamera {
+            bench,
+            make: make.into(),
+            model: model.into(),
+            radiance: OnceLock::new(),
+        }
+    }
+
+    /// Rendered once, on the first shot: every exposure of a bracket sees the same scene.
+    fn radiance(&self) -> Result<&Raster, String> {
+        self.radiance
+            .get_or_init(|| self.bench.photo().map_err(|e| e.to_string()))
+            .as_ref()
+            .map_err(Clone::clone)
+    }
+}
+
+impl ImageSource for BenchCamera {
+    fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String> {
+        let r = self.radiance()?;
+        let k = (shot.exposure_factor() * SENSOR_GAIN) as f32;
+        let mut img = image::RgbImage::new(r.width as u32, r.height as u32);
+        for (i, p) in img.pixels_mut().enumerate() {
+            let v = r.pixels[i];
+            for c in 0..3 {
+                p.0[c] = (linear_to_srgb((v[c] * k).clamp(0.0, 1.0)) * 255.0).round() as u8;
+            }
+        }
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 95)
+            .encode_image(&img)
+            .map_err(|e| format!("JPEG encoding: {e}"))?;
+        Ok(insert_exif(&jpeg, &self.make, &self.model, shot))
+    }
+
+    fn dimensions(&self) -> (u32, u32) {
+        let (w, h) = self.bench.geometry.camera.size();
+        (w as u32, h as u32)
+    }
+}
+
+/// Puts an APP1 Exif segment (Make, Model, ExposureTime, FNumber, ISO) after the SOI marker.
+pub fn insert_exif(jpeg: &[u8], make: &str, model: &str, shot: &Shot) -> Vec<u8> {
+    let tiff = exif_tiff(make, model, shot);
+    let mut out = Vec::with_capacity(jpeg.len() + tiff.len() + 10);
+    out.extend_from_slice(&jpeg[..2]);
+    out.extend_from_slice(&[0xFF, 0xE1]);
+    out.extend_from_slice(&((tiff.len() + 8) as u16).to_be_bytes());
+    out.extend_from_slice(b"Exif\0\0");
+    out.extend_from_slice(&tiff);
+    out.extend_from_slice(&jpeg[2..]);
+    out
+}
+
+/// A little-endian TIFF structure: IFD0 (Make, Model, Exif pointer), then the Exif IFD.
+fn exif_tiff(make: &str, model: &str, shot: &Shot) -> Vec<u8> {
+    // Exposure time as 1/n or n/1 seconds, as cameras write it.
+    let exposure = if shot.shutter_s >= 1.0 {
+        ((shot.shutter_s * 10.0).round() as u32, 10)
+    } else {
+        (10_000, (10_000.0 / shot.shutter_s).round() as u32)
+    };
+    let fnum = ((shot.f_number * 100.0).round() as u32, 100);
+    let ascii = |s: &str| {
+        let mut v = s.as_bytes().to_vec();
+        v.push(0);
+        v
+    };
+    let (make, model) = (ascii(make), ascii(model));
+    const IFD0: u32 = 8;
+    let ifd0_len = 2 + 3 * 12 + 4;
+    let exif_ifd = IFD0 + ifd0_len;
+    let exif_len = 2 + 3 * 12 + 4;
+    let mut extra = exif_ifd + exif_len;
+    let mut tail = Vec::new();
+    let mut place = |bytes: &[u8], tail: &mut Vec<u8>| {
+        let at = extra;
+        tail.extend_from_slice(bytes);
+        if bytes.len() % 2 == 1 {
+            tail.push(0);
+        }
+        extra = exif_ifd + exif_len + tail.len() as u32;
+        at
+    };
+    let make_at = place(&make, &mut tail);
+    let model_at = place(&model, &mut tail);
+    let rational = |(n, d): (u32, u32)| [n.to_le_bytes(), d.to_le_bytes()].concat();
+    let exp_at = place(&rational(exposure), &mut tail);
+    let fnum_at = place(&rational(fnum), &mut tail);
+
+    let mut t = b"II*\0".to_vec();
+    t.extend_from_slice(&IFD0.to_le_bytes());
+    let entry = |t: &mut Vec<u8>, tag: u16, ty: u16, count: u32, value: u32| {
+        t.extend_from_slice(&tag.to_le_bytes());
+        t.extend_from_slice(&ty.to_le_bytes());
+        t.extend_from_slice(&count.to_le_bytes());
+        t.extend_from_slice(&value.to_le_bytes());
+    };
+    t.extend_from_slice(&3u16.to_le_bytes());
+    entry(&mut t, 0x010F, 2, make.len() as u32, make_at);
+    entry(&mut t, 0x0110, 2, model.len() as u32, model_at);
+    entry(&mut t, 0x8769, 4, 1, exif_ifd);
+    t.extend_from_slice(&0u32.to_le_bytes());
+    t.extend_from_slice(&3u16.to_le_bytes());
+    entry(&mut t, 0x829A, 5, 1, exp_at);
+    entry(&mut t, 0x829D, 5, 1, fnum_at);
+    entry(&mut t, 0x8827, 3, 1, shot.iso.min(65535));
+    t.extend_from_slice(&0u32.to_le_bytes());
+    t.extend_from_slice(&tail);
+    t
+}
