@@ -5,6 +5,7 @@
 //! - [`core`]: the estimation core (BRDF sources, bivariate reduction, PCA basis, environment
 //!   maps, geometry, rendering matrix, pixel selection, solve, evaluation). No async, no drivers.
 //! - [`bench`](mod@bench): the virtual bench: renders what a camera on a simulated rig would see.
+//! - [`radiometry`]: camera files to linear radiance (EXIF exposure, HDR merge).
 //! - [`results`]: the files an estimate leaves behind.
 //! - `drivers/` (workspace crates, as they land): device protocols and their simulators.
 
@@ -14,4 +15,5 @@
 
 pub mod bench;
 pub mod core;
+pub mod radiometry;
 pub mod results;

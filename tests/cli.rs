@@ -56,6 +56,15 @@ fn simulated_capture_prints_coefficients() {
     ] {
         assert!(dir.path().join("result").join(f).is_file(), "{f} missing");
     }
+    // The bracket came through the simulated D5100 over PTP/IP, as JPEGs with EXIF.
+    assert!(out.contains("D5100 on ptpip:127.0.0.1:"), "{out}");
+    let raw: Vec<_> = std::fs::read_dir(dir.path().join("result/raw"))
+        .unwrap()
+        .collect();
+    assert_eq!(raw.len(), 5);
+    let first = std::fs::read(dir.path().join("result/raw/dslr-01-DSC_0001.JPG")).unwrap();
+    let exp = brdfd::radiometry::exif_exposure(&first, "dslr-01").unwrap();
+    assert_eq!((exp.shutter_s, exp.f_number, exp.iso), (0.001, 8.0, 100.0));
 }
 
 #[test]

@@ -100,6 +100,7 @@ pub fn default_geometry(size: usize) -> SceneGeometry {
 }
 
 /// A material under a light, seen by a camera.
+#[derive(Clone)]
 pub struct VirtualBench {
     pub material_name: String,
     pub material: MerlBrdf,

@@ -1,6 +1,8 @@
 //! `brdfd capture`: capture a material and estimate it. Today this runs the simulated rig
-//! in-process on the virtual bench; the device drivers and the daemon plug in behind the same
-//! command.
+//! in-process: the DSLR bracket comes from the simulated Nikon D5100 through our PTP/IP client
+//! on loopback (JPEG, EXIF, HDR merge, as with a real camera); the panorama still comes
+//! straight from the virtual bench until the THETA driver lands. The daemon and the hardware
+//! rig plug in behind the same command.
 
 use std::path::PathBuf;
 
@@ -15,6 +17,63 @@ use brdfd::core::nbrdf::NbrdfSet;
 use brdfd::core::render::render_bivariate;
 
 use super::estimate_cmd::{parse_pixels, print_estimate};
+use brdfd::bench::camera::{BenchCamera, SENSOR_GAIN};
+use brdfd::core::raster::Raster;
+use brdfd::radiometry::{decode_jpeg, merge_hdr, Frame};
+use brdfd_ptp::transport::ptpip::{Initiator, PtpIpTransport};
+use brdfd_ptp::{Camera, CaptureOptions, Exposure, Timeouts};
+use brdfd_sim::ptp::{ptpip::Server, Profile, Responder};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// Camera files by name, exactly as the camera sent them.
+type RawFiles = Vec<(String, Vec<u8>)>;
+
+/// Shoots the bracket on the simulated D5100 through our PTP/IP client, decodes the JPEGs,
+/// reads their EXIF and merges them into radiance. Returns the radiance and the camera files.
+fn dslr_bracket(bench: &VirtualBench, shutters: &[f64]) -> anyhow::Result<(Raster, RawFiles)> {
+    let source = Arc::new(BenchCamera::new(
+        bench.clone(),
+        "NIKON CORPORATION",
+        "NIKON D5100",
+    ));
+    let server = Server::start(
+        "127.0.0.1:0",
+        Responder::new(Profile::NikonD5100, source).shared(),
+    )?;
+    let link = PtpIpTransport::connect(server.addr, Initiator::default(), Duration::from_secs(5))?;
+    let mut cam = Camera::open(Box::new(link), Timeouts::default())?;
+    let applied = cam.set_exposure(&Exposure {
+        shutter_s: None,
+        f_number: Some(8.0),
+        iso: Some(100),
+    })?;
+    println!(
+        "DSLR: {} ({}), f/{} ISO {}",
+        cam.describe(),
+        cam.info.serial_number,
+        applied.f_number.unwrap_or(0.0),
+        applied.iso.unwrap_or(0)
+    );
+    let mut files = Vec::new();
+    let mut frames: Vec<Frame> = Vec::new();
+    let shots = cam.bracket(shutters, &CaptureOptions::default(), &mut |_, _, _| {})?;
+    for (i, (speed, shot)) in shots.into_iter().enumerate() {
+        let name = format!("dslr-{:02}-{}", i + 1, shot.info.filename);
+        let frame = decode_jpeg(&shot.data, &name)?;
+        println!(
+            "  {name}: {} bytes, EXIF {:.4} s f/{} ISO {} (camera applied {speed} s)",
+            shot.data.len(),
+            frame.exposure.shutter_s,
+            frame.exposure.f_number,
+            frame.exposure.iso
+        );
+        frames.push(frame);
+        files.push((name, shot.data));
+    }
+    cam.close()?;
+    Ok((merge_hdr(&frames, SENSOR_GAIN)?, files))
+}
 
 #[derive(clap::Args)]
 pub struct CaptureArgs {
@@ -35,6 +94,13 @@ pub struct CaptureArgs {
     pub size: usize,
     #[arg(long, default_value = "20")]
     pub pixels: String,
+    /// Shutter speeds of the DSLR's exposure bracket, in seconds (f/8, ISO 100).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "0.001,0.004,0.0166,0.0666,0.25"
+    )]
+    pub bracket: Vec<f64>,
     /// Write the results (coefficients.json, BRDF files, preview) to this folder.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -59,10 +125,11 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         bench.env = EnvMap::load(p)?;
     }
     println!(
-        "simulated rig (in-process virtual bench): {} on a sphere, {}×{} camera",
+        "simulated rig (in-process): {} on a sphere; DSLR: simulated Nikon D5100 over PTP/IP on loopback, {}×{}",
         bench.material_name, a.size, a.size
     );
-    let photo = bench.photo()?;
+    let (photo, frames) = dslr_bracket(&bench, &a.bracket)?;
+    println!("panorama: the virtual bench's environment map (the THETA driver is not built yet)");
     let geometry = bench.pixels()?;
     let lights = bench.env.compressed(DEFAULT_LIGHTS, bench.yaw);
     let basis = Basis::embedded();
@@ -87,6 +154,11 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
     if let Some(out) = &a.out {
         let files = brdfd::results::write_results(out, &basis, &est, "fast", &lights)?;
         photo.write_exr(&out.join("photo.exr"))?;
+        let raw = out.join("raw");
+        std::fs::create_dir_all(&raw)?;
+        for (name, bytes) in &frames {
+            std::fs::write(raw.join(name), bytes)?;
+        }
         println!("wrote {}", files.coefficients.display());
     }
     Ok(())

@@ -127,7 +127,7 @@ pub fn decode_message(h: &Header, payload: &[u8]) -> Result<Message> {
             ),
         ));
     }
-    if payload.len() % 4 != 0 || payload.len() / 4 > MAX_PARAMS {
+    if !payload.len().is_multiple_of(4) || payload.len() / 4 > MAX_PARAMS {
         return Err(PtpError::malformed(
             "container",
             HEADER_LEN,

@@ -68,7 +68,7 @@ impl Packet {
         r.bytes(skip)?;
         let code = r.u16()?;
         let tid = r.u32()?;
-        if r.remaining() % 4 != 0 || r.remaining() / 4 > crate::container::MAX_PARAMS {
+        if !r.remaining().is_multiple_of(4) || r.remaining() / 4 > crate::container::MAX_PARAMS {
             return Err(r.error(format!("{} parameter bytes", r.remaining())));
         }
         let params = (0..r.remaining() / 4)

@@ -110,7 +110,7 @@ impl<P: BulkPipe> UsbTransport<P> {
         while sent < data.len() {
             sent += self.pipe.write(&data[sent..], timeout)?;
         }
-        if data.len() % self.pipe.max_packet() == 0 {
+        if data.len().is_multiple_of(self.pipe.max_packet()) {
             self.pipe.write(&[], timeout)?;
         }
         Ok(())

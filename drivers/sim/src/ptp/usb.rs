@@ -131,7 +131,7 @@ fn send_reply(dev: &DevicePipe, r: Reply, code: u16) -> bool {
                 .send(FromDevice::Fail(PipeError::Other("LIBUSB_ERROR_IO".into())));
             return true;
         }
-        if c.len() % MAX_PACKET == 0 && !send(Vec::new()) {
+        if c.len().is_multiple_of(MAX_PACKET) && !send(Vec::new()) {
             return false;
         }
     }

@@ -1,0 +1,202 @@
+//! Radiometry between the cameras and the estimation core: camera files to linear values,
+//! exposure from EXIF, and the HDR merge of an exposure bracket. RAW files will decode into
+//! the same [`Frame`] (linear values plus exposure) when RAW support lands.
+
+use std::io::Cursor;
+
+use crate::core::raster::{srgb_to_linear, Raster};
+
+#[derive(Debug, thiserror::Error)]
+pub enum RadiometryError {
+    #[error("{file}: {reason}")]
+    Decode { file: String, reason: String },
+    #[error("{file}: EXIF has no {tag}; cannot tell the exposure")]
+    MissingExif { file: String, tag: &'static str },
+    #[error("HDR merge: {0}")]
+    Merge(String),
+}
+
+/// Exposure as a camera recorded it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Exposure {
+    pub shutter_s: f64,
+    pub f_number: f64,
+    pub iso: f64,
+}
+
+impl Exposure {
+    /// t·ISO/100/N²: pixel values divided by this (and the sensor gain) are radiance.
+    pub fn factor(&self) -> f64 {
+        self.shutter_s * self.iso / 100.0 / (self.f_number * self.f_number)
+    }
+}
+
+/// One decoded exposure: values in [0, 1], linear, and how it was exposed.
+pub struct Frame {
+    pub values: Raster,
+    pub exposure: Exposure,
+}
+
+/// Reads ExposureTime, FNumber and ISO from a file's EXIF.
+pub fn exif_exposure(bytes: &[u8], file: &str) -> Result<Exposure, RadiometryError> {
+    let exif = exif::Reader::new()
+        .read_from_container(&mut Cursor::new(bytes))
+        .map_err(|e| RadiometryError::Decode {
+            file: file.into(),
+            reason: format!("EXIF: {e}"),
+        })?;
+    let rational = |tag: exif::Tag, name: &'static str| match exif
+        .get_field(tag, exif::In::PRIMARY)
+        .map(|f| &f.value)
+    {
+        Some(exif::Value::Rational(v)) if !v.is_empty() && v[0].denom != 0 => Ok(v[0].to_f64()),
+        _ => Err(RadiometryError::MissingExif {
+            file: file.into(),
+            tag: name,
+        }),
+    };
+    let iso = exif
+        .get_field(exif::Tag::PhotographicSensitivity, exif::In::PRIMARY)
+        .and_then(|f| f.value.get_uint(0))
+        .ok_or(RadiometryError::MissingExif {
+            file: file.into(),
+            tag: "ISO (PhotographicSensitivity)",
+        })?;
+    Ok(Exposure {
+        shutter_s: rational(exif::Tag::ExposureTime, "ExposureTime")?,
+        f_number: rational(exif::Tag::FNumber, "FNumber")?,
+        iso: iso as f64,
+    })
+}
+
+/// An sRGB JPEG (as cameras write them) to linear values, with its EXIF exposure.
+pub fn decode_jpeg(bytes: &[u8], file: &str) -> Result<Frame, RadiometryError> {
+    let exposure = exif_exposure(bytes, file)?;
+    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Jpeg)
+        .map_err(|e| RadiometryError::Decode {
+            file: file.into(),
+            reason: format!("JPEG: {e}"),
+        })?
+        .to_rgb8();
+    let lut: Vec<f32> = (0..256).map(|v| srgb_to_linear(v as f32 / 255.0)).collect();
+    let pixels = img
+        .pixels()
+        .map(|p| {
+            [
+                lut[p.0[0] as usize],
+                lut[p.0[1] as usize],
+                lut[p.0[2] as usize],
+            ]
+        })
+        .collect();
+    Ok(Frame {
+        values: Raster {
+            width: img.width() as usize,
+            height: img.height() as usize,
+            pixels,
+        },
+        exposure,
+    })
+}
+
+/// Values above this are treated as saturated, below `DARK` as noise.
+const SATURATED: f32 = 0.95;
+const DARK: f32 = 0.01;
+
+/// Merges a bracket into radiance: each frame's values divided by its exposure factor and
+/// `gain`, averaged with a hat weight that is zero at saturation and near black. A pixel no
+/// frame exposed well takes the nearest frame's estimate (the darkest frame for highlights,
+/// the brightest for shadows), so nothing is left undefined.
+pub fn merge_hdr(frames: &[Frame], gain: f64) -> Result<Raster, RadiometryError> {
+    let first = frames
+        .first()
+        .ok_or_else(|| RadiometryError::Merge("no frames".into()))?;
+    let (w, h) = (first.values.width, first.values.height);
+    if let Some(f) = frames
+        .iter()
+        .find(|f| f.values.width != w || f.values.height != h)
+    {
+        return Err(RadiometryError::Merge(format!(
+            "frames differ in size ({w}×{h} and {}×{})",
+            f.values.width, f.values.height
+        )));
+    }
+    let scale: Vec<f32> = frames
+        .iter()
+        .map(|f| (1.0 / (f.exposure.factor() * gain)) as f32)
+        .collect();
+    let darkest = (0..frames.len())
+        .max_by(|&a, &b| scale[a].total_cmp(&scale[b]))
+        .unwrap();
+    let brightest = (0..frames.len())
+        .min_by(|&a, &b| scale[a].total_cmp(&scale[b]))
+        .unwrap();
+    let mut out = Raster::black(w, h);
+    for i in 0..w * h {
+        for c in 0..3 {
+            let (mut sum, mut wsum) = (0.0f32, 0.0f32);
+            for (f, s) in frames.iter().zip(&scale) {
+                let v = f.values.pixels[i][c];
+                if v > DARK && v < SATURATED {
+                    let wt = 1.0 - (2.0 * v - 1.0).abs();
+                    sum += wt * v * s;
+                    wsum += wt;
+                }
+            }
+            out.pixels[i][c] = if wsum > 0.0 {
+                sum / wsum
+            } else {
+                let bright = frames[darkest].values.pixels[i][c] >= SATURATED;
+                let k = if bright { darkest } else { brightest };
+                frames[k].values.pixels[i][c] * scale[k]
+            };
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(v: f32, shutter_s: f64) -> Frame {
+        let mut r = Raster::black(1, 1);
+        r.pixels[0] = [v; 3];
+        Frame {
+            values: r,
+            exposure: Exposure {
+                shutter_s,
+                f_number: 1.0,
+                iso: 100.0,
+            },
+        }
+    }
+
+    #[test]
+    fn exif_we_write_is_read_back_and_missing_exif_is_named() {
+        let shot = brdfd_sim::Shot {
+            shutter_s: 1.0 / 60.0,
+            f_number: 5.6,
+            iso: 400,
+            raw: false,
+            sequence: 1,
+        };
+        let jpeg = [0xFF, 0xD8, 0xFF, 0xD9];
+        let with =
+            crate::bench::camera::insert_exif(&jpeg, "NIKON CORPORATION", "NIKON D5100", &shot);
+        let e = exif_exposure(&with, "a.jpg").unwrap();
+        assert!((e.shutter_s - 1.0 / 60.0).abs() < 1e-9 && e.f_number == 5.6 && e.iso == 400.0);
+        let err = exif_exposure(&jpeg, "b.jpg").unwrap_err().to_string();
+        assert!(err.starts_with("b.jpg: EXIF"), "{err}");
+    }
+
+    #[test]
+    fn merge_ignores_saturated_frames_and_undoes_exposure() {
+        // Radiance 2: 0.2 at 0.1 s, 0.8 at 0.4 s, clipped at 1.6 s.
+        let m = merge_hdr(&[frame(0.2, 0.1), frame(0.8, 0.4), frame(1.0, 1.6)], 1.0).unwrap();
+        assert!((m.pixels[0][0] - 2.0).abs() < 1e-5, "{:?}", m.pixels[0]);
+        // Everything saturated: the shortest exposure's lower bound.
+        let m = merge_hdr(&[frame(1.0, 0.1), frame(1.0, 0.4)], 1.0).unwrap();
+        assert!((m.pixels[0][0] - 10.0).abs() < 1e-4);
+    }
+}
