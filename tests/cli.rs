@@ -287,3 +287,73 @@ fn basis_build_from_merl_files() {
         "{out}"
     );
 }
+
+/// `brdfd sim camera` in one process, `brdfd ptp` in another, over real TCP.
+#[test]
+fn ptp_commands_drive_a_simulated_camera_over_ptpip() {
+    use std::io::{BufRead, BufReader};
+    let dir = tempfile::tempdir().unwrap();
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_brdfd"))
+        .args([
+            "sim",
+            "camera",
+            "--ptpip",
+            "127.0.0.1:0",
+            "--payload-bytes",
+            "300000",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(sim.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let addr = line.trim().rsplit(' ').next().unwrap().to_string();
+    let port = format!("ptpip:{addr}");
+
+    let info = brdfd(&["ptp", "info", "--port", &port], dir.path());
+    let (out, err) = text(&info);
+    assert!(info.status.success(), "{out}\n{err}");
+    assert!(
+        out.contains("Nikon Corporation D5100") && out.contains("capture flow: Nikon"),
+        "{out}"
+    );
+
+    let cap = brdfd(
+        &[
+            "ptp",
+            "capture",
+            "--port",
+            &port,
+            "--shutter",
+            "0.004,0.0166",
+            "--iso",
+            "200",
+            "--out",
+            "shots",
+        ],
+        dir.path(),
+    );
+    let (out, err) = text(&cap);
+    let _ = sim.kill();
+    let _ = sim.wait();
+    assert!(cap.status.success(), "{out}\n{err}");
+    assert!(
+        out.contains("shutter 0.0166 s: camera applied 0.0166 s"),
+        "{out}"
+    );
+    let files: Vec<_> = std::fs::read_dir(dir.path().join("shots"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(files.len(), 2, "{files:?}");
+    for f in files {
+        assert_eq!(std::fs::metadata(f).unwrap().len(), 300_000);
+    }
+
+    // A port that is not a camera: a clear error, not a hang.
+    let bad = brdfd(&["ptp", "info", "--port", "serial:/dev/null"], dir.path());
+    assert!(!bad.status.success());
+    assert!(text(&bad).1.contains("unknown camera port"));
+}

@@ -7,6 +7,7 @@ mod estimate_cmd;
 mod geometry_args;
 mod perf;
 mod perf_ptp;
+mod ptp_cmd;
 mod sim;
 
 use std::path::PathBuf;
@@ -43,6 +44,11 @@ pub enum Command {
     Capture(capture::CaptureArgs),
     /// Measure the speed of the estimation core and the PTP link (medians of repeated runs).
     Bench(perf::BenchArgs),
+    /// Talk to one PTP camera directly (USB or PTP/IP): info, capture, brackets.
+    Ptp {
+        #[command(subcommand)]
+        command: ptp_cmd::PtpCommand,
+    },
     /// Run a simulated device until stopped.
     Sim {
         #[command(subcommand)]
@@ -87,6 +93,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Capture(a) => capture::run(a),
         Command::Bench(a) => perf::run(a),
+        Command::Ptp { command } => ptp_cmd::run(command),
         Command::Sim { command } => sim::run(command),
     }
 }
