@@ -1,6 +1,6 @@
 //! Debian's gphoto2 as an outside check of the simulated camera: it must recognise the
-//! simulated D5100 over PTP/IP, capture and download from it, and get the same file our own
-//! client gets. CI installs gphoto2 and sets BRDFD_REQUIRE_GPHOTO2=1, so there the test
+//! simulated cameras (generic and D5100) over PTP/IP, capture and download from them, and get
+//! byte for byte the file our own client gets. CI installs gphoto2 and sets BRDFD_REQUIRE_GPHOTO2=1, so there the test
 //! cannot skip.
 
 use std::io::{BufRead, BufReader};
@@ -31,91 +31,101 @@ fn gphoto2_present() -> bool {
     present
 }
 
+fn gphoto2(home: &std::path::Path, args: &[&str]) -> std::process::Output {
+    // A throwaway HOME: gphoto2 keeps settings (and a PTP/IP GUID) in ~/.gphoto.
+    Command::new("gphoto2")
+        .env("HOME", home)
+        .args(args)
+        .output()
+        .unwrap()
+}
+
 #[test]
-fn gphoto2_captures_from_the_simulated_d5100_over_ptpip() {
+fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
     if !gphoto2_present() {
         return;
     }
-    // gphoto2 always uses port 15740; an address of our own on loopback avoids clashes.
-    let host = format!(
-        "127.0.{}.{}",
-        std::process::id() % 200 + 20,
-        std::process::id() % 250 + 3
-    );
-    let mut child = Command::new(env!("CARGO_BIN_EXE_brdfd"))
-        .args([
-            "sim",
-            "camera",
-            "--profile",
-            "nikon-d5100",
-            "--size",
-            "48",
-            "--ptpip",
-        ])
-        .arg(format!("{host}:15740"))
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut ready = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut ready)
-        .unwrap();
-    let _sim = Sim(child);
-    assert!(ready.contains("PTP/IP on"), "{ready}");
+    for profile in ["generic", "nikon-d5100"] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_brdfd"))
+            .args([
+                "sim",
+                "camera",
+                "--profile",
+                profile,
+                "--size",
+                "48",
+                "--ptpip",
+                "127.0.0.1:0",
+            ])
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut ready = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut ready)
+            .unwrap();
+        let _sim = Sim(child);
+        let addr = ready.trim().rsplit(' ').next().unwrap().to_string();
+        assert!(ready.contains("PTP/IP on"), "{ready}");
 
-    let dir = tempfile::tempdir().unwrap();
-    let port = format!("ptpip:{host}");
-    let summary = Command::new("gphoto2")
-        .args(["--port", &port, "--summary"])
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&summary.stdout);
-    assert!(
-        summary.status.success(),
-        "{text}\n{}",
-        String::from_utf8_lossy(&summary.stderr)
-    );
-    assert!(
-        text.contains("Model: D5100") && text.contains("Vendor Extension ID: 0xa"),
-        "{text}"
-    );
-    assert!(text.contains("Exposure Time(0x500d):(readwrite)"), "{text}");
+        let home = tempfile::tempdir().unwrap();
+        // HOST:CMDPORT:EVENTPORT; with one port given, gphoto2 takes port + 1 for events.
+        let tcp_port = addr.rsplit(':').next().unwrap();
+        let port = format!("ptpip:127.0.0.1:{tcp_port}:{tcp_port}");
+        let summary = gphoto2(home.path(), &["--port", &port, "--summary"]);
+        let text = String::from_utf8_lossy(&summary.stdout);
+        let want = if profile == "generic" {
+            "Model: Simulated still camera"
+        } else {
+            "Model: D5100"
+        };
+        assert!(
+            text.contains(want),
+            "{profile}: {text}\n{}",
+            String::from_utf8_lossy(&summary.stderr)
+        );
+        assert!(text.contains("Exposure Time(0x500d):(readwrite)"), "{text}");
+        if profile == "nikon-d5100" {
+            assert!(text.contains("Vendor Extension ID: 0xa"), "{text}");
+        }
 
-    let file = dir.path().join("gphoto2.jpg");
-    let cap = Command::new("gphoto2")
-        .args([
-            "--port",
-            &port,
-            "--capture-image-and-download",
-            "--filename",
-        ])
-        .arg(&file)
-        .output()
-        .unwrap();
-    assert!(
-        cap.status.success(),
-        "{}",
-        String::from_utf8_lossy(&cap.stderr)
-    );
-    let theirs = std::fs::read(&file).unwrap();
-    assert_eq!(
-        &theirs[..4],
-        [0xFF, 0xD8, 0xFF, 0xE1],
-        "JPEG with an Exif segment first"
-    );
+        // gphoto2 exits 0 even when a capture fails: only the file counts.
+        let file = home.path().join("gphoto2.jpg");
+        let file_arg = file.to_str().unwrap();
+        let cap = gphoto2(
+            home.path(),
+            &[
+                "--port",
+                &port,
+                "--capture-image-and-download",
+                "--filename",
+                file_arg,
+            ],
+        );
+        let theirs = std::fs::read(&file).unwrap_or_else(|_| {
+            panic!(
+                "{profile}: gphoto2 saved nothing: {}",
+                String::from_utf8_lossy(&cap.stderr)
+            )
+        });
+        assert_eq!(
+            &theirs[..4],
+            [0xFF, 0xD8, 0xFF, 0xE1],
+            "JPEG with an Exif segment first"
+        );
 
-    let link = PtpIpTransport::connect(
-        format!("{host}:15740"),
-        Initiator::default(),
-        Duration::from_secs(5),
-    )
-    .unwrap();
-    let mut cam = Camera::open(Box::new(link), Timeouts::default()).unwrap();
-    let ours = cam
-        .capture(&CaptureOptions::default(), &mut |_, _, _| {})
-        .unwrap();
-    assert_eq!(
-        ours.data, theirs,
-        "same scene, same exposure: the same file"
-    );
+        let link =
+            PtpIpTransport::connect(addr.as_str(), Initiator::default(), Duration::from_secs(5))
+                .unwrap();
+        let mut cam = Camera::open(Box::new(link), Timeouts::default()).unwrap();
+        let opts = CaptureOptions {
+            target: brdfd_ptp::Target::Card,
+            delete_after: true,
+        };
+        let ours = cam.capture(&opts, &mut |_, _, _| {}).unwrap();
+        assert_eq!(
+            ours.data, theirs,
+            "{profile}: same scene, same exposure: byte-identical files"
+        );
+    }
 }

@@ -23,13 +23,10 @@ pub fn run(runs: usize) -> anyhow::Result<()> {
         Arc::new(SizedPayload { bytes: FILE_BYTES }),
     )
     .shared();
-    // gphoto2 only speaks to port 15740; a loopback address of our own avoids clashes.
-    let host = format!(
-        "127.0.{}.{}",
-        std::process::id() % 200 + 20,
-        std::process::id() % 250 + 2
-    );
-    let server = Server::start(&format!("{host}:15740"), responder)?;
+    let server = Server::start("127.0.0.1:0", responder)?;
+    let host = server.addr.to_string();
+    // gphoto2's port syntax is HOST:COMMANDPORT:EVENTPORT; the simulator takes both on one.
+    let gphoto_port = format!("ptpip:{host}:{}", server.addr.port());
     let opts = CaptureOptions {
         target: Target::Card,
         delete_after: true,
@@ -62,7 +59,7 @@ pub fn run(runs: usize) -> anyhow::Result<()> {
         let out = Command::new("gphoto2")
             .args([
                 "--port",
-                &format!("ptpip:{host}"),
+                &gphoto_port,
                 "--capture-image-and-download",
                 "--force-overwrite",
             ])

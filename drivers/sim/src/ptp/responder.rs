@@ -151,6 +151,18 @@ impl Responder {
         if code != rc::OK {
             reply.data = None;
         }
+        tracing::info!(
+            "simulated {:?}: op {:#06x} {:x?} tid {} -> {:#06x}{}",
+            self.profile,
+            m.code,
+            m.params,
+            m.tid,
+            code,
+            reply
+                .data
+                .as_ref()
+                .map_or(String::new(), |d| format!(", {} bytes", d.len()))
+        );
         reply
     }
 
