@@ -90,6 +90,27 @@ impl Packet {
     }
 }
 
+/// A data phase as packets: StartData with the total length, then Data packets, the last
+/// one as EndData.
+pub fn data_phase(tid: u32, data: &[u8]) -> Vec<u8> {
+    let mut w = Writer::new();
+    w.u32(tid).u64(data.len() as u64);
+    let mut out = Packet::new(ty::START_DATA, w.finish()).to_bytes();
+    let count = data.len().div_ceil(DATA_CHUNK).max(1);
+    for i in 0..count {
+        let chunk = &data[(i * DATA_CHUNK).min(data.len())..((i + 1) * DATA_CHUNK).min(data.len())];
+        let kind = if i + 1 == count {
+            ty::END_DATA
+        } else {
+            ty::DATA
+        };
+        let mut body = tid.to_le_bytes().to_vec();
+        body.extend_from_slice(chunk);
+        out.extend(Packet::new(kind, body).to_bytes());
+    }
+    out
+}
+
 pub fn read_packet(r: &mut impl Read) -> Result<Packet> {
     let mut head = [0u8; 8];
     r.read_exact(&mut head)?;
@@ -257,23 +278,7 @@ impl Transport for PtpIpTransport {
         };
         let mut out = Packet::from_message(ty::OPERATION_REQUEST, Some(phase), op).to_bytes();
         if let Some(data) = data_out {
-            let mut w = Writer::new();
-            w.u32(op.tid).u64(data.len() as u64);
-            out.extend(Packet::new(ty::START_DATA, w.finish()).to_bytes());
-            let mut chunks = data.chunks(DATA_CHUNK).peekable();
-            if data.is_empty() {
-                out.extend(Packet::new(ty::END_DATA, op.tid.to_le_bytes().to_vec()).to_bytes());
-            }
-            while let Some(c) = chunks.next() {
-                let kind = if chunks.peek().is_some() {
-                    ty::DATA
-                } else {
-                    ty::END_DATA
-                };
-                let mut body = op.tid.to_le_bytes().to_vec();
-                body.extend_from_slice(c);
-                out.extend(Packet::new(kind, body).to_bytes());
-            }
+            out.extend(data_phase(op.tid, data));
         }
         self.cmd.write_all(&out)?;
 

@@ -9,7 +9,7 @@ use std::thread;
 use std::time::Duration;
 
 use brdfd_ptp::transport::ptpip::{
-    dataphase, read_packet, ty, Packet, DATA_CHUNK, PROTOCOL_VERSION,
+    data_phase, dataphase, read_packet, ty, Packet, PROTOCOL_VERSION,
 };
 use brdfd_ptp::wire::{Reader, Writer};
 
@@ -162,23 +162,7 @@ fn serve_commands(
             continue;
         }
         if let Some(data) = &r.data {
-            let mut w = Writer::new();
-            w.u32(m.tid).u64(data.len() as u64);
-            out.extend(Packet::new(ty::START_DATA, w.finish()).to_bytes());
-            let mut chunks = data.chunks(DATA_CHUNK).peekable();
-            if data.is_empty() {
-                out.extend(Packet::new(ty::END_DATA, m.tid.to_le_bytes().to_vec()).to_bytes());
-            }
-            while let Some(c) = chunks.next() {
-                let kind = if chunks.peek().is_some() {
-                    ty::DATA
-                } else {
-                    ty::END_DATA
-                };
-                let mut body = m.tid.to_le_bytes().to_vec();
-                body.extend_from_slice(c);
-                out.extend(Packet::new(kind, body).to_bytes());
-            }
+            out.extend(data_phase(m.tid, data));
             if let Some(WireFault::DropAfter(n)) = r.fault {
                 // Part of the data, then the connection drops, as when Wi-Fi goes.
                 let _ = s.write_all(&out[..(n + 28).min(out.len())]);
