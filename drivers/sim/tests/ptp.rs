@@ -264,3 +264,32 @@ fn wedged_camera_is_reset_at_open_and_open_session_tolerates_already_open() {
     let mut second = usb_camera(&r);
     assert_eq!(second.storage_ids().unwrap().len(), 1);
 }
+
+#[test]
+fn usb_class_requests_cancel_and_reset_reach_the_device() {
+    use brdfd_ptp::container::Message;
+    use brdfd_ptp::transport::{usb as host_usb, Transport};
+    let r = responder(Profile::Generic, 10);
+    let mut t = UsbTransport::new(usb::plug(r.clone()));
+    let (_, resp) = t
+        .transact(
+            &Message::new(op::OPEN_SESSION, 0, &[1]),
+            None,
+            Duration::from_secs(1),
+            &mut |_, _| {},
+        )
+        .unwrap();
+    assert_eq!(resp.code, 0x2001);
+    host_usb::cancel(&mut t, 1).unwrap();
+    // Device Reset ends the session: the next operation needs a new one.
+    t.reset().unwrap();
+    let (_, resp) = t
+        .transact(
+            &Message::new(op::GET_STORAGE_IDS, 1, &[]),
+            None,
+            Duration::from_secs(1),
+            &mut |_, _| {},
+        )
+        .unwrap();
+    assert_eq!(resp.code, 0x2003, "SessionNotOpen after reset");
+}
