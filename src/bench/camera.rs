@@ -31,7 +31,13 @@ impl BenchCamera {
         }
     }
 
-    /// Rendered once, on the first shot: every exposure of a bracket sees the same scene.
+    /// Renders the scene now, so that the first InitiateCapture answers as fast as a real
+    /// camera's (clients such as gphoto2 wait only a few seconds for it).
+    pub fn prepare(&self) -> Result<(), String> {
+        self.radiance().map(|_| ())
+    }
+
+    /// Rendered once: every exposure of a bracket sees the same scene.
     fn radiance(&self) -> Result<&Raster, String> {
         self.radiance
             .get_or_init(|| self.bench.photo().map_err(|e| e.to_string()))

@@ -48,11 +48,12 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
                 Some(bytes) => Arc::new(SizedPayload { bytes }),
                 None => {
                     let bench = VirtualBench::embedded(&a.material, a.size)?;
-                    Arc::new(BenchCamera::new(
-                        bench,
-                        "brdfd",
-                        &format!("simulated {}", a.profile),
-                    ))
+                    let camera =
+                        BenchCamera::new(bench, "brdfd", &format!("simulated {}", a.profile));
+                    camera
+                        .prepare()
+                        .map_err(|e| anyhow!("rendering the virtual bench: {e}"))?;
+                    Arc::new(camera)
                 }
             };
             let server = Server::start(&a.ptpip, Responder::new(profile, source).shared())
