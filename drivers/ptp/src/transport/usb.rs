@@ -72,6 +72,9 @@ pub struct UsbTransport<P: BulkPipe> {
     /// Bytes of the next container already read (a device may send a response straight
     /// after a data phase in the same transfer).
     pending: Vec<u8>,
+    /// One read buffer for the link's life: most transactions move a few bytes, and a fresh
+    /// megabyte per read would cost more than the transfer.
+    buf: Vec<u8>,
 }
 
 impl<P: BulkPipe> UsbTransport<P> {
@@ -79,6 +82,7 @@ impl<P: BulkPipe> UsbTransport<P> {
         UsbTransport {
             pipe,
             pending: Vec::new(),
+            buf: vec![0u8; READ_CHUNK],
         }
     }
 
@@ -118,7 +122,6 @@ impl<P: BulkPipe> UsbTransport<P> {
 
     /// Reads at least `want` bytes into `pending`, skipping zero-length packets.
     fn fill(&mut self, want: usize, timeout: Duration, during: &'static str) -> Result<()> {
-        let mut buf = vec![0u8; READ_CHUNK];
         let mut stalled = false;
         let start = Instant::now();
         while self.pending.len() < want {
@@ -129,8 +132,8 @@ impl<P: BulkPipe> UsbTransport<P> {
                     after: timeout,
                 });
             }
-            match self.pipe.read(Endpoint::BulkIn, &mut buf, left) {
-                Ok(n) => self.pending.extend_from_slice(&buf[..n]),
+            match self.pipe.read(Endpoint::BulkIn, &mut self.buf, left) {
+                Ok(n) => self.pending.extend_from_slice(&self.buf[..n]),
                 Err(PipeError::Stall) if !stalled => {
                     stalled = true;
                     tracing::warn!(
@@ -162,7 +165,6 @@ impl<P: BulkPipe> UsbTransport<P> {
                 format!("{:?} container of {total} bytes", header.kind),
             ));
         }
-        let mut buf = vec![0u8; READ_CHUNK];
         let mut payload = Vec::with_capacity(header.payload_len());
         payload.extend_from_slice(&self.pending[HEADER_LEN..self.pending.len().min(total)]);
         self.pending.drain(..self.pending.len().min(total));
@@ -170,11 +172,11 @@ impl<P: BulkPipe> UsbTransport<P> {
         // takes as long as it takes while bytes keep coming.
         while payload.len() < header.payload_len() {
             progress(payload.len() as u64, header.payload_len() as u64);
-            match self.pipe.read(Endpoint::BulkIn, &mut buf, timeout) {
+            match self.pipe.read(Endpoint::BulkIn, &mut self.buf, timeout) {
                 Ok(n) => {
                     let need = header.payload_len() - payload.len();
-                    payload.extend_from_slice(&buf[..n.min(need)]);
-                    self.pending.extend_from_slice(&buf[n.min(need)..n]);
+                    payload.extend_from_slice(&self.buf[..n.min(need)]);
+                    self.pending.extend_from_slice(&self.buf[n.min(need)..n]);
                 }
                 Err(e) => return Err(pipe_err(e, "data phase", timeout)),
             }
