@@ -6,6 +6,7 @@
 //!   maps, geometry, rendering matrix, pixel selection, solve, evaluation). No async, no drivers.
 //! - [`bench`](mod@bench): the virtual bench: renders what a camera on a simulated rig would see.
 //! - [`radiometry`]: camera files to linear radiance (EXIF exposure, HDR merge).
+//! - [`panorama`]: 360° camera files to environment maps (GPano projection, bracket merge).
 //! - [`results`]: the files an estimate leaves behind.
 //! - `drivers/` (workspace crates, as they land): device protocols and their simulators.
 
@@ -15,5 +16,6 @@
 
 pub mod bench;
 pub mod core;
+pub mod panorama;
 pub mod radiometry;
 pub mod results;

@@ -53,15 +53,32 @@ fn simulated_capture_prints_coefficients() {
         "preview.png",
         "preview.exr",
         "photo.exr",
+        "panorama.exr",
     ] {
         assert!(dir.path().join("result").join(f).is_file(), "{f} missing");
     }
-    // The bracket came through the simulated D5100 over PTP/IP, as JPEGs with EXIF.
+    // The bracket came through the simulated D5100 over PTP/IP, as JPEGs with EXIF; the
+    // panorama through the simulated THETA V over HTTP, as an 8-frame bracket.
     assert!(out.contains("D5100 on ptpip:127.0.0.1:"), "{out}");
-    let raw: Vec<_> = std::fs::read_dir(dir.path().join("result/raw"))
+    assert!(
+        out.contains("panorama: RICOH THETA V (serial 00165759, firmware 3.50.1) over HTTP at http://127.0.0.1:"),
+        "{out}"
+    );
+    let raw: Vec<String> = std::fs::read_dir(dir.path().join("result/raw"))
         .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
-    assert_eq!(raw.len(), 5);
+    assert_eq!(
+        raw.iter().filter(|n| n.starts_with("dslr-")).count(),
+        5,
+        "{raw:?}"
+    );
+    assert_eq!(
+        raw.iter().filter(|n| n.starts_with("theta-R00")).count(),
+        8,
+        "{raw:?}"
+    );
+    assert_eq!(raw.len(), 13, "{raw:?}");
     let first = std::fs::read(dir.path().join("result/raw/dslr-01-DSC_0001.JPG")).unwrap();
     let exp = brdfd::radiometry::exif_exposure(&first, "dslr-01").unwrap();
     assert_eq!((exp.shutter_s, exp.f_number, exp.iso), (0.001, 8.0, 100.0));

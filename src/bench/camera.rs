@@ -50,17 +50,7 @@ impl ImageSource for BenchCamera {
     fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String> {
         let r = self.radiance()?;
         let k = (shot.exposure_factor() * SENSOR_GAIN) as f32;
-        let mut img = image::RgbImage::new(r.width as u32, r.height as u32);
-        for (i, p) in img.pixels_mut().enumerate() {
-            let v = r.pixels[i];
-            for c in 0..3 {
-                p.0[c] = (linear_to_srgb((v[c] * k).clamp(0.0, 1.0)) * 255.0).round() as u8;
-            }
-        }
-        let mut jpeg = Vec::new();
-        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 95)
-            .encode_image(&img)
-            .map_err(|e| format!("JPEG encoding: {e}"))?;
+        let jpeg = expose_to_jpeg(r.width, r.height, &r.pixels, k)?;
         Ok(insert_exif(&jpeg, &self.make, &self.model, shot))
     }
 
@@ -70,15 +60,41 @@ impl ImageSource for BenchCamera {
     }
 }
 
+/// What a sensor with an sRGB JPEG pipeline records of linear `radiance` scaled by `k`:
+/// clipped at white, sRGB-encoded to 8 bits, JPEG at quality 95.
+pub fn expose_to_jpeg(
+    width: usize,
+    height: usize,
+    radiance: &[[f32; 3]],
+    k: f32,
+) -> Result<Vec<u8>, String> {
+    let mut img = image::RgbImage::new(width as u32, height as u32);
+    for (p, v) in img.pixels_mut().zip(radiance) {
+        for c in 0..3 {
+            p.0[c] = (linear_to_srgb((v[c] * k).clamp(0.0, 1.0)) * 255.0).round() as u8;
+        }
+    }
+    let mut jpeg = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 95)
+        .encode_image(&img)
+        .map_err(|e| format!("JPEG encoding: {e}"))?;
+    Ok(jpeg)
+}
+
 /// Puts an APP1 Exif segment (Make, Model, ExposureTime, FNumber, ISO) after the SOI marker.
 pub fn insert_exif(jpeg: &[u8], make: &str, model: &str, shot: &Shot) -> Vec<u8> {
-    let tiff = exif_tiff(make, model, shot);
-    let mut out = Vec::with_capacity(jpeg.len() + tiff.len() + 10);
+    insert_app1(jpeg, b"Exif\0\0", &exif_tiff(make, model, shot))
+}
+
+/// Puts an APP1 segment (`header` then `payload`) right after the SOI marker, ahead of any
+/// APP1 already there. The payload must fit one segment (64 KiB).
+pub fn insert_app1(jpeg: &[u8], header: &[u8], payload: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(jpeg.len() + header.len() + payload.len() + 4);
     out.extend_from_slice(&jpeg[..2]);
     out.extend_from_slice(&[0xFF, 0xE1]);
-    out.extend_from_slice(&((tiff.len() + 8) as u16).to_be_bytes());
-    out.extend_from_slice(b"Exif\0\0");
-    out.extend_from_slice(&tiff);
+    out.extend_from_slice(&((header.len() + payload.len() + 2) as u16).to_be_bytes());
+    out.extend_from_slice(header);
+    out.extend_from_slice(payload);
     out.extend_from_slice(&jpeg[2..]);
     out
 }

@@ -7,6 +7,7 @@
 //! procedural studio environment written for this project.
 
 pub mod camera;
+pub mod panorama;
 
 use crate::core::envmap::{EnvMap, LightSet};
 use crate::core::geometry::{Camera, PixelGeometry, SceneGeometry, Shape};

@@ -1,8 +1,9 @@
 //! `brdfd capture`: capture a material and estimate it. Today this runs the simulated rig
-//! in-process: the DSLR bracket comes from the simulated Nikon D5100 through our PTP/IP client
-//! on loopback (JPEG, EXIF, HDR merge, as with a real camera); the panorama still comes
-//! straight from the virtual bench until the THETA driver lands. The daemon and the hardware
-//! rig plug in behind the same command.
+//! in-process, through the real protocols on loopback: the panorama bracket comes from the
+//! simulated RICOH THETA V over the THETA Web API (HTTP), merged into a linear map from each
+//! frame's EXIF; the DSLR bracket comes from the simulated Nikon D5100 through our PTP/IP
+//! client (JPEG, EXIF, HDR merge, as with a real camera). The daemon and the hardware rig
+//! plug in behind the same command.
 
 use std::path::PathBuf;
 
@@ -23,6 +24,10 @@ use brdfd::radiometry::{decode_jpeg, merge_hdr, Frame};
 use brdfd_ptp::transport::ptpip::{Initiator, PtpIpTransport};
 use brdfd_ptp::{Camera, CaptureOptions, Exposure, Timeouts};
 use brdfd_sim::ptp::{ptpip::Server, Profile, Responder};
+use brdfd_sim::theta::{OscServer, ThetaConfig};
+
+use super::theta_cmd::{capture_panorama, loopback_timeouts};
+use brdfd::bench::panorama::{BenchPanorama, THETA_SENSOR_GAIN};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -75,6 +80,43 @@ fn dslr_bracket(bench: &VirtualBench, shutters: &[f64]) -> anyhow::Result<(Raste
     Ok((merge_hdr(&frames, SENSOR_GAIN)?, files))
 }
 
+/// Time the simulated THETA takes per frame. A real THETA V takes about a second; the
+/// simulation keeps a delay so that the client's polling runs as it would, but a short one.
+const SIM_THETA_SHOT_TIME: Duration = Duration::from_millis(20);
+
+/// Shoots the light-probe bracket on the simulated THETA V over HTTP, merges it, and says how
+/// far the measured map is from the bench's own (total power, per channel).
+fn theta_bracket(bench: &VirtualBench) -> anyhow::Result<(EnvMap, RawFiles)> {
+    let source = Arc::new(BenchPanorama::new(&bench.env, 1024, "RICOH THETA V"));
+    let config = ThetaConfig {
+        shot_time: SIM_THETA_SHOT_TIME,
+        ..ThetaConfig::default()
+    };
+    let server = OscServer::start("127.0.0.1:0", source.clone(), config)?;
+    let mut theta = brdfd_theta::Theta::connect_http(&server.url(), None, loopback_timeouts())?;
+    println!("panorama: {}", theta.describe());
+    let (map, frames) = capture_panorama(
+        &mut theta,
+        &brdfd_theta::BracketPlan::light_probe(),
+        THETA_SENSOR_GAIN,
+    )?;
+    let (measured, truth) = (map.lights(0.0).power(), source.scene().lights(0.0).power());
+    println!(
+        "  {} frames merged to {}×{}; total light vs the bench's map: {:+.2}% {:+.2}% {:+.2}% (R G B)",
+        frames.len(),
+        map.width,
+        map.height,
+        (measured[0] / truth[0] - 1.0) * 100.0,
+        (measured[1] / truth[1] - 1.0) * 100.0,
+        (measured[2] / truth[2] - 1.0) * 100.0,
+    );
+    let files = frames
+        .into_iter()
+        .map(|f| (format!("theta-{}", f.name), f.data))
+        .collect();
+    Ok((map, files))
+}
+
 #[derive(clap::Args)]
 pub struct CaptureArgs {
     /// Material name (MERL name, or an alias: gold, chrome, plastic, paint, fabric, latex).
@@ -122,16 +164,17 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         Ok::<_, brdfd::core::CoreError>(b)
     })?;
     if let Some(p) = &a.env {
-        bench.env = EnvMap::load(p)?;
+        bench.env = brdfd::panorama::load_envmap(p)?;
     }
     println!(
         "simulated rig (in-process): {} on a sphere; DSLR: simulated Nikon D5100 over PTP/IP on loopback, {}×{}",
         bench.material_name, a.size, a.size
     );
-    let (photo, frames) = dslr_bracket(&bench, &a.bracket)?;
-    println!("panorama: the virtual bench's environment map (the THETA driver is not built yet)");
+    let (env, mut frames) = theta_bracket(&bench)?;
+    let (photo, dslr_frames) = dslr_bracket(&bench, &a.bracket)?;
+    frames.extend(dslr_frames);
     let geometry = bench.pixels()?;
-    let lights = bench.env.compressed(DEFAULT_LIGHTS, bench.yaw);
+    let lights = env.compressed(DEFAULT_LIGHTS, bench.yaw);
     let basis = Basis::embedded();
     let options = EstimateOptions {
         pixel_count: parse_pixels(&a.pixels)?,
@@ -154,6 +197,12 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
     if let Some(out) = &a.out {
         let files = brdfd::results::write_results(out, &basis, &est, "fast", &lights)?;
         photo.write_exr(&out.join("photo.exr"))?;
+        brdfd::core::envmap::write_exr(
+            &out.join("panorama.exr"),
+            env.width,
+            env.height,
+            &env.pixels,
+        )?;
         let raw = out.join("raw");
         std::fs::create_dir_all(&raw)?;
         for (name, bytes) in &frames {

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use brdfd::core::basis::Basis;
 use brdfd::core::bivariate::Bivariate;
-use brdfd::core::envmap::{EnvMap, DEFAULT_LIGHTS};
+use brdfd::core::envmap::DEFAULT_LIGHTS;
 use brdfd::core::estimate::{
     estimate as run_estimate, EstimateOptions, SelectionMethod, DEFAULT_MAX_CANDIDATES,
 };
@@ -23,7 +23,8 @@ pub struct EstimateArgs {
     /// The object photo: linear EXR, or sRGB PNG/JPEG (decoded to linear).
     #[arg(long)]
     pub photo: PathBuf,
-    /// The environment map (Radiance .hdr or OpenEXR), equirectangular.
+    /// The environment map: Radiance .hdr, OpenEXR, or a 360° camera's JPEG (GPano XMP and
+    /// EXIF exposure read), equirectangular.
     #[arg(long)]
     pub env: PathBuf,
     /// Yaw of the panorama about +Y, degrees (right-handed).
@@ -85,7 +86,8 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
     let total = std::time::Instant::now();
     let basis = load_basis(&a.basis)?;
     let photo = Raster::read(&a.photo).with_context(|| "reading the photo")?;
-    let env = EnvMap::load(&a.env).with_context(|| "reading the environment map")?;
+    let env =
+        brdfd::panorama::load_envmap(&a.env).with_context(|| "reading the environment map")?;
     let lights = env.compressed(a.lights, a.yaw.to_radians());
     let geometry = a.geometry.scene()?.pixels(photo.width, photo.height)?;
     let method = match a.method {
@@ -167,7 +169,7 @@ pub struct RenderArgs {
 
 pub fn render(a: RenderArgs) -> anyhow::Result<()> {
     let env = match &a.env {
-        Some(p) => EnvMap::load(p)?,
+        Some(p) => brdfd::panorama::load_envmap(p)?,
         None => brdfd::bench::studio_envmap(512),
     };
     let lights = env.compressed(a.lights, a.yaw.to_radians());

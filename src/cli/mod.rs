@@ -9,6 +9,7 @@ mod perf;
 mod perf_ptp;
 mod ptp_cmd;
 mod sim;
+mod theta_cmd;
 
 use std::path::PathBuf;
 
@@ -49,6 +50,11 @@ pub enum Command {
         #[command(subcommand)]
         command: ptp_cmd::PtpCommand,
     },
+    /// Talk to the 360° camera (RICOH THETA) directly, over HTTP or USB: info, light capture.
+    Theta {
+        #[command(subcommand)]
+        command: theta_cmd::ThetaCommand,
+    },
     /// Run a simulated device until stopped.
     Sim {
         #[command(subcommand)]
@@ -75,6 +81,35 @@ pub struct EvalArgs {
     pub choices: bool,
 }
 
+/// Writes a camera file into `dir` under its own name, or `N-name` if that exists: an earlier
+/// capture is never overwritten. Returns the path written.
+pub fn write_new(dir: &std::path::Path, name: &str, bytes: &[u8]) -> anyhow::Result<PathBuf> {
+    use std::io::Write;
+    for i in 0.. {
+        let path = if i == 0 {
+            dir.join(name)
+        } else {
+            dir.join(format!("{i}-{name}"))
+        };
+        // create_new: the existence check and the creation are one step.
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&path)
+        {
+            Ok(mut f) => {
+                f.write_all(bytes)
+                    .and_then(|_| f.sync_all())
+                    .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))?;
+                return Ok(path);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => anyhow::bail!("creating {}: {e}", path.display()),
+        }
+    }
+    unreachable!("an unbounded range ends only by returning")
+}
+
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Basis { command } => basis_cmd::run(command),
@@ -94,6 +129,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Capture(a) => capture::run(a),
         Command::Bench(a) => perf::run(a),
         Command::Ptp { command } => ptp_cmd::run(command),
+        Command::Theta { command } => theta_cmd::run(command),
         Command::Sim { command } => sim::run(command),
     }
 }

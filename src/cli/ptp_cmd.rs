@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use anyhow::{anyhow, bail, Context};
+use anyhow::{bail, Context};
 use brdfd_ptp::transport::ptpip::{Initiator, PtpIpTransport, DEFAULT_PORT};
 use brdfd_ptp::transport::usb::{open_usb, UsbTransport};
 use brdfd_ptp::transport::Transport;
@@ -20,7 +20,7 @@ pub enum PtpCommand {
 
 #[derive(clap::Args)]
 pub struct PortArg {
-    /// `usb` (first PTP camera), `usb:VVVV:PPPP` (vendor:product, hex), or `ptpip:HOST[:PORT]`.
+    /// `usb` (first PTP camera), `usb:VVVV[:PPPP]` (vendor[:product], hex), or `ptpip:HOST[:PORT]`.
     #[arg(long, default_value = "usb")]
     pub port: String,
 }
@@ -60,16 +60,18 @@ pub fn open(port: &str) -> anyhow::Result<Camera> {
     } else if port == "usb" {
         Box::new(UsbTransport::new(open_usb(None, None)?))
     } else if let Some(ids) = port.strip_prefix("usb:") {
-        let (v, p) = ids
-            .split_once(':')
-            .ok_or_else(|| anyhow!("USB selector {port:?}: expected usb:VVVV:PPPP"))?;
         let hex = |s: &str| {
             u16::from_str_radix(s, 16)
                 .with_context(|| format!("USB selector {port:?}: {s:?} is not hex"))
         };
-        Box::new(UsbTransport::new(open_usb(Some(hex(v)?), Some(hex(p)?))?))
+        // usb:VVVV:PPPP names one model; usb:VVVV the first camera of a vendor.
+        let (v, p) = match ids.split_once(':') {
+            Some((v, p)) => (hex(v)?, Some(hex(p)?)),
+            None => (hex(ids)?, None),
+        };
+        Box::new(UsbTransport::new(open_usb(Some(v), p)?))
     } else {
-        bail!("unknown camera port {port:?}: use usb, usb:VVVV:PPPP or ptpip:HOST[:PORT]");
+        bail!("unknown camera port {port:?}: use usb, usb:VVVV[:PPPP] or ptpip:HOST[:PORT]");
     };
     Ok(Camera::open(link, Timeouts::default())?)
 }
@@ -142,20 +144,7 @@ pub fn run(cmd: PtpCommand) -> anyhow::Result<()> {
                         eprintln!("  downloaded {total} bytes");
                     }
                 })?;
-                let path = a.out.join(&shot.info.filename);
-                // Never overwrite an earlier capture.
-                let path = (0..)
-                    .map(|i| {
-                        if i == 0 {
-                            path.clone()
-                        } else {
-                            a.out.join(format!("{i}-{}", shot.info.filename))
-                        }
-                    })
-                    .find(|p| !p.exists())
-                    .unwrap();
-                std::fs::write(&path, &shot.data)
-                    .with_context(|| format!("writing {}", path.display()))?;
+                let path = super::write_new(&a.out, &shot.info.filename, &shot.data)?;
                 println!("{}", path.display());
             }
             cam.close()?;

@@ -1,18 +1,24 @@
-//! `brdfd sim`: run a simulated device on its own, for trying clients (ours, gphoto2) without
-//! hardware. It serves until it is stopped.
+//! `brdfd sim`: run a simulated device on its own, for trying clients (ours, gphoto2, a THETA
+//! app) without hardware. It serves until it is stopped.
 
+use std::path::PathBuf;
 use std::sync::Arc;
+use std::time::Duration;
 
-use anyhow::{anyhow, Context};
+use anyhow::{anyhow, bail, Context};
 use brdfd::bench::camera::BenchCamera;
+use brdfd::bench::panorama::BenchPanorama;
 use brdfd::bench::VirtualBench;
 use brdfd_sim::ptp::{ptpip::Server, Profile, Responder};
+use brdfd_sim::theta::{OscServer, ThetaConfig};
 use brdfd_sim::{ImageSource, SizedPayload};
 
 #[derive(clap::Subcommand)]
 pub enum SimCommand {
     /// A PTP camera served over PTP/IP (TCP), rendering the virtual bench.
     Camera(CameraArgs),
+    /// A RICOH THETA V on the THETA Web API (HTTP), photographing an environment map.
+    Theta(ThetaArgs),
 }
 
 #[derive(clap::Args)]
@@ -20,7 +26,7 @@ pub struct CameraArgs {
     /// Address to listen on (PTP/IP's port is 15740).
     #[arg(long, default_value = "127.0.0.1:15740")]
     pub ptpip: String,
-    /// Camera profile: generic, nikon-d5100, theta-v.
+    /// Camera profile: generic, nikon-d5100, theta-v (the THETA serves panoramas).
     #[arg(long, default_value = "nikon-d5100")]
     pub profile: String,
     /// Material on the virtual bench (name or alias).
@@ -34,6 +40,36 @@ pub struct CameraArgs {
     pub payload_bytes: Option<usize>,
 }
 
+#[derive(clap::Args)]
+pub struct ThetaArgs {
+    /// Address to listen on (a real THETA answers on port 80 of 192.168.1.1).
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub http: String,
+    /// Environment map the camera photographs (.hdr, .exr); the procedural studio if absent.
+    #[arg(long)]
+    pub env: Option<PathBuf>,
+    /// Width of the panoramas, in pixels (larger maps are downsampled to it).
+    #[arg(long, default_value_t = 1024)]
+    pub width: usize,
+    /// Ask for HTTP Digest with this user (client mode); needs --password.
+    #[arg(long)]
+    pub user: Option<String>,
+    #[arg(long)]
+    pub password: Option<String>,
+    /// Time to expose and stitch one frame, in milliseconds.
+    #[arg(long, default_value_t = 500)]
+    pub shot_ms: u64,
+}
+
+fn bench_env(env: &Option<PathBuf>) -> anyhow::Result<brdfd::core::envmap::EnvMap> {
+    Ok(match env {
+        Some(p) => {
+            brdfd::panorama::load_envmap(p).with_context(|| format!("reading {}", p.display()))?
+        }
+        None => brdfd::bench::studio_envmap(1024),
+    })
+}
+
 pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
     match cmd {
         SimCommand::Camera(a) => {
@@ -44,9 +80,14 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
                     Profile::NAMES.join(", ")
                 )
             })?;
-            let source: Arc<dyn ImageSource> = match a.payload_bytes {
-                Some(bytes) => Arc::new(SizedPayload { bytes }),
-                None => {
+            let source: Arc<dyn ImageSource> = match (a.payload_bytes, profile) {
+                (Some(bytes), _) => Arc::new(SizedPayload { bytes }),
+                (None, Profile::ThetaV) => Arc::new(BenchPanorama::new(
+                    &bench_env(&None)?,
+                    1024,
+                    "RICOH THETA V",
+                )),
+                (None, _) => {
                     let bench = VirtualBench::embedded(&a.material, a.size)?;
                     let camera =
                         BenchCamera::new(bench, "brdfd", &format!("simulated {}", a.profile));
@@ -60,6 +101,26 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
                 .with_context(|| format!("listening on {}", a.ptpip))?;
             // Scripts wait for this line before connecting.
             println!("simulated {} camera: PTP/IP on {}", a.profile, server.addr);
+            loop {
+                std::thread::park();
+            }
+        }
+        SimCommand::Theta(a) => {
+            let credentials = match (a.user, a.password) {
+                (Some(u), Some(p)) => Some((u, p)),
+                (None, None) => None,
+                _ => bail!("give both --user and --password, or neither"),
+            };
+            let source = BenchPanorama::new(&bench_env(&a.env)?, a.width, "RICOH THETA V");
+            let config = ThetaConfig {
+                credentials,
+                shot_time: Duration::from_millis(a.shot_ms),
+                ..ThetaConfig::default()
+            };
+            let server = OscServer::start(&a.http, Arc::new(source), config)
+                .with_context(|| format!("listening on {}", a.http))?;
+            // Scripts wait for this line before connecting.
+            println!("simulated RICOH THETA V: THETA Web API on {}", server.url());
             loop {
                 std::thread::park();
             }

@@ -4,6 +4,9 @@
 
 use brdfd_ptp::codes::{datatype as dt, event, format, op, prop, vendor};
 use brdfd_ptp::dataset::{DeviceInfo, DevicePropDesc, Form, StorageInfo, Value};
+use brdfd_theta::usb::{code as ricoh, shutter_to_u64};
+
+use crate::theta::THETA_V_SHUTTERS;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Profile {
@@ -311,6 +314,44 @@ pub fn properties(p: Profile) -> Vec<DevicePropDesc> {
             ),
             // Sleep: 1 while asleep; writing 0 wakes the camera.
             e(prop::RICOH_SLEEP, dt::UINT8, true, 0, &[0, 1]),
+            theta_shutter_speed(),
+            e(ricoh::FILTER, dt::UINT8, true, 0, &[0, 1, 2, 3, 4]),
+            range(ricoh::SLEEP_DELAY, dt::UINT16, true, 180, 0, 65534),
+            range(
+                ricoh::AUTO_POWER_OFF_DELAY_SEC,
+                dt::UINT32,
+                true,
+                64800,
+                0,
+                2_592_000,
+            ),
+            range(
+                ricoh::COLOR_TEMPERATURE,
+                dt::UINT16,
+                true,
+                5000,
+                2500,
+                10000,
+            ),
         ],
+    }
+}
+
+/// RICOH's shutter speed (0xD00F, UINT64 rationals; 0 is automatic), as the THETA V lists it.
+/// Automatic until a client sets manual exposure.
+fn theta_shutter_speed() -> DevicePropDesc {
+    let mut values = vec![Value::UInt(0)];
+    values.extend(
+        THETA_V_SHUTTERS
+            .iter()
+            .map(|&(n, d)| Value::UInt(shutter_to_u64(n, d))),
+    );
+    DevicePropDesc {
+        code: ricoh::SHUTTER_SPEED,
+        datatype: dt::UINT64,
+        writable: true,
+        factory_default: Value::UInt(0),
+        current: Value::UInt(0),
+        form: Form::Enum(values),
     }
 }

@@ -35,6 +35,15 @@ pub struct Faults {
     pub wedged: bool,
 }
 
+impl Responder {
+    /// Puts a THETA to sleep (property 0xD80E reads 1), as its sleep timer would.
+    pub fn fall_asleep(&mut self) {
+        if let Some(d) = self.props.get_mut(&prop::RICOH_SLEEP) {
+            d.current = Value::UInt(1);
+        }
+    }
+}
+
 /// What the link must do beyond sending the reply, for faults that live on the wire.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum WireFault {
@@ -241,6 +250,10 @@ impl Responder {
                 return self.set_prop(p(0) as u16, data_out.unwrap_or(&[]), reply)
             }
             op::INITIATE_CAPTURE => {
+                if self.int_prop(prop::RICOH_SLEEP, 0) == 1 {
+                    // A sleeping THETA takes no pictures until a client wakes it.
+                    return rc::DEVICE_BUSY;
+                }
                 let h = match self.shoot(false) {
                     Ok(h) => h,
                     Err(c) => return c,
@@ -324,6 +337,23 @@ impl Responder {
 
     /// The current exposure, as the camera would shoot it.
     pub fn shot_settings(&self) -> Shot {
+        if self.profile == Profile::ThetaV {
+            // RICOH's rational shutter; automatic exposure shoots 1/100 s. Fixed f/2.0.
+            let shutter = self
+                .props
+                .get(&brdfd_theta::usb::code::SHUTTER_SPEED)
+                .and_then(|d| match d.current {
+                    Value::UInt(v) => brdfd_theta::usb::shutter_from_u64(v),
+                    _ => None,
+                });
+            return Shot {
+                shutter_s: shutter.unwrap_or(0.01),
+                f_number: crate::theta::THETA_V_F_NUMBER,
+                iso: self.int_prop(prop::EXPOSURE_INDEX, 100) as u32,
+                raw: false,
+                sequence: self.shots + 1,
+            };
+        }
         Shot {
             shutter_s: self.int_prop(prop::EXPOSURE_TIME, 100) as f64 / 1e4,
             f_number: self.int_prop(prop::F_NUMBER, 200) as f64 / 100.0,
@@ -355,7 +385,10 @@ impl Responder {
             width: w,
             height: h,
             bit_depth: 24,
-            filename: format!("DSC_{:04}.JPG", self.shots % 10_000),
+            filename: match self.profile {
+                Profile::ThetaV => format!("R{:07}.JPG", 10_000 + self.shots),
+                _ => format!("DSC_{:04}.JPG", self.shots % 10_000),
+            },
             capture_date: format!("20261122T1200{:02}", self.shots % 60),
             ..Default::default()
         };

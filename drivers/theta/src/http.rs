@@ -1,0 +1,535 @@
+//! The THETA Web API client (OSC v2.1 over HTTP), async on `reqwest`.
+//!
+//! - Every request has a timeout ([`HttpTimeouts`]).
+//! - Retries follow what the API allows. `serviceUnavailable` (HTTP 503) means the camera did
+//!   not take the request, so any request is sent again after a pause. A timeout or a dropped
+//!   connection is retried only for requests that change nothing (info, state, status,
+//!   getOptions, setOptions, listFiles, downloads). A takePicture whose answer was lost may
+//!   have fired, so it is never sent twice.
+//! - HTTP Digest (RFC 7616, MD5, qop=auth) for client mode, where the THETA asks for it.
+//!   The challenge is kept and reused with an increasing nonce count, as the RFC intends.
+//! - File URLs are followed only when they point at the camera's own host and port.
+//!
+//! It does not own a runtime; [`crate::Theta`] wraps it for blocking callers.
+
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use reqwest::{Method, StatusCode, Url};
+use serde_json::{json, Value};
+
+use crate::error::{Result, ThetaError};
+use crate::osc::{error_code, Command, CommandState, ErrorBody, Info, StateResponse, Updates};
+
+/// Timeouts and retry limits. The defaults suit a THETA V on its own access point.
+#[derive(Debug, Clone, Copy)]
+pub struct HttpTimeouts {
+    /// Connecting, and each request that is not a download or a capture wait.
+    pub request: Duration,
+    /// Polling interval of `/osc/commands/status` while a command is in progress.
+    pub poll: Duration,
+    /// How long one command (a bracket of 13 shots at up to 1 s each, with stitching) may
+    /// stay in progress.
+    pub command: Duration,
+    /// A whole file download, per attempt (a 5376 × 2688 JPEG is about 5 MB).
+    pub download: Duration,
+    /// How long to keep retrying a request the camera was not ready for.
+    pub retry_budget: Duration,
+}
+
+impl Default for HttpTimeouts {
+    fn default() -> Self {
+        HttpTimeouts {
+            request: Duration::from_secs(10),
+            poll: Duration::from_millis(500),
+            command: Duration::from_secs(180),
+            download: Duration::from_secs(60),
+            retry_budget: Duration::from_secs(30),
+        }
+    }
+}
+
+/// First pause before a retry; it doubles up to `RETRY_PAUSE_MAX`.
+const RETRY_PAUSE: Duration = Duration::from_millis(100);
+const RETRY_PAUSE_MAX: Duration = Duration::from_secs(2);
+/// Attempts at one file download before giving up.
+pub const DOWNLOAD_ATTEMPTS: u32 = 3;
+
+/// Commands that change nothing on the camera, or set it to the same state when repeated.
+const IDEMPOTENT_COMMANDS: [&str; 6] = [
+    "camera.getOptions",
+    "camera.setOptions",
+    "camera.listFiles",
+    "camera._getMetadata",
+    "camera.getLivePreview",
+    "camera.reset",
+];
+
+#[derive(Debug, Clone)]
+pub struct Credentials {
+    pub user: String,
+    pub password: String,
+}
+
+/// Progress of a command or a download: a phase name and a fraction in [0, 1].
+pub type Progress<'a> = &'a mut (dyn FnMut(&str, f64) + Send);
+
+pub struct OscClient {
+    http: reqwest::Client,
+    base: Url,
+    credentials: Option<Credentials>,
+    /// The last Digest challenge, reused (with a rising nonce count) until the camera issues
+    /// a new one.
+    challenge: Mutex<Option<digest_auth::WwwAuthenticateHeader>>,
+    pub timeouts: HttpTimeouts,
+}
+
+impl OscClient {
+    /// `base` is the camera's address: `http://192.168.1.1` in access-point mode.
+    pub fn new(
+        base: &str,
+        credentials: Option<Credentials>,
+        timeouts: HttpTimeouts,
+    ) -> Result<OscClient> {
+        let base = Url::parse(base)
+            .ok()
+            .filter(|u| u.scheme() == "http" && u.host_str().is_some())
+            .ok_or_else(|| ThetaError::Unreachable {
+                what: "THETA address".into(),
+                camera: base.into(),
+                reason: "not an http://HOST[:PORT] address".into(),
+            })?;
+        let http = reqwest::Client::builder()
+            .connect_timeout(timeouts.request)
+            // The camera is on the local network: a proxy from the environment would only
+            // get in the way.
+            .no_proxy()
+            .build()
+            .map_err(|e| ThetaError::Unreachable {
+                what: "HTTP client".into(),
+                camera: base.to_string(),
+                reason: e.to_string(),
+            })?;
+        Ok(OscClient {
+            http,
+            base,
+            credentials,
+            challenge: Mutex::new(None),
+            timeouts,
+        })
+    }
+
+    pub fn base(&self) -> &Url {
+        &self.base
+    }
+
+    /// `GET /osc/info`.
+    pub async fn info(&self) -> Result<Info> {
+        let v = self
+            .json(Method::GET, "/osc/info", None, "info", true)
+            .await?;
+        parse(v, "info")
+    }
+
+    /// `POST /osc/state`.
+    pub async fn state(&self) -> Result<StateResponse> {
+        let v = self
+            .json(Method::POST, "/osc/state", None, "state", true)
+            .await?;
+        parse(v, "state")
+    }
+
+    /// `POST /osc/checkForUpdates`: whether the state changed since `fingerprint`.
+    pub async fn check_for_updates(&self, fingerprint: &str) -> Result<Updates> {
+        let body = json!({ "stateFingerprint": fingerprint });
+        let v = self
+            .json(
+                Method::POST,
+                "/osc/checkForUpdates",
+                Some(body),
+                "checkForUpdates",
+                true,
+            )
+            .await?;
+        parse(v, "checkForUpdates")
+    }
+
+    /// `POST /osc/commands/execute`, returning the first answer (which may be inProgress).
+    pub async fn execute(&self, name: &str, parameters: Value) -> Result<Command> {
+        let body = json!({ "name": name, "parameters": parameters });
+        let retry = IDEMPOTENT_COMMANDS.contains(&name);
+        let v = self
+            .json(
+                Method::POST,
+                "/osc/commands/execute",
+                Some(body),
+                name,
+                retry,
+            )
+            .await?;
+        command_result(parse(v, name)?, name)
+    }
+
+    /// `POST /osc/commands/status`.
+    pub async fn status(&self, id: &str, what: &str) -> Result<Command> {
+        let body = json!({ "id": id });
+        let v = self
+            .json(Method::POST, "/osc/commands/status", Some(body), what, true)
+            .await?;
+        command_result(parse(v, what)?, what)
+    }
+
+    /// Executes a command and polls its status until it is done; an error state is an error.
+    #[tracing::instrument(skip(self, parameters, progress), fields(camera = %self.base))]
+    pub async fn run(
+        &self,
+        name: &str,
+        parameters: Value,
+        progress: Progress<'_>,
+    ) -> Result<Command> {
+        let start = Instant::now();
+        let mut c = self.execute(name, parameters).await?;
+        while c.state == CommandState::InProgress {
+            if let Some(p) = c.progress {
+                progress(name, p.completion);
+            }
+            let id = c.id.clone().ok_or_else(|| ThetaError::Malformed {
+                what: name.into(),
+                reason: "inProgress without a command id".into(),
+            })?;
+            if start.elapsed() > self.timeouts.command {
+                return Err(ThetaError::Timeout {
+                    what: format!("{name} (still in progress)"),
+                    camera: self.base.to_string(),
+                    after: self.timeouts.command,
+                });
+            }
+            tokio::time::sleep(self.timeouts.poll).await;
+            c = self.status(&id, name).await?;
+        }
+        progress(name, 1.0);
+        Ok(c)
+    }
+
+    /// Sets options (`camera.setOptions`).
+    pub async fn set_options(&self, options: Value) -> Result<()> {
+        self.execute("camera.setOptions", json!({ "options": options }))
+            .await
+            .map(|_| ())
+    }
+
+    /// Reads options (`camera.getOptions`).
+    pub async fn get_options(&self, names: &[&str]) -> Result<serde_json::Map<String, Value>> {
+        Ok(self
+            .execute("camera.getOptions", json!({ "optionNames": names }))
+            .await?
+            .options())
+    }
+
+    /// Downloads a file the camera named, with retries; only from the camera itself.
+    #[tracing::instrument(skip(self, progress), fields(camera = %self.base))]
+    pub async fn download(&self, url: &str, progress: Progress<'_>) -> Result<Vec<u8>> {
+        let parsed = Url::parse(url).ok().filter(|u| self.is_camera(u));
+        let Some(parsed) = parsed else {
+            return Err(ThetaError::ForeignUrl {
+                url: url.into(),
+                camera: self.base.to_string(),
+            });
+        };
+        let mut last = String::new();
+        for attempt in 1..=DOWNLOAD_ATTEMPTS {
+            match self.download_once(&parsed, progress).await {
+                Ok(bytes) => return Ok(bytes),
+                Err(e) => {
+                    tracing::warn!(attempt, "download of {url} failed: {e}");
+                    last = e.to_string();
+                    tokio::time::sleep(RETRY_PAUSE * attempt).await;
+                }
+            }
+        }
+        Err(ThetaError::Download {
+            url: url.into(),
+            attempts: DOWNLOAD_ATTEMPTS,
+            reason: last,
+        })
+    }
+
+    async fn download_once(&self, url: &Url, progress: Progress<'_>) -> Result<Vec<u8>> {
+        let what = format!("download {}", url.path());
+        let mut resp = self
+            .send(Method::GET, url.clone(), None, &what, true)
+            .await?;
+        if resp.status() != StatusCode::OK {
+            return Err(http_error(resp, &what).await);
+        }
+        let expected = resp.content_length();
+        let mut data = Vec::with_capacity(expected.unwrap_or(0) as usize);
+        let deadline = Instant::now() + self.timeouts.download;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let chunk = tokio::time::timeout(left, resp.chunk())
+                .await
+                .map_err(|_| self.timeout(&what, self.timeouts.download))?
+                .map_err(|e| self.unreachable(&what, &e))?;
+            let Some(chunk) = chunk else { break };
+            data.extend_from_slice(&chunk);
+            if let Some(n) = expected {
+                progress("download", data.len() as f64 / n.max(1) as f64);
+            }
+        }
+        if let Some(n) = expected {
+            if data.len() as u64 != n {
+                return Err(ThetaError::Unreachable {
+                    what,
+                    camera: self.base.to_string(),
+                    reason: format!("connection closed after {} of {n} bytes", data.len()),
+                });
+            }
+        }
+        Ok(data)
+    }
+
+    fn is_camera(&self, u: &Url) -> bool {
+        u.scheme() == self.base.scheme()
+            && u.host_str() == self.base.host_str()
+            && u.port_or_known_default() == self.base.port_or_known_default()
+    }
+
+    /// A JSON request with the retry policy, returning the body of a 2xx answer; API error
+    /// objects become [`ThetaError::Command`].
+    async fn json(
+        &self,
+        method: Method,
+        path: &str,
+        body: Option<Value>,
+        what: &str,
+        idempotent: bool,
+    ) -> Result<Value> {
+        let url = self.base.join(path).map_err(|e| ThetaError::Malformed {
+            what: what.into(),
+            reason: e.to_string(),
+        })?;
+        let resp = self.send(method, url, body, what, idempotent).await?;
+        let status = resp.status();
+        let bytes = resp.bytes().await.map_err(|e| self.unreachable(what, &e))?;
+        let v: Value = serde_json::from_slice(&bytes).map_err(|e| {
+            if status.is_success() {
+                ThetaError::Malformed {
+                    what: what.into(),
+                    reason: e.to_string(),
+                }
+            } else {
+                ThetaError::Http {
+                    what: what.into(),
+                    status: status.as_u16(),
+                    body: String::from_utf8_lossy(&bytes).chars().take(200).collect(),
+                }
+            }
+        })?;
+        if status.is_success() {
+            return Ok(v);
+        }
+        Err(api_error(&v, what, status))
+    }
+
+    /// Sends one request, answering a Digest challenge and retrying as the API allows.
+    async fn send(
+        &self,
+        method: Method,
+        url: Url,
+        body: Option<Value>,
+        what: &str,
+        idempotent: bool,
+    ) -> Result<reqwest::Response> {
+        let start = Instant::now();
+        let mut pause = RETRY_PAUSE;
+        let mut answered_challenge = false;
+        loop {
+            let outcome = self.send_once(&method, &url, body.as_ref(), what).await;
+            let retryable = match &outcome {
+                Ok(r) if r.status() == StatusCode::UNAUTHORIZED && !answered_challenge => {
+                    self.take_challenge(r, what)?;
+                    answered_challenge = true;
+                    continue;
+                }
+                Ok(r) if r.status() == StatusCode::UNAUTHORIZED => {
+                    return Err(ThetaError::Auth {
+                        what: what.into(),
+                        reason: "the THETA refused the credentials".into(),
+                    })
+                }
+                Ok(r) => r.status() == StatusCode::SERVICE_UNAVAILABLE,
+                Err(_) => idempotent,
+            };
+            if !retryable || start.elapsed() + pause > self.timeouts.retry_budget {
+                return outcome;
+            }
+            tracing::debug!(what, ?pause, "camera not ready; retrying");
+            tokio::time::sleep(pause).await;
+            pause = (pause * 2).min(RETRY_PAUSE_MAX);
+        }
+    }
+
+    async fn send_once(
+        &self,
+        method: &Method,
+        url: &Url,
+        body: Option<&Value>,
+        what: &str,
+    ) -> Result<reqwest::Response> {
+        let bytes = body.map(|b| b.to_string().into_bytes());
+        let mut req = self.http.request(method.clone(), url.clone());
+        if let Some(b) = &bytes {
+            req = req
+                .header("Content-Type", "application/json;charset=utf-8")
+                .body(b.clone());
+        }
+        if let Some(auth) = self.authorization(method, url, bytes.as_deref())? {
+            req = req.header("Authorization", auth);
+        }
+        let timeout = if method == Method::GET && url.path().starts_with("/files/") {
+            self.timeouts.download
+        } else {
+            self.timeouts.request
+        };
+        req.timeout(timeout).send().await.map_err(|e| {
+            if e.is_timeout() {
+                self.timeout(what, timeout)
+            } else {
+                self.unreachable(what, &e)
+            }
+        })
+    }
+
+    fn take_challenge(&self, r: &reqwest::Response, what: &str) -> Result<()> {
+        let auth_err = |reason: &str| ThetaError::Auth {
+            what: what.into(),
+            reason: reason.into(),
+        };
+        if self.credentials.is_none() {
+            return Err(auth_err(
+                "the THETA asks for a user and password (client mode)",
+            ));
+        }
+        let header = r
+            .headers()
+            .get("WWW-Authenticate")
+            .and_then(|h| h.to_str().ok())
+            .ok_or_else(|| auth_err("HTTP 401 without a WWW-Authenticate header"))?;
+        let challenge = digest_auth::parse(header)
+            .map_err(|e| auth_err(&format!("cannot read the Digest challenge {header:?}: {e}")))?;
+        *self.challenge.lock().unwrap_or_else(|p| p.into_inner()) = Some(challenge);
+        Ok(())
+    }
+
+    fn authorization(
+        &self,
+        method: &Method,
+        url: &Url,
+        body: Option<&[u8]>,
+    ) -> Result<Option<String>> {
+        let mut guard = self.challenge.lock().unwrap_or_else(|p| p.into_inner());
+        let (Some(c), Some(challenge)) = (&self.credentials, guard.as_mut()) else {
+            return Ok(None);
+        };
+        let mut uri = url.path().to_string();
+        if let Some(q) = url.query() {
+            uri.push('?');
+            uri.push_str(q);
+        }
+        let ctx = digest_auth::AuthContext::new_with_method(
+            c.user.as_str(),
+            c.password.as_str(),
+            uri,
+            body,
+            method.as_str().into(),
+        );
+        challenge
+            .respond(&ctx)
+            .map(|h| Some(h.to_header_string()))
+            .map_err(|e| ThetaError::Auth {
+                what: url.path().into(),
+                reason: format!("cannot answer the Digest challenge: {e}"),
+            })
+    }
+
+    fn timeout(&self, what: &str, after: Duration) -> ThetaError {
+        ThetaError::Timeout {
+            what: what.into(),
+            camera: self.base.to_string(),
+            after,
+        }
+    }
+
+    fn unreachable(&self, what: &str, e: &reqwest::Error) -> ThetaError {
+        // reqwest's Display hides the cause (connection refused, reset, ...); walk the chain.
+        let mut reason = e.to_string();
+        let mut source = std::error::Error::source(e);
+        while let Some(s) = source {
+            reason = format!("{reason}: {s}");
+            source = s.source();
+        }
+        ThetaError::Unreachable {
+            what: what.into(),
+            camera: self.base.to_string(),
+            reason,
+        }
+    }
+}
+
+fn parse<T: serde::de::DeserializeOwned>(v: Value, what: &str) -> Result<T> {
+    serde_json::from_value(v).map_err(|e| ThetaError::Malformed {
+        what: what.into(),
+        reason: e.to_string(),
+    })
+}
+
+/// A command in state `error` (with HTTP 200, as `status` reports it) is an error too.
+fn command_result(c: Command, what: &str) -> Result<Command> {
+    if c.state != CommandState::Error {
+        return Ok(c);
+    }
+    let e = c.error.unwrap_or(ErrorBody {
+        code: error_code::UNEXPECTED.into(),
+        message: "state error without an error object".into(),
+    });
+    Err(ThetaError::Command {
+        what: what.into(),
+        status: error_code::http_status(&e.code),
+        code: e.code,
+        message: e.message,
+    })
+}
+
+fn api_error(v: &Value, what: &str, status: StatusCode) -> ThetaError {
+    match v
+        .get("error")
+        .cloned()
+        .map(serde_json::from_value::<ErrorBody>)
+    {
+        Some(Ok(e)) => ThetaError::Command {
+            what: what.into(),
+            code: e.code,
+            message: e.message,
+            status: status.as_u16(),
+        },
+        _ => ThetaError::Http {
+            what: what.into(),
+            status: status.as_u16(),
+            body: v.to_string().chars().take(200).collect(),
+        },
+    }
+}
+
+async fn http_error(resp: reqwest::Response, what: &str) -> ThetaError {
+    let status = resp.status();
+    let body = resp.bytes().await.unwrap_or_default();
+    match serde_json::from_slice::<Value>(&body) {
+        Ok(v) => api_error(&v, what, status),
+        Err(_) => ThetaError::Http {
+            what: what.into(),
+            status: status.as_u16(),
+            body: String::from_utf8_lossy(&body).chars().take(200).collect(),
+        },
+    }
+}
