@@ -216,4 +216,13 @@ mod tests {
         let m = merge_hdr(&[frame(1.0, 0.1), frame(1.0, 0.4)], 1.0).unwrap();
         assert!((m.pixels[0][0] - 10.0).abs() < 1e-4);
     }
+
+    #[test]
+    fn merge_ignores_values_under_white_that_must_have_clipped() {
+        // Radiance 2: 0.2 at 0.1 s. At 0.8 s it would be 1.6, clipped; JPEG ringing beside a
+        // highlight reads 0.9 there. The value alone looks usable (hat weight 0.2), and would
+        // pull the merge to 1.71; the short frame says it clipped.
+        let m = merge_hdr(&[frame(0.2, 0.1), frame(0.9, 0.8)], 1.0).unwrap();
+        assert!((m.pixels[0][0] - 2.0).abs() < 1e-5, "{:?}", m.pixels[0]);
+    }
 }
