@@ -92,6 +92,9 @@ pub fn capture_panorama(
             }
         })
         .context("shooting the panorama bracket")?;
+    for f in &frames {
+        check_exposure(f);
+    }
     let files: Vec<(String, Vec<u8>)> = frames
         .iter()
         .map(|f| (f.name.clone(), f.data.clone()))
@@ -111,6 +114,31 @@ pub fn capture_panorama(
         "panorama captured"
     );
     Ok((map, frames))
+}
+
+/// How far a frame's EXIF exposure may be from what was asked before it is reported:
+/// cameras round speeds (1/3200 s is stored as 0.0003125 or 1/3200), but a different stop
+/// means the camera did not take the setting.
+const EXPOSURE_MISMATCH: f64 = 0.05;
+
+/// The merge uses each frame's EXIF; a frame whose EXIF disagrees with the request means the
+/// camera overrode the setting (auto exposure left on, a model limit), which the operator
+/// should know.
+fn check_exposure(f: &Frame) {
+    match brdfd::radiometry::exif_exposure(&f.data, &f.name) {
+        Ok(e) => {
+            let shutter_off = (e.shutter_s / f.asked.shutter_s - 1.0).abs();
+            let iso_off = (e.iso / f.asked.iso as f64 - 1.0).abs();
+            if shutter_off > EXPOSURE_MISMATCH || iso_off > EXPOSURE_MISMATCH {
+                eprintln!(
+                    "  warning: {}: EXIF says {} s ISO {}, but {} s ISO {} was asked; the merge uses the EXIF values",
+                    f.name, e.shutter_s, e.iso, f.asked.shutter_s, f.asked.iso
+                );
+            }
+        }
+        // The merge reports a missing EXIF exposure as an error, naming the file.
+        Err(e) => tracing::debug!("{e}"),
+    }
 }
 
 pub fn plan_from(shutter: &[f64], iso: u32) -> BracketPlan {
