@@ -4,6 +4,7 @@
 //! rendered image of a known material.
 
 pub mod ptp;
+pub mod serial;
 pub mod theta;
 
 /// The exposure a simulated camera shoots with, from its current property values.

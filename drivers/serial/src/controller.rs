@@ -1,0 +1,296 @@
+//! The host side of the brdfd rig protocol (see the crate docs): one command, one answer,
+//! each with its own timeout, every answer checked.
+
+use std::io::{ErrorKind, Read, Write};
+use std::time::{Duration, Instant};
+
+use serialport::SerialPort;
+
+use crate::error::{Result, SerialError};
+
+/// Reads wait at most this long at a time, so that deadlines are kept to about this precision.
+pub(crate) const READ_SLICE: Duration = Duration::from_millis(50);
+/// Longest answer line accepted; a device that sends more is not speaking the protocol.
+const MAX_LINE: usize = 256;
+/// Longest shutter pulse the protocol allows, in milliseconds.
+pub const MAX_FIRE_MS: u32 = 60_000;
+/// How far (degrees) a turntable may stop from where it was asked before it is an error.
+pub const POSITION_TOLERANCE_DEG: f64 = 0.5;
+
+/// Timeouts of the rig protocol. An answer may take the command's own duration (a pulse, a
+/// rotation) plus `answer`.
+#[derive(Debug, Clone, Copy)]
+pub struct RigTimeouts {
+    /// For a command that does not move anything.
+    pub answer: Duration,
+    /// Slowest rotation speed to allow for, degrees per second.
+    pub min_speed_deg_s: f64,
+    /// A full homing run.
+    pub home: Duration,
+}
+
+impl Default for RigTimeouts {
+    fn default() -> Self {
+        RigTimeouts {
+            answer: Duration::from_secs(1),
+            min_speed_deg_s: 10.0,
+            home: Duration::from_secs(60),
+        }
+    }
+}
+
+/// What the device says it is (`ID?`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Identity {
+    pub name: String,
+    pub version: String,
+    pub can_fire: bool,
+    pub can_rotate: bool,
+}
+
+/// A trigger box and/or turntable on a serial port.
+pub struct RigController {
+    port: Box<dyn SerialPort>,
+    name: String,
+    pub identity: Identity,
+    pub timeouts: RigTimeouts,
+    pending: Vec<u8>,
+}
+
+impl RigController {
+    /// Talks to the device on `port` (already open): discards stale input, then asks `ID?`.
+    pub fn new(mut port: Box<dyn SerialPort>, timeouts: RigTimeouts) -> Result<RigController> {
+        let name = port.name().unwrap_or_else(|| "serial port".into());
+        port.set_timeout(READ_SLICE).map_err(|e| SerialError::Io {
+            port: name.clone(),
+            reason: e.to_string(),
+        })?;
+        // Bytes a device printed at boot, or a half answer from an earlier session, would be
+        // read as the answer to our first command.
+        let _ = port.clear(serialport::ClearBuffer::Input);
+        let mut rig = RigController {
+            port,
+            name,
+            identity: Identity {
+                name: String::new(),
+                version: String::new(),
+                can_fire: false,
+                can_rotate: false,
+            },
+            timeouts,
+            pending: Vec::new(),
+        };
+        let id = rig.command("ID?", timeouts.answer)?;
+        let mut words = id.split_whitespace();
+        let (Some(name), Some(version)) = (words.next(), words.next()) else {
+            return Err(SerialError::Protocol {
+                port: rig.name.clone(),
+                command: "ID?".into(),
+                line: format!("OK {id}"),
+            });
+        };
+        let caps: Vec<&str> = words.collect();
+        rig.identity = Identity {
+            name: name.into(),
+            version: version.into(),
+            can_fire: caps.contains(&"FIRE"),
+            can_rotate: caps.contains(&"ROT"),
+        };
+        tracing::info!(port = %rig.name, device = %name, version, ?caps, "rig controller");
+        Ok(rig)
+    }
+
+    /// Opens `path` and identifies the device.
+    pub fn open(path: &str, timeouts: RigTimeouts) -> Result<RigController> {
+        RigController::new(crate::open(path)?, timeouts)
+    }
+
+    pub fn port_name(&self) -> &str {
+        &self.name
+    }
+
+    /// Holds the shutter line for `ms` milliseconds; returns when the device has released it.
+    #[tracing::instrument(skip(self), fields(port = %self.name))]
+    pub fn fire(&mut self, ms: u32) -> Result<()> {
+        self.require(self.identity.can_fire, "shutter output (FIRE)")?;
+        if !(1..=MAX_FIRE_MS).contains(&ms) {
+            return Err(SerialError::InvalidArgument(format!(
+                "a shutter pulse of {ms} ms is outside 1..={MAX_FIRE_MS} ms"
+            )));
+        }
+        let answer = self.command(
+            &format!("FIRE {ms}"),
+            Duration::from_millis(ms as u64) + self.timeouts.answer,
+        )?;
+        self.expect_empty("FIRE", &answer)
+    }
+
+    /// Turns by `deg` (positive is the device's positive direction); returns the position at
+    /// rest, checked against where it should be.
+    #[tracing::instrument(skip(self), fields(port = %self.name))]
+    pub fn rotate(&mut self, deg: f64) -> Result<f64> {
+        self.require(self.identity.can_rotate, "turntable (ROT)")?;
+        if !deg.is_finite() || deg.abs() > 3600.0 {
+            return Err(SerialError::InvalidArgument(format!(
+                "a rotation of {deg}° is not a turn a turntable should make"
+            )));
+        }
+        let start = self.position()?;
+        let travel = Duration::from_secs_f64(deg.abs() / self.timeouts.min_speed_deg_s);
+        let cmd = format!("ROT {deg:.2}");
+        let answer = self.command(&cmd, travel + self.timeouts.answer)?;
+        let pos = self.parse_position(&cmd, &answer)?;
+        let expected = (start + deg).rem_euclid(360.0);
+        let off = ((pos - expected + 180.0).rem_euclid(360.0) - 180.0).abs();
+        if off > POSITION_TOLERANCE_DEG {
+            return Err(SerialError::Device {
+                port: self.name.clone(),
+                command: cmd,
+                reason: format!(
+                    "stopped at {pos:.2}° instead of {expected:.2}° (missed steps or a slipping belt?)"
+                ),
+            });
+        }
+        Ok(pos)
+    }
+
+    /// Turns to the home switch; returns the position there.
+    pub fn home(&mut self) -> Result<f64> {
+        self.require(self.identity.can_rotate, "turntable (HOME)")?;
+        let answer = self.command("HOME", self.timeouts.home)?;
+        self.parse_position("HOME", &answer)
+    }
+
+    pub fn position(&mut self) -> Result<f64> {
+        self.require(self.identity.can_rotate, "turntable (POS?)")?;
+        let answer = self.command("POS?", self.timeouts.answer)?;
+        self.parse_position("POS?", &answer)
+    }
+
+    fn require(&self, has: bool, what: &str) -> Result<()> {
+        if has {
+            Ok(())
+        } else {
+            Err(SerialError::Unsupported {
+                port: self.name.clone(),
+                name: self.identity.name.clone(),
+                capability: what.into(),
+            })
+        }
+    }
+
+    fn expect_empty(&self, cmd: &str, answer: &str) -> Result<()> {
+        if answer.is_empty() {
+            Ok(())
+        } else {
+            Err(self.protocol(cmd, &format!("OK {answer}")))
+        }
+    }
+
+    fn parse_position(&self, cmd: &str, answer: &str) -> Result<f64> {
+        answer
+            .parse::<f64>()
+            .ok()
+            .filter(|p| p.is_finite())
+            .map(|p| p.rem_euclid(360.0))
+            .ok_or_else(|| self.protocol(cmd, &format!("OK {answer}")))
+    }
+
+    fn protocol(&self, cmd: &str, line: &str) -> SerialError {
+        SerialError::Protocol {
+            port: self.name.clone(),
+            command: cmd.into(),
+            line: line.into(),
+        }
+    }
+
+    /// Sends one command and returns what follows `OK` in its answer.
+    fn command(&mut self, cmd: &str, timeout: Duration) -> Result<String> {
+        tracing::debug!(port = %self.name, "> {cmd}");
+        let io = |e: std::io::Error, name: &str| match e.kind() {
+            ErrorKind::BrokenPipe | ErrorKind::NotConnected | ErrorKind::UnexpectedEof => {
+                SerialError::Unplugged {
+                    port: name.into(),
+                    command: cmd.into(),
+                }
+            }
+            _ => SerialError::Io {
+                port: name.into(),
+                reason: format!("`{cmd}`: {e}"),
+            },
+        };
+        self.port
+            .write_all(format!("{cmd}\n").as_bytes())
+            .and_then(|_| self.port.flush())
+            .map_err(|e| io(e, &self.name))?;
+        let deadline = Instant::now() + timeout;
+        loop {
+            let line = self.read_line(cmd, deadline, timeout)?;
+            tracing::debug!(port = %self.name, "< {line}");
+            if line.starts_with('#') || line.is_empty() {
+                continue;
+            }
+            if line == "OK" {
+                return Ok(String::new());
+            }
+            if let Some(rest) = line.strip_prefix("OK ") {
+                return Ok(rest.trim().to_string());
+            }
+            if let Some(reason) = line.strip_prefix("ERR") {
+                return Err(SerialError::Device {
+                    port: self.name.clone(),
+                    command: cmd.into(),
+                    reason: reason.trim().to_string(),
+                });
+            }
+            return Err(self.protocol(cmd, &line));
+        }
+    }
+
+    fn read_line(&mut self, cmd: &str, deadline: Instant, timeout: Duration) -> Result<String> {
+        let mut buf = [0u8; 64];
+        loop {
+            if let Some(end) = self.pending.iter().position(|&b| b == b'\n') {
+                let line: Vec<u8> = self.pending.drain(..=end).collect();
+                let text = String::from_utf8_lossy(&line);
+                return Ok(text.trim_end_matches(['\r', '\n']).to_string());
+            }
+            if self.pending.len() > MAX_LINE {
+                let line = String::from_utf8_lossy(&self.pending).into_owned();
+                self.pending.clear();
+                return Err(self.protocol(cmd, &line));
+            }
+            if Instant::now() >= deadline {
+                return Err(SerialError::Timeout {
+                    port: self.name.clone(),
+                    command: cmd.into(),
+                    after: timeout,
+                });
+            }
+            match self.port.read(&mut buf) {
+                Ok(0) => {
+                    return Err(SerialError::Unplugged {
+                        port: self.name.clone(),
+                        command: cmd.into(),
+                    })
+                }
+                Ok(n) => self.pending.extend_from_slice(&buf[..n]),
+                Err(e) if e.kind() == ErrorKind::TimedOut || e.kind() == ErrorKind::Interrupted => {
+                }
+                // A USB adapter pulled out, or the other end of a pseudo-terminal closed.
+                Err(e) if e.raw_os_error() == Some(5) || e.kind() == ErrorKind::BrokenPipe => {
+                    return Err(SerialError::Unplugged {
+                        port: self.name.clone(),
+                        command: cmd.into(),
+                    })
+                }
+                Err(e) => {
+                    return Err(SerialError::Io {
+                        port: self.name.clone(),
+                        reason: format!("`{cmd}`: {e}"),
+                    })
+                }
+            }
+        }
+    }
+}
