@@ -102,6 +102,43 @@ pub fn decode_jpeg(bytes: &[u8], file: &str) -> Result<Frame, RadiometryError> {
     })
 }
 
+/// Averages video frames of one exposure in linear light (sRGB decoded first), which
+/// lowers the sensor noise by the square root of their number. Frames must share a size.
+pub fn average_frames(
+    frames: &[brdfd_v4l::Rgb8Frame],
+    exposure: Exposure,
+    source: &str,
+) -> Result<Frame, RadiometryError> {
+    let first = frames
+        .first()
+        .ok_or_else(|| RadiometryError::Merge(format!("{source}: no frames to average")))?;
+    let (w, h) = (first.width as usize, first.height as usize);
+    let lut: Vec<f32> = (0..256).map(|v| srgb_to_linear(v as f32 / 255.0)).collect();
+    let mut sum = vec![[0.0f32; 3]; w * h];
+    for f in frames {
+        if (f.width as usize, f.height as usize) != (w, h) || f.data.len() != w * h * 3 {
+            return Err(RadiometryError::Merge(format!(
+                "{source}: frames differ in size ({w}×{h} and {}×{})",
+                f.width, f.height
+            )));
+        }
+        for (acc, px) in sum.iter_mut().zip(f.data.chunks_exact(3)) {
+            for c in 0..3 {
+                acc[c] += lut[px[c] as usize];
+            }
+        }
+    }
+    let n = frames.len() as f32;
+    Ok(Frame {
+        values: Raster {
+            width: w,
+            height: h,
+            pixels: sum.into_iter().map(|p| p.map(|v| v / n)).collect(),
+        },
+        exposure,
+    })
+}
+
 /// Values above this are treated as saturated, below `DARK` as noise.
 pub const SATURATED: f32 = 0.95;
 pub const DARK: f32 = 0.01;

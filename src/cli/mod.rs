@@ -3,13 +3,16 @@
 
 mod basis_cmd;
 mod capture;
+mod devices_cmd;
 mod estimate_cmd;
 mod geometry_args;
 mod perf;
 mod perf_ptp;
 mod ptp_cmd;
+mod serial_cmd;
 mod sim;
 mod theta_cmd;
+mod v4l_cmd;
 
 use std::path::PathBuf;
 
@@ -55,6 +58,18 @@ pub enum Command {
         #[command(subcommand)]
         command: theta_cmd::ThetaCommand,
     },
+    /// A serial trigger box, turntable or release cable: info, fire, rotate, home.
+    Serial {
+        #[command(subcommand)]
+        command: serial_cmd::SerialCommand,
+    },
+    /// A V4L2 camera (the fallback object camera, or a THETA in UVC mode).
+    V4l {
+        #[command(subcommand)]
+        command: v4l_cmd::V4lCommand,
+    },
+    /// List what is plugged in and whether brdfd can open it.
+    Devices(devices_cmd::DevicesArgs),
     /// Run a simulated device until stopped.
     Sim {
         #[command(subcommand)]
@@ -130,6 +145,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(a) => perf::run(a),
         Command::Ptp { command } => ptp_cmd::run(command),
         Command::Theta { command } => theta_cmd::run(command),
+        Command::Serial { command } => serial_cmd::run(command),
+        Command::V4l { command } => v4l_cmd::run(command),
+        Command::Devices(a) => devices_cmd::run(a),
         Command::Sim { command } => sim::run(command),
     }
 }

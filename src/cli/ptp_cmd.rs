@@ -4,7 +4,8 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use anyhow::{bail, Context};
+use anyhow::bail;
+use brdfd::selector::Selector;
 use brdfd_ptp::transport::ptpip::{Initiator, PtpIpTransport, DEFAULT_PORT};
 use brdfd_ptp::transport::usb::{open_usb, UsbTransport};
 use brdfd_ptp::transport::Transport;
@@ -44,34 +45,25 @@ pub struct CaptureArgs {
     pub out: PathBuf,
 }
 
-/// Opens the camera a port selector names.
+/// Opens the camera a port selector names (`usb`, `usb:VVVV[:PPPP]`, `ptpip:HOST[:PORT]`).
 pub fn open(port: &str) -> anyhow::Result<Camera> {
-    let link: Box<dyn Transport> = if let Some(host) = port.strip_prefix("ptpip:") {
-        let addr = if host.contains(':') {
-            host.to_string()
-        } else {
-            format!("{host}:{DEFAULT_PORT}")
-        };
-        Box::new(PtpIpTransport::connect(
-            addr.as_str(),
-            Initiator::default(),
-            Duration::from_secs(5),
-        )?)
-    } else if port == "usb" {
-        Box::new(UsbTransport::new(open_usb(None, None)?))
-    } else if let Some(ids) = port.strip_prefix("usb:") {
-        let hex = |s: &str| {
-            u16::from_str_radix(s, 16)
-                .with_context(|| format!("USB selector {port:?}: {s:?} is not hex"))
-        };
-        // usb:VVVV:PPPP names one model; usb:VVVV the first camera of a vendor.
-        let (v, p) = match ids.split_once(':') {
-            Some((v, p)) => (hex(v)?, Some(hex(p)?)),
-            None => (hex(ids)?, None),
-        };
-        Box::new(UsbTransport::new(open_usb(Some(v), p)?))
-    } else {
-        bail!("unknown camera port {port:?}: use usb, usb:VVVV[:PPPP] or ptpip:HOST[:PORT]");
+    let link: Box<dyn Transport> = match port.parse::<Selector>()? {
+        Selector::PtpIp(host) => {
+            let addr = if host.contains(':') {
+                host
+            } else {
+                format!("{host}:{DEFAULT_PORT}")
+            };
+            Box::new(PtpIpTransport::connect(
+                addr.as_str(),
+                Initiator::default(),
+                Duration::from_secs(5),
+            )?)
+        }
+        Selector::Usb { vendor, product } => Box::new(UsbTransport::new(open_usb(vendor, product)?)),
+        other => bail!(
+            "unknown camera port {port:?}: {other} is not a PTP camera; use usb, usb:VVVV[:PPPP] or ptpip:HOST[:PORT]"
+        ),
     };
     Ok(Camera::open(link, Timeouts::default())?)
 }

@@ -19,6 +19,8 @@ pub enum SimCommand {
     Camera(CameraArgs),
     /// A RICOH THETA V on the THETA Web API (HTTP), photographing an environment map.
     Theta(ThetaArgs),
+    /// A trigger box and turntable on a pseudo-terminal, speaking the brdfd rig protocol.
+    Serial,
 }
 
 #[derive(clap::Args)]
@@ -101,6 +103,17 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
                 .with_context(|| format!("listening on {}", a.ptpip))?;
             // Scripts wait for this line before connecting.
             println!("simulated {} camera: PTP/IP on {}", a.profile, server.addr);
+            loop {
+                std::thread::park();
+            }
+        }
+        SimCommand::Serial => {
+            let (peer, client_end) = brdfd_sim::serial::SerialPeer::start(Default::default())?;
+            // Scripts wait for this line, then open the path with `brdfd serial --port`.
+            println!("simulated turntable: serial:{}", peer.path);
+            // Holding our own handle on the terminal keeps it open between clients: when the
+            // last one closes a pseudo-terminal, the peer would read a hang-up.
+            let _keep = client_end;
             loop {
                 std::thread::park();
             }

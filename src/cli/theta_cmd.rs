@@ -8,6 +8,7 @@ use std::time::Duration;
 use anyhow::{bail, Context};
 use brdfd::core::envmap::EnvMap;
 use brdfd::panorama::merge_bracket;
+use brdfd::selector::Selector;
 use brdfd_theta::{BracketPlan, Credentials, Exposure, Frame, HttpTimeouts, Theta};
 
 #[derive(clap::Subcommand)]
@@ -21,8 +22,9 @@ pub enum ThetaCommand {
 
 #[derive(clap::Args)]
 pub struct ThetaPort {
-    /// `http://HOST[:PORT]` (access-point mode: http://192.168.1.1), `usb` (the first RICOH
-    /// camera), `usb:VVVV:PPPP`, or `ptpip:HOST[:PORT]`.
+    /// `osc:http://HOST[:PORT]` or `http://HOST[:PORT]` (access-point mode:
+    /// http://192.168.1.1), `usb` (the first RICOH camera), `usb:VVVV:PPPP`, or
+    /// `ptpip:HOST[:PORT]`.
     #[arg(long, default_value = "http://192.168.1.1")]
     pub port: String,
     /// HTTP Digest user, for a THETA in client mode (THETAxx<serial>).
@@ -50,26 +52,29 @@ pub struct ThetaCaptureArgs {
 
 /// Opens the THETA a port selector names.
 pub fn open(p: &ThetaPort, timeouts: HttpTimeouts) -> anyhow::Result<Theta> {
-    if p.port.starts_with("http://") {
-        let credentials = match (&p.user, &p.password) {
-            (Some(user), Some(password)) => Some(Credentials {
-                user: user.clone(),
-                password: password.clone(),
-            }),
-            (None, None) => None,
-            _ => bail!("give both --user and --password, or neither"),
-        };
-        return Ok(Theta::connect_http(&p.port, credentials, timeouts)?);
+    match p.port.parse::<Selector>()? {
+        Selector::Osc(url) => {
+            let credentials = match (&p.user, &p.password) {
+                (Some(user), Some(password)) => Some(Credentials {
+                    user: user.clone(),
+                    password: password.clone(),
+                }),
+                (None, None) => None,
+                _ => bail!("give both --user and --password, or neither"),
+            };
+            Ok(Theta::connect_http(&url, credentials, timeouts)?)
+        }
+        // On USB, plain `usb` means the first RICOH camera rather than the first PTP camera
+        // (the DSLR may be plugged in too).
+        Selector::Usb { vendor: None, .. } => {
+            let port = format!("usb:{:04x}", brdfd_theta::usb::RICOH_VENDOR);
+            Ok(Theta::from_ptp(super::ptp_cmd::open(&port)?)?)
+        }
+        Selector::Usb { .. } | Selector::PtpIp(_) => {
+            Ok(Theta::from_ptp(super::ptp_cmd::open(&p.port)?)?)
+        }
+        other => bail!("{other} is not a THETA; use osc:http://HOST, usb or usb:05ca:PPPP"),
     }
-    // On USB, plain `usb` means the first RICOH camera rather than the first PTP camera (the
-    // DSLR may be plugged in too).
-    let port = if p.port == "usb" {
-        format!("usb:{:04x}", brdfd_theta::usb::RICOH_VENDOR)
-    } else {
-        p.port.clone()
-    };
-    let cam = super::ptp_cmd::open(&port)?;
-    Ok(Theta::from_ptp(cam)?)
 }
 
 /// Prepares the camera, shoots the plan and merges it: the map (in radiance units given by

@@ -6,6 +6,7 @@
 pub mod ptp;
 pub mod serial;
 pub mod theta;
+pub mod v4l;
 
 /// The exposure a simulated camera shoots with, from its current property values.
 #[derive(Debug, Clone, Copy, PartialEq)]

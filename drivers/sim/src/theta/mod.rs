@@ -253,7 +253,9 @@ impl OscServer {
         self.shared.lock().faults = faults;
     }
 
-    /// Requests seen, as "METHOD path [command]" lines.
+    /// What the camera saw: a `METHOD /path` line per request, followed by an indented
+    /// `  execute camera.x` line for each command and `  401 challenge` for each Digest
+    /// challenge sent.
     pub fn log(&self) -> Vec<String> {
         self.shared.lock().log.clone()
     }

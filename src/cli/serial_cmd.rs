@@ -1,0 +1,84 @@
+//! `brdfd serial`: the trigger box, turntable or release cable on its own, for checking the
+//! wiring at the bench.
+
+use anyhow::bail;
+use brdfd::selector::Selector;
+use brdfd_serial::{ControlLine, RigController, RigTimeouts, ShutterCable};
+
+#[derive(clap::Subcommand)]
+pub enum SerialCommand {
+    /// What the device says it is (`ID?`) and where the turntable stands.
+    Info(SerialPort),
+    /// Press the shutter for `--ms` milliseconds (rig protocol or release cable).
+    Fire {
+        #[command(flatten)]
+        port: SerialPort,
+        #[arg(long, default_value_t = 200)]
+        ms: u32,
+    },
+    /// Turn the turntable by `--deg` degrees (negative turns back).
+    Rotate {
+        #[command(flatten)]
+        port: SerialPort,
+        #[arg(long, allow_hyphen_values = true)]
+        deg: f64,
+    },
+    /// Turn the turntable to its home switch.
+    Home(SerialPort),
+}
+
+#[derive(clap::Args)]
+pub struct SerialPort {
+    /// `serial:/dev/ttyUSB0` (rig protocol) or `cable:dtr:/dev/ttyUSB0` / `cable:rts:...`.
+    #[arg(long)]
+    pub port: String,
+}
+
+fn rig(port: &str) -> anyhow::Result<RigController> {
+    match port.parse::<Selector>()? {
+        Selector::Serial(path) => Ok(RigController::open(&path, RigTimeouts::default())?),
+        other => bail!("{other} is not a rig-protocol device; use serial:/dev/ttyX"),
+    }
+}
+
+pub fn run(cmd: SerialCommand) -> anyhow::Result<()> {
+    match cmd {
+        SerialCommand::Info(p) => {
+            let mut r = rig(&p.port)?;
+            let id = r.identity.clone();
+            println!(
+                "{}: {} version {}; shutter output: {}; turntable: {}",
+                r.port_name(),
+                id.name,
+                id.version,
+                if id.can_fire { "yes" } else { "no" },
+                if id.can_rotate { "yes" } else { "no" }
+            );
+            if id.can_rotate {
+                println!("position {:.2}°", r.position()?);
+            }
+        }
+        SerialCommand::Fire { port, ms } => match port.port.parse::<Selector>()? {
+            Selector::Cable { rts, path } => {
+                let line = if rts {
+                    ControlLine::Rts
+                } else {
+                    ControlLine::Dtr
+                };
+                ShutterCable::new(brdfd_serial::open(&path)?, line, false)?.fire(ms)?;
+                println!("fired {ms} ms on {line:?} of {path}");
+            }
+            _ => {
+                rig(&port.port)?.fire(ms)?;
+                println!("fired {ms} ms");
+            }
+        },
+        SerialCommand::Rotate { port, deg } => {
+            println!("at {:.2}°", rig(&port.port)?.rotate(deg)?);
+        }
+        SerialCommand::Home(p) => {
+            println!("at {:.2}°", rig(&p.port)?.home()?);
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,175 @@
+//! Device selectors: the strings that name a device on the command line and in rig files,
+//! and that `brdfd devices` prints.
+//!
+//! | selector | device |
+//! |---|---|
+//! | `usb`, `usb:VVVV`, `usb:VVVV:PPPP` | a PTP camera on USB (any, a vendor's, a model), ids in hex |
+//! | `ptpip:HOST[:PORT]` | a PTP/IP camera (Wi-Fi DSLR), port 15740 by default |
+//! | `osc:http://HOST[:PORT]` (or a bare `http://...`) | a THETA on the THETA Web API |
+//! | `v4l:/dev/videoN` | a V4L2 camera |
+//! | `serial:/dev/ttyUSB0` | a brdfd rig-protocol device (trigger box, turntable) |
+//! | `cable:dtr:/dev/ttyUSB0`, `cable:rts:...` | a remote-release cable on a modem line |
+
+use std::fmt;
+use std::str::FromStr;
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Selector {
+    Usb {
+        vendor: Option<u16>,
+        product: Option<u16>,
+    },
+    PtpIp(String),
+    Osc(String),
+    V4l(String),
+    Serial(String),
+    Cable {
+        rts: bool,
+        path: String,
+    },
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("device selector {given:?}: {reason}; use usb[:VVVV[:PPPP]], ptpip:HOST[:PORT], osc:http://HOST, v4l:/dev/videoN, serial:/dev/ttyX or cable:dtr|rts:/dev/ttyX")]
+pub struct SelectorError {
+    pub given: String,
+    pub reason: String,
+}
+
+impl FromStr for Selector {
+    type Err = SelectorError;
+
+    fn from_str(s: &str) -> Result<Selector, SelectorError> {
+        let err = |reason: &str| SelectorError {
+            given: s.into(),
+            reason: reason.into(),
+        };
+        let hex = |h: &str| {
+            u16::from_str_radix(h, 16).map_err(|_| err(&format!("{h:?} is not a hex USB id")))
+        };
+        let nonempty = |rest: &str, what: &str| {
+            if rest.is_empty() {
+                Err(err(&format!("no {what}")))
+            } else {
+                Ok(rest.to_string())
+            }
+        };
+        if s == "usb" {
+            return Ok(Selector::Usb {
+                vendor: None,
+                product: None,
+            });
+        }
+        if let Some(ids) = s.strip_prefix("usb:") {
+            return Ok(match ids.split_once(':') {
+                Some((v, p)) => Selector::Usb {
+                    vendor: Some(hex(v)?),
+                    product: Some(hex(p)?),
+                },
+                None => Selector::Usb {
+                    vendor: Some(hex(ids)?),
+                    product: None,
+                },
+            });
+        }
+        if let Some(host) = s.strip_prefix("ptpip:") {
+            return Ok(Selector::PtpIp(nonempty(host, "host")?));
+        }
+        if s.starts_with("http://") {
+            return Ok(Selector::Osc(s.into()));
+        }
+        if let Some(url) = s.strip_prefix("osc:") {
+            if !url.starts_with("http://") {
+                return Err(err("an osc: selector needs an http:// address"));
+            }
+            return Ok(Selector::Osc(url.into()));
+        }
+        if let Some(path) = s.strip_prefix("v4l:") {
+            return Ok(Selector::V4l(nonempty(path, "device path")?));
+        }
+        if let Some(path) = s.strip_prefix("serial:") {
+            return Ok(Selector::Serial(nonempty(path, "port path")?));
+        }
+        if let Some(rest) = s.strip_prefix("cable:") {
+            let (line, path) = rest
+                .split_once(':')
+                .ok_or_else(|| err("a cable needs its line and port: cable:dtr:/dev/ttyUSB0"))?;
+            let rts = match line {
+                "dtr" => false,
+                "rts" => true,
+                _ => return Err(err(&format!("{line:?} is not a modem line (dtr or rts)"))),
+            };
+            return Ok(Selector::Cable {
+                rts,
+                path: nonempty(path, "port path")?,
+            });
+        }
+        Err(err("unknown kind"))
+    }
+}
+
+impl fmt::Display for Selector {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Selector::Usb {
+                vendor: None,
+                product: _,
+            } => write!(f, "usb"),
+            Selector::Usb {
+                vendor: Some(v),
+                product: None,
+            } => write!(f, "usb:{v:04x}"),
+            Selector::Usb {
+                vendor: Some(v),
+                product: Some(p),
+            } => write!(f, "usb:{v:04x}:{p:04x}"),
+            Selector::PtpIp(h) => write!(f, "ptpip:{h}"),
+            Selector::Osc(u) => write!(f, "osc:{u}"),
+            Selector::V4l(p) => write!(f, "v4l:{p}"),
+            Selector::Serial(p) => write!(f, "serial:{p}"),
+            Selector::Cable { rts, path } => {
+                write!(f, "cable:{}:{path}", if *rts { "rts" } else { "dtr" })
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn selectors_parse_and_print_back() {
+        for s in [
+            "usb",
+            "usb:04b0",
+            "usb:04b0:0429",
+            "ptpip:192.0.2.7:15740",
+            "osc:http://192.168.1.1",
+            "v4l:/dev/video0",
+            "serial:/dev/ttyUSB0",
+            "cable:rts:/dev/ttyACM0",
+        ] {
+            let parsed: Selector = s.parse().unwrap();
+            assert_eq!(parsed.to_string(), s);
+        }
+        assert_eq!(
+            "http://127.0.0.1:8080".parse::<Selector>().unwrap(),
+            Selector::Osc("http://127.0.0.1:8080".into())
+        );
+    }
+
+    #[test]
+    fn bad_selectors_say_what_is_wrong() {
+        for (s, why) in [
+            ("usb:nikon", "\"nikon\" is not a hex USB id"),
+            ("osc:192.168.1.1", "needs an http:// address"),
+            ("cable:dsr:/dev/ttyUSB0", "\"dsr\" is not a modem line"),
+            ("v4l:", "no device path"),
+            ("firewire:0", "unknown kind"),
+        ] {
+            let e = s.parse::<Selector>().unwrap_err().to_string();
+            assert!(e.contains(why), "{s}: {e}");
+        }
+    }
+}

@@ -1,0 +1,221 @@
+//! The device layer as an operator uses it: `brdfd devices`, `brdfd serial` against
+//! `brdfd sim serial` on a real pseudo-terminal, and `brdfd v4l` on the simulated camera;
+//! and frame averaging, which is why the V4L2 path grabs several frames.
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::Arc;
+
+use brdfd::bench::camera::BenchCamera;
+use brdfd::bench::VirtualBench;
+use brdfd::radiometry::{average_frames, Exposure};
+use brdfd_sim::v4l::SimV4l;
+use brdfd_v4l::{FrameSource, PixelFormat, Settings};
+
+fn brdfd(args: &[&str], dir: &std::path::Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_brdfd"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("brdfd runs")
+}
+
+/// Starts a simulator and returns it with the last word of its first line (its address).
+fn simulator(args: &[&str]) -> (Child, String) {
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_brdfd"))
+        .args(args)
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(sim.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let addr = line.trim().rsplit(' ').next().unwrap().to_string();
+    (sim, addr)
+}
+
+fn out(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+#[test]
+fn serial_commands_drive_a_simulated_turntable_on_a_pseudo_terminal() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut sim, port) = simulator(&["sim", "serial"]);
+    assert!(port.starts_with("serial:/dev/"), "{port}");
+    let info = brdfd(&["serial", "info", "--port", &port], dir.path());
+    let rot = brdfd(
+        &["serial", "rotate", "--port", &port, "--deg", "-30"],
+        dir.path(),
+    );
+    let fire = brdfd(
+        &["serial", "fire", "--port", &port, "--ms", "50"],
+        dir.path(),
+    );
+    let again = brdfd(&["serial", "info", "--port", &port], dir.path());
+    let cable_port = port.replace("serial:", "cable:dtr:");
+    let cable = brdfd(&["serial", "fire", "--port", &cable_port], dir.path());
+    let _ = sim.kill();
+    let _ = sim.wait();
+    assert!(info.status.success(), "{}", out(&info));
+    assert!(
+        out(&info).contains("brdfd-sim-turntable version 1; shutter output: yes; turntable: yes")
+    );
+    assert!(out(&rot).contains("at 330.00°"), "{}", out(&rot));
+    assert!(out(&fire).contains("fired 50 ms"), "{}", out(&fire));
+    // A second process sees the position the first left.
+    assert!(out(&again).contains("position 330.00°"), "{}", out(&again));
+    // A pseudo-terminal has no modem lines: the cable says so instead of pretending.
+    assert!(!cable.status.success());
+    assert!(out(&cable).contains("cannot drive Dtr"), "{}", out(&cable));
+
+    let missing = brdfd(
+        &["serial", "info", "--port", "serial:/dev/ttyUSB-none"],
+        dir.path(),
+    );
+    assert!(!missing.status.success());
+    assert!(
+        out(&missing).contains("does not exist"),
+        "{}",
+        out(&missing)
+    );
+}
+
+#[test]
+fn devices_lists_every_kind_and_finds_a_theta_on_the_network() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut sim, url) = simulator(&["sim", "theta", "--http", "127.0.0.1:0", "--width", "64"]);
+    // Only ever loopback here: the default address is a real camera's.
+    let o = brdfd(
+        &["devices", "--theta", &url, "--timeout-ms", "300"],
+        dir.path(),
+    );
+    let gone = brdfd(
+        &[
+            "devices",
+            "--theta",
+            "http://127.0.0.1:9",
+            "--timeout-ms",
+            "300",
+        ],
+        dir.path(),
+    );
+    let _ = sim.kill();
+    let _ = sim.wait();
+    let text = out(&o);
+    assert!(o.status.success(), "{text}");
+    for section in [
+        "PTP cameras on USB",
+        "THETA over Wi-Fi",
+        "V4L2 cameras:",
+        "Serial ports:",
+    ] {
+        assert!(text.contains(section), "{section} missing:\n{text}");
+    }
+    assert!(
+        text.contains(&format!("osc:{url}  RICOH THETA V (serial 00165759")),
+        "{text}"
+    );
+    assert!(
+        out(&gone).contains("none answered within 300ms"),
+        "{}",
+        out(&gone)
+    );
+}
+
+#[test]
+fn v4l_capture_on_the_simulated_camera_writes_the_averaged_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = brdfd(
+        &[
+            "v4l",
+            "capture",
+            "--device",
+            "sim",
+            "--frames",
+            "3",
+            "--exposure",
+            "0.01",
+            "--out",
+            "f.exr",
+        ],
+        dir.path(),
+    );
+    let text = out(&o);
+    assert!(o.status.success(), "{text}");
+    assert!(text.contains("applied: exposure 0.01 s"), "{text}");
+    assert!(text.contains("3 frames of 128×128 averaged"), "{text}");
+    let r = brdfd::core::raster::Raster::read(&dir.path().join("f.exr")).unwrap();
+    assert_eq!((r.width, r.height), (128, 128));
+    let bad = brdfd(
+        &["v4l", "capture", "--device", "serial:/dev/ttyS0"],
+        dir.path(),
+    );
+    assert!(out(&bad).contains("is not a V4L2 camera"), "{}", out(&bad));
+}
+
+/// Averaging N frames divides the sensor noise by about √N.
+#[test]
+fn averaging_frames_reduces_noise_by_the_square_root_of_their_number() {
+    use brdfd::core::raster::srgb_to_linear;
+    let bench = VirtualBench::embedded("paint", 48).unwrap();
+    let source = Arc::new(BenchCamera::new(bench, "brdfd", "sim"));
+    let exposure_s = 0.004;
+    let grab = |noise: f32, n: usize| {
+        let mut cam = SimV4l::new(source.clone(), "sim");
+        cam.noise_levels = noise;
+        cam.frame_interval = std::time::Duration::ZERO;
+        cam.start(PixelFormat::Yuyv, 48, 48).unwrap();
+        cam.apply(&Settings {
+            exposure_s: Some(exposure_s),
+            ..Settings::default()
+        })
+        .unwrap();
+        let frames: Vec<_> = (0..n)
+            .map(|_| {
+                brdfd_v4l::decode(&cam.next_frame(std::time::Duration::from_secs(1)).unwrap())
+                    .unwrap()
+            })
+            .collect();
+        let e = Exposure {
+            shutter_s: exposure_s,
+            f_number: 2.0,
+            iso: 100.0,
+        };
+        average_frames(&frames, e, "sim").unwrap().values
+    };
+    let clean = grab(0.0, 1);
+    // Noise of 4 levels can clip within 12 levels of black or white, which biases the mean
+    // there (averaging cannot remove a bias): those pixels are left out, and the exposure
+    // is chosen so that the object itself is well inside the range.
+    let (lo, hi) = (srgb_to_linear(12.0 / 255.0), srgb_to_linear(243.0 / 255.0));
+    let inside: Vec<usize> = (0..clean.pixels.len())
+        .filter(|&i| clean.pixels[i].iter().all(|&v| v > lo && v < hi))
+        .collect();
+    assert!(
+        inside.len() > 500,
+        "only {} usable pixels: exposure wrong for the scene",
+        inside.len()
+    );
+    let truth = &clean.pixels;
+    let rms = |r: &brdfd::core::raster::Raster| {
+        let s: f64 = inside
+            .iter()
+            .flat_map(|&i| (0..3).map(move |c| ((r.pixels[i][c] - truth[i][c]) as f64).powi(2)))
+            .sum();
+        (s / (3 * inside.len()) as f64).sqrt()
+    };
+    let (one, sixteen) = (rms(&grab(4.0, 1)), rms(&grab(4.0, 16)));
+    eprintln!(
+        "noise over {} pixels: 1 frame {one:.5}, 16 frames {sixteen:.5}",
+        inside.len()
+    );
+    // √16 = 4, so 0.25 for independent noise; each frame's 8-bit rounding adds a small floor:
+    // allow up to 0.35.
+    assert!(sixteen / one < 0.35, "noise {one:.5} → {sixteen:.5}");
+}
