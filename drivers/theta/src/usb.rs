@@ -14,12 +14,11 @@ use crate::error::{Result, ThetaError};
 
 /// RICOH's USB vendor id and the THETA product ids.
 pub const RICOH_VENDOR: u16 = 0x05CA;
-pub const PRODUCTS: [(u16, &str); 5] = [
+pub const PRODUCTS: [(u16, &str); 4] = [
     (0x0366, "THETA S"),
     (0x0367, "THETA SC"),
     (0x0368, "THETA V"),
     (0x036D, "THETA Z1"),
-    (0x2712, "THETA X"),
 ];
 
 /// Vendor property codes (THETA USB API).
