@@ -26,6 +26,8 @@ pub struct CoefficientsFile<'a> {
     pub selection_method: &'a str,
     /// (x, y) image positions of the pixels used (omitted for all-pixel estimates).
     pub chosen_pixels: Vec<(u32, u32)>,
+    /// The view (turntable position, 0 for the first) of each chosen pixel.
+    pub chosen_views: Vec<usize>,
     /// κ of the rows used, with columns scaled by the training spread of their coefficients
     /// (the quantity the selection minimises).
     pub condition_number: f64,
@@ -82,6 +84,11 @@ pub fn write_results(
             Vec::new()
         } else {
             estimate.chosen.clone()
+        },
+        chosen_views: if all {
+            Vec::new()
+        } else {
+            estimate.chosen_views.clone()
         },
         condition_number: estimate.selection.condition,
         residual_rms: estimate.solution.residual_rms,

@@ -219,3 +219,66 @@ fn averaging_frames_reduces_noise_by_the_square_root_of_their_number() {
     // allow up to 0.35.
     assert!(sixteen / one < 0.35, "noise {one:.5} → {sixteen:.5}");
 }
+
+/// `capture --simulate --views 2`: the simulated turntable on a pseudo-terminal turns the
+/// object between two DSLR brackets, and one estimate uses both views.
+#[test]
+fn capture_with_the_simulated_turntable_uses_every_view() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = brdfd(
+        &[
+            "capture",
+            "--simulate",
+            "--material",
+            "gold",
+            "--size",
+            "48",
+            "--views",
+            "2",
+            "--turn",
+            "45",
+            "--out",
+            "r",
+        ],
+        dir.path(),
+    );
+    let text = out(&o);
+    assert!(o.status.success(), "{text}");
+    assert!(
+        text.contains("turntable: brdfd-sim-turntable 1 on serial:/dev/"),
+        "{text}"
+    );
+    assert!(text.contains("view 2 of 2: turntable at 45.00°"), "{text}");
+    let json: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("r/coefficients.json")).unwrap(),
+    )
+    .unwrap();
+    let views = json["chosen_views"].as_array().unwrap();
+    assert_eq!(views.len(), 20);
+    assert!(views.iter().all(|v| v.as_u64().unwrap() < 2));
+    let raw: Vec<String> = std::fs::read_dir(dir.path().join("r/raw"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(
+        raw.iter().filter(|n| n.starts_with("view2-dslr-")).count(),
+        5,
+        "{raw:?}"
+    );
+    let zero = brdfd(
+        &[
+            "capture",
+            "--simulate",
+            "--material",
+            "gold",
+            "--views",
+            "0",
+        ],
+        dir.path(),
+    );
+    assert!(
+        out(&zero).contains("--views must be at least 1"),
+        "{}",
+        out(&zero)
+    );
+}

@@ -12,7 +12,7 @@ use brdfd::bench::VirtualBench;
 use brdfd::core::basis::Basis;
 use brdfd::core::bivariate::Bivariate;
 use brdfd::core::envmap::{EnvMap, DEFAULT_LIGHTS};
-use brdfd::core::estimate::{estimate, EstimateOptions};
+use brdfd::core::estimate::{estimate_views, EstimateOptions, View};
 use brdfd::core::merl::MerlBrdf;
 use brdfd::core::nbrdf::NbrdfSet;
 use brdfd::core::render::render_bivariate;
@@ -80,6 +80,17 @@ fn dslr_bracket(bench: &VirtualBench, shutters: &[f64]) -> anyhow::Result<(Raste
     Ok((merge_hdr(&frames, SENSOR_GAIN)?, files))
 }
 
+/// The simulated turntable on a pseudo-terminal, driven through the real serial code.
+fn sim_turntable() -> anyhow::Result<(brdfd_sim::serial::SerialPeer, brdfd_serial::RigController)> {
+    let (peer, port) = brdfd_sim::serial::SerialPeer::start(Default::default())?;
+    let rig = brdfd_serial::RigController::new(Box::new(port), Default::default())?;
+    println!(
+        "turntable: {} {} on serial:{}",
+        rig.identity.name, rig.identity.version, peer.path
+    );
+    Ok((peer, rig))
+}
+
 /// Time the simulated THETA takes per frame. A real THETA V takes about a second; the
 /// simulation keeps a delay so that the client's polling runs as it would, but a short one.
 const SIM_THETA_SHOT_TIME: Duration = Duration::from_millis(20);
@@ -143,6 +154,13 @@ pub struct CaptureArgs {
         default_value = "0.001,0.004,0.0166,0.0666,0.25"
     )]
     pub bracket: Vec<f64>,
+    /// Views on the simulated turntable: the object turned `--turn` degrees between them,
+    /// under the same light, for more normals in one estimate.
+    #[arg(long, default_value_t = 1)]
+    pub views: usize,
+    /// Turntable step between views, degrees.
+    #[arg(long, default_value_t = 30.0, allow_hyphen_values = true)]
+    pub turn: f64,
     /// Write the results (coefficients.json, BRDF files, preview) to this folder.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -170,32 +188,80 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         "simulated rig (in-process): {} on a sphere; DSLR: simulated Nikon D5100 over PTP/IP on loopback, {}×{}",
         bench.material_name, a.size, a.size
     );
+    if a.views == 0 {
+        bail!("--views must be at least 1");
+    }
     let (env, mut frames) = theta_bracket(&bench)?;
-    let (photo, dslr_frames) = dslr_bracket(&bench, &a.bracket)?;
-    frames.extend(dslr_frames);
-    let geometry = bench.pixels()?;
-    let lights = env.compressed(DEFAULT_LIGHTS, bench.yaw);
+    // One view per turntable position. The first is where the turntable stands; each next
+    // one is `--turn` degrees on, at the position the turntable reports.
+    let mut turntable = if a.views > 1 {
+        Some(sim_turntable()?)
+    } else {
+        None
+    };
+    let mut shots = Vec::with_capacity(a.views);
+    for i in 0..a.views {
+        let theta_deg = match &mut turntable {
+            Some((_, rig)) if i > 0 => rig.rotate(a.turn)?,
+            Some((_, rig)) => rig.position()?,
+            None => 0.0,
+        };
+        let theta = theta_deg.to_radians();
+        // In the object's frame the camera and the light turn by −θ (Camera::turned_about_y).
+        let mut view = bench.clone();
+        view.geometry.camera = bench.geometry.camera.turned_about_y(-theta);
+        view.yaw = bench.yaw - theta;
+        if a.views > 1 {
+            println!(
+                "view {} of {}: turntable at {theta_deg:.2}°",
+                i + 1,
+                a.views
+            );
+        }
+        let (photo, dslr_frames) = dslr_bracket(&view, &a.bracket)?;
+        let prefix = if a.views > 1 {
+            format!("view{}-", i + 1)
+        } else {
+            String::new()
+        };
+        frames.extend(
+            dslr_frames
+                .into_iter()
+                .map(|(n, b)| (format!("{prefix}{n}"), b)),
+        );
+        let lights = env.compressed(DEFAULT_LIGHTS, view.yaw);
+        shots.push((view.pixels()?, lights, photo));
+    }
     let basis = Basis::embedded();
     let options = EstimateOptions {
         pixel_count: parse_pixels(&a.pixels)?,
         ..EstimateOptions::default()
     };
-    let est = estimate(&basis, &geometry, &lights, &photo, &options)?;
+    let views: Vec<View> = shots
+        .iter()
+        .map(|(geometry, lights, photo)| View {
+            geometry,
+            lights,
+            photo,
+        })
+        .collect();
+    let est = estimate_views(&basis, &views, &options)?;
     print_estimate(&est.names, &est.solution.coefficients);
+    let (geometry, lights, photo) = &shots[0];
     let truth = Bivariate::reduce(&bench.material, basis.header.grid);
     let projected = basis.project(&truth);
     println!("ground truth projected on the basis:");
     print_estimate(&est.names, &projected);
-    let rerender = render_bivariate(&geometry, &lights, &est.brdf(&basis));
+    let rerender = render_bivariate(geometry, lights, &est.brdf(&basis));
     println!(
-        "{} pixels, condition number {:.2}; re-render relative RMSE {:.4}; {:.2} s",
+        "{} pixels, condition number {:.2}; re-render relative RMSE (first view) {:.4}; {:.2} s",
         est.selection.pixels.len(),
         est.selection.condition,
-        rerender.relative_rmse(&photo),
+        rerender.relative_rmse(photo),
         t.elapsed().as_secs_f64()
     );
     if let Some(out) = &a.out {
-        let files = brdfd::results::write_results(out, &basis, &est, "fast", &lights)?;
+        let files = brdfd::results::write_results(out, &basis, &est, "fast", lights)?;
         photo.write_exr(&out.join("photo.exr"))?;
         brdfd::core::envmap::write_exr(
             &out.join("panorama.exr"),

@@ -67,6 +67,8 @@ pub struct Estimate {
     pub selection: Selection,
     /// Image positions (x, y) of the chosen pixels.
     pub chosen: Vec<(u32, u32)>,
+    /// Which view (0 for the first) each chosen pixel is from.
+    pub chosen_views: Vec<usize>,
     pub candidates: usize,
     pub lights: usize,
     pub timings: Timings,
@@ -160,7 +162,15 @@ pub fn estimate_from_matrix(
     Ok((selection, solution, selection_s, secs(t.elapsed())))
 }
 
-/// The whole estimate.
+/// One view of the object: its per-pixel geometry, the lights in the same (object) frame,
+/// and the photo. Several views come from a turntable (see `Camera::turned_about_y`).
+pub struct View<'a> {
+    pub geometry: &'a PixelGeometry,
+    pub lights: &'a LightSet,
+    pub photo: &'a Raster,
+}
+
+/// The whole estimate from one view.
 pub fn estimate(
     basis: &Basis,
     geometry: &PixelGeometry,
@@ -168,8 +178,44 @@ pub fn estimate(
     photo: &Raster,
     options: &EstimateOptions,
 ) -> Result<Estimate> {
+    estimate_views(
+        basis,
+        &[View {
+            geometry,
+            lights,
+            photo,
+        }],
+        options,
+    )
+}
+
+/// The whole estimate from several views: each view's candidate rows are stacked, so the
+/// pixel selection chooses among the normals of every view and one solve uses them all.
+/// The candidate budget is shared evenly between the views.
+pub fn estimate_views(
+    basis: &Basis,
+    views: &[View],
+    options: &EstimateOptions,
+) -> Result<Estimate> {
     let t = Instant::now();
-    let (a, observed) = candidate_matrix(basis, geometry, lights, photo, options.max_candidates)?;
+    let per_view = (options.max_candidates / views.len().max(1)).max(1);
+    let mut stacked: Option<(RenderingMatrix, Vec<[f64; 3]>)> = None;
+    let mut view_of_pixel = Vec::new();
+    for (i, v) in views.iter().enumerate() {
+        let (a, observed) = candidate_matrix(basis, v.geometry, v.lights, v.photo, per_view)
+            .map_err(|e| CoreError::Invalid(format!("view {}: {e}", i + 1)))?;
+        view_of_pixel.extend(std::iter::repeat_n(i, a.pixels.len()));
+        stacked = Some(match stacked {
+            None => (a, observed),
+            Some((mut all, mut all_observed)) => {
+                all.append(a).map_err(CoreError::Invalid)?;
+                all_observed.extend(observed);
+                (all, all_observed)
+            }
+        });
+    }
+    let (a, observed) =
+        stacked.ok_or_else(|| CoreError::Invalid("no views to estimate from".into()))?;
     let matrix_s = secs(t.elapsed());
     let (selection, solution, selection_s, solve_s) =
         estimate_from_matrix(basis, &a, &observed, options)?;
@@ -178,13 +224,15 @@ pub fn estimate(
         .iter()
         .map(|&p| (a.pixels[p].x, a.pixels[p].y))
         .collect();
+    let chosen_views = selection.pixels.iter().map(|&p| view_of_pixel[p]).collect();
     Ok(Estimate {
         names: basis.model().names,
         solution,
         selection,
         chosen,
+        chosen_views,
         candidates: a.pixels.len(),
-        lights: lights.len(),
+        lights: views.first().map_or(0, |v| v.lights.len()),
         timings: Timings {
             rendering_matrix_s: matrix_s,
             selection_s,

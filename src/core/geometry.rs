@@ -88,6 +88,24 @@ impl Camera {
         }
     }
 
+    /// The camera turned by `angle` radians (right-handed) about the world +Y axis through
+    /// the origin: the turntable's axis. A turntable turning the object by θ under a fixed
+    /// camera and light is, in the object's frame, the camera and the light turned by −θ, so
+    /// a view at turntable angle θ is geometry from `turned_about_y(−θ)` and lights at yaw
+    /// `yaw − θ`.
+    pub fn turned_about_y(&self, angle: f64) -> Camera {
+        let (s, c) = angle.sin_cos();
+        let turn = |v: Vec3| [c * v[0] + s * v[2], v[1], -s * v[0] + c * v[2]];
+        let mut cam = self.clone();
+        let pose = match &mut cam {
+            Camera::Orthographic { pose, .. } | Camera::Pinhole { pose, .. } => pose,
+        };
+        pose.position = turn(pose.position);
+        pose.look_at = turn(pose.look_at);
+        pose.up = turn(pose.up);
+        cam
+    }
+
     pub fn size(&self) -> (usize, usize) {
         match self {
             Camera::Orthographic { width, height, .. } | Camera::Pinhole { width, height, .. } => {

@@ -313,6 +313,23 @@ pub struct RenderingMatrix {
 }
 
 impl RenderingMatrix {
+    /// Appends another matrix's rows (another view of the object, built with the same model
+    /// columns), so that one selection and one solve see every view.
+    pub fn append(&mut self, other: RenderingMatrix) -> Result<(), String> {
+        if other.columns != self.columns || other.offset.is_some() != self.offset.is_some() {
+            return Err(format!(
+                "views built with different models ({} and {} columns)",
+                self.columns, other.columns
+            ));
+        }
+        self.pixels.extend(other.pixels);
+        self.rows.extend(other.rows);
+        if let (Some(a), Some(b)) = (&mut self.offset, other.offset) {
+            a.extend(b);
+        }
+        Ok(())
+    }
+
     /// Builds A for the given pixels, model columns and optional offset vector.
     pub fn build(
         pixels: &[GeomPixel],
