@@ -1,22 +1,8 @@
 //! Drives the real `brdfd` binary in temporary folders, as a user would.
 
-use std::path::Path;
-use std::process::{Command, Output};
+mod common;
 
-fn brdfd(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_brdfd"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("brdfd runs")
-}
-
-fn text(o: &Output) -> (String, String) {
-    (
-        String::from_utf8_lossy(&o.stdout).into_owned(),
-        String::from_utf8_lossy(&o.stderr).into_owned(),
-    )
-}
+use common::{brdfd, text, Simulator};
 
 /// The README's main command, at a smaller image size.
 #[test]
@@ -308,25 +294,16 @@ fn basis_build_from_merl_files() {
 /// `brdfd sim camera` in one process, `brdfd ptp` in another, over real TCP.
 #[test]
 fn ptp_commands_drive_a_simulated_camera_over_ptpip() {
-    use std::io::{BufRead, BufReader};
     let dir = tempfile::tempdir().unwrap();
-    let mut sim = Command::new(env!("CARGO_BIN_EXE_brdfd"))
-        .args([
-            "sim",
-            "camera",
-            "--ptpip",
-            "127.0.0.1:0",
-            "--payload-bytes",
-            "300000",
-        ])
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    BufReader::new(sim.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let addr = line.trim().rsplit(' ').next().unwrap().to_string();
+    let sim = Simulator::start(&[
+        "sim",
+        "camera",
+        "--ptpip",
+        "127.0.0.1:0",
+        "--payload-bytes",
+        "300000",
+    ]);
+    let addr = sim.addr.clone();
     let port = format!("ptpip:{addr}");
 
     let info = brdfd(&["ptp", "info", "--port", &port], dir.path());
@@ -353,8 +330,7 @@ fn ptp_commands_drive_a_simulated_camera_over_ptpip() {
         dir.path(),
     );
     let (out, err) = text(&cap);
-    let _ = sim.kill();
-    let _ = sim.wait();
+    drop(sim);
     assert!(cap.status.success(), "{out}\n{err}");
     assert!(
         out.contains("shutter 0.0166 s: camera applied 0.0166 s"),

@@ -68,6 +68,13 @@ fn truncated_merl_file_names_the_file_and_size() {
     );
 }
 
+/// ‖a − b‖ / ‖b‖.
+fn relative_error(a: &[f64], b: &[f64]) -> f64 {
+    let d: f64 = a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum();
+    let n: f64 = b.iter().map(|v| v * v).sum();
+    (d / n).sqrt()
+}
+
 /// Observations made by the model itself (y = A·c) must give back c: the only error is
 /// floating point, so 1e-6 relative is generous.
 #[test]
@@ -99,18 +106,10 @@ fn coefficients_inside_the_span_are_recovered() {
         select::all_pixels(&blocks),
     ] {
         let sol = solve::least_squares(&a, &sel.pixels, &y).unwrap();
-        let err: f64 = sol
-            .coefficients
-            .iter()
-            .zip(&c_true)
-            .map(|(a, b)| (a - b).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        let norm: f64 = c_true.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let err = relative_error(&sol.coefficients, &c_true);
         assert!(
-            err / norm < 1e-6,
-            "relative coefficient error {} with {} pixels",
-            err / norm,
+            err < 1e-6,
+            "relative coefficient error {err} with {} pixels",
             sel.pixels.len()
         );
     }
@@ -446,22 +445,10 @@ fn turntable_views_recover_the_coefficients_and_improve_conditioning() {
 
     let twenty = EstimateOptions::default();
     let est = estimate_views(&basis, &as_views(3), &twenty).unwrap();
-    let err: f64 = est
-        .solution
-        .coefficients
-        .iter()
-        .zip(&c_true)
-        .map(|(a, b)| (a - b).powi(2))
-        .sum::<f64>()
-        .sqrt();
-    let norm: f64 = c_true.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let err = relative_error(&est.solution.coefficients, &c_true);
     // The photos are f32 renders of the model: single-precision rounding, not the 1e-6 of
     // the f64 check above, bounds the error.
-    assert!(
-        err / norm < 1e-3,
-        "relative coefficient error {}",
-        err / norm
-    );
+    assert!(err < 1e-3, "relative coefficient error {err}");
     let views_used: std::collections::BTreeSet<_> = est.chosen_views.iter().collect();
     assert!(views_used.len() > 1, "selection used views {views_used:?}");
 

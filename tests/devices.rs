@@ -2,8 +2,6 @@
 //! `brdfd sim serial` on a real pseudo-terminal, and `brdfd v4l` on the simulated camera;
 //! and frame averaging, which is why the V4L2 path grabs several frames.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Output, Stdio};
 use std::sync::Arc;
 
 use brdfd::bench::camera::BenchCamera;
@@ -12,41 +10,15 @@ use brdfd::radiometry::{average_frames, Exposure};
 use brdfd_sim::v4l::SimV4l;
 use brdfd_v4l::{FrameSource, PixelFormat, Settings};
 
-fn brdfd(args: &[&str], dir: &std::path::Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_brdfd"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("brdfd runs")
-}
+mod common;
 
-/// Starts a simulator and returns it with the last word of its first line (its address).
-fn simulator(args: &[&str]) -> (Child, String) {
-    let mut sim = Command::new(env!("CARGO_BIN_EXE_brdfd"))
-        .args(args)
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    BufReader::new(sim.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let addr = line.trim().rsplit(' ').next().unwrap().to_string();
-    (sim, addr)
-}
-
-fn out(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
+use common::{brdfd, out, Simulator};
 
 #[test]
 fn serial_commands_drive_a_simulated_turntable_on_a_pseudo_terminal() {
     let dir = tempfile::tempdir().unwrap();
-    let (mut sim, port) = simulator(&["sim", "serial"]);
+    let sim = Simulator::start(&["sim", "serial"]);
+    let port = sim.addr.clone();
     assert!(port.starts_with("serial:/dev/"), "{port}");
     let info = brdfd(&["serial", "info", "--port", &port], dir.path());
     let rot = brdfd(
@@ -60,8 +32,7 @@ fn serial_commands_drive_a_simulated_turntable_on_a_pseudo_terminal() {
     let again = brdfd(&["serial", "info", "--port", &port], dir.path());
     let cable_port = port.replace("serial:", "cable:dtr:");
     let cable = brdfd(&["serial", "fire", "--port", &cable_port], dir.path());
-    let _ = sim.kill();
-    let _ = sim.wait();
+    drop(sim);
     assert!(info.status.success(), "{}", out(&info));
     assert!(
         out(&info).contains("brdfd-sim-turntable version 1; shutter output: yes; turntable: yes")
@@ -89,7 +60,8 @@ fn serial_commands_drive_a_simulated_turntable_on_a_pseudo_terminal() {
 #[test]
 fn devices_lists_every_kind_and_finds_a_theta_on_the_network() {
     let dir = tempfile::tempdir().unwrap();
-    let (mut sim, url) = simulator(&["sim", "theta", "--http", "127.0.0.1:0", "--width", "64"]);
+    let sim = Simulator::start(&["sim", "theta", "--http", "127.0.0.1:0", "--width", "64"]);
+    let url = sim.addr.clone();
     // Only ever loopback here: the default address is a real camera's.
     let o = brdfd(
         &["devices", "--theta", &url, "--timeout-ms", "300"],
@@ -105,8 +77,7 @@ fn devices_lists_every_kind_and_finds_a_theta_on_the_network() {
         ],
         dir.path(),
     );
-    let _ = sim.kill();
-    let _ = sim.wait();
+    drop(sim);
     let text = out(&o);
     assert!(o.status.success(), "{text}");
     for section in [

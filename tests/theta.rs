@@ -3,8 +3,11 @@
 //! `brdfd theta` and `brdfd sim theta` commands against each other over HTTP.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::Arc;
+
+mod common;
+
+use common::{brdfd, text, Simulator};
 use std::time::Duration;
 
 use brdfd::bench::panorama::{BenchPanorama, THETA_SENSOR_GAIN};
@@ -236,44 +239,26 @@ fn theta_s_photo_loads_as_an_environment_map() {
 /// `brdfd sim theta` in one process and `brdfd theta` in another, over real HTTP.
 #[test]
 fn theta_commands_drive_a_simulated_theta_over_http() {
-    use std::io::{BufRead, BufReader};
     let dir = tempfile::tempdir().unwrap();
-    let mut sim = Command::new(env!("CARGO_BIN_EXE_brdfd"))
-        .args([
-            "sim",
-            "theta",
-            "--http",
-            "127.0.0.1:0",
-            "--width",
-            "256",
-            "--shot-ms",
-            "10",
-        ])
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    BufReader::new(sim.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let url = line.trim().rsplit(' ').next().unwrap().to_string();
-    assert!(url.starts_with("http://127.0.0.1:"), "{line}");
-    let run = |args: &[&str]| {
-        Command::new(env!("CARGO_BIN_EXE_brdfd"))
-            .args(args)
-            .current_dir(dir.path())
-            .output()
-            .unwrap()
-    };
+    let sim = Simulator::start(&[
+        "sim",
+        "theta",
+        "--http",
+        "127.0.0.1:0",
+        "--width",
+        "256",
+        "--shot-ms",
+        "10",
+    ]);
+    let url = sim.addr.clone();
+    assert!(url.starts_with("http://127.0.0.1:"), "{url}");
+    let run = |args: &[&str]| brdfd(args, dir.path());
     let info = run(&["theta", "info", "--port", &url]);
     let out = String::from_utf8_lossy(&info.stdout).into_owned();
     assert!(out.contains("RICOH THETA V (serial 00165759"), "{out}");
 
     let cap = run(&["theta", "capture", "--port", &url, "--out", "pano"]);
-    let (out, err) = (
-        String::from_utf8_lossy(&cap.stdout).into_owned(),
-        String::from_utf8_lossy(&cap.stderr).into_owned(),
-    );
+    let (out, err) = text(&cap);
     // Again into the same folder: earlier frames are kept, the new ones get new names.
     let again = run(&[
         "theta",
@@ -285,8 +270,7 @@ fn theta_commands_drive_a_simulated_theta_over_http() {
         "--out",
         "pano",
     ]);
-    let _ = sim.kill();
-    let _ = sim.wait();
+    drop(sim);
     assert!(cap.status.success(), "{out}\n{err}");
     assert!(
         again.status.success(),
