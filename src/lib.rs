@@ -7,6 +7,7 @@
 //! - [`bench`](mod@bench): the virtual bench: renders what a camera on a simulated rig would see.
 //! - [`radiometry`]: camera files to linear radiance (EXIF exposure, HDR merge).
 //! - [`panorama`]: 360° camera files to environment maps (GPano projection, bracket merge).
+//! - [`config`]: the daemon, rig and material files, validated.
 //! - [`selector`]: the strings that name devices (`usb:04b0:0429`, `osc:http://...`, ...).
 //! - [`results`]: the files an estimate leaves behind.
 //! - `drivers/` (workspace crates, as they land): device protocols and their simulators.
@@ -16,6 +17,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod bench;
+pub mod config;
 pub mod core;
 pub mod panorama;
 pub mod radiometry;

@@ -1,13 +1,27 @@
-//! Every file shipped in `config/` loads.
+//! Every file shipped in `config/` loads, through the same readers brdfd uses.
 
+use std::path::{Path, PathBuf};
+
+use brdfd::config::{DaemonConfig, MaterialPreset, PixelCount, Rig};
 use brdfd::core::geometry::SceneGeometry;
+
+fn files(sub: &str) -> Vec<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("config")
+        .join(sub);
+    let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    v.sort();
+    v
+}
 
 #[test]
 fn every_shipped_geometry_loads_and_sees_the_object() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/geometry");
     let mut n = 0;
-    for entry in std::fs::read_dir(&dir).unwrap() {
-        let path = entry.unwrap().path();
+    for path in files("geometry") {
         let g = SceneGeometry::read(&path).unwrap_or_else(|e| panic!("{e}"));
         // At a tenth of the resolution, so the D5100 file does not cast 16 million rays.
         let (w, h) = g.camera.size();
@@ -21,4 +35,46 @@ fn every_shipped_geometry_loads_and_sees_the_object() {
         n += 1;
     }
     assert!(n >= 2);
+}
+
+#[test]
+fn every_shipped_rig_material_and_daemon_file_loads() {
+    let daemon =
+        DaemonConfig::read(&Path::new(env!("CARGO_MANIFEST_DIR")).join("config/brdfd.toml"))
+            .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(daemon.api, "127.0.0.1:7878");
+    assert_eq!(DaemonConfig::embedded().api, daemon.api);
+
+    let rigs = files("rigs");
+    assert!(rigs.len() >= 2);
+    for path in &rigs {
+        let rig = Rig::read(path).unwrap_or_else(|e| panic!("{e}"));
+        // The rig's object camera sees its object (at a tenth of the resolution).
+        let (w, h) = rig.geometry.camera.size();
+        let px = rig.geometry.pixels(w / 10, h / 10).unwrap();
+        assert!(
+            !px.pixels.is_empty(),
+            "{}: the camera misses the object",
+            path.display()
+        );
+    }
+    assert!(Rig::simulated().simulated);
+
+    let presets = files("materials");
+    assert!(presets.len() >= 4);
+    for path in &presets {
+        let m = MaterialPreset::read(path).unwrap_or_else(|e| panic!("{e}"));
+        // The simulated rig can render it.
+        brdfd::bench::VirtualBench::embedded(&m.simulate_as, 8)
+            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        // The embedded copy is the same file.
+        let name = path.file_stem().unwrap().to_str().unwrap();
+        let embedded = MaterialPreset::embedded(name).unwrap().expect("embedded");
+        assert_eq!(embedded.simulate_as, m.simulate_as);
+    }
+    assert_eq!(
+        MaterialPreset::embedded("chrome").unwrap().unwrap().pixels,
+        PixelCount::All
+    );
+    assert!(MaterialPreset::embedded("../gold").is_err());
 }

@@ -9,6 +9,7 @@ use std::path::PathBuf;
 
 use anyhow::bail;
 use brdfd::bench::VirtualBench;
+use brdfd::config::{Brackets, MaterialPreset, PixelCount, Rig};
 use brdfd::core::basis::Basis;
 use brdfd::core::bivariate::Bivariate;
 use brdfd::core::envmap::{EnvMap, DEFAULT_LIGHTS};
@@ -36,7 +37,11 @@ type RawFiles = Vec<(String, Vec<u8>)>;
 
 /// Shoots the bracket on the simulated D5100 through our PTP/IP client, decodes the JPEGs,
 /// reads their EXIF and merges them into radiance. Returns the radiance and the camera files.
-fn dslr_bracket(bench: &VirtualBench, shutters: &[f64]) -> anyhow::Result<(Raster, RawFiles)> {
+fn dslr_bracket(
+    bench: &VirtualBench,
+    shutters: &[f64],
+    plan: &Brackets,
+) -> anyhow::Result<(Raster, RawFiles)> {
     let source = Arc::new(BenchCamera::new(
         bench.clone(),
         "NIKON CORPORATION",
@@ -50,8 +55,8 @@ fn dslr_bracket(bench: &VirtualBench, shutters: &[f64]) -> anyhow::Result<(Raste
     let mut cam = Camera::open(Box::new(link), Timeouts::default())?;
     let applied = cam.set_exposure(&Exposure {
         shutter_s: None,
-        f_number: Some(8.0),
-        iso: Some(100),
+        f_number: Some(plan.dslr_f_number),
+        iso: Some(plan.dslr_iso),
     })?;
     println!(
         "DSLR: {} ({}), f/{} ISO {}",
@@ -145,14 +150,12 @@ pub struct CaptureArgs {
     /// Image size of the simulated camera.
     #[arg(long, default_value_t = 256)]
     pub size: usize,
-    #[arg(long, default_value = "20")]
-    pub pixels: String,
-    /// Shutter speeds of the DSLR's exposure bracket, in seconds (f/8, ISO 100).
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "0.001,0.004,0.0166,0.0666,0.25"
-    )]
+    /// Pixels to estimate from (a number or `all`); the material preset's, else 20.
+    #[arg(long)]
+    pub pixels: Option<String>,
+    /// Shutter speeds of the DSLR's exposure bracket, in seconds; the material preset's,
+    /// else the rig's (`config/rigs/simulated.toml`).
+    #[arg(long, value_delimiter = ',')]
     pub bracket: Vec<f64>,
     /// Views on the simulated turntable: the object turned `--turn` degrees between them,
     /// under the same light, for more normals in one estimate.
@@ -171,19 +174,68 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         bail!("capturing from hardware needs the camera drivers, which this build does not have yet; run with --simulate");
     }
     let t = std::time::Instant::now();
-    let mut bench = VirtualBench::embedded(&a.material, a.size).or_else(|e| {
+    let rig = Rig::simulated();
+    let preset = MaterialPreset::embedded(&a.material).map_err(anyhow::Error::msg)?;
+    let basis = Basis::embedded();
+    if let Some(p) = &preset {
+        if p.k != basis.header.k {
+            bail!(
+                "the {} preset is tuned for K = {}, the basis has K = {}",
+                a.material,
+                p.k,
+                basis.header.k
+            );
+        }
+        println!(
+            "material preset {}: simulated as {}, {} pixels{}",
+            a.material,
+            p.simulate_as,
+            match p.pixels {
+                PixelCount::All => "all".to_string(),
+                PixelCount::Count(n) => n.to_string(),
+            },
+            if p.notes.is_empty() {
+                String::new()
+            } else {
+                format!(" ({})", p.notes)
+            }
+        );
+    }
+    let simulate_as = preset
+        .as_ref()
+        .map_or(a.material.as_str(), |p| p.simulate_as.as_str());
+    let mut bench = VirtualBench::embedded(simulate_as, a.size).or_else(|e| {
         // Not an embedded material: the NBRDF file may have it.
         let Some(path) = &a.nbrdf else { return Err(e) };
         let set = NbrdfSet::read(path)?;
-        let name = brdfd::bench::resolve_material(&a.material);
+        let name = brdfd::bench::resolve_material(simulate_as);
         let mut b = VirtualBench::embedded("gold", a.size)?;
         b.material = MerlBrdf::tabulate(set.get(name)?);
         b.material_name = name.to_string();
         Ok::<_, brdfd::core::CoreError>(b)
     })?;
+    // The object and its camera come from the rig file, at the size asked for.
+    bench.geometry = rig.geometry.clone();
+    bench.geometry.camera = rig.geometry.camera.resized(a.size, a.size);
+    bench.yaw = rig.theta_yaw_deg.to_radians();
     if let Some(p) = &a.env {
         bench.env = brdfd::panorama::load_envmap(p)?;
     }
+    let shutters = if !a.bracket.is_empty() {
+        a.bracket.clone()
+    } else if let Some(s) = preset.as_ref().and_then(|p| p.dslr_shutters.clone()) {
+        s
+    } else {
+        rig.brackets.dslr_shutters.clone()
+    };
+    let pixel_count = match (&a.pixels, &preset) {
+        (Some(p), _) => parse_pixels(p)?,
+        (None, Some(p)) => match p.pixels {
+            PixelCount::All => None,
+            PixelCount::Count(n) => Some(n),
+        },
+        (None, None) => Some(20),
+    };
     println!(
         "simulated rig (in-process): {} on a sphere; DSLR: simulated Nikon D5100 over PTP/IP on loopback, {}×{}",
         bench.material_name, a.size, a.size
@@ -218,7 +270,7 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
                 a.views
             );
         }
-        let (photo, dslr_frames) = dslr_bracket(&view, &a.bracket)?;
+        let (photo, dslr_frames) = dslr_bracket(&view, &shutters, &rig.brackets)?;
         let prefix = if a.views > 1 {
             format!("view{}-", i + 1)
         } else {
@@ -232,9 +284,9 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         let lights = env.compressed(DEFAULT_LIGHTS, view.yaw);
         shots.push((view.pixels()?, lights, photo));
     }
-    let basis = Basis::embedded();
     let options = EstimateOptions {
-        pixel_count: parse_pixels(&a.pixels)?,
+        pixel_count,
+        ridge: preset.as_ref().and_then(|p| p.ridge),
         ..EstimateOptions::default()
     };
     let views: Vec<View> = shots

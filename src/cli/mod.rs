@@ -3,6 +3,7 @@
 
 mod basis_cmd;
 mod capture;
+mod config_cmd;
 mod devices_cmd;
 mod estimate_cmd;
 mod geometry_args;
@@ -67,6 +68,11 @@ pub enum Command {
     V4l {
         #[command(subcommand)]
         command: v4l_cmd::V4lCommand,
+    },
+    /// Check configuration files (daemon, rigs, materials, geometry).
+    Config {
+        #[command(subcommand)]
+        command: config_cmd::ConfigCommand,
     },
     /// List what is plugged in and whether brdfd can open it.
     Devices(devices_cmd::DevicesArgs),
@@ -148,6 +154,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Serial { command } => serial_cmd::run(command),
         Command::V4l { command } => v4l_cmd::run(command),
         Command::Devices(a) => devices_cmd::run(a),
+        Command::Config { command } => config_cmd::run(command),
         Command::Sim { command } => sim::run(command),
     }
 }

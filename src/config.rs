@@ -1,0 +1,504 @@
+//! Configuration files (TOML), shipped in `config/` and embedded in the binary:
+//!
+//! - `brdfd.toml`: the daemon's defaults (state directory, API address, token, log filter);
+//! - `rigs/<name>.toml`: a rig: which devices (as selectors), the object camera's intrinsics
+//!   and pose and the object's geometry, the THETA's yaw, the bracket plans, the calibration
+//!   between the two cameras, and the turntable's views;
+//! - `materials/<name>.toml`: a material preset: pixel count, K, exposure plan, notes.
+//!
+//! Unknown fields are rejected. A syntax or type error names the file, line and field (from
+//! the TOML parser); a value that parses but makes no sense names the file and the field's
+//! path (`brackets.dslr_shutters[2]`).
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Deserializer};
+
+use crate::core::geometry::SceneGeometry;
+use crate::selector::Selector;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{file}: {reason}")]
+    Read { file: String, reason: String },
+    /// Syntax, types and unknown fields; the parser's message has the line and column.
+    #[error("{file}: {message}")]
+    Parse { file: String, message: String },
+    /// A value the schema accepts but the rig cannot use.
+    #[error("{file}: field `{field}`: {reason}")]
+    Invalid {
+        file: String,
+        field: String,
+        reason: String,
+    },
+}
+
+fn invalid(file: &str, field: impl Into<String>, reason: impl Into<String>) -> ConfigError {
+    ConfigError::Invalid {
+        file: file.into(),
+        field: field.into(),
+        reason: reason.into(),
+    }
+}
+
+impl<'de> Deserialize<'de> for Selector {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Selector, D::Error> {
+        let s = String::deserialize(d)?;
+        s.parse().map_err(serde::de::Error::custom)
+    }
+}
+
+/// `brdfd.toml`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DaemonConfig {
+    /// Where sessions are stored. Absent: `BRDFD_STATE_DIR`, else the XDG data directory.
+    #[serde(default)]
+    pub state_dir: Option<PathBuf>,
+    /// Address of the HTTP API. Change it only together with `token`: any address but
+    /// loopback needs one.
+    #[serde(default = "default_api")]
+    pub api: String,
+    /// Bearer token the API requires; required for non-loopback addresses.
+    #[serde(default)]
+    pub token: Option<String>,
+    /// Log filter (`info`, `debug`, `brdfd_theta=debug`, ...).
+    #[serde(default = "default_log")]
+    pub log: String,
+}
+
+fn default_api() -> String {
+    "127.0.0.1:7878".into()
+}
+
+fn default_log() -> String {
+    "info".into()
+}
+
+/// The devices of a rig, by selector. The DSLR or the fallback camera sees the object; the
+/// THETA sees the light.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RigDevices {
+    #[serde(default)]
+    pub dslr: Option<Selector>,
+    #[serde(default)]
+    pub theta: Option<Selector>,
+    /// Used when no DSLR answers.
+    #[serde(default)]
+    pub fallback_camera: Option<Selector>,
+    /// A rig-protocol turntable or trigger box, or a release cable.
+    #[serde(default)]
+    pub turntable: Option<Selector>,
+}
+
+/// Exposure plans.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Brackets {
+    /// DSLR shutter speeds, seconds.
+    pub dslr_shutters: Vec<f64>,
+    pub dslr_f_number: f64,
+    pub dslr_iso: u32,
+    /// THETA shutter speeds, seconds; the light probe (1/16000 s to 1 s) if empty.
+    #[serde(default)]
+    pub theta_shutters: Vec<f64>,
+    #[serde(default = "default_theta_iso")]
+    pub theta_iso: u32,
+}
+
+fn default_theta_iso() -> u32 {
+    100
+}
+
+/// How the two cameras' radiance units relate.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Calibration {
+    /// DSLR radiance per THETA radiance for the same light (from photographing a grey card
+    /// with both). 1 for the simulated rig, whose sensors are modelled.
+    pub theta_to_dslr: f64,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TurntablePlan {
+    /// Views to shoot (1: no turning).
+    pub views: usize,
+    /// Degrees between views.
+    pub step_deg: f64,
+}
+
+/// `rigs/<name>.toml`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Rig {
+    /// A simulated rig: the devices are the simulators on loopback.
+    #[serde(default)]
+    pub simulated: bool,
+    pub devices: RigDevices,
+    /// Object camera intrinsics and pose, and the object's geometry (as in geometry files).
+    pub geometry: SceneGeometry,
+    /// Yaw of the THETA's panorama in the world, degrees (its front relative to −Z).
+    #[serde(default)]
+    pub theta_yaw_deg: f64,
+    pub brackets: Brackets,
+    pub calibration: Calibration,
+    #[serde(default)]
+    pub turntable: Option<TurntablePlan>,
+}
+
+/// Pixels to estimate from: a count, or "all".
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PixelCount {
+    Count(usize),
+    All,
+}
+
+impl<'de> Deserialize<'de> for PixelCount {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<PixelCount, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            N(usize),
+            S(String),
+        }
+        match Raw::deserialize(d)? {
+            Raw::N(n) => Ok(PixelCount::Count(n)),
+            Raw::S(s) if s == "all" => Ok(PixelCount::All),
+            Raw::S(s) => Err(serde::de::Error::custom(format!(
+                "pixels is a number or \"all\", not {s:?}"
+            ))),
+        }
+    }
+}
+
+/// `materials/<name>.toml`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialPreset {
+    /// MERL name the simulated rig renders for this material.
+    pub simulate_as: String,
+    pub pixels: PixelCount,
+    /// Basis size the preset was tuned for; must match the basis used.
+    #[serde(default = "default_k")]
+    pub k: usize,
+    /// DSLR shutter speeds for this material (shiny materials need shorter ones); the rig's
+    /// if absent.
+    #[serde(default)]
+    pub dslr_shutters: Option<Vec<f64>>,
+    /// Tikhonov strength for few pixels; plain least squares if absent.
+    #[serde(default)]
+    pub ridge: Option<f64>,
+    #[serde(default)]
+    pub notes: String,
+}
+
+fn default_k() -> usize {
+    5
+}
+
+/// Material and session names: lower-case letters, digits and dashes, 1 to 64 characters,
+/// so a name can never leave the state directory or clash with the file system.
+pub fn validate_name(kind: &str, name: &str) -> Result<(), String> {
+    let ok = !name.is_empty()
+        && name.len() <= 64
+        && !name.starts_with('-')
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-');
+    if ok {
+        Ok(())
+    } else {
+        Err(format!(
+            "{kind} name {name:?}: use 1 to 64 lower-case letters, digits and dashes, not starting with a dash"
+        ))
+    }
+}
+
+fn parse<T: serde::de::DeserializeOwned>(file: &str, text: &str) -> Result<T, ConfigError> {
+    toml::from_str(text).map_err(|e| ConfigError::Parse {
+        file: file.into(),
+        message: e.to_string().trim_end().to_string(),
+    })
+}
+
+fn read(path: &Path) -> Result<(String, String), ConfigError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
+        file: file.clone(),
+        reason: e.to_string(),
+    })?;
+    Ok((file, text))
+}
+
+fn check_exposures(file: &str, field: &str, values: &[f64]) -> Result<(), ConfigError> {
+    for (i, &s) in values.iter().enumerate() {
+        if !(s.is_finite() && s > 0.0 && s <= 60.0) {
+            return Err(invalid(
+                file,
+                format!("{field}[{i}]"),
+                format!("{s} s is not an exposure time (0 to 60 s)"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+impl DaemonConfig {
+    pub fn parse(file: &str, text: &str) -> Result<DaemonConfig, ConfigError> {
+        let c: DaemonConfig = parse(file, text)?;
+        let addr: std::net::SocketAddr = c
+            .api
+            .parse()
+            .map_err(|e| invalid(file, "api", format!("{:?} is not IP:PORT ({e})", c.api)))?;
+        if !addr.ip().is_loopback() && c.token.as_deref().is_none_or(str::is_empty) {
+            return Err(invalid(
+                file,
+                "api",
+                format!("{addr} is reachable from other machines: set `token` too"),
+            ));
+        }
+        Ok(c)
+    }
+
+    pub fn read(path: &Path) -> Result<DaemonConfig, ConfigError> {
+        let (file, text) = read(path)?;
+        DaemonConfig::parse(&file, &text)
+    }
+
+    /// The shipped defaults.
+    pub fn embedded() -> DaemonConfig {
+        DaemonConfig::parse("config/brdfd.toml", include_str!("../config/brdfd.toml"))
+            .expect("the shipped brdfd.toml is checked by tests")
+    }
+}
+
+impl Rig {
+    pub fn parse(file: &str, text: &str) -> Result<Rig, ConfigError> {
+        let r: Rig = parse(file, text)?;
+        let b = &r.brackets;
+        if b.dslr_shutters.is_empty() {
+            return Err(invalid(
+                file,
+                "brackets.dslr_shutters",
+                "needs at least one exposure",
+            ));
+        }
+        check_exposures(file, "brackets.dslr_shutters", &b.dslr_shutters)?;
+        check_exposures(file, "brackets.theta_shutters", &b.theta_shutters)?;
+        if !(b.dslr_f_number.is_finite() && b.dslr_f_number >= 0.7 && b.dslr_f_number <= 64.0) {
+            return Err(invalid(
+                file,
+                "brackets.dslr_f_number",
+                format!("f/{} is not an aperture", b.dslr_f_number),
+            ));
+        }
+        if !(r.calibration.theta_to_dslr.is_finite() && r.calibration.theta_to_dslr > 0.0) {
+            return Err(invalid(
+                file,
+                "calibration.theta_to_dslr",
+                "must be a positive scale",
+            ));
+        }
+        if !r.theta_yaw_deg.is_finite() {
+            return Err(invalid(
+                file,
+                "theta_yaw_deg",
+                "must be a number of degrees",
+            ));
+        }
+        if let Some(t) = &r.turntable {
+            if t.views == 0 || !t.step_deg.is_finite() {
+                return Err(invalid(
+                    file,
+                    "turntable",
+                    "views must be at least 1 and step_deg a number",
+                ));
+            }
+            if t.views > 1 && r.devices.turntable.is_none() && !r.simulated {
+                return Err(invalid(
+                    file,
+                    "devices.turntable",
+                    "several views need a turntable",
+                ));
+            }
+        }
+        if !r.simulated && r.devices.dslr.is_none() && r.devices.fallback_camera.is_none() {
+            return Err(invalid(
+                file,
+                "devices",
+                "needs a `dslr` or a `fallback_camera` to see the object",
+            ));
+        }
+        if !r.simulated && r.devices.theta.is_none() {
+            return Err(invalid(
+                file,
+                "devices.theta",
+                "needs a THETA to measure the light",
+            ));
+        }
+        for (field, sel, ok) in [
+            (
+                "devices.dslr",
+                &r.devices.dslr,
+                matches!(
+                    r.devices.dslr,
+                    None | Some(Selector::Usb { .. } | Selector::PtpIp(_))
+                ),
+            ),
+            (
+                "devices.theta",
+                &r.devices.theta,
+                matches!(
+                    r.devices.theta,
+                    None | Some(Selector::Osc(_) | Selector::Usb { .. } | Selector::V4l(_))
+                ),
+            ),
+            (
+                "devices.fallback_camera",
+                &r.devices.fallback_camera,
+                matches!(r.devices.fallback_camera, None | Some(Selector::V4l(_))),
+            ),
+            (
+                "devices.turntable",
+                &r.devices.turntable,
+                matches!(
+                    r.devices.turntable,
+                    None | Some(Selector::Serial(_) | Selector::Cable { .. })
+                ),
+            ),
+        ] {
+            if !ok {
+                return Err(invalid(
+                    file,
+                    field,
+                    format!(
+                        "{} is the wrong kind of device here",
+                        sel.as_ref().map(|s| s.to_string()).unwrap_or_default()
+                    ),
+                ));
+            }
+        }
+        Ok(r)
+    }
+
+    pub fn read(path: &Path) -> Result<Rig, ConfigError> {
+        let (file, text) = read(path)?;
+        Rig::parse(&file, &text)
+    }
+
+    /// The shipped simulated rig, which `capture --simulate` uses.
+    pub fn simulated() -> Rig {
+        Rig::parse(
+            "config/rigs/simulated.toml",
+            include_str!("../config/rigs/simulated.toml"),
+        )
+        .expect("the shipped simulated rig is checked by tests")
+    }
+}
+
+/// The material presets shipped in `config/materials/`, by name.
+const PRESETS: [(&str, &str); 4] = [
+    ("gold", include_str!("../config/materials/gold.toml")),
+    ("chrome", include_str!("../config/materials/chrome.toml")),
+    ("paint", include_str!("../config/materials/paint.toml")),
+    ("fabric", include_str!("../config/materials/fabric.toml")),
+];
+
+impl MaterialPreset {
+    pub fn parse(file: &str, text: &str) -> Result<MaterialPreset, ConfigError> {
+        let m: MaterialPreset = parse(file, text)?;
+        if let PixelCount::Count(n) = m.pixels {
+            if n <= m.k {
+                return Err(invalid(
+                    file,
+                    "pixels",
+                    format!(
+                        "{n} pixels cannot determine K = {} coefficients and the mean",
+                        m.k
+                    ),
+                ));
+            }
+        }
+        if let Some(s) = &m.dslr_shutters {
+            check_exposures(file, "dslr_shutters", s)?;
+        }
+        if m.ridge.is_some_and(|r| !(r.is_finite() && r >= 0.0)) {
+            return Err(invalid(file, "ridge", "must be a non-negative number"));
+        }
+        Ok(m)
+    }
+
+    pub fn read(path: &Path) -> Result<MaterialPreset, ConfigError> {
+        let (file, text) = read(path)?;
+        MaterialPreset::parse(&file, &text)
+    }
+
+    /// A shipped preset by name (after checking the name).
+    pub fn embedded(name: &str) -> Result<Option<MaterialPreset>, String> {
+        validate_name("material", name)?;
+        PRESETS
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(n, text)| {
+                MaterialPreset::parse(&format!("config/materials/{n}.toml"), text)
+                    .map_err(|e| e.to_string())
+            })
+            .transpose()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_cannot_escape_the_state_directory() {
+        for bad in [
+            "",
+            "../etc",
+            "gold/../../x",
+            "Gold",
+            "-rf",
+            "a b",
+            &"x".repeat(65),
+        ] {
+            assert!(validate_name("material", bad).is_err(), "{bad:?}");
+        }
+        for good in ["gold", "gold-metallic-paint", "pla-2"] {
+            validate_name("material", good).unwrap();
+        }
+    }
+
+    #[test]
+    fn errors_name_the_file_line_and_field() {
+        let e = DaemonConfig::parse("b.toml", "state_dir = \"/srv\"\napii = \"127.0.0.1:1\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("b.toml: ") && e.contains("line 2") && e.contains("apii"),
+            "{e}"
+        );
+        let e = DaemonConfig::parse("b.toml", "api = \"0.0.0.0:7878\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("field `api`") && e.contains("set `token`"),
+            "{e}"
+        );
+        let rig = include_str!("../config/rigs/bench.toml").replace("usb:04b0:0429", "usb:nikon");
+        let e = Rig::parse("r.toml", &rig).unwrap_err().to_string();
+        assert!(
+            e.contains("r.toml") && e.contains("line") && e.contains("not a hex USB id"),
+            "{e}"
+        );
+        let rig = include_str!("../config/rigs/bench.toml").replace("0.004,", "-1.0,");
+        let e = Rig::parse("r.toml", &rig).unwrap_err().to_string();
+        assert!(e.contains("field `brackets.dslr_shutters[1]`"), "{e}");
+        let e = MaterialPreset::parse("m.toml", "simulate_as = \"nickel\"\npixels = 4\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("field `pixels`"), "{e}");
+    }
+}
