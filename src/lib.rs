@@ -8,6 +8,8 @@
 //! - [`radiometry`]: camera files to linear radiance (EXIF exposure, HDR merge).
 //! - [`panorama`]: 360° camera files to environment maps (GPano projection, bracket merge).
 //! - [`config`]: the daemon, rig and material files, validated.
+//! - [`session`]: sessions on disk (manifest state machine, raw files with sha256, atomic
+//!   writes).
 //! - [`selector`]: the strings that name devices (`usb:04b0:0429`, `osc:http://...`, ...).
 //! - [`results`]: the files an estimate leaves behind.
 //! - `drivers/` (workspace crates, as they land): device protocols and their simulators.
@@ -23,3 +25,4 @@ pub mod panorama;
 pub mod radiometry;
 pub mod results;
 pub mod selector;
+pub mod session;

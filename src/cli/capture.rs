@@ -1,141 +1,55 @@
-//! `brdfd capture`: capture a material and estimate it. Today this runs the simulated rig
-//! in-process, through the real protocols on loopback: the panorama bracket comes from the
-//! simulated RICOH THETA V over the THETA Web API (HTTP), merged into a linear map from each
-//! frame's EXIF; the DSLR bracket comes from the simulated Nikon D5100 through our PTP/IP
-//! client (JPEG, EXIF, HDR merge, as with a real camera). The daemon and the hardware rig
-//! plug in behind the same command.
+//! `brdfd capture`: capture a material and estimate it, as one session on disk. Today this
+//! runs the simulated rig in-process, through the real protocols on loopback: the panorama
+//! bracket comes from the simulated RICOH THETA V over the THETA Web API (HTTP), the DSLR
+//! brackets from the simulated Nikon D5100 through our PTP/IP client, the turntable from a
+//! simulated peer on a pseudo-terminal. The daemon and the hardware rig plug in behind the
+//! same flow.
+//!
+//! The flow is a list of steps (the panorama, then each turntable view); each step's files
+//! are stored in the session as they arrive, and a step is skipped when the session already
+//! has it complete. That is what `brdfd session resume` relies on.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
 
-use anyhow::bail;
+use anyhow::{bail, Context};
+use brdfd::bench::camera::{BenchCamera, SENSOR_GAIN};
+use brdfd::bench::panorama::{BenchPanorama, THETA_SENSOR_GAIN};
 use brdfd::bench::VirtualBench;
 use brdfd::config::{Brackets, MaterialPreset, PixelCount, Rig};
 use brdfd::core::basis::Basis;
 use brdfd::core::bivariate::Bivariate;
-use brdfd::core::envmap::{EnvMap, DEFAULT_LIGHTS};
+use brdfd::core::envmap::{write_exr, EnvMap, DEFAULT_LIGHTS};
 use brdfd::core::estimate::{estimate_views, EstimateOptions, View};
 use brdfd::core::merl::MerlBrdf;
 use brdfd::core::nbrdf::NbrdfSet;
-use brdfd::core::render::render_bivariate;
-
-use super::estimate_cmd::{parse_pixels, print_estimate};
-use brdfd::bench::camera::{BenchCamera, SENSOR_GAIN};
 use brdfd::core::raster::Raster;
-use brdfd::radiometry::{decode_jpeg, merge_hdr, Frame};
+use brdfd::core::render::render_bivariate;
+use brdfd::panorama::merge_bracket;
+use brdfd::radiometry::{decode_jpeg, merge_hdr};
+use brdfd::session::{Session, State};
 use brdfd_ptp::transport::ptpip::{Initiator, PtpIpTransport};
 use brdfd_ptp::{Camera, CaptureOptions, Exposure, Timeouts};
 use brdfd_sim::ptp::{ptpip::Server, Profile, Responder};
 use brdfd_sim::theta::{OscServer, ThetaConfig};
+use serde::{Deserialize, Serialize};
+use serde_json::json;
 
-use super::theta_cmd::{capture_panorama, loopback_timeouts};
-use brdfd::bench::panorama::{BenchPanorama, THETA_SENSOR_GAIN};
-use std::sync::Arc;
-use std::time::Duration;
+use super::estimate_cmd::{parse_pixels, print_estimate};
+use super::theta_cmd::{loopback_timeouts, shoot_panorama};
 
 /// Camera files by name, exactly as the camera sent them.
 type RawFiles = Vec<(String, Vec<u8>)>;
-
-/// Shoots the bracket on the simulated D5100 through our PTP/IP client, decodes the JPEGs,
-/// reads their EXIF and merges them into radiance. Returns the radiance and the camera files.
-fn dslr_bracket(
-    bench: &VirtualBench,
-    shutters: &[f64],
-    plan: &Brackets,
-) -> anyhow::Result<(Raster, RawFiles)> {
-    let source = Arc::new(BenchCamera::new(
-        bench.clone(),
-        "NIKON CORPORATION",
-        "NIKON D5100",
-    ));
-    let server = Server::start(
-        "127.0.0.1:0",
-        Responder::new(Profile::NikonD5100, source).shared(),
-    )?;
-    let link = PtpIpTransport::connect(server.addr, Initiator::default(), Duration::from_secs(5))?;
-    let mut cam = Camera::open(Box::new(link), Timeouts::default())?;
-    let applied = cam.set_exposure(&Exposure {
-        shutter_s: None,
-        f_number: Some(plan.dslr_f_number),
-        iso: Some(plan.dslr_iso),
-    })?;
-    println!(
-        "DSLR: {} ({}), f/{} ISO {}",
-        cam.describe(),
-        cam.info.serial_number,
-        applied.f_number.unwrap_or(0.0),
-        applied.iso.unwrap_or(0)
-    );
-    let mut files = Vec::new();
-    let mut frames: Vec<Frame> = Vec::new();
-    let shots = cam.bracket(shutters, &CaptureOptions::default(), &mut |_, _, _| {})?;
-    for (i, (speed, shot)) in shots.into_iter().enumerate() {
-        let name = format!("dslr-{:02}-{}", i + 1, shot.info.filename);
-        let frame = decode_jpeg(&shot.data, &name)?;
-        println!(
-            "  {name}: {} bytes, EXIF {:.4} s f/{} ISO {} (camera applied {speed} s)",
-            shot.data.len(),
-            frame.exposure.shutter_s,
-            frame.exposure.f_number,
-            frame.exposure.iso
-        );
-        frames.push(frame);
-        files.push((name, shot.data));
-    }
-    cam.close()?;
-    Ok((merge_hdr(&frames, SENSOR_GAIN)?, files))
-}
-
-/// The simulated turntable on a pseudo-terminal, driven through the real serial code.
-fn sim_turntable() -> anyhow::Result<(brdfd_sim::serial::SerialPeer, brdfd_serial::RigController)> {
-    let (peer, port) = brdfd_sim::serial::SerialPeer::start(Default::default())?;
-    let rig = brdfd_serial::RigController::new(Box::new(port), Default::default())?;
-    println!(
-        "turntable: {} {} on serial:{}",
-        rig.identity.name, rig.identity.version, peer.path
-    );
-    Ok((peer, rig))
-}
 
 /// Time the simulated THETA takes per frame. A real THETA V takes about a second; the
 /// simulation keeps a delay so that the client's polling runs as it would, but a short one.
 const SIM_THETA_SHOT_TIME: Duration = Duration::from_millis(20);
 
-/// Shoots the light-probe bracket on the simulated THETA V over HTTP, merges it, and says how
-/// far the measured map is from the bench's own (total power, per channel).
-fn theta_bracket(bench: &VirtualBench) -> anyhow::Result<(EnvMap, RawFiles)> {
-    let source = Arc::new(BenchPanorama::new(&bench.env, 1024, "RICOH THETA V"));
-    let config = ThetaConfig {
-        shot_time: SIM_THETA_SHOT_TIME,
-        ..ThetaConfig::default()
-    };
-    let server = OscServer::start("127.0.0.1:0", source.clone(), config)?;
-    let mut theta = brdfd_theta::Theta::connect_http(&server.url(), None, loopback_timeouts())?;
-    println!("panorama: {}", theta.describe());
-    let (map, frames) = capture_panorama(
-        &mut theta,
-        &brdfd_theta::BracketPlan::light_probe(),
-        THETA_SENSOR_GAIN,
-    )?;
-    let (measured, truth) = (map.lights(0.0).power(), source.scene().lights(0.0).power());
-    println!(
-        "  {} frames merged to {}×{}; total light vs the bench's map: {:+.2}% {:+.2}% {:+.2}% (R G B)",
-        frames.len(),
-        map.width,
-        map.height,
-        (measured[0] / truth[0] - 1.0) * 100.0,
-        (measured[1] / truth[1] - 1.0) * 100.0,
-        (measured[2] / truth[2] - 1.0) * 100.0,
-    );
-    let files = frames
-        .into_iter()
-        .map(|f| (format!("theta-{}", f.name), f.data))
-        .collect();
-    Ok((map, files))
-}
-
 #[derive(clap::Args)]
 pub struct CaptureArgs {
-    /// Material name (MERL name, or an alias: gold, chrome, plastic, paint, fabric, latex).
+    /// Material name (a preset in config/materials, a MERL name, or an alias: gold, chrome,
+    /// plastic, paint, fabric, latex).
     #[arg(long)]
     pub material: String,
     /// Use the simulated rig (required until the hardware drivers land).
@@ -164,31 +78,309 @@ pub struct CaptureArgs {
     /// Turntable step between views, degrees.
     #[arg(long, default_value_t = 30.0, allow_hyphen_values = true)]
     pub turn: f64,
-    /// Write the results (coefficients.json, BRDF files, preview) to this folder.
+    /// Where sessions are stored; else BRDFD_STATE_DIR, else the XDG data directory.
+    #[arg(long)]
+    pub state_dir: Option<PathBuf>,
+    /// Also write the results and the raw files to this folder.
     #[arg(long)]
     pub out: Option<PathBuf>,
+}
+
+/// What a capture was asked to do, stored in the manifest so that a resume repeats it.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Plan {
+    pub material: String,
+    pub size: usize,
+    pub pixels: Option<String>,
+    pub bracket: Vec<f64>,
+    pub views: usize,
+    pub turn: f64,
+    pub env: Option<PathBuf>,
+    pub nbrdf: Option<PathBuf>,
 }
 
 pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
     if !a.simulate {
         bail!("capturing from hardware needs the camera drivers, which this build does not have yet; run with --simulate");
     }
+    if a.views == 0 {
+        bail!("--views must be at least 1");
+    }
+    if let Some(p) = &a.pixels {
+        parse_pixels(p)?;
+    }
+    let plan = Plan {
+        material: a.material,
+        size: a.size,
+        pixels: a.pixels,
+        bracket: a.bracket,
+        views: a.views,
+        turn: a.turn,
+        // Stored absolute, so a resume from another folder finds them.
+        env: a.env.map(|p| std::path::absolute(&p).unwrap_or(p)),
+        nbrdf: a.nbrdf.map(|p| std::path::absolute(&p).unwrap_or(p)),
+    };
+    let preset = MaterialPreset::embedded(&plan.material).map_err(anyhow::Error::msg)?;
+    let state = brdfd::session::state_dir(a.state_dir.as_deref(), None)?;
+    let mut session = Session::create(
+        &state,
+        &plan.material,
+        include_str!("../../config/rigs/simulated.toml"),
+        preset
+            .is_some()
+            .then(|| preset_text(&plan.material))
+            .flatten(),
+        serde_json::to_value(&plan)?,
+    )?;
+    println!(
+        "session {} in {}",
+        session.manifest.id,
+        session.dir.display()
+    );
+    execute(&mut session, &plan, a.out.as_deref())
+}
+
+/// Continues a session from its last complete step.
+pub fn resume(session: &mut Session) -> anyhow::Result<()> {
+    if session.manifest.state == State::Done {
+        println!("session {} is already done", session.manifest.id);
+        return Ok(());
+    }
+    let plan: Plan = serde_json::from_value(session.manifest.options.clone())
+        .context("the manifest's capture options")?;
+    println!(
+        "resuming session {} (was {:?})",
+        session.manifest.id, session.manifest.state
+    );
+    execute(session, &plan, None)
+}
+
+fn preset_text(name: &str) -> Option<&'static str> {
+    match name {
+        "gold" => Some(include_str!("../../config/materials/gold.toml")),
+        "chrome" => Some(include_str!("../../config/materials/chrome.toml")),
+        "paint" => Some(include_str!("../../config/materials/paint.toml")),
+        "fabric" => Some(include_str!("../../config/materials/fabric.toml")),
+        _ => None,
+    }
+}
+
+/// Runs the flow; a failure is recorded in the manifest (the session stays resumable).
+fn execute(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Result<()> {
+    match flow(session, plan, out) {
+        Ok(()) => Ok(()),
+        Err(e) => {
+            let reason = format!("{e:#}");
+            let _ = session.set_state(State::Failed, Some(reason));
+            Err(e.context(format!(
+                "session {} failed; what was captured is kept: `brdfd session resume {}` continues it",
+                session.manifest.id, session.manifest.id
+            )))
+        }
+    }
+}
+
+fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Result<()> {
     let t = std::time::Instant::now();
     let rig = Rig::simulated();
-    let preset = MaterialPreset::embedded(&a.material).map_err(anyhow::Error::msg)?;
+    let preset = MaterialPreset::embedded(&plan.material).map_err(anyhow::Error::msg)?;
     let basis = Basis::embedded();
-    if let Some(p) = &preset {
+    let bench = simulated_bench(plan, preset.as_ref(), &rig, &basis)?;
+    println!(
+        "simulated rig (in-process): {} on a sphere; DSLR: simulated Nikon D5100 over PTP/IP on loopback, {}×{}",
+        bench.material_name, plan.size, plan.size
+    );
+    let shutters = if !plan.bracket.is_empty() {
+        plan.bracket.clone()
+    } else if let Some(s) = preset.as_ref().and_then(|p| p.dslr_shutters.clone()) {
+        s
+    } else {
+        rig.brackets.dslr_shutters.clone()
+    };
+    let pixel_count = match (&plan.pixels, &preset) {
+        (Some(p), _) => parse_pixels(p)?,
+        (None, Some(p)) => match p.pixels {
+            PixelCount::All => None,
+            PixelCount::Count(n) => Some(n),
+        },
+        (None, None) => Some(20),
+    };
+    if matches!(session.manifest.state, State::Created | State::Failed) {
+        session.set_state(State::Capturing, None)?;
+    }
+
+    // The panorama.
+    let pano_files = match stored(session, "panorama")? {
+        Some((files, _)) => {
+            println!("panorama: {} frames already in the session", files.len());
+            files
+        }
+        None => {
+            session.begin_step("panorama", json!({}))?;
+            let files = theta_bracket(&bench, session)?;
+            session.finish_step("panorama")?;
+            files
+        }
+    };
+    let merged = merge_bracket(&pano_files, THETA_SENSOR_GAIN)?;
+    if merged.clipped_pixels > 0 {
+        eprintln!(
+            "  warning: {} pixels clip even in the shortest frame; they carry at least {:.1}% of the light",
+            merged.clipped_pixels,
+            merged.clipped_share * 100.0
+        );
+    }
+    let env = merged.map;
+    report_panorama(&env, &bench);
+
+    // One DSLR bracket per turntable view.
+    let mut turntable = None;
+    let mut views = Vec::with_capacity(plan.views);
+    let mut raw_out: RawFiles = pano_files
+        .iter()
+        .map(|(name, b)| (format!("theta-{name}"), b.clone()))
+        .collect();
+    for i in 0..plan.views {
+        let step = format!("view{}", i + 1);
+        let (files, theta_deg) = match stored(session, &step)? {
+            Some((files, meta)) => {
+                let deg = meta["turntable_deg"].as_f64().unwrap_or(0.0);
+                println!(
+                    "{step}: {} frames already in the session ({deg:.2}°)",
+                    files.len()
+                );
+                (files, deg)
+            }
+            None => {
+                let deg = if plan.views > 1 {
+                    if turntable.is_none() {
+                        turntable = Some(sim_turntable()?);
+                    }
+                    let (_, rig) = turntable.as_mut().expect("just set");
+                    let target = i as f64 * plan.turn;
+                    let here = rig.position()?;
+                    let turn = (target - here + 180.0).rem_euclid(360.0) - 180.0;
+                    let at = if turn.abs() > 1e-9 {
+                        rig.rotate(turn)?
+                    } else {
+                        here
+                    };
+                    println!("view {} of {}: turntable at {at:.2}°", i + 1, plan.views);
+                    at
+                } else {
+                    0.0
+                };
+                session.begin_step(&step, json!({ "turntable_deg": deg }))?;
+                let view = turned(&bench, deg);
+                let files = dslr_bracket(&view, &shutters, &rig.brackets, session, &step)?;
+                session.finish_step(&step)?;
+                (files, deg)
+            }
+        };
+        let prefix = if plan.views > 1 {
+            format!("view{}-", i + 1)
+        } else {
+            String::new()
+        };
+        let photo = merge_dslr(&files)?;
+        raw_out.extend(
+            files
+                .iter()
+                .enumerate()
+                .map(|(k, (name, b))| (format!("{prefix}dslr-{:02}-{name}", k + 1), b.clone())),
+        );
+        let view = turned(&bench, theta_deg);
+        let lights = env.compressed(DEFAULT_LIGHTS, view.yaw);
+        save_exr(session, &format!("photo-{step}.exr"), &photo)?;
+        views.push((view.pixels()?, lights, photo));
+    }
+    drop(turntable);
+    session.set_state(State::Captured, None)?;
+
+    session.set_state(State::Estimating, None)?;
+    let options = EstimateOptions {
+        pixel_count,
+        ridge: preset.as_ref().and_then(|p| p.ridge),
+        ..EstimateOptions::default()
+    };
+    let as_views: Vec<View> = views
+        .iter()
+        .map(|(geometry, lights, photo)| View {
+            geometry,
+            lights,
+            photo,
+        })
+        .collect();
+    let est = estimate_views(&basis, &as_views, &options)?;
+    print_estimate(&est.names, &est.solution.coefficients);
+    let truth = Bivariate::reduce(&bench.material, basis.header.grid);
+    println!("ground truth projected on the basis:");
+    print_estimate(&est.names, &basis.project(&truth));
+    let (geometry, lights, photo) = &views[0];
+    let rerender = render_bivariate(geometry, lights, &est.brdf(&basis));
+    println!(
+        "{} pixels, condition number {:.2}; re-render relative RMSE (first view) {:.4}; {:.2} s",
+        est.selection.pixels.len(),
+        est.selection.condition,
+        rerender.relative_rmse(photo),
+        t.elapsed().as_secs_f64()
+    );
+    let pano_path = session.dir.join("derived/panorama.exr");
+    write_exr(&pano_path, env.width, env.height, &env.pixels)?;
+
+    // Results go to a fresh folder that replaces `result/` in one rename.
+    let fresh = session.dir.join("result.partial");
+    let _ = std::fs::remove_dir_all(&fresh);
+    brdfd::results::write_results(&fresh, &basis, &est, "fast", lights)?;
+    let result = session.dir.join("result");
+    let _ = std::fs::remove_dir_all(&result);
+    std::fs::rename(&fresh, &result).context("moving the results into place")?;
+    session.set_state(State::Done, None)?;
+    println!(
+        "session {} done: {}",
+        session.manifest.id,
+        session.dir.display()
+    );
+
+    if let Some(out) = out {
+        let files = brdfd::results::write_results(out, &basis, &est, "fast", lights)?;
+        photo.write_exr(&out.join("photo.exr"))?;
+        write_exr(
+            &out.join("panorama.exr"),
+            env.width,
+            env.height,
+            &env.pixels,
+        )?;
+        let raw = out.join("raw");
+        std::fs::create_dir_all(&raw)?;
+        for (name, bytes) in &raw_out {
+            std::fs::write(raw.join(name), bytes)?;
+        }
+        println!("wrote {}", files.coefficients.display());
+    }
+    Ok(())
+}
+
+/// The simulated bench for a plan: the material (preset, MERL name, alias or NBRDF file), the
+/// rig's object and camera at the plan's size, and the light.
+fn simulated_bench(
+    plan: &Plan,
+    preset: Option<&MaterialPreset>,
+    rig: &Rig,
+    basis: &Basis,
+) -> anyhow::Result<VirtualBench> {
+    if let Some(p) = preset {
         if p.k != basis.header.k {
             bail!(
                 "the {} preset is tuned for K = {}, the basis has K = {}",
-                a.material,
+                plan.material,
                 p.k,
                 basis.header.k
             );
         }
         println!(
             "material preset {}: simulated as {}, {} pixels{}",
-            a.material,
+            plan.material,
             p.simulate_as,
             match p.pixels {
                 PixelCount::All => "all".to_string(),
@@ -201,132 +393,179 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
             }
         );
     }
-    let simulate_as = preset
-        .as_ref()
-        .map_or(a.material.as_str(), |p| p.simulate_as.as_str());
-    let mut bench = VirtualBench::embedded(simulate_as, a.size).or_else(|e| {
+    let simulate_as = preset.map_or(plan.material.as_str(), |p| p.simulate_as.as_str());
+    let mut bench = VirtualBench::embedded(simulate_as, plan.size).or_else(|e| {
         // Not an embedded material: the NBRDF file may have it.
-        let Some(path) = &a.nbrdf else { return Err(e) };
+        let Some(path) = &plan.nbrdf else {
+            return Err(e);
+        };
         let set = NbrdfSet::read(path)?;
         let name = brdfd::bench::resolve_material(simulate_as);
-        let mut b = VirtualBench::embedded("gold", a.size)?;
+        let mut b = VirtualBench::embedded("gold", plan.size)?;
         b.material = MerlBrdf::tabulate(set.get(name)?);
         b.material_name = name.to_string();
         Ok::<_, brdfd::core::CoreError>(b)
     })?;
     // The object and its camera come from the rig file, at the size asked for.
     bench.geometry = rig.geometry.clone();
-    bench.geometry.camera = rig.geometry.camera.resized(a.size, a.size);
+    bench.geometry.camera = rig.geometry.camera.resized(plan.size, plan.size);
     bench.yaw = rig.theta_yaw_deg.to_radians();
-    if let Some(p) = &a.env {
+    if let Some(p) = &plan.env {
         bench.env = brdfd::panorama::load_envmap(p)?;
     }
-    let shutters = if !a.bracket.is_empty() {
-        a.bracket.clone()
-    } else if let Some(s) = preset.as_ref().and_then(|p| p.dslr_shutters.clone()) {
-        s
-    } else {
-        rig.brackets.dslr_shutters.clone()
+    Ok(bench)
+}
+
+/// The bench as the camera sees it with the turntable at `deg`: in the object's frame, the
+/// camera and the light turned by −θ (Camera::turned_about_y).
+fn turned(bench: &VirtualBench, deg: f64) -> VirtualBench {
+    let theta = deg.to_radians();
+    let mut view = bench.clone();
+    view.geometry.camera = bench.geometry.camera.turned_about_y(-theta);
+    view.yaw = bench.yaw - theta;
+    view
+}
+
+/// A step's files from the session (checksums verified), under the names the camera gave
+/// them, if the step is complete.
+fn stored(session: &Session, step: &str) -> anyhow::Result<Option<(RawFiles, serde_json::Value)>> {
+    let Some(s) = session.complete_step(step) else {
+        return Ok(None);
     };
-    let pixel_count = match (&a.pixels, &preset) {
-        (Some(p), _) => parse_pixels(p)?,
-        (None, Some(p)) => match p.pixels {
-            PixelCount::All => None,
-            PixelCount::Count(n) => Some(n),
-        },
-        (None, None) => Some(20),
-    };
-    println!(
-        "simulated rig (in-process): {} on a sphere; DSLR: simulated Nikon D5100 over PTP/IP on loopback, {}×{}",
-        bench.material_name, a.size, a.size
-    );
-    if a.views == 0 {
-        bail!("--views must be at least 1");
-    }
-    let (env, mut frames) = theta_bracket(&bench)?;
-    // One view per turntable position. The first is where the turntable stands; each next
-    // one is `--turn` degrees on, at the position the turntable reports.
-    let mut turntable = if a.views > 1 {
-        Some(sim_turntable()?)
-    } else {
-        None
-    };
-    let mut shots = Vec::with_capacity(a.views);
-    for i in 0..a.views {
-        let theta_deg = match &mut turntable {
-            Some((_, rig)) if i > 0 => rig.rotate(a.turn)?,
-            Some((_, rig)) => rig.position()?,
-            None => 0.0,
-        };
-        let theta = theta_deg.to_radians();
-        // In the object's frame the camera and the light turn by −θ (Camera::turned_about_y).
-        let mut view = bench.clone();
-        view.geometry.camera = bench.geometry.camera.turned_about_y(-theta);
-        view.yaw = bench.yaw - theta;
-        if a.views > 1 {
-            println!(
-                "view {} of {}: turntable at {theta_deg:.2}°",
-                i + 1,
-                a.views
-            );
-        }
-        let (photo, dslr_frames) = dslr_bracket(&view, &shutters, &rig.brackets)?;
-        let prefix = if a.views > 1 {
-            format!("view{}-", i + 1)
-        } else {
-            String::new()
-        };
-        frames.extend(
-            dslr_frames
-                .into_iter()
-                .map(|(n, b)| (format!("{prefix}{n}"), b)),
-        );
-        let lights = env.compressed(DEFAULT_LIGHTS, view.yaw);
-        shots.push((view.pixels()?, lights, photo));
-    }
-    let options = EstimateOptions {
-        pixel_count,
-        ridge: preset.as_ref().and_then(|p| p.ridge),
-        ..EstimateOptions::default()
-    };
-    let views: Vec<View> = shots
+    let prefix = format!("{step}-a{}-", s.attempt);
+    let files = s
+        .files
         .iter()
-        .map(|(geometry, lights, photo)| View {
-            geometry,
-            lights,
-            photo,
+        .map(|f| {
+            let name = f.name.strip_prefix(&prefix).unwrap_or(&f.name).to_string();
+            Ok((name, session.read_raw(f)?))
         })
-        .collect();
-    let est = estimate_views(&basis, &views, &options)?;
-    print_estimate(&est.names, &est.solution.coefficients);
-    let (geometry, lights, photo) = &shots[0];
-    let truth = Bivariate::reduce(&bench.material, basis.header.grid);
-    let projected = basis.project(&truth);
-    println!("ground truth projected on the basis:");
-    print_estimate(&est.names, &projected);
-    let rerender = render_bivariate(geometry, lights, &est.brdf(&basis));
-    println!(
-        "{} pixels, condition number {:.2}; re-render relative RMSE (first view) {:.4}; {:.2} s",
-        est.selection.pixels.len(),
-        est.selection.condition,
-        rerender.relative_rmse(photo),
-        t.elapsed().as_secs_f64()
-    );
-    if let Some(out) = &a.out {
-        let files = brdfd::results::write_results(out, &basis, &est, "fast", lights)?;
-        photo.write_exr(&out.join("photo.exr"))?;
-        brdfd::core::envmap::write_exr(
-            &out.join("panorama.exr"),
-            env.width,
-            env.height,
-            &env.pixels,
-        )?;
-        let raw = out.join("raw");
-        std::fs::create_dir_all(&raw)?;
-        for (name, bytes) in &frames {
-            std::fs::write(raw.join(name), bytes)?;
-        }
-        println!("wrote {}", files.coefficients.display());
-    }
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(Some((files, s.meta.clone())))
+}
+
+fn save_exr(session: &Session, name: &str, r: &Raster) -> anyhow::Result<()> {
+    // Written beside, then renamed: a derived file is whole or absent.
+    let tmp = session.dir.join("derived").join(format!(".{name}.tmp.exr"));
+    r.write_exr(&tmp)?;
+    std::fs::rename(&tmp, session.dir.join("derived").join(name))?;
     Ok(())
+}
+
+/// Shoots the bracket on the simulated D5100 through our PTP/IP client; each file goes into
+/// the session as soon as it is downloaded.
+fn dslr_bracket(
+    bench: &VirtualBench,
+    shutters: &[f64],
+    plan: &Brackets,
+    session: &mut Session,
+    step: &str,
+) -> anyhow::Result<RawFiles> {
+    let source = Arc::new(BenchCamera::new(
+        bench.clone(),
+        "NIKON CORPORATION",
+        "NIKON D5100",
+    ));
+    let server = Server::start(
+        "127.0.0.1:0",
+        Responder::new(Profile::NikonD5100, source).shared(),
+    )?;
+    let link = PtpIpTransport::connect(server.addr, Initiator::default(), Duration::from_secs(5))?;
+    let mut cam = Camera::open(Box::new(link), Timeouts::default())?;
+    let applied = cam.set_exposure(&Exposure {
+        shutter_s: None,
+        f_number: Some(plan.dslr_f_number),
+        iso: Some(plan.dslr_iso),
+    })?;
+    println!(
+        "DSLR: {} ({}), f/{} ISO {}",
+        cam.describe(),
+        cam.info.serial_number,
+        applied.f_number.unwrap_or(0.0),
+        applied.iso.unwrap_or(0)
+    );
+    if !session.manifest.devices.iter().any(|d| d.contains("D5100")) {
+        session.manifest.devices.push(format!(
+            "{} (serial {})",
+            cam.describe(),
+            cam.info.serial_number
+        ));
+    }
+    let mut files = Vec::new();
+    let opts = CaptureOptions::default();
+    for &s in shutters {
+        let speed = cam.set_shutter(s)?;
+        let shot = cam.capture(&opts, &mut |_, _, _| {})?;
+        session.add_raw(step, &shot.info.filename, &shot.data)?;
+        println!(
+            "  {}: {} bytes (camera applied {speed} s)",
+            shot.info.filename,
+            shot.data.len()
+        );
+        files.push((shot.info.filename, shot.data));
+    }
+    cam.close()?;
+    Ok(files)
+}
+
+/// Decodes a DSLR bracket and merges it into radiance, from each file's EXIF.
+fn merge_dslr(files: &RawFiles) -> anyhow::Result<Raster> {
+    let frames = files
+        .iter()
+        .map(|(name, bytes)| {
+            let f = decode_jpeg(bytes, name)?;
+            println!(
+                "  {name}: EXIF {:.4} s f/{} ISO {}",
+                f.exposure.shutter_s, f.exposure.f_number, f.exposure.iso
+            );
+            Ok(f)
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(merge_hdr(&frames, SENSOR_GAIN)?)
+}
+
+/// The simulated turntable on a pseudo-terminal, driven through the real serial code.
+fn sim_turntable() -> anyhow::Result<(brdfd_sim::serial::SerialPeer, brdfd_serial::RigController)> {
+    let (peer, port) = brdfd_sim::serial::SerialPeer::start(Default::default())?;
+    let rig = brdfd_serial::RigController::new(Box::new(port), Default::default())?;
+    println!(
+        "turntable: {} {} on serial:{}",
+        rig.identity.name, rig.identity.version, peer.path
+    );
+    Ok((peer, rig))
+}
+
+/// Shoots the light-probe bracket on the simulated THETA V over HTTP; the frames go into the
+/// session as the camera sent them.
+fn theta_bracket(bench: &VirtualBench, session: &mut Session) -> anyhow::Result<RawFiles> {
+    let source = Arc::new(BenchPanorama::new(&bench.env, 1024, "RICOH THETA V"));
+    let config = ThetaConfig {
+        shot_time: SIM_THETA_SHOT_TIME,
+        ..ThetaConfig::default()
+    };
+    let server = OscServer::start("127.0.0.1:0", source, config)?;
+    let mut theta = brdfd_theta::Theta::connect_http(&server.url(), None, loopback_timeouts())?;
+    println!("panorama: {}", theta.describe());
+    session.manifest.devices.push(theta.describe());
+    let frames = shoot_panorama(&mut theta, &brdfd_theta::BracketPlan::light_probe())?;
+    let mut files = Vec::with_capacity(frames.len());
+    for f in frames {
+        session.add_raw("panorama", &f.name, &f.data)?;
+        files.push((f.name, f.data));
+    }
+    Ok(files)
+}
+
+/// How far the measured map is from the bench's own (total light, per channel).
+fn report_panorama(map: &EnvMap, bench: &VirtualBench) {
+    let truth = BenchPanorama::new(&bench.env, 1024, "RICOH THETA V");
+    let (measured, truth) = (map.lights(0.0).power(), truth.scene().lights(0.0).power());
+    println!(
+        "  panorama merged to {}×{}; total light vs the bench's map: {:+.2}% {:+.2}% {:+.2}% (R G B)",
+        map.width,
+        map.height,
+        (measured[0] / truth[0] - 1.0) * 100.0,
+        (measured[1] / truth[1] - 1.0) * 100.0,
+        (measured[2] / truth[2] - 1.0) * 100.0,
+    );
 }

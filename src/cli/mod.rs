@@ -11,6 +11,7 @@ mod perf;
 mod perf_ptp;
 mod ptp_cmd;
 mod serial_cmd;
+mod session_cmd;
 mod sim;
 mod theta_cmd;
 mod v4l_cmd;
@@ -69,6 +70,8 @@ pub enum Command {
         #[command(subcommand)]
         command: v4l_cmd::V4lCommand,
     },
+    /// Stored sessions: list, show, resume, export.
+    Session(session_cmd::SessionArgs),
     /// Check configuration files (daemon, rigs, materials, geometry).
     Config {
         #[command(subcommand)]
@@ -155,6 +158,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::V4l { command } => v4l_cmd::run(command),
         Command::Devices(a) => devices_cmd::run(a),
         Command::Config { command } => config_cmd::run(command),
+        Command::Session(a) => session_cmd::run(a),
         Command::Sim { command } => sim::run(command),
     }
 }

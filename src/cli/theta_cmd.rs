@@ -77,13 +77,8 @@ pub fn open(p: &ThetaPort, timeouts: HttpTimeouts) -> anyhow::Result<Theta> {
     }
 }
 
-/// Prepares the camera, shoots the plan and merges it: the map (in radiance units given by
-/// `gain`) and the frames as the camera sent them.
-pub fn capture_panorama(
-    theta: &mut Theta,
-    plan: &BracketPlan,
-    gain: f64,
-) -> anyhow::Result<(EnvMap, Vec<Frame>)> {
+/// Prepares the camera and shoots the plan: the frames as the camera sent them.
+pub fn shoot_panorama(theta: &mut Theta, plan: &BracketPlan) -> anyhow::Result<Vec<Frame>> {
     for line in theta.prepare().context("preparing the THETA")? {
         tracing::info!("THETA: {line}");
     }
@@ -100,6 +95,22 @@ pub fn capture_panorama(
     for f in &frames {
         check_exposure(f);
     }
+    tracing::info!(
+        frames = frames.len(),
+        seconds = t.elapsed().as_secs_f64(),
+        "panorama captured"
+    );
+    Ok(frames)
+}
+
+/// Shoots the plan and merges it: the map (in radiance units given by `gain`) and the
+/// frames.
+pub fn capture_panorama(
+    theta: &mut Theta,
+    plan: &BracketPlan,
+    gain: f64,
+) -> anyhow::Result<(EnvMap, Vec<Frame>)> {
+    let frames = shoot_panorama(theta, plan)?;
     let files: Vec<(String, Vec<u8>)> = frames
         .iter()
         .map(|f| (f.name.clone(), f.data.clone()))
@@ -112,13 +123,7 @@ pub fn capture_panorama(
             merged.clipped_share * 100.0
         );
     }
-    let map = merged.map;
-    tracing::info!(
-        frames = frames.len(),
-        seconds = t.elapsed().as_secs_f64(),
-        "panorama captured"
-    );
-    Ok((map, frames))
+    Ok((merged.map, frames))
 }
 
 /// How far a frame's EXIF exposure may be from what was asked before it is reported:

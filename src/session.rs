@@ -1,0 +1,475 @@
+//! Sessions on disk: one folder per capture under the state directory,
+//! `sessions/<YYYYMMDD-HHMMSS>-<material>-<id>/`, holding
+//!
+//! - `manifest.json`: the state machine (created → capturing → captured → estimating → done,
+//!   or failed with a reason), its history, the rig and material files as used, the devices,
+//!   brdfd's version, and the capture steps with every raw file's sha256;
+//! - `raw/`: every file exactly as a device sent it, written the moment it arrives;
+//! - `derived/`: HDR maps and other intermediate results;
+//! - `result/`: what the estimate wrote (coefficients, BRDF files, preview).
+//!
+//! Every write is atomic: a temporary file in the same folder, fsync, rename, fsync of the
+//! folder. A killed process leaves either the old file or the new one, never half of one.
+//!
+//! Capture happens in steps (the panorama bracket, each DSLR view). A step counts once all
+//! its files are on disk. A step caught half-done keeps its files (an incomplete attempt, in
+//! the manifest) and `resume` shoots it again as a new attempt: nothing captured is lost, and
+//! nothing is captured twice under one name.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::SystemTime;
+
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use crate::config::validate_name;
+
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    #[error("{path}: {reason}")]
+    Io { path: String, reason: String },
+    #[error("no session {id:?} under {dir}; `brdfd session list` shows them")]
+    NotFound { id: String, dir: String },
+    #[error("{0}")]
+    Invalid(String),
+    #[error("{path}: checksum mismatch (sha256 {found}, manifest says {expected}): the file changed after capture")]
+    Checksum {
+        path: String,
+        expected: String,
+        found: String,
+    },
+}
+
+pub type Result<T> = std::result::Result<T, SessionError>;
+
+fn io(path: &Path, e: std::io::Error) -> SessionError {
+    let reason = if e.raw_os_error() == Some(28) {
+        format!("{e}: the disk is full; free space and run `brdfd session resume` (what was captured is kept)")
+    } else {
+        e.to_string()
+    };
+    SessionError::Io {
+        path: path.display().to_string(),
+        reason,
+    }
+}
+
+/// Writes `bytes` to `path` atomically: temporary file beside it, fsync, rename, fsync of the
+/// folder.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = dir.join(format!(".{name}.tmp"));
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)?;
+        std::fs::File::open(dir)?.sync_all()
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result.map_err(|e| io(path, e))
+}
+
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+fn now() -> String {
+    humantime::format_rfc3339_seconds(SystemTime::now()).to_string()
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum State {
+    Created,
+    Capturing,
+    Captured,
+    Estimating,
+    Done,
+    Failed,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Transition {
+    pub state: State,
+    pub at: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RawFile {
+    /// Name under `raw/`.
+    pub name: String,
+    pub sha256: String,
+    pub bytes: u64,
+}
+
+/// One capture step's attempt.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Step {
+    pub name: String,
+    pub attempt: u32,
+    pub complete: bool,
+    pub files: Vec<RawFile>,
+    /// What the step needs to be used later (exposures, turntable angle, device identity).
+    #[serde(default)]
+    pub meta: serde_json::Value,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Manifest {
+    pub id: String,
+    pub material: String,
+    pub created: String,
+    pub software: String,
+    pub state: State,
+    pub history: Vec<Transition>,
+    /// The rig file and material preset as used (TOML text).
+    pub rig: String,
+    #[serde(default)]
+    pub preset: Option<String>,
+    /// Options of the capture that a resume must repeat (pixels, views, ...).
+    #[serde(default)]
+    pub options: serde_json::Value,
+    pub devices: Vec<String>,
+    pub steps: Vec<Step>,
+}
+
+#[derive(Debug)]
+pub struct Session {
+    pub dir: PathBuf,
+    pub manifest: Manifest,
+}
+
+/// The state directory: `--state-dir`, else `BRDFD_STATE_DIR`, else the daemon config's,
+/// else `$XDG_DATA_HOME/brdfd`, else `~/.local/share/brdfd`.
+pub fn state_dir(flag: Option<&Path>, configured: Option<&Path>) -> Result<PathBuf> {
+    if let Some(p) = flag {
+        return Ok(p.to_path_buf());
+    }
+    if let Some(p) = std::env::var_os("BRDFD_STATE_DIR").filter(|v| !v.is_empty()) {
+        return Ok(PathBuf::from(p));
+    }
+    if let Some(p) = configured {
+        return Ok(p.to_path_buf());
+    }
+    if let Some(p) = std::env::var_os("XDG_DATA_HOME").filter(|v| !v.is_empty()) {
+        return Ok(PathBuf::from(p).join("brdfd"));
+    }
+    std::env::var_os("HOME")
+        .filter(|v| !v.is_empty())
+        .map(|h| PathBuf::from(h).join(".local/share/brdfd"))
+        .ok_or_else(|| {
+            SessionError::Invalid(
+                "no state directory: give --state-dir or set BRDFD_STATE_DIR".into(),
+            )
+        })
+}
+
+fn sessions_dir(state: &Path) -> PathBuf {
+    state.join("sessions")
+}
+
+impl Session {
+    /// A new session folder for `material`, in state `created`.
+    pub fn create(
+        state: &Path,
+        material: &str,
+        rig: &str,
+        preset: Option<&str>,
+        options: serde_json::Value,
+    ) -> Result<Session> {
+        validate_name("material", material).map_err(SessionError::Invalid)?;
+        let created = now();
+        // 20261122T233000 from 2026-11-22T23:30:00Z, and 24 random bits.
+        let stamp: String = created
+            .chars()
+            .filter(|c| c.is_ascii_digit())
+            .take(14)
+            .collect();
+        let id = format!(
+            "{}-{}-{material}-{:06x}",
+            &stamp[..8],
+            &stamp[8..],
+            rand::random::<u32>() & 0xFF_FFFF
+        );
+        let dir = sessions_dir(state).join(&id);
+        for sub in ["raw", "derived", "result"] {
+            std::fs::create_dir_all(dir.join(sub)).map_err(|e| io(&dir, e))?;
+        }
+        let s = Session {
+            dir,
+            manifest: Manifest {
+                id,
+                material: material.into(),
+                created: created.clone(),
+                software: format!("brdfd {}", env!("CARGO_PKG_VERSION")),
+                state: State::Created,
+                history: vec![Transition {
+                    state: State::Created,
+                    at: created,
+                    reason: None,
+                }],
+                rig: rig.into(),
+                preset: preset.map(String::from),
+                options,
+                devices: Vec::new(),
+                steps: Vec::new(),
+            },
+        };
+        s.save()?;
+        Ok(s)
+    }
+
+    /// Opens a session by id (validated: an id names a folder under `sessions/`, no more).
+    pub fn open(state: &Path, id: &str) -> Result<Session> {
+        validate_name("session id", id).map_err(SessionError::Invalid)?;
+        let dir = sessions_dir(state).join(id);
+        let path = dir.join("manifest.json");
+        let text = std::fs::read_to_string(&path).map_err(|e| {
+            if e.kind() == std::io::ErrorKind::NotFound {
+                SessionError::NotFound {
+                    id: id.into(),
+                    dir: sessions_dir(state).display().to_string(),
+                }
+            } else {
+                io(&path, e)
+            }
+        })?;
+        let manifest = serde_json::from_str(&text).map_err(|e| SessionError::Io {
+            path: path.display().to_string(),
+            reason: format!("not a brdfd manifest: {e}"),
+        })?;
+        Ok(Session { dir, manifest })
+    }
+
+    /// Every session's manifest, oldest first.
+    pub fn list(state: &Path) -> Result<Vec<Manifest>> {
+        let dir = sessions_dir(state);
+        let entries = match std::fs::read_dir(&dir) {
+            Ok(e) => e,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+            Err(e) => return Err(io(&dir, e)),
+        };
+        let mut out = Vec::new();
+        for e in entries.flatten() {
+            let id = e.file_name().to_string_lossy().into_owned();
+            if let Ok(s) = Session::open(state, &id) {
+                out.push(s.manifest);
+            }
+        }
+        out.sort_by(|a, b| a.id.cmp(&b.id));
+        Ok(out)
+    }
+
+    pub fn save(&self) -> Result<()> {
+        let json = serde_json::to_vec_pretty(&self.manifest)
+            .map_err(|e| SessionError::Invalid(format!("manifest: {e}")))?;
+        write_atomic(&self.dir.join("manifest.json"), &json)
+    }
+
+    pub fn set_state(&mut self, state: State, reason: Option<String>) -> Result<()> {
+        self.manifest.state = state;
+        self.manifest.history.push(Transition {
+            state,
+            at: now(),
+            reason,
+        });
+        self.save()
+    }
+
+    /// The complete attempt of a step, if there is one.
+    pub fn complete_step(&self, name: &str) -> Option<&Step> {
+        self.manifest
+            .steps
+            .iter()
+            .find(|s| s.name == name && s.complete)
+    }
+
+    /// Starts a new attempt of a step (earlier incomplete attempts keep their files).
+    pub fn begin_step(&mut self, name: &str, meta: serde_json::Value) -> Result<u32> {
+        let attempt = self
+            .manifest
+            .steps
+            .iter()
+            .filter(|s| s.name == name)
+            .count() as u32
+            + 1;
+        self.manifest.steps.push(Step {
+            name: name.into(),
+            attempt,
+            complete: false,
+            files: Vec::new(),
+            meta,
+        });
+        self.save()?;
+        Ok(attempt)
+    }
+
+    fn current_step(&mut self, name: &str) -> Result<&mut Step> {
+        self.manifest
+            .steps
+            .iter_mut()
+            .rev()
+            .find(|s| s.name == name)
+            .ok_or_else(|| SessionError::Invalid(format!("step {name} was not begun")))
+    }
+
+    /// Stores a device's file as it arrived, under `raw/<step>-a<attempt>-<name>`, and
+    /// records it in the manifest.
+    pub fn add_raw(&mut self, step: &str, device_name: &str, bytes: &[u8]) -> Result<PathBuf> {
+        let attempt = self.current_step(step)?.attempt;
+        let safe: String = device_name
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || c == '.' || c == '-' || c == '_' {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect();
+        let name = format!("{step}-a{attempt}-{safe}");
+        let path = self.dir.join("raw").join(&name);
+        if path.exists() {
+            return Err(SessionError::Invalid(format!(
+                "{}: already captured; a raw file is never overwritten",
+                path.display()
+            )));
+        }
+        write_atomic(&path, bytes)?;
+        let file = RawFile {
+            name,
+            sha256: sha256_hex(bytes),
+            bytes: bytes.len() as u64,
+        };
+        self.current_step(step)?.files.push(file);
+        self.save()?;
+        Ok(path)
+    }
+
+    pub fn finish_step(&mut self, step: &str) -> Result<()> {
+        self.current_step(step)?.complete = true;
+        self.save()
+    }
+
+    /// Raw files on disk that the manifest does not list: a process killed between storing a
+    /// file and saving the manifest leaves one. They are added to the attempt their name
+    /// says, so nothing captured is lost. Returns how many were adopted.
+    pub fn adopt_orphans(&mut self) -> Result<usize> {
+        let raw = self.dir.join("raw");
+        let listed: std::collections::HashSet<String> = self
+            .manifest
+            .steps
+            .iter()
+            .flat_map(|s| s.files.iter().map(|f| f.name.clone()))
+            .collect();
+        let mut adopted = 0;
+        for e in std::fs::read_dir(&raw).map_err(|e| io(&raw, e))?.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if name.starts_with('.') || listed.contains(&name) {
+                continue;
+            }
+            let Some(step) = self
+                .manifest
+                .steps
+                .iter_mut()
+                .find(|s| name.starts_with(&format!("{}-a{}-", s.name, s.attempt)))
+            else {
+                continue;
+            };
+            let bytes = std::fs::read(e.path()).map_err(|err| io(&e.path(), err))?;
+            tracing::warn!("adopting {name}: stored before the manifest was saved");
+            step.files.push(RawFile {
+                name,
+                sha256: sha256_hex(&bytes),
+                bytes: bytes.len() as u64,
+            });
+            adopted += 1;
+        }
+        if adopted > 0 {
+            self.save()?;
+        }
+        Ok(adopted)
+    }
+
+    /// A raw file's bytes, checked against the manifest's sha256.
+    pub fn read_raw(&self, file: &RawFile) -> Result<Vec<u8>> {
+        let path = self.dir.join("raw").join(&file.name);
+        let bytes = std::fs::read(&path).map_err(|e| io(&path, e))?;
+        let found = sha256_hex(&bytes);
+        if found != file.sha256 {
+            return Err(SessionError::Checksum {
+                path: path.display().to_string(),
+                expected: file.sha256.clone(),
+                found,
+            });
+        }
+        Ok(bytes)
+    }
+
+    /// Checks every raw file of every step; returns how many were checked.
+    pub fn verify(&self) -> Result<usize> {
+        let mut n = 0;
+        for s in &self.manifest.steps {
+            for f in &s.files {
+                self.read_raw(f)?;
+                n += 1;
+            }
+        }
+        Ok(n)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn steps_attempts_and_checksums() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut s = Session::create(
+            dir.path(),
+            "gold",
+            "simulated = true",
+            None,
+            serde_json::json!({}),
+        )
+        .unwrap();
+        assert!(s.manifest.id.contains("-gold-"));
+        s.begin_step("panorama", serde_json::json!({})).unwrap();
+        s.add_raw("panorama", "R0010001.JPG", b"first").unwrap();
+        // Killed here: the next attempt keeps the first one's file and names its own apart.
+        let mut s = Session::open(dir.path(), &s.manifest.id).unwrap();
+        assert!(s.complete_step("panorama").is_none());
+        assert_eq!(s.begin_step("panorama", serde_json::json!({})).unwrap(), 2);
+        s.add_raw("panorama", "R0010001.JPG", b"second").unwrap();
+        s.finish_step("panorama").unwrap();
+        let step = s.complete_step("panorama").unwrap();
+        assert_eq!(step.files[0].name, "panorama-a2-R0010001.JPG");
+        assert_eq!(s.read_raw(&step.files[0]).unwrap(), b"second");
+        assert_eq!(s.verify().unwrap(), 2);
+        std::fs::write(s.dir.join("raw/panorama-a1-R0010001.JPG"), b"tampered").unwrap();
+        assert!(s
+            .verify()
+            .unwrap_err()
+            .to_string()
+            .contains("checksum mismatch"));
+        assert!(Session::open(dir.path(), "../../etc").is_err());
+        assert!(Session::open(dir.path(), "20260101-000000-gold-000000")
+            .unwrap_err()
+            .to_string()
+            .contains("no session"));
+    }
+}

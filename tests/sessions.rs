@@ -1,0 +1,195 @@
+//! Sessions on disk as an operator meets them: a capture killed with SIGKILL part-way and
+//! resumed (issue 6's check, on the in-process path), listing and exporting.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+mod common;
+
+use common::{brdfd, out};
+
+/// The one session under `state`, and its manifest, once it exists.
+fn manifest(state: &Path) -> Option<(PathBuf, serde_json::Value)> {
+    let dir = std::fs::read_dir(state.join("sessions"))
+        .ok()?
+        .flatten()
+        .next()?
+        .path();
+    let text = std::fs::read_to_string(dir.join("manifest.json")).ok()?;
+    Some((dir, serde_json::from_str(&text).ok()?))
+}
+
+fn step_complete(m: &serde_json::Value, step: &str) -> bool {
+    m["steps"]
+        .as_array()
+        .is_some_and(|s| s.iter().any(|x| x["name"] == step && x["complete"] == true))
+}
+
+/// Every raw file the manifest lists, name → sha256.
+fn listed(m: &serde_json::Value) -> BTreeMap<String, String> {
+    m["steps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|s| s["files"].as_array().unwrap().iter())
+        .map(|f| {
+            (
+                f["name"].as_str().unwrap().to_string(),
+                f["sha256"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn a_capture_killed_mid_session_resumes_without_losing_or_repeating_anything() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let state_arg = state.to_str().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_brdfd"))
+        .args([
+            "capture",
+            "--simulate",
+            "--material",
+            "gold",
+            "--size",
+            "96",
+            "--views",
+            "4",
+            "--state-dir",
+            state_arg,
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    // Kill it (SIGKILL) as soon as the first view is complete: the panorama and one view
+    // are on disk, three views are not.
+    let start = Instant::now();
+    let before = loop {
+        if let Some((_, m)) = manifest(&state) {
+            if step_complete(&m, "view1") {
+                break Some(m);
+            }
+        }
+        if start.elapsed() > Duration::from_secs(120) {
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let before = before.expect("view 1 never completed");
+    let (session_dir, killed) = manifest(&state).unwrap();
+    assert_ne!(
+        killed["state"], "done",
+        "the capture finished before it could be killed"
+    );
+    assert!(!step_complete(&killed, "view4"));
+    let id = killed["id"].as_str().unwrap().to_string();
+
+    let list = brdfd(&["session", "list", "--state-dir", state_arg], dir.path());
+    assert!(out(&list).contains(&id), "{}", out(&list));
+
+    let resumed = brdfd(
+        &["session", "resume", &id, "--state-dir", state_arg],
+        dir.path(),
+    );
+    let text = out(&resumed);
+    assert!(resumed.status.success(), "{text}");
+    assert!(
+        text.contains("panorama: 8 frames already in the session"),
+        "{text}"
+    );
+    assert!(
+        text.contains("view1: 5 frames already in the session"),
+        "{text}"
+    );
+    assert!(text.contains("view 4 of 4: turntable at 90.00°"), "{text}");
+
+    let (_, done) = manifest(&state).unwrap();
+    assert_eq!(done["state"], "done");
+    // Nothing lost: every file listed at the kill is still listed, with the same checksum.
+    let (was, now) = (listed(&before), listed(&done));
+    for (name, sha) in &was {
+        assert_eq!(now.get(name), Some(sha), "{name} lost or changed");
+    }
+    // Nothing repeated: the panorama and view 1 were not shot again.
+    for step in ["panorama", "view1"] {
+        let attempts = done["steps"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|s| s["name"] == step)
+            .count();
+        assert_eq!(attempts, 1, "{step} shot again");
+    }
+    // Every file on disk is listed, and every listed file is on disk and verifies.
+    let on_disk: Vec<String> = std::fs::read_dir(session_dir.join("raw"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| !n.starts_with('.'))
+        .collect();
+    assert_eq!(on_disk.len(), now.len(), "{on_disk:?}");
+    let show = brdfd(
+        &["session", "show", &id, "--state-dir", state_arg],
+        dir.path(),
+    );
+    assert!(
+        out(&show).contains(&format!("{} raw files verified", now.len())),
+        "{}",
+        out(&show)
+    );
+    assert!(session_dir.join("result/coefficients.json").is_file());
+
+    let export = brdfd(
+        &[
+            "session",
+            "export",
+            &id,
+            "--to",
+            "exported",
+            "--state-dir",
+            state_arg,
+        ],
+        dir.path(),
+    );
+    assert!(export.status.success(), "{}", out(&export));
+    assert!(dir
+        .path()
+        .join("exported")
+        .join(&id)
+        .join("manifest.json")
+        .is_file());
+}
+
+#[test]
+fn bad_session_ids_and_material_names_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().to_str().unwrap();
+    let o = brdfd(
+        &["session", "show", "../../etc", "--state-dir", state],
+        dir.path(),
+    );
+    assert!(
+        out(&o).contains("session id name \"../../etc\""),
+        "{}",
+        out(&o)
+    );
+    let o = brdfd(
+        &[
+            "capture",
+            "--simulate",
+            "--material",
+            "Gold/../x",
+            "--state-dir",
+            state,
+        ],
+        dir.path(),
+    );
+    assert!(!o.status.success());
+    assert!(out(&o).contains("material name"), "{}", out(&o));
+    assert!(!dir.path().join("sessions").exists(), "nothing was created");
+}
