@@ -230,8 +230,20 @@ fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Resul
             merged.clipped_share * 100.0
         );
     }
-    let env = merged.map;
-    report_panorama(&env, &bench);
+    report_panorama(&merged.map, &bench);
+    // The THETA's radiance in the DSLR's units, from the rig's calibration.
+    let scale = rig.calibration.theta_to_dslr as f32;
+    let env = EnvMap::from_pixels(
+        merged.map.width,
+        merged.map.height,
+        merged
+            .map
+            .pixels
+            .iter()
+            .map(|p| p.map(|v| v * scale))
+            .collect(),
+        "THETA panorama, calibrated to the DSLR",
+    )?;
 
     // One DSLR bracket per turntable view.
     let mut turntable = None;
