@@ -144,6 +144,18 @@ pub struct Manifest {
     pub options: serde_json::Value,
     pub devices: Vec<String>,
     pub steps: Vec<Step>,
+    /// Wall time of each phase of the last run, split into brdfd's own work and the
+    /// devices' (for simulated devices: rendering and simulated exposure time).
+    #[serde(default)]
+    pub phases: Vec<PhaseTime>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PhaseTime {
+    pub name: String,
+    pub seconds: f64,
+    /// Of `seconds`, the time the devices spent (exposing, rendering) rather than brdfd.
+    pub device_seconds: f64,
 }
 
 #[derive(Debug)]
@@ -226,6 +238,7 @@ impl Session {
                 options,
                 devices: Vec::new(),
                 steps: Vec::new(),
+                phases: Vec::new(),
             },
         };
         s.save()?;

@@ -28,11 +28,12 @@ use brdfd::core::raster::Raster;
 use brdfd::core::render::render_bivariate;
 use brdfd::panorama::merge_bracket;
 use brdfd::radiometry::{decode_jpeg, merge_hdr};
-use brdfd::session::{Session, State};
+use brdfd::session::{PhaseTime, Session, State};
 use brdfd_ptp::transport::ptpip::{Initiator, PtpIpTransport};
 use brdfd_ptp::{Camera, CaptureOptions, Exposure, Timeouts};
 use brdfd_sim::ptp::{ptpip::Server, Profile, Responder};
 use brdfd_sim::theta::{OscServer, ThetaConfig};
+use brdfd_sim::Timed;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 
@@ -181,7 +182,7 @@ fn execute(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Re
 }
 
 fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Result<()> {
-    let t = std::time::Instant::now();
+    let started = std::time::Instant::now();
     let rig = Rig::simulated();
     let preset = MaterialPreset::embedded(&plan.material).map_err(anyhow::Error::msg)?;
     let basis = Basis::embedded();
@@ -205,6 +206,7 @@ fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Resul
         },
         (None, None) => Some(20),
     };
+    let mut phases = Phases::default();
     if matches!(session.manifest.state, State::Created | State::Failed) {
         session.set_state(State::Capturing, None)?;
     }
@@ -217,12 +219,16 @@ fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Resul
         }
         None => {
             session.begin_step("panorama", json!({}))?;
-            let files = theta_bracket(&bench, session)?;
+            let t = std::time::Instant::now();
+            let (files, device) = theta_bracket(&bench, session)?;
+            phases.add("panorama: shoot and download (THETA over HTTP)", t, device);
             session.finish_step("panorama")?;
             files
         }
     };
+    let t = std::time::Instant::now();
     let merged = merge_bracket(&pano_files, THETA_SENSOR_GAIN)?;
+    phases.add("panorama: HDR merge", t, 0.0);
     if merged.clipped_pixels > 0 {
         eprintln!(
             "  warning: {} pixels clip even in the shortest frame; they carry at least {:.1}% of the light",
@@ -284,7 +290,14 @@ fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Resul
                 };
                 session.begin_step(&step, json!({ "turntable_deg": deg }))?;
                 let view = turned(&bench, deg);
-                let files = dslr_bracket(&view, &shutters, &rig.brackets, session, &step)?;
+                let t = std::time::Instant::now();
+                let (files, device) =
+                    dslr_bracket(&view, &shutters, &rig.brackets, session, &step)?;
+                phases.add(
+                    &format!("{step}: shoot and download (DSLR over PTP/IP)"),
+                    t,
+                    device,
+                );
                 session.finish_step(&step)?;
                 (files, deg)
             }
@@ -294,7 +307,9 @@ fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Resul
         } else {
             String::new()
         };
+        let t = std::time::Instant::now();
         let photo = merge_dslr(&files)?;
+        phases.add(&format!("{step}: HDR merge"), t, 0.0);
         raw_out.extend(
             files
                 .iter()
@@ -323,7 +338,9 @@ fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Resul
             photo,
         })
         .collect();
+    let t_est = std::time::Instant::now();
     let est = estimate_views(&basis, &as_views, &options)?;
+    phases.add("estimate", t_est, 0.0);
     print_estimate(&est.names, &est.solution.coefficients);
     let truth = Bivariate::reduce(&bench.material, basis.header.grid);
     println!("ground truth projected on the basis:");
@@ -335,8 +352,9 @@ fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Resul
         est.selection.pixels.len(),
         est.selection.condition,
         rerender.relative_rmse(photo),
-        t.elapsed().as_secs_f64()
+        started.elapsed().as_secs_f64()
     );
+    let t_write = std::time::Instant::now();
     let pano_path = session.dir.join("derived/panorama.exr");
     write_exr(&pano_path, env.width, env.height, &env.pixels)?;
 
@@ -347,6 +365,9 @@ fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Resul
     let result = session.dir.join("result");
     let _ = std::fs::remove_dir_all(&result);
     std::fs::rename(&fresh, &result).context("moving the results into place")?;
+    phases.add("write results", t_write, 0.0);
+    phases.print();
+    session.manifest.phases = phases.0;
     session.set_state(State::Done, None)?;
     println!(
         "session {} done: {}",
@@ -371,6 +392,40 @@ fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Resul
         println!("wrote {}", files.coefficients.display());
     }
     Ok(())
+}
+
+/// Wall time per phase, with the devices' share.
+#[derive(Default)]
+struct Phases(Vec<PhaseTime>);
+
+impl Phases {
+    fn add(&mut self, name: &str, since: std::time::Instant, device_seconds: f64) {
+        self.0.push(PhaseTime {
+            name: name.into(),
+            seconds: since.elapsed().as_secs_f64(),
+            device_seconds,
+        });
+    }
+
+    fn print(&self) {
+        let (all, device): (f64, f64) = self.0.iter().fold((0.0, 0.0), |(a, d), p| {
+            (a + p.seconds, d + p.device_seconds)
+        });
+        println!("phases (wall time; of it, the simulated devices' own):");
+        for p in &self.0 {
+            println!(
+                "  {:<52} {:>7.3} s  ({:.3} s)",
+                p.name, p.seconds, p.device_seconds
+            );
+        }
+        println!(
+            "  {:<52} {:>7.3} s  ({:.3} s); brdfd's own: {:.3} s",
+            "all phases",
+            all,
+            device,
+            all - device
+        );
+    }
 }
 
 /// The simulated bench for a plan: the material (preset, MERL name, alias or NBRDF file), the
@@ -465,22 +520,26 @@ fn save_exr(session: &Session, name: &str, r: &Raster) -> anyhow::Result<()> {
 }
 
 /// Shoots the bracket on the simulated D5100 through our PTP/IP client; each file goes into
-/// the session as soon as it is downloaded.
+/// the session as soon as it is downloaded. Also returns the seconds the simulated camera
+/// spent rendering its scene and exposing.
 fn dslr_bracket(
     bench: &VirtualBench,
     shutters: &[f64],
     plan: &Brackets,
     session: &mut Session,
     step: &str,
-) -> anyhow::Result<RawFiles> {
-    let source = Arc::new(BenchCamera::new(
-        bench.clone(),
-        "NIKON CORPORATION",
-        "NIKON D5100",
-    ));
+) -> anyhow::Result<(RawFiles, f64)> {
+    let camera = BenchCamera::new(bench.clone(), "NIKON CORPORATION", "NIKON D5100");
+    // The scene is rendered once, as a real camera's scene simply exists: device time.
+    let render = std::time::Instant::now();
+    camera
+        .prepare()
+        .map_err(|e| anyhow::anyhow!("rendering the simulated scene: {e}"))?;
+    let render = render.elapsed().as_secs_f64();
+    let source = Arc::new(Timed::new(Arc::new(camera)));
     let server = Server::start(
         "127.0.0.1:0",
-        Responder::new(Profile::NikonD5100, source).shared(),
+        Responder::new(Profile::NikonD5100, source.clone()).shared(),
     )?;
     let link = PtpIpTransport::connect(server.addr, Initiator::default(), Duration::from_secs(5))?;
     let mut cam = Camera::open(Box::new(link), Timeouts::default())?;
@@ -517,7 +576,7 @@ fn dslr_bracket(
         files.push((shot.info.filename, shot.data));
     }
     cam.close()?;
-    Ok(files)
+    Ok((files, render + source.seconds()))
 }
 
 /// Decodes a DSLR bracket and merges it into radiance, from each file's EXIF.
@@ -549,23 +608,29 @@ fn sim_turntable() -> anyhow::Result<(brdfd_sim::serial::SerialPeer, brdfd_seria
 
 /// Shoots the light-probe bracket on the simulated THETA V over HTTP; the frames go into the
 /// session as the camera sent them.
-fn theta_bracket(bench: &VirtualBench, session: &mut Session) -> anyhow::Result<RawFiles> {
-    let source = Arc::new(BenchPanorama::new(&bench.env, 1024, "RICOH THETA V"));
+/// Also returns the seconds the simulated camera spent exposing and rendering.
+fn theta_bracket(bench: &VirtualBench, session: &mut Session) -> anyhow::Result<(RawFiles, f64)> {
+    let source = Arc::new(Timed::new(Arc::new(BenchPanorama::new(
+        &bench.env,
+        1024,
+        "RICOH THETA V",
+    ))));
     let config = ThetaConfig {
         shot_time: SIM_THETA_SHOT_TIME,
         ..ThetaConfig::default()
     };
-    let server = OscServer::start("127.0.0.1:0", source, config)?;
+    let server = OscServer::start("127.0.0.1:0", source.clone(), config)?;
     let mut theta = brdfd_theta::Theta::connect_http(&server.url(), None, loopback_timeouts())?;
     println!("panorama: {}", theta.describe());
     session.manifest.devices.push(theta.describe());
     let frames = shoot_panorama(&mut theta, &brdfd_theta::BracketPlan::light_probe())?;
+    let device = SIM_THETA_SHOT_TIME.as_secs_f64() * frames.len() as f64 + source.seconds();
     let mut files = Vec::with_capacity(frames.len());
     for f in frames {
         session.add_raw("panorama", &f.name, &f.data)?;
         files.push((f.name, f.data));
     }
-    Ok(files)
+    Ok((files, device))
 }
 
 /// How far the measured map is from the bench's own (total light, per channel).

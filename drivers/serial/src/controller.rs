@@ -207,22 +207,36 @@ impl RigController {
     /// Sends one command and returns what follows `OK` in its answer.
     fn command(&mut self, cmd: &str, timeout: Duration) -> Result<String> {
         tracing::debug!(port = %self.name, "> {cmd}");
-        let io = |e: std::io::Error, name: &str| match e.kind() {
-            ErrorKind::BrokenPipe | ErrorKind::NotConnected | ErrorKind::UnexpectedEof => {
-                SerialError::Unplugged {
-                    port: name.into(),
-                    command: cmd.into(),
-                }
-            }
-            _ => SerialError::Io {
-                port: name.into(),
-                reason: format!("`{cmd}`: {e}"),
-            },
+        let unplugged = || SerialError::Unplugged {
+            port: self.name.clone(),
+            command: cmd.into(),
         };
         self.port
             .write_all(format!("{cmd}\n").as_bytes())
-            .and_then(|_| self.port.flush())
-            .map_err(|e| io(e, &self.name))?;
+            .map_err(|e| {
+                // EIO, ENXIO, ENODEV: the adapter (or the far end of a pseudo-terminal) is gone.
+                if gone(&e) {
+                    unplugged()
+                } else {
+                    SerialError::Io {
+                        port: self.name.clone(),
+                        reason: format!("`{cmd}`: {e}"),
+                    }
+                }
+            })?;
+        // serialport reports a failed tcdrain without its errno; apart from being interrupted
+        // (which it retries, then calls a timeout), tcdrain fails only when the terminal has
+        // gone away.
+        self.port.flush().map_err(|e| {
+            if e.kind() == ErrorKind::TimedOut {
+                SerialError::Io {
+                    port: self.name.clone(),
+                    reason: format!("`{cmd}`: {e}"),
+                }
+            } else {
+                unplugged()
+            }
+        })?;
         let deadline = Instant::now() + timeout;
         loop {
             let line = self.read_line(cmd, deadline, timeout)?;
@@ -278,7 +292,7 @@ impl RigController {
                 Err(e) if e.kind() == ErrorKind::TimedOut || e.kind() == ErrorKind::Interrupted => {
                 }
                 // A USB adapter pulled out, or the other end of a pseudo-terminal closed.
-                Err(e) if e.raw_os_error() == Some(5) || e.kind() == ErrorKind::BrokenPipe => {
+                Err(e) if gone(&e) => {
                     return Err(SerialError::Unplugged {
                         port: self.name.clone(),
                         command: cmd.into(),
@@ -293,4 +307,14 @@ impl RigController {
             }
         }
     }
+}
+
+/// An I/O error that means the device is no longer there: EIO (5), ENXIO (6), ENODEV (19),
+/// or a broken connection.
+fn gone(e: &std::io::Error) -> bool {
+    matches!(e.raw_os_error(), Some(5 | 6 | 19))
+        || matches!(
+            e.kind(),
+            ErrorKind::BrokenPipe | ErrorKind::NotConnected | ErrorKind::UnexpectedEof
+        )
 }

@@ -59,3 +59,39 @@ impl ImageSource for SizedPayload {
         (6000, 4000)
     }
 }
+
+/// An image source that adds up the time spent making pictures: the simulated device's own
+/// work, which a benchmark of brdfd leaves out of brdfd's overhead.
+pub struct Timed {
+    inner: std::sync::Arc<dyn ImageSource>,
+    nanos: std::sync::atomic::AtomicU64,
+}
+
+impl Timed {
+    pub fn new(inner: std::sync::Arc<dyn ImageSource>) -> Timed {
+        Timed {
+            inner,
+            nanos: Default::default(),
+        }
+    }
+
+    /// Seconds spent in `photo` so far.
+    pub fn seconds(&self) -> f64 {
+        self.nanos.load(std::sync::atomic::Ordering::Relaxed) as f64 * 1e-9
+    }
+}
+
+impl ImageSource for Timed {
+    fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String> {
+        let t = std::time::Instant::now();
+        let r = self.inner.photo(shot);
+        self.nanos.fetch_add(
+            t.elapsed().as_nanos() as u64,
+            std::sync::atomic::Ordering::Relaxed,
+        );
+        r
+    }
+    fn dimensions(&self) -> (u32, u32) {
+        self.inner.dimensions()
+    }
+}
