@@ -185,8 +185,15 @@ fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Resul
     let started = std::time::Instant::now();
     let rig = Rig::simulated();
     let preset = MaterialPreset::embedded(&plan.material).map_err(anyhow::Error::msg)?;
+    let mut phases = Phases::default();
+    let t = std::time::Instant::now();
     let basis = Basis::embedded();
+    phases.add("load the basis", t, 0.0);
+    // Tabulating the simulated material is the simulator's work: a real bench has the object.
+    let t = std::time::Instant::now();
     let bench = simulated_bench(plan, preset.as_ref(), &rig, &basis)?;
+    let build = t.elapsed().as_secs_f64();
+    phases.add("simulated bench: tabulate the material", t, build);
     println!(
         "simulated rig (in-process): {} on a sphere; DSLR: simulated Nikon D5100 over PTP/IP on loopback, {}×{}",
         bench.material_name, plan.size, plan.size
@@ -206,7 +213,6 @@ fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Resul
         },
         (None, None) => Some(20),
     };
-    let mut phases = Phases::default();
     if matches!(session.manifest.state, State::Created | State::Failed) {
         session.set_state(State::Capturing, None)?;
     }
@@ -342,6 +348,7 @@ fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Resul
     let est = estimate_views(&basis, &as_views, &options)?;
     phases.add("estimate", t_est, 0.0);
     print_estimate(&est.names, &est.solution.coefficients);
+    let t_report = std::time::Instant::now();
     let truth = Bivariate::reduce(&bench.material, basis.header.grid);
     println!("ground truth projected on the basis:");
     print_estimate(&est.names, &basis.project(&truth));
@@ -354,6 +361,7 @@ fn flow(session: &mut Session, plan: &Plan, out: Option<&Path>) -> anyhow::Resul
         rerender.relative_rmse(photo),
         started.elapsed().as_secs_f64()
     );
+    phases.add("compare with the ground truth (re-render)", t_report, 0.0);
     let t_write = std::time::Instant::now();
     let pano_path = session.dir.join("derived/panorama.exr");
     write_exr(&pano_path, env.width, env.height, &env.pixels)?;
