@@ -60,12 +60,19 @@ fn ptp_cameras() {
                 );
                 let _ = cam.close();
             }
-            Err(e) => println!(
-                "  {sel}  {} camera (bus {} address {}): cannot open: {e:#}",
-                info.vendor.unwrap_or("unknown"),
-                info.bus,
-                info.address
-            ),
+            Err(e) => {
+                let model = brdfd_theta::usb::PRODUCTS
+                    .iter()
+                    .find(|(p, _)| theta && *p == info.product_id)
+                    .map_or_else(
+                        || format!("{} camera", info.vendor.unwrap_or("unknown")),
+                        |(_, name)| format!("RICOH {name}"),
+                    );
+                println!(
+                    "  {sel}  {model} (bus {} address {}): cannot open: {e:#}",
+                    info.bus, info.address
+                );
+            }
         }
     }
 }
