@@ -248,18 +248,28 @@ fn check_exposures(file: &str, field: &str, values: &[f64]) -> Result<(), Config
 impl DaemonConfig {
     pub fn parse(file: &str, text: &str) -> Result<DaemonConfig, ConfigError> {
         let c: DaemonConfig = parse(file, text)?;
-        let addr: std::net::SocketAddr = c
-            .api
-            .parse()
-            .map_err(|e| invalid(file, "api", format!("{:?} is not IP:PORT ({e})", c.api)))?;
-        if !addr.ip().is_loopback() && c.token.as_deref().is_none_or(str::is_empty) {
+        c.check_api(file)?;
+        Ok(c)
+    }
+
+    /// The API address, checked: IP:PORT, and loopback unless a token is set. `source` names
+    /// where the address came from, for the error.
+    pub fn check_api(&self, source: &str) -> Result<std::net::SocketAddr, ConfigError> {
+        let addr: std::net::SocketAddr = self.api.parse().map_err(|e| {
+            invalid(
+                source,
+                "api",
+                format!("{:?} is not IP:PORT ({e})", self.api),
+            )
+        })?;
+        if !addr.ip().is_loopback() && self.token.as_deref().is_none_or(str::is_empty) {
             return Err(invalid(
-                file,
+                source,
                 "api",
                 format!("{addr} is reachable from other machines: set `token` too"),
             ));
         }
-        Ok(c)
+        Ok(addr)
     }
 
     pub fn read(path: &Path) -> Result<DaemonConfig, ConfigError> {
@@ -405,6 +415,11 @@ const PRESETS: [(&str, &str); 4] = [
     ("paint", include_str!("../config/materials/paint.toml")),
     ("fabric", include_str!("../config/materials/fabric.toml")),
 ];
+
+/// The text of a shipped preset, as stored in a session's manifest.
+pub fn preset_text(name: &str) -> Option<&'static str> {
+    PRESETS.iter().find(|(n, _)| *n == name).map(|(_, t)| *t)
+}
 
 impl MaterialPreset {
     pub fn parse(file: &str, text: &str) -> Result<MaterialPreset, ConfigError> {

@@ -12,6 +12,8 @@
 //!   writes).
 //! - [`selector`]: the strings that name devices (`usb:04b0:0429`, `osc:http://...`, ...).
 //! - [`results`]: the files an estimate leaves behind.
+//! - [`rig`]: the devices on their worker threads, and the capture flow.
+//! - [`daemon`]: `brdfd serve`: the devices kept open, one capture at a time, the HTTP API.
 //! - `drivers/` (workspace crates, as they land): device protocols and their simulators.
 
 // Matrix and colour-channel loops index several arrays with one index (a[i][j], g[i][j],
@@ -21,8 +23,10 @@
 pub mod bench;
 pub mod config;
 pub mod core;
+pub mod daemon;
 pub mod panorama;
 pub mod radiometry;
 pub mod results;
+pub mod rig;
 pub mod selector;
 pub mod session;

@@ -116,3 +116,13 @@ pub fn write_results(
     preview.write_png(&files.preview_png, preview.auto_exposure())?;
     Ok(files)
 }
+
+/// "coefficients:" and one `  name = +value` line per column: how the CLI, the daemon's
+/// event stream and `brdfd estimate` show coefficients.
+pub fn coefficient_lines(title: &str, names: &[String], coefficients: &[f64]) -> String {
+    let mut s = format!("{title}:");
+    for (n, c) in names.iter().zip(coefficients) {
+        s.push_str(&format!("\n  {n:>5} = {c:+.6}"));
+    }
+    s
+}

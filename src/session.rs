@@ -158,6 +158,10 @@ pub struct PhaseTime {
     pub device_seconds: f64,
 }
 
+/// A running capture's hold on its session (see [`Session::claim`]).
+#[derive(Debug)]
+pub struct SessionLock(#[allow(dead_code)] std::fs::File);
+
 #[derive(Debug)]
 pub struct Session {
     pub dir: PathBuf,
@@ -265,6 +269,48 @@ impl Session {
             reason: format!("not a brdfd manifest: {e}"),
         })?;
         Ok(Session { dir, manifest })
+    }
+
+    /// Claims the session for one running capture: an exclusive lock on `.lock` in its
+    /// folder, held while the returned guard lives and released by the kernel if the process
+    /// dies. A second claim, from this process or another, fails.
+    pub fn claim(&self) -> Result<SessionLock> {
+        let path = self.dir.join(".lock");
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&path)
+            .map_err(|e| io(&path, e))?;
+        match file.try_lock() {
+            Ok(()) => Ok(SessionLock(file)),
+            Err(std::fs::TryLockError::WouldBlock) => Err(SessionError::Invalid(format!(
+                "session {} is being captured right now (by the daemon or another brdfd)",
+                self.manifest.id
+            ))),
+            Err(std::fs::TryLockError::Error(e)) => Err(io(&path, e)),
+        }
+    }
+
+    /// A session left in a running state (created, capturing, captured, estimating) that no
+    /// process is running: the process running it died. Marked failed, so that it reads as
+    /// what it is and `resume` continues it. Returns whether it was interrupted.
+    pub fn mark_if_interrupted(&mut self) -> Result<bool> {
+        if matches!(self.manifest.state, State::Done | State::Failed) {
+            return Ok(false);
+        }
+        let Ok(_lock) = self.claim() else {
+            return Ok(false);
+        };
+        let was = self.manifest.state;
+        self.set_state(
+            State::Failed,
+            Some(format!(
+                "interrupted while {was:?}: the process running it stopped; `brdfd session resume {}` continues it",
+                self.manifest.id
+            )),
+        )?;
+        Ok(true)
     }
 
     /// Every session's manifest, oldest first.

@@ -62,18 +62,7 @@ pub enum MethodArg {
     Paper,
 }
 
-pub fn parse_pixels(s: &str) -> anyhow::Result<Option<usize>> {
-    if s == "all" {
-        return Ok(None);
-    }
-    let n: usize = s
-        .parse()
-        .with_context(|| format!("--pixels takes a number or `all`, got {s:?}"))?;
-    if n == 0 {
-        bail!("--pixels must be at least 1");
-    }
-    Ok(Some(n))
-}
+pub use brdfd::rig::flow::parse_pixels;
 
 pub fn load_basis(path: &Option<PathBuf>) -> anyhow::Result<Basis> {
     Ok(match path {
@@ -129,10 +118,10 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
 }
 
 pub fn print_estimate(names: &[String], coefficients: &[f64]) {
-    println!("coefficients:");
-    for (n, c) in names.iter().zip(coefficients) {
-        println!("  {n:>5} = {c:+.6}");
-    }
+    println!(
+        "{}",
+        brdfd::results::coefficient_lines("coefficients", names, coefficients)
+    );
 }
 
 #[derive(clap::Args)]

@@ -3,14 +3,17 @@
 
 mod basis_cmd;
 mod capture;
+mod client;
 mod config_cmd;
 mod devices_cmd;
 mod estimate_cmd;
 mod geometry_args;
 mod perf;
 mod perf_ptp;
+mod progress;
 mod ptp_cmd;
 mod serial_cmd;
+mod serve;
 mod session_cmd;
 mod sim;
 mod theta_cmd;
@@ -46,8 +49,10 @@ pub enum Command {
     Render(estimate_cmd::RenderArgs),
     /// Run the evaluation protocol (DESIGN.md section 4) and write tables and figures.
     Eval(EvalArgs),
-    /// Capture a material at the bench and estimate its BRDF.
+    /// Capture a material at the bench and estimate its BRDF (in the daemon if one runs).
     Capture(capture::CaptureArgs),
+    /// Run the daemon: own the rig's devices and serve the HTTP API on loopback.
+    Serve(serve::ServeArgs),
     /// Measure the speed of the estimation core and the PTP link (medians of repeated runs).
     Bench(perf::BenchArgs),
     /// Talk to one PTP camera directly (USB or PTP/IP): info, capture, brackets.
@@ -151,6 +156,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         Command::Capture(a) => capture::run(a),
+        Command::Serve(a) => serve::run(a),
         Command::Bench(a) => perf::run(a),
         Command::Ptp { command } => ptp_cmd::run(command),
         Command::Theta { command } => theta_cmd::run(command),

@@ -243,7 +243,14 @@ fn capture_bench(runs: usize, size: usize) -> anyhow::Result<()> {
         let state = tempfile::tempdir()?;
         let t = Instant::now();
         let status = std::process::Command::new(&exe)
-            .args(["capture", "--simulate", "--material", "gold", "--size"])
+            .args([
+                "capture",
+                "--simulate",
+                "--in-process",
+                "--material",
+                "gold",
+            ])
+            .arg("--size")
             .arg(size.to_string())
             .arg("--state-dir")
             .arg(state.path())

@@ -2,14 +2,9 @@
 //! the bench before a session, and for scripted shots.
 
 use std::path::PathBuf;
-use std::time::Duration;
 
-use anyhow::bail;
 use brdfd::selector::Selector;
-use brdfd_ptp::transport::ptpip::{Initiator, PtpIpTransport, DEFAULT_PORT};
-use brdfd_ptp::transport::usb::{open_usb, UsbTransport};
-use brdfd_ptp::transport::Transport;
-use brdfd_ptp::{Camera, CaptureOptions, Exposure, Target, Timeouts};
+use brdfd_ptp::{Camera, CaptureOptions, Exposure, Target};
 
 #[derive(clap::Subcommand)]
 pub enum PtpCommand {
@@ -47,25 +42,7 @@ pub struct CaptureArgs {
 
 /// Opens the camera a port selector names (`usb`, `usb:VVVV[:PPPP]`, `ptpip:HOST[:PORT]`).
 pub fn open(port: &str) -> anyhow::Result<Camera> {
-    let link: Box<dyn Transport> = match port.parse::<Selector>()? {
-        Selector::PtpIp(host) => {
-            let addr = if host.contains(':') {
-                host
-            } else {
-                format!("{host}:{DEFAULT_PORT}")
-            };
-            Box::new(PtpIpTransport::connect(
-                addr.as_str(),
-                Initiator::default(),
-                Duration::from_secs(5),
-            )?)
-        }
-        Selector::Usb { vendor, product } => Box::new(UsbTransport::new(open_usb(vendor, product)?)),
-        other => bail!(
-            "unknown camera port {port:?}: {other} is not a PTP camera; use usb, usb:VVVV[:PPPP] or ptpip:HOST[:PORT]"
-        ),
-    };
-    Ok(Camera::open(link, Timeouts::default())?)
+    brdfd::rig::open::ptp_camera(&port.parse::<Selector>()?)
 }
 
 pub fn run(cmd: PtpCommand) -> anyhow::Result<()> {

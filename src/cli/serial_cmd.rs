@@ -3,7 +3,7 @@
 
 use anyhow::bail;
 use brdfd::selector::Selector;
-use brdfd_serial::{ControlLine, RigController, RigTimeouts, ShutterCable};
+use brdfd_serial::{ControlLine, RigController, ShutterCable};
 
 #[derive(clap::Subcommand)]
 pub enum SerialCommand {
@@ -36,7 +36,7 @@ pub struct SerialPort {
 
 fn rig(port: &str) -> anyhow::Result<RigController> {
     match port.parse::<Selector>()? {
-        Selector::Serial(path) => Ok(RigController::open(&path, RigTimeouts::default())?),
+        Selector::Serial(path) => brdfd::rig::open::turntable(&path),
         other => bail!("{other} is not a rig-protocol device; use serial:/dev/ttyX"),
     }
 }

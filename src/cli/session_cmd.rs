@@ -21,8 +21,13 @@ pub enum SessionCommand {
     List,
     /// One session's manifest, with every raw file's checksum verified.
     Show { id: String },
-    /// Continue an interrupted or failed session from its last complete step.
-    Resume { id: String },
+    /// Continue an interrupted or failed session from its last complete step (in the daemon
+    /// if one is running).
+    Resume {
+        id: String,
+        #[command(flatten)]
+        daemon: super::capture::DaemonArgs,
+    },
     /// Copy a session (manifest, raw, derived, result) to a folder, after verifying it.
     Export {
         id: String,
@@ -49,16 +54,7 @@ pub fn run(a: SessionArgs) -> anyhow::Result<()> {
             let n = s.verify()?;
             println!("{n} raw files verified (sha256)");
         }
-        SessionCommand::Resume { id } => {
-            let mut s = Session::open(&state, &id)?;
-            let adopted = s.adopt_orphans()?;
-            if adopted > 0 {
-                println!("{adopted} raw files were stored but not yet listed; listed now");
-            }
-            s.verify()
-                .context("checking what the session already holds")?;
-            super::capture::resume(&mut s)?;
-        }
+        SessionCommand::Resume { id, daemon } => super::capture::resume(&state, &id, &daemon)?,
         SessionCommand::Export { id, to } => {
             let s = Session::open(&state, &id)?;
             let n = s.verify()?;

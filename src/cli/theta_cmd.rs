@@ -3,11 +3,11 @@
 //! panorama step that `brdfd capture` runs.
 
 use std::path::PathBuf;
-use std::time::Duration;
 
 use anyhow::{bail, Context};
 use brdfd::core::envmap::EnvMap;
 use brdfd::panorama::merge_bracket;
+use brdfd::rig::Event;
 use brdfd::selector::Selector;
 use brdfd_theta::{BracketPlan, Credentials, Exposure, Frame, HttpTimeouts, Theta};
 
@@ -52,54 +52,29 @@ pub struct ThetaCaptureArgs {
 
 /// Opens the THETA a port selector names.
 pub fn open(p: &ThetaPort, timeouts: HttpTimeouts) -> anyhow::Result<Theta> {
-    match p.port.parse::<Selector>()? {
-        Selector::Osc(url) => {
-            let credentials = match (&p.user, &p.password) {
-                (Some(user), Some(password)) => Some(Credentials {
-                    user: user.clone(),
-                    password: password.clone(),
-                }),
-                (None, None) => None,
-                _ => bail!("give both --user and --password, or neither"),
-            };
-            Ok(Theta::connect_http(&url, credentials, timeouts)?)
-        }
-        // On USB, plain `usb` means the first RICOH camera rather than the first PTP camera
-        // (the DSLR may be plugged in too).
-        Selector::Usb { vendor: None, .. } => {
-            let port = format!("usb:{:04x}", brdfd_theta::usb::RICOH_VENDOR);
-            Ok(Theta::from_ptp(super::ptp_cmd::open(&port)?)?)
-        }
-        Selector::Usb { .. } | Selector::PtpIp(_) => {
-            Ok(Theta::from_ptp(super::ptp_cmd::open(&p.port)?)?)
-        }
-        other => bail!("{other} is not a THETA; use osc:http://HOST, usb or usb:05ca:PPPP"),
-    }
+    let credentials = match (&p.user, &p.password) {
+        (Some(user), Some(password)) => Some(Credentials {
+            user: user.clone(),
+            password: password.clone(),
+        }),
+        (None, None) => None,
+        _ => bail!("give both --user and --password, or neither"),
+    };
+    brdfd::rig::open::theta(&p.port.parse::<Selector>()?, credentials, timeouts)
 }
 
-/// Prepares the camera and shoots the plan: the frames as the camera sent them.
+/// Prepares the camera and shoots the plan: the frames as the camera sent them, each
+/// checked against its EXIF. Progress lines go to stderr.
 pub fn shoot_panorama(theta: &mut Theta, plan: &BracketPlan) -> anyhow::Result<Vec<Frame>> {
-    for line in theta.prepare().context("preparing the THETA")? {
-        tracing::info!("THETA: {line}");
-    }
-    let t = std::time::Instant::now();
-    let mut last_phase = String::new();
-    let frames = theta
-        .capture(plan, &mut |phase, _| {
-            if phase != last_phase {
-                eprintln!("  panorama: {phase}");
-                last_phase = phase.to_string();
-            }
-        })
-        .context("shooting the panorama bracket")?;
+    let lines = |e: Event| match e {
+        Event::Message { text } => eprintln!("{text}"),
+        Event::Warning { text } => eprintln!("  warning: {text}"),
+        _ => {}
+    };
+    let frames = brdfd::rig::flow::shoot_panorama(theta, plan, &lines)?;
     for f in &frames {
-        check_exposure(f);
+        brdfd::rig::flow::check_exposure(&lines, f);
     }
-    tracing::info!(
-        frames = frames.len(),
-        seconds = t.elapsed().as_secs_f64(),
-        "panorama captured"
-    );
     Ok(frames)
 }
 
@@ -124,31 +99,6 @@ pub fn capture_panorama(
         );
     }
     Ok((merged.map, frames))
-}
-
-/// How far a frame's EXIF exposure may be from what was asked before it is reported:
-/// cameras round speeds (1/3200 s is stored as 0.0003125 or 1/3200), but a different stop
-/// means the camera did not take the setting.
-const EXPOSURE_MISMATCH: f64 = 0.05;
-
-/// The merge uses each frame's EXIF; a frame whose EXIF disagrees with the request means the
-/// camera overrode the setting (auto exposure left on, a model limit), which the operator
-/// should know.
-fn check_exposure(f: &Frame) {
-    match brdfd::radiometry::exif_exposure(&f.data, &f.name) {
-        Ok(e) => {
-            let shutter_off = (e.shutter_s / f.asked.shutter_s - 1.0).abs();
-            let iso_off = (e.iso / f.asked.iso as f64 - 1.0).abs();
-            if shutter_off > EXPOSURE_MISMATCH || iso_off > EXPOSURE_MISMATCH {
-                eprintln!(
-                    "  warning: {}: EXIF says {} s ISO {}, but {} s ISO {} was asked; the merge uses the EXIF values",
-                    f.name, e.shutter_s, e.iso, f.asked.shutter_s, f.asked.iso
-                );
-            }
-        }
-        // The merge reports a missing EXIF exposure as an error, naming the file.
-        Err(e) => tracing::debug!("{e}"),
-    }
 }
 
 pub fn plan_from(shutter: &[f64], iso: u32) -> BracketPlan {
@@ -201,12 +151,4 @@ pub fn run(cmd: ThetaCommand) -> anyhow::Result<()> {
         }
     }
     Ok(())
-}
-
-/// Timeouts for a simulated THETA on loopback: the real defaults, with faster polling.
-pub fn loopback_timeouts() -> HttpTimeouts {
-    HttpTimeouts {
-        poll: Duration::from_millis(20),
-        ..HttpTimeouts::default()
-    }
 }

@@ -95,3 +95,43 @@ impl ImageSource for Timed {
         self.inner.dimensions()
     }
 }
+
+/// What stands in front of a simulated camera. The camera keeps running while the scene is
+/// changed from outside, as an operator puts a new sample on the bench or a turntable turns.
+pub struct Stage {
+    scene: std::sync::RwLock<Option<std::sync::Arc<dyn ImageSource>>>,
+    /// Reported while nothing is on the stage.
+    empty_dimensions: (u32, u32),
+}
+
+impl Stage {
+    pub fn new(empty_dimensions: (u32, u32)) -> Stage {
+        Stage {
+            scene: std::sync::RwLock::new(None),
+            empty_dimensions,
+        }
+    }
+
+    pub fn show(&self, scene: std::sync::Arc<dyn ImageSource>) {
+        *self.scene.write().expect("stage lock") = Some(scene);
+    }
+
+    fn current(&self) -> Option<std::sync::Arc<dyn ImageSource>> {
+        self.scene.read().expect("stage lock").clone()
+    }
+}
+
+impl ImageSource for Stage {
+    fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String> {
+        match self.current() {
+            Some(s) => s.photo(shot),
+            None => Err(
+                "the simulated bench is empty: no scene was placed in front of the camera".into(),
+            ),
+        }
+    }
+    fn dimensions(&self) -> (u32, u32) {
+        self.current()
+            .map_or(self.empty_dimensions, |s| s.dimensions())
+    }
+}

@@ -267,6 +267,16 @@ impl Theta {
         }
     }
 
+    /// A cheap request that tells whether the camera still answers, and keeps it from
+    /// sleeping: `/osc/state` over HTTP; over USB, a read of the sleep property, waking the
+    /// camera if it dozed off.
+    pub fn keep_alive(&mut self) -> Result<()> {
+        match &mut self.link {
+            Link::Http { runtime, client } => runtime.block_on(client.state()).map(|_| ()),
+            Link::Usb(cam) => usb::wake(cam).map(|_| ()),
+        }
+    }
+
     /// Ends the session (USB: CloseSession; HTTP has none in API v2.1).
     pub fn close(self) -> Result<()> {
         match self.link {

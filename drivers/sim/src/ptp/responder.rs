@@ -69,6 +69,11 @@ struct Object {
     data: Vec<u8>,
 }
 
+/// How long the simulated Nikon processes a frame after the exposure, before it reports
+/// the object. A real D5100 takes about half a second for a JPEG; the simulation keeps the
+/// client's polling real but short.
+const NIKON_PROCESSING: std::time::Duration = std::time::Duration::from_millis(60);
+
 pub struct Responder {
     profile: Profile,
     source: Arc<dyn ImageSource>,
@@ -77,10 +82,12 @@ pub struct Responder {
     objects: BTreeMap<u32, Object>,
     next_handle: u32,
     shots: u32,
-    /// Nikon: events waiting for GetEvent, and DeviceReady polls still to answer busy.
+    /// Nikon: events waiting for GetEvent, held back (and DeviceReady answered busy) until
+    /// the exposure and its processing are over.
     nikon_events: Vec<(u16, u32)>,
-    nikon_event_delay: u32,
-    device_ready_busy: u32,
+    busy_until: Option<std::time::Instant>,
+    /// Time the camera has spent busy with exposures so far: the device's own time.
+    busy_total: std::time::Duration,
     pub faults: Faults,
     /// Operations seen, for tests that check what a client did.
     pub log: Vec<u16>,
@@ -102,8 +109,8 @@ impl Responder {
             next_handle: 1,
             shots: 0,
             nikon_events: Vec::new(),
-            nikon_event_delay: 0,
-            device_ready_busy: 0,
+            busy_until: None,
+            busy_total: std::time::Duration::ZERO,
             faults: Faults::default(),
             log: Vec::new(),
         }
@@ -121,7 +128,17 @@ impl Responder {
     pub fn reset(&mut self) {
         self.session = None;
         self.faults.wedged = false;
-        self.device_ready_busy = 0;
+        self.busy_until = None;
+    }
+
+    /// Seconds the camera has spent exposing and processing shots (Nikon profile).
+    pub fn busy_seconds(&self) -> f64 {
+        self.busy_total.as_secs_f64()
+    }
+
+    fn busy(&self) -> bool {
+        self.busy_until
+            .is_some_and(|t| std::time::Instant::now() < t)
     }
 
     /// Host-to-device data phases the device expects for an operation.
@@ -273,9 +290,12 @@ impl Responder {
                     Ok(h) => h,
                     Err(c) => return c,
                 };
-                // The exposure takes a few polls, as on the real camera.
-                self.nikon_event_delay = 2;
-                self.device_ready_busy = 2;
+                // The exposure takes its time, and then the camera processes the frame.
+                let busy =
+                    std::time::Duration::from_secs_f64(self.shot_settings().shutter_s.max(0.0))
+                        + NIKON_PROCESSING;
+                self.busy_until = Some(std::time::Instant::now() + busy);
+                self.busy_total += busy;
                 if sdram {
                     self.nikon_events
                         .push((event::NIKON_OBJECT_ADDED_IN_SDRAM, h));
@@ -287,8 +307,7 @@ impl Responder {
                 }
             }
             op::NIKON_GET_EVENT if self.is_nikon() => {
-                let events = if self.nikon_event_delay > 0 {
-                    self.nikon_event_delay -= 1;
+                let events = if self.busy() {
                     Vec::new()
                 } else {
                     std::mem::take(&mut self.nikon_events)
@@ -296,8 +315,7 @@ impl Responder {
                 reply.data = Some(encode_nikon_events(&events));
             }
             op::NIKON_DEVICE_READY if self.is_nikon() => {
-                if self.device_ready_busy > 0 {
-                    self.device_ready_busy -= 1;
+                if self.busy() {
                     return rc::DEVICE_BUSY;
                 }
             }

@@ -265,6 +265,11 @@ impl OscServer {
         self.shared.lock().options.get(name).cloned()
     }
 
+    /// Frames shot since the camera started.
+    pub fn shots(&self) -> u32 {
+        self.shared.lock().shots
+    }
+
     /// Files on the camera.
     pub fn file_count(&self) -> usize {
         self.shared.lock().files.len()

@@ -1,0 +1,126 @@
+//! `brdfd serve`: the daemon. Starts the rig's device workers, serves the API, and on
+//! SIGINT or SIGTERM cancels a running capture (which keeps what it captured and stays
+//! resumable), waits for it, and exits.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{bail, Context};
+use brdfd::config::Rig;
+use brdfd::daemon::{api, Daemon};
+
+#[derive(clap::Args)]
+pub struct ServeArgs {
+    /// The daemon config (API address, token, state directory); the embedded defaults if
+    /// absent.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// The rig file of the bench's devices.
+    #[arg(long, required_unless_present = "simulate")]
+    pub rig: Option<PathBuf>,
+    /// Run the simulated rig (simulators on loopback) instead of hardware.
+    #[arg(long, conflicts_with = "rig")]
+    pub simulate: bool,
+    /// Listen here instead of the config's `api` (port 0 picks a free port; the address is
+    /// printed).
+    #[arg(long)]
+    pub api: Option<String>,
+    /// Where sessions are stored; else BRDFD_STATE_DIR, else the config's, else the XDG data
+    /// directory.
+    #[arg(long)]
+    pub state_dir: Option<PathBuf>,
+    /// Seconds between keep-alive requests to idle devices.
+    #[arg(long, default_value_t = brdfd::rig::KEEP_ALIVE.as_secs_f64())]
+    pub keep_alive: f64,
+}
+
+pub fn run(a: ServeArgs) -> anyhow::Result<()> {
+    let mut config = match &a.config {
+        Some(p) => brdfd::config::DaemonConfig::read(p)?,
+        None => brdfd::config::DaemonConfig::embedded(),
+    };
+    let source = match &a.api {
+        Some(api) => {
+            config.api = api.clone();
+            "--api".to_string()
+        }
+        None => a
+            .config
+            .as_ref()
+            .map_or("config/brdfd.toml".into(), |p| p.display().to_string()),
+    };
+    let addr = config.check_api(&source)?;
+    if !(a.keep_alive.is_finite() && a.keep_alive > 0.0) {
+        bail!("--keep-alive must be a positive number of seconds");
+    }
+    let (rig, rig_text) = match &a.rig {
+        Some(p) => (Rig::read(p)?, std::fs::read_to_string(p)?),
+        None => (
+            Rig::simulated(),
+            include_str!("../../config/rigs/simulated.toml").to_string(),
+        ),
+    };
+    let state = brdfd::session::state_dir(a.state_dir.as_deref(), config.state_dir.as_deref())?;
+    // Absolute, so that the paths the API gives out mean the same to every client.
+    let state = std::path::absolute(&state).unwrap_or(state);
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    runtime.block_on(async move {
+        // Bound before the devices start, so that a taken port fails fast and clearly.
+        let listener = tokio::net::TcpListener::bind(addr)
+            .await
+            .with_context(|| format!("listening on {addr}"))?;
+        let bound = listener.local_addr()?;
+        let simulated = rig.simulated;
+        let daemon = Arc::new(tokio::task::block_in_place(|| {
+            Daemon::start(
+                rig,
+                rig_text,
+                state.clone(),
+                config.token.clone(),
+                Duration::from_secs_f64(a.keep_alive),
+            )
+        })?);
+        // Scripts and tests wait for this line.
+        println!(
+            "brdfd daemon listening on http://{bound} ({} rig; sessions in {})",
+            if simulated { "simulated" } else { "hardware" },
+            state.display()
+        );
+        use std::io::Write;
+        std::io::stdout().flush()?;
+        let app = api::router(daemon.clone());
+        let d = daemon.clone();
+        axum::serve(listener, app)
+            .with_graceful_shutdown(async move {
+                shutdown_signal().await;
+                tracing::info!("shutting down");
+                println!("shutting down");
+                // The capture's end is written before the server stops answering, so event
+                // streams see `finished` and close.
+                let _ = tokio::task::spawn_blocking(move || d.shut_down()).await;
+            })
+            .await
+            .context("serving the API")?;
+        println!("stopped");
+        Ok(())
+    })
+}
+
+async fn shutdown_signal() {
+    let terminate = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        _ = terminate => {}
+    }
+}

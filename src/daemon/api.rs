@@ -1,0 +1,282 @@
+//! The daemon's HTTP API, version 1. Every body is JSON; errors are
+//! `{"error": "<code>", "message": "<what was wrong>"}` with a matching HTTP status.
+//!
+//! | method and path | answer |
+//! |---|---|
+//! | `GET /api/v1/health` | `{"software", "rig": {"simulated", "file"}, "busy": id or null}` |
+//! | `GET /api/v1/devices` | `[{"role", "selector", "state": "closed"/"open"/"lost", "identity", "last_error", "opened"}]` |
+//! | `GET /api/v1/sessions` | `[{"id", "state", "material", "created"}]`, oldest first |
+//! | `POST /api/v1/sessions` | body: a plan (`{"material": "gold", "pixels": "20", "views": 1, ...}`); 202 `{"id", "dir", "events"}`; 409 `busy`; 400 `bad_request` |
+//! | `GET /api/v1/sessions/{id}` | `{"id", "dir", "manifest"}`: where it is stored, and its manifest |
+//! | `GET /api/v1/sessions/{id}/events` | Server-Sent Events, one JSON [`Event`] each, from the session's first; ends after `finished` |
+//! | `GET /api/v1/sessions/{id}/result` | `coefficients.json`; 409 `not_done` until the session is done |
+//! | `GET /api/v1/sessions/{id}/result/{file}` | `preview.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf.binary` |
+//! | `POST /api/v1/sessions/{id}/cancel` | 202; 409 `not_running` |
+//! | `POST /api/v1/sessions/{id}/resume` | 202 as for a new capture; 409 `busy` |
+//!
+//! With a token configured, every request needs `Authorization: Bearer <token>` (401
+//! `unauthorized` otherwise).
+
+use std::convert::Infallible;
+use std::sync::Arc;
+
+use axum::extract::{Path, Request, State};
+use axum::http::{header, StatusCode};
+use axum::middleware::Next;
+use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use futures_util::stream::{self, Stream};
+use serde_json::{json, Value};
+
+use super::{Daemon, StartError};
+use crate::rig::{Event, Plan};
+use crate::session::{Session, State as SessionState};
+
+type Shared = Arc<Daemon>;
+
+/// An error answer.
+struct ApiError(StatusCode, &'static str, String);
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        (self.0, Json(json!({ "error": self.1, "message": self.2 }))).into_response()
+    }
+}
+
+type ApiResult<T> = Result<T, ApiError>;
+
+fn not_found(e: impl std::fmt::Display) -> ApiError {
+    ApiError(StatusCode::NOT_FOUND, "not_found", e.to_string())
+}
+
+fn bad_request(e: impl std::fmt::Display) -> ApiError {
+    ApiError(StatusCode::BAD_REQUEST, "bad_request", e.to_string())
+}
+
+pub fn router(daemon: Shared) -> Router {
+    let api = Router::new()
+        .route("/health", get(health))
+        .route("/devices", get(devices))
+        .route("/sessions", get(list).post(start))
+        .route("/sessions/{id}", get(show))
+        .route("/sessions/{id}/events", get(events))
+        .route("/sessions/{id}/result", get(result))
+        .route("/sessions/{id}/result/{file}", get(result_file))
+        .route("/sessions/{id}/cancel", post(cancel))
+        .route("/sessions/{id}/resume", post(resume))
+        .layer(axum::middleware::from_fn_with_state(
+            daemon.clone(),
+            require_token,
+        ));
+    Router::new()
+        .nest("/api/v1", api)
+        .fallback(|| async {
+            not_found("no such endpoint; the API is under /api/v1 (see the README)")
+        })
+        .with_state(daemon)
+}
+
+async fn require_token(State(d): State<Shared>, req: Request, next: Next) -> Response {
+    if let Some(token) = &d.token {
+        let given = req
+            .headers()
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "));
+        // Compared in full whatever the prefix: no early exit that times the match.
+        let ok = given.is_some_and(|g| {
+            g.len() == token.len()
+                && g.bytes()
+                    .zip(token.bytes())
+                    .fold(0u8, |acc, (a, b)| acc | (a ^ b))
+                    == 0
+        });
+        if !ok {
+            return ApiError(
+                StatusCode::UNAUTHORIZED,
+                "unauthorized",
+                "this daemon requires `Authorization: Bearer <token>` (the token in its brdfd.toml)"
+                    .into(),
+            )
+            .into_response();
+        }
+    }
+    next.run(req).await
+}
+
+async fn health(State(d): State<Shared>) -> Json<Value> {
+    Json(json!({
+        "software": format!("brdfd {}", env!("CARGO_PKG_VERSION")),
+        "rig": { "simulated": d.rig.simulated },
+        "busy": d.busy(),
+    }))
+}
+
+async fn devices(State(d): State<Shared>) -> Json<Value> {
+    Json(json!(d.devices()))
+}
+
+async fn list(State(d): State<Shared>) -> ApiResult<Json<Value>> {
+    let all = Session::list(&d.state_dir)
+        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, "storage", e.to_string()))?;
+    Ok(Json(Value::Array(
+        all.into_iter()
+            .map(|m| json!({ "id": m.id, "state": m.state, "material": m.material, "created": m.created }))
+            .collect(),
+    )))
+}
+
+fn started(s: Session) -> Response {
+    let id = s.manifest.id;
+    (
+        StatusCode::ACCEPTED,
+        Json(json!({
+            "id": id,
+            "dir": s.dir,
+            "events": format!("/api/v1/sessions/{id}/events"),
+        })),
+    )
+        .into_response()
+}
+
+fn start_error(e: StartError) -> ApiError {
+    match e {
+        StartError::Busy(_) => ApiError(StatusCode::CONFLICT, "busy", e.to_string()),
+        StartError::Invalid(_) => bad_request(e),
+    }
+}
+
+async fn start(State(d): State<Shared>, body: axum::body::Bytes) -> ApiResult<Response> {
+    // Parsed here rather than by the Json extractor, so that the error names the field in
+    // our own error shape.
+    let plan: Plan =
+        serde_json::from_slice(&body).map_err(|e| bad_request(format!("the plan: {e}")))?;
+    let s = tokio::task::spawn_blocking(move || d.start_capture(plan))
+        .await
+        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, "internal", e.to_string()))?
+        .map_err(start_error)?;
+    Ok(started(s))
+}
+
+async fn resume(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Response> {
+    let s = tokio::task::spawn_blocking(move || d.resume(&id))
+        .await
+        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, "internal", e.to_string()))?
+        .map_err(start_error)?;
+    Ok(started(s))
+}
+
+fn open(d: &Daemon, id: &str) -> ApiResult<Session> {
+    Session::open(&d.state_dir, id).map_err(not_found)
+}
+
+async fn show(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+    let s = open(&d, &id)?;
+    Ok(Json(
+        json!({ "id": id, "dir": s.dir, "manifest": s.manifest }),
+    ))
+}
+
+async fn cancel(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Response> {
+    if d.cancel(&id) {
+        Ok((
+            StatusCode::ACCEPTED,
+            Json(json!({ "id": id, "cancelling": true })),
+        )
+            .into_response())
+    } else {
+        Err(ApiError(
+            StatusCode::CONFLICT,
+            "not_running",
+            format!("session {id} is not capturing now"),
+        ))
+    }
+}
+
+fn done(d: &Daemon, id: &str) -> ApiResult<Session> {
+    let s = open(d, id)?;
+    if s.manifest.state != SessionState::Done {
+        return Err(ApiError(
+            StatusCode::CONFLICT,
+            "not_done",
+            format!("session {id} is {:?}, not done", s.manifest.state),
+        ));
+    }
+    Ok(s)
+}
+
+async fn result(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Response> {
+    let s = done(&d, &id)?;
+    let bytes = tokio::fs::read(s.dir.join("result/coefficients.json"))
+        .await
+        .map_err(not_found)?;
+    Ok(([(header::CONTENT_TYPE, "application/json")], bytes).into_response())
+}
+
+async fn result_file(
+    State(d): State<Shared>,
+    Path((id, file)): Path<(String, String)>,
+) -> ApiResult<Response> {
+    // A fixed list: a file name from the request never reaches the file system unchecked.
+    let kind = match file.as_str() {
+        "preview.png" => "image/png",
+        "preview.exr" | "brdf-bivariate.exr" => "image/x-exr",
+        "brdf.binary" | "coefficients.json" => "application/octet-stream",
+        _ => return Err(not_found(format!("no result file {file:?}"))),
+    };
+    let s = done(&d, &id)?;
+    let bytes = tokio::fs::read(s.dir.join("result").join(&file))
+        .await
+        .map_err(not_found)?;
+    Ok(([(header::CONTENT_TYPE, kind)], bytes).into_response())
+}
+
+async fn events(
+    State(d): State<Shared>,
+    Path(id): Path<String>,
+) -> ApiResult<Sse<impl Stream<Item = Result<SseEvent, Infallible>>>> {
+    let log = match d.events(&id) {
+        Some(log) => log,
+        None => {
+            // Not run by this daemon: a stored session's stream is its outcome alone.
+            let s = open(&d, &id)?;
+            let log = super::EventLog::new();
+            log.push(Event::Finished {
+                session: id.clone(),
+                state: s.manifest.state,
+                coefficients: None,
+                error: s.manifest.history.last().and_then(|t| t.reason.clone()),
+            });
+            log
+        }
+    };
+    let (history, live) = log.subscribe();
+    let sse = |e: &Event| {
+        SseEvent::default()
+            .json_data(e)
+            .unwrap_or_else(|_| SseEvent::default().data("{}"))
+    };
+    // The history first, then live events, until `finished`.
+    let first = stream::iter(history.clone().into_iter().map(move |e| Ok(sse(&e))));
+    let ended = history.iter().any(|e| matches!(e, Event::Finished { .. }));
+    let rest = stream::unfold((live, ended), move |(mut rx, ended)| async move {
+        if ended {
+            return None;
+        }
+        loop {
+            match rx.recv().await {
+                Ok(e) => {
+                    let last = matches!(e, Event::Finished { .. });
+                    return Some((Ok(sse(&e)), (rx, last)));
+                }
+                // A slow reader misses events rather than stalling the capture.
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
+                Err(tokio::sync::broadcast::error::RecvError::Closed) => return None,
+            }
+        }
+    });
+    use futures_util::StreamExt;
+    Ok(Sse::new(first.chain(rest)).keep_alive(KeepAlive::default()))
+}

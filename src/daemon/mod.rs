@@ -1,0 +1,233 @@
+//! `brdfd serve`: the long-running daemon. It owns the rig's devices (one worker thread
+//! each, kept alive and re-opened; see [`crate::rig::worker`]), runs one capture at a time
+//! on them, and serves the HTTP API of [`api`] on tokio.
+//!
+//! A capture runs on a thread of its own, because the flow and the devices block; the async
+//! side only starts it, relays its events and answers questions.
+
+pub mod api;
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+
+use anyhow::Context as _;
+use tokio::sync::broadcast;
+
+use crate::config::Rig;
+use crate::rig::flow::{self, Context};
+use crate::rig::{Cancel, Devices, Event, Plan};
+use crate::session::{Session, State};
+
+/// Events of one session: everything so far, and a channel for what comes next. A client
+/// that connects late gets the history first, so no event is missed.
+pub struct EventLog {
+    history: Mutex<Vec<Event>>,
+    live: broadcast::Sender<Event>,
+}
+
+impl EventLog {
+    fn new() -> Arc<EventLog> {
+        Arc::new(EventLog {
+            history: Mutex::new(Vec::new()),
+            live: broadcast::channel(1024).0,
+        })
+    }
+
+    fn push(&self, e: Event) {
+        // Pushed and sent under one lock, so that `subscribe` sees each event exactly once.
+        let mut h = self.history.lock().expect("event log");
+        h.push(e.clone());
+        let _ = self.live.send(e);
+    }
+
+    /// The history so far and a receiver for every later event.
+    pub fn subscribe(&self) -> (Vec<Event>, broadcast::Receiver<Event>) {
+        let h = self.history.lock().expect("event log");
+        (h.clone(), self.live.subscribe())
+    }
+}
+
+/// The capture running now.
+struct Running {
+    id: String,
+    cancel: Cancel,
+    thread: JoinHandle<()>,
+}
+
+pub struct Daemon {
+    pub rig: Rig,
+    rig_text: String,
+    devices: Arc<Devices>,
+    pub state_dir: PathBuf,
+    pub token: Option<String>,
+    running: Mutex<Option<Running>>,
+    events: Mutex<HashMap<String, Arc<EventLog>>>,
+}
+
+/// Why a capture could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    #[error("busy: session {0} is capturing on this rig; wait for it, or cancel it")]
+    Busy(String),
+    #[error("{0:#}")]
+    Invalid(anyhow::Error),
+}
+
+impl Daemon {
+    /// Starts the rig's devices and marks sessions that a previous daemon left running as
+    /// interrupted.
+    pub fn start(
+        rig: Rig,
+        rig_text: String,
+        state_dir: PathBuf,
+        token: Option<String>,
+        keep_alive: std::time::Duration,
+    ) -> anyhow::Result<Daemon> {
+        for m in Session::list(&state_dir)? {
+            let mut s = Session::open(&state_dir, &m.id)?;
+            if s.mark_if_interrupted()? {
+                tracing::warn!(session = %m.id, "interrupted by the last daemon's end; marked failed, resumable");
+            }
+        }
+        let devices = Arc::new(Devices::start(&rig, keep_alive)?);
+        Ok(Daemon {
+            rig,
+            rig_text,
+            devices,
+            state_dir,
+            token,
+            running: Mutex::new(None),
+            events: Mutex::new(HashMap::new()),
+        })
+    }
+
+    pub fn devices(&self) -> Vec<crate::rig::DeviceStatus> {
+        self.devices.status()
+    }
+
+    /// The id of the capture running now.
+    pub fn busy(&self) -> Option<String> {
+        let mut r = self.running.lock().expect("running");
+        if r.as_ref().is_some_and(|r| r.thread.is_finished()) {
+            *r = None;
+        }
+        r.as_ref().map(|r| r.id.clone())
+    }
+
+    pub fn events(&self, id: &str) -> Option<Arc<EventLog>> {
+        self.events.lock().expect("events").get(id).cloned()
+    }
+
+    /// Creates a session for the plan and starts capturing it.
+    pub fn start_capture(&self, plan: Plan) -> Result<Session, StartError> {
+        self.check_idle()?;
+        plan.validate().map_err(StartError::Invalid)?;
+        let preset = crate::config::MaterialPreset::embedded(&plan.material)
+            .map_err(|e| StartError::Invalid(anyhow::anyhow!(e)))?;
+        let options = serde_json::to_value(&plan).expect("a plan serialises");
+        let session = Session::create(
+            &self.state_dir,
+            &plan.material,
+            &self.rig_text,
+            preset.and_then(|_| crate::config::preset_text(&plan.material)),
+            options,
+        )
+        .map_err(|e| StartError::Invalid(e.into()))?;
+        self.launch(session, plan)
+    }
+
+    /// Continues a stored session from its last complete step.
+    pub fn resume(&self, id: &str) -> Result<Session, StartError> {
+        self.check_idle()?;
+        let mut s =
+            Session::open(&self.state_dir, id).map_err(|e| StartError::Invalid(e.into()))?;
+        let plan = resumable(&mut s).map_err(StartError::Invalid)?;
+        self.launch(s, plan)
+    }
+
+    fn check_idle(&self) -> Result<(), StartError> {
+        match self.busy() {
+            Some(id) => Err(StartError::Busy(id)),
+            None => Ok(()),
+        }
+    }
+
+    fn launch(&self, session: Session, plan: Plan) -> Result<Session, StartError> {
+        let mut running = self.running.lock().expect("running");
+        if let Some(r) = running.as_ref().filter(|r| !r.thread.is_finished()) {
+            return Err(StartError::Busy(r.id.clone()));
+        }
+        let id = session.manifest.id.clone();
+        let log = EventLog::new();
+        self.events
+            .lock()
+            .expect("events")
+            .insert(id.clone(), log.clone());
+        let cancel = Cancel::default();
+        let reply = Session {
+            dir: session.dir.clone(),
+            manifest: session.manifest.clone(),
+        };
+        let (devices, rig, c) = (self.devices.clone(), self.rig.clone(), cancel.clone());
+        let thread = std::thread::Builder::new()
+            .name(format!("capture-{id}"))
+            .spawn(move || {
+                let mut session = session;
+                let progress = log.clone();
+                let cx = Context {
+                    rig: &rig,
+                    devices: &devices,
+                    progress: Arc::new(move |e: Event| progress.push(e)),
+                    cancel: c,
+                };
+                match flow::execute(&mut session, &plan, &cx) {
+                    Ok(_) => tracing::info!(session = %session.manifest.id, "capture done"),
+                    Err(e) => {
+                        tracing::warn!(session = %session.manifest.id, "capture failed: {e:#}")
+                    }
+                }
+            })
+            .map_err(|e| StartError::Invalid(e.into()))?;
+        *running = Some(Running { id, cancel, thread });
+        Ok(reply)
+    }
+
+    /// Asks the running capture to stop at its next frame; false when `id` is not running.
+    pub fn cancel(&self, id: &str) -> bool {
+        let r = self.running.lock().expect("running");
+        match r.as_ref() {
+            Some(r) if r.id == id && !r.thread.is_finished() => {
+                r.cancel.cancel();
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// Cancels the running capture, if any, and waits for it to record its state.
+    pub fn shut_down(&self) {
+        let r = self.running.lock().expect("running").take();
+        if let Some(r) = r {
+            tracing::info!(session = %r.id, "shutting down: cancelling the running capture");
+            r.cancel.cancel();
+            let _ = r.thread.join();
+        }
+    }
+}
+
+/// The plan of a stored session, after adopting files stored but not yet listed and checking
+/// every checksum: what a resume needs before it continues.
+pub fn resumable(s: &mut Session) -> anyhow::Result<Plan> {
+    if s.manifest.state == State::Done {
+        anyhow::bail!("session {} is already done", s.manifest.id);
+    }
+    let adopted = s.adopt_orphans()?;
+    if adopted > 0 {
+        tracing::info!("{adopted} raw files were stored but not yet listed; listed now");
+    }
+    s.verify()
+        .context("checking what the session already holds")?;
+    serde_json::from_value(s.manifest.options.clone()).context("the manifest's capture options")
+}

@@ -1,0 +1,758 @@
+//! The capture flow: panorama bracket, DSLR bracket per turntable view, HDR merges, estimate,
+//! results, as one session on disk.
+//!
+//! The flow is a list of steps (the panorama, then each view); each step's files are stored
+//! in the session as they arrive, and a step is skipped when the session already has it
+//! complete. That is what a resume relies on. Device calls run on the devices' workers; the
+//! flow itself runs on the caller's thread and is the only writer of the session.
+
+use std::sync::{mpsc, Arc};
+use std::time::Instant;
+
+use anyhow::{bail, Context as _};
+use brdfd_ptp::{CaptureOptions, Exposure};
+use brdfd_theta::{BracketPlan, Frame, Theta};
+use serde_json::json;
+
+use super::{Cancel, Devices, Event, Plan, Progress};
+use crate::bench::camera::SENSOR_GAIN;
+use crate::bench::panorama::THETA_SENSOR_GAIN;
+use crate::bench::VirtualBench;
+use crate::config::{MaterialPreset, PixelCount, Rig};
+use crate::core::basis::Basis;
+use crate::core::bivariate::Bivariate;
+use crate::core::envmap::{write_exr, EnvMap, DEFAULT_LIGHTS};
+use crate::core::estimate::{estimate_views, Estimate, EstimateOptions, View};
+use crate::core::geometry::SceneGeometry;
+use crate::core::merl::MerlBrdf;
+use crate::core::nbrdf::NbrdfSet;
+use crate::core::raster::Raster;
+use crate::core::render::render_bivariate;
+use crate::panorama::merge_bracket;
+use crate::radiometry::{decode_jpeg, merge_hdr};
+use crate::session::{PhaseTime, Session, State};
+
+/// Camera files by name, exactly as the camera sent them.
+pub type RawFiles = Vec<(String, Vec<u8>)>;
+
+/// How a capture ended.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    pub names: Vec<String>,
+    pub coefficients: Vec<f64>,
+    /// Simulated rig only: the material's own projection onto the basis.
+    pub truth: Option<Vec<f64>>,
+    pub pixels: usize,
+    pub condition: f64,
+    /// Simulated rig only: the re-render's relative RMSE against the first view's photo.
+    pub rerender_rmse: Option<f64>,
+}
+
+/// `all` or a positive count.
+pub fn parse_pixels(s: &str) -> anyhow::Result<Option<usize>> {
+    if s == "all" {
+        return Ok(None);
+    }
+    let n: usize = s
+        .parse()
+        .with_context(|| format!("--pixels takes a number or `all`, got {s:?}"))?;
+    if n == 0 {
+        bail!("--pixels must be at least 1");
+    }
+    Ok(Some(n))
+}
+
+/// Everything a run of the flow works with.
+pub struct Context<'a> {
+    pub rig: &'a Rig,
+    pub devices: &'a Devices,
+    pub progress: Arc<dyn Progress>,
+    pub cancel: Cancel,
+}
+
+impl Context<'_> {
+    fn say(&self, text: impl Into<String>) {
+        self.progress.event(Event::Message { text: text.into() });
+    }
+    fn warn(&self, text: impl Into<String>) {
+        self.progress.event(Event::Warning { text: text.into() });
+    }
+    /// The simulated devices' own time so far (zero on hardware, where it is unknowable and
+    /// real).
+    fn device_seconds(&self) -> f64 {
+        self.devices
+            .sim
+            .as_ref()
+            .map_or(0.0, |s| s.device_seconds())
+    }
+}
+
+/// Runs the flow on a session. A failure is recorded in the manifest, and the session stays
+/// resumable; either way the last event is `Finished`.
+pub fn execute(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outcome> {
+    // Refused before anything is written when another process runs this session.
+    let _lock = session.claim()?;
+    let result = run(session, plan, cx);
+    let id = session.manifest.id.clone();
+    match result {
+        Ok(outcome) => {
+            cx.progress.event(Event::Finished {
+                session: id,
+                state: State::Done,
+                coefficients: Some(outcome.coefficients.clone()),
+                error: None,
+            });
+            Ok(outcome)
+        }
+        Err(e) => {
+            let reason = if cx.cancel.is_cancelled() {
+                "cancelled; what was captured is kept".to_string()
+            } else {
+                format!("{e:#}")
+            };
+            let _ = session.set_state(State::Failed, Some(reason.clone()));
+            cx.progress.event(Event::Finished {
+                session: id.clone(),
+                state: State::Failed,
+                coefficients: None,
+                error: Some(reason),
+            });
+            Err(e.context(format!(
+                "session {id} failed; what was captured is kept: `brdfd session resume {id}` continues it"
+            )))
+        }
+    }
+}
+
+/// Wall time per phase, with the devices' share; each phase is announced as it starts and
+/// ends.
+struct Phases<'a> {
+    cx: &'a Context<'a>,
+    done: Vec<PhaseTime>,
+}
+
+/// A phase under way.
+struct Running {
+    name: String,
+    started: Instant,
+    device_at_start: f64,
+}
+
+impl<'a> Phases<'a> {
+    fn start(&self, name: &str, total: u64) -> Running {
+        self.cx.progress.event(Event::PhaseStarted {
+            phase: name.into(),
+            total,
+        });
+        Running {
+            name: name.into(),
+            started: Instant::now(),
+            device_at_start: self.cx.device_seconds(),
+        }
+    }
+
+    fn end(&mut self, r: Running) {
+        let device = self.cx.device_seconds() - r.device_at_start;
+        self.finish(r, device);
+    }
+
+    /// Ends a phase that is the simulator's work as a whole.
+    fn end_as_device(&mut self, r: Running) {
+        let all = r.started.elapsed().as_secs_f64();
+        self.finish(r, all);
+    }
+
+    fn finish(&mut self, r: Running, device_seconds: f64) {
+        let p = PhaseTime {
+            name: r.name,
+            seconds: r.started.elapsed().as_secs_f64(),
+            device_seconds,
+        };
+        self.cx.progress.event(Event::PhaseDone {
+            phase: p.name.clone(),
+            seconds: p.seconds,
+            device_seconds: p.device_seconds,
+        });
+        self.done.push(p);
+    }
+}
+
+fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outcome> {
+    let rig = cx.rig;
+    let preset = MaterialPreset::embedded(&plan.material).map_err(anyhow::Error::msg)?;
+    let mut phases = Phases {
+        cx,
+        done: Vec::new(),
+    };
+    let p = phases.start("load the basis", 1);
+    let basis = Basis::embedded();
+    phases.end(p);
+    if let Some(p) = &preset {
+        if p.k != basis.header.k {
+            bail!(
+                "the {} preset is tuned for K = {}, the basis has K = {}",
+                plan.material,
+                p.k,
+                basis.header.k
+            );
+        }
+        cx.say(format!(
+            "material preset {}: {}, {} pixels{}",
+            plan.material,
+            if rig.simulated {
+                format!("simulated as {}", p.simulate_as)
+            } else {
+                "on the bench".into()
+            },
+            match p.pixels {
+                PixelCount::All => "all".to_string(),
+                PixelCount::Count(n) => n.to_string(),
+            },
+            if p.notes.is_empty() {
+                String::new()
+            } else {
+                format!(" ({})", p.notes)
+            }
+        ));
+    }
+    // The object and its camera come from the rig file; the simulated camera is sized as
+    // asked.
+    let mut scene = rig.geometry.clone();
+    if rig.simulated {
+        scene.camera = rig.geometry.camera.resized(plan.size, plan.size);
+    }
+    let yaw = rig.theta_yaw_deg.to_radians();
+    // A simulated rig needs a sample on its bench. Tabulating the material is the
+    // simulator's work: a real bench has the object.
+    let bench = match &cx.devices.sim {
+        Some(sim) => {
+            let p = phases.start("simulated bench: place the sample", 1);
+            let b = simulated_bench(plan, preset.as_ref(), &scene, yaw, &basis)?;
+            sim.show_light(&b);
+            phases.end_as_device(p);
+            cx.say(format!(
+                "simulated rig: {} on a sphere; DSLR: simulated Nikon D5100 on {}, {}×{}",
+                b.material_name,
+                cx.devices.dslr.status().selector,
+                plan.size,
+                plan.size
+            ));
+            Some(b)
+        }
+        None => None,
+    };
+    let shutters = if !plan.bracket.is_empty() {
+        plan.bracket.clone()
+    } else if let Some(s) = preset.as_ref().and_then(|p| p.dslr_shutters.clone()) {
+        s
+    } else {
+        rig.brackets.dslr_shutters.clone()
+    };
+    let pixel_count = match (&plan.pixels, &preset) {
+        (Some(p), _) => parse_pixels(p)?,
+        (None, Some(p)) => match p.pixels {
+            PixelCount::All => None,
+            PixelCount::Count(n) => Some(n),
+        },
+        (None, None) => Some(20),
+    };
+    if plan.views > 1 && cx.devices.turntable.is_none() {
+        bail!(
+            "{} views need a turntable, and the rig names none (`turntable = \"serial:...\"` under [devices])",
+            plan.views
+        );
+    }
+    if matches!(session.manifest.state, State::Created | State::Failed) {
+        session.set_state(State::Capturing, None)?;
+    }
+
+    // The panorama.
+    let pano_files = match stored(session, "panorama")? {
+        Some((files, _)) => {
+            cx.say(format!(
+                "panorama: {} frames already in the session",
+                files.len()
+            ));
+            files
+        }
+        None => {
+            let plan = theta_plan(rig);
+            let p = phases.start("panorama bracket", plan.shots.len() as u64);
+            session.begin_step("panorama", json!({}))?;
+            let files = theta_bracket(cx, session, plan)?;
+            session.finish_step("panorama")?;
+            phases.end(p);
+            files
+        }
+    };
+    cx.cancel.check()?;
+    let p = phases.start("panorama HDR merge", 1);
+    let merged = merge_bracket(&pano_files, THETA_SENSOR_GAIN)?;
+    phases.end(p);
+    if merged.clipped_pixels > 0 {
+        cx.warn(format!(
+            "{} pixels clip even in the shortest frame; they carry at least {:.1}% of the light",
+            merged.clipped_pixels,
+            merged.clipped_share * 100.0
+        ));
+    }
+    if let Some(b) = &bench {
+        cx.say(report_panorama(&merged.map, b));
+    }
+    // The THETA's radiance in the DSLR's units, from the rig's calibration.
+    let scale = rig.calibration.theta_to_dslr as f32;
+    let env = EnvMap::from_pixels(
+        merged.map.width,
+        merged.map.height,
+        merged
+            .map
+            .pixels
+            .iter()
+            .map(|p| p.map(|v| v * scale))
+            .collect(),
+        "THETA panorama, calibrated to the DSLR",
+    )?;
+
+    // One DSLR bracket per turntable view.
+    let mut views = Vec::with_capacity(plan.views);
+    for i in 0..plan.views {
+        cx.cancel.check()?;
+        let step = format!("view{}", i + 1);
+        let (files, deg) = match stored(session, &step)? {
+            Some((files, meta)) => {
+                let deg = meta["turntable_deg"].as_f64().unwrap_or(0.0);
+                cx.say(format!(
+                    "{step}: {} frames already in the session ({deg:.2}°)",
+                    files.len()
+                ));
+                (files, deg)
+            }
+            None => {
+                let deg = if plan.views > 1 {
+                    let at = turn_to(cx, i as f64 * plan.turn)?;
+                    cx.say(format!(
+                        "view {} of {}: turntable at {at:.2}°",
+                        i + 1,
+                        plan.views
+                    ));
+                    at
+                } else {
+                    0.0
+                };
+                let p = phases.start(&format!("{step}: DSLR bracket"), shutters.len() as u64);
+                if let (Some(sim), Some(b)) = (&cx.devices.sim, &bench) {
+                    // The simulated turntable only reports angles; the object turns here.
+                    sim.show_object(&turned_bench(b, deg))?;
+                }
+                session.begin_step(&step, json!({ "turntable_deg": deg }))?;
+                let files = dslr_bracket(cx, session, &step, &shutters)?;
+                session.finish_step(&step)?;
+                phases.end(p);
+                (files, deg)
+            }
+        };
+        let p = phases.start(&format!("{step}: HDR merge"), 1);
+        let photo = merge_dslr(cx, &files)?;
+        save_exr(session, &format!("photo-{step}.exr"), &photo)?;
+        phases.end(p);
+        let (geometry, view_yaw) = turned(&scene, yaw, deg);
+        let (w, h) = geometry.camera.size();
+        let pixels = geometry.pixels(w, h)?;
+        let lights = env.compressed(DEFAULT_LIGHTS, view_yaw);
+        views.push((pixels, lights, photo));
+    }
+    session.set_state(State::Captured, None)?;
+    cx.cancel.check()?;
+
+    session.set_state(State::Estimating, None)?;
+    let options = EstimateOptions {
+        pixel_count,
+        ridge: preset.as_ref().and_then(|p| p.ridge),
+        ..EstimateOptions::default()
+    };
+    let as_views: Vec<View> = views
+        .iter()
+        .map(|(geometry, lights, photo)| View {
+            geometry,
+            lights,
+            photo,
+        })
+        .collect();
+    let p = phases.start("estimate", 1);
+    let est = estimate_views(&basis, &as_views, &options)?;
+    phases.end(p);
+    cx.say(crate::results::coefficient_lines(
+        "coefficients",
+        &est.names,
+        &est.solution.coefficients,
+    ));
+    let (geometry, lights, photo) = &views[0];
+    let (truth, rerender_rmse) = match &bench {
+        Some(b) => {
+            // The simulator knows the answer; comparing with it is the simulator's business,
+            // so its time is the devices'.
+            let p = phases.start("compare with the ground truth (simulator)", 1);
+            let truth = basis.project(&Bivariate::reduce(&b.material, basis.header.grid));
+            let rerender = render_bivariate(geometry, lights, &est.brdf(&basis));
+            let rmse = rerender.relative_rmse(photo);
+            phases.end_as_device(p);
+            cx.say(crate::results::coefficient_lines(
+                "ground truth projected on the basis",
+                &est.names,
+                &truth,
+            ));
+            (Some(truth), Some(rmse))
+        }
+        None => (None, None),
+    };
+    let p = phases.start("write results", 1);
+    write_exr(
+        &session.dir.join("derived/panorama.exr"),
+        env.width,
+        env.height,
+        &env.pixels,
+    )?;
+    write_result(session, &basis, &est, lights)?;
+    phases.end(p);
+    cx.say(format!(
+        "{} pixels, condition number {:.2}{}",
+        est.selection.pixels.len(),
+        est.selection.condition,
+        rerender_rmse.map_or(String::new(), |r| format!(
+            "; re-render relative RMSE (first view) {r:.4}"
+        ))
+    ));
+    session.manifest.phases = phases.done;
+    session.set_state(State::Done, None)?;
+    Ok(Outcome {
+        names: est.names.clone(),
+        coefficients: est.solution.coefficients.clone(),
+        truth,
+        pixels: est.selection.pixels.len(),
+        condition: est.selection.condition,
+        rerender_rmse,
+    })
+}
+
+/// Results go to a fresh folder that replaces `result/` in one rename.
+fn write_result(
+    session: &Session,
+    basis: &Basis,
+    est: &Estimate,
+    lights: &crate::core::envmap::LightSet,
+) -> anyhow::Result<()> {
+    let fresh = session.dir.join("result.partial");
+    let _ = std::fs::remove_dir_all(&fresh);
+    crate::results::write_results(&fresh, basis, est, "fast", lights)?;
+    let result = session.dir.join("result");
+    let _ = std::fs::remove_dir_all(&result);
+    std::fs::rename(&fresh, &result).context("moving the results into place")?;
+    Ok(())
+}
+
+/// The rig's THETA bracket: its own shutter list, or the light probe.
+fn theta_plan(rig: &Rig) -> BracketPlan {
+    if rig.brackets.theta_shutters.is_empty() {
+        return BracketPlan::light_probe();
+    }
+    BracketPlan {
+        shots: rig
+            .brackets
+            .theta_shutters
+            .iter()
+            .map(|&shutter_s| brdfd_theta::Exposure {
+                shutter_s,
+                iso: rig.brackets.theta_iso,
+            })
+            .collect(),
+    }
+}
+
+/// The simulated bench for a plan: the material (preset, MERL name, alias or NBRDF file) on
+/// the rig's object, under the plan's light.
+fn simulated_bench(
+    plan: &Plan,
+    preset: Option<&MaterialPreset>,
+    scene: &SceneGeometry,
+    yaw: f64,
+    basis: &Basis,
+) -> anyhow::Result<VirtualBench> {
+    let simulate_as = preset.map_or(plan.material.as_str(), |p| p.simulate_as.as_str());
+    let mut bench = VirtualBench::embedded(simulate_as, plan.size).or_else(|e| {
+        // Not an embedded material: the NBRDF file may have it.
+        let Some(path) = &plan.nbrdf else {
+            return Err(e);
+        };
+        let set = NbrdfSet::read(path)?;
+        let name = crate::bench::resolve_material(simulate_as);
+        let mut b = VirtualBench::embedded("gold", plan.size)?;
+        b.material = MerlBrdf::tabulate(set.get(name)?);
+        b.material_name = name.to_string();
+        Ok::<_, crate::core::CoreError>(b)
+    })?;
+    if plan.in_span {
+        let projected = basis.project(&Bivariate::reduce(&bench.material, basis.header.grid));
+        bench.material = basis.reconstruct(&projected).to_merl();
+        bench.material_name = format!("{} (its projection onto the basis)", bench.material_name);
+    }
+    bench.geometry = scene.clone();
+    bench.yaw = yaw;
+    if let Some(p) = &plan.env {
+        bench.env = crate::panorama::load_envmap(p)?;
+    }
+    Ok(bench)
+}
+
+/// The scene as the camera sees it with the turntable at `deg`: in the object's frame, the
+/// camera and the light turned by −θ (Camera::turned_about_y).
+fn turned(scene: &SceneGeometry, yaw: f64, deg: f64) -> (SceneGeometry, f64) {
+    let theta = deg.to_radians();
+    let mut g = scene.clone();
+    g.camera = scene.camera.turned_about_y(-theta);
+    (g, yaw - theta)
+}
+
+fn turned_bench(bench: &VirtualBench, deg: f64) -> VirtualBench {
+    let (geometry, yaw) = turned(&bench.geometry, bench.yaw, deg);
+    VirtualBench {
+        geometry,
+        yaw,
+        ..bench.clone()
+    }
+}
+
+/// Turns the turntable to `target` degrees by the shortest way; returns where it reports
+/// it is.
+fn turn_to(cx: &Context, target: f64) -> anyhow::Result<f64> {
+    let table = cx.devices.turntable.as_ref().context("no turntable")?;
+    table.call(move |t| {
+        let here = t.position()?;
+        let turn = (target - here + 180.0).rem_euclid(360.0) - 180.0;
+        Ok(if turn.abs() > 1e-9 {
+            t.rotate(turn)?
+        } else {
+            here
+        })
+    })
+}
+
+/// A step's files from the session (checksums verified), under the names the camera gave
+/// them, if the step is complete.
+pub fn stored(
+    session: &Session,
+    step: &str,
+) -> anyhow::Result<Option<(RawFiles, serde_json::Value)>> {
+    let Some(s) = session.complete_step(step) else {
+        return Ok(None);
+    };
+    let prefix = format!("{step}-a{}-", s.attempt);
+    let files = s
+        .files
+        .iter()
+        .map(|f| {
+            let name = f.name.strip_prefix(&prefix).unwrap_or(&f.name).to_string();
+            Ok((name, session.read_raw(f)?))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(Some((files, s.meta.clone())))
+}
+
+fn save_exr(session: &Session, name: &str, r: &Raster) -> anyhow::Result<()> {
+    // Written beside, then renamed: a derived file is whole or absent.
+    let tmp = session.dir.join("derived").join(format!(".{name}.tmp.exr"));
+    r.write_exr(&tmp)?;
+    std::fs::rename(&tmp, session.dir.join("derived").join(name))?;
+    Ok(())
+}
+
+fn note_device(session: &mut Session, identity: Option<String>) {
+    if let Some(id) = identity {
+        if !session.manifest.devices.contains(&id) {
+            session.manifest.devices.push(id);
+        }
+    }
+}
+
+/// Shoots the DSLR bracket on the DSLR's worker. Each file goes into the session as soon
+/// as it is downloaded, so that a failure later in the bracket loses nothing already taken.
+fn dslr_bracket(
+    cx: &Context,
+    session: &mut Session,
+    step: &str,
+    shutters: &[f64],
+) -> anyhow::Result<RawFiles> {
+    let b = cx.rig.brackets.clone();
+    let (tx, rx) = mpsc::channel::<(String, Vec<u8>, f64)>();
+    let (progress, cancel) = (cx.progress.clone(), cx.cancel.clone());
+    let total = shutters.len() as u64;
+    let shutters = shutters.to_vec();
+    let download = format!("{step}: download");
+    let job = cx.devices.dslr.submit(move |cam| {
+        let applied = cam.set_exposure(&Exposure {
+            shutter_s: None,
+            f_number: Some(b.dslr_f_number),
+            iso: Some(b.dslr_iso),
+        })?;
+        progress.event(Event::Message {
+            text: format!(
+                "DSLR: {} ({}), f/{} ISO {}",
+                cam.describe(),
+                cam.info.serial_number,
+                applied.f_number.unwrap_or(0.0),
+                applied.iso.unwrap_or(0)
+            ),
+        });
+        let opts = CaptureOptions::default();
+        for &s in &shutters {
+            cancel.check()?;
+            let speed = cam.set_shutter(s)?;
+            let mut last = u64::MAX;
+            let shot = cam.capture(&opts, &mut |_, done, total| {
+                // One event per tenth: enough for a bar, few enough for a stream.
+                let tenth = (done * 10).checked_div(total).unwrap_or(0);
+                if tenth != last {
+                    last = tenth;
+                    progress.event(Event::Progress {
+                        phase: download.clone(),
+                        done,
+                        total,
+                    });
+                }
+            })?;
+            if tx.send((shot.info.filename, shot.data, speed)).is_err() {
+                bail!("the capture stopped taking files");
+            }
+        }
+        Ok(())
+    });
+    let mut files = Vec::with_capacity(total as usize);
+    let phase = format!("{step}: DSLR bracket");
+    for (name, data, speed) in rx {
+        session.add_raw(step, &name, &data)?;
+        cx.say(format!(
+            "  {name}: {} bytes (camera applied {speed} s)",
+            data.len()
+        ));
+        files.push((name, data));
+        cx.progress.event(Event::Progress {
+            phase: phase.clone(),
+            done: files.len() as u64,
+            total,
+        });
+    }
+    job.wait()?;
+    note_device(session, cx.devices.dslr.status().identity);
+    Ok(files)
+}
+
+/// Shoots the panorama bracket on the THETA's worker; the frames go into the session as the
+/// camera sent them.
+fn theta_bracket(
+    cx: &Context,
+    session: &mut Session,
+    plan: BracketPlan,
+) -> anyhow::Result<RawFiles> {
+    let progress = cx.progress.clone();
+    let frames = cx.devices.theta.call(move |theta| {
+        progress.event(Event::Message {
+            text: format!("panorama: {}", theta.describe()),
+        });
+        shoot_panorama(theta, &plan, progress.as_ref())
+    })?;
+    note_device(session, cx.devices.theta.status().identity);
+    let mut files = Vec::with_capacity(frames.len());
+    for f in frames {
+        check_exposure(cx.progress.as_ref(), &f);
+        session.add_raw("panorama", &f.name, &f.data)?;
+        files.push((f.name, f.data));
+    }
+    Ok(files)
+}
+
+/// Prepares the THETA for light measurement and shoots the plan: the frames as the camera
+/// sent them. Progress goes to the "panorama bracket" phase.
+pub fn shoot_panorama(
+    theta: &mut Theta,
+    plan: &BracketPlan,
+    progress: &dyn Progress,
+) -> anyhow::Result<Vec<Frame>> {
+    for line in theta.prepare().context("preparing the THETA")? {
+        tracing::info!("THETA: {line}");
+    }
+    let total = plan.shots.len() as u64;
+    let mut last = String::new();
+    let frames = theta
+        .capture(plan, &mut |phase, fraction| {
+            if phase != last {
+                progress.event(Event::Message {
+                    text: format!("  panorama: {phase}"),
+                });
+                last = phase.to_string();
+            }
+            progress.event(Event::Progress {
+                phase: "panorama bracket".into(),
+                done: (fraction.clamp(0.0, 1.0) * total as f64).round() as u64,
+                total,
+            });
+        })
+        .context("shooting the panorama bracket")?;
+    Ok(frames)
+}
+
+/// How far a frame's EXIF exposure may be from what was asked before it is reported:
+/// cameras round speeds (1/3200 s is stored as 0.0003125 or 1/3200), but a different stop
+/// means the camera did not take the setting.
+const EXPOSURE_MISMATCH: f64 = 0.05;
+
+/// The merge uses each frame's EXIF; a frame whose EXIF disagrees with the request means the
+/// camera overrode the setting (auto exposure left on, a model limit), which the operator
+/// should know.
+pub fn check_exposure(progress: &dyn Progress, f: &Frame) {
+    match crate::radiometry::exif_exposure(&f.data, &f.name) {
+        Ok(e) => {
+            let shutter_off = (e.shutter_s / f.asked.shutter_s - 1.0).abs();
+            let iso_off = (e.iso / f.asked.iso as f64 - 1.0).abs();
+            if shutter_off > EXPOSURE_MISMATCH || iso_off > EXPOSURE_MISMATCH {
+                progress.event(Event::Warning {
+                    text: format!(
+                        "{}: EXIF says {} s ISO {}, but {} s ISO {} was asked; the merge uses the EXIF values",
+                        f.name, e.shutter_s, e.iso, f.asked.shutter_s, f.asked.iso
+                    ),
+                });
+            }
+        }
+        // The merge reports a missing EXIF exposure as an error, naming the file.
+        Err(e) => tracing::debug!("{e}"),
+    }
+}
+
+/// Decodes a DSLR bracket and merges it into radiance, from each file's EXIF.
+fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<Raster> {
+    let frames = files
+        .iter()
+        .map(|(name, bytes)| {
+            let f = decode_jpeg(bytes, name)?;
+            cx.say(format!(
+                "  {name}: EXIF {:.4} s f/{} ISO {}",
+                f.exposure.shutter_s, f.exposure.f_number, f.exposure.iso
+            ));
+            Ok(f)
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(merge_hdr(&frames, SENSOR_GAIN)?)
+}
+
+/// How far the measured map is from the bench's own (total light, per channel).
+fn report_panorama(map: &EnvMap, bench: &VirtualBench) -> String {
+    // Total light is independent of the map's resolution (the downsample preserves Σ L·Δω),
+    // so the bench's own map is the reference as it is.
+    let (measured, truth) = (map.lights(0.0).power(), bench.env.lights(0.0).power());
+    format!(
+        "  panorama merged to {}×{}; total light vs the bench's map: {:+.2}% {:+.2}% {:+.2}% (R G B)",
+        map.width,
+        map.height,
+        (measured[0] / truth[0] - 1.0) * 100.0,
+        (measured[1] / truth[1] - 1.0) * 100.0,
+        (measured[2] / truth[2] - 1.0) * 100.0,
+    )
+}

@@ -1,0 +1,273 @@
+//! The capture rig: its devices, each on a worker thread, and the capture flow that turns a
+//! material on the bench into a session on disk. The CLI runs the flow in-process; the daemon
+//! (`brdfd serve`) runs the same flow on devices it keeps open between captures.
+//!
+//! - [`worker`]: one thread per device, with keep-alive and re-opening.
+//! - [`open`]: devices from their selectors (`usb:04b0:0429`, `osc:http://...`, `serial:...`).
+//! - [`simulated`]: the simulated rig, whose devices speak the real protocols on loopback.
+//! - [`flow`]: the capture itself, as resumable steps.
+
+pub mod flow;
+pub mod open;
+pub mod simulated;
+pub mod worker;
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::Context;
+use brdfd_ptp::Camera;
+use brdfd_serial::RigController;
+use brdfd_theta::Theta;
+use serde::{Deserialize, Serialize};
+
+use crate::config::Rig;
+use crate::selector::Selector;
+pub use worker::{Device, DeviceStatus, Worker};
+
+/// What a capture was asked to do. Stored in the session's manifest, so that a resume
+/// repeats it; also the body of the daemon's "start a capture" request.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Plan {
+    /// A preset in config/materials, a MERL name, or an alias (gold, chrome, paint, ...).
+    pub material: String,
+    /// Image size of the simulated camera (ignored on a hardware rig).
+    #[serde(default = "default_size")]
+    pub size: usize,
+    /// Pixels to estimate from: a number or "all"; the preset's, else 20.
+    #[serde(default)]
+    pub pixels: Option<String>,
+    /// DSLR shutter speeds, seconds; the preset's, else the rig's.
+    #[serde(default)]
+    pub bracket: Vec<f64>,
+    /// Turntable views (1: no turntable).
+    #[serde(default = "one")]
+    pub views: usize,
+    /// Turntable step between views, degrees.
+    #[serde(default = "default_turn")]
+    pub turn: f64,
+    /// Simulated rig only: the environment map and NBRDF file of the scene.
+    #[serde(default)]
+    pub env: Option<PathBuf>,
+    #[serde(default)]
+    pub nbrdf: Option<PathBuf>,
+    /// Simulated rig only: the sample is the material's projection onto the basis (its best
+    /// K-term approximation) rather than the material itself. Its coefficients are then known
+    /// exactly, which checks the capture chain apart from the model's own error.
+    #[serde(default)]
+    pub in_span: bool,
+}
+
+fn default_size() -> usize {
+    256
+}
+fn one() -> usize {
+    1
+}
+fn default_turn() -> f64 {
+    30.0
+}
+
+impl Plan {
+    /// Checks what can be checked before any device moves.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        crate::config::validate_name("material name", &self.material)
+            .map_err(anyhow::Error::msg)?;
+        anyhow::ensure!(self.views >= 1, "views must be at least 1");
+        anyhow::ensure!(
+            (8..=8192).contains(&self.size),
+            "size {} is outside 8..=8192",
+            self.size
+        );
+        if let Some(p) = &self.pixels {
+            flow::parse_pixels(p)?;
+        }
+        anyhow::ensure!(
+            self.bracket.iter().all(|s| s.is_finite() && *s > 0.0),
+            "bracket shutter speeds must be positive seconds"
+        );
+        Ok(())
+    }
+}
+
+/// What the flow reports as it goes; the CLI draws progress bars from it, the daemon sends it
+/// to its event stream. Serialised as `{"type": "phase_started", ...}`.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum Event {
+    /// A phase began: `total` units (frames, or 1 for one piece of work).
+    PhaseStarted { phase: String, total: u64 },
+    /// Work done in a phase so far.
+    Progress {
+        phase: String,
+        done: u64,
+        total: u64,
+    },
+    /// A phase ended: its wall time, and of that the devices' own time.
+    PhaseDone {
+        phase: String,
+        seconds: f64,
+        device_seconds: f64,
+    },
+    /// A line for the operator.
+    Message { text: String },
+    /// Something the operator should look at; the capture goes on.
+    Warning { text: String },
+    /// The end: the session's final state, with the coefficients or the error.
+    Finished {
+        session: String,
+        state: crate::session::State,
+        coefficients: Option<Vec<f64>>,
+        error: Option<String>,
+    },
+}
+
+pub trait Progress: Send + Sync {
+    fn event(&self, e: Event);
+}
+
+impl<F: Fn(Event) + Send + Sync> Progress for F {
+    fn event(&self, e: Event) {
+        self(e)
+    }
+}
+
+/// Asks a running capture to stop at its next frame boundary. What was captured is kept,
+/// and the session can be resumed.
+#[derive(Clone, Default)]
+pub struct Cancel(Arc<AtomicBool>);
+
+impl Cancel {
+    pub fn cancel(&self) {
+        self.0.store(true, Ordering::SeqCst);
+    }
+    pub fn is_cancelled(&self) -> bool {
+        self.0.load(Ordering::SeqCst)
+    }
+    pub fn check(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(!self.is_cancelled(), "cancelled");
+        Ok(())
+    }
+}
+
+/// How often an idle device is spoken to. A THETA V sleeps after 3 minutes unless told
+/// otherwise; a Nikon's USB session survives idling, but a cheap request tells us early when
+/// a cable was pulled.
+pub const KEEP_ALIVE: Duration = Duration::from_secs(20);
+
+impl Device for Camera {
+    fn identity(&self) -> String {
+        format!("{} (serial {})", self.describe(), self.info.serial_number)
+    }
+    fn keep_alive(&mut self) -> anyhow::Result<()> {
+        self.storage_ids()?;
+        Ok(())
+    }
+}
+
+impl Device for Theta {
+    fn identity(&self) -> String {
+        self.describe()
+    }
+    fn keep_alive(&mut self) -> anyhow::Result<()> {
+        Ok(Theta::keep_alive(self)?)
+    }
+}
+
+impl Device for RigController {
+    fn identity(&self) -> String {
+        format!(
+            "{} {} on {}",
+            self.identity.name,
+            self.identity.version,
+            self.port_name()
+        )
+    }
+    fn keep_alive(&mut self) -> anyhow::Result<()> {
+        self.position()?;
+        Ok(())
+    }
+}
+
+/// The rig's devices, each on its worker.
+pub struct Devices {
+    pub dslr: Worker<Camera>,
+    pub theta: Worker<Theta>,
+    pub turntable: Option<Worker<RigController>>,
+    /// The simulators behind the workers when the rig is simulated (they stop when this is
+    /// dropped, after the workers).
+    pub sim: Option<simulated::SimulatedRig>,
+}
+
+impl Devices {
+    /// Starts a worker per device the rig names; each opens its device in the background.
+    /// A simulated rig starts its simulators first, on loopback.
+    pub fn start(rig: &Rig, keep_alive: Duration) -> anyhow::Result<Devices> {
+        let (selectors, sim) = if rig.simulated {
+            let sim = simulated::SimulatedRig::start().context("starting the simulated rig")?;
+            (sim.selectors(), Some(sim))
+        } else {
+            (rig.devices.clone(), None)
+        };
+        let named = |role: &str, s: &Option<Selector>| {
+            s.clone().with_context(|| {
+                format!("the rig names no {role}; add `{role} = \"...\"` under [devices] (`brdfd devices` lists what is connected)")
+            })
+        };
+        let dslr = named("dslr", &selectors.dslr)?;
+        let theta = named("theta", &selectors.theta)?;
+        let timeouts = if rig.simulated {
+            open::loopback_timeouts()
+        } else {
+            brdfd_theta::HttpTimeouts::default()
+        };
+        let dslr_worker = {
+            let s = dslr.clone();
+            Worker::spawn(
+                "dslr",
+                &dslr.to_string(),
+                Box::new(move || open::ptp_camera(&s)),
+                keep_alive,
+            )
+        };
+        let theta_worker = {
+            let s = theta.clone();
+            Worker::spawn(
+                "theta",
+                &theta.to_string(),
+                Box::new(move || open::theta(&s, None, timeouts)),
+                keep_alive,
+            )
+        };
+        let turntable = match selectors.turntable {
+            Some(Selector::Serial(path)) => {
+                let name = format!("serial:{path}");
+                Some(Worker::spawn(
+                    "turntable",
+                    &name,
+                    Box::new(move || open::turntable(&path)),
+                    keep_alive,
+                ))
+            }
+            // A shutter cable has no turntable; views then need turning by hand (not yet).
+            _ => None,
+        };
+        Ok(Devices {
+            dslr: dslr_worker,
+            theta: theta_worker,
+            turntable,
+            sim,
+        })
+    }
+
+    pub fn status(&self) -> Vec<DeviceStatus> {
+        let mut v = vec![self.dslr.status(), self.theta.status()];
+        if let Some(t) = &self.turntable {
+            v.push(t.status());
+        }
+        v
+    }
+}

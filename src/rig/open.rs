@@ -1,0 +1,71 @@
+//! Devices from the selectors that name them. The CLI's device commands and the rig's workers
+//! open devices the same way.
+
+use std::time::Duration;
+
+use anyhow::bail;
+use brdfd_ptp::transport::ptpip::{Initiator, PtpIpTransport, DEFAULT_PORT};
+use brdfd_ptp::transport::usb::{open_usb, UsbTransport};
+use brdfd_ptp::transport::Transport;
+use brdfd_ptp::{Camera, Timeouts};
+use brdfd_serial::{RigController, RigTimeouts};
+use brdfd_theta::{Credentials, HttpTimeouts, Theta};
+
+use crate::selector::Selector;
+
+/// Opens the PTP camera a selector names (`usb`, `usb:VVVV[:PPPP]`, `ptpip:HOST[:PORT]`).
+pub fn ptp_camera(port: &Selector) -> anyhow::Result<Camera> {
+    let link: Box<dyn Transport> = match port {
+        Selector::PtpIp(host) => {
+            let addr = if host.contains(':') {
+                host.clone()
+            } else {
+                format!("{host}:{DEFAULT_PORT}")
+            };
+            Box::new(PtpIpTransport::connect(
+                addr.as_str(),
+                Initiator::default(),
+                Duration::from_secs(5),
+            )?)
+        }
+        Selector::Usb { vendor, product } => {
+            Box::new(UsbTransport::new(open_usb(*vendor, *product)?))
+        }
+        other => bail!(
+            "unknown camera port {:?}: {other} is not a PTP camera; use usb, usb:VVVV[:PPPP] or ptpip:HOST[:PORT]",
+            other.to_string()
+        ),
+    };
+    Ok(Camera::open(link, Timeouts::default())?)
+}
+
+/// Opens the THETA a selector names: over HTTP, or over PTP (plain `usb` means the first
+/// RICOH camera, not the first PTP camera: the DSLR may be plugged in too).
+pub fn theta(
+    port: &Selector,
+    credentials: Option<Credentials>,
+    timeouts: HttpTimeouts,
+) -> anyhow::Result<Theta> {
+    match port {
+        Selector::Osc(url) => Ok(Theta::connect_http(url, credentials, timeouts)?),
+        Selector::Usb { vendor: None, .. } => Ok(Theta::from_ptp(ptp_camera(&Selector::Usb {
+            vendor: Some(brdfd_theta::usb::RICOH_VENDOR),
+            product: None,
+        })?)?),
+        Selector::Usb { .. } | Selector::PtpIp(_) => Ok(Theta::from_ptp(ptp_camera(port)?)?),
+        other => bail!("{other} is not a THETA; use osc:http://HOST, usb or usb:05ca:PPPP"),
+    }
+}
+
+/// Opens a turntable or trigger box that speaks the brdfd rig protocol.
+pub fn turntable(path: &str) -> anyhow::Result<RigController> {
+    Ok(RigController::open(path, RigTimeouts::default())?)
+}
+
+/// Timeouts for a simulated THETA on loopback: the real defaults, with faster polling.
+pub fn loopback_timeouts() -> HttpTimeouts {
+    HttpTimeouts {
+        poll: Duration::from_millis(20),
+        ..HttpTimeouts::default()
+    }
+}
