@@ -87,7 +87,7 @@ impl Progress for Bars {
             }
             Event::Message { text } => self.line(&text),
             Event::Warning { text } => {
-                let _ = self.multi.suspend(|| eprintln!("  warning: {text}"));
+                self.multi.suspend(|| eprintln!("  warning: {text}"));
             }
             Event::Finished { .. } => {
                 for (_, b) in self.bars.lock().expect("bars").drain() {
