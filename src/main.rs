@@ -8,8 +8,14 @@ use clap::Parser;
 fn main() -> std::process::ExitCode {
     let args = cli::Cli::parse();
     // A simulator logs each transaction it serves; everything else is quiet unless asked.
-    let default = match args.command {
+    let serve_log;
+    let default = match &args.command {
         cli::Command::Sim { .. } => "warn,brdfd_sim=info",
+        // The daemon logs as its config says (`log` in brdfd.toml).
+        cli::Command::Serve(a) => {
+            serve_log = a.log_filter();
+            serve_log.as_str()
+        }
         _ => "warn",
     };
     tracing_subscriber::fmt()

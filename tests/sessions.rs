@@ -48,7 +48,7 @@ fn a_capture_killed_mid_session_resumes_without_losing_or_repeating_anything() {
     let dir = tempfile::tempdir().unwrap();
     let state = dir.path().join("state");
     let state_arg = state.to_str().unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_brdfd"))
+    let mut child = common::command()
         .args([
             "capture",
             "--simulate",
@@ -192,4 +192,80 @@ fn bad_session_ids_and_material_names_are_refused() {
     assert!(!o.status.success());
     assert!(out(&o).contains("material name"), "{}", out(&o));
     assert!(!dir.path().join("sessions").exists(), "nothing was created");
+}
+
+/// A full disk, for real: the state directory is a 3 MB tmpfs, mounted in a user and mount
+/// namespace of the test's own (`unshare -rm`), so no privilege is needed beyond what a CI
+/// container gives. The raw files fit; the 35 MB MERL table of the results does not.
+#[test]
+fn a_full_disk_fails_the_session_clearly_and_it_resumes_once_there_is_room() {
+    let dir = tempfile::tempdir().unwrap();
+    let (state, kept) = (dir.path().join("state"), dir.path().join("kept"));
+    std::fs::create_dir_all(&state).unwrap();
+    std::fs::create_dir_all(&kept).unwrap();
+    let usable = Command::new("unshare")
+        .args(["-rm", "true"])
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(
+        usable,
+        "this test needs user and mount namespaces (`unshare -rm`, util-linux)"
+    );
+    // Inside the namespace: fill the small disk, keep a copy of what the failure left, then
+    // make room and resume. The tmpfs goes away with the namespace, so the script copies out.
+    let script = r#"
+        set -u
+        mount -t tmpfs -o size=3m tmpfs "$STATE" || exit 90
+        "$BRDFD" capture --simulate --material gold --size 96 --state-dir "$STATE" > "$KEPT/capture.log" 2>&1
+        echo $? > "$KEPT/capture.rc"
+        "$BRDFD" session show "$(ls "$STATE/sessions")" --state-dir "$STATE" > "$KEPT/show.log" 2>&1
+        mkdir "$KEPT/full" && cp -a "$STATE/." "$KEPT/full/"
+        mount -o remount,size=200m "$STATE" || exit 91
+        "$BRDFD" session resume "$(ls "$STATE/sessions")" --state-dir "$STATE" > "$KEPT/resume.log" 2>&1
+        echo $? > "$KEPT/resume.rc"
+        "$BRDFD" session show "$(ls "$STATE/sessions")" --state-dir "$STATE" > "$KEPT/show-after.log" 2>&1
+    "#;
+    let ran = Command::new("unshare")
+        .args(["-rm", "sh", "-c", script])
+        .env("STATE", &state)
+        .env("KEPT", &kept)
+        .env("BRDFD", env!("CARGO_BIN_EXE_brdfd"))
+        .env("BRDFD_DAEMON", common::NO_DAEMON)
+        .status()
+        .unwrap();
+    assert!(ran.success(), "the namespace script failed: {ran}");
+    let read = |f: &str| std::fs::read_to_string(kept.join(f)).unwrap();
+
+    // The capture failed, saying where and why, and how to continue.
+    assert_eq!(read("capture.rc").trim(), "1");
+    let log = read("capture.log");
+    assert!(log.contains("No space left on device"), "{log}");
+    assert!(log.contains("brdfd session resume"), "{log}");
+    // What was captured is on disk, listed and whole; the session says it failed and why.
+    let show = read("show.log");
+    assert!(show.contains("13 raw files verified"), "{show}");
+    assert!(show.contains("\"state\": \"failed\""), "{show}");
+    assert!(show.contains("No space left on device"), "{show}");
+    let sessions: Vec<_> = std::fs::read_dir(kept.join("full/sessions"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(sessions.len(), 1);
+    // The half-written results were removed: that is what made room to record the failure.
+    assert!(!sessions[0].join("result.partial").exists());
+
+    // With room again, resume finishes it without shooting anything again.
+    let resume = read("resume.log");
+    assert_eq!(read("resume.rc").trim(), "0", "{resume}");
+    assert!(
+        resume.contains("panorama: 8 frames already in the session"),
+        "{resume}"
+    );
+    assert!(
+        resume.contains("view1: 5 frames already in the session"),
+        "{resume}"
+    );
+    let after = read("show-after.log");
+    assert!(after.contains("\"state\": \"done\""), "{after}");
+    assert!(after.contains("13 raw files verified"), "{after}");
 }

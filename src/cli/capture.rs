@@ -93,6 +93,7 @@ impl DaemonArgs {
     /// The running daemon, unless `--in-process`; says which way the work goes.
     pub fn find(&self, config: &DaemonConfig) -> anyhow::Result<Option<Daemon>> {
         if self.in_process {
+            println!("running in this process (--in-process)");
             return Ok(None);
         }
         let addr = self.daemon.clone().unwrap_or_else(|| config.api.clone());

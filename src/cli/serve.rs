@@ -35,6 +35,17 @@ pub struct ServeArgs {
     pub keep_alive: f64,
 }
 
+impl ServeArgs {
+    /// The config's log filter; an unreadable config is reported by `run`, so "info" here.
+    pub fn log_filter(&self) -> String {
+        self.config
+            .as_ref()
+            .and_then(|p| brdfd::config::DaemonConfig::read(p).ok())
+            .unwrap_or_else(brdfd::config::DaemonConfig::embedded)
+            .log
+    }
+}
+
 pub fn run(a: ServeArgs) -> anyhow::Result<()> {
     let mut config = match &a.config {
         Some(p) => brdfd::config::DaemonConfig::read(p)?,

@@ -110,7 +110,12 @@ pub fn execute(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Resu
             } else {
                 format!("{e:#}")
             };
-            let _ = session.set_state(State::Failed, Some(reason.clone()));
+            // Half-written results are of no use, and on a full disk removing them is what
+            // makes room to record the failure.
+            let _ = std::fs::remove_dir_all(session.dir.join("result.partial"));
+            if let Err(record) = session.set_state(State::Failed, Some(reason.clone())) {
+                tracing::error!("could not record the failure in the manifest: {record}");
+            }
             cx.progress.event(Event::Finished {
                 session: id.clone(),
                 state: State::Failed,

@@ -7,9 +7,22 @@ use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 
+/// A loopback address where no daemon listens: `capture` and `session resume` look for a
+/// daemon first, and tests that mean the in-process path must not find one a developer left
+/// running on the default port.
+pub const NO_DAEMON: &str = "127.0.0.1:9";
+
+/// `brdfd` as a command, with no daemon to find unless the test gives one.
+pub fn command() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_brdfd"));
+    c.env("BRDFD_DAEMON", NO_DAEMON)
+        .env_remove("BRDFD_STATE_DIR");
+    c
+}
+
 /// Runs `brdfd ARGS` in `dir` and waits for it.
 pub fn brdfd(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_brdfd"))
+    command()
         .args(args)
         .current_dir(dir)
         .output()
@@ -40,7 +53,7 @@ pub struct Simulator {
 impl Simulator {
     /// Starts `brdfd ARGS` and waits for the line it prints when it is ready.
     pub fn start(args: &[&str]) -> Simulator {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_brdfd"))
+        let mut child = command()
             .args(args)
             .stdout(Stdio::piped())
             .spawn()
@@ -59,4 +72,151 @@ impl Drop for Simulator {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
+}
+
+/// `brdfd serve --simulate` on a free loopback port, killed when dropped.
+pub struct Daemon {
+    pub child: Child,
+    /// IP:PORT of the API.
+    pub addr: String,
+    stdout: BufReader<std::process::ChildStdout>,
+    http: reqwest::blocking::Client,
+}
+
+impl Daemon {
+    pub fn start(state: &Path, extra: &[&str]) -> Daemon {
+        let mut child = command()
+            .args(["serve", "--api", "127.0.0.1:0", "--state-dir"])
+            .arg(state)
+            .args(extra)
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("brdfd serve starts");
+        let mut stdout = BufReader::new(child.stdout.take().expect("piped stdout"));
+        let mut line = String::new();
+        stdout
+            .read_line(&mut line)
+            .expect("the daemon prints its address");
+        let addr = line
+            .split("http://")
+            .nth(1)
+            .and_then(|r| r.split_whitespace().next())
+            .unwrap_or_else(|| panic!("no address in {line:?}"))
+            .to_string();
+        Daemon {
+            child,
+            addr,
+            stdout,
+            http: reqwest::blocking::Client::new(),
+        }
+    }
+
+    pub fn simulated(state: &Path) -> Daemon {
+        Daemon::start(state, &["--simulate"])
+    }
+
+    fn url(&self, path: &str) -> String {
+        format!("http://{}/api/v1{path}", self.addr)
+    }
+
+    fn answer(r: reqwest::blocking::Response) -> (u16, serde_json::Value) {
+        let status = r.status().as_u16();
+        (status, r.json().unwrap_or(serde_json::Value::Null))
+    }
+
+    pub fn get(&self, path: &str) -> (u16, serde_json::Value) {
+        Daemon::answer(self.http.get(self.url(path)).send().expect("GET"))
+    }
+
+    pub fn get_bytes(&self, path: &str) -> (u16, Vec<u8>) {
+        let r = self.http.get(self.url(path)).send().expect("GET");
+        (r.status().as_u16(), r.bytes().expect("body").to_vec())
+    }
+
+    pub fn post(&self, path: &str, body: serde_json::Value) -> (u16, serde_json::Value) {
+        Daemon::answer(
+            self.http
+                .post(self.url(path))
+                .json(&body)
+                .send()
+                .expect("POST"),
+        )
+    }
+
+    /// Reads a session's event stream to its end; the events, as JSON.
+    pub fn events(&self, id: &str) -> Vec<serde_json::Value> {
+        let r = self
+            .http
+            .get(self.url(&format!("/sessions/{id}/events")))
+            .send()
+            .expect("GET events");
+        assert_eq!(r.status().as_u16(), 200);
+        BufReader::new(r)
+            .lines()
+            .map_while(Result::ok)
+            .filter_map(|l| {
+                l.strip_prefix("data:")
+                    .map(|d| serde_json::from_str(d.trim()).expect("an event is JSON"))
+            })
+            .collect()
+    }
+
+    /// Waits until the session's manifest says `step` is complete.
+    pub fn wait_for_step(&self, id: &str, step: &str) {
+        let start = std::time::Instant::now();
+        loop {
+            let (_, s) = self.get(&format!("/sessions/{id}"));
+            let done = s["manifest"]["steps"]
+                .as_array()
+                .is_some_and(|v| v.iter().any(|x| x["name"] == step && x["complete"] == true));
+            if done {
+                return;
+            }
+            assert!(
+                start.elapsed() < std::time::Duration::from_secs(120),
+                "{step} never completed"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+    }
+
+    /// The rest of what the daemon printed, after it exits.
+    pub fn rest_of_stdout(&mut self) -> String {
+        let mut s = String::new();
+        let _ = std::io::Read::read_to_string(&mut self.stdout, &mut s);
+        s
+    }
+
+    pub fn signal(&self, sig: &str) {
+        let ok = Command::new("kill")
+            .args([sig, &self.child.id().to_string()])
+            .status()
+            .expect("kill runs")
+            .success();
+        assert!(ok, "kill {sig} failed");
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// The coefficients printed under `title:` (`  name = +value` lines).
+pub fn printed_coefficients(out: &str, title: &str) -> Vec<f64> {
+    out.lines()
+        .skip_while(|l| l.trim_end() != format!("{title}:"))
+        .skip(1)
+        .map_while(|l| l.split_once(" = ").and_then(|(_, v)| v.trim().parse().ok()))
+        .collect()
+}
+
+/// ‖a − b‖ / ‖b‖.
+pub fn relative_error(a: &[f64], b: &[f64]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    let d: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
+    let n: f64 = b.iter().map(|y| y * y).sum();
+    (d / n).sqrt()
 }
