@@ -108,6 +108,9 @@ impl DaemonArgs {
 }
 
 pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
+    if a.views == 0 {
+        bail!("--views must be at least 1");
+    }
     let plan = Plan {
         material: a.material,
         size: a.size,

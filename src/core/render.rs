@@ -275,6 +275,32 @@ impl ColumnTable {
         dispatch!(1 2 3 4 5 6 7 8 9 10 11 12)
     }
 
+    /// As [`ColumnTable::pixel`], for a view shared by every pixel (lights prepared by
+    /// [`ColumnTable::shared_view`]).
+    fn pixel_shared(&self, px: &GeomPixel, lights: &[ViewLight], out: &mut [f32]) {
+        macro_rules! dispatch {
+            ($($m:literal)*) => {
+                match self.m {
+                    $($m => self.pixel_shared_m::<$m>(px, lights, out),)*
+                    _ => unreachable!("column count checked in ColumnTable::new"),
+                }
+            };
+        }
+        dispatch!(1 2 3 4 5 6 7 8 9 10 11 12)
+    }
+
+    #[inline(always)]
+    fn accumulate<const M: usize>(&self, acc: &mut [[f32; M]; 3], start: usize, w: [f32; 3]) {
+        // The slice's length is a constant, which lets the compiler drop the bounds checks
+        // in the loop below; `start` comes from bins < 90, so it is always in range.
+        let row = &self.data[start..start + 3 * M];
+        for c in 0..3 {
+            for j in 0..M {
+                acc[c][j] += w[c] * row[c * M + j];
+            }
+        }
+    }
+
     #[inline(always)]
     fn pixel_m<const M: usize>(&self, px: &GeomPixel, lights: &[PackedLight], out: &mut [f32]) {
         let mut acc = [[0f32; M]; 3];
@@ -284,21 +310,69 @@ impl ColumnTable {
             let Some(Pair { cos, bh, bd, .. }) = pair(n, v, l, &self.h_lut, &self.d_lut) else {
                 continue;
             };
-            // bh, bd < 90, so the slice is always in range; its length is a constant, which
-            // lets the compiler drop the bounds checks in the loop below.
-            let start = (bh * N_THETA_D + bd) * 3 * M;
-            let row = &self.data[start..start + 3 * M];
-            for c in 0..3 {
-                let w = l.power[c] * cos;
-                for j in 0..M {
-                    acc[c][j] += w * row[c * M + j];
-                }
-            }
+            let w = [l.power[0] * cos, l.power[1] * cos, l.power[2] * cos];
+            self.accumulate::<M>(&mut acc, (bh * N_THETA_D + bd) * 3 * M, w);
         }
         for c in 0..3 {
             out[c * M..(c + 1) * M].copy_from_slice(&acc[c]);
         }
     }
+
+    /// With one view for every pixel (an orthographic camera), the half vector and θd of a
+    /// light are the same at every pixel: they are computed once per light, and the pair
+    /// loop is left with n·ω and θh.
+    fn shared_view(&self, view: [f32; 3], lights: &[PackedLight]) -> Vec<ViewLight> {
+        lights
+            .iter()
+            .filter_map(|l| {
+                let hs = [l.dir[0] + view[0], l.dir[1] + view[1], l.dir[2] + view[2]];
+                let len2 = dot3(hs, hs);
+                if len2 < 1e-12 {
+                    return None;
+                }
+                let inv = 1.0 / len2.sqrt();
+                let h = [hs[0] * inv, hs[1] * inv, hs[2] * inv];
+                Some(ViewLight {
+                    dir: l.dir,
+                    power: l.power,
+                    h,
+                    bd: self.d_lut.bin(dist2(l.dir, h)) as u32,
+                })
+            })
+            .collect()
+    }
+
+    #[inline(always)]
+    fn pixel_shared_m<const M: usize>(
+        &self,
+        px: &GeomPixel,
+        lights: &[ViewLight],
+        out: &mut [f32],
+    ) {
+        let mut acc = [[0f32; M]; 3];
+        let n = px.normal;
+        for l in lights {
+            let cos = dot3(n, l.dir);
+            if cos <= 0.0 {
+                continue;
+            }
+            let bh = self.h_lut.bin(dist2(n, l.h));
+            let w = [l.power[0] * cos, l.power[1] * cos, l.power[2] * cos];
+            self.accumulate::<M>(&mut acc, (bh * N_THETA_D + l.bd as usize) * 3 * M, w);
+        }
+        for c in 0..3 {
+            out[c * M..(c + 1) * M].copy_from_slice(&acc[c]);
+        }
+    }
+}
+
+/// A light with its half vector and θd bin for a view shared by all pixels.
+#[derive(Clone, Copy)]
+struct ViewLight {
+    dir: [f32; 3],
+    power: [f32; 3],
+    h: [f32; 3],
+    bd: u32,
 }
 
 /// A (pixels·3) × m matrix: row `3·p + c` is pixel p, channel c. Optionally with an offset
@@ -346,11 +420,18 @@ impl RenderingMatrix {
         let packed = pack(lights);
         let m = all.len();
         let mut raw = vec![0f32; pixels.len() * 3 * m];
+        let shared = pixels
+            .first()
+            .filter(|first| pixels.iter().all(|p| p.view == first.view))
+            .map(|first| table.shared_view(first.view, &packed));
         raw.par_chunks_mut(PIXELS_PER_TASK * 3 * m)
             .zip(pixels.par_chunks(PIXELS_PER_TASK))
             .for_each(|(out, px)| {
                 for (o, p) in out.chunks_mut(3 * m).zip(px) {
-                    table.pixel(p, &packed, o);
+                    match &shared {
+                        Some(lights) => table.pixel_shared(p, lights, o),
+                        None => table.pixel(p, &packed, o),
+                    }
                 }
             });
         let k = columns.len();

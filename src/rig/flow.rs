@@ -335,6 +335,15 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
             None => {
                 let deg = if plan.views > 1 {
                     let at = turn_to(cx, i as f64 * plan.turn)?;
+                    if let Some(t) = &cx.devices.turntable {
+                        note_device(session, t.status().identity.clone());
+                        if i == 0 {
+                            cx.say(format!(
+                                "turntable: {}",
+                                t.status().identity.unwrap_or_default()
+                            ));
+                        }
+                    }
                     cx.say(format!(
                         "view {} of {}: turntable at {at:.2}°",
                         i + 1,

@@ -180,7 +180,7 @@ impl Device for Theta {
 impl Device for RigController {
     fn identity(&self) -> String {
         format!(
-            "{} {} on {}",
+            "{} {} on serial:{}",
             self.identity.name,
             self.identity.version,
             self.port_name()

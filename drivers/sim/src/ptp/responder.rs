@@ -69,10 +69,10 @@ struct Object {
     data: Vec<u8>,
 }
 
-/// How long the simulated Nikon processes a frame after the exposure, before it reports
-/// the object. A real D5100 takes about half a second for a JPEG; the simulation keeps the
-/// client's polling real but short.
-const NIKON_PROCESSING: std::time::Duration = std::time::Duration::from_millis(60);
+/// How long the simulated Nikon stays busy processing a frame after the exposure. A real
+/// D5100 takes about half a second for a JPEG; the simulation keeps the client's polling
+/// real but short.
+const NIKON_PROCESSING: std::time::Duration = std::time::Duration::from_millis(100);
 
 pub struct Responder {
     profile: Profile,
@@ -82,10 +82,12 @@ pub struct Responder {
     objects: BTreeMap<u32, Object>,
     next_handle: u32,
     shots: u32,
-    /// Nikon: events waiting for GetEvent, held back (and DeviceReady answered busy) until
-    /// the exposure and its processing are over.
+    /// Nikon: events waiting for GetEvent, held back until the exposure is over; DeviceReady
+    /// answers busy until the frame is processed, and for at least `device_ready_busy` polls.
     nikon_events: Vec<(u16, u32)>,
+    exposed_at: Option<std::time::Instant>,
     busy_until: Option<std::time::Instant>,
+    device_ready_busy: u32,
     /// Time the camera has spent busy with exposures so far: the device's own time.
     busy_total: std::time::Duration,
     pub faults: Faults,
@@ -109,7 +111,9 @@ impl Responder {
             next_handle: 1,
             shots: 0,
             nikon_events: Vec::new(),
+            exposed_at: None,
             busy_until: None,
+            device_ready_busy: 0,
             busy_total: std::time::Duration::ZERO,
             faults: Faults::default(),
             log: Vec::new(),
@@ -129,6 +133,8 @@ impl Responder {
         self.session = None;
         self.faults.wedged = false;
         self.busy_until = None;
+        self.exposed_at = None;
+        self.device_ready_busy = 0;
     }
 
     /// Seconds the camera has spent exposing and processing shots (Nikon profile).
@@ -136,9 +142,8 @@ impl Responder {
         self.busy_total.as_secs_f64()
     }
 
-    fn busy(&self) -> bool {
-        self.busy_until
-            .is_some_and(|t| std::time::Instant::now() < t)
+    fn before(t: Option<std::time::Instant>) -> bool {
+        t.is_some_and(|t| std::time::Instant::now() < t)
     }
 
     /// Host-to-device data phases the device expects for an operation.
@@ -307,7 +312,7 @@ impl Responder {
                 }
             }
             op::NIKON_GET_EVENT if self.is_nikon() => {
-                let events = if self.busy() {
+                let events = if Responder::before(self.exposed_at) {
                     Vec::new()
                 } else {
                     std::mem::take(&mut self.nikon_events)
@@ -315,7 +320,8 @@ impl Responder {
                 reply.data = Some(encode_nikon_events(&events));
             }
             op::NIKON_DEVICE_READY if self.is_nikon() => {
-                if self.busy() {
+                if Responder::before(self.busy_until) || self.device_ready_busy > 0 {
+                    self.device_ready_busy = self.device_ready_busy.saturating_sub(1);
                     return rc::DEVICE_BUSY;
                 }
             }
