@@ -26,11 +26,16 @@ const PIXELS_PER_TASK: usize = 256;
 pub const MAX_COLUMNS: usize = 12;
 
 /// Maps u = 4 sin²(θ/2) to the bin of θ, exactly, for monotone bin edges.
+///
+/// The table is indexed by u's bit pattern: for a positive f32 the bits grow with the value,
+/// and their top bits are its logarithm in steps of 1/2^(23 − shift) of an octave. That
+/// spacing suits both grids: √-spaced θh edges crowd together near 0 in θ (so in u) and so
+/// do the θd edges, relative to their size. Each cell holds at most one edge, so one compare
+/// finishes the lookup, with no square root in the pair loop.
 #[derive(Clone)]
 pub struct BinLut {
-    /// g(u) = u^(1/4) for square-root bins (≈ √θ, where the bins are uniform), √u otherwise.
-    fourth_root: bool,
-    scale: f32,
+    base_bits: u32,
+    shift: u32,
     start_bin: Vec<u16>,
     next_edge_u: Vec<f32>,
 }
@@ -42,71 +47,56 @@ fn u_of_theta(theta: f64) -> f64 {
 
 impl BinLut {
     /// `lower_edges[b]` is the smallest θ of bin b (increasing, `lower_edges[0] = 0`).
-    pub fn new(lower_edges: &[f64], fourth_root: bool) -> BinLut {
-        let g = |u: f64| {
-            if fourth_root {
-                u.sqrt().sqrt()
-            } else {
-                u.sqrt()
-            }
-        };
-        let edges_u: Vec<f64> = lower_edges.iter().map(|e| u_of_theta(*e)).collect();
-        let g_max = g(2.0);
-        let mut cells = 256usize;
+    pub fn new(lower_edges: &[f64]) -> BinLut {
+        let edges_u: Vec<f32> = lower_edges.iter().map(|e| u_of_theta(*e) as f32).collect();
+        // Everything below half the first non-zero edge shares cell 0 (bin 0).
+        let base_bits = (edges_u[1] * 0.5).to_bits();
+        let top_bits = 4.0f32.to_bits();
+        let mut shift = 18;
         loop {
-            let scale = cells as f64 / g_max;
-            let mut start_bin = Vec::with_capacity(cells + 1);
-            let mut next_edge_u = Vec::with_capacity(cells + 1);
+            let cells = ((top_bits - base_bits) >> shift) as usize + 1;
+            let mut start_bin = Vec::with_capacity(cells);
+            let mut next_edge_u = Vec::with_capacity(cells);
             let mut ok = true;
-            for q in 0..=cells {
-                let g_lo = q as f64 / scale;
-                let g_hi = (q + 1) as f64 / scale;
-                let u_lo = if fourth_root {
-                    g_lo.powi(4)
+            for q in 0..cells as u32 {
+                let lo = if q == 0 {
+                    0.0
                 } else {
-                    g_lo * g_lo
+                    f32::from_bits(base_bits + (q << shift))
                 };
-                let u_hi = if fourth_root {
-                    g_hi.powi(4)
-                } else {
-                    g_hi * g_hi
-                };
-                let b = edges_u.iter().rposition(|e| *e <= u_lo).unwrap_or(0);
-                let inside = edges_u.iter().filter(|e| **e > u_lo && **e < u_hi).count();
-                ok &= inside <= 1;
+                let hi = f32::from_bits(base_bits + ((q + 1) << shift));
+                let b = edges_u.iter().rposition(|e| *e <= lo).unwrap_or(0);
+                ok &= edges_u.iter().filter(|e| **e > lo && **e < hi).count() <= 1;
                 start_bin.push(b as u16);
-                next_edge_u.push(edges_u.get(b + 1).map_or(f32::INFINITY, |e| *e as f32));
+                next_edge_u.push(edges_u.get(b + 1).copied().unwrap_or(f32::INFINITY));
             }
             if ok {
                 return BinLut {
-                    fourth_root,
-                    scale: scale as f32,
+                    base_bits,
+                    shift,
                     start_bin,
                     next_edge_u,
                 };
             }
-            cells *= 2;
+            shift -= 1;
         }
     }
 
     pub fn theta_h(binning: ThetaHBinning) -> BinLut {
         let edges: Vec<f64> = (0..N_THETA_H).map(|i| binning.lower_edge(i)).collect();
-        BinLut::new(&edges, binning == ThetaHBinning::Sqrt)
+        BinLut::new(&edges)
     }
 
     pub fn theta_d() -> BinLut {
         let edges: Vec<f64> = (0..N_THETA_D).map(theta_d_lower_edge).collect();
-        BinLut::new(&edges, false)
+        BinLut::new(&edges)
     }
 
     #[inline(always)]
     pub fn bin(&self, u: f32) -> usize {
-        let g = if self.fourth_root {
-            u.sqrt().sqrt()
-        } else {
-            u.sqrt()
-        };
-        let q = ((g * self.scale) as usize).min(self.start_bin.len() - 1);
+        // u ≥ +0 (a squared distance), so its bits order like its value.
+        let q = (u.to_bits().saturating_sub(self.base_bits) >> self.shift) as usize;
+        let q = q.min(self.start_bin.len() - 1);
         let b = self.start_bin[q] as usize + (u >= self.next_edge_u[q]) as usize;
         b.min(N_THETA_H - 1)
     }
