@@ -50,12 +50,12 @@ pub struct CaptureArgs {
     #[arg(long, value_delimiter = ',')]
     pub bracket: Vec<f64>,
     /// Views on the turntable: the object turned `--turn` degrees between them, under the
-    /// same light, for more normals in one estimate.
-    #[arg(long, default_value_t = 1)]
-    pub views: usize,
-    /// Turntable step between views, degrees.
-    #[arg(long, default_value_t = 30.0, allow_hyphen_values = true)]
-    pub turn: f64,
+    /// same light, for more normals in one estimate; the rig's turntable plan, else 1.
+    #[arg(long)]
+    pub views: Option<usize>,
+    /// Turntable step between views, degrees; the rig's, else 30.
+    #[arg(long, allow_hyphen_values = true)]
+    pub turn: Option<f64>,
     /// Where sessions are stored (in-process captures); else BRDFD_STATE_DIR, else the
     /// daemon config's, else the XDG data directory.
     #[arg(long)]
@@ -108,7 +108,7 @@ impl DaemonArgs {
 }
 
 pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
-    if a.views == 0 {
+    if a.views == Some(0) {
         bail!("--views must be at least 1");
     }
     let plan = Plan {

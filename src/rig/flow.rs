@@ -261,10 +261,11 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         },
         (None, None) => Some(20),
     };
-    if plan.views > 1 && cx.devices.turntable.is_none() {
+    let (n_views, turn_step) = plan.turntable(rig);
+    if n_views > 1 && cx.devices.turntable.is_none() {
         bail!(
             "{} views need a turntable, and the rig names none (`turntable = \"serial:...\"` under [devices])",
-            plan.views
+            n_views
         );
     }
     if matches!(session.manifest.state, State::Created | State::Failed) {
@@ -319,8 +320,8 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     )?;
 
     // One DSLR bracket per turntable view.
-    let mut views = Vec::with_capacity(plan.views);
-    for i in 0..plan.views {
+    let mut views = Vec::with_capacity(n_views);
+    for i in 0..n_views {
         cx.cancel.check()?;
         let step = format!("view{}", i + 1);
         let (files, deg) = match stored(session, &step)? {
@@ -333,8 +334,8 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
                 (files, deg)
             }
             None => {
-                let deg = if plan.views > 1 {
-                    let at = turn_to(cx, i as f64 * plan.turn)?;
+                let deg = if n_views > 1 {
+                    let at = turn_to(cx, i as f64 * turn_step)?;
                     if let Some(t) = &cx.devices.turntable {
                         note_device(session, t.status().identity.clone());
                         if i == 0 {
@@ -347,7 +348,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
                     cx.say(format!(
                         "view {} of {}: turntable at {at:.2}°",
                         i + 1,
-                        plan.views
+                        n_views
                     ));
                     at
                 } else {
@@ -745,6 +746,12 @@ fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<Raster> {
     let frames = files
         .iter()
         .map(|(name, bytes)| {
+            // RAW files are stored as sent (raw/ keeps them for a later decoder); the merge
+            // takes decoded linear frames, so a RAW decoder plugs in here by file type.
+            let ext = name.rsplit('.').next().unwrap_or("").to_ascii_lowercase();
+            if matches!(ext.as_str(), "nef" | "nrw" | "dng" | "cr2" | "cr3" | "arw") {
+                bail!("{name}: RAW decoding is not built yet; the file is kept in the session. Set the camera to JPEG (fine) to estimate");
+            }
             let f = decode_jpeg(bytes, name)?;
             cx.say(format!(
                 "  {name}: EXIF {:.4} s f/{} ISO {}",

@@ -43,12 +43,12 @@ pub struct Plan {
     /// DSLR shutter speeds, seconds; the preset's, else the rig's.
     #[serde(default)]
     pub bracket: Vec<f64>,
-    /// Turntable views (1: no turntable).
-    #[serde(default = "one")]
-    pub views: usize,
-    /// Turntable step between views, degrees.
-    #[serde(default = "default_turn")]
-    pub turn: f64,
+    /// Turntable views (1: no turntable); the rig's `[turntable]` plan, else 1.
+    #[serde(default)]
+    pub views: Option<usize>,
+    /// Turntable step between views, degrees; the rig's, else 30.
+    #[serde(default)]
+    pub turn: Option<f64>,
     /// Simulated rig only: the environment map and NBRDF file of the scene.
     #[serde(default)]
     pub env: Option<PathBuf>,
@@ -64,19 +64,23 @@ pub struct Plan {
 fn default_size() -> usize {
     256
 }
-fn one() -> usize {
-    1
-}
-fn default_turn() -> f64 {
-    30.0
-}
 
 impl Plan {
+    /// Views and the step between them: the plan's, else the rig's turntable plan, else one
+    /// view.
+    pub fn turntable(&self, rig: &Rig) -> (usize, f64) {
+        let t = rig.turntable.as_ref();
+        (
+            self.views.or(t.map(|t| t.views)).unwrap_or(1),
+            self.turn.or(t.map(|t| t.step_deg)).unwrap_or(30.0),
+        )
+    }
+
     /// Checks what can be checked before any device moves.
     pub fn validate(&self) -> anyhow::Result<()> {
         crate::config::validate_name("material name", &self.material)
             .map_err(anyhow::Error::msg)?;
-        anyhow::ensure!(self.views >= 1, "views must be at least 1");
+        anyhow::ensure!(self.views != Some(0), "views must be at least 1");
         anyhow::ensure!(
             (8..=8192).contains(&self.size),
             "size {} is outside 8..=8192",
