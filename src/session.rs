@@ -162,7 +162,7 @@ pub struct PhaseTime {
 #[derive(Debug)]
 pub struct SessionLock(#[allow(dead_code)] std::fs::File);
 
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct Session {
     pub dir: PathBuf,
     pub manifest: Manifest,

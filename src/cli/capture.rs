@@ -158,15 +158,7 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         bail!("no rig: give --rig FILE for a hardware rig (config/rigs/bench.toml is a template), or --simulate for the simulated one");
     };
     let state = brdfd::session::state_dir(a.state_dir.as_deref(), config.state_dir.as_deref())?;
-    let preset =
-        brdfd::config::MaterialPreset::embedded(&plan.material).map_err(anyhow::Error::msg)?;
-    let mut session = Session::create(
-        &state,
-        &plan.material,
-        &rig_text,
-        preset.and_then(|_| brdfd::config::preset_text(&plan.material)),
-        serde_json::to_value(&plan)?,
-    )?;
+    let mut session = plan.new_session(&state, &rig_text)?;
     println!(
         "session {} in {}",
         session.manifest.id,

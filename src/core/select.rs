@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
+use rayon::prelude::*;
 
 use super::render::{RenderingMatrix, MAX_COLUMNS};
 
@@ -327,7 +328,7 @@ pub fn fast_exchange(blocks: &Blocks, count: usize) -> Selection {
     // Rank by leverage in the whitened system.
     let mut ranked: Vec<(f64, usize)> = match &inv_all {
         Some(inv) => all
-            .iter()
+            .par_iter()
             .map(|&p| (leverage(blocks.pixel_rows(p), inv, m).0, p))
             .collect(),
         None => all
@@ -361,7 +362,9 @@ pub fn fast_exchange(blocks: &Blocks, count: usize) -> Selection {
         add_into(&mut g, blocks.gram(p), 1.0, m);
     }
     // Exchange on exact κ over the pool: take the first improving swap (the pool is in
-    // leverage order, so strong candidates come first), until a full pass finds none.
+    // leverage order, so strong candidates come first), until a full pass finds none. The
+    // candidates of one position are tried in parallel; `position_first` keeps the answer
+    // (and the count of evaluations reported) that of trying them in order.
     let mut g = blocks.sum(&chosen);
     let mut kappa = condition(&g, m);
     let mut improved = true;
@@ -370,23 +373,28 @@ pub fn fast_exchange(blocks: &Blocks, count: usize) -> Selection {
         for pos in 0..chosen.len() {
             let mut without = g;
             add_into(&mut without, blocks.gram(chosen[pos]), -1.0, m);
-            for &cand in &pool {
+            let improves = |cand: usize| {
                 if used[cand] {
-                    continue;
+                    return None;
                 }
                 let mut trial = without;
                 add_into(&mut trial, blocks.gram(cand), 1.0, m);
                 let k = condition(&trial, m);
-                evaluations += 1;
-                if k < kappa {
-                    used[chosen[pos]] = false;
-                    used[cand] = true;
-                    chosen[pos] = cand;
-                    kappa = k;
-                    g = blocks.sum(&chosen);
-                    improved = true;
-                    break;
-                }
+                (k < kappa).then_some(k)
+            };
+            let found = pool
+                .par_iter()
+                .position_first(|&cand| improves(cand).is_some());
+            let tried = &pool[..found.map_or(pool.len(), |i| i + 1)];
+            evaluations += tried.iter().filter(|c| !used[**c]).count() as u64;
+            if let Some(i) = found {
+                let cand = pool[i];
+                kappa = improves(cand).expect("found improving");
+                used[chosen[pos]] = false;
+                used[cand] = true;
+                chosen[pos] = cand;
+                g = blocks.sum(&chosen);
+                improved = true;
             }
         }
     }

@@ -7,7 +7,7 @@
 
 pub mod api;
 
-use std::collections::HashMap;
+use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -63,8 +63,13 @@ pub struct Daemon {
     pub state_dir: PathBuf,
     pub token: Option<String>,
     running: Mutex<Option<Running>>,
-    events: Mutex<HashMap<String, Arc<EventLog>>>,
+    /// Event logs of the latest captures, oldest first (a stored session older than these
+    /// streams its outcome alone).
+    events: Mutex<VecDeque<(String, Arc<EventLog>)>>,
 }
+
+/// Captures whose events the daemon keeps.
+const EVENT_LOGS_KEPT: usize = 32;
 
 /// Why a capture could not start.
 #[derive(Debug, thiserror::Error)]
@@ -99,7 +104,7 @@ impl Daemon {
             state_dir,
             token,
             running: Mutex::new(None),
-            events: Mutex::new(HashMap::new()),
+            events: Mutex::new(VecDeque::new()),
         })
     }
 
@@ -117,24 +122,19 @@ impl Daemon {
     }
 
     pub fn events(&self, id: &str) -> Option<Arc<EventLog>> {
-        self.events.lock().expect("events").get(id).cloned()
+        let logs = self.events.lock().expect("events");
+        logs.iter()
+            .rev()
+            .find(|(i, _)| i == id)
+            .map(|(_, l)| l.clone())
     }
 
     /// Creates a session for the plan and starts capturing it.
     pub fn start_capture(&self, plan: Plan) -> Result<Session, StartError> {
         self.check_idle()?;
-        plan.validate().map_err(StartError::Invalid)?;
-        let preset = crate::config::MaterialPreset::embedded(&plan.material)
-            .map_err(|e| StartError::Invalid(anyhow::anyhow!(e)))?;
-        let options = serde_json::to_value(&plan).expect("a plan serialises");
-        let session = Session::create(
-            &self.state_dir,
-            &plan.material,
-            &self.rig_text,
-            preset.and_then(|_| crate::config::preset_text(&plan.material)),
-            options,
-        )
-        .map_err(|e| StartError::Invalid(e.into()))?;
+        let session = plan
+            .new_session(&self.state_dir, &self.rig_text)
+            .map_err(StartError::Invalid)?;
         self.launch(session, plan)
     }
 
@@ -161,15 +161,15 @@ impl Daemon {
         }
         let id = session.manifest.id.clone();
         let log = EventLog::new();
-        self.events
-            .lock()
-            .expect("events")
-            .insert(id.clone(), log.clone());
+        {
+            let mut logs = self.events.lock().expect("events");
+            if logs.len() >= EVENT_LOGS_KEPT {
+                logs.pop_front();
+            }
+            logs.push_back((id.clone(), log.clone()));
+        }
         let cancel = Cancel::default();
-        let reply = Session {
-            dir: session.dir.clone(),
-            manifest: session.manifest.clone(),
-        };
+        let reply = session.clone();
         let (devices, rig, c) = (self.devices.clone(), self.rig.clone(), cancel.clone());
         let thread = std::thread::Builder::new()
             .name(format!("capture-{id}"))

@@ -76,6 +76,22 @@ impl Plan {
         )
     }
 
+    /// A new session for this plan under `state`, recording the rig and the preset as used.
+    pub fn new_session(
+        &self,
+        state: &std::path::Path,
+        rig_text: &str,
+    ) -> anyhow::Result<crate::session::Session> {
+        self.validate()?;
+        Ok(crate::session::Session::create(
+            state,
+            &self.material,
+            rig_text,
+            crate::config::preset_text(&self.material),
+            serde_json::to_value(self)?,
+        )?)
+    }
+
     /// Checks what can be checked before any device moves.
     pub fn validate(&self) -> anyhow::Result<()> {
         crate::config::validate_name("material name", &self.material)
