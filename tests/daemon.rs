@@ -241,19 +241,12 @@ fn a_daemon_killed_mid_capture_is_restarted_and_the_session_resumed() {
         assert!(now.contains(f), "{f:?} lost or changed");
     }
     let mut names: Vec<&String> = now.iter().map(|(n, _)| n).collect();
+    names.sort();
     names.dedup();
     assert_eq!(names.len(), now.len(), "a raw file is listed twice");
     // 8 panorama frames and 5 per view.
     assert_eq!(now.len(), 8 + 4 * 5);
-    let show = brdfd(
-        &["session", "show", &id, "--state-dir", state_arg],
-        dir.path(),
-    );
-    assert!(
-        out(&show).contains(&format!("{} raw files verified", now.len())),
-        "{}",
-        out(&show)
-    );
+    common::assert_verifies(dir.path(), state_arg, &id, now.len());
 }
 
 #[test]

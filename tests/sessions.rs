@@ -133,15 +133,7 @@ fn a_capture_killed_mid_session_resumes_without_losing_or_repeating_anything() {
         .filter(|n| !n.starts_with('.'))
         .collect();
     assert_eq!(on_disk.len(), now.len(), "{on_disk:?}");
-    let show = brdfd(
-        &["session", "show", &id, "--state-dir", state_arg],
-        dir.path(),
-    );
-    assert!(
-        out(&show).contains(&format!("{} raw files verified", now.len())),
-        "{}",
-        out(&show)
-    );
+    common::assert_verifies(dir.path(), state_arg, &id, now.len());
     assert!(session_dir.join("result/coefficients.json").is_file());
 
     let export = brdfd(

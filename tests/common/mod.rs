@@ -220,3 +220,13 @@ pub fn relative_error(a: &[f64], b: &[f64]) -> f64 {
     let n: f64 = b.iter().map(|y| y * y).sum();
     (d / n).sqrt()
 }
+
+/// `brdfd session show` verifies every raw file of the session: `files` of them.
+pub fn assert_verifies(dir: &Path, state: &str, id: &str, files: usize) {
+    let show = brdfd(&["session", "show", id, "--state-dir", state], dir);
+    assert!(
+        out(&show).contains(&format!("{files} raw files verified")),
+        "{}",
+        out(&show)
+    );
+}
