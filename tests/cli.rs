@@ -350,3 +350,66 @@ fn ptp_commands_drive_a_simulated_camera_over_ptpip() {
     assert!(!bad.status.success());
     assert!(text(&bad).1.contains("unknown camera port"));
 }
+
+/// The hardware path: a rig file naming devices by selector, here two simulator processes
+/// (`brdfd sim camera` over PTP/IP, `brdfd sim theta` over HTTP) standing in for the bench's
+/// DSLR and THETA. Nothing of the simulated rig is used.
+#[test]
+fn a_rig_file_drives_the_devices_it_names() {
+    let dir = tempfile::tempdir().unwrap();
+    let camera = Simulator::start(&[
+        "sim",
+        "camera",
+        "--ptpip",
+        "127.0.0.1:0",
+        "--material",
+        "gold",
+        "--size",
+        "64",
+    ]);
+    let theta = Simulator::start(&["sim", "theta", "--http", "127.0.0.1:0", "--shot-ms", "20"]);
+    let rig = include_str!("../config/rigs/simulated.toml")
+        .replace("simulated = true", "simulated = false")
+        .replace(
+            "[devices]\n",
+            &format!(
+                "[devices]\ndslr = \"ptpip:{}\"\ntheta = \"osc:{}\"\n",
+                camera.addr, theta.addr
+            ),
+        )
+        .replace("width = 256", "width = 64")
+        .replace("height = 256", "height = 64");
+    std::fs::write(dir.path().join("rig.toml"), rig).unwrap();
+    let o = brdfd(
+        &[
+            "capture",
+            "--rig",
+            "rig.toml",
+            "--material",
+            "gold",
+            "--state-dir",
+            "state",
+        ],
+        dir.path(),
+    );
+    let (stdout, stderr) = text(&o);
+    assert!(o.status.success(), "{stdout}\n{stderr}");
+    assert!(stdout.contains("no daemon at"), "{stdout}");
+    assert_eq!(
+        common::printed_coefficients(&stdout, "coefficients").len(),
+        6
+    );
+    // No simulator-only output: the rig is hardware as far as brdfd knows.
+    assert!(!stdout.contains("ground truth"), "{stdout}");
+    let list = brdfd(&["session", "list", "--state-dir", "state"], dir.path());
+    assert!(text(&list).0.contains("Done"), "{}", text(&list).0);
+    let id = text(&list).0.split_whitespace().next().unwrap().to_string();
+    let show = brdfd(
+        &["session", "show", &id, "--state-dir", "state"],
+        dir.path(),
+    );
+    let shown = text(&show).0;
+    assert!(shown.contains("RICOH THETA V (serial"), "{shown}");
+    assert!(shown.contains(&format!("ptpip:{}", camera.addr)), "{shown}");
+    assert!(shown.contains("13 raw files verified"), "{shown}");
+}
