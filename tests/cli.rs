@@ -71,7 +71,7 @@ fn simulated_capture_prints_coefficients() {
 }
 
 #[test]
-fn hardware_capture_without_drivers_says_so() {
+fn capture_without_a_rig_says_how_to_give_one() {
     let dir = tempfile::tempdir().unwrap();
     let o = brdfd(&["capture", "--material", "gold"], dir.path());
     assert!(!o.status.success());
