@@ -218,6 +218,23 @@ fn pair(n: [f32; 3], v: [f32; 3], l: &PackedLight, h_lut: &BinLut, d_lut: &BinLu
     })
 }
 
+/// Calls `$obj.$f::<M>(args)` with the column count `m` as a constant: a constant count lets
+/// the compiler unroll and vectorise the accumulation.
+macro_rules! by_columns {
+    ($m:expr, $obj:ident . $f:ident ( $($arg:expr),* )) => {
+        by_columns!(@ $m, $obj, $f, ($($arg),*), 1 2 3 4 5 6 7 8 9 10 11 12)
+    };
+    (@ $m:expr, $obj:ident, $f:ident, $args:tt, $($n:literal)*) => {
+        match $m {
+            $($n => by_columns!(@call $obj, $f, $n, $args),)*
+            _ => unreachable!("column count checked in ColumnTable::new"),
+        }
+    };
+    (@call $obj:ident, $f:ident, $n:literal, ($($arg:expr),*)) => {
+        $obj.$f::<$n>($($arg),*)
+    };
+}
+
 /// Bivariate vectors laid out for the gather: `data[(cell·3 + channel)·m + column]`.
 struct ColumnTable {
     m: usize,
@@ -253,30 +270,13 @@ impl ColumnTable {
 
     /// Σⱼ over lights of column values × L·Δω·cos, for one pixel: out[c·m + col].
     fn pixel(&self, px: &GeomPixel, lights: &[PackedLight], out: &mut [f32]) {
-        // A constant column count lets the compiler unroll and vectorise the accumulation.
-        macro_rules! dispatch {
-            ($($m:literal)*) => {
-                match self.m {
-                    $($m => self.pixel_m::<$m>(px, lights, out),)*
-                    _ => unreachable!("column count checked in ColumnTable::new"),
-                }
-            };
-        }
-        dispatch!(1 2 3 4 5 6 7 8 9 10 11 12)
+        by_columns!(self.m, self.pixel_m(px, lights, out))
     }
 
     /// As [`ColumnTable::pixel`], for a view shared by every pixel (lights prepared by
     /// [`ColumnTable::shared_view`]).
     fn pixel_shared(&self, px: &GeomPixel, lights: &[ViewLight], out: &mut [f32]) {
-        macro_rules! dispatch {
-            ($($m:literal)*) => {
-                match self.m {
-                    $($m => self.pixel_shared_m::<$m>(px, lights, out),)*
-                    _ => unreachable!("column count checked in ColumnTable::new"),
-                }
-            };
-        }
-        dispatch!(1 2 3 4 5 6 7 8 9 10 11 12)
+        by_columns!(self.m, self.pixel_shared_m(px, lights, out))
     }
 
     #[inline(always)]
