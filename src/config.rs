@@ -15,6 +15,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Deserializer};
 
 use crate::core::geometry::SceneGeometry;
+use crate::core::solve::Solver;
 use crate::selector::Selector;
 
 #[derive(Debug, thiserror::Error)]
@@ -187,9 +188,9 @@ pub struct MaterialPreset {
     /// if absent.
     #[serde(default)]
     pub dslr_shutters: Option<Vec<f64>>,
-    /// Tikhonov strength for few pixels; plain least squares if absent.
+    /// How coefficients are solved: `prior` (the default) or `least-squares` (the paper's).
     #[serde(default)]
-    pub ridge: Option<f64>,
+    pub solve: Solver,
     #[serde(default)]
     pub notes: String,
 }
@@ -439,9 +440,6 @@ impl MaterialPreset {
         if let Some(s) = &m.dslr_shutters {
             check_exposures(file, "dslr_shutters", s)?;
         }
-        if m.ridge.is_some_and(|r| !(r.is_finite() && r >= 0.0)) {
-            return Err(invalid(file, "ridge", "must be a non-negative number"));
-        }
         Ok(m)
     }
 
@@ -515,5 +513,29 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("field `pixels`"), "{e}");
+        let e = MaterialPreset::parse(
+            "m.toml",
+            "simulate_as = \"nickel\"\npixels = 20\nsolve = \"ridge\"\n",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("m.toml") && e.contains("line 3") && e.contains("least-squares"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_preset_chooses_its_solver() {
+        let parse = |extra: &str| {
+            MaterialPreset::parse(
+                "m.toml",
+                &format!("simulate_as = \"nickel\"\npixels = 20\n{extra}"),
+            )
+            .unwrap()
+            .solve
+        };
+        assert_eq!(parse(""), Solver::Prior);
+        assert_eq!(parse("solve = \"least-squares\"\n"), Solver::LeastSquares);
     }
 }

@@ -24,6 +24,8 @@ pub struct CoefficientsFile<'a> {
     /// Pixels used; equal to `candidates` for an all-pixel estimate.
     pub pixel_count: usize,
     pub selection_method: &'a str,
+    /// `least-squares` (the paper's) or `prior` (with the training set's prior; README).
+    pub solver: &'a str,
     /// (x, y) image positions of the pixels used (omitted for all-pixel estimates).
     pub chosen_pixels: Vec<(u32, u32)>,
     /// The view (turntable position, 0 for the first) of each chosen pixel.
@@ -80,6 +82,7 @@ pub fn write_results(
         coefficients: &estimate.solution.coefficients,
         pixel_count: estimate.selection.pixels.len(),
         selection_method: if all { "all" } else { method },
+        solver: estimate.solver.name(),
         chosen_pixels: if all {
             Vec::new()
         } else {

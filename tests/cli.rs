@@ -124,8 +124,36 @@ fn estimate_from_files() {
     .unwrap();
     assert_eq!(json["k"], 5);
     assert_eq!(json["pixel_count"], 20);
+    assert_eq!(json["solver"], "prior");
     assert!(json["condition_number"].as_f64().unwrap().is_finite());
     assert!(json["relative_residual"].as_f64().unwrap() < 0.25);
+    // The paper's solver on the same pixels: named in the file, and the coefficients differ.
+    let o = brdfd(
+        &[
+            "estimate",
+            "--photo",
+            "photo.exr",
+            "--env",
+            "studio.exr",
+            "--shape",
+            "sphere",
+            "--pixels",
+            "20",
+            "--solve",
+            "least-squares",
+            "--out",
+            "est-ls",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{:?}", text(&o));
+    let ls: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("est-ls/coefficients.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(ls["solver"], "least-squares");
+    assert_eq!(ls["chosen_pixels"], json["chosen_pixels"]);
+    assert_ne!(ls["coefficients"], json["coefficients"]);
     let merl = std::fs::metadata(dir.path().join("est/brdf.binary"))
         .unwrap()
         .len();

@@ -15,6 +15,7 @@ use brdfd::rig::{Cancel, Devices, Event, Plan, Progress, KEEP_ALIVE};
 use brdfd::session::{PhaseTime, Session, State};
 
 use super::client::{Busy, Daemon};
+use super::estimate_cmd::SolveArg;
 use super::progress::Bars;
 
 #[derive(clap::Args)]
@@ -45,6 +46,10 @@ pub struct CaptureArgs {
     /// Pixels to estimate from (a number or `all`); the material preset's, else 20.
     #[arg(long)]
     pub pixels: Option<String>,
+    /// How the coefficients are solved; the material preset's, else `prior` (README,
+    /// "Evaluation").
+    #[arg(long, value_enum)]
+    pub solve: Option<SolveArg>,
     /// Shutter speeds of the DSLR's exposure bracket, in seconds; the material preset's,
     /// else the rig's.
     #[arg(long, value_delimiter = ',')]
@@ -115,6 +120,7 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         material: a.material,
         size: a.size,
         pixels: a.pixels,
+        solve: a.solve.map(Into::into),
         bracket: a.bracket,
         views: a.views,
         turn: a.turn,

@@ -14,6 +14,7 @@ use brdfd::core::nbrdf::NbrdfSet;
 use brdfd::core::raster::Raster;
 use brdfd::core::render::{render_bivariate, render_merl};
 use brdfd::core::select::SwapParams;
+use brdfd::core::solve::Solver;
 use brdfd::results::write_results;
 
 use super::GeometryArgs;
@@ -37,9 +38,10 @@ pub struct EstimateArgs {
     pub pixels: String,
     #[arg(long, value_enum, default_value = "fast")]
     pub method: MethodArg,
-    /// Regularised solve with this ridge strength (see the README); plain least squares if absent.
-    #[arg(long)]
-    pub ridge: Option<f64>,
+    /// How the coefficients are solved: with the training set's prior (default), or by plain
+    /// least squares as in the paper (see the README's evaluation).
+    #[arg(long, value_enum, default_value = "prior")]
+    pub solve: SolveArg,
     /// Basis stem (STEM.exr + STEM.json); the embedded default if absent.
     #[arg(long)]
     pub basis: Option<PathBuf>,
@@ -54,6 +56,21 @@ pub struct EstimateArgs {
     /// Output folder.
     #[arg(long, default_value = "estimate")]
     pub out: PathBuf,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy)]
+pub enum SolveArg {
+    Prior,
+    LeastSquares,
+}
+
+impl From<SolveArg> for Solver {
+    fn from(a: SolveArg) -> Solver {
+        match a {
+            SolveArg::Prior => Solver::Prior,
+            SolveArg::LeastSquares => Solver::LeastSquares,
+        }
+    }
 }
 
 #[derive(clap::ValueEnum, Clone, Copy)]
@@ -91,7 +108,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
             ..SwapParams::default()
         },
         max_candidates: a.max_candidates,
-        ridge: a.ridge,
+        solver: a.solve.into(),
     };
     let est = run_estimate(&basis, &geometry, &lights, &photo, &options)?;
     let files = write_results(

@@ -13,7 +13,7 @@ use super::geometry::PixelGeometry;
 use super::raster::Raster;
 use super::render::RenderingMatrix;
 use super::select::{self, Blocks, Selection, SwapParams};
-use super::solve::{self, Solution};
+use super::solve::{Solution, Solver};
 
 /// Candidate pixels considered at most: a 16-megapixel photo holds millions of object pixels,
 /// and conditioning saturates long before this many (see README, "Speed").
@@ -36,8 +36,7 @@ pub struct EstimateOptions {
     pub method: SelectionMethod,
     pub swap: SwapParams,
     pub max_candidates: usize,
-    /// Ridge strength for the regularised solve; `None` for plain least squares.
-    pub ridge: Option<f64>,
+    pub solver: Solver,
 }
 
 impl Default for EstimateOptions {
@@ -47,7 +46,7 @@ impl Default for EstimateOptions {
             method: SelectionMethod::Fast,
             swap: SwapParams::default(),
             max_candidates: DEFAULT_MAX_CANDIDATES,
-            ridge: None,
+            solver: Solver::default(),
         }
     }
 }
@@ -64,6 +63,7 @@ pub struct Timings {
 pub struct Estimate {
     pub names: Vec<String>,
     pub solution: Solution,
+    pub solver: Solver,
     pub selection: Selection,
     /// Image positions (x, y) of the chosen pixels.
     pub chosen: Vec<(u32, u32)>,
@@ -155,10 +155,9 @@ pub fn estimate_from_matrix(
     };
     let selection_s = secs(t.elapsed());
     let t = Instant::now();
-    let solution = match options.ridge {
-        None => solve::least_squares(a, &selection.pixels, observed)?,
-        Some(r) => solve::regularised(a, &selection.pixels, observed, &basis.column_prior(), r)?,
-    };
+    let solution = options
+        .solver
+        .solve(a, &selection.pixels, observed, &basis.column_prior())?;
     Ok((selection, solution, selection_s, secs(t.elapsed())))
 }
 
@@ -228,6 +227,7 @@ pub fn estimate_views(
     Ok(Estimate {
         names: basis.model().names,
         solution,
+        solver: options.solver,
         selection,
         chosen,
         chosen_views,

@@ -10,6 +10,7 @@
 //!   weighting (the "normalised" BRDF of the paper: each material relative to its own scale);
 //!   image error = relative RMSE of the re-render against the ground-truth image.
 //! - Leave-one-out over all 100 materials (basis from the other 99), and a second lighting.
+//! - Both solvers: the paper's least squares, and ours with the training set's prior.
 //!
 //! Selection depends only on the basis, the lights and the geometry, not on the material, so
 //! it runs once per lighting and pixel count, as it would before a real measurement.
@@ -32,7 +33,7 @@ use super::nbrdf::NbrdfSet;
 use super::raster::Raster;
 use super::render::{render_bivariate, render_merl, RenderingMatrix};
 use super::select::{self, Blocks, Selection};
-use super::solve;
+use super::solve::Solver;
 
 pub const TEST_SET: [&str; 10] = [
     "black-soft-plastic",
@@ -60,6 +61,8 @@ pub const ADC_LEVELS: f64 = 4095.0;
 pub const EXPOSURE_PERCENTILE: f64 = 0.995;
 /// Image size of the leave-one-out runs (100 ground-truth renders).
 pub const LOO_SIZE: usize = 128;
+/// The solvers compared, the paper's first.
+pub const SOLVERS: [Solver; 2] = [Solver::LeastSquares, Solver::Prior];
 
 pub struct EvalConfig {
     pub data: PathBuf,
@@ -75,6 +78,7 @@ pub struct Row {
     pub lighting: String,
     pub material: String,
     pub pixels: Option<usize>,
+    pub solver: Solver,
     pub noisy: bool,
     pub brdf_error: f64,
     pub image_error: f64,
@@ -212,20 +216,40 @@ fn predicted_image(a: &RenderingMatrix, c: &[f64], width: usize, height: usize) 
     img
 }
 
-/// One estimate: pixel count, reconstructed BRDF, its re-render, condition number.
-type Outcome = (Option<usize>, Bivariate, Raster, f64);
+/// One estimate: pixel count, solver, reconstructed BRDF, its re-render, condition number.
+type Outcome = (Option<usize>, Solver, Bivariate, Raster, f64);
 
-/// Estimates from `photo` with every pixel count.
+/// Estimates from `photo` with every pixel count and solver.
 fn estimate_all(basis: &Basis, prep: &Prepared, photo: &Raster) -> Result<Vec<Outcome>> {
     let y = observations(&prep.a, photo);
-    prep.selections
-        .iter()
-        .map(|(l, sel)| {
-            let sol = solve::least_squares(&prep.a, &sel.pixels, &y)?;
+    let prior = basis.column_prior();
+    let mut out = Vec::new();
+    for solver in SOLVERS {
+        for (l, sel) in &prep.selections {
+            let sol = solver.solve(&prep.a, &sel.pixels, &y, &prior)?;
             let img = predicted_image(&prep.a, &sol.coefficients, photo.width, photo.height);
-            Ok((*l, basis.reconstruct(&sol.coefficients), img, sel.condition))
-        })
-        .collect()
+            out.push((
+                *l,
+                solver,
+                basis.reconstruct(&sol.coefficients),
+                img,
+                sel.condition,
+            ));
+        }
+    }
+    Ok(out)
+}
+
+fn solver_index(s: Solver) -> usize {
+    SOLVERS.iter().position(|x| *x == s).unwrap_or(0)
+}
+
+/// File-name suffix: none for the paper's solver, so its figures keep their names.
+fn suffix(s: Solver) -> String {
+    match s {
+        Solver::LeastSquares => String::new(),
+        other => format!("-{}", other.name()),
+    }
 }
 
 fn label(l: Option<usize>) -> String {
@@ -268,7 +292,8 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
 
     let mut rows = Vec::new();
     let mut floors = Vec::new();
-    let mut fig6: Vec<(String, Vec<Raster>)> = Vec::new();
+    // Per material, per solver: ground truth, then the estimates' re-renders.
+    let mut fig6: Vec<(String, Vec<Vec<Raster>>)> = Vec::new();
     for light_name in ["grace", "courtyard"] {
         let lighting = load_lighting(&cfg.data, light_name)?;
         let prep = prepare(&basis, &geometry, &lighting.est);
@@ -277,25 +302,26 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
             let floor =
                 render_bivariate(&geometry, &lighting.est, &truth.bivariate).relative_rmse(&gt);
             floors.push((light_name.to_string(), truth.name.clone(), floor));
-            let mut renders = vec![gt.clone()];
+            let mut renders: Vec<Vec<Raster>> = SOLVERS.iter().map(|_| vec![gt.clone()]).collect();
             for noisy in [false, true] {
                 let photo = if noisy {
                     add_sensor_noise(&gt, 1000 + i as u64)
                 } else {
                     gt.clone()
                 };
-                for (l, est, re, cond) in estimate_all(&basis, &prep, &photo)? {
+                for (l, solver, est, re, cond) in estimate_all(&basis, &prep, &photo)? {
                     rows.push(Row {
                         lighting: light_name.into(),
                         material: truth.name.clone(),
                         pixels: l,
+                        solver,
                         noisy,
                         brdf_error: brdf_error(&est, &truth.bivariate, basis.header.cell_weight),
                         image_error: re.relative_rmse(&gt),
                         condition: cond,
                     });
                     if !noisy && light_name == "grace" {
-                        renders.push(re);
+                        renders[solver_index(solver)].push(re);
                     }
                 }
             }
@@ -303,13 +329,26 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
                 fig6.push((truth.name.clone(), renders));
             }
         }
-        write_fig5(
-            &cfg.out.join(format!("fig5-{light_name}.png")),
-            &rows,
-            light_name,
+        for solver in SOLVERS {
+            write_fig5(
+                &cfg.out
+                    .join(format!("fig5-{light_name}{}.png", suffix(solver))),
+                &rows,
+                light_name,
+                solver,
+            )?;
+        }
+    }
+    for solver in SOLVERS {
+        let per_solver: Vec<(String, Vec<Raster>)> = fig6
+            .iter()
+            .map(|(n, r)| (n.clone(), r[solver_index(solver)].clone()))
+            .collect();
+        write_fig6(
+            &cfg.out.join(format!("fig6-grace{}.png", suffix(solver))),
+            &per_solver,
         )?;
     }
-    write_fig6(&cfg.out.join("fig6-grace.png"), &fig6)?;
     write_csv(&cfg.out.join("results.csv"), &rows)?;
 
     let loo = if cfg.leave_one_out {
@@ -335,8 +374,8 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
     Ok(report)
 }
 
-/// Leave-one-out over all materials, under grace, at [`LOO_SIZE`]: (material, error at 20 px,
-/// error with all pixels, BRDF error at 20 px).
+/// Leave-one-out over all materials, under grace, at [`LOO_SIZE`], with each solver: image and
+/// BRDF error at 20 pixels and with all pixels.
 fn leave_one_out(
     cfg: &EvalConfig,
     set: &NbrdfSet,
@@ -346,10 +385,11 @@ fn leave_one_out(
     let lighting = load_lighting(&cfg.data, "grace")?;
     let geometry =
         PixelGeometry::rasterize(&Camera::eval_orthographic(LOO_SIZE), &Shape::unit_sphere())?;
-    let mut csv =
-        String::from("material,image_error_20,image_error_all,brdf_error_20,brdf_error_all\n");
-    let mut e20 = Vec::new();
-    let mut eall = Vec::new();
+    let mut csv = String::from(
+        "material,solver,image_error_20,image_error_all,brdf_error_20,brdf_error_all\n",
+    );
+    // Per solver: (image error at 20, with all, BRDF error at 20, with all) per material.
+    let mut per_solver: Vec<Vec<[f64; 4]>> = SOLVERS.iter().map(|_| Vec::new()).collect();
     for (name, truth_biv) in reduced {
         let others: Vec<(String, Bivariate)> =
             reduced.iter().filter(|(n, _)| n != name).cloned().collect();
@@ -365,43 +405,58 @@ fn leave_one_out(
         let table = MerlBrdf::tabulate(set.get(name)?);
         let gt = render_merl(&geometry, &lighting.gt, &table);
         let y = observations(&a, &gt);
-        let mut out = Vec::new();
-        for count in [Some(20), None] {
-            let opts = EstimateOptions {
-                pixel_count: count,
-                method: SelectionMethod::Fast,
-                ..Default::default()
-            };
-            let (_, sol, _, _) = estimate_from_matrix(&basis, &a, &y, &opts)?;
-            let est = basis.reconstruct(&sol.coefficients);
-            let re = predicted_image(&a, &sol.coefficients, gt.width, gt.height);
-            out.push((
-                re.relative_rmse(&gt),
-                brdf_error(&est, truth_biv, basis.header.cell_weight),
-            ));
+        for (si, solver) in SOLVERS.iter().enumerate() {
+            let mut out = Vec::new();
+            for count in [Some(20), None] {
+                let opts = EstimateOptions {
+                    pixel_count: count,
+                    method: SelectionMethod::Fast,
+                    solver: *solver,
+                    ..Default::default()
+                };
+                let (_, sol, _, _) = estimate_from_matrix(&basis, &a, &y, &opts)?;
+                let est = basis.reconstruct(&sol.coefficients);
+                let re = predicted_image(&a, &sol.coefficients, gt.width, gt.height);
+                out.push((
+                    re.relative_rmse(&gt),
+                    brdf_error(&est, truth_biv, basis.header.cell_weight),
+                ));
+            }
+            let e = [out[0].0, out[1].0, out[0].1, out[1].1];
+            let _ = writeln!(
+                csv,
+                "{name},{},{:.5},{:.5},{:.5},{:.5}",
+                solver.name(),
+                e[0],
+                e[1],
+                e[2],
+                e[3]
+            );
+            per_solver[si].push(e);
         }
-        let _ = writeln!(
-            csv,
-            "{name},{:.5},{:.5},{:.5},{:.5}",
-            out[0].0, out[1].0, out[0].1, out[1].1
-        );
-        e20.push(out[0].0);
-        eall.push(out[1].0);
     }
     std::fs::write(cfg.out.join("loo.csv"), &csv)
         .map_err(|e| CoreError::io(cfg.out.join("loo.csv"), e))?;
-    let within = e20
-        .iter()
-        .zip(&eall)
-        .filter(|(a, b)| **a <= **b * 1.1)
-        .count();
-    Ok(format!(
-        "Leave-one-out over {} materials (grace, {LOO_SIZE}², basis from the other 99, noise-free): image relative RMSE median {:.3} with 20 pixels, {:.3} with all; 20 pixels within 10% of all pixels for {within} of {} materials. Per material: `loo.csv`.\n",
-        e20.len(),
-        median(&e20),
-        median(&eall),
-        e20.len()
-    ))
+    let mut s = format!("Leave-one-out over {} materials (grace, {LOO_SIZE}², basis from the other 99, noise-free). Per material: `loo.csv`.\n\n| solver | image error, 20 px | image error, all px | BRDF error, 20 px | BRDF error, all px | 20 px within 10% of all (image) | (BRDF) |\n|---|---|---|---|---|---|---|\n", reduced.len());
+    for (solver, rows) in SOLVERS.iter().zip(&per_solver) {
+        let col = |i: usize| rows.iter().map(|r| r[i]).collect::<Vec<f64>>();
+        let within = |a: usize, b: usize| rows.iter().filter(|r| r[a] <= r[b] * 1.1).count();
+        let _ = writeln!(
+            s,
+            "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {} of {} | {} of {} |",
+            solver.name(),
+            median(&col(0)),
+            median(&col(1)),
+            median(&col(2)),
+            median(&col(3)),
+            within(0, 1),
+            rows.len(),
+            within(2, 3),
+            rows.len()
+        );
+    }
+    s.push_str("\nMedians over the materials.\n");
+    Ok(s)
 }
 
 /// Measures the grid and normalisation choices: (a) how far each bivariate grid renders from the
@@ -463,7 +518,11 @@ fn measure_choices(
                 .find(|(n, _)| n == name)
                 .expect("test material reduced")
                 .1;
-            for (l, est, re, _) in estimate_all(&basis, &prep, gt)? {
+            for (l, solver, est, re, _) in estimate_all(&basis, &prep, gt)? {
+                // The basis choices were measured with the paper's solver.
+                if solver != Solver::LeastSquares {
+                    continue;
+                }
                 let e = re.relative_rmse(gt);
                 match l {
                     Some(20) => twenty.push(e),
@@ -500,14 +559,16 @@ fn median(v: &[f64]) -> f64 {
 }
 
 fn write_csv(path: &Path, rows: &[Row]) -> Result<()> {
-    let mut s = String::from("lighting,material,pixels,noise,brdf_error,image_error,condition\n");
+    let mut s =
+        String::from("lighting,material,pixels,solver,noise,brdf_error,image_error,condition\n");
     for r in rows {
         let _ = writeln!(
             s,
-            "{},{},{},{},{:.5},{:.5},{:.3}",
+            "{},{},{},{},{},{:.5},{:.5},{:.3}",
             r.lighting,
             r.material,
             label(r.pixels),
+            r.solver.name(),
             if r.noisy { "sensor" } else { "none" },
             r.brdf_error,
             r.image_error,
@@ -527,68 +588,63 @@ fn markdown(
 ) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "Sphere {0}×{0}, orthographic; ground truth from the full 3D table with {GT_LIGHTS} lights; estimates with {DEFAULT_LIGHTS} lights, K = {DEFAULT_K}, fast selection. Run time {secs:.0} s.\n", cfg.size);
-    for lighting in ["grace", "courtyard"] {
-        for noisy in [false, true] {
-            let _ = writeln!(
+    s.push_str(&summary(rows));
+    for solver in SOLVERS {
+        for lighting in ["grace", "courtyard"] {
+            for noisy in [false, true] {
+                let _ = writeln!(
                 s,
-                "**{lighting}, {}** — image relative RMSE (BRDF error in parentheses)\n",
+                "**{lighting}, {}, solver {}** — image relative RMSE (BRDF error in parentheses)\n",
                 if noisy {
                     "sensor noise (shot + 12-bit)"
                 } else {
                     "noise-free"
-                }
+                },
+                solver.name()
             );
-            s.push_str(
+                s.push_str(
                 "| material | 5 px | 10 px | 20 px | all px | floor |\n|---|---|---|---|---|---|\n",
             );
-            for m in TEST_SET {
-                let _ = write!(s, "| {m} |");
-                for l in PIXEL_COUNTS {
-                    if let Some(r) = rows.iter().find(|r| {
-                        r.lighting == lighting
-                            && r.material == m
-                            && r.pixels == l
-                            && r.noisy == noisy
-                    }) {
-                        let _ = write!(s, " {:.3} ({:.3}) |", r.image_error, r.brdf_error);
+                for m in TEST_SET {
+                    let _ = write!(s, "| {m} |");
+                    for l in PIXEL_COUNTS {
+                        if let Some(r) = rows.iter().find(|r| {
+                            r.lighting == lighting
+                                && r.material == m
+                                && r.pixels == l
+                                && r.noisy == noisy
+                                && r.solver == solver
+                        }) {
+                            let _ = write!(s, " {:.3} ({:.3}) |", r.image_error, r.brdf_error);
+                        }
                     }
+                    let floor = floors
+                        .iter()
+                        .find(|f| f.0 == lighting && f.1 == m)
+                        .map_or(f64::NAN, |f| f.2);
+                    let _ = writeln!(s, " {floor:.3} |");
                 }
-                let floor = floors
+                let sel: Vec<&Row> = rows
                     .iter()
-                    .find(|f| f.0 == lighting && f.1 == m)
-                    .map_or(f64::NAN, |f| f.2);
-                let _ = writeln!(s, " {floor:.3} |");
-            }
-            let sel: Vec<&Row> = rows
-                .iter()
-                .filter(|r| r.lighting == lighting && r.noisy == noisy)
-                .collect();
-            let _ = write!(s, "| **median** |");
-            for l in PIXEL_COUNTS {
-                let im: Vec<f64> = sel
-                    .iter()
-                    .filter(|r| r.pixels == l)
-                    .map(|r| r.image_error)
+                    .filter(|r| r.lighting == lighting && r.noisy == noisy && r.solver == solver)
                     .collect();
-                let br: Vec<f64> = sel
-                    .iter()
-                    .filter(|r| r.pixels == l)
-                    .map(|r| r.brdf_error)
-                    .collect();
-                let _ = write!(s, " {:.3} ({:.3}) |", median(&im), median(&br));
+                let _ = write!(s, "| **median** |");
+                for l in PIXEL_COUNTS {
+                    let im: Vec<f64> = sel
+                        .iter()
+                        .filter(|r| r.pixels == l)
+                        .map(|r| r.image_error)
+                        .collect();
+                    let br: Vec<f64> = sel
+                        .iter()
+                        .filter(|r| r.pixels == l)
+                        .map(|r| r.brdf_error)
+                        .collect();
+                    let _ = write!(s, " {:.3} ({:.3}) |", median(&im), median(&br));
+                }
+                let within = within_ten_percent(&sel, |r| r.brdf_error);
+                let _ = writeln!(s, " |\n\n20 pixels within 10% of the all-pixel BRDF error: {within} of 10 materials.\n");
             }
-            let within = TEST_SET
-                .iter()
-                .filter(|m| {
-                    let get = |l| {
-                        sel.iter()
-                            .find(|r| r.material == **m && r.pixels == l)
-                            .map(|r| r.brdf_error)
-                    };
-                    matches!((get(Some(20)), get(None)), (Some(a), Some(b)) if a <= b * 1.1)
-                })
-                .count();
-            let _ = writeln!(s, " |\n\n20 pixels within 10% of the all-pixel BRDF error: {within} of 10 materials.\n");
         }
     }
     s.push_str("Floor: the image error of the material's own bivariate reduction rendered with the estimate's lights — the best any K, any pixel choice could do.\n\n");
@@ -600,6 +656,59 @@ fn markdown(
         s.push_str("\n### Measured choices\n\n");
         s.push_str(c);
     }
+    s
+}
+
+/// Test materials whose 20-pixel error is at most 1.1 times their all-pixel error.
+fn within_ten_percent(rows: &[&Row], error: impl Fn(&Row) -> f64) -> usize {
+    TEST_SET
+        .iter()
+        .filter(|m| {
+            let get = |l| {
+                rows.iter()
+                    .find(|r| r.material == **m && r.pixels == l)
+                    .map(|r| error(r))
+            };
+            matches!((get(Some(20)), get(None)), (Some(a), Some(b)) if a <= b * 1.1)
+        })
+        .count()
+}
+
+/// One line per solver, lighting and noise: medians over the test set at 20 pixels and with
+/// all, and how many materials meet the paper's claim.
+fn summary(rows: &[Row]) -> String {
+    let mut s = String::from("| solver | lighting | noise | BRDF error, 20 px | BRDF error, all px | image error, 20 px | image error, all px | 20 px within 10% of all (BRDF) | (image) |\n|---|---|---|---|---|---|---|---|---|\n");
+    for solver in SOLVERS {
+        for lighting in ["grace", "courtyard"] {
+            for noisy in [false, true] {
+                let sel: Vec<&Row> = rows
+                    .iter()
+                    .filter(|r| r.lighting == lighting && r.noisy == noisy && r.solver == solver)
+                    .collect();
+                let med = |l: Option<usize>, f: fn(&Row) -> f64| {
+                    median(
+                        &sel.iter()
+                            .filter(|r| r.pixels == l)
+                            .map(|r| f(r))
+                            .collect::<Vec<f64>>(),
+                    )
+                };
+                let _ = writeln!(
+                    s,
+                    "| {} | {lighting} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {} of 10 | {} of 10 |",
+                    solver.name(),
+                    if noisy { "sensor" } else { "none" },
+                    med(Some(20), |r| r.brdf_error),
+                    med(None, |r| r.brdf_error),
+                    med(Some(20), |r| r.image_error),
+                    med(None, |r| r.image_error),
+                    within_ten_percent(&sel, |r| r.brdf_error),
+                    within_ten_percent(&sel, |r| r.image_error),
+                );
+            }
+        }
+    }
+    s.push('\n');
     s
 }
 
@@ -618,12 +727,12 @@ const COLOURS: [[u8; 3]; 10] = [
 
 /// Fig. 5: BRDF error against pixel count, one line per test material (colours in the order of
 /// [`TEST_SET`]), x = 5, 10, 20, all; y linear from 0 to the largest error.
-fn write_fig5(path: &Path, rows: &[Row], lighting: &str) -> Result<()> {
+fn write_fig5(path: &Path, rows: &[Row], lighting: &str, solver: Solver) -> Result<()> {
     let (w, h, pad) = (640u32, 400u32, 40u32);
     let mut img = image::RgbImage::from_pixel(w, h, image::Rgb([255, 255, 255]));
     let sel: Vec<&Row> = rows
         .iter()
-        .filter(|r| r.lighting == lighting && !r.noisy)
+        .filter(|r| r.lighting == lighting && !r.noisy && r.solver == solver)
         .collect();
     let ymax = sel
         .iter()

@@ -382,7 +382,10 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     session.set_state(State::Estimating, None)?;
     let options = EstimateOptions {
         pixel_count,
-        ridge: preset.as_ref().and_then(|p| p.ridge),
+        solver: plan
+            .solve
+            .or(preset.as_ref().map(|p| p.solve))
+            .unwrap_or_default(),
         ..EstimateOptions::default()
     };
     let as_views: Vec<View> = views
@@ -430,8 +433,9 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     write_result(session, &basis, &est, lights)?;
     phases.end(p);
     cx.say(format!(
-        "{} pixels, condition number {:.2}{}",
+        "{} pixels, solver {}, condition number {:.2}{}",
         est.selection.pixels.len(),
+        est.solver.name(),
         est.selection.condition,
         rerender_rmse.map_or(String::new(), |r| format!(
             "; re-render relative RMSE (first view) {r:.4}"

@@ -24,6 +24,7 @@ use brdfd_theta::Theta;
 use serde::{Deserialize, Serialize};
 
 use crate::config::Rig;
+use crate::core::solve::Solver;
 use crate::selector::Selector;
 pub use worker::{Device, DeviceStatus, Worker};
 
@@ -40,6 +41,9 @@ pub struct Plan {
     /// Pixels to estimate from: a number or "all"; the preset's, else 20.
     #[serde(default)]
     pub pixels: Option<String>,
+    /// How the coefficients are solved: "prior" or "least-squares"; the preset's, else prior.
+    #[serde(default)]
+    pub solve: Option<Solver>,
     /// DSLR shutter speeds, seconds; the preset's, else the rig's.
     #[serde(default)]
     pub bracket: Vec<f64>,
