@@ -35,6 +35,8 @@ pub struct CoefficientsFile<'a> {
     pub condition_number: f64,
     pub residual_rms: f64,
     pub relative_residual: f64,
+    /// ‖A·c − y‖ / ‖y‖ over every candidate pixel: how well the estimate re-renders the photo.
+    pub fit_error: f64,
     pub candidates: usize,
     pub lights: usize,
     pub timings: &'a Timings,
@@ -96,6 +98,7 @@ pub fn write_results(
         condition_number: estimate.selection.condition,
         residual_rms: estimate.solution.residual_rms,
         relative_residual: estimate.solution.relative_residual,
+        fit_error: estimate.fit_error,
         candidates: estimate.candidates,
         lights: estimate.lights,
         timings: &estimate.timings,

@@ -33,6 +33,8 @@ fn simulated_capture_prints_coefficients() {
     .unwrap();
     assert_eq!(json["coefficients"].as_array().unwrap().len(), 6);
     assert_eq!(json["chosen_pixels"].as_array().unwrap().len(), 20);
+    let fit = json["fit_error"].as_f64().unwrap();
+    assert!(fit > 0.0 && fit < 1.0, "fit_error {fit}");
     for f in [
         "brdf-bivariate.exr",
         "brdf.binary",
@@ -429,6 +431,14 @@ fn a_rig_file_drives_the_devices_it_names() {
     );
     // No simulator-only output: the rig is hardware as far as brdfd knows.
     assert!(!stdout.contains("ground truth"), "{stdout}");
+    // With no ground truth, the fit to the photo is what tells the operator how it went.
+    let fit: f64 = stdout
+        .split("re-renders the photo to a relative RMSE of ")
+        .nth(1)
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no fit reported:\n{stdout}"));
+    assert!(fit > 0.0 && fit < 1.0, "fit {fit}\n{stdout}");
     let list = brdfd(&["session", "list", "--state-dir", "state"], dir.path());
     assert!(text(&list).0.contains("Done"), "{}", text(&list).0);
     let id = text(&list).0.split_whitespace().next().unwrap().to_string();

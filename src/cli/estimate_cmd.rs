@@ -123,11 +123,13 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
     )?;
     print_estimate(&est.names, &est.solution.coefficients);
     println!(
-        "{} of {} candidate pixels, condition number {:.2}, relative residual {:.4}, {:.2} s",
+        "{} of {} candidate pixels, solver {}, condition number {:.2}, relative residual {:.4} on the chosen pixels and {:.4} on all, {:.2} s",
         est.selection.pixels.len(),
         est.candidates,
+        est.solver.name(),
         est.selection.condition,
         est.solution.relative_residual,
+        est.fit_error,
         total.elapsed().as_secs_f64()
     );
     println!("wrote {}", files.coefficients.display());

@@ -70,6 +70,9 @@ pub struct Estimate {
     /// Which view (0 for the first) each chosen pixel is from.
     pub chosen_views: Vec<usize>,
     pub candidates: usize,
+    /// ‖A·c − y‖ / ‖y‖ over every candidate pixel, not only the chosen ones: how well the
+    /// estimate re-renders the photo, with no ground truth needed.
+    pub fit_error: f64,
     pub lights: usize,
     pub timings: Timings,
 }
@@ -224,6 +227,7 @@ pub fn estimate_views(
         .map(|&p| (a.pixels[p].x, a.pixels[p].y))
         .collect();
     let chosen_views = selection.pixels.iter().map(|&p| view_of_pixel[p]).collect();
+    let fit_error = relative_misfit(&a.predict(&solution.coefficients), &observed);
     Ok(Estimate {
         names: basis.model().names,
         solution,
@@ -232,6 +236,7 @@ pub fn estimate_views(
         chosen,
         chosen_views,
         candidates: a.pixels.len(),
+        fit_error,
         lights: views.first().map_or(0, |v| v.lights.len()),
         timings: Timings {
             rendering_matrix_s: matrix_s,
@@ -239,6 +244,18 @@ pub fn estimate_views(
             solve_s,
         },
     })
+}
+
+/// ‖predicted − observed‖ / ‖observed‖ over every pixel and channel.
+fn relative_misfit(predicted: &[f64], observed: &[[f64; 3]]) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for (p, o) in predicted.chunks_exact(3).zip(observed) {
+        for c in 0..3 {
+            num += (p[c] - o[c]).powi(2);
+            den += o[c] * o[c];
+        }
+    }
+    (num / den.max(f64::MIN_POSITIVE)).sqrt()
 }
 
 impl Estimate {

@@ -27,7 +27,6 @@ use crate::core::geometry::SceneGeometry;
 use crate::core::merl::MerlBrdf;
 use crate::core::nbrdf::NbrdfSet;
 use crate::core::raster::Raster;
-use crate::core::render::render_bivariate;
 use crate::panorama::merge_bracket;
 use crate::radiometry::{decode_jpeg, merge_hdr};
 use crate::session::{PhaseTime, Session, State};
@@ -44,8 +43,8 @@ pub struct Outcome {
     pub truth: Option<Vec<f64>>,
     pub pixels: usize,
     pub condition: f64,
-    /// Simulated rig only: the re-render's relative RMSE against the first view's photo.
-    pub rerender_rmse: Option<f64>,
+    /// How well the estimate re-renders the photos (see `Estimate::fit_error`).
+    pub fit_error: f64,
 }
 
 /// `all` or a positive count.
@@ -404,24 +403,22 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         &est.names,
         &est.solution.coefficients,
     ));
-    let (geometry, lights, photo) = &views[0];
-    let (truth, rerender_rmse) = match &bench {
+    let (_, lights, _) = &views[0];
+    let truth = match &bench {
         Some(b) => {
             // The simulator knows the answer; comparing with it is the simulator's business,
             // so its time is the devices'.
             let p = phases.start("compare with the ground truth (simulator)", 1);
             let truth = basis.project(&Bivariate::reduce(&b.material, basis.header.grid));
-            let rerender = render_bivariate(geometry, lights, &est.brdf(&basis));
-            let rmse = rerender.relative_rmse(photo);
             phases.end_as_device(p);
             cx.say(crate::results::coefficient_lines(
                 "ground truth projected on the basis",
                 &est.names,
                 &truth,
             ));
-            (Some(truth), Some(rmse))
+            Some(truth)
         }
-        None => (None, None),
+        None => None,
     };
     let p = phases.start("write results", 1);
     write_exr(
@@ -433,13 +430,13 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     write_result(session, &basis, &est, lights)?;
     phases.end(p);
     cx.say(format!(
-        "{} pixels, solver {}, condition number {:.2}{}",
+        "{} pixels, solver {}, condition number {:.2}; the estimate re-renders the photo{} to a relative RMSE of {:.4} over {} pixels",
         est.selection.pixels.len(),
         est.solver.name(),
         est.selection.condition,
-        rerender_rmse.map_or(String::new(), |r| format!(
-            "; re-render relative RMSE (first view) {r:.4}"
-        ))
+        if views.len() > 1 { "s" } else { "" },
+        est.fit_error,
+        est.candidates,
     ));
     session.manifest.phases = phases.done;
     session.set_state(State::Done, None)?;
@@ -449,7 +446,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         truth,
         pixels: est.selection.pixels.len(),
         condition: est.selection.condition,
-        rerender_rmse,
+        fit_error: est.fit_error,
     })
 }
 
