@@ -102,8 +102,9 @@ fn estimate_from_files() {
         dir.path(),
     );
     assert!(o.status.success(), "{:?}", text(&o));
-    let o = brdfd(
-        &[
+    // Estimates the photo with 20 pixels and `extra` flags into `out`; its coefficients.json.
+    let estimate = |extra: &[&str], out: &str| {
+        let mut args = vec![
             "estimate",
             "--photo",
             "photo.exr",
@@ -114,45 +115,23 @@ fn estimate_from_files() {
             "--pixels",
             "20",
             "--out",
-            "est",
-        ],
-        dir.path(),
-    );
-    let (out, err) = text(&o);
-    assert!(o.status.success(), "{out}\n{err}");
-    let json: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(dir.path().join("est/coefficients.json")).unwrap(),
-    )
-    .unwrap();
+            out,
+        ];
+        args.extend_from_slice(extra);
+        let o = brdfd(&args, dir.path());
+        let (stdout, stderr) = text(&o);
+        assert!(o.status.success(), "{stdout}\n{stderr}");
+        let file = dir.path().join(out).join("coefficients.json");
+        serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(file).unwrap()).unwrap()
+    };
+    let json = estimate(&[], "est");
     assert_eq!(json["k"], 5);
     assert_eq!(json["pixel_count"], 20);
     assert_eq!(json["solver"], "prior");
     assert!(json["condition_number"].as_f64().unwrap().is_finite());
     assert!(json["relative_residual"].as_f64().unwrap() < 0.25);
     // The paper's solver on the same pixels: named in the file, and the coefficients differ.
-    let o = brdfd(
-        &[
-            "estimate",
-            "--photo",
-            "photo.exr",
-            "--env",
-            "studio.exr",
-            "--shape",
-            "sphere",
-            "--pixels",
-            "20",
-            "--solve",
-            "least-squares",
-            "--out",
-            "est-ls",
-        ],
-        dir.path(),
-    );
-    assert!(o.status.success(), "{:?}", text(&o));
-    let ls: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(dir.path().join("est-ls/coefficients.json")).unwrap(),
-    )
-    .unwrap();
+    let ls = estimate(&["--solve", "least-squares"], "est-ls");
     assert_eq!(ls["solver"], "least-squares");
     assert_eq!(ls["chosen_pixels"], json["chosen_pixels"]);
     assert_ne!(ls["coefficients"], json["coefficients"]);
