@@ -50,7 +50,7 @@ pub const TEST_SET: [&str; 10] = [
 
 /// Lights for ground-truth images: twice the estimate's, so the estimate's own compression
 /// shows up as error.
-pub const GT_LIGHTS: usize = 8_192;
+pub const GT_LIGHTS: usize = 16_384;
 /// Pixel counts of the paper's Fig. 5 (`None` = all pixels).
 pub const PIXEL_COUNTS: [Option<usize>; 4] = [Some(5), Some(10), Some(20), None];
 /// Sensor model for the noisy runs: full-well capacity in electrons at the 12-bit white point.
@@ -460,7 +460,8 @@ fn leave_one_out(
 }
 
 /// Measures the grid and normalisation choices: (a) how far each bivariate grid renders from the
-/// full BRDF; (b) image error of all-pixel and 20-pixel estimates for each basis variant.
+/// full BRDF; (b) how much light compression changes renders ([`measure_compression`]);
+/// (c) image error of all-pixel and 20-pixel estimates for each basis variant.
 fn measure_choices(
     cfg: &EvalConfig,
     set: &NbrdfSet,
@@ -496,6 +497,7 @@ fn measure_choices(
             let _ = writeln!(out, "| {binning:?}, {phi:?} | {:.4} |", mean(&errs));
         }
     }
+    out.push_str(&measure_compression(cfg, set)?);
     out.push_str("\n| normalisation | cell weight | mean term | mean image error, all pixels | mean image error, 20 pixels | mean BRDF error, all pixels |\n|---|---|---|---|---|---|\n");
     let training: Vec<(String, Bivariate)> = reduced
         .iter()
@@ -541,6 +543,65 @@ fn measure_choices(
             mean(&twenty),
             mean(&brdf)
         );
+    }
+    Ok(out)
+}
+
+/// Size of the sphere for [`measure_compression`]: its reference renders every map pixel as a
+/// light (half a million), so it is kept small.
+const COMPRESSION_SIZE: usize = 32;
+
+/// How far renders with compressed lights are from renders with every pixel of the map as a
+/// light, for the uniform grid earlier versions used and for the adaptive compression.
+fn measure_compression(cfg: &EvalConfig, set: &NbrdfSet) -> Result<String> {
+    let geometry = PixelGeometry::rasterize(
+        &Camera::eval_orthographic(COMPRESSION_SIZE),
+        &Shape::unit_sphere(),
+    )?;
+    let mut out = String::from(
+        "\n| lighting | lights | mean image change | largest (material) |\n|---|---|---|---|\n",
+    );
+    for light_name in ["grace", "courtyard"] {
+        let map = EnvMap::load(&cfg.data.join("envmaps").join(format!("{light_name}.hdr")))?;
+        let full = map.lights(0.0);
+        let grid_rows = ((DEFAULT_LIGHTS as f64 / 2.0).sqrt().round()) as usize;
+        let variants = [
+            (
+                format!("uniform grid, {}", 2 * grid_rows * grid_rows),
+                map.downsample(2 * grid_rows, grid_rows).lights(0.0),
+            ),
+            (
+                format!("adaptive, {DEFAULT_LIGHTS} (estimates)"),
+                map.compressed(DEFAULT_LIGHTS, 0.0),
+            ),
+            (
+                format!("adaptive, {GT_LIGHTS} (ground truth)"),
+                map.compressed(GT_LIGHTS, 0.0),
+            ),
+        ];
+        let mut errors = vec![Vec::new(); variants.len()];
+        for name in TEST_SET {
+            let table = MerlBrdf::tabulate(set.get(name)?);
+            let reference = render_merl(&geometry, &full, &table);
+            for (e, (_, lights)) in errors.iter_mut().zip(&variants) {
+                e.push((
+                    render_merl(&geometry, lights, &table).relative_rmse(&reference),
+                    name,
+                ));
+            }
+        }
+        for (e, (label, _)) in errors.iter().zip(&variants) {
+            let values: Vec<f64> = e.iter().map(|(v, _)| *v).collect();
+            let (worst, name) = e
+                .iter()
+                .copied()
+                .fold((0.0, ""), |a, b| if b.0 > a.0 { b } else { a });
+            let _ = writeln!(
+                out,
+                "| {light_name} | {label} | {:.3} | {worst:.3} ({name}) |",
+                mean(&values)
+            );
+        }
     }
     Ok(out)
 }

@@ -153,25 +153,73 @@ fn smooth_bivariate(values: &[f64], smoothing: &[Vec<(usize, f64)>]) -> Vec<f64>
     out
 }
 
-/// A light premultiplied for the inner loop: direction and L·Δω per channel.
+/// Footprints the renderers tell apart: a light's half-vector footprint is rounded to the
+/// nearest of these, one octave apart, and the table it reads is smoothed for that footprint.
+/// An octave is fine enough: the smoothing only matters where the footprint is wider than a
+/// θh bin, and there a factor of √2 changes a render by less than the light compression does.
+#[derive(Clone, Debug)]
+pub struct Footprints {
+    /// Half-vector footprint radius (radians) of each level, ascending.
+    pub radii: Vec<f64>,
+    /// The level of each light of the set, in the set's order.
+    level: Vec<u32>,
+}
+
+/// Footprints below this (0.01°) are all treated alike: the narrowest θh bin is wider.
+const SMALLEST_FOOTPRINT: f64 = 1.75e-4;
+
+impl Footprints {
+    /// A light of spread R moves the half vector over a disc of radius R/2.
+    pub fn of(lights: &LightSet) -> Footprints {
+        let octave = |spread: f32| {
+            let rho = (spread as f64 / 2.0).max(SMALLEST_FOOTPRINT);
+            (rho / SMALLEST_FOOTPRINT).log2().round() as i32
+        };
+        let mut octaves: Vec<i32> = lights.spread.iter().map(|s| octave(*s)).collect();
+        let level_of: Vec<i32> = octaves.clone();
+        octaves.sort_unstable();
+        octaves.dedup();
+        let level = level_of
+            .iter()
+            .map(|o| octaves.binary_search(o).unwrap_or(0) as u32)
+            .collect();
+        Footprints {
+            radii: octaves
+                .iter()
+                .map(|o| SMALLEST_FOOTPRINT * 2f64.powi(*o))
+                .collect(),
+            level,
+        }
+    }
+}
+
+/// A light premultiplied for the inner loop: direction, L·Δω per channel, and where its
+/// footprint's table starts.
 #[derive(Clone, Copy)]
 struct PackedLight {
     dir: [f32; 3],
     power: [f32; 3],
+    base: usize,
 }
 
-fn pack(lights: &LightSet) -> Vec<PackedLight> {
-    lights
+/// Lights with power, each pointing at its footprint's table (`stride` values per level),
+/// grouped by footprint so that consecutive lights read the same table.
+fn pack(lights: &LightSet, footprints: &Footprints, stride: usize) -> Vec<PackedLight> {
+    let mut packed: Vec<PackedLight> = lights
         .directions
         .iter()
         .zip(&lights.radiance)
         .zip(&lights.solid_angle)
-        .filter(|((_, l), w)| l.iter().any(|c| *c > 0.0) && **w > 0.0)
-        .map(|((d, l), w)| PackedLight {
+        .zip(&footprints.level)
+        .filter(|(((_, l), w), _)| l.iter().any(|c| *c > 0.0) && **w > 0.0)
+        .map(|(((d, l), w), level)| PackedLight {
             dir: *d,
             power: l.map(|c| c * w),
+            base: *level as usize * stride,
         })
-        .collect()
+        .collect();
+    packed.sort_by_key(|l| l.base);
+    packed
 }
 
 #[inline(always)]
@@ -235,7 +283,8 @@ macro_rules! by_columns {
     };
 }
 
-/// Bivariate vectors laid out for the gather: `data[(cell·3 + channel)·m + column]`.
+/// Bivariate vectors laid out for the gather, one table per footprint level:
+/// `data[level·stride + (cell·3 + channel)·m + column]`.
 struct ColumnTable {
     m: usize,
     data: Vec<f32>,
@@ -244,19 +293,23 @@ struct ColumnTable {
 }
 
 impl ColumnTable {
-    fn new(columns: &[&[f64]], binning: ThetaHBinning, footprint: f64) -> ColumnTable {
+    fn new(columns: &[&[f64]], binning: ThetaHBinning, footprints: &Footprints) -> ColumnTable {
         let m = columns.len();
         assert!(m <= MAX_COLUMNS, "at most {MAX_COLUMNS} columns");
-        let smoothing = theta_h_smoothing(binning, footprint);
-        let smoothed: Vec<Vec<f64>> = columns
-            .iter()
-            .map(|c| smooth_bivariate(c, &smoothing))
-            .collect();
-        let mut data = vec![0f32; GRID_CELLS * 3 * m];
-        for g in 0..GRID_CELLS {
-            for c in 0..3 {
-                for (j, col) in smoothed.iter().enumerate() {
-                    data[(g * 3 + c) * m + j] = col[c * GRID_CELLS + g] as f32;
+        let stride = Self::stride(m);
+        let mut data = vec![0f32; stride * footprints.radii.len()];
+        for (level, rho) in footprints.radii.iter().enumerate() {
+            let smoothing = theta_h_smoothing(binning, *rho);
+            let smoothed: Vec<Vec<f64>> = columns
+                .iter()
+                .map(|c| smooth_bivariate(c, &smoothing))
+                .collect();
+            let table = &mut data[level * stride..(level + 1) * stride];
+            for g in 0..GRID_CELLS {
+                for c in 0..3 {
+                    for (j, col) in smoothed.iter().enumerate() {
+                        table[(g * 3 + c) * m + j] = col[c * GRID_CELLS + g] as f32;
+                    }
                 }
             }
         }
@@ -266,6 +319,10 @@ impl ColumnTable {
             h_lut: BinLut::theta_h(binning),
             d_lut: BinLut::theta_d(),
         }
+    }
+
+    fn stride(m: usize) -> usize {
+        GRID_CELLS * 3 * m
     }
 
     /// Σⱼ over lights of column values × L·Δω·cos, for one pixel: out[c·m + col].
@@ -301,7 +358,7 @@ impl ColumnTable {
                 continue;
             };
             let w = [l.power[0] * cos, l.power[1] * cos, l.power[2] * cos];
-            self.accumulate::<M>(&mut acc, (bh * N_THETA_D + bd) * 3 * M, w);
+            self.accumulate::<M>(&mut acc, l.base + (bh * N_THETA_D + bd) * 3 * M, w);
         }
         for c in 0..3 {
             out[c * M..(c + 1) * M].copy_from_slice(&acc[c]);
@@ -325,6 +382,7 @@ impl ColumnTable {
                 Some(ViewLight {
                     dir: l.dir,
                     power: l.power,
+                    base: l.base,
                     h,
                     bd: self.d_lut.bin(dist2(l.dir, h)) as u32,
                 })
@@ -348,7 +406,11 @@ impl ColumnTable {
             }
             let bh = self.h_lut.bin(dist2(n, l.h));
             let w = [l.power[0] * cos, l.power[1] * cos, l.power[2] * cos];
-            self.accumulate::<M>(&mut acc, (bh * N_THETA_D + l.bd as usize) * 3 * M, w);
+            self.accumulate::<M>(
+                &mut acc,
+                l.base + (bh * N_THETA_D + l.bd as usize) * 3 * M,
+                w,
+            );
         }
         for c in 0..3 {
             out[c * M..(c + 1) * M].copy_from_slice(&acc[c]);
@@ -361,6 +423,7 @@ impl ColumnTable {
 struct ViewLight {
     dir: [f32; 3],
     power: [f32; 3],
+    base: usize,
     h: [f32; 3],
     bd: u32,
 }
@@ -406,9 +469,10 @@ impl RenderingMatrix {
         if let Some(o) = offset {
             all.push(o);
         }
-        let table = ColumnTable::new(&all, binning, lights.half_vector_footprint());
-        let packed = pack(lights);
+        let footprints = Footprints::of(lights);
+        let table = ColumnTable::new(&all, binning, &footprints);
         let m = all.len();
+        let packed = pack(lights, &footprints, ColumnTable::stride(m));
         let mut raw = vec![0f32; pixels.len() * 3 * m];
         let shared = pixels
             .first()
@@ -488,24 +552,31 @@ pub fn render_bivariate(geom: &PixelGeometry, lights: &LightSet, brdf: &Bivariat
 /// φd is the azimuth of ωᵢ about h, measured from the plane of n and h (Rusinkiewicz).
 pub fn render_merl(geom: &PixelGeometry, lights: &LightSet, brdf: &MerlBrdf) -> Raster {
     // Interleaved f32 RGB: one cache line per lookup instead of three f64 planes; unmeasured
-    // cells become 0 (they contribute nothing).
-    // The θh footprint average as in the rendering matrix, applied per (θd, φd) column.
+    // cells become 0 (they contribute nothing). One table per footprint level, each with the
+    // θh footprint average of the rendering matrix applied per (θd, φd) column.
     let cells = merl::CELLS;
-    let smoothing = theta_h_smoothing(ThetaHBinning::Sqrt, lights.half_vector_footprint());
-    let mut table = vec![[0f32; 3]; cells];
-    for (i, t) in table.iter_mut().enumerate() {
-        let (kp, rest) = (i % merl::PHI_D_BINS, i / merl::PHI_D_BINS);
-        let (jd, ih) = (rest % merl::THETA_D_BINS, rest / merl::THETA_D_BINS);
-        for (c, v) in t.iter_mut().enumerate() {
-            *v = smoothing[ih]
-                .iter()
-                .map(|(k, w)| w * brdf.cell(c, *k, jd, kp).max(0.0))
-                .sum::<f64>() as f32;
-        }
+    let footprints = Footprints::of(lights);
+    let mut table = vec![[0f32; 3]; cells * footprints.radii.len()];
+    for (level, rho) in footprints.radii.iter().enumerate() {
+        let smoothing = theta_h_smoothing(ThetaHBinning::Sqrt, *rho);
+        table[level * cells..(level + 1) * cells]
+            .par_chunks_mut(merl::PHI_D_BINS * merl::THETA_D_BINS)
+            .enumerate()
+            .for_each(|(ih, slab)| {
+                for (r, t) in slab.iter_mut().enumerate() {
+                    let (kp, jd) = (r % merl::PHI_D_BINS, r / merl::PHI_D_BINS);
+                    for (c, v) in t.iter_mut().enumerate() {
+                        *v = smoothing[ih]
+                            .iter()
+                            .map(|(k, w)| w * brdf.cell(c, *k, jd, kp).max(0.0))
+                            .sum::<f64>() as f32;
+                    }
+                }
+            });
     }
     let h_lut = BinLut::theta_h(ThetaHBinning::Sqrt);
     let d_lut = BinLut::theta_d();
-    let packed = pack(lights);
+    let packed = pack(lights, &footprints, cells);
     let shade = |px: &GeomPixel| -> [f32; 3] {
         let n = px.normal;
         let v = px.view;
@@ -542,7 +613,7 @@ pub fn render_merl(geom: &PixelGeometry, lights: &LightSet, brdf: &MerlBrdf) -> 
             };
             let kp = ((p * (merl::PHI_D_BINS as f32 / std::f32::consts::PI)) as usize)
                 .min(merl::PHI_D_BINS - 1);
-            let f = table[merl::cell_index(bh, bd, kp)];
+            let f = table[l.base + merl::cell_index(bh, bd, kp)];
             for c in 0..3 {
                 acc[c] += (f[c] * l.power[c] * cos) as f64;
             }
@@ -556,7 +627,8 @@ pub fn render_merl(geom: &PixelGeometry, lights: &LightSet, brdf: &MerlBrdf) -> 
 /// independent of the binning shortcuts above.
 pub fn render_full(geom: &PixelGeometry, lights: &LightSet, brdf: &dyn IsotropicBrdf) -> Raster {
     use super::brdf::tangent_frame;
-    let packed = pack(lights);
+    // Point lights: this renderer is the independent check, so it takes no footprint.
+    let packed = pack(lights, &Footprints::of(lights), 0);
     let shade = |px: &GeomPixel| -> [f32; 3] {
         let n = px.normal.map(|c| c as f64);
         let (t, b) = tangent_frame(n);
