@@ -38,6 +38,8 @@ pub struct CoefficientsFile<'a> {
     /// ‖A·c − y‖ / ‖y‖ over every candidate pixel: how well the estimate re-renders the photo.
     pub fit_error: f64,
     pub candidates: usize,
+    /// Object pixels left out because a channel was at the photo's white level.
+    pub clipped_pixels: usize,
     pub lights: usize,
     pub timings: &'a Timings,
 }
@@ -100,6 +102,7 @@ pub fn write_results(
         relative_residual: estimate.solution.relative_residual,
         fit_error: estimate.fit_error,
         candidates: estimate.candidates,
+        clipped_pixels: estimate.clipped,
         lights: estimate.lights,
         timings: &estimate.timings,
     };

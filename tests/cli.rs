@@ -184,7 +184,22 @@ fn estimate_from_files() {
         ],
         dir.path(),
     );
-    assert!(o.status.success(), "{:?}", text(&o));
+    let (stdout, stderr) = text(&o);
+    assert!(o.status.success(), "{stdout}\n{stderr}");
+    // The PNG's auto exposure clips the brightest highlight at the top code: an 8-bit photo
+    // has a white level, so those pixels are left out, and the output says how many.
+    let png: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("est2/coefficients.json")).unwrap(),
+    )
+    .unwrap();
+    let clipped = png["clipped_pixels"].as_u64().unwrap();
+    eprintln!("{clipped} clipped pixels in the PNG");
+    assert!(clipped > 0, "{stdout}");
+    assert!(
+        stdout.contains(&format!("{clipped} object pixels were clipped")),
+        "{stdout}"
+    );
+    assert_eq!(json["clipped_pixels"], 0, "an EXR has no white level");
 }
 
 #[test]

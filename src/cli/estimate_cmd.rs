@@ -50,6 +50,10 @@ pub struct EstimateArgs {
     pub lights: usize,
     #[arg(long, default_value_t = DEFAULT_MAX_CANDIDATES)]
     pub max_candidates: usize,
+    /// The photo's white level: pixels with a channel at or above it were clipped and are left
+    /// out. Default: 1.0 for PNG and JPEG (the top code), none for EXR; `inf` turns it off.
+    #[arg(long)]
+    pub white: Option<f32>,
     /// Seed of the paper's random restarts.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -109,6 +113,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         },
         max_candidates: a.max_candidates,
         solver: a.solve.into(),
+        white: a.white.or(default_white(&a.photo)),
     };
     let est = run_estimate(&basis, &geometry, &lights, &photo, &options)?;
     let files = write_results(
@@ -122,6 +127,12 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         &lights,
     )?;
     print_estimate(&est.names, &est.solution.coefficients);
+    if est.clipped > 0 {
+        println!(
+            "{} object pixels were clipped (at or above the white level) and left out",
+            est.clipped
+        );
+    }
     println!(
         "{} of {} candidate pixels, solver {}, condition number {:.2}, relative residual {:.4} on the chosen pixels and {:.4} on all, {:.2} s",
         est.selection.pixels.len(),
@@ -134,6 +145,12 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
     );
     println!("wrote {}", files.coefficients.display());
     Ok(())
+}
+
+/// 8-bit photos clip at their top code, which decodes to 1.0; EXR has no white level.
+fn default_white(photo: &std::path::Path) -> Option<f32> {
+    let ext = photo.extension().and_then(|e| e.to_str()).unwrap_or("");
+    (!ext.eq_ignore_ascii_case("exr")).then_some(1.0)
 }
 
 pub fn print_estimate(names: &[String], coefficients: &[f64]) {

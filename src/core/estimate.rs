@@ -9,7 +9,7 @@ use super::basis::Basis;
 use super::bivariate::Bivariate;
 use super::envmap::LightSet;
 use super::error::{CoreError, Result};
-use super::geometry::PixelGeometry;
+use super::geometry::{GeomPixel, PixelGeometry};
 use super::raster::Raster;
 use super::render::RenderingMatrix;
 use super::select::{self, Blocks, Selection, SwapParams};
@@ -37,6 +37,10 @@ pub struct EstimateOptions {
     pub swap: SwapParams,
     pub max_candidates: usize,
     pub solver: Solver,
+    /// The photo's white level, if it has one: a value at or above it was clipped, so it is
+    /// only a lower bound on the radiance. Pixels with a clipped channel are not candidates.
+    /// 8-bit photos have one (1.0 after decoding); an HDR merge or a linear EXR usually not.
+    pub white: Option<f32>,
 }
 
 impl Default for EstimateOptions {
@@ -47,6 +51,7 @@ impl Default for EstimateOptions {
             swap: SwapParams::default(),
             max_candidates: DEFAULT_MAX_CANDIDATES,
             solver: Solver::default(),
+            white: None,
         }
     }
 }
@@ -70,6 +75,8 @@ pub struct Estimate {
     /// Which view (0 for the first) each chosen pixel is from.
     pub chosen_views: Vec<usize>,
     pub candidates: usize,
+    /// Object pixels left out because a channel was clipped (see [`EstimateOptions::white`]).
+    pub clipped: usize,
     /// ‖A·c − y‖ / ‖y‖ over every candidate pixel, not only the chosen ones: how well the
     /// estimate re-renders the photo, with no ground truth needed.
     pub fit_error: f64,
@@ -89,22 +96,23 @@ fn secs(d: Duration) -> f64 {
     d.as_secs_f64()
 }
 
-/// Builds A for the candidate pixels of `geometry` (pixels the photo saw with finite,
-/// non-negative values) under `lights`.
+/// Builds A for the candidate pixels of `geometry` under `lights`: pixels the photo saw with
+/// finite, non-negative values, below `white` if given. Also returns how many were clipped.
 pub fn candidate_matrix(
     basis: &Basis,
     geometry: &PixelGeometry,
     lights: &LightSet,
     photo: &Raster,
     max_candidates: usize,
-) -> Result<(RenderingMatrix, Vec<[f64; 3]>)> {
+    white: Option<f32>,
+) -> Result<(RenderingMatrix, Vec<[f64; 3]>, usize)> {
     if (photo.width, photo.height) != (geometry.width, geometry.height) {
         return Err(CoreError::Invalid(format!(
             "the photo is {}×{} but the geometry is {}×{}",
             photo.width, photo.height, geometry.width, geometry.height
         )));
     }
-    let usable: Vec<_> = geometry
+    let measured: Vec<_> = geometry
         .pixels
         .iter()
         .filter(|p| {
@@ -115,11 +123,17 @@ pub fn candidate_matrix(
         })
         .copied()
         .collect();
+    let unclipped = |p: &GeomPixel| {
+        white.is_none_or(|w| photo.get(p.x as usize, p.y as usize).iter().all(|v| *v < w))
+    };
+    let usable: Vec<_> = measured.iter().filter(|p| unclipped(p)).copied().collect();
+    let clipped = measured.len() - usable.len();
     if usable.is_empty() {
-        return Err(CoreError::Invalid(
-            "no object pixel of the photo is usable (mask empty, or all values negative/NaN)"
-                .into(),
-        ));
+        return Err(CoreError::Invalid(if clipped > 0 {
+            format!("every object pixel of the photo is clipped ({clipped} at or above the white level {}); use a shorter exposure", white.unwrap_or(0.0))
+        } else {
+            "no object pixel of the photo is usable (mask empty, or all values negative/NaN)".into()
+        }));
     }
     let picked: Vec<_> = spread(usable.len(), max_candidates)
         .into_iter()
@@ -137,7 +151,7 @@ pub fn candidate_matrix(
         .iter()
         .map(|p| photo.get(p.x as usize, p.y as usize).map(|v| v as f64))
         .collect();
-    Ok((a, observed))
+    Ok((a, observed, clipped))
 }
 
 /// Selection and solve on a prepared rendering matrix.
@@ -203,9 +217,18 @@ pub fn estimate_views(
     let per_view = (options.max_candidates / views.len().max(1)).max(1);
     let mut stacked: Option<(RenderingMatrix, Vec<[f64; 3]>)> = None;
     let mut view_of_pixel = Vec::new();
+    let mut clipped = 0;
     for (i, v) in views.iter().enumerate() {
-        let (a, observed) = candidate_matrix(basis, v.geometry, v.lights, v.photo, per_view)
-            .map_err(|e| CoreError::Invalid(format!("view {}: {e}", i + 1)))?;
+        let (a, observed, c) = candidate_matrix(
+            basis,
+            v.geometry,
+            v.lights,
+            v.photo,
+            per_view,
+            options.white,
+        )
+        .map_err(|e| CoreError::Invalid(format!("view {}: {e}", i + 1)))?;
+        clipped += c;
         view_of_pixel.extend(std::iter::repeat_n(i, a.pixels.len()));
         stacked = Some(match stacked {
             None => (a, observed),
@@ -236,6 +259,7 @@ pub fn estimate_views(
         chosen,
         chosen_views,
         candidates: a.pixels.len(),
+        clipped,
         fit_error,
         lights: views.first().map_or(0, |v| v.lights.len()),
         timings: Timings {

@@ -87,8 +87,9 @@ pub struct Row {
 
 /// Shot noise (Poisson in electrons) and 12-bit quantisation, with the exposure set so the
 /// [`EXPOSURE_PERCENTILE`] of the object's values reaches the white point. Clipped values stay
-/// clipped, as on a real sensor.
-pub fn add_sensor_noise(img: &Raster, seed: u64) -> Raster {
+/// clipped, as on a real sensor, at exactly the returned white level, which the estimate is
+/// told (as `brdfd estimate` knows an 8-bit photo's): clipped pixels are lower bounds only.
+pub fn add_sensor_noise(img: &Raster, seed: u64) -> (Raster, Option<f32>) {
     let mut values: Vec<f32> = img
         .pixels
         .iter()
@@ -96,11 +97,12 @@ pub fn add_sensor_noise(img: &Raster, seed: u64) -> Raster {
         .filter(|v| *v > 0.0)
         .collect();
     if values.is_empty() {
-        return img.clone();
+        return (img.clone(), None);
     }
     let k = ((values.len() as f64 * EXPOSURE_PERCENTILE) as usize).min(values.len() - 1);
     let (_, white, _) = values.select_nth_unstable_by(k, f32::total_cmp);
-    let electrons_per_unit = FULL_WELL_ELECTRONS / *white as f64;
+    let white = *white;
+    let electrons_per_unit = FULL_WELL_ELECTRONS / white as f64;
     let electrons_per_dn = FULL_WELL_ELECTRONS / ADC_LEVELS;
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let mut out = img.clone();
@@ -114,10 +116,14 @@ pub fn add_sensor_noise(img: &Raster, seed: u64) -> Raster {
                 .map(|d| d.sample(&mut rng))
                 .unwrap_or(mean);
             let dn = (e / electrons_per_dn).round().clamp(0.0, ADC_LEVELS);
-            *v = (dn * electrons_per_dn / electrons_per_unit) as f32;
+            *v = if dn >= ADC_LEVELS {
+                white
+            } else {
+                (dn * electrons_per_dn / electrons_per_unit) as f32
+            };
         }
     }
-    out
+    (out, Some(white))
 }
 
 /// ‖w⊙(a − b)‖ / ‖w⊙b‖ over the grid, with the basis's cell weights.
@@ -185,8 +191,14 @@ fn prepare(basis: &Basis, geometry: &PixelGeometry, lights: &LightSet) -> Prepar
         model.offset,
         basis.header.grid.theta_h_binning,
     );
-    let blocks = Blocks::scaled(&a, &basis.column_scales());
-    let selections = PIXEL_COUNTS
+    let selections = select_each_count(basis, &a);
+    Prepared { a, selections }
+}
+
+/// The selection for every pixel count of [`PIXEL_COUNTS`].
+fn select_each_count(basis: &Basis, a: &RenderingMatrix) -> Vec<(Option<usize>, Selection)> {
+    let blocks = Blocks::scaled(a, &basis.column_scales());
+    PIXEL_COUNTS
         .iter()
         .map(|l| {
             (
@@ -197,8 +209,7 @@ fn prepare(basis: &Basis, geometry: &PixelGeometry, lights: &LightSet) -> Prepar
                 },
             )
         })
-        .collect();
-    Prepared { a, selections }
+        .collect()
 }
 
 /// The image the model predicts for coefficients `c`: A covers every object pixel, so this is
@@ -219,13 +230,34 @@ fn predicted_image(a: &RenderingMatrix, c: &[f64], width: usize, height: usize) 
 /// One estimate: pixel count, solver, reconstructed BRDF, its re-render, condition number.
 type Outcome = (Option<usize>, Solver, Bivariate, Raster, f64);
 
-/// Estimates from `photo` with every pixel count and solver.
-fn estimate_all(basis: &Basis, prep: &Prepared, photo: &Raster) -> Result<Vec<Outcome>> {
+/// Estimates from `photo` with every pixel count and solver. Pixels with a channel at the
+/// photo's `white` level are not candidates; if there are any, selection runs again without
+/// them, as it would for that photo.
+fn estimate_all(
+    basis: &Basis,
+    prep: &Prepared,
+    photo: &Raster,
+    white: Option<f32>,
+) -> Result<Vec<Outcome>> {
     let y = observations(&prep.a, photo);
+    let keep: Vec<usize> = (0..y.len())
+        .filter(|&p| white.is_none_or(|w| y[p].iter().all(|v| *v < w as f64)))
+        .collect();
+    let reselected;
+    let selections = if keep.len() == y.len() {
+        &prep.selections
+    } else {
+        let mut sub = select_each_count(basis, &prep.a.subset(&keep));
+        for (_, sel) in &mut sub {
+            sel.pixels.iter_mut().for_each(|p| *p = keep[*p]);
+        }
+        reselected = sub;
+        &reselected
+    };
     let prior = basis.column_prior();
     let mut out = Vec::new();
     for solver in SOLVERS {
-        for (l, sel) in &prep.selections {
+        for (l, sel) in selections {
             let sol = solver.solve(&prep.a, &sel.pixels, &y, &prior)?;
             let img = predicted_image(&prep.a, &sol.coefficients, photo.width, photo.height);
             out.push((
@@ -304,12 +336,12 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
             floors.push((light_name.to_string(), truth.name.clone(), floor));
             let mut renders: Vec<Vec<Raster>> = SOLVERS.iter().map(|_| vec![gt.clone()]).collect();
             for noisy in [false, true] {
-                let photo = if noisy {
+                let (photo, white) = if noisy {
                     add_sensor_noise(&gt, 1000 + i as u64)
                 } else {
-                    gt.clone()
+                    (gt.clone(), None)
                 };
-                for (l, solver, est, re, cond) in estimate_all(&basis, &prep, &photo)? {
+                for (l, solver, est, re, cond) in estimate_all(&basis, &prep, &photo, white)? {
                     rows.push(Row {
                         lighting: light_name.into(),
                         material: truth.name.clone(),
@@ -520,7 +552,7 @@ fn measure_choices(
                 .find(|(n, _)| n == name)
                 .expect("test material reduced")
                 .1;
-            for (l, solver, est, re, _) in estimate_all(&basis, &prep, gt)? {
+            for (l, solver, est, re, _) in estimate_all(&basis, &prep, gt, None)? {
                 // The basis choices were measured with the paper's solver.
                 if solver != Solver::LeastSquares {
                     continue;

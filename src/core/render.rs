@@ -508,6 +508,26 @@ impl RenderingMatrix {
         }
     }
 
+    /// The rows of the given pixels (indices into `pixels`), in that order.
+    pub fn subset(&self, keep: &[usize]) -> RenderingMatrix {
+        let k = self.columns;
+        RenderingMatrix {
+            columns: k,
+            pixels: keep.iter().map(|&p| self.pixels[p]).collect(),
+            rows: keep
+                .iter()
+                .flat_map(|&p| &self.rows[3 * p * k..3 * (p + 1) * k])
+                .copied()
+                .collect(),
+            offset: self.offset.as_ref().map(|o| {
+                keep.iter()
+                    .flat_map(|&p| &o[3 * p..3 * (p + 1)])
+                    .copied()
+                    .collect()
+            }),
+        }
+    }
+
     pub fn row(&self, r: usize) -> &[f32] {
         &self.rows[r * self.columns..(r + 1) * self.columns]
     }
