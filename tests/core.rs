@@ -40,6 +40,15 @@ fn shared_data() -> Option<std::path::PathBuf> {
     }
 }
 
+/// Gold's projection onto the basis: coefficients whose BRDF the basis holds exactly.
+fn in_span_gold(basis: &Basis) -> Vec<f64> {
+    let truth = Bivariate::reduce(
+        embedded_materials().get("gold-metallic-paint").unwrap(),
+        basis.header.grid,
+    );
+    basis.project(&truth)
+}
+
 fn sphere(size: usize) -> PixelGeometry {
     PixelGeometry::rasterize(&Camera::eval_orthographic(size), &Shape::unit_sphere()).unwrap()
 }
@@ -92,11 +101,7 @@ fn relative_error(a: &[f64], b: &[f64]) -> f64 {
 #[test]
 fn coefficients_inside_the_span_are_recovered() {
     let basis = Basis::embedded();
-    let truth = Bivariate::reduce(
-        embedded_materials().get("gold-metallic-paint").unwrap(),
-        basis.header.grid,
-    );
-    let c_true = basis.project(&truth);
+    let c_true = in_span_gold(&basis);
     let a = studio_matrix(&basis, 64);
     let y: Vec<[f64; 3]> = a
         .predict(&c_true)
@@ -137,11 +142,7 @@ fn coefficients_inside_the_span_are_recovered() {
 #[test]
 fn clipped_pixels_are_left_out() {
     let basis = Basis::embedded();
-    let truth = Bivariate::reduce(
-        embedded_materials().get("gold-metallic-paint").unwrap(),
-        basis.header.grid,
-    );
-    let c_true = basis.project(&truth);
+    let c_true = in_span_gold(&basis);
     let g = sphere(48);
     let lights = studio_envmap(256).compressed(2048, 0.0);
     let mut photo = render_bivariate(&g, &lights, &basis.reconstruct(&c_true));
