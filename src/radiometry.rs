@@ -157,6 +157,17 @@ pub const DARK: f32 = 0.01;
 /// measured worse (blue +6% on grace's bright band, against +3% per channel). Measured on
 /// the THETA round trip of grace (tests/theta.rs), this is what keeps small bright sources
 /// from coming out several per cent dark.
+/// The merged radiance at and above which [`merge_hdr`] had only clipped frames: a value
+/// there is the shortest exposure's lower bound, not a measurement. Every usable frame gives
+/// less (its value is under [`SATURATED`] and its scale at most the shortest exposure's).
+pub fn merged_white_level(frames: &[Frame], gain: f64) -> Option<f32> {
+    frames
+        .iter()
+        .map(|f| f.exposure.factor() * gain)
+        .min_by(f64::total_cmp)
+        .map(|factor| (SATURATED as f64 / factor) as f32)
+}
+
 pub fn merge_hdr(frames: &[Frame], gain: f64) -> Result<Raster, RadiometryError> {
     let first = frames
         .first()
@@ -247,10 +258,16 @@ mod tests {
     #[test]
     fn merge_ignores_saturated_frames_and_undoes_exposure() {
         // Radiance 2: 0.2 at 0.1 s, 0.8 at 0.4 s, clipped at 1.6 s.
-        let m = merge_hdr(&[frame(0.2, 0.1), frame(0.8, 0.4), frame(1.0, 1.6)], 1.0).unwrap();
+        let bracket = [frame(0.2, 0.1), frame(0.8, 0.4), frame(1.0, 1.6)];
+        let m = merge_hdr(&bracket, 1.0).unwrap();
         assert!((m.pixels[0][0] - 2.0).abs() < 1e-5, "{:?}", m.pixels[0]);
+        assert!(m.pixels[0][0] < merged_white_level(&bracket, 1.0).unwrap());
         // Everything saturated: the shortest exposure's lower bound.
         let m = merge_hdr(&[frame(1.0, 0.1), frame(1.0, 0.4)], 1.0).unwrap();
+        // That lower bound is what the white level flags: 0.95 / 0.1.
+        let white = merged_white_level(&[frame(1.0, 0.1), frame(1.0, 0.4)], 1.0).unwrap();
+        assert!((white - 9.5).abs() < 1e-5, "{white}");
+        assert!(m.pixels[0].iter().all(|v| *v >= white), "{:?}", m.pixels[0]);
         assert!((m.pixels[0][0] - 10.0).abs() < 1e-4);
     }
 

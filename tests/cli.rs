@@ -4,6 +4,12 @@ mod common;
 
 use common::{brdfd, text, Simulator};
 
+/// The `coefficients.json` that a command wrote to `dir/out`.
+fn coefficients_json(dir: &std::path::Path, out: &str) -> serde_json::Value {
+    let file = dir.join(out).join("coefficients.json");
+    serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap()
+}
+
 /// The README's main command, at a smaller image size.
 #[test]
 fn simulated_capture_prints_coefficients() {
@@ -27,14 +33,13 @@ fn simulated_capture_prints_coefficients() {
         out.contains("gold-metallic-paint") && out.contains("pc5 ="),
         "{out}"
     );
-    let json: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(dir.path().join("result/coefficients.json")).unwrap(),
-    )
-    .unwrap();
+    let json = coefficients_json(dir.path(), "result");
     assert_eq!(json["coefficients"].as_array().unwrap().len(), 6);
     assert_eq!(json["chosen_pixels"].as_array().unwrap().len(), 20);
     let fit = json["fit_error"].as_f64().unwrap();
     assert!(fit > 0.0 && fit < 1.0, "fit_error {fit}");
+    // The default bracket covers the highlights: nothing clipped in every frame.
+    assert_eq!(json["clipped_pixels"], 0);
     for f in [
         "brdf-bivariate.exr",
         "brdf.binary",
@@ -70,6 +75,37 @@ fn simulated_capture_prints_coefficients() {
     let first = std::fs::read(dir.path().join("result/raw/dslr-01-DSC_0001.JPG")).unwrap();
     let exp = brdfd::radiometry::exif_exposure(&first, "dslr-01").unwrap();
     assert_eq!((exp.shutter_s, exp.f_number, exp.iso), (0.001, 8.0, 100.0));
+}
+
+/// A bracket that is too long for chrome's highlights: pixels clipped in every frame hold
+/// only a lower bound, so the estimate leaves them out and the capture says so.
+#[test]
+fn pixels_clipped_in_every_frame_are_left_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = [
+        "capture",
+        "--simulate",
+        "--material",
+        "chrome",
+        "--size",
+        "64",
+        "--bracket",
+        "0.25,0.5",
+        "--out",
+        "result",
+    ];
+    let o = brdfd(&args, dir.path());
+    let (out, err) = text(&o);
+    assert!(o.status.success(), "{out}\n{err}");
+    let json = coefficients_json(dir.path(), "result");
+    let clipped = json["clipped_pixels"].as_u64().unwrap();
+    assert!(clipped > 0, "{out}");
+    assert!(
+        out.contains(&format!(
+            "{clipped} object pixels were clipped in every frame of their bracket"
+        )),
+        "{out}"
+    );
 }
 
 #[test]
@@ -121,8 +157,7 @@ fn estimate_from_files() {
         let o = brdfd(&args, dir.path());
         let (stdout, stderr) = text(&o);
         assert!(o.status.success(), "{stdout}\n{stderr}");
-        let file = dir.path().join(out).join("coefficients.json");
-        serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(file).unwrap()).unwrap()
+        coefficients_json(dir.path(), out)
     };
     let json = estimate(&[], "est");
     assert_eq!(json["k"], 5);
@@ -188,10 +223,7 @@ fn estimate_from_files() {
     assert!(o.status.success(), "{stdout}\n{stderr}");
     // The PNG's auto exposure clips the brightest highlight at the top code: an 8-bit photo
     // has a white level, so those pixels are left out, and the output says how many.
-    let png: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(dir.path().join("est2/coefficients.json")).unwrap(),
-    )
-    .unwrap();
+    let png = coefficients_json(dir.path(), "est2");
     let clipped = png["clipped_pixels"].as_u64().unwrap();
     eprintln!("{clipped} clipped pixels in the PNG");
     assert!(clipped > 0, "{stdout}");

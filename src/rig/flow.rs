@@ -28,7 +28,7 @@ use crate::core::merl::MerlBrdf;
 use crate::core::nbrdf::NbrdfSet;
 use crate::core::raster::Raster;
 use crate::panorama::merge_bracket;
-use crate::radiometry::{decode_jpeg, merge_hdr};
+use crate::radiometry::{decode_jpeg, merge_hdr, merged_white_level};
 use crate::session::{PhaseTime, Session, State};
 
 /// Camera files by name, exactly as the camera sent them.
@@ -320,6 +320,8 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
 
     // One DSLR bracket per turntable view.
     let mut views = Vec::with_capacity(n_views);
+    // Radiance at and above which a DSLR pixel was clipped in every frame of its bracket.
+    let mut clip_level: Option<f32> = None;
     for i in 0..n_views {
         cx.cancel.check()?;
         let step = format!("view{}", i + 1);
@@ -366,7 +368,9 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
             }
         };
         let p = phases.start(&format!("{step}: HDR merge"), 1);
-        let photo = merge_dslr(cx, &files)?;
+        let (photo, white) = merge_dslr(cx, &files)?;
+        // Every view takes the same bracket, so the lowest level is every view's.
+        clip_level = [clip_level, white].into_iter().flatten().reduce(f32::min);
         save_exr(session, &format!("photo-{step}.exr"), &photo)?;
         phases.end(p);
         let (geometry, view_yaw) = turned(&scene, yaw, deg);
@@ -385,6 +389,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
             .solve
             .or(preset.as_ref().map(|p| p.solve))
             .unwrap_or_default(),
+        white: clip_level,
         ..EstimateOptions::default()
     };
     let as_views: Vec<View> = views
@@ -438,6 +443,12 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         est.fit_error,
         est.candidates,
     ));
+    if est.clipped > 0 {
+        cx.say(format!(
+            "{} object pixels were clipped in every frame of their bracket and left out; a shorter exposure would keep them",
+            est.clipped
+        ));
+    }
     session.manifest.phases = phases.done;
     session.set_state(State::Done, None)?;
     Ok(Outcome {
@@ -742,8 +753,9 @@ pub fn check_exposure(progress: &dyn Progress, f: &Frame) {
     }
 }
 
-/// Decodes a DSLR bracket and merges it into radiance, from each file's EXIF.
-fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<Raster> {
+/// Decodes a DSLR bracket and merges it into radiance, from each file's EXIF. Also returns
+/// the level at and above which the merge had only clipped frames.
+fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<(Raster, Option<f32>)> {
     let frames = files
         .iter()
         .map(|(name, bytes)| {
@@ -761,7 +773,10 @@ fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<Raster> {
             Ok(f)
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    Ok(merge_hdr(&frames, SENSOR_GAIN)?)
+    Ok((
+        merge_hdr(&frames, SENSOR_GAIN)?,
+        merged_white_level(&frames, SENSOR_GAIN),
+    ))
 }
 
 /// How far the measured map is from the bench's own (total light, per channel).
