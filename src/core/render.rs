@@ -169,13 +169,18 @@ pub struct Footprints {
 const SMALLEST_FOOTPRINT: f64 = 1.75e-4;
 
 impl Footprints {
-    /// A light of spread R moves the half vector over a disc of radius R/2.
+    /// A light of spread R moves the half vector over a disc of radius R/2. A set without
+    /// spreads is taken as uniform discs of its solid angles.
     pub fn of(lights: &LightSet) -> Footprints {
-        let octave = |spread: f32| {
-            let rho = (spread as f64 / 2.0).max(SMALLEST_FOOTPRINT);
+        let octave = |i: usize| {
+            let spread = lights.spread.get(i).map_or_else(
+                || (lights.solid_angle[i] as f64 / std::f64::consts::PI).sqrt(),
+                |s| *s as f64,
+            );
+            let rho = (spread / 2.0).max(SMALLEST_FOOTPRINT);
             (rho / SMALLEST_FOOTPRINT).log2().round() as i32
         };
-        let mut octaves: Vec<i32> = lights.spread.iter().map(|s| octave(*s)).collect();
+        let mut octaves: Vec<i32> = (0..lights.len()).map(octave).collect();
         let level_of: Vec<i32> = octaves.clone();
         octaves.sort_unstable();
         octaves.dedup();
