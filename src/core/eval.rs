@@ -48,8 +48,9 @@ pub const TEST_SET: [&str; 10] = [
     "pearl-paint",
 ];
 
-/// Lights for ground-truth images: twice the estimate's, so the estimate's own compression
-/// shows up as error.
+/// Lights for ground-truth images: four times the estimate's, so the estimate's own compression
+/// shows up as error. Measured against every map pixel as a light (`--choices`), these renders
+/// change by 0.4% (grace) and 1.3% (courtyard) on average.
 pub const GT_LIGHTS: usize = 16_384;
 /// Pixel counts of the paper's Fig. 5 (`None` = all pixels).
 pub const PIXEL_COUNTS: [Option<usize>; 4] = [Some(5), Some(10), Some(20), None];
