@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Deserializer};
 
 use crate::core::geometry::SceneGeometry;
-use crate::core::solve::Solver;
+use crate::core::solve::{Colour, Solver};
 use crate::selector::Selector;
 
 #[derive(Debug, thiserror::Error)]
@@ -191,6 +191,9 @@ pub struct MaterialPreset {
     /// How coefficients are solved: `prior` (the default) or `least-squares` (the paper's).
     #[serde(default)]
     pub solve: Solver,
+    /// How colour is modelled: `joint` (the default, the paper's) or `per-channel`.
+    #[serde(default)]
+    pub colour: Colour,
     #[serde(default)]
     pub notes: String,
 }
@@ -537,5 +540,23 @@ mod tests {
         };
         assert_eq!(parse(""), Solver::Prior);
         assert_eq!(parse("solve = \"least-squares\"\n"), Solver::LeastSquares);
+    }
+
+    #[test]
+    fn a_preset_chooses_its_colour_model() {
+        let parse = |extra: &str| {
+            MaterialPreset::parse(
+                "m.toml",
+                &format!("simulate_as = \"gold-metallic-paint\"\npixels = 20\n{extra}"),
+            )
+            .map(|p| p.colour)
+        };
+        assert_eq!(parse("").unwrap(), Colour::Joint);
+        assert_eq!(
+            parse("colour = \"per-channel\"\n").unwrap(),
+            Colour::PerChannel
+        );
+        let e = parse("colour = \"rgb\"\n").unwrap_err().to_string();
+        assert!(e.contains("m.toml") && e.contains("colour"), "{e}");
     }
 }

@@ -26,6 +26,9 @@ pub struct CoefficientsFile<'a> {
     pub selection_method: &'a str,
     /// `least-squares` (the paper's) or `prior` (with the training set's prior; README).
     pub solver: &'a str,
+    /// `joint` (one set of coefficients for all channels, the paper's) or `per-channel`
+    /// (`coefficients` holds the R, G and B sets in turn, named in `columns`).
+    pub colour: &'a str,
     /// (x, y) image positions of the pixels used (omitted for all-pixel estimates).
     pub chosen_pixels: Vec<(u32, u32)>,
     /// The view (turntable position, 0 for the first) of each chosen pixel.
@@ -87,6 +90,7 @@ pub fn write_results(
         pixel_count: estimate.selection.pixels.len(),
         selection_method: if all { "all" } else { method },
         solver: estimate.solver.name(),
+        colour: estimate.colour.name(),
         chosen_pixels: if all {
             Vec::new()
         } else {

@@ -30,11 +30,13 @@ fn simulated_capture_prints_coefficients() {
     let (out, err) = text(&o);
     assert!(o.status.success(), "{out}\n{err}");
     assert!(
-        out.contains("gold-metallic-paint") && out.contains("pc5 ="),
+        out.contains("gold-metallic-paint") && out.contains("pc5.B ="),
         "{out}"
     );
     let json = coefficients_json(dir.path(), "result");
-    assert_eq!(json["coefficients"].as_array().unwrap().len(), 6);
+    // The gold preset estimates colour per channel: six coefficients for each of R, G, B.
+    assert_eq!(json["colour"], "per-channel");
+    assert_eq!(json["coefficients"].as_array().unwrap().len(), 18);
     assert_eq!(json["chosen_pixels"].as_array().unwrap().len(), 20);
     let fit = json["fit_error"].as_f64().unwrap();
     assert!(fit > 0.0 && fit < 1.0, "fit_error {fit}");
@@ -78,7 +80,8 @@ fn simulated_capture_prints_coefficients() {
 }
 
 /// A bracket that is too long for chrome's highlights: pixels clipped in every frame hold
-/// only a lower bound, so the estimate leaves them out and the capture says so.
+/// only a lower bound, so the estimate leaves them out and the capture says so; the merged
+/// photo keeps that white level for later estimates.
 #[test]
 fn pixels_clipped_in_every_frame_are_left_out() {
     let dir = tempfile::tempdir().unwrap();
@@ -93,11 +96,19 @@ fn pixels_clipped_in_every_frame_are_left_out() {
         "0.25,0.5",
         "--out",
         "result",
+        "--state-dir",
+        "state",
+        // Chrome is grey; the joint basis gives it a colour, so this capture asks for one set
+        // of coefficients per channel (the plan's colour model reaching the estimate).
+        "--colour",
+        "per-channel",
     ];
     let o = brdfd(&args, dir.path());
     let (out, err) = text(&o);
     assert!(o.status.success(), "{out}\n{err}");
     let json = coefficients_json(dir.path(), "result");
+    assert_eq!(json["colour"], "per-channel");
+    assert_eq!(json["coefficients"].as_array().unwrap().len(), 18);
     let clipped = json["clipped_pixels"].as_u64().unwrap();
     assert!(clipped > 0, "{out}");
     assert!(
@@ -105,6 +116,26 @@ fn pixels_clipped_in_every_frame_are_left_out() {
             "{clipped} object pixels were clipped in every frame of their bracket"
         )),
         "{out}"
+    );
+    // The session's merged photo keeps its white level, so that a later `brdfd estimate` on
+    // the file leaves out what the capture left out.
+    let sessions: Vec<_> = std::fs::read_dir(dir.path().join("state/sessions"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(sessions.len(), 1, "{sessions:?}");
+    let (photo, white) =
+        brdfd::core::raster::Raster::read_with_white(&sessions[0].join("derived/photo-view1.exr"))
+            .unwrap();
+    let white = white.expect("the merged photo records its white level");
+    let at_white = photo
+        .pixels
+        .iter()
+        .filter(|p| p.iter().any(|v| *v >= white))
+        .count();
+    assert!(
+        at_white as u64 >= clipped,
+        "{at_white} pixels at {white}, {clipped} clipped"
     );
 }
 
@@ -170,6 +201,29 @@ fn estimate_from_files() {
     assert_eq!(ls["solver"], "least-squares");
     assert_eq!(ls["chosen_pixels"], json["chosen_pixels"]);
     assert_ne!(ls["coefficients"], json["coefficients"]);
+    assert_eq!(json["colour"], "joint");
+    // One set of coefficients per channel: three times as many, named per channel, and the
+    // file renders like any other.
+    let pc = estimate(&["--colour", "per-channel"], "est-pc");
+    assert_eq!(pc["colour"], "per-channel");
+    assert_eq!(pc["coefficients"].as_array().unwrap().len(), 18);
+    assert_eq!(pc["columns"][6], "mean.G");
+    assert_eq!(pc["chosen_pixels"], json["chosen_pixels"]);
+    let o = brdfd(
+        &[
+            "render",
+            "--coefficients",
+            "est-pc/coefficients.json",
+            "--env",
+            "studio.exr",
+            "--size",
+            "32",
+            "--out",
+            "again-pc.exr",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{:?}", text(&o));
     let merl = std::fs::metadata(dir.path().join("est/brdf.binary"))
         .unwrap()
         .len();
@@ -453,7 +507,7 @@ fn a_rig_file_drives_the_devices_it_names() {
     assert!(stdout.contains("no daemon at"), "{stdout}");
     assert_eq!(
         common::printed_coefficients(&stdout, "coefficients").len(),
-        6
+        18
     );
     // No simulator-only output: the rig is hardware as far as brdfd knows.
     assert!(!stdout.contains("ground truth"), "{stdout}");

@@ -136,6 +136,63 @@ fn coefficients_inside_the_span_are_recovered() {
     }
 }
 
+/// Colour the joint basis cannot hold: each channel a different in-span material (R gold, G
+/// nickel, B blue-fabric). Per-channel coefficients recover all three sets from 20 pixels and
+/// from all; the joint model, one set for every channel, cannot fit the photo.
+#[test]
+fn per_channel_colour_recovers_what_the_joint_basis_cannot() {
+    use brdfd::core::solve::{channel_coefficients, Colour};
+    let basis = Basis::embedded();
+    let project = |name: &str| {
+        basis.project(&Bivariate::reduce(
+            embedded_materials().get(name).unwrap(),
+            basis.header.grid,
+        ))
+    };
+    let truth: Vec<f64> = ["gold-metallic-paint", "nickel", "blue-fabric"]
+        .iter()
+        .flat_map(|n| project(n))
+        .collect();
+    let m = basis.model().columns.len();
+    let brdf = basis.reconstruct_channels(channel_coefficients(&truth, m).unwrap());
+    let g = sphere(48);
+    let lights = studio_envmap(256).compressed(2048, 0.0);
+    let photo = render_bivariate(&g, &lights, &brdf);
+    for pixels in [Some(20), None] {
+        let run = |colour| {
+            let opts = EstimateOptions {
+                pixel_count: pixels,
+                solver: Solver::LeastSquares,
+                colour,
+                ..Default::default()
+            };
+            estimate(&basis, &g, &lights, &photo, &opts).unwrap()
+        };
+        let per_channel = run(Colour::PerChannel);
+        assert_eq!(per_channel.names.len(), 3 * m);
+        assert_eq!(per_channel.names[m], "mean.G");
+        let err = relative_error(&per_channel.solution.coefficients, &truth);
+        let joint = run(Colour::Joint);
+        eprintln!(
+            "{pixels:?} pixels: per-channel coefficient error {err:.1e}, fit {:.1e}; joint fit {:.3}",
+            per_channel.fit_error, joint.fit_error
+        );
+        // f32 renders: 1e-4 is generous.
+        assert!(err < 1e-4, "{pixels:?} pixels: per-channel error {err}");
+        assert!(per_channel.fit_error < 1e-5, "{}", per_channel.fit_error);
+        assert!(joint.fit_error > 0.05, "joint fit {}", joint.fit_error);
+        let back = basis
+            .reconstruct_solution(&per_channel.solution.coefficients)
+            .unwrap();
+        assert!(brdf_error(&back, &brdf, basis.header.cell_weight) < 1e-4);
+    }
+    let e = basis.reconstruct_solution(&truth[..m + 1]).unwrap_err();
+    assert!(
+        e.to_string().contains("expected 6 (joint colour) or 18"),
+        "{e}"
+    );
+}
+
 /// A photo with clipped highlights: the clipped values are lower bounds, and fitting them as
 /// values drags the estimate. Told the white level, the estimate leaves those pixels out and
 /// recovers in-span coefficients as if nothing had clipped.
@@ -492,6 +549,80 @@ fn basis_files_round_trip_and_reject_damage() {
     .unwrap();
     let e = Basis::read(&stem).unwrap_err().to_string();
     assert!(e.contains("header") && e.contains("missing field"), "{e}");
+}
+
+/// K beyond what an estimate can carry is refused when the basis is built and when a basis
+/// file claims it, rather than failing later inside the renderer.
+#[test]
+fn bases_with_more_components_than_estimates_use_are_refused() {
+    use brdfd::core::basis::{CellWeight, Normalisation, MAX_K};
+    let grid = Grid::default();
+    // Twelve training materials: the ten test fits, and the square roots of two of them (a
+    // repeat would add no rank).
+    let set = embedded_materials();
+    let mut training: Vec<(String, Bivariate)> = set
+        .materials
+        .iter()
+        .map(|(n, m)| (n.clone(), Bivariate::reduce(m, grid)))
+        .collect();
+    for i in 0..2 {
+        let (n, mut b) = training[i].clone();
+        b.values.iter_mut().for_each(|v| *v = v.max(0.0).sqrt());
+        training.push((format!("{n}-sqrt"), b));
+    }
+    let build = |k| {
+        Basis::build(
+            &training,
+            k,
+            Normalisation::Rms,
+            CellWeight::SolidAngle,
+            true,
+        )
+    };
+    let e = build(MAX_K + 1).unwrap_err().to_string();
+    assert!(e.contains("K must be between 1 and 10"), "{e}");
+    let basis = build(MAX_K).unwrap();
+    assert_eq!(basis.components.len(), MAX_K);
+
+    let dir = tempfile::tempdir().unwrap();
+    let stem = dir.path().join("b");
+    basis.write(&stem).unwrap();
+    let json = std::fs::read_to_string(stem.with_extension("json")).unwrap();
+    let claimed = json.replace("\"k\": 10", "\"k\": 11");
+    assert_ne!(json, claimed, "the header should record k");
+    std::fs::write(stem.with_extension("json"), claimed).unwrap();
+    let e = Basis::read(&stem).unwrap_err().to_string();
+    assert!(e.contains("K is 11") && e.contains("1 to 10"), "{e}");
+}
+
+/// A photo's white level survives its EXR (the attribute brdfd writes), PNG reads as clipping
+/// at 1.0, and a damaged attribute is an error that names it.
+#[test]
+fn photo_files_carry_their_white_level() {
+    use brdfd::core::envmap::WHITE_LEVEL_ATTRIBUTE;
+    let dir = tempfile::tempdir().unwrap();
+    let photo = Raster {
+        width: 3,
+        height: 2,
+        pixels: vec![[0.5, 2.0, 8.0]; 6],
+    };
+    let merged = dir.path().join("merged.exr");
+    photo.write_exr_with_white(&merged, Some(8.0)).unwrap();
+    let (back, white) = Raster::read_with_white(&merged).unwrap();
+    assert_eq!((back, white), (photo.clone(), Some(8.0)));
+    let plain = dir.path().join("plain.exr");
+    photo.write_exr(&plain).unwrap();
+    assert_eq!(Raster::read_with_white(&plain).unwrap().1, None);
+    let png = dir.path().join("p.png");
+    photo.write_png(&png, 1.0).unwrap();
+    assert_eq!(Raster::read_with_white(&png).unwrap().1, Some(1.0));
+    let damaged = dir.path().join("damaged.exr");
+    photo.write_exr_with_white(&damaged, Some(-1.0)).unwrap();
+    let e = Raster::read_with_white(&damaged).unwrap_err().to_string();
+    assert!(
+        e.contains(WHITE_LEVEL_ATTRIBUTE) && e.contains("damaged.exr"),
+        "{e}"
+    );
 }
 
 #[test]

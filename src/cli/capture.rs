@@ -15,7 +15,7 @@ use brdfd::rig::{Cancel, Devices, Event, Plan, Progress, KEEP_ALIVE};
 use brdfd::session::{PhaseTime, Session, State};
 
 use super::client::{Busy, Daemon};
-use super::estimate_cmd::SolveArg;
+use super::estimate_cmd::{ColourArg, SolveArg};
 use super::progress::Bars;
 
 #[derive(clap::Args)]
@@ -50,6 +50,9 @@ pub struct CaptureArgs {
     /// "Evaluation").
     #[arg(long, value_enum)]
     pub solve: Option<SolveArg>,
+    /// How colour is modelled; the material preset's, else `joint` (README, "Evaluation").
+    #[arg(long, value_enum)]
+    pub colour: Option<ColourArg>,
     /// Shutter speeds of the DSLR's exposure bracket, in seconds; the material preset's,
     /// else the rig's.
     #[arg(long, value_delimiter = ',')]
@@ -121,6 +124,7 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         size: a.size,
         pixels: a.pixels,
         solve: a.solve.map(Into::into),
+        colour: a.colour.map(Into::into),
         bracket: a.bracket,
         views: a.views,
         turn: a.turn,

@@ -14,7 +14,7 @@ use brdfd::core::nbrdf::NbrdfSet;
 use brdfd::core::raster::Raster;
 use brdfd::core::render::{render_bivariate, render_merl};
 use brdfd::core::select::SwapParams;
-use brdfd::core::solve::Solver;
+use brdfd::core::solve::{Colour, Solver};
 use brdfd::results::write_results;
 
 use super::GeometryArgs;
@@ -42,6 +42,10 @@ pub struct EstimateArgs {
     /// least squares as in the paper (see the README's evaluation).
     #[arg(long, value_enum, default_value = "prior")]
     pub solve: SolveArg,
+    /// How colour is modelled: one set of coefficients for all channels (the paper's), or one
+    /// per channel, which leaves colour free (see the README's evaluation).
+    #[arg(long, value_enum, default_value = "joint")]
+    pub colour: ColourArg,
     /// Basis stem (STEM.exr + STEM.json); the embedded default if absent.
     #[arg(long)]
     pub basis: Option<PathBuf>,
@@ -51,7 +55,8 @@ pub struct EstimateArgs {
     #[arg(long, default_value_t = DEFAULT_MAX_CANDIDATES)]
     pub max_candidates: usize,
     /// The photo's white level: pixels with a channel at or above it were clipped and are left
-    /// out. Default: 1.0 for PNG and JPEG (the top code), none for EXR; `inf` turns it off.
+    /// out. Default: 1.0 for PNG and JPEG (the top code); for EXR, the level brdfd recorded
+    /// when it merged the photo from a bracket, else none. `inf` turns it off.
     #[arg(long)]
     pub white: Option<f32>,
     /// Seed of the paper's random restarts.
@@ -78,6 +83,21 @@ impl From<SolveArg> for Solver {
 }
 
 #[derive(clap::ValueEnum, Clone, Copy)]
+pub enum ColourArg {
+    Joint,
+    PerChannel,
+}
+
+impl From<ColourArg> for Colour {
+    fn from(a: ColourArg) -> Colour {
+        match a {
+            ColourArg::Joint => Colour::Joint,
+            ColourArg::PerChannel => Colour::PerChannel,
+        }
+    }
+}
+
+#[derive(clap::ValueEnum, Clone, Copy)]
 pub enum MethodArg {
     Fast,
     Paper,
@@ -95,7 +115,8 @@ pub fn load_basis(path: &Option<PathBuf>) -> anyhow::Result<Basis> {
 pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
     let total = std::time::Instant::now();
     let basis = load_basis(&a.basis)?;
-    let photo = Raster::read(&a.photo).with_context(|| "reading the photo")?;
+    let (photo, file_white) =
+        Raster::read_with_white(&a.photo).with_context(|| "reading the photo")?;
     let env =
         brdfd::panorama::load_envmap(&a.env).with_context(|| "reading the environment map")?;
     let lights = env.compressed(a.lights, a.yaw.to_radians());
@@ -113,7 +134,8 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         },
         max_candidates: a.max_candidates,
         solver: a.solve.into(),
-        white: a.white.or(default_white(&a.photo)),
+        colour: a.colour.into(),
+        white: a.white.or(file_white),
     };
     let est = run_estimate(&basis, &geometry, &lights, &photo, &options)?;
     let files = write_results(
@@ -145,12 +167,6 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
     );
     println!("wrote {}", files.coefficients.display());
     Ok(())
-}
-
-/// 8-bit photos clip at their top code, which decodes to 1.0; EXR has no white level.
-fn default_white(photo: &std::path::Path) -> Option<f32> {
-    let ext = photo.extension().and_then(|e| e.to_str()).unwrap_or("");
-    (!ext.eq_ignore_ascii_case("exr")).then_some(1.0)
 }
 
 pub fn print_estimate(names: &[String], coefficients: &[f64]) {
@@ -224,7 +240,9 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
                 basis.header.id
             );
         }
-        let b: Bivariate = basis.reconstruct(&coeffs);
+        let b: Bivariate = basis
+            .reconstruct_solution(&coeffs)
+            .with_context(|| format!("{}: field `coefficients`", p.display()))?;
         render_bivariate(&geometry, &lights, &b)
     } else {
         bail!("say what to render: --material, --merl or --coefficients");

@@ -108,6 +108,9 @@ pub struct EvalArgs {
     /// Also measure the grid and normalisation choices (bivariate binning, φd reduction, mean).
     #[arg(long)]
     pub choices: bool,
+    /// Principal components to estimate with (the paper's 5 unless told otherwise).
+    #[arg(long, default_value_t = brdfd::core::basis::DEFAULT_K)]
+    pub k: usize,
 }
 
 /// Writes a camera file into `dir` under its own name, or `N-name` if that exists: an earlier
@@ -151,6 +154,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 size: a.size,
                 leave_one_out: !a.no_loo,
                 choices: a.choices,
+                k: a.k,
             })?;
             println!("{report}");
             Ok(())

@@ -22,6 +22,9 @@ use super::error::{CoreError, Result};
 pub const FORMAT: &str = "brdfd-basis/1";
 /// K of the shipped basis and of `basis build` unless told otherwise (the paper's choice).
 pub const DEFAULT_K: usize = 5;
+/// The largest K an estimate can use: the rendering matrix carries at most K + 2 columns
+/// (components, mean, offset) in fixed-size arrays, for speed.
+pub const MAX_K: usize = super::render::MAX_COLUMNS - 2;
 /// Explained variance is reported for K = 1 ..= this.
 pub const REPORT_K: usize = 10;
 
@@ -138,10 +141,10 @@ impl Basis {
                 "a basis needs at least 2 training materials, got {n}"
             )));
         }
-        if k == 0 || k >= n {
+        let most = MAX_K.min(n - 1);
+        if k == 0 || k > most {
             return Err(CoreError::Invalid(format!(
-                "K must be between 1 and the number of training materials minus one ({}), got {k}",
-                n - 1
+                "K must be between 1 and {most} (at most {MAX_K}, and fewer than the {n} training materials), got {k}"
             )));
         }
         let grid = training[0].1.grid;
@@ -337,16 +340,58 @@ impl Basis {
         Bivariate::from_values(self.header.grid, values, valid)
     }
 
+    /// Reconstructs a solution's BRDF, joint or per channel
+    /// ([`channel_coefficients`](super::solve::channel_coefficients)); an error if its length
+    /// fits neither.
+    pub fn reconstruct_solution(&self, coefficients: &[f64]) -> Result<Bivariate> {
+        let m = self.model().columns.len();
+        let per_channel = super::solve::channel_coefficients(coefficients, m)?;
+        Ok(if coefficients.len() == m {
+            self.reconstruct(coefficients)
+        } else {
+            self.reconstruct_channels(per_channel)
+        })
+    }
+
+    /// Reconstructs from one coefficient vector per channel: channel c is the basis's
+    /// channel-c planes combined with `coefficients[c]`.
+    pub fn reconstruct_channels(&self, coefficients: [&[f64]; 3]) -> Bivariate {
+        let mut out = self.reconstruct(coefficients[0]);
+        for (c, coef) in coefficients.iter().enumerate().skip(1) {
+            let plane = c * GRID_CELLS..(c + 1) * GRID_CELLS;
+            out.values[plane.clone()].copy_from_slice(&self.reconstruct(coef).values[plane]);
+        }
+        out
+    }
+
     /// Least-squares projection of a bivariate BRDF onto the model, in the basis's weighted
     /// metric: the best coefficients any estimate could reach, used as ground truth in tests
     /// and the evaluation.
     pub fn project(&self, target: &Bivariate) -> Vec<f64> {
+        self.project_rows(target, 0..VALUES)
+    }
+
+    /// [`Basis::project`] for a per-channel estimate
+    /// ([`Colour::PerChannel`](super::solve::Colour::PerChannel)): each channel projected on
+    /// the basis's planes for that channel, the R, G and B coefficients in turn.
+    pub fn project_channels(&self, target: &Bivariate) -> Vec<f64> {
+        (0..3)
+            .flat_map(|c| self.project_rows(target, c * GRID_CELLS..(c + 1) * GRID_CELLS))
+            .collect()
+    }
+
+    /// Weighted least-squares fit of `target` on the model over the given rows of the grid.
+    fn project_rows(&self, target: &Bivariate, rows: std::ops::Range<usize>) -> Vec<f64> {
         let model = self.model();
         let m = model.columns.len();
         let w = self.header.cell_weight.weights(self.header.grid);
-        let a =
-            nalgebra::DMatrix::from_fn(VALUES, m, |r, c| model.columns[c][r] * w[r % GRID_CELLS]);
-        let y = nalgebra::DVector::from_fn(VALUES, |r, _| {
+        let (n, first) = (rows.len(), rows.start);
+        let a = nalgebra::DMatrix::from_fn(n, m, |i, c| {
+            let r = first + i;
+            model.columns[c][r] * w[r % GRID_CELLS]
+        });
+        let y = nalgebra::DVector::from_fn(n, |i, _| {
+            let r = first + i;
             (target.values[r] - model.offset.map_or(0.0, |o| o[r])) * w[r % GRID_CELLS]
         });
         let svd = a.svd(true, true);
@@ -440,6 +485,12 @@ impl Basis {
             return Err(CoreError::format(
                 what,
                 format!("format {:?}, this brdfd reads {FORMAT:?}", header.format),
+            ));
+        }
+        if header.k == 0 || header.k > MAX_K {
+            return Err(CoreError::format(
+                what,
+                format!("K is {}; this brdfd estimates with 1 to {MAX_K}", header.k),
             ));
         }
         let image = read()

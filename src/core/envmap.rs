@@ -111,7 +111,10 @@ impl EnvMap {
                 let (w, h) = (img.width() as usize, img.height() as usize);
                 (w, h, img.pixels().map(|p| p.0).collect::<Vec<_>>())
             }
-            Some("exr") => read_exr_rgb(path)?,
+            Some("exr") => {
+                let e = read_exr_rgb(path)?;
+                (e.width, e.height, e.pixels)
+            }
             _ => {
                 return Err(CoreError::format(
                     &what,
@@ -301,7 +304,7 @@ impl EnvMap {
 
     /// Reads an EXR's RGB without radiance checks (normal maps hold negative components).
     pub fn load_raw_exr(path: &Path) -> Result<(usize, usize, Vec<[f32; 3]>)> {
-        read_exr_rgb(path)
+        read_exr_rgb(path).map(|e| (e.width, e.height, e.pixels))
     }
 
     /// The same map mirrored left to right: what a wrongly oriented export looks like.
@@ -314,7 +317,21 @@ impl EnvMap {
     }
 }
 
-fn read_exr_rgb(path: &Path) -> Result<(usize, usize, Vec<[f32; 3]>)> {
+/// The EXR attribute (f32) in which brdfd records a merged photo's white level: a pixel with
+/// a channel at or above it clipped in every frame of its bracket, so its value is only a
+/// lower bound. Kept in the file so that a later `brdfd estimate` on it knows, as the capture
+/// did.
+pub const WHITE_LEVEL_ATTRIBUTE: &str = "brdfdWhiteLevel";
+
+/// An RGB EXR as read: size, linear pixels (row-major), and its [`WHITE_LEVEL_ATTRIBUTE`].
+pub(crate) struct ExrRgb {
+    pub width: usize,
+    pub height: usize,
+    pub pixels: Vec<[f32; 3]>,
+    pub white: Option<f32>,
+}
+
+pub(crate) fn read_exr_rgb(path: &Path) -> Result<ExrRgb> {
     use exr::prelude::*;
     let what = path.display().to_string();
     let image = read_first_rgba_layer_from_file(
@@ -336,21 +353,62 @@ fn read_exr_rgb(path: &Path) -> Result<(usize, usize, Vec<[f32; 3]>)> {
         exr::error::Error::Io(io) => CoreError::io(path, io),
         other => CoreError::format(&what, format!("not a readable OpenEXR RGB image: {other}")),
     })?;
-    let (w, h, px) = image.layer_data.channel_data.pixels;
-    Ok((w, h, px))
+    let white = image
+        .layer_data
+        .attributes
+        .other
+        .get(&Text::from(WHITE_LEVEL_ATTRIBUTE))
+        .map(|v| match v {
+            AttributeValue::F32(w) if w.is_finite() && *w > 0.0 => Ok(*w),
+            other => Err(CoreError::format(
+                &what,
+                format!(
+                    "attribute {WHITE_LEVEL_ATTRIBUTE} should be a positive float, not {other:?}"
+                ),
+            )),
+        })
+        .transpose()?;
+    let (width, height, pixels) = image.layer_data.channel_data.pixels;
+    Ok(ExrRgb {
+        width,
+        height,
+        pixels,
+        white,
+    })
 }
 
 /// Writes a linear RGB image as a float EXR.
 pub fn write_exr(path: &Path, width: usize, height: usize, pixels: &[[f32; 3]]) -> Result<()> {
+    write_exr_with_white(path, width, height, pixels, None)
+}
+
+/// [`write_exr`], recording `white` (if any) as the [`WHITE_LEVEL_ATTRIBUTE`].
+pub fn write_exr_with_white(
+    path: &Path,
+    width: usize,
+    height: usize,
+    pixels: &[[f32; 3]],
+    white: Option<f32>,
+) -> Result<()> {
     use exr::prelude::*;
-    write_rgb_file(path, width, height, |x, y| {
+    let channels = SpecificChannels::rgb(|Vec2(x, y): Vec2<usize>| {
         let p = pixels[y * width + x];
         (p[0], p[1], p[2])
-    })
-    .map_err(|e| match e {
-        exr::error::Error::Io(io) => CoreError::io(path, io),
-        other => CoreError::format(path.display(), other.to_string()),
-    })
+    });
+    let mut attributes = LayerAttributes::default();
+    if let Some(w) = white {
+        attributes
+            .other
+            .insert(Text::from(WHITE_LEVEL_ATTRIBUTE), AttributeValue::F32(w));
+    }
+    let layer = Layer::new((width, height), attributes, Encoding::default(), channels);
+    Image::from_layer(layer)
+        .write()
+        .to_file(path)
+        .map_err(|e| match e {
+            exr::error::Error::Io(io) => CoreError::io(path, io),
+            other => CoreError::format(path.display(), other.to_string()),
+        })
 }
 
 /// A rectangle of map pixels, `x0..x1` × `y0..y1`.

@@ -13,7 +13,7 @@ use super::geometry::{GeomPixel, PixelGeometry};
 use super::raster::Raster;
 use super::render::RenderingMatrix;
 use super::select::{self, Blocks, Selection, SwapParams};
-use super::solve::{Solution, Solver};
+use super::solve::{channel_coefficients, Colour, Solution, Solver};
 
 /// Candidate pixels considered at most: a 16-megapixel photo holds millions of object pixels,
 /// and conditioning saturates long before this many (see README, "Speed").
@@ -37,6 +37,7 @@ pub struct EstimateOptions {
     pub swap: SwapParams,
     pub max_candidates: usize,
     pub solver: Solver,
+    pub colour: Colour,
     /// The photo's white level, if it has one: a value at or above it was clipped, so it is
     /// only a lower bound on the radiance. Pixels with a clipped channel are not candidates.
     /// 8-bit photos have one (1.0 after decoding); an HDR merge or a linear EXR usually not.
@@ -51,6 +52,7 @@ impl Default for EstimateOptions {
             swap: SwapParams::default(),
             max_candidates: DEFAULT_MAX_CANDIDATES,
             solver: Solver::default(),
+            colour: Colour::default(),
             white: None,
         }
     }
@@ -66,9 +68,11 @@ pub struct Timings {
 /// The result, as written to `coefficients.json` (plus the basis id the caller adds).
 #[derive(Clone, Debug)]
 pub struct Estimate {
+    /// Names of the solution's coefficients (per channel for [`Colour::PerChannel`]).
     pub names: Vec<String>,
     pub solution: Solution,
     pub solver: Solver,
+    pub colour: Colour,
     pub selection: Selection,
     /// Image positions (x, y) of the chosen pixels.
     pub chosen: Vec<(u32, u32)>,
@@ -172,9 +176,13 @@ pub fn estimate_from_matrix(
     };
     let selection_s = secs(t.elapsed());
     let t = Instant::now();
-    let solution = options
-        .solver
-        .solve(a, &selection.pixels, observed, &basis.column_prior())?;
+    let solution = options.solver.solve_colour(
+        options.colour,
+        a,
+        &selection.pixels,
+        observed,
+        &basis.column_prior(),
+    )?;
     Ok((selection, solution, selection_s, secs(t.elapsed())))
 }
 
@@ -250,11 +258,13 @@ pub fn estimate_views(
         .map(|&p| (a.pixels[p].x, a.pixels[p].y))
         .collect();
     let chosen_views = selection.pixels.iter().map(|&p| view_of_pixel[p]).collect();
-    let fit_error = relative_misfit(&a.predict(&solution.coefficients), &observed);
+    let per_channel = channel_coefficients(&solution.coefficients, a.columns)?;
+    let fit_error = relative_misfit(&a.predict_per_channel(per_channel), &observed);
     Ok(Estimate {
-        names: basis.model().names,
+        names: options.colour.names(&basis.model().names),
         solution,
         solver: options.solver,
+        colour: options.colour,
         selection,
         chosen,
         chosen_views,
@@ -284,6 +294,8 @@ fn relative_misfit(predicted: &[f64], observed: &[[f64; 3]]) -> f64 {
 
 impl Estimate {
     pub fn brdf(&self, basis: &Basis) -> Bivariate {
-        basis.reconstruct(&self.solution.coefficients)
+        basis
+            .reconstruct_solution(&self.solution.coefficients)
+            .expect("an estimate's coefficients fit its basis")
     }
 }

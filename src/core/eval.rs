@@ -10,7 +10,8 @@
 //!   weighting (the "normalised" BRDF of the paper: each material relative to its own scale);
 //!   image error = relative RMSE of the re-render against the ground-truth image.
 //! - Leave-one-out over all 100 materials (basis from the other 99), and a second lighting.
-//! - Both solvers: the paper's least squares, and ours with the training set's prior.
+//! - Three methods: the paper's least squares, ours with the training set's prior, and the prior
+//!   with one set of coefficients per colour channel ([`METHODS`]).
 //!
 //! Selection depends only on the basis, the lights and the geometry, not on the material, so
 //! it runs once per lighting and pixel count, as it would before a real measurement.
@@ -33,7 +34,7 @@ use super::nbrdf::NbrdfSet;
 use super::raster::Raster;
 use super::render::{render_bivariate, render_merl, RenderingMatrix};
 use super::select::{self, Blocks, Selection};
-use super::solve::Solver;
+use super::solve::{channel_coefficients, Colour, Solver};
 
 pub const TEST_SET: [&str; 10] = [
     "black-soft-plastic",
@@ -62,8 +63,38 @@ pub const ADC_LEVELS: f64 = 4095.0;
 pub const EXPOSURE_PERCENTILE: f64 = 0.995;
 /// Image size of the leave-one-out runs (100 ground-truth renders).
 pub const LOO_SIZE: usize = 128;
-/// The solvers compared, the paper's first.
-pub const SOLVERS: [Solver; 2] = [Solver::LeastSquares, Solver::Prior];
+/// How an estimate is solved: the solver and the colour model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Method {
+    pub solver: Solver,
+    pub colour: Colour,
+}
+
+impl Method {
+    /// `least-squares`, `prior`, `prior-per-channel`: the name in tables, CSV and file names.
+    pub fn name(self) -> String {
+        match self.colour {
+            Colour::Joint => self.solver.name().to_string(),
+            other => format!("{}-{}", self.solver.name(), other.name()),
+        }
+    }
+}
+
+/// The methods compared, the paper's first.
+pub const METHODS: [Method; 3] = [
+    Method {
+        solver: Solver::LeastSquares,
+        colour: Colour::Joint,
+    },
+    Method {
+        solver: Solver::Prior,
+        colour: Colour::Joint,
+    },
+    Method {
+        solver: Solver::Prior,
+        colour: Colour::PerChannel,
+    },
+];
 
 pub struct EvalConfig {
     pub data: PathBuf,
@@ -71,6 +102,9 @@ pub struct EvalConfig {
     pub size: usize,
     pub leave_one_out: bool,
     pub choices: bool,
+    /// Principal components of the basis the protocol estimates with ([`DEFAULT_K`], the
+    /// paper's, unless told otherwise).
+    pub k: usize,
 }
 
 /// One row of the results table.
@@ -79,7 +113,7 @@ pub struct Row {
     pub lighting: String,
     pub material: String,
     pub pixels: Option<usize>,
-    pub solver: Solver,
+    pub method: Method,
     pub noisy: bool,
     pub brdf_error: f64,
     pub image_error: f64,
@@ -167,11 +201,11 @@ fn observations(a: &RenderingMatrix, img: &Raster) -> Vec<[f64; 3]> {
         .collect()
 }
 
-/// The default basis settings (the measured choice; see README).
-pub fn default_basis(training: &[(String, Bivariate)]) -> Result<Basis> {
+/// The default basis settings (the measured choice; see README) with `k` components.
+pub fn default_basis(training: &[(String, Bivariate)], k: usize) -> Result<Basis> {
     Basis::build(
         training,
-        DEFAULT_K,
+        k,
         Normalisation::Rms,
         CellWeight::SolidAngle,
         true,
@@ -216,7 +250,8 @@ fn select_each_count(basis: &Basis, a: &RenderingMatrix) -> Vec<(Option<usize>, 
 /// The image the model predicts for coefficients `c`: A covers every object pixel, so this is
 /// the re-render under the estimate's lights, without rendering again.
 fn predicted_image(a: &RenderingMatrix, c: &[f64], width: usize, height: usize) -> Raster {
-    let y = a.predict(c);
+    let per_channel = channel_coefficients(c, a.columns).expect("a solution of this matrix");
+    let y = a.predict_per_channel(per_channel);
     let mut img = Raster::black(width, height);
     for (p, px) in a.pixels.iter().enumerate() {
         img.set(
@@ -228,10 +263,10 @@ fn predicted_image(a: &RenderingMatrix, c: &[f64], width: usize, height: usize) 
     img
 }
 
-/// One estimate: pixel count, solver, reconstructed BRDF, its re-render, condition number.
-type Outcome = (Option<usize>, Solver, Bivariate, Raster, f64);
+/// One estimate: pixel count, method, reconstructed BRDF, its re-render, condition number.
+type Outcome = (Option<usize>, Method, Bivariate, Raster, f64);
 
-/// Estimates from `photo` with every pixel count and solver. Pixels with a channel at the
+/// Estimates from `photo` with every pixel count and method. Pixels with a channel at the
 /// photo's `white` level are not candidates; if there are any, selection runs again without
 /// them, as it would for that photo.
 fn estimate_all(
@@ -257,14 +292,17 @@ fn estimate_all(
     };
     let prior = basis.column_prior();
     let mut out = Vec::new();
-    for solver in SOLVERS {
+    for method in METHODS {
         for (l, sel) in selections {
-            let sol = solver.solve(&prep.a, &sel.pixels, &y, &prior)?;
+            let sol =
+                method
+                    .solver
+                    .solve_colour(method.colour, &prep.a, &sel.pixels, &y, &prior)?;
             let img = predicted_image(&prep.a, &sol.coefficients, photo.width, photo.height);
             out.push((
                 *l,
-                solver,
-                basis.reconstruct(&sol.coefficients),
+                method,
+                basis.reconstruct_solution(&sol.coefficients)?,
                 img,
                 sel.condition,
             ));
@@ -273,15 +311,16 @@ fn estimate_all(
     Ok(out)
 }
 
-fn solver_index(s: Solver) -> usize {
-    SOLVERS.iter().position(|x| *x == s).unwrap_or(0)
+fn method_index(m: Method) -> usize {
+    METHODS.iter().position(|x| *x == m).unwrap_or(0)
 }
 
-/// File-name suffix: none for the paper's solver, so its figures keep their names.
-fn suffix(s: Solver) -> String {
-    match s {
-        Solver::LeastSquares => String::new(),
-        other => format!("-{}", other.name()),
+/// File-name suffix: none for the paper's method, so its figures keep their names.
+fn suffix(m: Method) -> String {
+    if m == METHODS[0] {
+        String::new()
+    } else {
+        format!("-{}", m.name())
     }
 }
 
@@ -307,7 +346,7 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
         .filter(|(n, _)| !TEST_SET.contains(&n.as_str()))
         .cloned()
         .collect();
-    let basis = default_basis(&training)?;
+    let basis = default_basis(&training, cfg.k)?;
     let geometry =
         PixelGeometry::rasterize(&Camera::eval_orthographic(cfg.size), &Shape::unit_sphere())?;
     let truths: Vec<Truth> = TEST_SET
@@ -325,7 +364,7 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
 
     let mut rows = Vec::new();
     let mut floors = Vec::new();
-    // Per material, per solver: ground truth, then the estimates' re-renders.
+    // Per material, per method: ground truth, then the estimates' re-renders.
     let mut fig6: Vec<(String, Vec<Vec<Raster>>)> = Vec::new();
     for light_name in ["grace", "courtyard"] {
         let lighting = load_lighting(&cfg.data, light_name)?;
@@ -335,26 +374,26 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
             let floor =
                 render_bivariate(&geometry, &lighting.est, &truth.bivariate).relative_rmse(&gt);
             floors.push((light_name.to_string(), truth.name.clone(), floor));
-            let mut renders: Vec<Vec<Raster>> = SOLVERS.iter().map(|_| vec![gt.clone()]).collect();
+            let mut renders: Vec<Vec<Raster>> = METHODS.iter().map(|_| vec![gt.clone()]).collect();
             for noisy in [false, true] {
                 let (photo, white) = if noisy {
                     add_sensor_noise(&gt, 1000 + i as u64)
                 } else {
                     (gt.clone(), None)
                 };
-                for (l, solver, est, re, cond) in estimate_all(&basis, &prep, &photo, white)? {
+                for (l, method, est, re, cond) in estimate_all(&basis, &prep, &photo, white)? {
                     rows.push(Row {
                         lighting: light_name.into(),
                         material: truth.name.clone(),
                         pixels: l,
-                        solver,
+                        method,
                         noisy,
                         brdf_error: brdf_error(&est, &truth.bivariate, basis.header.cell_weight),
                         image_error: re.relative_rmse(&gt),
                         condition: cond,
                     });
                     if !noisy && light_name == "grace" {
-                        renders[solver_index(solver)].push(re);
+                        renders[method_index(method)].push(re);
                     }
                 }
             }
@@ -362,24 +401,24 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
                 fig6.push((truth.name.clone(), renders));
             }
         }
-        for solver in SOLVERS {
+        for method in METHODS {
             write_fig5(
                 &cfg.out
-                    .join(format!("fig5-{light_name}{}.png", suffix(solver))),
+                    .join(format!("fig5-{light_name}{}.png", suffix(method))),
                 &rows,
                 light_name,
-                solver,
+                method,
             )?;
         }
     }
-    for solver in SOLVERS {
-        let per_solver: Vec<(String, Vec<Raster>)> = fig6
+    for method in METHODS {
+        let per_method: Vec<(String, Vec<Raster>)> = fig6
             .iter()
-            .map(|(n, r)| (n.clone(), r[solver_index(solver)].clone()))
+            .map(|(n, r)| (n.clone(), r[method_index(method)].clone()))
             .collect();
         write_fig6(
-            &cfg.out.join(format!("fig6-grace{}.png", suffix(solver))),
-            &per_solver,
+            &cfg.out.join(format!("fig6-grace{}.png", suffix(method))),
+            &per_method,
         )?;
     }
     write_csv(&cfg.out.join("results.csv"), &rows)?;
@@ -407,7 +446,7 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
     Ok(report)
 }
 
-/// Leave-one-out over all materials, under grace, at [`LOO_SIZE`], with each solver: image and
+/// Leave-one-out over all materials, under grace, at [`LOO_SIZE`], with each method: image and
 /// BRDF error at 20 pixels and with all pixels.
 fn leave_one_out(
     cfg: &EvalConfig,
@@ -419,14 +458,14 @@ fn leave_one_out(
     let geometry =
         PixelGeometry::rasterize(&Camera::eval_orthographic(LOO_SIZE), &Shape::unit_sphere())?;
     let mut csv = String::from(
-        "material,solver,image_error_20,image_error_all,brdf_error_20,brdf_error_all\n",
+        "material,method,image_error_20,image_error_all,brdf_error_20,brdf_error_all\n",
     );
-    // Per solver: (image error at 20, with all, BRDF error at 20, with all) per material.
-    let mut per_solver: Vec<Vec<[f64; 4]>> = SOLVERS.iter().map(|_| Vec::new()).collect();
+    // Per method: (image error at 20, with all, BRDF error at 20, with all) per material.
+    let mut per_method: Vec<Vec<[f64; 4]>> = METHODS.iter().map(|_| Vec::new()).collect();
     for (name, truth_biv) in reduced {
         let others: Vec<(String, Bivariate)> =
             reduced.iter().filter(|(n, _)| n != name).cloned().collect();
-        let basis = default_basis(&others)?;
+        let basis = default_basis(&others, cfg.k)?;
         let model = basis.model();
         let a = RenderingMatrix::build(
             &geometry.pixels,
@@ -438,17 +477,18 @@ fn leave_one_out(
         let table = MerlBrdf::tabulate(set.get(name)?);
         let gt = render_merl(&geometry, &lighting.gt, &table);
         let y = observations(&a, &gt);
-        for (si, solver) in SOLVERS.iter().enumerate() {
+        for (mi, method) in METHODS.iter().enumerate() {
             let mut out = Vec::new();
             for count in [Some(20), None] {
                 let opts = EstimateOptions {
                     pixel_count: count,
                     method: SelectionMethod::Fast,
-                    solver: *solver,
+                    solver: method.solver,
+                    colour: method.colour,
                     ..Default::default()
                 };
                 let (_, sol, _, _) = estimate_from_matrix(&basis, &a, &y, &opts)?;
-                let est = basis.reconstruct(&sol.coefficients);
+                let est = basis.reconstruct_solution(&sol.coefficients)?;
                 let re = predicted_image(&a, &sol.coefficients, gt.width, gt.height);
                 out.push((
                     re.relative_rmse(&gt),
@@ -459,25 +499,25 @@ fn leave_one_out(
             let _ = writeln!(
                 csv,
                 "{name},{},{:.5},{:.5},{:.5},{:.5}",
-                solver.name(),
+                method.name(),
                 e[0],
                 e[1],
                 e[2],
                 e[3]
             );
-            per_solver[si].push(e);
+            per_method[mi].push(e);
         }
     }
     std::fs::write(cfg.out.join("loo.csv"), &csv)
         .map_err(|e| CoreError::io(cfg.out.join("loo.csv"), e))?;
-    let mut s = format!("Leave-one-out over {} materials (grace, {LOO_SIZE}², basis from the other 99, noise-free). Per material: `loo.csv`.\n\n| solver | image error, 20 px | image error, all px | BRDF error, 20 px | BRDF error, all px | 20 px within 10% of all (image) | (BRDF) |\n|---|---|---|---|---|---|---|\n", reduced.len());
-    for (solver, rows) in SOLVERS.iter().zip(&per_solver) {
+    let mut s = format!("Leave-one-out over {} materials (grace, {LOO_SIZE}², basis of K = {} from the other 99, noise-free). Per material: `loo.csv`.\n\n| method | image error, 20 px | image error, all px | BRDF error, 20 px | BRDF error, all px | 20 px within 10% of all (image) | (BRDF) |\n|---|---|---|---|---|---|---|\n", reduced.len(), cfg.k);
+    for (method, rows) in METHODS.iter().zip(&per_method) {
         let col = |i: usize| rows.iter().map(|r| r[i]).collect::<Vec<f64>>();
         let within = |a: usize, b: usize| rows.iter().filter(|r| r[a] <= r[b] * 1.1).count();
         let _ = writeln!(
             s,
             "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {} of {} | {} of {} |",
-            solver.name(),
+            method.name(),
             median(&col(0)),
             median(&col(1)),
             median(&col(2)),
@@ -553,9 +593,9 @@ fn measure_choices(
                 .find(|(n, _)| n == name)
                 .expect("test material reduced")
                 .1;
-            for (l, solver, est, re, _) in estimate_all(&basis, &prep, gt, None)? {
-                // The basis choices were measured with the paper's solver.
-                if solver != Solver::LeastSquares {
+            for (l, method, est, re, _) in estimate_all(&basis, &prep, gt, None)? {
+                // The basis choices were measured with the paper's method.
+                if method != METHODS[0] {
                     continue;
                 }
                 let e = re.relative_rmse(gt);
@@ -576,6 +616,83 @@ fn measure_choices(
             mean(&twenty),
             mean(&brdf)
         );
+    }
+    out.push_str(&measure_k(
+        cfg,
+        &geometry,
+        &lighting.est,
+        &tables,
+        &training,
+        reduced,
+    )?);
+    Ok(out)
+}
+
+/// Principal components compared by [`measure_k`]: the paper's 5 and larger bases.
+const K_CHOICES: [usize; 3] = [5, 8, 10];
+
+/// The protocol's medians for each K of [`K_CHOICES`], noise-free, under both lightings and
+/// with each method: whether more components than the paper's 5 pay for their extra unknowns.
+fn measure_k(
+    cfg: &EvalConfig,
+    geometry: &PixelGeometry,
+    grace_lights: &LightSet,
+    grace: &[(String, MerlBrdf, Raster)],
+    training: &[(String, Bivariate)],
+    reduced: &[(String, Bivariate)],
+) -> Result<String> {
+    let mut out = String::from("\n| K | lighting | method | image error, 20 px | image error, all px | BRDF error, 20 px | BRDF error, all px | 20 px within 10% of all (BRDF) |\n|---|---|---|---|---|---|---|---|\n");
+    let courtyard = load_lighting(&cfg.data, "courtyard")?;
+    let courtyard_gt: Vec<Raster> = grace
+        .iter()
+        .map(|(_, t, _)| render_merl(geometry, &courtyard.gt, t))
+        .collect();
+    for k in K_CHOICES {
+        let basis = default_basis(training, k)?;
+        for (light_name, lights, truths) in [
+            (
+                "grace",
+                grace_lights,
+                grace.iter().map(|(_, _, gt)| gt).collect::<Vec<_>>(),
+            ),
+            ("courtyard", &courtyard.est, courtyard_gt.iter().collect()),
+        ] {
+            let prep = prepare(&basis, geometry, lights);
+            let mut rows = Vec::new();
+            for ((name, _, _), gt) in grace.iter().zip(truths) {
+                let truth = &reduced
+                    .iter()
+                    .find(|(n, _)| n == name)
+                    .expect("test material reduced")
+                    .1;
+                for (l, method, est, re, cond) in estimate_all(&basis, &prep, gt, None)? {
+                    rows.push(Row {
+                        lighting: light_name.into(),
+                        material: name.clone(),
+                        pixels: l,
+                        method,
+                        noisy: false,
+                        brdf_error: brdf_error(&est, truth, basis.header.cell_weight),
+                        image_error: re.relative_rmse(gt),
+                        condition: cond,
+                    });
+                }
+            }
+            for method in METHODS {
+                let sel: Vec<&Row> = rows.iter().filter(|r| r.method == method).collect();
+                let med = |l, f| median_at(&sel, l, f);
+                let _ = writeln!(
+                    out,
+                    "| {k} | {light_name} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {} of 10 |",
+                    method.name(),
+                    med(Some(20), |r| r.image_error),
+                    med(None, |r| r.image_error),
+                    med(Some(20), |r| r.brdf_error),
+                    med(None, |r| r.brdf_error),
+                    within_ten_percent(&sel, |r| r.brdf_error),
+                );
+            }
+        }
     }
     Ok(out)
 }
@@ -654,7 +771,7 @@ fn median(v: &[f64]) -> f64 {
 
 fn write_csv(path: &Path, rows: &[Row]) -> Result<()> {
     let mut s =
-        String::from("lighting,material,pixels,solver,noise,brdf_error,image_error,condition\n");
+        String::from("lighting,material,pixels,method,noise,brdf_error,image_error,condition\n");
     for r in rows {
         let _ = writeln!(
             s,
@@ -662,7 +779,7 @@ fn write_csv(path: &Path, rows: &[Row]) -> Result<()> {
             r.lighting,
             r.material,
             label(r.pixels),
-            r.solver.name(),
+            r.method.name(),
             if r.noisy { "sensor" } else { "none" },
             r.brdf_error,
             r.image_error,
@@ -681,21 +798,21 @@ fn markdown(
     secs: f64,
 ) -> String {
     let mut s = String::new();
-    let _ = writeln!(s, "Sphere {0}×{0}, orthographic; ground truth from the full 3D table with {GT_LIGHTS} lights; estimates with {DEFAULT_LIGHTS} lights, K = {DEFAULT_K}, fast selection. Run time {secs:.0} s.\n", cfg.size);
+    let _ = writeln!(s, "Sphere {0}×{0}, orthographic; ground truth from the full 3D table with {GT_LIGHTS} lights; estimates with {DEFAULT_LIGHTS} lights, K = {1}, fast selection. Run time {secs:.0} s.\n", cfg.size, cfg.k);
     s.push_str(&summary(rows));
-    for solver in SOLVERS {
+    for method in METHODS {
         for lighting in ["grace", "courtyard"] {
             for noisy in [false, true] {
                 let _ = writeln!(
-                s,
-                "**{lighting}, {}, solver {}** — image relative RMSE (BRDF error in parentheses)\n",
-                if noisy {
-                    "sensor noise (shot + 12-bit)"
-                } else {
-                    "noise-free"
-                },
-                solver.name()
-            );
+                    s,
+                    "**{lighting}, {}, {}** — image relative RMSE (BRDF error in parentheses)\n",
+                    if noisy {
+                        "sensor noise (shot + 12-bit)"
+                    } else {
+                        "noise-free"
+                    },
+                    method.name()
+                );
                 s.push_str(
                 "| material | 5 px | 10 px | 20 px | all px | floor |\n|---|---|---|---|---|---|\n",
             );
@@ -707,7 +824,7 @@ fn markdown(
                                 && r.material == m
                                 && r.pixels == l
                                 && r.noisy == noisy
-                                && r.solver == solver
+                                && r.method == method
                         }) {
                             let _ = write!(s, " {:.3} ({:.3}) |", r.image_error, r.brdf_error);
                         }
@@ -720,7 +837,7 @@ fn markdown(
                 }
                 let sel: Vec<&Row> = rows
                     .iter()
-                    .filter(|r| r.lighting == lighting && r.noisy == noisy && r.solver == solver)
+                    .filter(|r| r.lighting == lighting && r.noisy == noisy && r.method == method)
                     .collect();
                 let _ = write!(s, "| **median** |");
                 for l in PIXEL_COUNTS {
@@ -768,29 +885,33 @@ fn within_ten_percent(rows: &[&Row], error: impl Fn(&Row) -> f64) -> usize {
         .count()
 }
 
-/// One line per solver, lighting and noise: medians over the test set at 20 pixels and with
+/// The median of `f` over the rows with `pixels`.
+fn median_at(rows: &[&Row], pixels: Option<usize>, f: fn(&Row) -> f64) -> f64 {
+    median(
+        &rows
+            .iter()
+            .filter(|r| r.pixels == pixels)
+            .map(|r| f(r))
+            .collect::<Vec<f64>>(),
+    )
+}
+
+/// One line per method, lighting and noise: medians over the test set at 20 pixels and with
 /// all, and how many materials meet the paper's claim.
 fn summary(rows: &[Row]) -> String {
-    let mut s = String::from("| solver | lighting | noise | BRDF error, 20 px | BRDF error, all px | image error, 20 px | image error, all px | 20 px within 10% of all (BRDF) | (image) |\n|---|---|---|---|---|---|---|---|---|\n");
-    for solver in SOLVERS {
+    let mut s = String::from("| method | lighting | noise | BRDF error, 20 px | BRDF error, all px | image error, 20 px | image error, all px | 20 px within 10% of all (BRDF) | (image) |\n|---|---|---|---|---|---|---|---|---|\n");
+    for method in METHODS {
         for lighting in ["grace", "courtyard"] {
             for noisy in [false, true] {
                 let sel: Vec<&Row> = rows
                     .iter()
-                    .filter(|r| r.lighting == lighting && r.noisy == noisy && r.solver == solver)
+                    .filter(|r| r.lighting == lighting && r.noisy == noisy && r.method == method)
                     .collect();
-                let med = |l: Option<usize>, f: fn(&Row) -> f64| {
-                    median(
-                        &sel.iter()
-                            .filter(|r| r.pixels == l)
-                            .map(|r| f(r))
-                            .collect::<Vec<f64>>(),
-                    )
-                };
+                let med = |l, f| median_at(&sel, l, f);
                 let _ = writeln!(
                     s,
                     "| {} | {lighting} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {} of 10 | {} of 10 |",
-                    solver.name(),
+                    method.name(),
                     if noisy { "sensor" } else { "none" },
                     med(Some(20), |r| r.brdf_error),
                     med(None, |r| r.brdf_error),
@@ -821,12 +942,12 @@ const COLOURS: [[u8; 3]; 10] = [
 
 /// Fig. 5: BRDF error against pixel count, one line per test material (colours in the order of
 /// [`TEST_SET`]), x = 5, 10, 20, all; y linear from 0 to the largest error.
-fn write_fig5(path: &Path, rows: &[Row], lighting: &str, solver: Solver) -> Result<()> {
+fn write_fig5(path: &Path, rows: &[Row], lighting: &str, method: Method) -> Result<()> {
     let (w, h, pad) = (640u32, 400u32, 40u32);
     let mut img = image::RgbImage::from_pixel(w, h, image::Rgb([255, 255, 255]));
     let sel: Vec<&Row> = rows
         .iter()
-        .filter(|r| r.lighting == lighting && !r.noisy && r.solver == solver)
+        .filter(|r| r.lighting == lighting && !r.noisy && r.method == method)
         .collect();
     let ymax = sel
         .iter()

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use super::envmap::write_exr;
+use super::envmap::{write_exr, write_exr_with_white};
 use super::error::{CoreError, Result};
 
 #[derive(Clone, Debug, PartialEq)]
@@ -51,13 +51,25 @@ impl Raster {
     /// Reads a photo as linear RGB: EXR as stored; PNG and JPEG decoded from sRGB.
     /// Non-finite EXR values are rejected with the pixel that holds them.
     pub fn read(path: &Path) -> Result<Raster> {
+        Self::read_with_white(path).map(|(r, _)| r)
+    }
+
+    /// [`Raster::read`], with the photo's white level where the file knows it: 1.0 (the top
+    /// code) for PNG and JPEG, the recorded level for an EXR that brdfd merged from a bracket
+    /// ([`WHITE_LEVEL_ATTRIBUTE`](super::envmap::WHITE_LEVEL_ATTRIBUTE)), none for other EXRs.
+    pub fn read_with_white(path: &Path) -> Result<(Raster, Option<f32>)> {
         let what = path.display().to_string();
         let ext = path
             .extension()
             .and_then(|e| e.to_str())
             .map(|e| e.to_ascii_lowercase());
         if ext.as_deref() == Some("exr") {
-            let (w, h, px) = super::envmap::EnvMap::load_raw_exr(path)?;
+            let super::envmap::ExrRgb {
+                width: w,
+                height: h,
+                pixels: px,
+                white,
+            } = super::envmap::read_exr_rgb(path)?;
             for (i, p) in px.iter().enumerate() {
                 if let Some(c) = p.iter().position(|v| !v.is_finite()) {
                     return Err(CoreError::NonFinite {
@@ -69,11 +81,14 @@ impl Raster {
                     });
                 }
             }
-            return Ok(Raster {
-                width: w,
-                height: h,
-                pixels: px,
-            });
+            return Ok((
+                Raster {
+                    width: w,
+                    height: h,
+                    pixels: px,
+                },
+                white,
+            ));
         }
         let img = image::ImageReader::open(path)
             .map_err(|e| CoreError::io(path, e))?
@@ -85,15 +100,24 @@ impl Raster {
             .map(|v| srgb_to_linear(v as f32 / 255.0))
             .collect();
         let rgb = img.into_rgb8();
-        Ok(Raster {
-            width: rgb.width() as usize,
-            height: rgb.height() as usize,
-            pixels: rgb.pixels().map(|p| p.0.map(|v| lut[v as usize])).collect(),
-        })
+        Ok((
+            Raster {
+                width: rgb.width() as usize,
+                height: rgb.height() as usize,
+                pixels: rgb.pixels().map(|p| p.0.map(|v| lut[v as usize])).collect(),
+            },
+            Some(1.0),
+        ))
     }
 
     pub fn write_exr(&self, path: &Path) -> Result<()> {
         write_exr(path, self.width, self.height, &self.pixels)
+    }
+
+    /// [`Raster::write_exr`], recording the white level a later [`Raster::read_with_white`]
+    /// gives back.
+    pub fn write_exr_with_white(&self, path: &Path, white: Option<f32>) -> Result<()> {
+        write_exr_with_white(path, self.width, self.height, &self.pixels, white)
     }
 
     /// Exposure that maps the 99.5th percentile of the luminance to white: a stable choice

@@ -539,8 +539,14 @@ impl RenderingMatrix {
 
     /// y = A·c (+ offset): the image this model predicts, per pixel and channel.
     pub fn predict(&self, coefficients: &[f64]) -> Vec<f64> {
+        self.predict_per_channel([coefficients; 3])
+    }
+
+    /// [`RenderingMatrix::predict`] with one coefficient vector per channel.
+    pub fn predict_per_channel(&self, per_channel: [&[f64]; 3]) -> Vec<f64> {
         (0..self.pixels.len() * 3)
             .map(|r| {
+                let coefficients = per_channel[r % 3];
                 let base = self.offset.as_ref().map_or(0.0, |o| o[r] as f64);
                 base + self
                     .row(r)

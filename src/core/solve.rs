@@ -39,6 +39,102 @@ impl Solver {
             Solver::Prior => with_prior(a, pixels, observed, prior),
         }
     }
+
+    /// Solves with the given colour model: [`Colour::Joint`] is [`Solver::solve`];
+    /// [`Colour::PerChannel`] solves each channel from its own rows, and the coefficients are
+    /// the three channels' in turn (R, G, B; see [`channel_coefficients`]).
+    pub fn solve_colour(
+        self,
+        colour: Colour,
+        a: &RenderingMatrix,
+        pixels: &[usize],
+        observed: &[[f64; 3]],
+        prior: &[Option<f64>],
+    ) -> Result<Solution> {
+        if colour == Colour::Joint {
+            return self.solve(a, pixels, observed, prior);
+        }
+        let mut coefficients = Vec::with_capacity(3 * a.columns);
+        let (mut residual2, mut observed2, mut condition) = (0.0, 0.0, 0.0f64);
+        for c in 0..3 {
+            let (x, y) = system_of(a, pixels, observed, &[c]);
+            let sol = match self {
+                Solver::LeastSquares => least_squares_system(pixels.len(), x.clone(), y.clone()),
+                Solver::Prior => with_prior_system(pixels.len(), x.clone(), y.clone(), prior),
+            }
+            .map_err(|e| CoreError::Invalid(format!("{} channel: {e}", CHANNELS[c])))?;
+            let coef = DVector::from_column_slice(&sol.coefficients);
+            residual2 += (&y - &x * &coef).norm_squared();
+            observed2 += y.norm_squared();
+            condition = condition.max(sol.condition);
+            coefficients.extend(sol.coefficients);
+        }
+        let rows = (3 * pixels.len()).max(1) as f64;
+        Ok(Solution {
+            coefficients,
+            residual_rms: (residual2 / rows).sqrt(),
+            relative_residual: (residual2 / observed2.max(f64::MIN_POSITIVE)).sqrt(),
+            condition,
+        })
+    }
+}
+
+/// Channel names, in the order of the rendering matrix's rows.
+pub const CHANNELS: [&str; 3] = ["R", "G", "B"];
+
+/// How colour is modelled.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Colour {
+    /// One set of coefficients for all three channels, as in the paper: each basis vector is
+    /// an RGB pattern, so an estimate's colour is a blend of the training set's component
+    /// colours (gold can come out red, chrome green).
+    #[default]
+    Joint,
+    /// One set of coefficients per channel: channel c is the basis's channel-c planes combined
+    /// with its own coefficients, so colour is free. Three times the unknowns, each channel
+    /// solved from its own rows of the same pixels.
+    PerChannel,
+}
+
+impl Colour {
+    pub fn name(self) -> &'static str {
+        match self {
+            Colour::Joint => "joint",
+            Colour::PerChannel => "per-channel",
+        }
+    }
+
+    /// Column names of the solution: the model's, or each of them per channel (`pc1.R`).
+    pub fn names(self, model: &[String]) -> Vec<String> {
+        match self {
+            Colour::Joint => model.to_vec(),
+            Colour::PerChannel => CHANNELS
+                .iter()
+                .flat_map(|c| model.iter().map(move |n| format!("{n}.{c}")))
+                .collect(),
+        }
+    }
+}
+
+/// Each channel's coefficients from a solution with `m` model columns: the same slice three
+/// times for a joint solution (length m), the channel's third for a per-channel one (3m).
+pub fn channel_coefficients(coefficients: &[f64], m: usize) -> Result<[&[f64]; 3]> {
+    if coefficients.len() == m {
+        Ok([coefficients; 3])
+    } else if coefficients.len() == 3 * m {
+        Ok([
+            &coefficients[..m],
+            &coefficients[m..2 * m],
+            &coefficients[2 * m..],
+        ])
+    } else {
+        Err(CoreError::Invalid(format!(
+            "{} coefficients for a model of {m} columns: expected {m} (joint colour) or {} (per channel)",
+            coefficients.len(),
+            3 * m
+        )))
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -59,17 +155,28 @@ fn system(
     pixels: &[usize],
     observed: &[[f64; 3]],
 ) -> (DMatrix<f64>, DVector<f64>) {
+    system_of(a, pixels, observed, &[0, 1, 2])
+}
+
+/// [`system`] with only the rows of `channels`.
+fn system_of(
+    a: &RenderingMatrix,
+    pixels: &[usize],
+    observed: &[[f64; 3]],
+    channels: &[usize],
+) -> (DMatrix<f64>, DVector<f64>) {
     let m = a.columns;
-    let rows = pixels.len() * 3;
+    let n = channels.len();
+    let rows = pixels.len() * n;
     let mut x = DMatrix::zeros(rows, m);
     let mut y = DVector::zeros(rows);
     for (i, &p) in pixels.iter().enumerate() {
-        for c in 0..3 {
+        for (ci, &c) in channels.iter().enumerate() {
             let r = 3 * p + c;
             for (j, v) in a.row(r).iter().enumerate() {
-                x[(3 * i + c, j)] = *v as f64;
+                x[(n * i + ci, j)] = *v as f64;
             }
-            y[3 * i + c] = observed[p][c] - a.offset.as_ref().map_or(0.0, |o| o[r] as f64);
+            y[n * i + ci] = observed[p][c] - a.offset.as_ref().map_or(0.0, |o| o[r] as f64);
         }
     }
     (x, y)
@@ -95,13 +202,18 @@ pub fn least_squares(
     observed: &[[f64; 3]],
 ) -> Result<Solution> {
     let (x, y) = system(a, pixels, observed);
+    least_squares_system(pixels.len(), x, y)
+}
+
+fn least_squares_system(pixels: usize, x: DMatrix<f64>, y: DVector<f64>) -> Result<Solution> {
     if x.nrows() < x.ncols() {
+        let per_pixel = (x.nrows() / pixels.max(1)).max(1);
         return Err(CoreError::Invalid(format!(
             "{} pixels give {} equations for {} unknowns; choose at least {} pixels",
-            pixels.len(),
+            pixels,
             x.nrows(),
             x.ncols(),
-            x.ncols().div_ceil(3)
+            x.ncols().div_ceil(per_pixel)
         )));
     }
     let svd = x.clone().svd(true, true);
@@ -137,8 +249,17 @@ pub fn with_prior(
     prior: &[Option<f64>],
 ) -> Result<Solution> {
     let (x, y) = system(a, pixels, observed);
+    with_prior_system(pixels.len(), x, y, prior)
+}
+
+fn with_prior_system(
+    pixels: usize,
+    x: DMatrix<f64>,
+    y: DVector<f64>,
+    prior: &[Option<f64>],
+) -> Result<Solution> {
     let m = x.ncols();
-    if pixels.is_empty() {
+    if pixels == 0 {
         return Err(CoreError::Invalid("no pixels to solve from".into()));
     }
     let xtx = x.transpose() * &x;

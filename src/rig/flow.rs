@@ -27,6 +27,7 @@ use crate::core::geometry::SceneGeometry;
 use crate::core::merl::MerlBrdf;
 use crate::core::nbrdf::NbrdfSet;
 use crate::core::raster::Raster;
+use crate::core::solve::Colour;
 use crate::panorama::merge_bracket;
 use crate::radiometry::{decode_jpeg, merge_hdr, merged_white_level};
 use crate::session::{PhaseTime, Session, State};
@@ -371,7 +372,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         let (photo, white) = merge_dslr(cx, &files)?;
         // Every view takes the same bracket, so the lowest level is every view's.
         clip_level = [clip_level, white].into_iter().flatten().reduce(f32::min);
-        save_exr(session, &format!("photo-{step}.exr"), &photo)?;
+        save_exr(session, &format!("photo-{step}.exr"), &photo, white)?;
         phases.end(p);
         let (geometry, view_yaw) = turned(&scene, yaw, deg);
         let (w, h) = geometry.camera.size();
@@ -388,6 +389,10 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         solver: plan
             .solve
             .or(preset.as_ref().map(|p| p.solve))
+            .unwrap_or_default(),
+        colour: plan
+            .colour
+            .or(preset.as_ref().map(|p| p.colour))
             .unwrap_or_default(),
         white: clip_level,
         ..EstimateOptions::default()
@@ -414,7 +419,11 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
             // The simulator knows the answer; comparing with it is the simulator's business,
             // so its time is the devices'.
             let p = phases.start("compare with the ground truth (simulator)", 1);
-            let truth = basis.project(&Bivariate::reduce(&b.material, basis.header.grid));
+            let reduced = Bivariate::reduce(&b.material, basis.header.grid);
+            let truth = match est.colour {
+                Colour::Joint => basis.project(&reduced),
+                Colour::PerChannel => basis.project_channels(&reduced),
+            };
             phases.end_as_device(p);
             cx.say(crate::results::coefficient_lines(
                 "ground truth projected on the basis",
@@ -584,10 +593,12 @@ pub fn stored(
     Ok(Some((files, s.meta.clone())))
 }
 
-fn save_exr(session: &Session, name: &str, r: &Raster) -> anyhow::Result<()> {
+/// Writes a merged photo with its white level, so that a later `brdfd estimate` on the file
+/// leaves out the pixels the capture left out.
+fn save_exr(session: &Session, name: &str, r: &Raster, white: Option<f32>) -> anyhow::Result<()> {
     // Written beside, then renamed: a derived file is whole or absent.
     let tmp = session.dir.join("derived").join(format!(".{name}.tmp.exr"));
-    r.write_exr(&tmp)?;
+    r.write_exr_with_white(&tmp, white)?;
     std::fs::rename(&tmp, session.dir.join("derived").join(name))?;
     Ok(())
 }
