@@ -100,6 +100,9 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
     assert_eq!(status, 409, "{body}");
     assert_eq!(body["error"], "busy");
     assert!(body["message"].as_str().unwrap().contains(&id), "{body}");
+    // A bad plan is a bad request even while a capture runs: the caller learns what to fix.
+    let (status, body) = daemon.post("/sessions", json!({ "material": "../x" }));
+    assert_eq!((status, body["error"].as_str()), (400, Some("bad_request")));
     let o = brdfd(
         &[
             "capture",
@@ -169,8 +172,6 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
     assert_eq!(status, 404);
     let (status, body) = daemon.get("/sessions/..%2F..%2Fetc");
     assert_eq!(status, 404, "{body}");
-    let (status, body) = daemon.post("/sessions", json!({ "material": "../x" }));
-    assert_eq!((status, body["error"].as_str()), (400, Some("bad_request")));
     // A misspelt field and an unknown value are refused, naming what was wrong.
     let (status, body) = daemon.post(
         "/sessions",

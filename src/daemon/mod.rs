@@ -131,6 +131,9 @@ impl Daemon {
 
     /// Creates a session for the plan and starts capturing it.
     pub fn start_capture(&self, plan: Plan) -> Result<Session, StartError> {
+        // A malformed plan is refused as such whether or not a capture runs: the caller
+        // learns what to fix, not only that it must wait.
+        plan.validate().map_err(StartError::Invalid)?;
         self.check_idle()?;
         let session = plan
             .new_session(&self.state_dir, &self.rig_text)
