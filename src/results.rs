@@ -43,7 +43,10 @@ pub struct CoefficientsFile<'a> {
     pub candidates: usize,
     /// Object pixels left out because a channel was at the photo's white level.
     pub clipped_pixels: usize,
+    /// Lights of every candidate's row.
     pub lights: usize,
+    /// Lights the chosen pixels' rows were rebuilt with before the solve; 0 if they were not.
+    pub chosen_lights: usize,
     pub timings: &'a Timings,
 }
 
@@ -108,6 +111,7 @@ pub fn write_results(
         candidates: estimate.candidates,
         clipped_pixels: estimate.clipped,
         lights: estimate.lights,
+        chosen_lights: estimate.chosen_lights,
         timings: &estimate.timings,
     };
     let files = ResultFiles {

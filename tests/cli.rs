@@ -196,6 +196,14 @@ fn estimate_from_files() {
     assert_eq!(json["solver"], "prior");
     assert!(json["condition_number"].as_f64().unwrap().is_finite());
     assert!(json["relative_residual"].as_f64().unwrap() < 0.25);
+    // The chosen rows are rebuilt under finer lights: this map has fewer pixels than the
+    // default 65,536, so under every one of them. `--chosen-lights 0` keeps the candidates'.
+    assert_eq!(json["lights"], 4096);
+    assert_eq!(json["chosen_lights"], map.width * map.height);
+    let coarse = estimate(&["--chosen-lights", "0"], "est-coarse");
+    assert_eq!(coarse["chosen_lights"], 0);
+    assert_eq!(coarse["chosen_pixels"], json["chosen_pixels"]);
+    assert_ne!(coarse["coefficients"], json["coefficients"]);
     // The paper's solver on the same pixels: named in the file, and the coefficients differ.
     let ls = estimate(&["--solve", "least-squares"], "est-ls");
     assert_eq!(ls["solver"], "least-squares");

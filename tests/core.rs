@@ -5,8 +5,8 @@ use brdfd::bench::{embedded_materials, studio_envmap};
 use brdfd::core::basis::Basis;
 use brdfd::core::bivariate::{Bivariate, Grid};
 use brdfd::core::brdf::{dot, normalize, IsotropicBrdf, Vec3};
-use brdfd::core::envmap::EnvMap;
-use brdfd::core::estimate::{estimate, EstimateOptions, SelectionMethod};
+use brdfd::core::envmap::{EnvMap, LightSet};
+use brdfd::core::estimate::{estimate, EstimateOptions, SelectionMethod, View};
 use brdfd::core::eval::brdf_error;
 use brdfd::core::geometry::{Camera, GeomPixel, PixelGeometry, Shape};
 use brdfd::core::merl::MerlBrdf;
@@ -18,15 +18,7 @@ use brdfd::core::solve::Solver;
 /// The embedded basis's rendering matrix for a sphere under the studio map.
 fn studio_matrix(basis: &Basis, size: usize) -> RenderingMatrix {
     let g = sphere(size);
-    let lights = studio_envmap(256).compressed(2048, 0.0);
-    let model = basis.model();
-    RenderingMatrix::build(
-        &g.pixels,
-        &lights,
-        &model.columns,
-        model.offset,
-        basis.header.grid.theta_h_binning,
-    )
+    basis.rendering_matrix(&g.pixels, &studio_envmap(256).compressed(2048, 0.0))
 }
 
 /// The reference data, which CI provides next to the repository.
@@ -47,6 +39,16 @@ fn in_span_gold(basis: &Basis) -> Vec<f64> {
         basis.header.grid,
     );
     basis.project(&truth)
+}
+
+/// One view whose chosen pixels keep their candidate rows (no finer lights).
+fn one_view<'a>(g: &'a PixelGeometry, lights: &'a LightSet, photo: &'a Raster) -> View<'a> {
+    View {
+        geometry: g,
+        lights,
+        chosen_lights: None,
+        photo,
+    }
 }
 
 fn sphere(size: usize) -> PixelGeometry {
@@ -166,7 +168,7 @@ fn per_channel_colour_recovers_what_the_joint_basis_cannot() {
                 colour,
                 ..Default::default()
             };
-            estimate(&basis, &g, &lights, &photo, &opts).unwrap()
+            estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap()
         };
         let per_channel = run(Colour::PerChannel);
         assert_eq!(per_channel.names.len(), 3 * m);
@@ -216,7 +218,7 @@ fn clipped_pixels_are_left_out() {
             white,
             ..Default::default()
         };
-        let est = estimate(&basis, &g, &lights, &photo, &opts).unwrap();
+        let est = estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap();
         (
             relative_error(&est.solution.coefficients, &c_true),
             est.clipped,
@@ -258,7 +260,7 @@ fn the_prior_steadies_few_pixel_estimates_under_grace() {
                 solver,
                 ..Default::default()
             };
-            let est = estimate(&basis, &g, &lights, &photo, &opts).unwrap();
+            let est = estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap();
             brdf_error(&est.brdf(&basis), &truth, basis.header.cell_weight)
         };
         let (ls, prior) = (error(Solver::LeastSquares), error(Solver::Prior));
@@ -437,6 +439,20 @@ fn compression_keeps_renders_unchanged() {
         eprintln!("{name}: relative change {err:.4} adaptive, {grid_err:.4} uniform grid");
         assert!(err < limit, "{name}: relative change {err}");
     }
+    // Several counts in one pass (an estimate's candidate and chosen lights) give each
+    // count's own compression, light for light.
+    let levels = map.compressed_levels(&[512, brdfd::core::envmap::DEFAULT_LIGHTS, 16_384], 0.0);
+    for (set, alone) in levels.iter().zip([
+        map.compressed(512, 0.0),
+        adaptive,
+        map.compressed(16_384, 0.0),
+    ]) {
+        assert_eq!(set.directions, alone.directions);
+        assert_eq!(set.radiance, alone.radiance);
+        assert_eq!(set.solid_angle, alone.solid_angle);
+        assert_eq!(set.spread, alone.spread);
+    }
+    assert_eq!(levels[2].len(), 16_384);
 }
 
 #[test]
@@ -496,7 +512,7 @@ fn estimate_recovers_an_embedded_material_on_the_virtual_bench() {
             },
             ..Default::default()
         };
-        let est = estimate(&basis, &g, &lights, &photo, &opts).unwrap();
+        let est = estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap();
         let re = render_bivariate(&g, &lights, &est.brdf(&basis));
         // Pearl paint is well inside the basis: measured 0.08–0.19 image error (README table).
         assert!(
@@ -643,7 +659,7 @@ fn embedded_defaults_load() {
 /// extra normals must condition the all-pixel system better than one view does.
 #[test]
 fn turntable_views_recover_the_coefficients_and_improve_conditioning() {
-    use brdfd::core::estimate::{estimate_views, View};
+    use brdfd::core::estimate::estimate_views;
     let basis = Basis::embedded();
     let truth = Bivariate::reduce(
         embedded_materials().get("blue-metallic-paint").unwrap(),
@@ -660,35 +676,47 @@ fn turntable_views_recover_the_coefficients_and_improve_conditioning() {
     };
     let camera = Camera::eval_orthographic(48);
     let map = studio_envmap(256);
-    let views: Vec<(PixelGeometry, brdfd::core::envmap::LightSet, Raster)> = [0.0f64, 30.0, -30.0]
+    // Each view's photo is rendered under a fine compression of the turned map; the estimate
+    // builds its candidates' rows under a coarse one and the chosen rows under the fine one.
+    let views: Vec<(PixelGeometry, LightSet, LightSet, Raster)> = [0.0f64, 30.0, -30.0]
         .iter()
         .map(|deg| {
             let theta = deg.to_radians();
             let g = PixelGeometry::rasterize(&camera.turned_about_y(-theta), &sheet).unwrap();
-            let lights = map.compressed(2048, -theta);
-            let photo = render_bivariate(&g, &lights, &in_span);
-            (g, lights, photo)
+            let mut levels = map.compressed_levels(&[256, 8192], -theta);
+            let (fine, coarse) = (levels.pop().unwrap(), levels.pop().unwrap());
+            let photo = render_bivariate(&g, &fine, &in_span);
+            (g, coarse, fine, photo)
         })
         .collect();
-    let as_views = |n: usize| -> Vec<View> {
+    let as_views = |n: usize, refine: bool| -> Vec<View> {
         views[..n]
             .iter()
-            .map(|(geometry, lights, photo)| View {
+            .map(|(geometry, lights, fine, photo)| View {
                 geometry,
                 lights,
+                chosen_lights: refine.then_some(fine),
                 photo,
             })
             .collect()
     };
     // The turned views see different normals: the sheet is not symmetric about +Y.
-    assert_ne!(views[0].2.pixels, views[1].2.pixels);
+    assert_ne!(views[0].3.pixels, views[1].3.pixels);
 
     let twenty = EstimateOptions::default();
-    let est = estimate_views(&basis, &as_views(3), &twenty).unwrap();
+    let est = estimate_views(&basis, &as_views(3, true), &twenty).unwrap();
+    assert_eq!(est.chosen_lights, views[0].2.len());
     let err = relative_error(&est.solution.coefficients, &c_true);
+    let coarse = estimate_views(&basis, &as_views(3, false), &twenty).unwrap();
+    let coarse_err = relative_error(&coarse.solution.coefficients, &c_true);
+    eprintln!("20 pixels of 3 views: coefficient error {err:.1e} with each view's chosen rows under its fine lights, {coarse_err:.1e} under the coarse ones");
     // The photos are f32 renders of the model: single-precision rounding, not the 1e-6 of
-    // the f64 check above, bounds the error.
+    // the f64 check above, bounds the error. Under the coarse lights, compression error.
     assert!(err < 1e-3, "relative coefficient error {err}");
+    assert!(
+        coarse_err > 10.0 * err,
+        "coarse rows did as well: {coarse_err}"
+    );
     let views_used: std::collections::BTreeSet<_> = est.chosen_views.iter().collect();
     assert!(views_used.len() > 1, "selection used views {views_used:?}");
 
@@ -696,11 +724,11 @@ fn turntable_views_recover_the_coefficients_and_improve_conditioning() {
         pixel_count: None,
         ..EstimateOptions::default()
     };
-    let one = estimate_views(&basis, &as_views(1), &all)
+    let one = estimate_views(&basis, &as_views(1, true), &all)
         .unwrap()
         .selection
         .condition;
-    let three = estimate_views(&basis, &as_views(3), &all)
+    let three = estimate_views(&basis, &as_views(3, true), &all)
         .unwrap()
         .selection
         .condition;

@@ -5,9 +5,9 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use brdfd::core::basis::Basis;
 use brdfd::core::bivariate::Bivariate;
-use brdfd::core::envmap::DEFAULT_LIGHTS;
+use brdfd::core::envmap::{CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd::core::estimate::{
-    estimate as run_estimate, EstimateOptions, SelectionMethod, DEFAULT_MAX_CANDIDATES,
+    estimate as run_estimate, EstimateOptions, SelectionMethod, View, DEFAULT_MAX_CANDIDATES,
 };
 use brdfd::core::merl::MerlBrdf;
 use brdfd::core::nbrdf::NbrdfSet;
@@ -49,9 +49,14 @@ pub struct EstimateArgs {
     /// Basis stem (STEM.exr + STEM.json); the embedded default if absent.
     #[arg(long)]
     pub basis: Option<PathBuf>,
-    /// Lights the map is compressed to.
+    /// Lights the map is compressed to, for every candidate pixel's row.
     #[arg(long, default_value_t = DEFAULT_LIGHTS)]
     pub lights: usize,
+    /// Lights for the chosen pixels' rows, which are rebuilt before the solve (a finer sky
+    /// where it matters; see the README's method). 0, or no more than --lights, keeps the
+    /// candidates' rows.
+    #[arg(long, default_value_t = CHOSEN_LIGHTS)]
+    pub chosen_lights: usize,
     #[arg(long, default_value_t = DEFAULT_MAX_CANDIDATES)]
     pub max_candidates: usize,
     /// The photo's white level: pixels with a channel at or above it were clipped and are left
@@ -119,7 +124,14 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         Raster::read_with_white(&a.photo).with_context(|| "reading the photo")?;
     let env =
         brdfd::panorama::load_envmap(&a.env).with_context(|| "reading the environment map")?;
-    let lights = env.compressed(a.lights, a.yaw.to_radians());
+    let yaw = a.yaw.to_radians();
+    let (lights, chosen_lights) = if a.chosen_lights > a.lights {
+        let mut levels = env.compressed_levels(&[a.lights, a.chosen_lights], yaw);
+        let chosen = levels.pop();
+        (levels.remove(0), chosen)
+    } else {
+        (env.compressed(a.lights, yaw), None)
+    };
     let geometry = a.geometry.scene()?.pixels(photo.width, photo.height)?;
     let method = match a.method {
         MethodArg::Fast => SelectionMethod::Fast,
@@ -137,7 +149,13 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         colour: a.colour.into(),
         white: a.white.or(file_white),
     };
-    let est = run_estimate(&basis, &geometry, &lights, &photo, &options)?;
+    let view = View {
+        geometry: &geometry,
+        lights: &lights,
+        chosen_lights: chosen_lights.as_ref(),
+        photo: &photo,
+    };
+    let est = run_estimate(&basis, view, &options)?;
     let files = write_results(
         &a.out,
         &basis,

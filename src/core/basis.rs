@@ -17,7 +17,10 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use super::bivariate::{Bivariate, Grid, GRID_CELLS, N_THETA_D, N_THETA_H, VALUES};
+use super::envmap::LightSet;
 use super::error::{CoreError, Result};
+use super::geometry::GeomPixel;
+use super::render::RenderingMatrix;
 
 pub const FORMAT: &str = "brdfd-basis/1";
 /// K of the shipped basis and of `basis build` unless told otherwise (the paper's choice).
@@ -292,6 +295,18 @@ impl Basis {
             columns,
             names,
         }
+    }
+
+    /// The rendering matrix of this basis's model for `pixels` under `lights`.
+    pub fn rendering_matrix(&self, pixels: &[GeomPixel], lights: &LightSet) -> RenderingMatrix {
+        let model = self.model();
+        RenderingMatrix::build(
+            pixels,
+            lights,
+            &model.columns,
+            model.offset,
+            self.header.grid.theta_h_binning,
+        )
     }
 
     /// Standard deviation of each model column's coefficient over the training set, for the

@@ -20,6 +20,10 @@ pub const NEGATIVE_TOLERANCE: f32 = 0.05;
 /// Default number of lights after compression: enough that re-renders change by little
 /// (measured in `tests/core.rs` and the README), few enough for a fast rendering matrix.
 pub const DEFAULT_LIGHTS: usize = 4096;
+/// Lights for the chosen pixels' rows (see `estimate::chosen_rows`): sixteen times the
+/// default. A few chosen pixels carry the whole estimate, so their rows are worth the finer
+/// sky; what compression leaves in one row is an error the solve cannot average away.
+pub const CHOSEN_LIGHTS: usize = 65_536;
 /// Compression first cuts the map into this many columns × half as many rows (22.5° cells),
 /// so that no light stands for more than a small part of the sky.
 const COARSE_COLUMNS: usize = 16;
@@ -263,8 +267,17 @@ impl EnvMap {
     /// many small lights, dim ones as few large ones. Each light sits at the power-weighted
     /// centre of its rectangle and carries the rectangle's power exactly.
     pub fn compressed(&self, count: usize, yaw: f64) -> LightSet {
-        if count >= self.width * self.height {
-            return self.lights(yaw);
+        self.compressed_levels(&[count], yaw).remove(0)
+    }
+
+    /// [`EnvMap::compressed`] to each of `counts` (ascending) in one pass: each coarser set is
+    /// the finer one's splitting stopped earlier, so it is the same as compressing to it
+    /// alone, and the map's sums are built once (most of the cost on a large map).
+    pub fn compressed_levels(&self, counts: &[usize], yaw: f64) -> Vec<LightSet> {
+        debug_assert!(counts.windows(2).all(|w| w[0] <= w[1]), "counts ascend");
+        let pixels = self.width * self.height;
+        if counts.iter().all(|c| *c >= pixels) {
+            return counts.iter().map(|_| self.lights(yaw)).collect();
         }
         let sums = CellSums::new(self, yaw);
         let (cols, rows) = (
@@ -283,23 +296,31 @@ impl EnvMap {
                 heap.push(sums.cell(rect));
             }
         }
-        while heap.len() < count {
-            let Some(top) = heap.peek() else { break };
-            let Some((a, b)) = top.rect.halves(self) else {
-                break; // the largest cell is one pixel: nothing left worth splitting
-            };
-            heap.pop();
-            heap.push(sums.cell(a));
-            heap.push(sums.cell(b));
+        let mut out = Vec::with_capacity(counts.len());
+        for &count in counts {
+            if count >= pixels {
+                out.push(self.lights(yaw));
+                continue;
+            }
+            while heap.len() < count {
+                let Some(top) = heap.peek() else { break };
+                let Some((a, b)) = top.rect.halves(self) else {
+                    break; // the largest cell is one pixel: nothing left worth splitting
+                };
+                heap.pop();
+                heap.push(sums.cell(a));
+                heap.push(sums.cell(b));
+            }
+            let mut set = LightSet::default();
+            for cell in heap.clone().into_sorted_vec() {
+                set.directions.push(cell.direction);
+                set.radiance.push(cell.radiance);
+                set.solid_angle.push(cell.solid_angle);
+                set.spread.push(cell.spread);
+            }
+            out.push(set);
         }
-        let mut set = LightSet::default();
-        for cell in heap.into_sorted_vec() {
-            set.directions.push(cell.direction);
-            set.radiance.push(cell.radiance);
-            set.solid_angle.push(cell.solid_angle);
-            set.spread.push(cell.spread);
-        }
-        set
+        out
     }
 
     /// Reads an EXR's RGB without radiance checks (normal maps hold negative components).
@@ -443,6 +464,7 @@ impl Rect {
 }
 
 /// One compressed light, ordered by how much splitting it would help.
+#[derive(Clone)]
 struct Cell {
     rect: Rect,
     priority: f64,

@@ -15,6 +15,13 @@ use super::render::RenderingMatrix;
 use super::select::{self, Blocks, Selection, SwapParams};
 use super::solve::{channel_coefficients, Colour, Solution, Solver};
 
+/// Chosen pixels whose rows are rebuilt with the view's finer lights at most (see
+/// [`chosen_rows`]): 20 pixels under 65,536 lights cost about as much as 320 under the
+/// default 4,096, so this bounds the rebuild near the cost of the candidates' matrix. Above
+/// it (an "all pixels" estimate), the solve keeps the candidates' rows: over thousands of
+/// rows, compression errors of single pixels average out.
+pub const MAX_CHOSEN_ROWS: usize = 2_000;
+
 /// Candidate pixels considered at most: a 16-megapixel photo holds millions of object pixels,
 /// and conditioning saturates long before this many (see README, "Speed").
 pub const DEFAULT_MAX_CANDIDATES: usize = 50_000;
@@ -58,10 +65,12 @@ impl Default for EstimateOptions {
     }
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Default, Serialize)]
 pub struct Timings {
     pub rendering_matrix_s: f64,
     pub selection_s: f64,
+    /// Rebuilding the chosen pixels' rows with the finer lights ([`chosen_rows`]).
+    pub chosen_rows_s: f64,
     pub solve_s: f64,
 }
 
@@ -85,6 +94,9 @@ pub struct Estimate {
     /// estimate re-renders the photo, with no ground truth needed.
     pub fit_error: f64,
     pub lights: usize,
+    /// Lights the chosen pixels' rows were rebuilt with (first view); 0 if they kept the
+    /// candidates' rows.
+    pub chosen_lights: usize,
     pub timings: Timings,
 }
 
@@ -143,14 +155,7 @@ pub fn candidate_matrix(
         .into_iter()
         .map(|i| usable[i])
         .collect();
-    let model = basis.model();
-    let a = RenderingMatrix::build(
-        &picked,
-        lights,
-        &model.columns,
-        model.offset,
-        basis.header.grid.theta_h_binning,
-    );
+    let a = basis.rendering_matrix(&picked, lights);
     let observed = picked
         .iter()
         .map(|p| photo.get(p.x as usize, p.y as usize).map(|v| v as f64))
@@ -158,59 +163,100 @@ pub fn candidate_matrix(
     Ok((a, observed, clipped))
 }
 
-/// Selection and solve on a prepared rendering matrix.
-pub fn estimate_from_matrix(
-    basis: &Basis,
-    a: &RenderingMatrix,
-    observed: &[[f64; 3]],
-    options: &EstimateOptions,
-) -> Result<(Selection, Solution, f64, f64)> {
-    let t = Instant::now();
+/// The pixels `options` asks for, chosen on a prepared rendering matrix.
+pub fn select_pixels(basis: &Basis, a: &RenderingMatrix, options: &EstimateOptions) -> Selection {
     let blocks = Blocks::scaled(a, &basis.column_scales());
-    let selection = match options.pixel_count {
+    match options.pixel_count {
         None => select::all_pixels(&blocks),
         Some(l) => match options.method {
             SelectionMethod::Paper => select::paper_swap(&blocks, l, &options.swap),
             SelectionMethod::Fast => select::fast_exchange(&blocks, l),
         },
-    };
-    let selection_s = secs(t.elapsed());
+    }
+}
+
+/// The rows of the `chosen` pixels of `a`, each rebuilt under `lights_of(pixel)` (its view's
+/// finer lights) where that is given; the others keep their rows of `a`.
+///
+/// Why: `a` is built with compressed lights so that every candidate is affordable, and
+/// compression leaves an error in each row. It is small on average but not for every pixel:
+/// a mirror-like material under a broad, textured sky changes by 20% in places. Selection
+/// only needs the rows' conditioning, which that error hardly moves; the solve needs their
+/// values, and with 20 pixels one bad row moves the estimate. Rebuilding 20 rows costs little.
+pub fn chosen_rows<'l>(
+    basis: &Basis,
+    a: &RenderingMatrix,
+    chosen: &[usize],
+    lights_of: impl Fn(usize) -> Option<&'l LightSet>,
+) -> RenderingMatrix {
+    let mut rows = a.subset(chosen);
+    if chosen.len() > MAX_CHOSEN_ROWS {
+        return rows;
+    }
+    // One build per light set (one per view), not per pixel: a build prepares its lights.
+    let mut groups: Vec<(&LightSet, Vec<usize>)> = Vec::new();
+    for (i, &p) in chosen.iter().enumerate() {
+        let Some(lights) = lights_of(p) else { continue };
+        match groups.iter_mut().find(|(l, _)| std::ptr::eq(*l, lights)) {
+            Some((_, members)) => members.push(i),
+            None => groups.push((lights, vec![i])),
+        }
+    }
+    for (lights, members) in groups {
+        let pixels: Vec<GeomPixel> = members.iter().map(|&i| rows.pixels[i]).collect();
+        let fine = basis.rendering_matrix(&pixels, lights);
+        for (j, &i) in members.iter().enumerate() {
+            rows.replace_pixel(i, &fine, j);
+        }
+    }
+    rows
+}
+
+/// Selection, the chosen rows ([`chosen_rows`]) and the solve, on a prepared rendering matrix.
+pub fn estimate_from_matrix<'l>(
+    basis: &Basis,
+    a: &RenderingMatrix,
+    observed: &[[f64; 3]],
+    options: &EstimateOptions,
+    lights_of: impl Fn(usize) -> Option<&'l LightSet>,
+) -> Result<(Selection, Solution, Timings)> {
+    let mut timings = Timings::default();
     let t = Instant::now();
+    let selection = select_pixels(basis, a, options);
+    timings.selection_s = secs(t.elapsed());
+    let t = Instant::now();
+    let rows = chosen_rows(basis, a, &selection.pixels, lights_of);
+    let chosen_observed: Vec<[f64; 3]> = selection.pixels.iter().map(|&p| observed[p]).collect();
+    timings.chosen_rows_s = secs(t.elapsed());
+    let t = Instant::now();
+    let all_rows: Vec<usize> = (0..rows.pixels.len()).collect();
     let solution = options.solver.solve_colour(
         options.colour,
-        a,
-        &selection.pixels,
-        observed,
+        &rows,
+        &all_rows,
+        &chosen_observed,
         &basis.column_prior(),
     )?;
-    Ok((selection, solution, selection_s, secs(t.elapsed())))
+    timings.solve_s = secs(t.elapsed());
+    Ok((selection, solution, timings))
 }
 
 /// One view of the object: its per-pixel geometry, the lights in the same (object) frame,
 /// and the photo. Several views come from a turntable (see `Camera::turned_about_y`).
 pub struct View<'a> {
     pub geometry: &'a PixelGeometry,
+    /// The lights every candidate's row is built with (compressed, e.g. to
+    /// [`super::envmap::DEFAULT_LIGHTS`]).
     pub lights: &'a LightSet,
+    /// Finer lights of the same map for the chosen pixels' rows ([`chosen_rows`]), e.g.
+    /// [`super::envmap::CHOSEN_LIGHTS`]; `None` keeps the candidates' rows.
+    pub chosen_lights: Option<&'a LightSet>,
     pub photo: &'a Raster,
 }
 
 /// The whole estimate from one view.
-pub fn estimate(
-    basis: &Basis,
-    geometry: &PixelGeometry,
-    lights: &LightSet,
-    photo: &Raster,
-    options: &EstimateOptions,
-) -> Result<Estimate> {
-    estimate_views(
-        basis,
-        &[View {
-            geometry,
-            lights,
-            photo,
-        }],
-        options,
-    )
+pub fn estimate(basis: &Basis, view: View, options: &EstimateOptions) -> Result<Estimate> {
+    estimate_views(basis, &[view], options)
 }
 
 /// The whole estimate from several views: each view's candidate rows are stacked, so the
@@ -250,8 +296,12 @@ pub fn estimate_views(
     let (a, observed) =
         stacked.ok_or_else(|| CoreError::Invalid("no views to estimate from".into()))?;
     let matrix_s = secs(t.elapsed());
-    let (selection, solution, selection_s, solve_s) =
-        estimate_from_matrix(basis, &a, &observed, options)?;
+    let (selection, solution, mut timings) =
+        estimate_from_matrix(basis, &a, &observed, options, |p| {
+            views[view_of_pixel[p]].chosen_lights
+        })?;
+    timings.rendering_matrix_s = matrix_s;
+    let refined = selection.pixels.len() <= MAX_CHOSEN_ROWS;
     let chosen = selection
         .pixels
         .iter()
@@ -272,11 +322,12 @@ pub fn estimate_views(
         clipped,
         fit_error,
         lights: views.first().map_or(0, |v| v.lights.len()),
-        timings: Timings {
-            rendering_matrix_s: matrix_s,
-            selection_s,
-            solve_s,
-        },
+        chosen_lights: views
+            .first()
+            .and_then(|v| v.chosen_lights)
+            .filter(|_| refined)
+            .map_or(0, |l| l.len()),
+        timings,
     })
 }
 

@@ -25,9 +25,9 @@ use rand_distr::{Distribution, Poisson};
 
 use super::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
 use super::bivariate::{Bivariate, Grid, GRID_CELLS};
-use super::envmap::{EnvMap, LightSet, DEFAULT_LIGHTS};
+use super::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use super::error::{CoreError, Result};
-use super::estimate::{estimate_from_matrix, EstimateOptions, SelectionMethod};
+use super::estimate::{chosen_rows, estimate_from_matrix, EstimateOptions, SelectionMethod};
 use super::geometry::{Camera, PixelGeometry, Shape};
 use super::merl::MerlBrdf;
 use super::nbrdf::NbrdfSet;
@@ -173,17 +173,23 @@ pub fn brdf_error(estimate: &Bivariate, truth: &Bivariate, weight: CellWeight) -
     (num / den.max(f64::MIN_POSITIVE)).sqrt()
 }
 
-/// A lighting with its two discretisations.
+/// A lighting with its discretisations: the ground truth's, the estimate's candidate rows',
+/// and the estimate's chosen rows'.
 struct Lighting {
     gt: LightSet,
     est: LightSet,
+    chosen: LightSet,
 }
 
 fn load_lighting(data: &Path, name: &str) -> Result<Lighting> {
     let map = EnvMap::load(&data.join("envmaps").join(format!("{name}.hdr")))?;
+    let mut levels = map.compressed_levels(&[DEFAULT_LIGHTS, GT_LIGHTS, CHOSEN_LIGHTS], 0.0);
+    let chosen = levels.pop().expect("three levels");
+    let gt = levels.pop().expect("three levels");
     Ok(Lighting {
-        gt: map.compressed(GT_LIGHTS, 0.0),
-        est: map.compressed(DEFAULT_LIGHTS, 0.0),
+        gt,
+        est: levels.pop().expect("three levels"),
+        chosen,
     })
 }
 
@@ -218,14 +224,7 @@ struct Prepared {
 }
 
 fn prepare(basis: &Basis, geometry: &PixelGeometry, lights: &LightSet) -> Prepared {
-    let model = basis.model();
-    let a = RenderingMatrix::build(
-        &geometry.pixels,
-        lights,
-        &model.columns,
-        model.offset,
-        basis.header.grid.theta_h_binning,
-    );
+    let a = basis.rendering_matrix(&geometry.pixels, lights);
     let selections = select_each_count(basis, &a);
     Prepared { a, selections }
 }
@@ -272,6 +271,7 @@ type Outcome = (Option<usize>, Method, Bivariate, Raster, f64);
 fn estimate_all(
     basis: &Basis,
     prep: &Prepared,
+    chosen_lights: &LightSet,
     photo: &Raster,
     white: Option<f32>,
 ) -> Result<Vec<Outcome>> {
@@ -291,13 +291,18 @@ fn estimate_all(
         &reselected
     };
     let prior = basis.column_prior();
+    let rows: Vec<RenderingMatrix> = selections
+        .iter()
+        .map(|(_, sel)| chosen_rows(basis, &prep.a, &sel.pixels, |_| Some(chosen_lights)))
+        .collect();
     let mut out = Vec::new();
     for method in METHODS {
-        for (l, sel) in selections {
-            let sol =
-                method
-                    .solver
-                    .solve_colour(method.colour, &prep.a, &sel.pixels, &y, &prior)?;
+        for ((l, sel), rows) in selections.iter().zip(&rows) {
+            let chosen_y: Vec<[f64; 3]> = sel.pixels.iter().map(|&p| y[p]).collect();
+            let every: Vec<usize> = (0..chosen_y.len()).collect();
+            let sol = method
+                .solver
+                .solve_colour(method.colour, rows, &every, &chosen_y, &prior)?;
             let img = predicted_image(&prep.a, &sol.coefficients, photo.width, photo.height);
             out.push((
                 *l,
@@ -381,7 +386,9 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
                 } else {
                     (gt.clone(), None)
                 };
-                for (l, method, est, re, cond) in estimate_all(&basis, &prep, &photo, white)? {
+                for (l, method, est, re, cond) in
+                    estimate_all(&basis, &prep, &lighting.chosen, &photo, white)?
+                {
                     rows.push(Row {
                         lighting: light_name.into(),
                         material: truth.name.clone(),
@@ -424,7 +431,7 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
     write_csv(&cfg.out.join("results.csv"), &rows)?;
 
     let loo = if cfg.leave_one_out {
-        Some(leave_one_out(cfg, &set, &reduced, grid)?)
+        Some(leave_one_out(cfg, &set, &reduced)?)
     } else {
         None
     };
@@ -452,7 +459,6 @@ fn leave_one_out(
     cfg: &EvalConfig,
     set: &NbrdfSet,
     reduced: &[(String, Bivariate)],
-    grid: Grid,
 ) -> Result<String> {
     let lighting = load_lighting(&cfg.data, "grace")?;
     let geometry =
@@ -466,14 +472,7 @@ fn leave_one_out(
         let others: Vec<(String, Bivariate)> =
             reduced.iter().filter(|(n, _)| n != name).cloned().collect();
         let basis = default_basis(&others, cfg.k)?;
-        let model = basis.model();
-        let a = RenderingMatrix::build(
-            &geometry.pixels,
-            &lighting.est,
-            &model.columns,
-            model.offset,
-            grid.theta_h_binning,
-        );
+        let a = basis.rendering_matrix(&geometry.pixels, &lighting.est);
         let table = MerlBrdf::tabulate(set.get(name)?);
         let gt = render_merl(&geometry, &lighting.gt, &table);
         let y = observations(&a, &gt);
@@ -487,7 +486,8 @@ fn leave_one_out(
                     colour: method.colour,
                     ..Default::default()
                 };
-                let (_, sol, _, _) = estimate_from_matrix(&basis, &a, &y, &opts)?;
+                let (_, sol, _) =
+                    estimate_from_matrix(&basis, &a, &y, &opts, |_| Some(&lighting.chosen))?;
                 let est = basis.reconstruct_solution(&sol.coefficients)?;
                 let re = predicted_image(&a, &sol.coefficients, gt.width, gt.height);
                 out.push((
@@ -593,7 +593,8 @@ fn measure_choices(
                 .find(|(n, _)| n == name)
                 .expect("test material reduced")
                 .1;
-            for (l, method, est, re, _) in estimate_all(&basis, &prep, gt, None)? {
+            for (l, method, est, re, _) in estimate_all(&basis, &prep, &lighting.chosen, gt, None)?
+            {
                 // The basis choices were measured with the paper's method.
                 if method != METHODS[0] {
                     continue;
@@ -618,12 +619,7 @@ fn measure_choices(
         );
     }
     out.push_str(&measure_k(
-        cfg,
-        &geometry,
-        &lighting.est,
-        &tables,
-        &training,
-        reduced,
+        cfg, &geometry, &lighting, &tables, &training, reduced,
     )?);
     Ok(out)
 }
@@ -636,7 +632,7 @@ const K_CHOICES: [usize; 3] = [5, 8, 10];
 fn measure_k(
     cfg: &EvalConfig,
     geometry: &PixelGeometry,
-    grace_lights: &LightSet,
+    grace_lighting: &Lighting,
     grace: &[(String, MerlBrdf, Raster)],
     training: &[(String, Bivariate)],
     reduced: &[(String, Bivariate)],
@@ -649,15 +645,15 @@ fn measure_k(
         .collect();
     for k in K_CHOICES {
         let basis = default_basis(training, k)?;
-        for (light_name, lights, truths) in [
+        for (light_name, lighting, truths) in [
             (
                 "grace",
-                grace_lights,
+                grace_lighting,
                 grace.iter().map(|(_, _, gt)| gt).collect::<Vec<_>>(),
             ),
-            ("courtyard", &courtyard.est, courtyard_gt.iter().collect()),
+            ("courtyard", &courtyard, courtyard_gt.iter().collect()),
         ] {
-            let prep = prepare(&basis, geometry, lights);
+            let prep = prepare(&basis, geometry, &lighting.est);
             let mut rows = Vec::new();
             for ((name, _, _), gt) in grace.iter().zip(truths) {
                 let truth = &reduced
@@ -665,7 +661,9 @@ fn measure_k(
                     .find(|(n, _)| n == name)
                     .expect("test material reduced")
                     .1;
-                for (l, method, est, re, cond) in estimate_all(&basis, &prep, gt, None)? {
+                for (l, method, est, re, cond) in
+                    estimate_all(&basis, &prep, &lighting.chosen, gt, None)?
+                {
                     rows.push(Row {
                         lighting: light_name.into(),
                         material: name.clone(),

@@ -533,6 +533,16 @@ impl RenderingMatrix {
         }
     }
 
+    /// Replaces pixel `i`'s rows (and offsets) with pixel `j`'s of `other`, a matrix of the
+    /// same model built for the same pixel under other lights.
+    pub fn replace_pixel(&mut self, i: usize, other: &RenderingMatrix, j: usize) {
+        let n = 3 * self.columns;
+        self.rows[i * n..(i + 1) * n].copy_from_slice(&other.rows[j * n..(j + 1) * n]);
+        if let (Some(mine), Some(theirs)) = (&mut self.offset, &other.offset) {
+            mine[3 * i..3 * i + 3].copy_from_slice(&theirs[3 * j..3 * j + 3]);
+        }
+    }
+
     pub fn row(&self, r: usize) -> &[f32] {
         &self.rows[r * self.columns..(r + 1) * self.columns]
     }

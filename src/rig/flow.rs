@@ -21,7 +21,7 @@ use crate::bench::VirtualBench;
 use crate::config::{MaterialPreset, PixelCount, Rig};
 use crate::core::basis::Basis;
 use crate::core::bivariate::Bivariate;
-use crate::core::envmap::{write_exr, EnvMap, DEFAULT_LIGHTS};
+use crate::core::envmap::{write_exr, EnvMap, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use crate::core::estimate::{estimate_views, Estimate, EstimateOptions, View};
 use crate::core::geometry::SceneGeometry;
 use crate::core::merl::MerlBrdf;
@@ -377,8 +377,9 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         let (geometry, view_yaw) = turned(&scene, yaw, deg);
         let (w, h) = geometry.camera.size();
         let pixels = geometry.pixels(w, h)?;
-        let lights = env.compressed(DEFAULT_LIGHTS, view_yaw);
-        views.push((pixels, lights, photo));
+        let mut levels = env.compressed_levels(&[DEFAULT_LIGHTS, CHOSEN_LIGHTS], view_yaw);
+        let chosen_lights = levels.pop().expect("two levels");
+        views.push((pixels, levels.remove(0), chosen_lights, photo));
     }
     session.set_state(State::Captured, None)?;
     cx.cancel.check()?;
@@ -399,9 +400,10 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     };
     let as_views: Vec<View> = views
         .iter()
-        .map(|(geometry, lights, photo)| View {
+        .map(|(geometry, lights, chosen_lights, photo)| View {
             geometry,
             lights,
+            chosen_lights: Some(chosen_lights),
             photo,
         })
         .collect();
@@ -413,7 +415,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         &est.names,
         &est.solution.coefficients,
     ));
-    let (_, lights, _) = &views[0];
+    let (_, lights, _, _) = &views[0];
     let truth = match &bench {
         Some(b) => {
             // The simulator knows the answer; comparing with it is the simulator's business,
