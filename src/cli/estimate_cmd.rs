@@ -124,14 +124,8 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         Raster::read_with_white(&a.photo).with_context(|| "reading the photo")?;
     let env =
         brdfd::panorama::load_envmap(&a.env).with_context(|| "reading the environment map")?;
-    let yaw = a.yaw.to_radians();
-    let (lights, chosen_lights) = if a.chosen_lights > a.lights {
-        let mut levels = env.compressed_levels(&[a.lights, a.chosen_lights], yaw);
-        let chosen = levels.pop();
-        (levels.remove(0), chosen)
-    } else {
-        (env.compressed(a.lights, yaw), None)
-    };
+    let (lights, chosen_lights) =
+        env.estimate_lights(a.lights, a.chosen_lights, a.yaw.to_radians());
     let geometry = a.geometry.scene()?.pixels(photo.width, photo.height)?;
     let method = match a.method {
         MethodArg::Fast => SelectionMethod::Fast,

@@ -270,11 +270,31 @@ impl EnvMap {
         self.compressed_levels(&[count], yaw).remove(0)
     }
 
+    /// An estimate's lights, from one compression pass: `candidates` lights for every
+    /// candidate pixel's row, and `chosen` for the chosen pixels' rows (see
+    /// `estimate::chosen_rows`), or none if that is no finer.
+    pub fn estimate_lights(
+        &self,
+        candidates: usize,
+        chosen: usize,
+        yaw: f64,
+    ) -> (LightSet, Option<LightSet>) {
+        if chosen <= candidates {
+            return (self.compressed(candidates, yaw), None);
+        }
+        let mut levels = self.compressed_levels(&[candidates, chosen], yaw);
+        let fine = levels.pop();
+        (levels.remove(0), fine)
+    }
+
     /// [`EnvMap::compressed`] to each of `counts` (ascending) in one pass: each coarser set is
     /// the finer one's splitting stopped earlier, so it is the same as compressing to it
     /// alone, and the map's sums are built once (most of the cost on a large map).
     pub fn compressed_levels(&self, counts: &[usize], yaw: f64) -> Vec<LightSet> {
-        debug_assert!(counts.windows(2).all(|w| w[0] <= w[1]), "counts ascend");
+        assert!(
+            counts.windows(2).all(|w| w[0] <= w[1]),
+            "compression counts must ascend: {counts:?}"
+        );
         let pixels = self.width * self.height;
         if counts.iter().all(|c| *c >= pixels) {
             return counts.iter().map(|_| self.lights(yaw)).collect();
@@ -297,7 +317,7 @@ impl EnvMap {
             }
         }
         let mut out = Vec::with_capacity(counts.len());
-        for &count in counts {
+        for (i, &count) in counts.iter().enumerate() {
             if count >= pixels {
                 out.push(self.lights(yaw));
                 continue;
@@ -312,7 +332,13 @@ impl EnvMap {
                 heap.push(sums.cell(b));
             }
             let mut set = LightSet::default();
-            for cell in heap.clone().into_sorted_vec() {
+            // The last level can take the heap; coarser ones leave it to be split further.
+            let cells = if i + 1 == counts.len() {
+                std::mem::take(&mut heap)
+            } else {
+                heap.clone()
+            };
+            for cell in cells.into_sorted_vec() {
                 set.directions.push(cell.direction);
                 set.radiance.push(cell.radiance);
                 set.solid_angle.push(cell.solid_angle);

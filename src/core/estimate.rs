@@ -190,7 +190,7 @@ pub fn chosen_rows<'l>(
     lights_of: impl Fn(usize) -> Option<&'l LightSet>,
 ) -> RenderingMatrix {
     let mut rows = a.subset(chosen);
-    if chosen.len() > MAX_CHOSEN_ROWS {
+    if !rebuilds_rows(chosen.len()) {
         return rows;
     }
     // One build per light set (one per view), not per pixel: a build prepares its lights.
@@ -210,6 +210,11 @@ pub fn chosen_rows<'l>(
         }
     }
     rows
+}
+
+/// Whether [`chosen_rows`] rebuilds the rows of this many chosen pixels.
+fn rebuilds_rows(chosen: usize) -> bool {
+    chosen <= MAX_CHOSEN_ROWS
 }
 
 /// Selection, the chosen rows ([`chosen_rows`]) and the solve, on a prepared rendering matrix.
@@ -301,7 +306,11 @@ pub fn estimate_views(
             views[view_of_pixel[p]].chosen_lights
         })?;
     timings.rendering_matrix_s = matrix_s;
-    let refined = selection.pixels.len() <= MAX_CHOSEN_ROWS;
+    let chosen_lights = views
+        .first()
+        .and_then(|v| v.chosen_lights)
+        .filter(|_| rebuilds_rows(selection.pixels.len()))
+        .map_or(0, |l| l.len());
     let chosen = selection
         .pixels
         .iter()
@@ -322,11 +331,7 @@ pub fn estimate_views(
         clipped,
         fit_error,
         lights: views.first().map_or(0, |v| v.lights.len()),
-        chosen_lights: views
-            .first()
-            .and_then(|v| v.chosen_lights)
-            .filter(|_| refined)
-            .map_or(0, |l| l.len()),
+        chosen_lights,
         timings,
     })
 }

@@ -27,7 +27,7 @@ use super::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
 use super::bivariate::{Bivariate, Grid, GRID_CELLS};
 use super::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use super::error::{CoreError, Result};
-use super::estimate::{chosen_rows, estimate_from_matrix, EstimateOptions, SelectionMethod};
+use super::estimate::chosen_rows;
 use super::geometry::{Camera, PixelGeometry, Shape};
 use super::merl::MerlBrdf;
 use super::nbrdf::NbrdfSet;
@@ -291,18 +291,23 @@ fn estimate_all(
         &reselected
     };
     let prior = basis.column_prior();
-    let rows: Vec<RenderingMatrix> = selections
+    // Per selection: its rows (rebuilt under the chosen lights) and what its pixels measured.
+    let systems: Vec<(RenderingMatrix, Vec<[f64; 3]>)> = selections
         .iter()
-        .map(|(_, sel)| chosen_rows(basis, &prep.a, &sel.pixels, |_| Some(chosen_lights)))
+        .map(|(_, sel)| {
+            (
+                chosen_rows(basis, &prep.a, &sel.pixels, |_| Some(chosen_lights)),
+                sel.pixels.iter().map(|&p| y[p]).collect(),
+            )
+        })
         .collect();
     let mut out = Vec::new();
     for method in METHODS {
-        for ((l, sel), rows) in selections.iter().zip(&rows) {
-            let chosen_y: Vec<[f64; 3]> = sel.pixels.iter().map(|&p| y[p]).collect();
+        for ((l, sel), (rows, chosen_y)) in selections.iter().zip(&systems) {
             let every: Vec<usize> = (0..chosen_y.len()).collect();
             let sol = method
                 .solver
-                .solve_colour(method.colour, rows, &every, &chosen_y, &prior)?;
+                .solve_colour(method.colour, rows, &every, chosen_y, &prior)?;
             let img = predicted_image(&prep.a, &sol.coefficients, photo.width, photo.height);
             out.push((
                 *l,
@@ -472,30 +477,24 @@ fn leave_one_out(
         let others: Vec<(String, Bivariate)> =
             reduced.iter().filter(|(n, _)| n != name).cloned().collect();
         let basis = default_basis(&others, cfg.k)?;
-        let a = basis.rendering_matrix(&geometry.pixels, &lighting.est);
-        let table = MerlBrdf::tabulate(set.get(name)?);
-        let gt = render_merl(&geometry, &lighting.gt, &table);
-        let y = observations(&a, &gt);
-        for (mi, method) in METHODS.iter().enumerate() {
-            let mut out = Vec::new();
-            for count in [Some(20), None] {
-                let opts = EstimateOptions {
-                    pixel_count: count,
-                    method: SelectionMethod::Fast,
-                    solver: method.solver,
-                    colour: method.colour,
-                    ..Default::default()
-                };
-                let (_, sol, _) =
-                    estimate_from_matrix(&basis, &a, &y, &opts, |_| Some(&lighting.chosen))?;
-                let est = basis.reconstruct_solution(&sol.coefficients)?;
-                let re = predicted_image(&a, &sol.coefficients, gt.width, gt.height);
-                out.push((
-                    re.relative_rmse(&gt),
-                    brdf_error(&est, truth_biv, basis.header.cell_weight),
-                ));
+        let prep = prepare(&basis, &geometry, &lighting.est);
+        let gt = render_merl(&geometry, &lighting.gt, &MerlBrdf::tabulate(set.get(name)?));
+        // (image error, BRDF error) per method, at 20 pixels and with all.
+        let mut twenty = [(0.0, 0.0); METHODS.len()];
+        let mut all = twenty;
+        for (l, method, est, re, _) in estimate_all(&basis, &prep, &lighting.chosen, &gt, None)? {
+            let errors = (
+                re.relative_rmse(&gt),
+                brdf_error(&est, truth_biv, basis.header.cell_weight),
+            );
+            match l {
+                Some(20) => twenty[method_index(method)] = errors,
+                None => all[method_index(method)] = errors,
+                _ => {}
             }
-            let e = [out[0].0, out[1].0, out[0].1, out[1].1];
+        }
+        for (mi, method) in METHODS.iter().enumerate() {
+            let e = [twenty[mi].0, all[mi].0, twenty[mi].1, all[mi].1];
             let _ = writeln!(
                 csv,
                 "{name},{},{:.5},{:.5},{:.5},{:.5}",
@@ -588,11 +587,7 @@ fn measure_choices(
         let prep = prepare(&basis, &geometry, &lighting.est);
         let (mut all, mut twenty, mut brdf) = (Vec::new(), Vec::new(), Vec::new());
         for (name, _, gt) in &tables {
-            let truth = &reduced
-                .iter()
-                .find(|(n, _)| n == name)
-                .expect("test material reduced")
-                .1;
+            let truth = reduced_of(reduced, name);
             for (l, method, est, re, _) in estimate_all(&basis, &prep, &lighting.chosen, gt, None)?
             {
                 // The basis choices were measured with the paper's method.
@@ -656,11 +651,7 @@ fn measure_k(
             let prep = prepare(&basis, geometry, &lighting.est);
             let mut rows = Vec::new();
             for ((name, _, _), gt) in grace.iter().zip(truths) {
-                let truth = &reduced
-                    .iter()
-                    .find(|(n, _)| n == name)
-                    .expect("test material reduced")
-                    .1;
+                let truth = reduced_of(reduced, name);
                 for (l, method, est, re, cond) in
                     estimate_all(&basis, &prep, &lighting.chosen, gt, None)?
                 {
@@ -796,7 +787,7 @@ fn markdown(
     secs: f64,
 ) -> String {
     let mut s = String::new();
-    let _ = writeln!(s, "Sphere {0}×{0}, orthographic; ground truth from the full 3D table with {GT_LIGHTS} lights; estimates with {DEFAULT_LIGHTS} lights, K = {1}, fast selection. Run time {secs:.0} s.\n", cfg.size, cfg.k);
+    let _ = writeln!(s, "Sphere {0}×{0}, orthographic; ground truth from the full 3D table with {GT_LIGHTS} lights; estimates with {DEFAULT_LIGHTS} lights for every candidate and {CHOSEN_LIGHTS} for the chosen pixels' rows, K = {1}, fast selection. Run time {secs:.0} s.\n", cfg.size, cfg.k);
     s.push_str(&summary(rows));
     for method in METHODS {
         for lighting in ["grace", "courtyard"] {
@@ -881,6 +872,15 @@ fn within_ten_percent(rows: &[&Row], error: impl Fn(&Row) -> f64) -> usize {
             matches!((get(Some(20)), get(None)), (Some(a), Some(b)) if a <= b * 1.1)
         })
         .count()
+}
+
+/// A test material's bivariate reduction, by name.
+fn reduced_of<'a>(reduced: &'a [(String, Bivariate)], name: &str) -> &'a Bivariate {
+    &reduced
+        .iter()
+        .find(|(n, _)| n == name)
+        .expect("every test material is reduced")
+        .1
 }
 
 /// The median of `f` over the rows with `pixels`.

@@ -58,14 +58,15 @@ impl Solver {
         let (mut residual2, mut observed2, mut condition) = (0.0, 0.0, 0.0f64);
         for c in 0..3 {
             let (x, y) = system_of(a, pixels, observed, &[c]);
+            let rows = y.len() as f64;
+            observed2 += y.norm_squared();
             let sol = match self {
-                Solver::LeastSquares => least_squares_system(pixels.len(), x.clone(), y.clone()),
-                Solver::Prior => with_prior_system(pixels.len(), x.clone(), y.clone(), prior),
+                Solver::LeastSquares => least_squares_system(pixels.len(), x, y),
+                Solver::Prior => with_prior_system(pixels.len(), x, y, prior),
             }
             .map_err(|e| CoreError::Invalid(format!("{} channel: {e}", CHANNELS[c])))?;
-            let coef = DVector::from_column_slice(&sol.coefficients);
-            residual2 += (&y - &x * &coef).norm_squared();
-            observed2 += y.norm_squared();
+            // The channel's squared residual, back from its RMS over its rows.
+            residual2 += sol.residual_rms.powi(2) * rows;
             condition = condition.max(sol.condition);
             coefficients.extend(sol.coefficients);
         }

@@ -377,9 +377,8 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         let (geometry, view_yaw) = turned(&scene, yaw, deg);
         let (w, h) = geometry.camera.size();
         let pixels = geometry.pixels(w, h)?;
-        let mut levels = env.compressed_levels(&[DEFAULT_LIGHTS, CHOSEN_LIGHTS], view_yaw);
-        let chosen_lights = levels.pop().expect("two levels");
-        views.push((pixels, levels.remove(0), chosen_lights, photo));
+        let (lights, chosen_lights) = env.estimate_lights(DEFAULT_LIGHTS, CHOSEN_LIGHTS, view_yaw);
+        views.push((pixels, lights, chosen_lights, photo));
     }
     session.set_state(State::Captured, None)?;
     cx.cancel.check()?;
@@ -403,7 +402,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         .map(|(geometry, lights, chosen_lights, photo)| View {
             geometry,
             lights,
-            chosen_lights: Some(chosen_lights),
+            chosen_lights: chosen_lights.as_ref(),
             photo,
         })
         .collect();
