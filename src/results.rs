@@ -34,7 +34,8 @@ pub struct CoefficientsFile<'a> {
     /// The view (turntable position, 0 for the first) of each chosen pixel.
     pub chosen_views: Vec<usize>,
     /// κ of the rows used, with columns scaled by the training spread of their coefficients
-    /// (the quantity the selection minimises).
+    /// (what the selection minimises). Per channel, the worst channel's; `null` (infinite)
+    /// when each channel has fewer equations than unknowns, which only the prior solves.
     pub condition_number: f64,
     pub residual_rms: f64,
     pub relative_residual: f64,

@@ -128,6 +128,19 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
         .collect();
     random.sort_by(f64::total_cmp);
     println!("  random choice: median κ = {:.2}", random[4]);
+    // Per-channel colour conditions three systems (one per channel) instead of one.
+    let channels = Blocks::per_channel(&am, &basis.column_scales());
+    let mut per_channel = None;
+    let per_channel_s = median_secs(a.runs, || {
+        per_channel = Some(select::fast_exchange(&channels, 20))
+    });
+    let per_channel = per_channel.expect("ran");
+    println!(
+        "  per-channel colour (three systems): fast exchange {per_channel_s:.3} s, worst channel's κ = {:.2} ({} κ evaluations; the joint choice's worst channel: {:.2})",
+        per_channel.condition,
+        per_channel.evaluations,
+        channels.condition(&fast.pixels)
+    );
 
     println!(
         "\nbasis build from the {} embedded materials' bivariate reductions (PCA only):",

@@ -164,8 +164,10 @@ pub fn candidate_matrix(
 }
 
 /// The pixels `options` asks for, chosen on a prepared rendering matrix.
+/// Selection conditions the systems the solve will use: one joint system, or one per channel
+/// for [`Colour::PerChannel`] (see [`Blocks`]).
 pub fn select_pixels(basis: &Basis, a: &RenderingMatrix, options: &EstimateOptions) -> Selection {
-    let blocks = Blocks::scaled(a, &basis.column_scales());
+    let blocks = Blocks::for_colour(a, &basis.column_scales(), options.colour);
     match options.pixel_count {
         None => select::all_pixels(&blocks),
         Some(l) => match options.method {

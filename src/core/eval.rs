@@ -218,30 +218,42 @@ pub fn default_basis(training: &[(String, Bivariate)], k: usize) -> Result<Basis
     )
 }
 
+/// The colour models of [`METHODS`]; selection runs once for each.
+const COLOUR_MODELS: [Colour; 2] = [Colour::Joint, Colour::PerChannel];
+
+/// The selection for every pixel count of [`PIXEL_COUNTS`].
+type Selections = Vec<(Option<usize>, Selection)>;
+
 struct Prepared {
     a: RenderingMatrix,
-    selections: Vec<(Option<usize>, Selection)>,
+    /// Per colour model of [`COLOUR_MODELS`]: each conditions the systems its solve uses.
+    selections: Vec<Selections>,
 }
 
 fn prepare(basis: &Basis, geometry: &PixelGeometry, lights: &LightSet) -> Prepared {
     let a = basis.rendering_matrix(&geometry.pixels, lights);
-    let selections = select_each_count(basis, &a);
+    let selections = select_each_colour(basis, &a);
     Prepared { a, selections }
 }
 
-/// The selection for every pixel count of [`PIXEL_COUNTS`].
-fn select_each_count(basis: &Basis, a: &RenderingMatrix) -> Vec<(Option<usize>, Selection)> {
-    let blocks = Blocks::scaled(a, &basis.column_scales());
-    PIXEL_COUNTS
+/// [`Selections`] for each colour model of [`COLOUR_MODELS`].
+fn select_each_colour(basis: &Basis, a: &RenderingMatrix) -> Vec<Selections> {
+    COLOUR_MODELS
         .iter()
-        .map(|l| {
-            (
-                *l,
-                match l {
-                    Some(n) => select::fast_exchange(&blocks, *n),
-                    None => select::all_pixels(&blocks),
-                },
-            )
+        .map(|colour| {
+            let blocks = Blocks::for_colour(a, &basis.column_scales(), *colour);
+            PIXEL_COUNTS
+                .iter()
+                .map(|l| {
+                    (
+                        *l,
+                        match l {
+                            Some(n) => select::fast_exchange(&blocks, *n),
+                            None => select::all_pixels(&blocks),
+                        },
+                    )
+                })
+                .collect()
         })
         .collect()
 }
@@ -283,27 +295,37 @@ fn estimate_all(
     let selections = if keep.len() == y.len() {
         &prep.selections
     } else {
-        let mut sub = select_each_count(basis, &prep.a.subset(&keep));
-        for (_, sel) in &mut sub {
+        let mut sub = select_each_colour(basis, &prep.a.subset(&keep));
+        for (_, sel) in sub.iter_mut().flatten() {
             sel.pixels.iter_mut().for_each(|p| *p = keep[*p]);
         }
         reselected = sub;
         &reselected
     };
     let prior = basis.column_prior();
-    // Per selection: its rows (rebuilt under the chosen lights) and what its pixels measured.
-    let systems: Vec<(RenderingMatrix, Vec<[f64; 3]>)> = selections
+    // Per colour model and selection: its rows (rebuilt under the chosen lights) and what its
+    // pixels measured.
+    let systems: Vec<Vec<(RenderingMatrix, Vec<[f64; 3]>)>> = selections
         .iter()
-        .map(|(_, sel)| {
-            (
-                chosen_rows(basis, &prep.a, &sel.pixels, |_| Some(chosen_lights)),
-                sel.pixels.iter().map(|&p| y[p]).collect(),
-            )
+        .map(|per_count| {
+            per_count
+                .iter()
+                .map(|(_, sel)| {
+                    (
+                        chosen_rows(basis, &prep.a, &sel.pixels, |_| Some(chosen_lights)),
+                        sel.pixels.iter().map(|&p| y[p]).collect(),
+                    )
+                })
+                .collect()
         })
         .collect();
     let mut out = Vec::new();
     for method in METHODS {
-        for ((l, sel), (rows, chosen_y)) in selections.iter().zip(&systems) {
+        let ci = COLOUR_MODELS
+            .iter()
+            .position(|c| *c == method.colour)
+            .expect("every method's colour is selected for");
+        for ((l, sel), (rows, chosen_y)) in selections[ci].iter().zip(&systems[ci]) {
             let every: Vec<usize> = (0..chosen_y.len()).collect();
             let sol = method
                 .solver
