@@ -534,6 +534,13 @@ fn per_channel_selection_conditions_each_channel() {
     let five = select::fast_exchange(&channels, 5);
     assert_eq!(five.pixels, select::fast_exchange(&joint, 5).pixels);
     assert!(five.condition.is_infinite(), "{}", five.condition);
+    assert!(five
+        .condition_text()
+        .starts_with("infinite (fewer equations than unknowns"));
+    assert_eq!(
+        for_channels.condition_text(),
+        format!("{:.2}", for_channels.condition)
+    );
 }
 
 #[test]

@@ -168,11 +168,11 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         );
     }
     println!(
-        "{} of {} candidate pixels, solver {}, condition number {:.2}, relative residual {:.4} on the chosen pixels and {:.4} on all, {:.2} s",
+        "{} of {} candidate pixels, solver {}, condition number {}, relative residual {:.4} on the chosen pixels and {:.4} on all, {:.2} s",
         est.selection.pixels.len(),
         est.candidates,
         est.solver.name(),
-        est.selection.condition,
+        est.selection.condition_text(),
         est.solution.relative_residual,
         est.fit_error,
         total.elapsed().as_secs_f64()

@@ -43,6 +43,17 @@ pub struct Selection {
     pub elapsed: Duration,
 }
 
+impl Selection {
+    /// κ for a person to read: infinite says why rather than printing `inf`.
+    pub fn condition_text(&self) -> String {
+        if self.condition.is_finite() {
+            format!("{:.2}", self.condition)
+        } else {
+            "infinite (fewer equations than unknowns in a system; only the prior solves it)".into()
+        }
+    }
+}
+
 /// Parameters of the paper's search.
 #[derive(Clone, Debug)]
 pub struct SwapParams {

@@ -42,6 +42,12 @@ impl EventLog {
         let _ = self.live.send(e);
     }
 
+    /// Whether the session has sent its last event, `Finished`.
+    fn finished(&self) -> bool {
+        let h = self.history.lock().expect("event log");
+        matches!(h.last(), Some(Event::Finished { .. }))
+    }
+
     /// The history so far and a receiver for every later event.
     pub fn subscribe(&self) -> (Vec<Event>, broadcast::Receiver<Event>) {
         let h = self.history.lock().expect("event log");
@@ -54,6 +60,16 @@ struct Running {
     id: String,
     cancel: Cancel,
     thread: JoinHandle<()>,
+    log: Arc<EventLog>,
+}
+
+impl Running {
+    /// Over once its session has sent `Finished`, the flow's last act, and not only once the
+    /// thread has ended a moment later: a client that saw `Finished` must find the daemon
+    /// idle (a cancel then is `not_running`, a new capture is not `busy`).
+    fn over(&self) -> bool {
+        self.thread.is_finished() || self.log.finished()
+    }
 }
 
 pub struct Daemon {
@@ -115,7 +131,7 @@ impl Daemon {
     /// The id of the capture running now.
     pub fn busy(&self) -> Option<String> {
         let mut r = self.running.lock().expect("running");
-        if r.as_ref().is_some_and(|r| r.thread.is_finished()) {
+        if r.as_ref().is_some_and(Running::over) {
             *r = None;
         }
         r.as_ref().map(|r| r.id.clone())
@@ -159,7 +175,7 @@ impl Daemon {
 
     fn launch(&self, session: Session, plan: Plan) -> Result<Session, StartError> {
         let mut running = self.running.lock().expect("running");
-        if let Some(r) = running.as_ref().filter(|r| !r.thread.is_finished()) {
+        if let Some(r) = running.as_ref().filter(|r| !r.over()) {
             return Err(StartError::Busy(r.id.clone()));
         }
         let id = session.manifest.id.clone();
@@ -173,12 +189,13 @@ impl Daemon {
         }
         let cancel = Cancel::default();
         let reply = session.clone();
+        let thread_log = log.clone();
         let (devices, rig, c) = (self.devices.clone(), self.rig.clone(), cancel.clone());
         let thread = std::thread::Builder::new()
             .name(format!("capture-{id}"))
             .spawn(move || {
                 let mut session = session;
-                let progress = log.clone();
+                let progress = thread_log.clone();
                 let cx = Context {
                     rig: &rig,
                     devices: &devices,
@@ -193,7 +210,12 @@ impl Daemon {
                 }
             })
             .map_err(|e| StartError::Invalid(e.into()))?;
-        *running = Some(Running { id, cancel, thread });
+        *running = Some(Running {
+            id,
+            cancel,
+            thread,
+            log,
+        });
         Ok(reply)
     }
 
@@ -201,7 +223,7 @@ impl Daemon {
     pub fn cancel(&self, id: &str) -> bool {
         let r = self.running.lock().expect("running");
         match r.as_ref() {
-            Some(r) if r.id == id && !r.thread.is_finished() => {
+            Some(r) if r.id == id && !r.over() => {
                 r.cancel.cancel();
                 true
             }

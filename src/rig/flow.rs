@@ -90,21 +90,13 @@ impl Context<'_> {
 /// Runs the flow on a session. A failure is recorded in the manifest, and the session stays
 /// resumable; either way the last event is `Finished`.
 pub fn execute(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outcome> {
-    // Refused before anything is written when another process runs this session.
-    let _lock = session.claim()?;
-    let result = run(session, plan, cx);
-    let id = session.manifest.id.clone();
-    match result {
-        Ok(outcome) => {
-            cx.progress.event(Event::Finished {
-                session: id,
-                state: State::Done,
-                coefficients: Some(outcome.coefficients.clone()),
-                error: None,
-            });
-            Ok(outcome)
-        }
-        Err(e) => {
+    // (result, why it failed), with the failure recorded while the session is still claimed.
+    let (result, reason) = {
+        // Refused before anything is written when another process runs this session. The
+        // claim ends before `Finished` is sent: a client that saw it may resume at once.
+        let _lock = session.claim()?;
+        let result = run(session, plan, cx);
+        let reason = result.as_ref().err().map(|e| {
             let reason = if cx.cancel.is_cancelled() {
                 "cancelled; what was captured is kept".to_string()
             } else {
@@ -116,17 +108,26 @@ pub fn execute(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Resu
             if let Err(record) = session.set_state(State::Failed, Some(reason.clone())) {
                 tracing::error!("could not record the failure in the manifest: {record}");
             }
-            cx.progress.event(Event::Finished {
-                session: id.clone(),
-                state: State::Failed,
-                coefficients: None,
-                error: Some(reason),
-            });
-            Err(e.context(format!(
-                "session {id} failed; what was captured is kept: `brdfd session resume {id}` continues it"
-            )))
-        }
-    }
+            reason
+        });
+        (result, reason)
+    };
+    let id = session.manifest.id.clone();
+    cx.progress.event(Event::Finished {
+        session: id.clone(),
+        state: if result.is_ok() {
+            State::Done
+        } else {
+            State::Failed
+        },
+        coefficients: result.as_ref().ok().map(|o| o.coefficients.clone()),
+        error: reason,
+    });
+    result.map_err(|e| {
+        e.context(format!(
+            "session {id} failed; what was captured is kept: `brdfd session resume {id}` continues it"
+        ))
+    })
 }
 
 /// Wall time per phase, with the devices' share; each phase is announced as it starts and
@@ -445,10 +446,10 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     write_result(session, &basis, &est, lights)?;
     phases.end(p);
     cx.say(format!(
-        "{} pixels, solver {}, condition number {:.2}; the estimate re-renders the photo{} to a relative RMSE of {:.4} over {} pixels",
+        "{} pixels, solver {}, condition number {}; the estimate re-renders the photo{} to a relative RMSE of {:.4} over {} pixels",
         est.selection.pixels.len(),
         est.solver.name(),
-        est.selection.condition,
+        est.selection.condition_text(),
         if views.len() > 1 { "s" } else { "" },
         est.fit_error,
         est.candidates,
