@@ -178,11 +178,6 @@ impl Blocks {
         }
     }
 
-    /// Rows each system gets per pixel.
-    fn rows_per_pixel(&self) -> usize {
-        3 / self.systems
-    }
-
     /// The same rows as one joint system (each pixel's channel blocks summed).
     fn joint(&self) -> Blocks {
         let size = self.m * self.m;
@@ -214,27 +209,21 @@ impl Blocks {
         g
     }
 
-    /// κ of a set's systems: the worst one's.
-    fn kappa(&self, g: &Grams) -> f64 {
-        g.iter()
-            .take(self.systems)
-            .map(|gs| condition(gs, self.m))
-            .fold(0.0, f64::max)
+    /// κ of each system.
+    fn kappas<'g>(&self, g: &'g Grams) -> impl Iterator<Item = f64> + use<'g, '_> {
+        g.iter().take(self.systems).map(|gs| condition(gs, self.m))
     }
 
     /// What the searches minimise: κ, or per channel the sum of the channels' κ. The sum,
     /// not the worst, because an exchange on the worst stalls as soon as one channel stops
     /// improving, while the others could still be bettered.
     fn score(&self, g: &Grams) -> f64 {
-        g.iter()
-            .take(self.systems)
-            .map(|gs| condition(gs, self.m))
-            .sum()
+        self.kappas(g).sum()
     }
 
     /// κ of the stacked rows of `set` (per channel: the worst channel's).
     pub fn condition(&self, set: &[usize]) -> f64 {
-        self.kappa(&self.sum(set))
+        self.kappas(&self.sum(set)).fold(0.0, f64::max)
     }
 }
 
@@ -242,7 +231,8 @@ impl Blocks {
 /// leave every channel singular for every set, so κ cannot tell sets apart; the joint
 /// system's κ still can.
 fn guide(blocks: &Blocks, count: usize) -> std::borrow::Cow<'_, Blocks> {
-    if blocks.systems > 1 && count * blocks.rows_per_pixel() < blocks.m {
+    // Each of three systems gets one row per pixel.
+    if blocks.systems > 1 && count < blocks.m {
         std::borrow::Cow::Owned(blocks.joint())
     } else {
         std::borrow::Cow::Borrowed(blocks)
