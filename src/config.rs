@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Deserializer};
 
 use crate::core::geometry::SceneGeometry;
-use crate::core::solve::{Colour, Solver};
+use crate::core::solve::{ColourChoice, Solver};
 use crate::selector::Selector;
 
 #[derive(Debug, thiserror::Error)]
@@ -191,9 +191,10 @@ pub struct MaterialPreset {
     /// How coefficients are solved: `prior` (the default) or `least-squares` (the paper's).
     #[serde(default)]
     pub solve: Solver,
-    /// How colour is modelled: `joint` (the default, the paper's) or `per-channel`.
+    /// How colour is modelled: `joint` (the paper's), `per-channel`, or `auto` (the default:
+    /// both, keeping the better fit to the photo).
     #[serde(default)]
-    pub colour: Colour,
+    pub colour: ColourChoice,
     #[serde(default)]
     pub notes: String,
 }
@@ -551,11 +552,12 @@ mod tests {
             )
             .map(|p| p.colour)
         };
-        assert_eq!(parse("").unwrap(), Colour::Joint);
+        assert_eq!(parse("").unwrap(), ColourChoice::Auto);
         assert_eq!(
             parse("colour = \"per-channel\"\n").unwrap(),
-            Colour::PerChannel
+            ColourChoice::PerChannel
         );
+        assert_eq!(parse("colour = \"joint\"\n").unwrap(), ColourChoice::Joint);
         let e = parse("colour = \"rgb\"\n").unwrap_err().to_string();
         assert!(e.contains("m.toml") && e.contains("colour"), "{e}");
     }

@@ -1,6 +1,7 @@
 //! Writing an estimate's results: `coefficients.json`, the bivariate BRDF as EXR, the full
 //! MERL `.binary`, and a preview render. Used by `brdfd estimate` and the capture flow.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
@@ -27,8 +28,12 @@ pub struct CoefficientsFile<'a> {
     /// `least-squares` (the paper's) or `prior` (with the training set's prior; README).
     pub solver: &'a str,
     /// `joint` (one set of coefficients for all channels, the paper's) or `per-channel`
-    /// (`coefficients` holds the R, G and B sets in turn, named in `columns`).
+    /// (`coefficients` holds the R, G and B sets in turn, named in `columns`): the model that
+    /// gave these coefficients.
     pub colour: &'a str,
+    /// Each colour model tried and its `fit_error`: both when the choice was `auto`, which
+    /// keeps the lower.
+    pub colour_fits: BTreeMap<&'a str, f64>,
     /// (x, y) image positions of the pixels used (omitted for all-pixel estimates).
     pub chosen_pixels: Vec<(u32, u32)>,
     /// The view (turntable position, 0 for the first) of each chosen pixel.
@@ -95,6 +100,11 @@ pub fn write_results(
         selection_method: if all { "all" } else { method },
         solver: estimate.solver.name(),
         colour: estimate.colour.name(),
+        colour_fits: estimate
+            .colour_fits
+            .iter()
+            .map(|(c, fit)| (c.name(), *fit))
+            .collect(),
         chosen_pixels: if all {
             Vec::new()
         } else {

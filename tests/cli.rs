@@ -190,7 +190,9 @@ fn estimate_from_files() {
         assert!(o.status.success(), "{stdout}\n{stderr}");
         coefficients_json(dir.path(), out)
     };
-    let json = estimate(&[], "est");
+    // The paper's colour model first; the default (auto) is checked against it below.
+    let joint = ["--colour", "joint"];
+    let json = estimate(&joint, "est");
     assert_eq!(json["k"], 5);
     assert_eq!(json["pixel_count"], 20);
     assert_eq!(json["solver"], "prior");
@@ -200,12 +202,18 @@ fn estimate_from_files() {
     // default 65,536, so under every one of them. `--chosen-lights 0` keeps the candidates'.
     assert_eq!(json["lights"], 4096);
     assert_eq!(json["chosen_lights"], map.width * map.height);
-    let coarse = estimate(&["--chosen-lights", "0"], "est-coarse");
+    let coarse = estimate(
+        &[&joint[..], &["--chosen-lights", "0"]].concat(),
+        "est-coarse",
+    );
     assert_eq!(coarse["chosen_lights"], 0);
     assert_eq!(coarse["chosen_pixels"], json["chosen_pixels"]);
     assert_ne!(coarse["coefficients"], json["coefficients"]);
     // The paper's solver on the same pixels: named in the file, and the coefficients differ.
-    let ls = estimate(&["--solve", "least-squares"], "est-ls");
+    let ls = estimate(
+        &[&joint[..], &["--solve", "least-squares"]].concat(),
+        "est-ls",
+    );
     assert_eq!(ls["solver"], "least-squares");
     assert_eq!(ls["chosen_pixels"], json["chosen_pixels"]);
     assert_ne!(ls["coefficients"], json["coefficients"]);
@@ -219,6 +227,25 @@ fn estimate_from_files() {
     assert_eq!(pc["columns"][6], "mean.G");
     assert_ne!(pc["chosen_pixels"], json["chosen_pixels"]);
     assert!(pc["condition_number"].as_f64().unwrap().is_finite());
+    // The default tries both and keeps the better fit to the photo, naming both fits; its
+    // result is the kept model's, pixel for pixel.
+    let auto = estimate(&[], "est-auto");
+    let fits = &auto["colour_fits"];
+    assert_eq!(fits["joint"], json["fit_error"]);
+    assert_eq!(fits["per-channel"], pc["fit_error"]);
+    let kept = if auto["colour"] == "joint" {
+        &json
+    } else {
+        &pc
+    };
+    for field in ["colour", "coefficients", "chosen_pixels", "fit_error"] {
+        assert_eq!(auto[field], kept[field], "{field}");
+    }
+    let (j, p) = (
+        fits["joint"].as_f64().unwrap(),
+        fits["per-channel"].as_f64().unwrap(),
+    );
+    assert_eq!(auto["colour"] == "per-channel", p < j - 1e-3, "fits {fits}");
     let o = brdfd(
         &[
             "render",

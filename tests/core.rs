@@ -13,7 +13,7 @@ use brdfd::core::merl::MerlBrdf;
 use brdfd::core::raster::Raster;
 use brdfd::core::render::{render_bivariate, render_full, render_merl, RenderingMatrix};
 use brdfd::core::select::{self, Blocks, SwapParams};
-use brdfd::core::solve::Solver;
+use brdfd::core::solve::{Colour, ColourChoice, Solver};
 
 /// The embedded basis's rendering matrix for a sphere under the studio map.
 fn studio_matrix(basis: &Basis, size: usize) -> RenderingMatrix {
@@ -39,6 +39,15 @@ fn in_span_gold(basis: &Basis) -> Vec<f64> {
         basis.header.grid,
     );
     basis.project(&truth)
+}
+
+/// [`in_span_gold`] and its render on a 48² sphere under the studio map.
+fn in_span_gold_photo(basis: &Basis) -> (Vec<f64>, PixelGeometry, LightSet, Raster) {
+    let c_true = in_span_gold(basis);
+    let g = sphere(48);
+    let lights = studio_envmap(256).compressed(2048, 0.0);
+    let photo = render_bivariate(&g, &lights, &basis.reconstruct(&c_true));
+    (c_true, g, lights, photo)
 }
 
 /// One view whose chosen pixels keep their candidate rows (no finer lights).
@@ -170,11 +179,11 @@ fn per_channel_colour_recovers_what_the_joint_basis_cannot() {
             };
             estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap()
         };
-        let per_channel = run(Colour::PerChannel);
+        let per_channel = run(ColourChoice::PerChannel);
         assert_eq!(per_channel.names.len(), 3 * m);
         assert_eq!(per_channel.names[m], "mean.G");
         let err = relative_error(&per_channel.solution.coefficients, &truth);
-        let joint = run(Colour::Joint);
+        let joint = run(ColourChoice::Joint);
         eprintln!(
             "{pixels:?} pixels: per-channel coefficient error {err:.1e}, fit {:.1e}; joint fit {:.3}",
             per_channel.fit_error, joint.fit_error
@@ -183,6 +192,22 @@ fn per_channel_colour_recovers_what_the_joint_basis_cannot() {
         assert!(err < 1e-4, "{pixels:?} pixels: per-channel error {err}");
         assert!(per_channel.fit_error < 1e-5, "{}", per_channel.fit_error);
         assert!(joint.fit_error > 0.05, "joint fit {}", joint.fit_error);
+        // The automatic choice tries both and keeps per channel, the better fit: the same
+        // pixels and coefficients as asking for it.
+        let auto = run(ColourChoice::Auto);
+        assert_eq!(auto.colour, Colour::PerChannel);
+        assert_eq!(
+            auto.solution.coefficients,
+            per_channel.solution.coefficients
+        );
+        assert_eq!(auto.selection.pixels, per_channel.selection.pixels);
+        assert_eq!(
+            auto.colour_fits,
+            [
+                (Colour::Joint, joint.fit_error),
+                (Colour::PerChannel, per_channel.fit_error)
+            ]
+        );
         let back = basis
             .reconstruct_solution(&per_channel.solution.coefficients)
             .unwrap();
@@ -195,16 +220,36 @@ fn per_channel_colour_recovers_what_the_joint_basis_cannot() {
     );
 }
 
+/// The automatic colour choice keeps the paper's joint model unless per channel re-renders
+/// the photo better by more than `COLOUR_FIT_MARGIN`. An in-span joint BRDF is a tie (both
+/// models hold it, and both fit to f32 rounding), which rounding must not decide.
+#[test]
+fn auto_colour_keeps_joint_on_a_tie() {
+    use brdfd::core::estimate::COLOUR_FIT_MARGIN;
+    let basis = Basis::embedded();
+    let (c_true, g, lights, photo) = in_span_gold_photo(&basis);
+    let opts = EstimateOptions {
+        solver: Solver::LeastSquares,
+        colour: ColourChoice::Auto,
+        ..Default::default()
+    };
+    let est = estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap();
+    let fits: Vec<(Colour, f64)> = est.colour_fits.clone();
+    eprintln!("in span: fits {fits:?}");
+    // Measured: joint 1.01e-6, per channel 1.05e-6.
+    assert_eq!(fits.len(), 2);
+    assert!(fits.iter().all(|(_, f)| *f < COLOUR_FIT_MARGIN));
+    assert_eq!(est.colour, Colour::Joint);
+    assert!(relative_error(&est.solution.coefficients, &c_true) < 1e-4);
+}
+
 /// A photo with clipped highlights: the clipped values are lower bounds, and fitting them as
 /// values drags the estimate. Told the white level, the estimate leaves those pixels out and
 /// recovers in-span coefficients as if nothing had clipped.
 #[test]
 fn clipped_pixels_are_left_out() {
     let basis = Basis::embedded();
-    let c_true = in_span_gold(&basis);
-    let g = sphere(48);
-    let lights = studio_envmap(256).compressed(2048, 0.0);
-    let mut photo = render_bivariate(&g, &lights, &basis.reconstruct(&c_true));
+    let (c_true, g, lights, mut photo) = in_span_gold_photo(&basis);
     let mut values: Vec<f32> = photo.pixels.iter().flatten().copied().collect();
     values.sort_by(f32::total_cmp);
     let white = values[values.len() * 99 / 100];
@@ -215,6 +260,8 @@ fn clipped_pixels_are_left_out() {
         let opts = EstimateOptions {
             pixel_count: None,
             solver: Solver::LeastSquares,
+            // The truth is a joint-colour BRDF; per channel would fit the clipped values too.
+            colour: ColourChoice::Joint,
             white,
             ..Default::default()
         };
@@ -258,6 +305,8 @@ fn the_prior_steadies_few_pixel_estimates_under_grace() {
             let opts = EstimateOptions {
                 pixel_count: Some(5),
                 solver,
+                // The paper's model: its least squares solves 5 pixels, per channel cannot.
+                colour: ColourChoice::Joint,
                 ..Default::default()
             };
             let est = estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap();
@@ -754,7 +803,12 @@ fn turntable_views_recover_the_coefficients_and_improve_conditioning() {
     // The turned views see different normals: the sheet is not symmetric about +Y.
     assert_ne!(views[0].3.pixels, views[1].3.pixels);
 
-    let twenty = EstimateOptions::default();
+    // The truth is a joint-colour BRDF, and the coarse rows' compression error could make
+    // an automatic choice pick per channel.
+    let twenty = EstimateOptions {
+        colour: ColourChoice::Joint,
+        ..EstimateOptions::default()
+    };
     let est = estimate_views(&basis, &as_views(3, true), &twenty).unwrap();
     assert_eq!(est.chosen_lights, views[0].2.len());
     let err = relative_error(&est.solution.coefficients, &c_true);
@@ -773,7 +827,7 @@ fn turntable_views_recover_the_coefficients_and_improve_conditioning() {
 
     let all = EstimateOptions {
         pixel_count: None,
-        ..EstimateOptions::default()
+        ..twenty.clone()
     };
     let one = estimate_views(&basis, &as_views(1, true), &all)
         .unwrap()

@@ -50,7 +50,7 @@ pub struct CaptureArgs {
     /// "Evaluation").
     #[arg(long, value_enum)]
     pub solve: Option<SolveArg>,
-    /// How colour is modelled; the material preset's, else `joint` (README, "Evaluation").
+    /// How colour is modelled; the material preset's, else `auto` (README, "Colour").
     #[arg(long, value_enum)]
     pub colour: Option<ColourArg>,
     /// Shutter speeds of the DSLR's exposure bracket, in seconds; the material preset's,

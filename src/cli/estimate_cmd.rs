@@ -14,7 +14,7 @@ use brdfd::core::nbrdf::NbrdfSet;
 use brdfd::core::raster::Raster;
 use brdfd::core::render::{render_bivariate, render_merl};
 use brdfd::core::select::SwapParams;
-use brdfd::core::solve::{Colour, Solver};
+use brdfd::core::solve::{ColourChoice, Solver};
 use brdfd::results::write_results;
 
 use super::GeometryArgs;
@@ -42,9 +42,10 @@ pub struct EstimateArgs {
     /// least squares as in the paper (see the README's evaluation).
     #[arg(long, value_enum, default_value = "prior")]
     pub solve: SolveArg,
-    /// How colour is modelled: one set of coefficients for all channels (the paper's), or one
-    /// per channel, which leaves colour free (see the README's evaluation).
-    #[arg(long, value_enum, default_value = "joint")]
+    /// How colour is modelled: one set of coefficients for all channels (the paper's), one
+    /// per channel, which leaves colour free, or both, keeping the better fit to the photo
+    /// (see the README's method and evaluation).
+    #[arg(long, value_enum, default_value = "auto")]
     pub colour: ColourArg,
     /// Basis stem (STEM.exr + STEM.json); the embedded default if absent.
     #[arg(long)]
@@ -91,13 +92,15 @@ impl From<SolveArg> for Solver {
 pub enum ColourArg {
     Joint,
     PerChannel,
+    Auto,
 }
 
-impl From<ColourArg> for Colour {
-    fn from(a: ColourArg) -> Colour {
+impl From<ColourArg> for ColourChoice {
+    fn from(a: ColourArg) -> ColourChoice {
         match a {
-            ColourArg::Joint => Colour::Joint,
-            ColourArg::PerChannel => Colour::PerChannel,
+            ColourArg::Joint => ColourChoice::Joint,
+            ColourArg::PerChannel => ColourChoice::PerChannel,
+            ColourArg::Auto => ColourChoice::Auto,
         }
     }
 }
@@ -168,10 +171,11 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         );
     }
     println!(
-        "{} of {} candidate pixels, solver {}, condition number {}, relative residual {:.4} on the chosen pixels and {:.4} on all, {:.2} s",
+        "{} of {} candidate pixels, solver {}, {}, condition number {}, relative residual {:.4} on the chosen pixels and {:.4} on all, {:.2} s",
         est.selection.pixels.len(),
         est.candidates,
         est.solver.name(),
+        est.colour_text(),
         est.selection.condition_text(),
         est.solution.relative_residual,
         est.fit_error,

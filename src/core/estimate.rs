@@ -13,7 +13,7 @@ use super::geometry::{GeomPixel, PixelGeometry};
 use super::raster::Raster;
 use super::render::RenderingMatrix;
 use super::select::{self, Blocks, Selection, SwapParams};
-use super::solve::{channel_coefficients, Colour, Solution, Solver};
+use super::solve::{channel_coefficients, Colour, ColourChoice, Solution, Solver};
 
 /// Chosen pixels whose rows are rebuilt with the view's finer lights at most (see
 /// [`chosen_rows`]): 20 pixels under 65,536 lights cost about as much as 320 under the
@@ -44,7 +44,7 @@ pub struct EstimateOptions {
     pub swap: SwapParams,
     pub max_candidates: usize,
     pub solver: Solver,
-    pub colour: Colour,
+    pub colour: ColourChoice,
     /// The photo's white level, if it has one: a value at or above it was clipped, so it is
     /// only a lower bound on the radiance. Pixels with a clipped channel are not candidates.
     /// 8-bit photos have one (1.0 after decoding); an HDR merge or a linear EXR usually not.
@@ -59,7 +59,7 @@ impl Default for EstimateOptions {
             swap: SwapParams::default(),
             max_candidates: DEFAULT_MAX_CANDIDATES,
             solver: Solver::default(),
-            colour: Colour::default(),
+            colour: ColourChoice::default(),
             white: None,
         }
     }
@@ -81,7 +81,11 @@ pub struct Estimate {
     pub names: Vec<String>,
     pub solution: Solution,
     pub solver: Solver,
+    /// The model that gave this estimate (with [`ColourChoice::Auto`], the better fit).
     pub colour: Colour,
+    /// Each model tried, with its fit ([`Estimate::fit_error`]); one unless the choice was
+    /// [`ColourChoice::Auto`].
+    pub colour_fits: Vec<(Colour, f64)>,
     pub selection: Selection,
     /// Image positions (x, y) of the chosen pixels.
     pub chosen: Vec<(u32, u32)>,
@@ -98,6 +102,17 @@ pub struct Estimate {
     /// candidates' rows.
     pub chosen_lights: usize,
     pub timings: Timings,
+}
+
+/// How much better (in [`Estimate::fit_error`], a relative RMSE) a colour model with more
+/// unknowns must re-render the photo to be kept over one with fewer. Below 0.1% of the
+/// photo's RMS the fits agree: an in-span joint BRDF fits both to rounding, and the model
+/// with fewer unknowns, the paper's, should win that tie rather than rounding deciding it.
+pub const COLOUR_FIT_MARGIN: f64 = 1e-3;
+
+/// Whether a fit `candidate` beats the `kept` one of a model with fewer unknowns.
+pub fn fits_better(candidate: f64, kept: f64) -> bool {
+    candidate < kept - COLOUR_FIT_MARGIN
 }
 
 /// Spreads `max` picks evenly over `0..n` (deterministic, keeps the image's coverage).
@@ -163,11 +178,16 @@ pub fn candidate_matrix(
     Ok((a, observed, clipped))
 }
 
-/// The pixels `options` asks for, chosen on a prepared rendering matrix.
-/// Selection conditions the systems the solve will use: one joint system, or one per channel
-/// for [`Colour::PerChannel`] (see [`Blocks`]).
-pub fn select_pixels(basis: &Basis, a: &RenderingMatrix, options: &EstimateOptions) -> Selection {
-    let blocks = Blocks::for_colour(a, &basis.column_scales(), options.colour);
+/// The pixels `options` asks for, chosen on a prepared rendering matrix for a solve with
+/// `colour`: selection conditions the systems that solve will use, one joint system or one
+/// per channel (see [`Blocks`]).
+pub fn select_pixels(
+    basis: &Basis,
+    a: &RenderingMatrix,
+    options: &EstimateOptions,
+    colour: Colour,
+) -> Selection {
+    let blocks = Blocks::for_colour(a, &basis.column_scales(), colour);
     match options.pixel_count {
         None => select::all_pixels(&blocks),
         Some(l) => match options.method {
@@ -219,17 +239,19 @@ fn rebuilds_rows(chosen: usize) -> bool {
     chosen <= MAX_CHOSEN_ROWS
 }
 
-/// Selection, the chosen rows ([`chosen_rows`]) and the solve, on a prepared rendering matrix.
+/// Selection, the chosen rows ([`chosen_rows`]) and the solve with `colour`, on a prepared
+/// rendering matrix.
 pub fn estimate_from_matrix<'l>(
     basis: &Basis,
     a: &RenderingMatrix,
     observed: &[[f64; 3]],
     options: &EstimateOptions,
+    colour: Colour,
     lights_of: impl Fn(usize) -> Option<&'l LightSet>,
 ) -> Result<(Selection, Solution, Timings)> {
     let mut timings = Timings::default();
     let t = Instant::now();
-    let selection = select_pixels(basis, a, options);
+    let selection = select_pixels(basis, a, options, colour);
     timings.selection_s = secs(t.elapsed());
     let t = Instant::now();
     let rows = chosen_rows(basis, a, &selection.pixels, lights_of);
@@ -238,7 +260,7 @@ pub fn estimate_from_matrix<'l>(
     let t = Instant::now();
     let all_rows: Vec<usize> = (0..rows.pixels.len()).collect();
     let solution = options.solver.solve_colour(
-        options.colour,
+        colour,
         &rows,
         &all_rows,
         &chosen_observed,
@@ -303,11 +325,41 @@ pub fn estimate_views(
     let (a, observed) =
         stacked.ok_or_else(|| CoreError::Invalid("no views to estimate from".into()))?;
     let matrix_s = secs(t.elapsed());
-    let (selection, solution, mut timings) =
-        estimate_from_matrix(basis, &a, &observed, options, |p| {
+    // Each model the choice names, fewer unknowns first, keeping the one that re-renders the
+    // photo best ([`fits_better`]). A model that cannot solve (say, least squares per channel
+    // on fewer pixels than unknowns) is left out while another remains.
+    let mut timings = Timings {
+        rendering_matrix_s: matrix_s,
+        ..Timings::default()
+    };
+    let mut best: Option<(Colour, Selection, Solution, f64)> = None;
+    let mut colour_fits = Vec::new();
+    let mut failure = None;
+    for &colour in options.colour.models() {
+        let tried = estimate_from_matrix(basis, &a, &observed, options, colour, |p| {
             views[view_of_pixel[p]].chosen_lights
-        })?;
-    timings.rendering_matrix_s = matrix_s;
+        });
+        let (selection, solution, t) = match tried {
+            Ok(done) => done,
+            Err(e) => {
+                tracing::warn!(colour = colour.name(), "colour model left out: {e}");
+                failure = Some(e);
+                continue;
+            }
+        };
+        timings.selection_s += t.selection_s;
+        timings.chosen_rows_s += t.chosen_rows_s;
+        timings.solve_s += t.solve_s;
+        let per_channel = channel_coefficients(&solution.coefficients, a.columns)?;
+        let fit = relative_misfit(&a.predict_per_channel(per_channel), &observed);
+        colour_fits.push((colour, fit));
+        if best.as_ref().is_none_or(|b| fits_better(fit, b.3)) {
+            best = Some((colour, selection, solution, fit));
+        }
+    }
+    let Some((colour, selection, solution, fit_error)) = best else {
+        return Err(failure.expect("every colour choice names a model"));
+    };
     let chosen_lights = views
         .first()
         .and_then(|v| v.chosen_lights)
@@ -319,13 +371,12 @@ pub fn estimate_views(
         .map(|&p| (a.pixels[p].x, a.pixels[p].y))
         .collect();
     let chosen_views = selection.pixels.iter().map(|&p| view_of_pixel[p]).collect();
-    let per_channel = channel_coefficients(&solution.coefficients, a.columns)?;
-    let fit_error = relative_misfit(&a.predict_per_channel(per_channel), &observed);
     Ok(Estimate {
-        names: options.colour.names(&basis.model().names),
+        names: colour.names(&basis.model().names),
         solution,
         solver: options.solver,
-        colour: options.colour,
+        colour,
+        colour_fits,
         selection,
         chosen,
         chosen_views,
@@ -339,7 +390,7 @@ pub fn estimate_views(
 }
 
 /// ‖predicted − observed‖ / ‖observed‖ over every pixel and channel.
-fn relative_misfit(predicted: &[f64], observed: &[[f64; 3]]) -> f64 {
+pub fn relative_misfit(predicted: &[f64], observed: &[[f64; 3]]) -> f64 {
     let (mut num, mut den) = (0.0, 0.0);
     for (p, o) in predicted.chunks_exact(3).zip(observed) {
         for c in 0..3 {
@@ -351,6 +402,26 @@ fn relative_misfit(predicted: &[f64], observed: &[[f64; 3]]) -> f64 {
 }
 
 impl Estimate {
+    /// The colour model for a person to read, and when several were tried, why this one.
+    pub fn colour_text(&self) -> String {
+        let others: Vec<String> = self
+            .colour_fits
+            .iter()
+            .filter(|(c, _)| *c != self.colour)
+            .map(|(c, fit)| format!("{} {fit:.4}", c.name()))
+            .collect();
+        if others.is_empty() {
+            format!("colour {}", self.colour.name())
+        } else {
+            format!(
+                "colour {} (the better fit to the photo: {:.4} against {})",
+                self.colour.name(),
+                self.fit_error,
+                others.join(", ")
+            )
+        }
+    }
+
     pub fn brdf(&self, basis: &Basis) -> Bivariate {
         basis
             .reconstruct_solution(&self.solution.coefficients)

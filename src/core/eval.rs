@@ -10,8 +10,9 @@
 //!   weighting (the "normalised" BRDF of the paper: each material relative to its own scale);
 //!   image error = relative RMSE of the re-render against the ground-truth image.
 //! - Leave-one-out over all 100 materials (basis from the other 99), and a second lighting.
-//! - Three methods: the paper's least squares, ours with the training set's prior, and the prior
-//!   with one set of coefficients per colour channel ([`METHODS`]).
+//! - Four methods: the paper's least squares, ours with the training set's prior, the prior
+//!   with one set of coefficients per colour channel, and brdfd's default, which keeps the
+//!   prior's joint or per-channel estimate, whichever fits the photo better ([`METHODS`]).
 //!
 //! Selection depends only on the basis, the lights and the geometry, not on the material, so
 //! it runs once per lighting and pixel count, as it would before a real measurement.
@@ -27,14 +28,14 @@ use super::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
 use super::bivariate::{Bivariate, Grid, GRID_CELLS};
 use super::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use super::error::{CoreError, Result};
-use super::estimate::chosen_rows;
+use super::estimate::{chosen_rows, fits_better, relative_misfit};
 use super::geometry::{Camera, PixelGeometry, Shape};
 use super::merl::MerlBrdf;
 use super::nbrdf::NbrdfSet;
 use super::raster::Raster;
 use super::render::{render_bivariate, render_merl, RenderingMatrix};
 use super::select::{self, Blocks, Selection};
-use super::solve::{channel_coefficients, Colour, Solver};
+use super::solve::{channel_coefficients, Colour, ColourChoice, Solver};
 
 pub const TEST_SET: [&str; 10] = [
     "black-soft-plastic",
@@ -67,32 +68,39 @@ pub const LOO_SIZE: usize = 128;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Method {
     pub solver: Solver,
-    pub colour: Colour,
+    pub colour: ColourChoice,
 }
 
 impl Method {
-    /// `least-squares`, `prior`, `prior-per-channel`: the name in tables, CSV and file names.
+    /// `least-squares`, `prior`, `prior-per-channel`, `prior-auto`: the name in tables, CSV
+    /// and file names.
     pub fn name(self) -> String {
         match self.colour {
-            Colour::Joint => self.solver.name().to_string(),
+            ColourChoice::Joint => self.solver.name().to_string(),
             other => format!("{}-{}", self.solver.name(), other.name()),
         }
     }
 }
 
 /// The methods compared, the paper's first.
-pub const METHODS: [Method; 3] = [
+pub const METHODS: [Method; 4] = [
     Method {
         solver: Solver::LeastSquares,
-        colour: Colour::Joint,
+        colour: ColourChoice::Joint,
     },
     Method {
         solver: Solver::Prior,
-        colour: Colour::Joint,
+        colour: ColourChoice::Joint,
     },
     Method {
         solver: Solver::Prior,
-        colour: Colour::PerChannel,
+        colour: ColourChoice::PerChannel,
+    },
+    // brdfd's default: the prior's joint or per-channel estimate, whichever re-renders the
+    // photo better. It is picked from the two above, so it costs no solve of its own.
+    Method {
+        solver: Solver::Prior,
+        colour: ColourChoice::Auto,
     },
 ];
 
@@ -319,18 +327,25 @@ fn estimate_all(
                 .collect()
         })
         .collect();
-    let mut out = Vec::new();
+    let mut out: Vec<Outcome> = Vec::new();
+    // How well each outcome re-renders the photo over the candidates, as `brdfd estimate`
+    // measures it (`Estimate::fit_error`).
+    let mut fits = Vec::new();
     for method in METHODS {
+        let [colour] = method.colour.models() else {
+            continue; // a choice between models: picked below
+        };
         let ci = COLOUR_MODELS
             .iter()
-            .position(|c| *c == method.colour)
+            .position(|c| c == colour)
             .expect("every method's colour is selected for");
         for ((l, sel), (rows, chosen_y)) in selections[ci].iter().zip(&systems[ci]) {
             let every: Vec<usize> = (0..chosen_y.len()).collect();
             let sol = method
                 .solver
-                .solve_colour(method.colour, rows, &every, chosen_y, &prior)?;
+                .solve_colour(*colour, rows, &every, chosen_y, &prior)?;
             let img = predicted_image(&prep.a, &sol.coefficients, photo.width, photo.height);
+            fits.push(photo_fit(&prep.a, &sol.coefficients, &y, &keep));
             out.push((
                 *l,
                 method,
@@ -340,7 +355,45 @@ fn estimate_all(
             ));
         }
     }
+    // A choice between models takes, per pixel count, the outcome of its solver whose model
+    // fits the photo best, as `brdfd estimate` does (fewer unknowns first: [`METHODS`] lists
+    // joint before per channel).
+    for method in METHODS.iter().filter(|m| m.colour.models().len() > 1) {
+        let member = |m: &Method| {
+            m.solver == method.solver
+                && m.colour
+                    .models()
+                    .iter()
+                    .all(|c| method.colour.models().contains(c))
+        };
+        for l in PIXEL_COUNTS {
+            let best = out
+                .iter()
+                .zip(&fits)
+                .filter(|(o, _)| o.0 == l && member(&o.1))
+                .fold(None, |kept: Option<(&Outcome, f64)>, (o, fit)| match kept {
+                    Some((_, k)) if !fits_better(*fit, k) => kept,
+                    _ => Some((o, *fit)),
+                })
+                .map(|(o, _)| o.clone());
+            if let Some((l, _, brdf, render, condition)) = best {
+                out.push((l, *method, brdf, render, condition));
+            }
+        }
+    }
     Ok(out)
+}
+
+/// ‖A·c − y‖ / ‖y‖ over the pixels `keep`.
+fn photo_fit(a: &RenderingMatrix, c: &[f64], y: &[[f64; 3]], keep: &[usize]) -> f64 {
+    let per_channel = channel_coefficients(c, a.columns).expect("a solution of this matrix");
+    let predicted = a.predict_per_channel(per_channel);
+    let kept: Vec<f64> = keep
+        .iter()
+        .flat_map(|&p| predicted[3 * p..3 * p + 3].iter().copied())
+        .collect();
+    let observed: Vec<[f64; 3]> = keep.iter().map(|&p| y[p]).collect();
+    relative_misfit(&kept, &observed)
 }
 
 fn method_index(m: Method) -> usize {

@@ -84,13 +84,12 @@ impl Solver {
 pub const CHANNELS: [&str; 3] = ["R", "G", "B"];
 
 /// How colour is modelled.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Colour {
     /// One set of coefficients for all three channels, as in the paper: each basis vector is
     /// an RGB pattern, so an estimate's colour is a blend of the training set's component
     /// colours (gold can come out red, chrome green).
-    #[default]
     Joint,
     /// One set of coefficients per channel: channel c is the basis's channel-c planes combined
     /// with its own coefficients, so colour is free. Three times the unknowns, each channel
@@ -114,6 +113,40 @@ impl Colour {
                 .iter()
                 .flat_map(|c| model.iter().map(move |n| format!("{n}.{c}")))
                 .collect(),
+        }
+    }
+}
+
+/// The colour model an estimate is asked for (`--colour`, a preset's `colour`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ColourChoice {
+    Joint,
+    PerChannel,
+    /// Both, keeping the estimate that re-renders the photo better over every candidate
+    /// pixel (not only the chosen ones, so the per-channel model's three times as many
+    /// unknowns cannot win by fitting its own pixels). The default: per channel fixes the
+    /// colour of coloured materials, but tints mirrors, whose joint estimate fits better
+    /// (README, "Colour").
+    #[default]
+    Auto,
+}
+
+impl ColourChoice {
+    /// The models an estimate tries.
+    pub fn models(self) -> &'static [Colour] {
+        match self {
+            ColourChoice::Joint => &[Colour::Joint],
+            ColourChoice::PerChannel => &[Colour::PerChannel],
+            ColourChoice::Auto => &[Colour::Joint, Colour::PerChannel],
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ColourChoice::Joint => "joint",
+            ColourChoice::PerChannel => "per-channel",
+            ColourChoice::Auto => "auto",
         }
     }
 }

@@ -446,9 +446,10 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     write_result(session, &basis, &est, lights)?;
     phases.end(p);
     cx.say(format!(
-        "{} pixels, solver {}, condition number {}; the estimate re-renders the photo{} to a relative RMSE of {:.4} over {} pixels",
+        "{} pixels, solver {}, {}, condition number {}; the estimate re-renders the photo{} to a relative RMSE of {:.4} over {} pixels",
         est.selection.pixels.len(),
         est.solver.name(),
+        est.colour_text(),
         est.selection.condition_text(),
         if views.len() > 1 { "s" } else { "" },
         est.fit_error,

@@ -24,7 +24,7 @@ use brdfd_theta::Theta;
 use serde::{Deserialize, Serialize};
 
 use crate::config::Rig;
-use crate::core::solve::{Colour, Solver};
+use crate::core::solve::{ColourChoice, Solver};
 use crate::selector::Selector;
 pub use worker::{Device, DeviceStatus, Worker};
 
@@ -44,9 +44,9 @@ pub struct Plan {
     /// How the coefficients are solved: "prior" or "least-squares"; the preset's, else prior.
     #[serde(default)]
     pub solve: Option<Solver>,
-    /// How colour is modelled: "joint" or "per-channel"; the preset's, else joint.
+    /// How colour is modelled: "joint", "per-channel" or "auto"; the preset's, else auto.
     #[serde(default)]
-    pub colour: Option<Colour>,
+    pub colour: Option<ColourChoice>,
     /// DSLR shutter speeds, seconds; the preset's, else the rig's.
     #[serde(default)]
     pub bracket: Vec<f64>,
