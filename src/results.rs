@@ -32,7 +32,7 @@ pub struct CoefficientsFile<'a> {
     /// gave these coefficients.
     pub colour: &'a str,
     /// Each colour model tried and its `fit_error`: both when the choice was `auto`, which
-    /// keeps the lower.
+    /// keeps joint unless per channel's is lower by more than 0.001 (`COLOUR_FIT_MARGIN`).
     pub colour_fits: BTreeMap<&'a str, f64>,
     /// (x, y) image positions of the pixels used (omitted for all-pixel estimates).
     pub chosen_pixels: Vec<(u32, u32)>,
