@@ -110,9 +110,14 @@ pub struct Estimate {
 /// with fewer unknowns, the paper's, should win that tie rather than rounding deciding it.
 pub const COLOUR_FIT_MARGIN: f64 = 1e-3;
 
-/// Whether a fit `candidate` beats the `kept` one of a model with fewer unknowns.
-pub fn fits_better(candidate: f64, kept: f64) -> bool {
-    candidate < kept - COLOUR_FIT_MARGIN
+/// The rule `auto` chooses by, for estimates offered in order of increasing unknowns, each
+/// with its fit: the `candidate` replaces the `kept` one only if it fits better by more than
+/// [`COLOUR_FIT_MARGIN`]. The evaluation's `prior-auto` uses it too.
+pub fn keep_better_fit<T>(kept: Option<(T, f64)>, candidate: (T, f64)) -> Option<(T, f64)> {
+    match kept {
+        Some(k) if candidate.1 >= k.1 - COLOUR_FIT_MARGIN => Some(k),
+        _ => Some(candidate),
+    }
 }
 
 /// Spreads `max` picks evenly over `0..n` (deterministic, keeps the image's coverage).
@@ -326,13 +331,13 @@ pub fn estimate_views(
         stacked.ok_or_else(|| CoreError::Invalid("no views to estimate from".into()))?;
     let matrix_s = secs(t.elapsed());
     // Each model the choice names, fewer unknowns first, keeping the one that re-renders the
-    // photo best ([`fits_better`]). A model that cannot solve (say, least squares per channel
+    // photo best ([`keep_better_fit`]). A model that cannot solve (say, least squares per channel
     // on fewer pixels than unknowns) is left out while another remains.
     let mut timings = Timings {
         rendering_matrix_s: matrix_s,
         ..Timings::default()
     };
-    let mut best: Option<(Colour, Selection, Solution, f64)> = None;
+    let mut best: Option<((Colour, Selection, Solution), f64)> = None;
     let mut colour_fits = Vec::new();
     let mut failure = None;
     for &colour in options.colour.models() {
@@ -342,7 +347,9 @@ pub fn estimate_views(
         let (selection, solution, t) = match tried {
             Ok(done) => done,
             Err(e) => {
-                tracing::warn!(colour = colour.name(), "colour model left out: {e}");
+                if options.colour.models().len() > 1 {
+                    tracing::warn!(colour = colour.name(), "colour model left out: {e}");
+                }
                 failure = Some(e);
                 continue;
             }
@@ -353,11 +360,9 @@ pub fn estimate_views(
         let per_channel = channel_coefficients(&solution.coefficients, a.columns)?;
         let fit = relative_misfit(&a.predict_per_channel(per_channel), &observed);
         colour_fits.push((colour, fit));
-        if best.as_ref().is_none_or(|b| fits_better(fit, b.3)) {
-            best = Some((colour, selection, solution, fit));
-        }
+        best = keep_better_fit(best, ((colour, selection, solution), fit));
     }
-    let Some((colour, selection, solution, fit_error)) = best else {
+    let Some(((colour, selection, solution), fit_error)) = best else {
         return Err(failure.expect("every colour choice names a model"));
     };
     let chosen_lights = views

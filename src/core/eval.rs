@@ -28,7 +28,7 @@ use super::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
 use super::bivariate::{Bivariate, Grid, GRID_CELLS};
 use super::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use super::error::{CoreError, Result};
-use super::estimate::{chosen_rows, fits_better, relative_misfit};
+use super::estimate::{chosen_rows, keep_better_fit, relative_misfit};
 use super::geometry::{Camera, PixelGeometry, Shape};
 use super::merl::MerlBrdf;
 use super::nbrdf::NbrdfSet;
@@ -266,11 +266,10 @@ fn select_each_colour(basis: &Basis, a: &RenderingMatrix) -> Vec<Selections> {
         .collect()
 }
 
-/// The image the model predicts for coefficients `c`: A covers every object pixel, so this is
-/// the re-render under the estimate's lights, without rendering again.
-fn predicted_image(a: &RenderingMatrix, c: &[f64], width: usize, height: usize) -> Raster {
-    let per_channel = channel_coefficients(c, a.columns).expect("a solution of this matrix");
-    let y = a.predict_per_channel(per_channel);
+/// The image of `y`, A's prediction (A·c, 3 values a pixel) for some coefficients: A covers
+/// every object pixel, so this is the re-render under the estimate's lights, without
+/// rendering again.
+fn predicted_image(a: &RenderingMatrix, y: &[f64], width: usize, height: usize) -> Raster {
     let mut img = Raster::black(width, height);
     for (p, px) in a.pixels.iter().enumerate() {
         img.set(
@@ -344,8 +343,10 @@ fn estimate_all(
             let sol = method
                 .solver
                 .solve_colour(*colour, rows, &every, chosen_y, &prior)?;
-            let img = predicted_image(&prep.a, &sol.coefficients, photo.width, photo.height);
-            fits.push(photo_fit(&prep.a, &sol.coefficients, &y, &keep));
+            let per_channel = channel_coefficients(&sol.coefficients, prep.a.columns)?;
+            let predicted = prep.a.predict_per_channel(per_channel);
+            let img = predicted_image(&prep.a, &predicted, photo.width, photo.height);
+            fits.push(photo_fit(&predicted, &y, &keep));
             out.push((
                 *l,
                 method,
@@ -359,22 +360,17 @@ fn estimate_all(
     // fits the photo best, as `brdfd estimate` does (fewer unknowns first: [`METHODS`] lists
     // joint before per channel).
     for method in METHODS.iter().filter(|m| m.colour.models().len() > 1) {
+        // The single-model methods of the same solver whose model the choice names.
         let member = |m: &Method| {
             m.solver == method.solver
-                && m.colour
-                    .models()
-                    .iter()
-                    .all(|c| method.colour.models().contains(c))
+                && matches!(m.colour.models(), [c] if method.colour.models().contains(c))
         };
         for l in PIXEL_COUNTS {
             let best = out
                 .iter()
                 .zip(&fits)
                 .filter(|(o, _)| o.0 == l && member(&o.1))
-                .fold(None, |kept: Option<(&Outcome, f64)>, (o, fit)| match kept {
-                    Some((_, k)) if !fits_better(*fit, k) => kept,
-                    _ => Some((o, *fit)),
-                })
+                .fold(None, |kept, (o, fit)| keep_better_fit(kept, (o, *fit)))
                 .map(|(o, _)| o.clone());
             if let Some((l, _, brdf, render, condition)) = best {
                 out.push((l, *method, brdf, render, condition));
@@ -384,10 +380,8 @@ fn estimate_all(
     Ok(out)
 }
 
-/// ‖A·c − y‖ / ‖y‖ over the pixels `keep`.
-fn photo_fit(a: &RenderingMatrix, c: &[f64], y: &[[f64; 3]], keep: &[usize]) -> f64 {
-    let per_channel = channel_coefficients(c, a.columns).expect("a solution of this matrix");
-    let predicted = a.predict_per_channel(per_channel);
+/// ‖predicted − y‖ / ‖y‖ over the pixels `keep`.
+fn photo_fit(predicted: &[f64], y: &[[f64; 3]], keep: &[usize]) -> f64 {
     let kept: Vec<f64> = keep
         .iter()
         .flat_map(|&p| predicted[3 * p..3 * p + 3].iter().copied())

@@ -475,11 +475,12 @@ fn leverage(rows: &[f64], inv: &Sym, m: usize) -> (f64, f64) {
 }
 
 /// A lower bound on κ after adding one pixel's rows P to W (Q = PᵀP), by projecting W + Q onto
-/// a few of W's eigenvectors (a Rayleigh–Ritz step). For orthonormal V, λmin(W + Q) ≤ λmin(Vᵀ(W + Q)V) and
-/// λmax(W + Q) ≥ λmax(Vᵀ(W + Q)V) (Cauchy interlacing); with V = the two smallest (or the two
-/// largest) eigenvectors, Vᵀ(W + Q)V = diag(λ) + (PV)ᵀ(PV) is 2 × 2. It costs four dot products
-/// per row instead of an eigenvalue problem, rules out most candidates of an exchange, and never
-/// rules out one that would lower κ, so the search's answer is unchanged. (Two vectors rule
+/// a few of W's eigenvectors (a Rayleigh–Ritz step). For orthonormal V,
+/// λmin(W + Q) ≤ λmin(Vᵀ(W + Q)V) and λmax(W + Q) ≥ λmax(Vᵀ(W + Q)V) (Cauchy interlacing);
+/// with V = the two smallest (or the two largest) eigenvectors, Vᵀ(W + Q)V = diag(λ) + (PV)ᵀ(PV)
+/// is 2 × 2. It costs four dot products per row instead of an eigenvalue problem, rules out
+/// most candidates of an exchange, and never rules out one that would lower κ, so the search's
+/// answer is unchanged. (Two vectors rule
 /// out more than one: a pixel whose rows lift the smallest eigenvalue mostly pass it to the
 /// second smallest, which one vector cannot see.)
 struct RitzBound {
