@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Deserializer};
 
+use crate::core::estimate::Model;
 use crate::core::geometry::SceneGeometry;
 use crate::core::solve::{ColourChoice, Solver};
 use crate::selector::Selector;
@@ -188,6 +189,10 @@ pub struct MaterialPreset {
     /// if absent.
     #[serde(default)]
     pub dslr_shutters: Option<Vec<f64>>,
+    /// The BRDF model: `analytic` (the default, Lambert + GGX) or `basis` (the paper's PCA
+    /// basis, which `pixels`, `solve` and `colour` configure).
+    #[serde(default)]
+    pub model: Model,
     /// How coefficients are solved: `prior` (the default) or `least-squares` (the paper's).
     #[serde(default)]
     pub solve: Solver,

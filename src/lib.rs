@@ -4,6 +4,8 @@
 //! # Layout
 //! - [`core`]: the estimation core (BRDF sources, bivariate reduction, PCA basis, environment
 //!   maps, geometry, rendering matrix, pixel selection, solve, evaluation). No async, no drivers.
+//! - [`evaluation`]: relighting under maps an estimate never saw, through the one estimate
+//!   pipeline.
 //! - [`bench`](mod@bench): the virtual bench: renders what a camera on a simulated rig would see.
 //! - [`radiometry`]: camera files to linear radiance (EXIF exposure, HDR merge).
 //! - [`panorama`]: 360° camera files to environment maps (GPano projection, bracket merge).
@@ -24,6 +26,7 @@ pub mod bench;
 pub mod config;
 pub mod core;
 pub mod daemon;
+pub mod evaluation;
 pub mod panorama;
 pub mod radiometry;
 pub mod results;

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use crate::core::analytic::Microfacet;
 use crate::core::basis::Basis;
 use crate::core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
 use crate::core::envmap::{write_exr, LightSet};
@@ -17,6 +18,12 @@ use crate::core::{CoreError, Result};
 /// The contents of `coefficients.json`.
 #[derive(Serialize)]
 pub struct CoefficientsFile<'a> {
+    /// `basis` (the PCA basis's coefficients, as in the paper) or `analytic` (Lambert plus a
+    /// GGX lobe: `columns` are its per-channel weights and `alpha`; also in `analytic`).
+    pub model: &'a str,
+    /// The analytic model's parameters, for `model = "analytic"`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub analytic: Option<&'a Microfacet>,
     pub basis_id: &'a str,
     pub k: usize,
     /// Names of the model columns, in the order of `coefficients`.
@@ -89,9 +96,11 @@ pub fn write_results(
     lights: &LightSet,
 ) -> Result<ResultFiles> {
     std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
-    let brdf = estimate.brdf(basis);
+    let brdf = &estimate.brdf;
     let all = estimate.selection.pixels.len() == estimate.candidates;
     let file = CoefficientsFile {
+        model: estimate.model.name(),
+        analytic: estimate.analytic.as_ref(),
         basis_id: &basis.header.id,
         k: basis.header.k,
         columns: &estimate.names,
@@ -133,13 +142,13 @@ pub fn write_results(
     };
     let json = serde_json::to_string_pretty(&file).expect("coefficients serialise");
     std::fs::write(&files.coefficients, json).map_err(|e| CoreError::io(&files.coefficients, e))?;
-    write_bivariate_exr(&files.brdf_exr, &brdf)?;
+    write_bivariate_exr(&files.brdf_exr, brdf)?;
     brdf.to_merl().write(&files.merl)?;
     let sphere = PixelGeometry::rasterize(
         &Camera::eval_orthographic(PREVIEW_SIZE),
         &Shape::unit_sphere(),
     )?;
-    let preview = render_bivariate(&sphere, lights, &brdf);
+    let preview = render_bivariate(&sphere, lights, brdf);
     preview.write_exr(&dir.join("preview.exr"))?;
     preview.write_png(&files.preview_png, preview.auto_exposure())?;
     Ok(files)

@@ -27,6 +27,8 @@ fn captures_in_the_daemon_and_in_process_recover_the_known_coefficients() {
         "gold",
         "--size",
         "96",
+        "--model",
+        "basis",
         "--pixels",
         "all",
         "--colour",
@@ -163,8 +165,9 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
 
     let (status, result) = daemon.get(&format!("/sessions/{id}/result"));
     assert_eq!(status, 200);
-    // The gold preset's per-channel colour: six coefficients per channel.
-    assert_eq!(result["coefficients"].as_array().unwrap().len(), 18);
+    // The default model: three weights per channel and the roughness.
+    assert_eq!(result["model"], "analytic");
+    assert_eq!(result["coefficients"].as_array().unwrap().len(), 10);
     let (status, png) = daemon.get_bytes(&format!("/sessions/{id}/result/preview.png"));
     assert_eq!(status, 200);
     assert!(png.starts_with(b"\x89PNG"));

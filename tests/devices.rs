@@ -208,6 +208,9 @@ fn capture_with_the_simulated_turntable_uses_every_view() {
             "2",
             "--turn",
             "45",
+            // The basis model, whose selection records which view each pixel came from.
+            "--model",
+            "basis",
             "--out",
             "r",
         ],

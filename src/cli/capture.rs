@@ -15,7 +15,7 @@ use brdfd::rig::{Cancel, Devices, Event, Plan, Progress, KEEP_ALIVE};
 use brdfd::session::{PhaseTime, Session, State};
 
 use super::client::{Busy, Daemon};
-use super::estimate_cmd::{ColourArg, SolveArg};
+use super::estimate_cmd::{ColourArg, ModelArg, SolveArg};
 use super::progress::Bars;
 
 #[derive(clap::Args)]
@@ -46,6 +46,9 @@ pub struct CaptureArgs {
     /// Pixels to estimate from (a number or `all`); the material preset's, else 20.
     #[arg(long)]
     pub pixels: Option<String>,
+    /// The BRDF model; the material preset's, else `analytic` (see `brdfd estimate --help`).
+    #[arg(long, value_enum)]
+    pub model: Option<ModelArg>,
     /// How the coefficients are solved; the material preset's, else `prior` (README,
     /// "Evaluation").
     #[arg(long, value_enum)]
@@ -123,6 +126,7 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         material: a.material,
         size: a.size,
         pixels: a.pixels,
+        model: a.model.map(Into::into),
         solve: a.solve.map(Into::into),
         colour: a.colour.map(Into::into),
         bracket: a.bracket,

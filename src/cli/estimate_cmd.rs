@@ -3,11 +3,13 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
+use brdfd::core::analytic::Microfacet;
 use brdfd::core::basis::Basis;
 use brdfd::core::bivariate::Bivariate;
 use brdfd::core::envmap::{CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd::core::estimate::{
-    estimate as run_estimate, EstimateOptions, SelectionMethod, View, DEFAULT_MAX_CANDIDATES,
+    estimate as run_estimate, fit_verdict, EstimateOptions, Model, SelectionMethod, View,
+    DEFAULT_MAX_CANDIDATES,
 };
 use brdfd::core::merl::MerlBrdf;
 use brdfd::core::nbrdf::NbrdfSet;
@@ -29,10 +31,15 @@ pub struct EstimateArgs {
     #[arg(long)]
     pub env: PathBuf,
     /// Yaw of the panorama about +Y, degrees (right-handed).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub yaw: f64,
     #[command(flatten)]
     pub geometry: GeometryArgs,
+    /// The BRDF model: an analytic Lambert + GGX model fitted to every candidate pixel (the
+    /// default: it relights most accurately, see docs/evaluation.md), or the data-driven PCA
+    /// basis (the paper's; --pixels, --method, --solve and --colour are its settings).
+    #[arg(long, value_enum, default_value = "analytic")]
+    pub model: ModelArg,
     /// Pixels to use: a number, or `all`.
     #[arg(long, default_value = "20")]
     pub pixels: String,
@@ -71,6 +78,21 @@ pub struct EstimateArgs {
     /// Output folder.
     #[arg(long, default_value = "estimate")]
     pub out: PathBuf,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy)]
+pub enum ModelArg {
+    Basis,
+    Analytic,
+}
+
+impl From<ModelArg> for Model {
+    fn from(a: ModelArg) -> Model {
+        match a {
+            ModelArg::Basis => Model::Basis,
+            ModelArg::Analytic => Model::Analytic,
+        }
+    }
 }
 
 #[derive(clap::ValueEnum, Clone, Copy)]
@@ -135,6 +157,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         MethodArg::Paper => SelectionMethod::Paper,
     };
     let options = EstimateOptions {
+        model: a.model.into(),
         pixel_count: parse_pixels(&a.pixels)?,
         method,
         swap: SwapParams {
@@ -171,14 +194,12 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         );
     }
     println!(
-        "{} of {} candidate pixels, solver {}, {}, condition number {}, relative residual {:.4} on the chosen pixels and {:.4} on all, {:.2} s",
-        est.selection.pixels.len(),
-        est.candidates,
-        est.solver.name(),
-        est.colour_text(),
+        "{}, condition number {}, relative residual {:.4} on the pixels solved from; the estimate re-renders the photo to a relative RMSE of {:.4} over every candidate ({}), {:.2} s",
+        est.method_text(),
         est.selection.condition_text(),
         est.solution.relative_residual,
         est.fit_error,
+        fit_verdict(est.fit_error),
         total.elapsed().as_secs_f64()
     );
     println!("wrote {}", files.coefficients.display());
@@ -210,7 +231,7 @@ pub struct RenderArgs {
     /// The environment map; the procedural studio if absent.
     #[arg(long)]
     pub env: Option<PathBuf>,
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub yaw: f64,
     #[command(flatten)]
     pub geometry: GeometryArgs,
@@ -230,7 +251,7 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
         None => brdfd::bench::studio_envmap(512),
     };
     let lights = env.compressed(a.lights, a.yaw.to_radians());
-    let geometry = a.geometry.scene()?.pixels(a.size, a.size)?;
+    let geometry = a.geometry.scene_or_sphere()?.pixels(a.size, a.size)?;
     let img = if let Some(name) = &a.material {
         let set = match &a.nbrdf {
             Some(p) => NbrdfSet::read(p)?,
@@ -246,6 +267,12 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
             std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
         let v: serde_json::Value =
             serde_json::from_str(&text).with_context(|| format!("parsing {}", p.display()))?;
+        if v["model"] == "analytic" {
+            let m: Microfacet = serde_json::from_value(v["analytic"].clone())
+                .with_context(|| format!("{}: field `analytic`", p.display()))?;
+            let b = m.bivariate(basis.header.grid);
+            return finish_render(&a.out, render_bivariate(&geometry, &lights, &b));
+        }
         let coeffs: Vec<f64> = serde_json::from_value(v["coefficients"].clone())
             .with_context(|| format!("{}: field `coefficients`", p.display()))?;
         if v["basis_id"].as_str() != Some(basis.header.id.as_str()) {
@@ -263,10 +290,14 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
     } else {
         bail!("say what to render: --material, --merl or --coefficients");
     };
-    match a.out.extension().and_then(|e| e.to_str()) {
-        Some("exr") => img.write_exr(&a.out)?,
-        _ => img.write_png(&a.out, img.auto_exposure())?,
+    finish_render(&a.out, img)
+}
+
+fn finish_render(out: &std::path::Path, img: Raster) -> anyhow::Result<()> {
+    match out.extension().and_then(|e| e.to_str()) {
+        Some("exr") => img.write_exr(out)?,
+        _ => img.write_png(out, img.auto_exposure())?,
     }
-    println!("wrote {}", a.out.display());
+    println!("wrote {}", out.display());
     Ok(())
 }

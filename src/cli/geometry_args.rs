@@ -20,7 +20,20 @@ pub struct GeometryArgs {
 }
 
 impl GeometryArgs {
+    /// The geometry given; an error that lists the choices if none was. An estimate made on
+    /// an assumed shape would be wrong without a word, so nothing is assumed.
     pub fn scene(&self) -> anyhow::Result<SceneGeometry> {
+        if self.geometry.is_none() && self.shape.is_none() && self.normal_map.is_none() {
+            anyhow::bail!(
+                "no geometry given: the estimate needs the object's shape. Give one of --geometry FILE (a TOML [camera] and [shape], or normal_map), --normal-map FILE.exr, or --shape sphere|plane|corrugated (a built-in shape under the default orthographic camera)"
+            );
+        }
+        self.scene_or_sphere()
+    }
+
+    /// The geometry given, or the unit sphere (for renders, where a sphere is the usual
+    /// preview).
+    pub fn scene_or_sphere(&self) -> anyhow::Result<SceneGeometry> {
         if let Some(path) = &self.geometry {
             return SceneGeometry::read(path)
                 .with_context(|| format!("reading geometry {}", path.display()));

@@ -111,6 +111,13 @@ pub struct EvalArgs {
     /// Principal components to estimate with (the paper's 5 unless told otherwise).
     #[arg(long, default_value_t = brdfd::core::basis::DEFAULT_K)]
     pub k: usize,
+    /// Run the relighting evaluation instead (the headline measure): estimate under each
+    /// --capture map, relight under every other map, compare with the truth.
+    #[arg(long)]
+    pub relight: bool,
+    /// Maps the relighting evaluation captures under (names in the data folder's envmaps/).
+    #[arg(long, value_delimiter = ',', default_value = "grace,courtyard")]
+    pub capture: Vec<String>,
 }
 
 /// Writes a camera file into `dir` under its own name, or `N-name` if that exists: an earlier
@@ -147,6 +154,17 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Basis { command } => basis_cmd::run(command),
         Command::Estimate(a) => estimate_cmd::estimate(a),
         Command::Render(a) => estimate_cmd::render(a),
+        Command::Eval(a) if a.relight => {
+            let report =
+                brdfd::evaluation::relight::run(&brdfd::evaluation::relight::RelightConfig {
+                    data: a.data,
+                    out: a.out,
+                    size: a.size,
+                    capture_maps: a.capture,
+                })?;
+            println!("{report}");
+            Ok(())
+        }
         Command::Eval(a) => {
             let report = brdfd::core::eval::run(&brdfd::core::eval::EvalConfig {
                 data: a.data,

@@ -5,6 +5,7 @@
 //! [`render`] builds A from [`geometry`] and [`envmap`] lights → [`select`] picks pixels →
 //! [`solve`] gives the coefficients. [`estimate`] runs that chain; [`eval`] measures it.
 
+pub mod analytic;
 pub mod basis;
 pub mod bivariate;
 pub mod brdf;

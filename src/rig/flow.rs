@@ -22,7 +22,7 @@ use crate::config::{MaterialPreset, PixelCount, Rig};
 use crate::core::basis::Basis;
 use crate::core::bivariate::Bivariate;
 use crate::core::envmap::{write_exr, EnvMap, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
-use crate::core::estimate::{estimate_views, Estimate, EstimateOptions, View};
+use crate::core::estimate::{estimate_views, fit_verdict, Estimate, EstimateOptions, Model, View};
 use crate::core::geometry::SceneGeometry;
 use crate::core::merl::MerlBrdf;
 use crate::core::nbrdf::NbrdfSet;
@@ -386,6 +386,10 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
 
     session.set_state(State::Estimating, None)?;
     let options = EstimateOptions {
+        model: plan
+            .model
+            .or(preset.as_ref().map(|p| p.model))
+            .unwrap_or_default(),
         pixel_count,
         solver: plan
             .solve
@@ -417,7 +421,8 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     ));
     let (_, lights, _, _) = &views[0];
     let truth = match &bench {
-        Some(b) => {
+        // The projection is the basis's best answer; an analytic fit has no such reference.
+        Some(b) if est.model == Model::Basis => {
             // The simulator knows the answer; comparing with it is the simulator's business,
             // so its time is the devices'.
             let p = phases.start("compare with the ground truth (simulator)", 1);
@@ -434,7 +439,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
             ));
             Some(truth)
         }
-        None => None,
+        _ => None,
     };
     let p = phases.start("write results", 1);
     write_exr(
@@ -446,14 +451,13 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     write_result(session, &basis, &est, lights)?;
     phases.end(p);
     cx.say(format!(
-        "{} pixels, solver {}, {}, condition number {}; the estimate re-renders the photo{} to a relative RMSE of {:.4} over {} pixels",
-        est.selection.pixels.len(),
-        est.solver.name(),
-        est.colour_text(),
+        "{}, condition number {}; the estimate re-renders the photo{} to a relative RMSE of {:.4} over {} pixels ({})",
+        est.method_text(),
         est.selection.condition_text(),
         if views.len() > 1 { "s" } else { "" },
         est.fit_error,
         est.candidates,
+        fit_verdict(est.fit_error),
     ));
     if est.clipped > 0 {
         cx.say(format!(

@@ -24,6 +24,7 @@ use brdfd_theta::Theta;
 use serde::{Deserialize, Serialize};
 
 use crate::config::Rig;
+use crate::core::estimate::Model;
 use crate::core::solve::{ColourChoice, Solver};
 use crate::selector::Selector;
 pub use worker::{Device, DeviceStatus, Worker};
@@ -41,6 +42,9 @@ pub struct Plan {
     /// Pixels to estimate from: a number or "all"; the preset's, else 20.
     #[serde(default)]
     pub pixels: Option<String>,
+    /// The BRDF model: "analytic" or "basis"; the preset's, else analytic.
+    #[serde(default)]
+    pub model: Option<Model>,
     /// How the coefficients are solved: "prior" or "least-squares"; the preset's, else prior.
     #[serde(default)]
     pub solve: Option<Solver>,
