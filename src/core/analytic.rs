@@ -40,7 +40,7 @@ const COARSE_ALPHAS: usize = 20;
 /// bracket by 0.618, so eight leave it within 2% of α.
 const REFINE_STEPS: usize = 8;
 /// Pixels the α search fits (spread over the candidates); the final weights use every one.
-const SEARCH_PIXELS: usize = 4_000;
+pub const SEARCH_PIXELS: usize = 4_000;
 /// Unknowns per channel: kd, F₀, F₉₀.
 pub const WEIGHTS: usize = 3;
 /// Names of the weights, per channel, and of the roughness, as written to `coefficients.json`.

@@ -44,7 +44,7 @@ pub enum Model {
     /// The paper's: coefficients of the data-driven PCA basis, from selected pixels.
     Basis,
     /// Lambert plus a GGX/Smith lobe, fitted to every candidate pixel
-    /// ([`analytic`](super::analytic)). The default: relit under maps the estimate never
+    /// ([`analytic`]). The default: relit under maps the estimate never
     /// saw, it is the most accurate model brdfd has (`brdfd eval --relight`; docs/evaluation.md):
     /// median relight error 0.136 on the MERL test materials, against 0.229 for the basis
     /// with every pixel, 0.294 with 20 and 0.435 for the paper's method.

@@ -41,7 +41,7 @@ use crate::core::solve::{ColourChoice, Solver};
 const LOG_ERROR_SAMPLES: usize = 200_000;
 /// The tone-mapped images are exposed so that the truth's mean is this (middle grey), then
 /// mapped by x/(1 + x) and encoded as sRGB, as a viewer would see them.
-const TONE_MAP_MEAN: f64 = 0.18;
+pub const TONE_MAP_MEAN: f64 = 0.18;
 
 /// A method of the table: a name and the estimate's settings.
 pub struct Method {
