@@ -14,6 +14,7 @@
 //!   writes).
 //! - [`selector`]: the strings that name devices (`usb:04b0:0429`, `osc:http://...`, ...).
 //! - [`results`]: the files an estimate leaves behind.
+//! - [`export`]: the analytic estimate as a glTF material and an OpenPBR `.mtlx`.
 //! - [`rig`]: the devices on their worker threads, and the capture flow.
 //! - [`daemon`]: `brdfd serve`: the devices kept open, one capture at a time, the HTTP API.
 //! - `drivers/` (workspace crates, as they land): device protocols and their simulators.
@@ -27,6 +28,7 @@ pub mod config;
 pub mod core;
 pub mod daemon;
 pub mod evaluation;
+pub mod export;
 pub mod panorama;
 pub mod radiometry;
 pub mod results;

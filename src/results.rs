@@ -6,14 +6,16 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::core::analytic::Microfacet;
+use crate::core::analytic::{Microfacet, Uncertainty};
 use crate::core::basis::Basis;
 use crate::core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
+use crate::core::brdf::directional_albedo;
 use crate::core::envmap::{write_exr, LightSet};
 use crate::core::estimate::{Estimate, Timings};
 use crate::core::geometry::{Camera, PixelGeometry, Shape};
 use crate::core::render::render_bivariate;
 use crate::core::{CoreError, Result};
+use crate::export::{write_exports, Export};
 
 /// The contents of `coefficients.json`.
 #[derive(Serialize)]
@@ -61,6 +63,69 @@ pub struct CoefficientsFile<'a> {
     /// Lights the chosen pixels' rows were rebuilt with before the solve; 0 if they were not.
     pub chosen_lights: usize,
     pub timings: &'a Timings,
+    /// Non-negativity and energy conservation of the estimated BRDF.
+    pub plausibility: Plausibility,
+    /// The analytic fit's uncertainty: each parameter's 1-σ (in the order of `columns`), the
+    /// weights' covariance per channel, and the BRDF's bootstrap spread (its per-cell band is
+    /// `brdf-sigma.exr`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub uncertainty: Option<&'a Uncertainty>,
+    /// The analytic estimate as a glTF material and an OpenPBR `.mtlx`, and how far they
+    /// relight from the estimate itself.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub exports: Option<Export>,
+}
+
+/// Whether the estimated BRDF could be a real surface's (`coefficients.json`'s `plausibility`).
+/// Reciprocity holds by construction: every model is a function of (θh, θd), which swapping the
+/// light and the view leaves unchanged.
+#[derive(Clone, Debug, Serialize)]
+pub struct Plausibility {
+    /// The smallest value of the bivariate BRDF over the cells that hold one (1/sr).
+    pub min_value: f64,
+    /// Cells (of 8,100, per channel) below zero. The analytic model has none by construction;
+    /// the basis's coefficients can make some negative.
+    pub negative_cells: usize,
+    /// The largest directional albedo over view angles 0°, 10°, …, 80°, per channel.
+    pub max_albedo: [f64; 3],
+    /// Whether every directional albedo is at most 1 (within [`ALBEDO_TOLERANCE`]).
+    pub albedo_at_most_one: bool,
+}
+
+/// The albedo quadrature's own error (see `directional_albedo`): above 1 by less than this
+/// is not counted against an estimate.
+pub const ALBEDO_TOLERANCE: f64 = 0.005;
+
+/// View angles (degrees) the directional albedo is checked at.
+const ALBEDO_VIEWS_DEG: [f64; 9] = [0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0];
+
+impl Plausibility {
+    pub fn of(brdf: &Bivariate) -> Plausibility {
+        use rayon::prelude::*;
+        let cells = (0..3)
+            .flat_map(|c| (0..GRID_CELLS).map(move |g| (c, g)))
+            .filter(|&(_, g)| brdf.valid[g])
+            .map(|(c, g)| brdf.values[c * GRID_CELLS + g]);
+        let (min_value, negative_cells) = cells.fold((f64::INFINITY, 0), |(m, n), v| {
+            (m.min(v), n + usize::from(v < 0.0))
+        });
+        let albedos: Vec<[f64; 3]> = ALBEDO_VIEWS_DEG
+            .par_iter()
+            .map(|d| directional_albedo(brdf, d.to_radians()))
+            .collect();
+        let max_albedo = std::array::from_fn(|c| {
+            albedos
+                .iter()
+                .map(|a| a[c])
+                .fold(f64::NEG_INFINITY, f64::max)
+        });
+        Plausibility {
+            min_value,
+            negative_cells,
+            max_albedo,
+            albedo_at_most_one: max_albedo.iter().all(|a| *a <= 1.0 + ALBEDO_TOLERANCE),
+        }
+    }
 }
 
 /// Paths written by [`write_results`].
@@ -97,6 +162,10 @@ pub fn write_results(
 ) -> Result<ResultFiles> {
     std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
     let brdf = &estimate.brdf;
+    let exports = match &estimate.analytic {
+        Some(m) => write_exports(dir, "brdfd_estimate", m, brdf, basis.header.grid)?,
+        None => None,
+    };
     let all = estimate.selection.pixels.len() == estimate.candidates;
     let file = CoefficientsFile {
         model: estimate.model.name(),
@@ -133,6 +202,9 @@ pub fn write_results(
         lights: estimate.lights,
         chosen_lights: estimate.chosen_lights,
         timings: &estimate.timings,
+        plausibility: Plausibility::of(brdf),
+        uncertainty: estimate.uncertainty.as_ref(),
+        exports,
     };
     let files = ResultFiles {
         coefficients: dir.join("coefficients.json"),
@@ -143,6 +215,10 @@ pub fn write_results(
     let json = serde_json::to_string_pretty(&file).expect("coefficients serialise");
     std::fs::write(&files.coefficients, json).map_err(|e| CoreError::io(&files.coefficients, e))?;
     write_bivariate_exr(&files.brdf_exr, brdf)?;
+    if let Some(u) = &estimate.uncertainty {
+        let band = Bivariate::from_values(brdf.grid, u.band.clone(), brdf.valid.clone());
+        write_bivariate_exr(&dir.join("brdf-sigma.exr"), &band)?;
+    }
     brdf.to_merl().write(&files.merl)?;
     let sphere = PixelGeometry::rasterize(
         &Camera::eval_orthographic(PREVIEW_SIZE),

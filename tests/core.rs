@@ -859,12 +859,7 @@ fn analytic_model_recovers_a_tabulated_ggx_material() {
     // bivariate grid's φd mean, and the compressed lights; measured α within 0.1%, kd and F₀
     // within 0.004, fit 0.015, so 5%, 0.03 and 0.02 leave room without hiding a wrong lobe.
     use brdfd::core::analytic::Microfacet;
-    let truth = Microfacet {
-        diffuse: [0.30, 0.10, 0.05],
-        f0: [0.9, 0.7, 0.4],
-        f90: [1.0, 1.0, 1.0],
-        alpha: 0.15,
-    };
+    let truth = Microfacet::one_lobe([0.30, 0.10, 0.05], [0.9, 0.7, 0.4], [1.0; 3], 0.15);
     let table = MerlBrdf::tabulate(&truth);
     let g = sphere(96);
     let env = studio_envmap(256);
@@ -876,20 +871,60 @@ fn analytic_model_recovers_a_tabulated_ggx_material() {
     };
     let est = estimate(&Basis::embedded(), one_view(&g, &lights, &photo), &opts).unwrap();
     let got = est.analytic.expect("analytic parameters");
+    let (lobe, true_lobe) = (got.lobes[0], truth.lobes[0]);
     assert!(
-        (got.alpha / truth.alpha - 1.0).abs() < 0.05,
+        (lobe.alpha / true_lobe.alpha - 1.0).abs() < 0.05,
         "alpha {} against {}",
-        got.alpha,
-        truth.alpha
+        lobe.alpha,
+        true_lobe.alpha
     );
     for c in 0..3 {
         assert!((got.diffuse[c] - truth.diffuse[c]).abs() < 0.03, "{got:?}");
-        assert!((got.f0[c] - truth.f0[c]).abs() < 0.03, "{got:?}");
+        assert!((lobe.f0[c] - true_lobe.f0[c]).abs() < 0.03, "{got:?}");
     }
     assert!(est.fit_error < 0.02, "fit {}", est.fit_error);
     // Non-negative in every cell by construction, and the written coefficients are the
     // parameters.
     assert!(est.brdf.values.iter().all(|v| *v >= 0.0));
     assert_eq!(est.names.len(), est.solution.coefficients.len());
-    assert_eq!(est.names.last().map(String::as_str), Some("alpha"));
+    assert_eq!(est.names.last().map(String::as_str), Some("lobe1.alpha"));
+}
+
+#[test]
+fn default_estimates_are_plausible_on_every_evaluation_material() {
+    // Issue 18: f ≥ 0 in every cell and directional albedo ≤ 1, for the default model's
+    // estimate of each of the 10 test materials (embedded NBRDF fits) and of brdfd's own GGX
+    // materials, from a 48² sphere under the studio map.
+    use brdfd::evaluation::relight::analytic_materials;
+    use brdfd::results::Plausibility;
+    let set = embedded_materials();
+    let mut tables: Vec<(String, MerlBrdf)> = set
+        .materials
+        .iter()
+        .map(|(n, m)| (n.clone(), MerlBrdf::tabulate(m)))
+        .collect();
+    tables.extend(
+        analytic_materials()
+            .into_iter()
+            .map(|(n, m)| (n.to_string(), MerlBrdf::tabulate(&m))),
+    );
+    assert_eq!(tables.len(), 16);
+    let g = sphere(48);
+    let lights = studio_envmap(256).compressed(2048, 0.0);
+    let basis = Basis::embedded();
+    for (name, table) in &tables {
+        // The materials themselves first: an estimate can only be as plausible as its truth.
+        let truth = Plausibility::of(&Bivariate::reduce(table, Grid::default()));
+        assert!(truth.albedo_at_most_one, "{name} itself: {truth:?}");
+        let photo = render_merl(&g, &lights, table);
+        let est = estimate(
+            &basis,
+            one_view(&g, &lights, &photo),
+            &EstimateOptions::default(),
+        )
+        .unwrap();
+        let p = Plausibility::of(&est.brdf);
+        assert_eq!(p.negative_cells, 0, "{name}: {p:?}");
+        assert!(p.albedo_at_most_one, "{name}: {p:?}");
+    }
 }

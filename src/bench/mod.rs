@@ -9,12 +9,13 @@
 pub mod camera;
 pub mod panorama;
 
+use crate::core::bivariate::Bivariate;
 use crate::core::envmap::{EnvMap, LightSet};
 use crate::core::geometry::{Camera, PixelGeometry, SceneGeometry, Shape};
 use crate::core::merl::MerlBrdf;
 use crate::core::nbrdf::NbrdfSet;
 use crate::core::raster::Raster;
-use crate::core::render::render_merl;
+use crate::core::render::{render_bivariate, render_merl};
 use crate::core::Result;
 
 /// Short names a bench operator types, mapped to MERL names.
@@ -136,4 +137,25 @@ impl VirtualBench {
         let lights: LightSet = self.env.compressed(PHOTO_LIGHTS, self.yaw);
         Ok(render_merl(&self.pixels()?, &lights, &self.material))
     }
+
+    /// How far `estimate` is from the bench's material under light it was not fitted to:
+    /// the relative RMSE, over a sphere of [`RELIGHT_SIZE`]², between the estimate and the
+    /// truth (the full table), both rendered under the bench's map turned [`HELD_OUT_YAW_DEG`]
+    /// about the vertical, so that its bright regions light the object from other sides.
+    pub fn relight_error(&self, estimate: &Bivariate) -> Result<f64> {
+        let sphere = PixelGeometry::rasterize(
+            &Camera::eval_orthographic(RELIGHT_SIZE),
+            &Shape::unit_sphere(),
+        )?;
+        let lights = self
+            .env
+            .compressed(PHOTO_LIGHTS, self.yaw + HELD_OUT_YAW_DEG.to_radians());
+        let truth = render_merl(&sphere, &lights, &self.material);
+        Ok(render_bivariate(&sphere, &lights, estimate).relative_rmse(&truth))
+    }
 }
+
+/// The turn of the bench's map under which [`VirtualBench::relight_error`] relights.
+pub const HELD_OUT_YAW_DEG: f64 = 120.0;
+/// Sphere size of [`VirtualBench::relight_error`]'s renders.
+pub const RELIGHT_SIZE: usize = 128;

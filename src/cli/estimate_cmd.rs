@@ -3,13 +3,13 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
-use brdfd::core::analytic::Microfacet;
+use brdfd::core::analytic::{Microfacet, MAX_LOBES};
 use brdfd::core::basis::Basis;
 use brdfd::core::bivariate::Bivariate;
 use brdfd::core::envmap::{CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd::core::estimate::{
     estimate as run_estimate, fit_verdict, EstimateOptions, Model, SelectionMethod, View,
-    DEFAULT_MAX_CANDIDATES,
+    DEFAULT_LOBES, DEFAULT_MAX_CANDIDATES,
 };
 use brdfd::core::merl::MerlBrdf;
 use brdfd::core::nbrdf::NbrdfSet;
@@ -40,6 +40,9 @@ pub struct EstimateArgs {
     /// basis (the paper's; --pixels, --method, --solve and --colour are its settings).
     #[arg(long, value_enum, default_value = "analytic")]
     pub model: ModelArg,
+    /// Specular lobes of the analytic model: 1, or 2 for a clear coat over a rougher base.
+    #[arg(long, default_value_t = DEFAULT_LOBES as u64, value_parser = clap::value_parser!(u64).range(1..=MAX_LOBES as u64))]
+    pub lobes: u64,
     /// Pixels to use: a number, or `all`.
     #[arg(long, default_value = "20")]
     pub pixels: String,
@@ -158,6 +161,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
     };
     let options = EstimateOptions {
         model: a.model.into(),
+        lobes: a.lobes as usize,
         pixel_count: parse_pixels(&a.pixels)?,
         method,
         swap: SwapParams {
@@ -202,6 +206,13 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         fit_verdict(est.fit_error),
         total.elapsed().as_secs_f64()
     );
+    if let Some((text, distrust)) = est.certainty_text() {
+        if distrust {
+            eprintln!("warning: {text}");
+        } else {
+            println!("{text}");
+        }
+    }
     println!("wrote {}", files.coefficients.display());
     Ok(())
 }

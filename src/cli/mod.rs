@@ -118,6 +118,9 @@ pub struct EvalArgs {
     /// Maps the relighting evaluation captures under (names in the data folder's envmaps/).
     #[arg(long, value_delimiter = ',', default_value = "grace,courtyard")]
     pub capture: Vec<String>,
+    /// Only these materials in the relighting evaluation (comma-separated); all if absent.
+    #[arg(long, value_delimiter = ',')]
+    pub materials: Vec<String>,
 }
 
 /// Writes a camera file into `dir` under its own name, or `N-name` if that exists: an earlier
@@ -161,6 +164,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                     out: a.out,
                     size: a.size,
                     capture_maps: a.capture,
+                    materials: a.materials,
                 })?;
             println!("{report}");
             Ok(())

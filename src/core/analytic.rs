@@ -1,19 +1,19 @@
-//! The analytic model: Lambert plus one GGX/Smith microfacet lobe with Schlick's Fresnel, the
-//! model a graphics user would otherwise fit by hand. It is fitted to the photo through the
-//! same rendering matrix as the PCA basis, so both are compared on equal terms.
+//! An analytic BRDF model: Lambert plus one or two GGX/Smith microfacet lobes with Schlick's
+//! Fresnel, the model a graphics user would otherwise fit by hand. It is fitted to the photo
+//! through the same rendering matrix as the PCA basis, so both are compared on equal terms.
 //!
 //! ```text
-//! f = kd/π + D(θh; α) · G₂(θi, θo; α) / (4 cos θi cos θo) · (F₀ (1 − w) + F₉₀ w),
+//! f = kd/π + Σₗ D(θh; αₗ) · G₂(θi, θo; αₗ) / (4 cos θi cos θo) · (F₀ₗ (1 − w) + F₉₀ₗ w),
 //! w = (1 − cos θd)⁵
 //! ```
 //!
-//! per colour channel, with kd, F₀, F₉₀ ≥ 0 per channel and one roughness α. For a fixed α the
-//! BRDF is linear in the nine weights, so the fit is a variable projection: the weights are
-//! solved exactly (non-negative least squares) for each α, and only α is searched. The model is
-//! non-negative and reciprocal by construction.
+//! per colour channel, with kd, F₀ₗ, F₉₀ₗ ≥ 0 per channel and one roughness αₗ per lobe. For
+//! fixed roughnesses the BRDF is linear in the weights, so the fit is a variable projection:
+//! the weights are solved exactly (non-negative least squares) for each set of αₗ, and only the
+//! αₗ are searched. The model is non-negative and reciprocal by construction.
 //!
-//! Not here: anisotropy, several lobes, and the full (θh, θd, φd) dependence in the estimate
-//! (like every model of the estimate, the lobe is used through its bivariate reduction; the
+//! Not here: anisotropy, and the full (θh, θd, φd) dependence in the estimate (like every
+//! model of the estimate, the lobes are used through their bivariate reduction; the
 //! [`Microfacet`] itself is a full BRDF, which tabulates analytic test materials).
 
 use std::sync::OnceLock;
@@ -41,24 +41,40 @@ const COARSE_ALPHAS: usize = 20;
 const REFINE_STEPS: usize = 8;
 /// Pixels the α search fits (spread over the candidates); the final weights use every one.
 pub const SEARCH_PIXELS: usize = 4_000;
-/// Unknowns per channel: kd, F₀, F₉₀.
-pub const WEIGHTS: usize = 3;
-/// Names of the weights, per channel, and of the roughness, as written to `coefficients.json`.
-pub const WEIGHT_NAMES: [&str; WEIGHTS] = ["diffuse", "f0", "f90"];
+/// Lobes at most (two cover a clear coat over a rougher base, or a metal's core and halo).
+pub const MAX_LOBES: usize = 2;
 
-/// Lambert + GGX/Smith with Schlick's Fresnel, per-channel weights (module header).
+/// One GGX/Smith lobe with Schlick's Fresnel.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct Microfacet {
-    /// Diffuse albedo kd per channel (the Lambert term is kd/π).
-    pub diffuse: [f64; 3],
-    /// Specular reflectance at normal incidence.
+pub struct Lobe {
+    /// Specular reflectance at normal incidence, per channel.
     pub f0: [f64; 3],
     /// Specular reflectance at grazing incidence (1 for a physical surface; free in the fit,
     /// which lets it absorb the lobe's overall scale).
     pub f90: [f64; 3],
     /// GGX roughness α (the square of the "perceptual" roughness of glTF and OpenPBR).
     pub alpha: f64,
+}
+
+/// Lambert + GGX/Smith lobes with Schlick's Fresnel, per-channel weights (module header).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Microfacet {
+    /// Diffuse albedo kd per channel (the Lambert term is kd/π).
+    pub diffuse: [f64; 3],
+    /// The specular lobes, sharpest first.
+    pub lobes: Vec<Lobe>,
+}
+
+impl Microfacet {
+    /// Lambert and one lobe.
+    pub fn one_lobe(diffuse: [f64; 3], f0: [f64; 3], f90: [f64; 3], alpha: f64) -> Microfacet {
+        Microfacet {
+            diffuse,
+            lobes: vec![Lobe { f0, f90, alpha }],
+        }
+    }
 }
 
 /// GGX (Trowbridge–Reitz) normal distribution for cos θh.
@@ -91,12 +107,15 @@ impl IsotropicBrdf for Microfacet {
         if wi[2] <= 0.0 || wo[2] <= 0.0 {
             return [0.0; 3];
         }
-        let lobe = ggx_d(theta_h.cos(), self.alpha) * visibility(wi[2], wo[2], self.alpha);
         let w = schlick_weight(theta_d.cos());
-        std::array::from_fn(|c| {
-            self.diffuse[c] / std::f64::consts::PI
-                + lobe * (self.f0[c] * (1.0 - w) + self.f90[c] * w)
-        })
+        let mut out = self.diffuse.map(|kd| kd / std::f64::consts::PI);
+        for l in &self.lobes {
+            let lobe = ggx_d(theta_h.cos(), l.alpha) * visibility(wi[2], wo[2], l.alpha);
+            for c in 0..3 {
+                out[c] += lobe * (l.f0[c] * (1.0 - w) + l.f90[c] * w);
+            }
+        }
+        out
     }
 }
 
@@ -170,7 +189,7 @@ fn cell_angles(grid: Grid, g: usize) -> (f64, f64) {
 /// The model's columns for roughness α, each a grey bivariate vector (the same in R, G and B):
 /// Lambert (1/π), the lobe weighted by (1 − w), and by w. A BRDF is Σ weightᵢ · columnᵢ per
 /// channel.
-pub fn columns(grid: Grid, alpha: f64) -> [Vec<f64>; WEIGHTS] {
+pub fn columns(grid: Grid, alpha: f64) -> [Vec<f64>; 3] {
     let s = cell_samples(grid);
     let lobe: Vec<f64> = (0..GRID_CELLS)
         .into_par_iter()
@@ -206,38 +225,50 @@ pub fn columns(grid: Grid, alpha: f64) -> [Vec<f64>; WEIGHTS] {
 impl Microfacet {
     /// The model's bivariate reduction (what the estimate renders and writes).
     pub fn bivariate(&self, grid: Grid) -> Bivariate {
-        let cols = columns(grid, self.alpha);
-        let weights = [self.diffuse, self.f0, self.f90];
         let mut values = vec![0.0; VALUES];
-        for c in 0..3 {
-            for (col, w) in cols.iter().zip(&weights) {
+        let mut add = |col: &[f64], w: [f64; 3]| {
+            for c in 0..3 {
                 let plane = c * GRID_CELLS..(c + 1) * GRID_CELLS;
                 for (v, b) in values[plane.clone()].iter_mut().zip(&col[plane]) {
                     *v += w[c] * b;
                 }
             }
+        };
+        for (i, l) in self.lobes.iter().enumerate() {
+            let [lambert, f0, f90] = columns(grid, l.alpha);
+            if i == 0 {
+                add(&lambert, self.diffuse);
+            }
+            add(&f0, l.f0);
+            add(&f90, l.f90);
         }
         let s = cell_samples(grid);
         let valid = (0..GRID_CELLS).map(|g| s.valid(g)).collect();
         Bivariate::from_values(grid, values, valid)
     }
 
-    /// The weights as one vector, per channel in turn (kd, F₀, F₉₀ of R, then of G, then of
-    /// B), then α: the order of [`Microfacet::names`].
+    /// The parameters as one vector, in the order of [`Microfacet::names`]: kd per channel,
+    /// then per lobe F₀ and F₉₀ per channel and α.
     pub fn values(&self) -> Vec<f64> {
-        let mut out: Vec<f64> = (0..3)
-            .flat_map(|c| [self.diffuse[c], self.f0[c], self.f90[c]])
-            .collect();
-        out.push(self.alpha);
+        let mut out = self.diffuse.to_vec();
+        for l in &self.lobes {
+            out.extend(l.f0);
+            out.extend(l.f90);
+            out.push(l.alpha);
+        }
         out
     }
 
-    pub fn names() -> Vec<String> {
-        let mut out: Vec<String> = super::solve::CHANNELS
-            .iter()
-            .flat_map(|c| WEIGHT_NAMES.iter().map(move |n| format!("{n}.{c}")))
-            .collect();
-        out.push("alpha".into());
+    /// `diffuse.R`, …, then `lobe1.f0.R`, …, `lobe1.f90.B`, `lobe1.alpha`, and so on.
+    pub fn names(&self) -> Vec<String> {
+        let channels = super::solve::CHANNELS;
+        let mut out: Vec<String> = channels.iter().map(|c| format!("diffuse.{c}")).collect();
+        for i in 1..=self.lobes.len() {
+            for part in ["f0", "f90"] {
+                out.extend(channels.iter().map(|c| format!("lobe{i}.{part}.{c}")));
+            }
+            out.push(format!("lobe{i}.alpha"));
+        }
         out
     }
 }
@@ -318,20 +349,52 @@ pub struct ViewPixels<'a> {
 #[derive(Clone, Debug)]
 pub struct AnalyticFit {
     pub model: Microfacet,
-    /// The rendering matrix of the fitted α's three columns over every candidate.
+    /// The rendering matrix of the fitted model's columns over every candidate: Lambert, then
+    /// (F₀, F₉₀) of each lobe.
     pub matrix: RenderingMatrix,
     /// The observations stacked in the matrix's pixel order.
     pub observed: Vec<[f64; 3]>,
-    /// (α, relative misfit on the search pixels) of every α tried, in order tried.
-    pub search: Vec<(f64, f64)>,
+    /// Roughness sets tried (the αₗ) and their relative misfit on the search pixels.
+    pub search: Vec<(Vec<f64>, f64)>,
     /// κ of the final per-channel systems (the worst channel's), columns scaled to unit norm.
     pub condition: f64,
+    pub uncertainty: Uncertainty,
+}
+
+/// Resamples of the candidate pixels (with replacement) for the bootstrap.
+pub const BOOTSTRAP_RESAMPLES: usize = 32;
+/// Seed of the bootstrap's resamples: the same photo gives the same spread.
+const BOOTSTRAP_SEED: u64 = 0x5eed;
+/// Step in log α of the misfit profile's curvature (10%).
+const PROFILE_STEP: f64 = 0.1;
+
+/// How sure the fit is.
+#[derive(Clone, Debug, Serialize)]
+pub struct Uncertainty {
+    /// 1-σ of each parameter, in the order of [`Microfacet::names`]. The weights' from their
+    /// covariance at the fitted roughnesses, σ²(XᵀX)⁻¹ over the weights the fit keeps (a weight
+    /// held at zero by its bound gets 0); each α's from the curvature of the misfit's profile
+    /// along it, the others fixed. σ² is the residual's variance, so model error counts as
+    /// noise: an estimate that fits poorly is reported as unsure.
+    pub std: Vec<f64>,
+    /// Per channel, the weights' covariance (row-major, in the matrix's column order: kd,
+    /// then F₀ and F₉₀ of each lobe).
+    pub covariance: [Vec<f64>; 3],
+    /// The BRDF's spread over [`BOOTSTRAP_RESAMPLES`] resamples of the pixels (roughnesses
+    /// fixed): the RMS over the grid of each cell's standard deviation, relative to the BRDF's
+    /// RMS.
+    pub bootstrap_spread: f64,
+    pub resamples: usize,
+    /// Each grid value's bootstrap standard deviation (the 1-σ band), channel-planar like
+    /// [`Bivariate::values`].
+    #[serde(skip)]
+    pub band: Vec<f64>,
 }
 
 /// Builds the matrix of several α at once: Lambert, then (F₀, F₉₀) columns of each α. One
 /// pass over the (pixel, light) pairs serves every α.
 fn matrix_for(views: &[ViewPixels], grid: Grid, alphas: &[f64], subset: bool) -> RenderingMatrix {
-    let cols: Vec<[Vec<f64>; WEIGHTS]> = alphas.iter().map(|a| columns(grid, *a)).collect();
+    let cols: Vec<[Vec<f64>; 3]> = alphas.iter().map(|a| columns(grid, *a)).collect();
     let mut refs: Vec<&[f64]> = vec![&cols[0][0]];
     for c in &cols {
         refs.push(&c[1]);
@@ -357,6 +420,16 @@ fn matrix_for(views: &[ViewPixels], grid: Grid, alphas: &[f64], subset: bool) ->
         });
     }
     out.expect("at least one view")
+}
+
+/// The columns of [`matrix_for`]'s matrix that model Lambert and the lobes at `lobes`
+/// (positions in its α list).
+fn lobe_columns(lobes: &[usize]) -> Vec<usize> {
+    let mut cols = vec![0];
+    for &i in lobes {
+        cols.extend([1 + 2 * i, 2 + 2 * i]);
+    }
+    cols
 }
 
 fn search_subset(n: usize, views: usize) -> Vec<usize> {
@@ -414,14 +487,108 @@ fn solve_weights(
     (weights, (r2 / y2.max(f64::MIN_POSITIVE)).sqrt())
 }
 
-/// Fits the model to the candidates of every view: a coarse search over α on a spread of
-/// [`SEARCH_PIXELS`] pixels, golden-section refinement on log α, then the weights for the
-/// best α from every candidate.
-pub fn fit(views: &[ViewPixels], grid: Grid) -> Result<AnalyticFit> {
+/// The α search on the search pixels: every misfit it computes is recorded.
+struct Search<'v, 'a> {
+    views: &'v [ViewPixels<'a>],
+    grid: Grid,
+    observed: Vec<[f64; 3]>,
+    tried: Vec<(Vec<f64>, f64)>,
+}
+
+impl Search<'_, '_> {
+    /// The misfit of each candidate α as one more lobe beside the `fixed` ones, as many per
+    /// matrix as the column limit allows.
+    fn misfits(&mut self, fixed: &[f64], candidates: &[f64]) -> Vec<f64> {
+        // Lambert, two columns per fixed lobe, two per candidate.
+        let per_build = ((MAX_COLUMNS - 1) / 2 - fixed.len()).max(1);
+        let mut out = Vec::with_capacity(candidates.len());
+        for chunk in candidates.chunks(per_build) {
+            let alphas: Vec<f64> = fixed.iter().chain(chunk).copied().collect();
+            let a = matrix_for(self.views, self.grid, &alphas, true);
+            for (i, alpha) in chunk.iter().enumerate() {
+                let lobes: Vec<usize> = (0..fixed.len()).chain([fixed.len() + i]).collect();
+                let (_, misfit) = solve_weights(&a, &self.observed, &lobe_columns(&lobes));
+                let mut set = fixed.to_vec();
+                set.push(*alpha);
+                self.tried.push((set, misfit));
+                out.push(misfit);
+            }
+        }
+        out
+    }
+
+    /// The best α for one more lobe beside `fixed`: the coarse grid, then golden-section
+    /// refinement on log α between the best grid point's neighbours.
+    fn best_lobe(&mut self, fixed: &[f64]) -> f64 {
+        let log_span = (ALPHA_MAX / ALPHA_MIN).ln();
+        let coarse: Vec<f64> = (0..COARSE_ALPHAS)
+            .map(|i| ALPHA_MIN * (log_span * i as f64 / (COARSE_ALPHAS - 1) as f64).exp())
+            .collect();
+        let misfits = self.misfits(fixed, &coarse);
+        let best = (0..coarse.len())
+            .min_by(|&i, &j| misfits[i].total_cmp(&misfits[j]))
+            .expect("a coarse grid");
+        self.refine(
+            fixed,
+            coarse[best.saturating_sub(1)],
+            coarse[(best + 1).min(coarse.len() - 1)],
+            (coarse[best], misfits[best]),
+        )
+    }
+
+    /// Golden-section search for one more lobe's α in [lo, hi] (log scale), never returning
+    /// worse than `start` (an α and its misfit).
+    fn refine(&mut self, fixed: &[f64], lo: f64, hi: f64, start: (f64, f64)) -> f64 {
+        let ratio = (5f64.sqrt() - 1.0) / 2.0;
+        let (mut lo, mut hi) = (lo.ln(), hi.ln());
+        let mut best = start;
+        let mut at = |x: f64, s: &mut Self| {
+            let f = s.misfits(fixed, &[x.exp()])[0];
+            if f < best.1 {
+                best = (x.exp(), f);
+            }
+            f
+        };
+        let mut x1 = hi - ratio * (hi - lo);
+        let mut x2 = lo + ratio * (hi - lo);
+        let mut f1 = at(x1, self);
+        let mut f2 = at(x2, self);
+        for _ in 0..REFINE_STEPS {
+            if f1 <= f2 {
+                hi = x2;
+                (x2, f2) = (x1, f1);
+                x1 = hi - ratio * (hi - lo);
+                f1 = at(x1, self);
+            } else {
+                lo = x1;
+                (x1, f1) = (x2, f2);
+                x2 = lo + ratio * (hi - lo);
+                f2 = at(x2, self);
+            }
+        }
+        best.0
+    }
+}
+
+/// The factor either side of the first lobe's α that it is searched again over once the
+/// second lobe is in place: fitted alone, the first lobe also covered what the second now does.
+const RESEARCH_SPAN: f64 = 1.8;
+
+/// Fits the model with `lobes` lobes (1 or 2) to the candidates of every view, by variable
+/// projection on a spread of [`SEARCH_PIXELS`] pixels: the first lobe's α over a coarse grid
+/// and a golden-section refinement; then the second lobe's the same way beside it, and the
+/// first searched again beside the second. The weights of the best roughnesses then come from
+/// every candidate.
+pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize) -> Result<AnalyticFit> {
     if views.iter().all(|v| v.pixels.is_empty()) {
         return Err(CoreError::Invalid(
             "no pixels to fit the analytic model to".into(),
         ));
+    }
+    if !(1..=MAX_LOBES).contains(&lobes) {
+        return Err(CoreError::Invalid(format!(
+            "the analytic model has 1 to {MAX_LOBES} lobes, not {lobes}"
+        )));
     }
     let observed_of = |subset: bool| -> Vec<[f64; 3]> {
         views
@@ -436,78 +603,176 @@ pub fn fit(views: &[ViewPixels], grid: Grid) -> Result<AnalyticFit> {
             })
             .collect()
     };
-    let search_y = observed_of(true);
-    let mut search: Vec<(f64, f64)> = Vec::new();
-    let log_span = (ALPHA_MAX / ALPHA_MIN).ln();
-    let coarse: Vec<f64> = (0..COARSE_ALPHAS)
-        .map(|i| ALPHA_MIN * (log_span * i as f64 / (COARSE_ALPHAS - 1) as f64).exp())
-        .collect();
-    // Lambert plus two columns per α: as many α per matrix as the column limit allows.
-    let per_build = (MAX_COLUMNS - 1) / 2;
-    for chunk in coarse.chunks(per_build) {
-        let a = matrix_for(views, grid, chunk, true);
-        for (i, alpha) in chunk.iter().enumerate() {
-            let (_, misfit) = solve_weights(&a, &search_y, &[0, 1 + 2 * i, 2 + 2 * i]);
-            search.push((*alpha, misfit));
-        }
-    }
-    let best = (0..coarse.len())
-        .min_by(|&i, &j| search[i].1.total_cmp(&search[j].1))
-        .expect("a coarse search");
-    let misfit_at = |alpha: f64, search: &mut Vec<(f64, f64)>| -> f64 {
-        let a = matrix_for(views, grid, &[alpha], true);
-        let (_, misfit) = solve_weights(&a, &search_y, &[0, 1, 2]);
-        search.push((alpha, misfit));
-        misfit
+    let mut search = Search {
+        views,
+        grid,
+        observed: observed_of(true),
+        tried: Vec::new(),
     };
-    // Golden-section search on log α over the best coarse α's neighbours.
-    let (mut lo, mut hi) = (
-        coarse[best.saturating_sub(1)].ln(),
-        coarse[(best + 1).min(coarse.len() - 1)].ln(),
-    );
-    let ratio = (5f64.sqrt() - 1.0) / 2.0;
-    let mut x1 = hi - ratio * (hi - lo);
-    let mut x2 = lo + ratio * (hi - lo);
-    let mut f1 = misfit_at(x1.exp(), &mut search);
-    let mut f2 = misfit_at(x2.exp(), &mut search);
-    for _ in 0..REFINE_STEPS {
-        if f1 <= f2 {
-            hi = x2;
-            (x2, f2) = (x1, f1);
-            x1 = hi - ratio * (hi - lo);
-            f1 = misfit_at(x1.exp(), &mut search);
-        } else {
-            lo = x1;
-            (x1, f1) = (x2, f2);
-            x2 = lo + ratio * (hi - lo);
-            f2 = misfit_at(x2.exp(), &mut search);
-        }
+    let mut alphas = vec![search.best_lobe(&[])];
+    if lobes == 2 {
+        let second = search.best_lobe(&alphas);
+        let current = search.misfits(&[second], &[alphas[0]])[0];
+        let first = search.refine(
+            &[second],
+            alphas[0] / RESEARCH_SPAN,
+            alphas[0] * RESEARCH_SPAN,
+            (alphas[0], current),
+        );
+        alphas = vec![first, second];
+        alphas.sort_by(f64::total_cmp);
     }
-    let alpha = search
-        .iter()
-        .min_by(|a, b| a.1.total_cmp(&b.1))
-        .map(|(a, _)| *a)
-        .expect("a search");
-    let matrix = matrix_for(views, grid, &[alpha], false);
+    let matrix = matrix_for(views, grid, &alphas, false);
     let observed = observed_of(false);
-    let (w, _) = solve_weights(&matrix, &observed, &[0, 1, 2]);
-    let condition = channel_systems(&matrix, &observed, &[0, 1, 2])
+    let cols = lobe_columns(&(0..alphas.len()).collect::<Vec<_>>());
+    let (w, _) = solve_weights(&matrix, &observed, &cols);
+    let systems = channel_systems(&matrix, &observed, &cols);
+    let condition = systems
         .iter()
         .map(|(g, _, _)| scaled_condition(g))
         .fold(0.0, f64::max);
+    let alpha_std: Vec<f64> = (0..alphas.len())
+        .map(|l| profile_std(&mut search, &alphas, l))
+        .collect();
+    let uncertainty = uncertainty(&matrix, &observed, &systems, &w, &alpha_std, grid, &alphas);
     let model = Microfacet {
         diffuse: std::array::from_fn(|c| w[c][0]),
-        f0: std::array::from_fn(|c| w[c][1]),
-        f90: std::array::from_fn(|c| w[c][2]),
-        alpha,
+        lobes: alphas
+            .iter()
+            .enumerate()
+            .map(|(i, alpha)| Lobe {
+                f0: std::array::from_fn(|c| w[c][1 + 2 * i]),
+                f90: std::array::from_fn(|c| w[c][2 + 2 * i]),
+                alpha: *alpha,
+            })
+            .collect(),
     };
     Ok(AnalyticFit {
         model,
         matrix,
         observed,
-        search,
+        search: search.tried,
         condition,
+        uncertainty,
     })
+}
+
+/// 1-σ of lobe `l`'s α from the curvature of the residual sum of squares along log α on the
+/// search pixels, the other lobes fixed: RSS(u) ≈ RSS* + a (u − u*)², σᵤ = √(σ² / a).
+fn profile_std(search: &mut Search, alphas: &[f64], l: usize) -> f64 {
+    let fixed: Vec<f64> = alphas
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| *i != l)
+        .map(|(_, a)| *a)
+        .collect();
+    let a = alphas[l];
+    let m = search.misfits(
+        &fixed,
+        &[a * (-PROFILE_STEP).exp(), a, a * PROFILE_STEP.exp()],
+    );
+    let y2: f64 = search.observed.iter().flatten().map(|v| v * v).sum();
+    let rss: Vec<f64> = m.iter().map(|m| m * m * y2).collect();
+    let curvature = (rss[0] - 2.0 * rss[1] + rss[2]) / (2.0 * PROFILE_STEP * PROFILE_STEP);
+    let dof = (3 * search.observed.len())
+        .saturating_sub(1 + 4 * alphas.len())
+        .max(1);
+    let variance = rss[1] / dof as f64;
+    if curvature > 0.0 {
+        a * (variance / curvature).sqrt()
+    } else {
+        // Flat or concave: the photo does not pin this roughness down.
+        f64::INFINITY
+    }
+}
+
+/// The weights' covariance and the bootstrap band (see [`Uncertainty`]).
+fn uncertainty(
+    matrix: &RenderingMatrix,
+    observed: &[[f64; 3]],
+    systems: &[(DMatrix<f64>, DVector<f64>, f64); 3],
+    weights: &[DVector<f64>; 3],
+    alpha_std: &[f64],
+    grid: Grid,
+    alphas: &[f64],
+) -> Uncertainty {
+    use rand::{Rng, SeedableRng};
+    let p = weights[0].len();
+    let n = observed.len();
+    let covariance: [Vec<f64>; 3] = std::array::from_fn(|c| {
+        let (g, b, yy) = &systems[c];
+        let w = &weights[c];
+        let rss = ((w.transpose() * g * w)[0] - 2.0 * w.dot(b) + yy).max(0.0);
+        let free: Vec<usize> = (0..p).filter(|&k| w[k] > 0.0).collect();
+        let variance = rss / n.saturating_sub(free.len()).max(1) as f64;
+        let sub = DMatrix::from_fn(free.len(), free.len(), |i, j| g[(free[i], free[j])]);
+        let inv = sub
+            .try_inverse()
+            .unwrap_or_else(|| DMatrix::from_element(free.len(), free.len(), f64::INFINITY));
+        let mut cov = vec![0.0; p * p];
+        for (i, &a) in free.iter().enumerate() {
+            for (j, &b) in free.iter().enumerate() {
+                cov[a * p + b] = variance * inv[(i, j)];
+            }
+        }
+        cov
+    });
+    // Standard deviations in the order of `Microfacet::names`: kd of R, G, B; then per lobe F₀
+    // of R, G, B, F₉₀ of R, G, B, α.
+    let sd = |c: usize, k: usize| covariance[c][k * p + k].max(0.0).sqrt();
+    let mut std: Vec<f64> = (0..3).map(|c| sd(c, 0)).collect();
+    for (l, a_std) in alpha_std.iter().enumerate() {
+        std.extend((0..3).map(|c| sd(c, 1 + 2 * l)));
+        std.extend((0..3).map(|c| sd(c, 2 + 2 * l)));
+        std.push(*a_std);
+    }
+    // Bootstrap: the pixels resampled with replacement, the weights solved again at the fitted
+    // roughnesses, the BRDF rebuilt from them.
+    let cols: Vec<[Vec<f64>; 3]> = alphas.iter().map(|a| columns(grid, *a)).collect();
+    let rebuild = |w: &[DVector<f64>; 3]| -> Vec<f64> {
+        let mut values = vec![0.0; VALUES];
+        for c in 0..3 {
+            let plane = c * GRID_CELLS..(c + 1) * GRID_CELLS;
+            for (k, col) in std::iter::once(&cols[0][0])
+                .chain(cols.iter().flat_map(|l| [&l[1], &l[2]]))
+                .enumerate()
+            {
+                for (v, x) in values[plane.clone()].iter_mut().zip(&col[plane.clone()]) {
+                    *v += w[c][k] * x;
+                }
+            }
+        }
+        values
+    };
+    let full: Vec<usize> = (0..p).collect();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(BOOTSTRAP_SEED);
+    let mut sum = vec![0.0; VALUES];
+    let mut sum2 = vec![0.0; VALUES];
+    for _ in 0..BOOTSTRAP_RESAMPLES {
+        let picks: Vec<usize> = (0..n).map(|_| rng.random_range(0..n)).collect();
+        let resampled = matrix.subset(&picks);
+        let obs: Vec<[f64; 3]> = picks.iter().map(|&i| observed[i]).collect();
+        let (w, _) = solve_weights(&resampled, &obs, &full);
+        for (k, v) in rebuild(&w).into_iter().enumerate() {
+            sum[k] += v;
+            sum2[k] += v * v;
+        }
+    }
+    let b = BOOTSTRAP_RESAMPLES as f64;
+    let band: Vec<f64> = sum
+        .iter()
+        .zip(&sum2)
+        .map(|(s, s2)| ((s2 / b - (s / b).powi(2)) * b / (b - 1.0)).max(0.0).sqrt())
+        .collect();
+    let fitted = rebuild(weights);
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+    Uncertainty {
+        std,
+        covariance,
+        bootstrap_spread: rms(&band) / rms(&fitted).max(f64::MIN_POSITIVE),
+        resamples: BOOTSTRAP_RESAMPLES,
+        band,
+    }
 }
 
 /// κ of X from its Gram matrix G = XᵀX, with X's columns scaled to unit norm first (the
@@ -528,10 +793,16 @@ fn scaled_condition(g: &DMatrix<f64>) -> f64 {
 }
 
 impl AnalyticFit {
-    /// The per-channel weights as the rendering matrix's coefficients, for prediction.
-    pub fn per_channel(&self) -> [[f64; WEIGHTS]; 3] {
+    /// The per-channel weights in the matrix's column order, for prediction.
+    pub fn per_channel(&self) -> [Vec<f64>; 3] {
         let m = &self.model;
-        std::array::from_fn(|c| [m.diffuse[c], m.f0[c], m.f90[c]])
+        std::array::from_fn(|c| {
+            let mut w = vec![m.diffuse[c]];
+            for l in &m.lobes {
+                w.extend([l.f0[c], l.f90[c]]);
+            }
+            w
+        })
     }
 
     /// The photo this fit predicts, per candidate pixel and channel.
@@ -577,16 +848,34 @@ mod tests {
     }
 
     #[test]
+    fn a_white_lobe_reflects_at_most_all_light() {
+        // With F₀ = F₉₀ = 1, a single-scattering GGX lobe loses only what its masking loses:
+        // about 1% at α 0.02 seen from the normal, more for rough lobes and at grazing views.
+        // The albedo must stay ≤ 1 (plus the quadrature's 0.5%) and near 1 for a sharp lobe.
+        use crate::core::brdf::directional_albedo;
+        let sharp = Microfacet::one_lobe([0.0; 3], [1.0; 3], [1.0; 3], 0.02);
+        let a = directional_albedo(&sharp, 0.0)[0];
+        assert!(a > 0.97 && a < 1.005, "α 0.02 at normal view: {a}");
+        for alpha in [0.1, 0.5] {
+            let m = Microfacet::one_lobe([0.0; 3], [1.0; 3], [1.0; 3], alpha);
+            for theta in [0.0, 0.8, 1.3] {
+                let a = directional_albedo(&m, theta)[0];
+                assert!(a < 1.005, "α {alpha} at {theta}: {a}");
+            }
+        }
+    }
+
+    #[test]
     fn lobe_columns_match_the_reduction_of_the_full_model() {
         // The fast column path and Bivariate::reduce of the full BRDF must agree: same
         // samples, same formula, summed in another order (tolerance 1e-9 relative).
         let grid = Grid::default();
-        let m = Microfacet {
-            diffuse: [0.2, 0.3, 0.4],
-            f0: [0.9, 0.6, 0.3],
-            f90: [1.0, 1.0, 1.0],
-            alpha: 0.1,
-        };
+        let mut m = Microfacet::one_lobe([0.2, 0.3, 0.4], [0.9, 0.6, 0.3], [1.0; 3], 0.1);
+        m.lobes.push(Lobe {
+            f0: [0.1, 0.2, 0.3],
+            f90: [0.5; 3],
+            alpha: 0.4,
+        });
         let fast = m.bivariate(grid);
         let slow = Bivariate::reduce(&m, grid);
         for (a, b) in fast.values.iter().zip(&slow.values) {

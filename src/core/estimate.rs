@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-use super::analytic::{self, Microfacet, ViewPixels};
+use super::analytic::{self, Microfacet, Uncertainty, ViewPixels};
 use super::basis::Basis;
 use super::bivariate::Bivariate;
 use super::envmap::LightSet;
@@ -61,10 +61,15 @@ impl Model {
     }
 }
 
+/// Lobes of the analytic model unless told otherwise.
+pub const DEFAULT_LOBES: usize = 1;
+
 /// What to estimate with.
 #[derive(Clone, Debug)]
 pub struct EstimateOptions {
     pub model: Model,
+    /// Specular lobes of [`Model::Analytic`] (1 or 2).
+    pub lobes: usize,
     /// Pixels to use; `None` for every candidate.
     pub pixel_count: Option<usize>,
     pub method: SelectionMethod,
@@ -82,6 +87,7 @@ impl Default for EstimateOptions {
     fn default() -> Self {
         EstimateOptions {
             model: Model::default(),
+            lobes: DEFAULT_LOBES,
             pixel_count: Some(20),
             method: SelectionMethod::Fast,
             swap: SwapParams::default(),
@@ -111,6 +117,8 @@ pub struct Estimate {
     pub brdf: Bivariate,
     /// The analytic model's parameters, for [`Model::Analytic`].
     pub analytic: Option<Microfacet>,
+    /// How sure the analytic fit is (its parameters' spread and the BRDF's 1-σ band).
+    pub uncertainty: Option<Uncertainty>,
     /// Names of the solution's coefficients (per channel for [`Colour::PerChannel`]).
     pub names: Vec<String>,
     pub solution: Solution,
@@ -372,14 +380,14 @@ pub fn estimate_views(
     }
     let mut estimate = match options.model {
         Model::Basis => basis_estimate(basis, &candidates, options)?,
-        Model::Analytic => analytic_estimate(basis, &candidates)?,
+        Model::Analytic => analytic_estimate(basis, &candidates, options.lobes)?,
     };
     estimate.clipped = clipped;
     Ok(estimate)
 }
 
 /// The analytic model ([`analytic::fit`]) on every candidate.
-fn analytic_estimate(basis: &Basis, candidates: &[Candidates]) -> Result<Estimate> {
+fn analytic_estimate(basis: &Basis, candidates: &[Candidates], lobes: usize) -> Result<Estimate> {
     let t = Instant::now();
     let views: Vec<ViewPixels> = candidates
         .iter()
@@ -390,7 +398,7 @@ fn analytic_estimate(basis: &Basis, candidates: &[Candidates]) -> Result<Estimat
         })
         .collect();
     let grid = basis.header.grid;
-    let fit = analytic::fit(&views, grid)?;
+    let fit = analytic::fit(&views, grid, lobes)?;
     let fit_error = relative_misfit(&fit.predicted(), &fit.observed);
     let n = fit.observed.len();
     let rows = (3 * n).max(1) as f64;
@@ -399,8 +407,7 @@ fn analytic_estimate(basis: &Basis, candidates: &[Candidates]) -> Result<Estimat
     Ok(Estimate {
         model: Model::Analytic,
         brdf: fit.model.bivariate(grid),
-        analytic: Some(fit.model),
-        names: Microfacet::names(),
+        names: fit.model.names(),
         solution: Solution {
             coefficients: fit.model.values(),
             residual_rms: residual / rows.sqrt(),
@@ -428,6 +435,8 @@ fn analytic_estimate(basis: &Basis, candidates: &[Candidates]) -> Result<Estimat
             solve_s: secs(t.elapsed()),
             ..Timings::default()
         },
+        analytic: Some(fit.model),
+        uncertainty: Some(fit.uncertainty),
     })
 }
 
@@ -506,6 +515,7 @@ fn basis_estimate(
         model: Model::Basis,
         brdf: basis.reconstruct_solution(&solution.coefficients)?,
         analytic: None,
+        uncertainty: None,
         names: colour.names(&basis.model().names),
         solution,
         solver: options.solver,
@@ -544,6 +554,11 @@ pub const GOOD_FIT: f64 = 0.10;
 /// should not be trusted under other light (the paper's 20-pixel method's median was 0.27).
 pub const POOR_FIT: f64 = 0.25;
 
+/// Above this bootstrap spread ([`Uncertainty::bootstrap_spread`]) an estimate is called
+/// unsteady: resampling its pixels moves the BRDF by more than 5% RMS, so the pixels do not pin
+/// it down.
+pub const UNSTEADY_SPREAD: f64 = 0.05;
+
 /// The verdict in words on a fit to the photo, with the thresholds it was judged by.
 pub fn fit_verdict(fit: f64) -> String {
     if !fit.is_finite() {
@@ -561,10 +576,17 @@ impl Estimate {
     /// The model and its settings, for a person to read.
     pub fn method_text(&self) -> String {
         match (self.model, &self.analytic) {
-            (Model::Analytic, Some(m)) => format!(
-                "model analytic (Lambert + GGX, roughness α {:.4}), every one of {} pixels",
-                m.alpha, self.candidates
-            ),
+            (Model::Analytic, Some(m)) => {
+                let alphas: Vec<String> =
+                    m.lobes.iter().map(|l| format!("{:.4}", l.alpha)).collect();
+                format!(
+                    "model analytic (Lambert + {} GGX lobe{}, roughness α {}), every one of {} pixels",
+                    m.lobes.len(),
+                    if m.lobes.len() == 1 { "" } else { "s" },
+                    alphas.join(" and "),
+                    self.candidates
+                )
+            }
             _ => format!(
                 "model basis, {} of {} pixels, solver {}, {}",
                 self.selection.pixels.len(),
@@ -573,6 +595,27 @@ impl Estimate {
                 self.colour_text()
             ),
         }
+    }
+
+    /// How sure the estimate is, in words, where it was measured; and whether to distrust it.
+    pub fn certainty_text(&self) -> Option<(String, bool)> {
+        let u = self.uncertainty.as_ref()?;
+        let unsteady = u.bootstrap_spread > UNSTEADY_SPREAD;
+        // A fit that is not a number is as untrustworthy as a poor one.
+        let poor = self.fit_error.is_nan() || self.fit_error > POOR_FIT;
+        let text = format!(
+            "resampling the pixels {} times moves the BRDF by {:.1}% RMS ({}; unsteady above {:.0}%){}",
+            u.resamples,
+            100.0 * u.bootstrap_spread,
+            if unsteady { "unsteady" } else { "steady" },
+            100.0 * UNSTEADY_SPREAD,
+            if poor || unsteady {
+                "; do not trust this estimate under other light"
+            } else {
+                ""
+            }
+        );
+        Some((text, poor || unsteady))
     }
 
     /// The colour model for a person to read, and when several were tried, why this one.

@@ -10,7 +10,7 @@
 //! | `GET /api/v1/sessions/{id}` | `{"id", "dir", "manifest"}`: where it is stored, and its manifest |
 //! | `GET /api/v1/sessions/{id}/events` | Server-Sent Events, one JSON [`Event`] each, from the session's first; ends after `finished` |
 //! | `GET /api/v1/sessions/{id}/result` | `coefficients.json`; 409 `not_done` until the session is done |
-//! | `GET /api/v1/sessions/{id}/result/{file}` | `preview.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf.binary` |
+//! | `GET /api/v1/sessions/{id}/result/{file}` | `preview.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf.binary`; for an analytic estimate also `brdf-sigma.exr`, `material.gltf`, `material.mtlx` |
 //! | `POST /api/v1/sessions/{id}/cancel` | 202; 409 `not_running` |
 //! | `POST /api/v1/sessions/{id}/resume` | 202 as for a new capture; 409 `busy` |
 //!
@@ -222,8 +222,11 @@ async fn result_file(
     // A fixed list: a file name from the request never reaches the file system unchecked.
     let kind = match file.as_str() {
         "preview.png" => "image/png",
-        "preview.exr" | "brdf-bivariate.exr" => "image/x-exr",
+        "preview.exr" | "brdf-bivariate.exr" | "brdf-sigma.exr" => "image/x-exr",
         "brdf.binary" | "coefficients.json" => "application/octet-stream",
+        // glTF's registered media type; MaterialX has none, and is XML.
+        "material.gltf" => "model/gltf+json",
+        "material.mtlx" => "application/xml",
         _ => return Err(not_found(format!("no result file {file:?}"))),
     };
     let s = done(&d, &id)?;

@@ -17,7 +17,7 @@ use serde_json::json;
 use super::{Cancel, Devices, Event, Plan, Progress};
 use crate::bench::camera::SENSOR_GAIN;
 use crate::bench::panorama::THETA_SENSOR_GAIN;
-use crate::bench::VirtualBench;
+use crate::bench::{VirtualBench, HELD_OUT_YAW_DEG};
 use crate::config::{MaterialPreset, PixelCount, Rig};
 use crate::core::basis::Basis;
 use crate::core::bivariate::Bivariate;
@@ -441,6 +441,15 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         }
         _ => None,
     };
+    let relight = match &bench {
+        Some(b) => {
+            let p = phases.start("relight against the ground truth (simulator)", 1);
+            let error = b.relight_error(&est.brdf)?;
+            phases.end_as_device(p);
+            Some(error)
+        }
+        None => None,
+    };
     let p = phases.start("write results", 1);
     write_exr(
         &session.dir.join("derived/panorama.exr"),
@@ -459,6 +468,18 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         est.candidates,
         fit_verdict(est.fit_error),
     ));
+    if let Some(error) = relight {
+        cx.say(format!(
+            "relit under the bench's map turned {HELD_OUT_YAW_DEG}° (light it was not fitted to), the estimate is {error:.4} from the truth (relative RMSE over the object)"
+        ));
+    }
+    if let Some((text, distrust)) = est.certainty_text() {
+        if distrust {
+            cx.warn(text);
+        } else {
+            cx.say(text);
+        }
+    }
     if est.clipped > 0 {
         cx.say(format!(
             "{} object pixels were clipped in every frame of their bracket and left out; a shorter exposure would keep them",
