@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::core::analytic::{Microfacet, Uncertainty};
+use crate::core::analytic::Microfacet;
 use crate::core::basis::Basis;
 use crate::core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
 use crate::core::brdf::directional_albedo;
@@ -14,6 +14,7 @@ use crate::core::envmap::{write_exr, LightSet};
 use crate::core::estimate::{Estimate, Timings};
 use crate::core::geometry::{Camera, PixelGeometry, Shape};
 use crate::core::render::render_bivariate;
+use crate::core::uncertainty::Uncertainty;
 use crate::core::{CoreError, Result};
 use crate::export::{write_exports, Export};
 
@@ -65,8 +66,8 @@ pub struct CoefficientsFile<'a> {
     pub timings: &'a Timings,
     /// Non-negativity and energy conservation of the estimated BRDF.
     pub plausibility: Plausibility,
-    /// The analytic fit's uncertainty: each parameter's 1-σ (in the order of `columns`), the
-    /// weights' covariance per channel, and the BRDF's bootstrap spread (its per-cell band is
+    /// How sure the estimate is: each coefficient's 1-σ (in the order of `columns`), their
+    /// covariance, and the relit sphere's bootstrap spread (the BRDF's per-cell band is
     /// `brdf-sigma.exr`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub uncertainty: Option<&'a Uncertainty>,

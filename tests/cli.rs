@@ -624,8 +624,16 @@ fn analytic_estimate_from_files_and_argument_checks() {
     ]);
     let (stdout, stderr) = text(&o);
     assert!(o.status.success(), "{stdout}\n{stderr}");
+    // The summary says how sure it is; every pixel pins the analytic model down.
+    assert!(stdout.contains("(steady: at most 5%)"), "{stdout}");
+    assert!(!stderr.contains("do not trust"), "{stderr}");
     let json = coefficients_json(dir.path(), "est");
     assert_eq!(json["model"], "analytic");
+    let spread = json["uncertainty"]["bootstrap_spread"].as_f64().unwrap();
+    assert!(spread > 0.0 && spread < 0.05, "{json}");
+    assert_eq!(json["uncertainty"]["std"].as_array().unwrap().len(), 10);
+    assert!(dir.path().join("est/brdf-sigma.exr").is_file());
+    assert!(dir.path().join("est/material.gltf").is_file());
     let lobe = &json["analytic"]["lobes"][0];
     let alpha = lobe["alpha"].as_f64().unwrap();
     assert!(alpha > 0.0 && alpha < 1.0, "{json}");
@@ -652,6 +660,24 @@ fn analytic_estimate_from_files_and_argument_checks() {
     let o = estimate(&["--shape", "sphere", "--lobes", "3", "--out", "est3"]);
     assert!(!o.status.success());
     assert!(text(&o).1.contains("--lobes"), "{}", text(&o).1);
+    // The paper's method on the same photo: 20 pixels do not pin the BRDF down, and the
+    // summary must say so rather than look like a good estimate (issue 18).
+    let o = estimate(&[
+        "--shape",
+        "sphere",
+        "--model",
+        "basis",
+        "--pixels",
+        "20",
+        "--solve",
+        "least-squares",
+        "--colour",
+        "joint",
+        "--out",
+        "paper",
+    ]);
+    assert!(o.status.success(), "{:?}", text(&o));
+    assert!(text(&o).1.contains("do not trust"), "{:?}", text(&o));
     // No geometry: an error that lists the choices, not an assumed sphere.
     let o = estimate(&["--out", "none"]);
     assert!(!o.status.success());

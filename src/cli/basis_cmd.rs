@@ -5,9 +5,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context};
 use brdfd::core::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
 use brdfd::core::bivariate::{Bivariate, Grid, PhiReduction, ThetaHBinning};
-use brdfd::core::eval::TEST_SET;
 use brdfd::core::merl::MerlBrdf;
 use brdfd::core::nbrdf::NbrdfSet;
+use brdfd::evaluation::paper::TEST_SET;
 
 #[derive(clap::Subcommand)]
 pub enum BasisCommand {

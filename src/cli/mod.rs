@@ -170,7 +170,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         Command::Eval(a) => {
-            let report = brdfd::core::eval::run(&brdfd::core::eval::EvalConfig {
+            let report = brdfd::evaluation::paper::run(&brdfd::evaluation::paper::EvalConfig {
                 data: a.data,
                 out: a.out,
                 size: a.size,

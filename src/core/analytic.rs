@@ -29,6 +29,9 @@ use super::error::{CoreError, Result};
 use super::geometry::GeomPixel;
 use super::merl;
 use super::render::{RenderingMatrix, MAX_COLUMNS};
+use super::uncertainty::{
+    band, image_spread, spread_sphere, std_of, Uncertainty, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED,
+};
 
 /// Roughness (GGX α) searched: from a near mirror to a nearly diffuse lobe.
 pub const ALPHA_MIN: f64 = 0.004;
@@ -361,35 +364,8 @@ pub struct AnalyticFit {
     pub uncertainty: Uncertainty,
 }
 
-/// Resamples of the candidate pixels (with replacement) for the bootstrap.
-pub const BOOTSTRAP_RESAMPLES: usize = 32;
-/// Seed of the bootstrap's resamples: the same photo gives the same spread.
-const BOOTSTRAP_SEED: u64 = 0x5eed;
 /// Step in log α of the misfit profile's curvature (10%).
 const PROFILE_STEP: f64 = 0.1;
-
-/// How sure the fit is.
-#[derive(Clone, Debug, Serialize)]
-pub struct Uncertainty {
-    /// 1-σ of each parameter, in the order of [`Microfacet::names`]. The weights' from their
-    /// covariance at the fitted roughnesses, σ²(XᵀX)⁻¹ over the weights the fit keeps (a weight
-    /// held at zero by its bound gets 0); each α's from the curvature of the misfit's profile
-    /// along it, the others fixed. σ² is the residual's variance, so model error counts as
-    /// noise: an estimate that fits poorly is reported as unsure.
-    pub std: Vec<f64>,
-    /// Per channel, the weights' covariance (row-major, in the matrix's column order: kd,
-    /// then F₀ and F₉₀ of each lobe).
-    pub covariance: [Vec<f64>; 3],
-    /// The BRDF's spread over [`BOOTSTRAP_RESAMPLES`] resamples of the pixels (roughnesses
-    /// fixed): the RMS over the grid of each cell's standard deviation, relative to the BRDF's
-    /// RMS.
-    pub bootstrap_spread: f64,
-    pub resamples: usize,
-    /// Each grid value's bootstrap standard deviation (the 1-σ band), channel-planar like
-    /// [`Bivariate::values`].
-    #[serde(skip)]
-    pub band: Vec<f64>,
-}
 
 /// Builds the matrix of several α at once: Lambert, then (F₀, F₉₀) columns of each α. One
 /// pass over the (pixel, light) pairs serves every α.
@@ -634,7 +610,16 @@ pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize) -> Result<AnalyticFit
     let alpha_std: Vec<f64> = (0..alphas.len())
         .map(|l| profile_std(&mut search, &alphas, l))
         .collect();
-    let uncertainty = uncertainty(&matrix, &observed, &systems, &w, &alpha_std, grid, &alphas);
+    let uncertainty = uncertainty(
+        &matrix,
+        &observed,
+        &systems,
+        &w,
+        &alpha_std,
+        grid,
+        &alphas,
+        views[0].lights,
+    )?;
     let model = Microfacet {
         diffuse: std::array::from_fn(|c| w[c][0]),
         lobes: alphas
@@ -686,7 +671,11 @@ fn profile_std(search: &mut Search, alphas: &[f64], l: usize) -> f64 {
     }
 }
 
-/// The weights' covariance and the bootstrap band (see [`Uncertainty`]).
+/// The analytic fit's [`Uncertainty`]: the weights' covariance at the fitted roughnesses,
+/// σ²(XᵀX)⁻¹ over the weights the fit keeps (a weight held at zero by its bound gets 0), with
+/// σ² the residual's variance, so model error counts as noise and a poor fit is reported as
+/// unsure; each α's variance from the misfit's profile ([`profile_std`]); and the bootstrap
+/// band with the roughnesses fixed.
 fn uncertainty(
     matrix: &RenderingMatrix,
     observed: &[[f64; 3]],
@@ -695,11 +684,12 @@ fn uncertainty(
     alpha_std: &[f64],
     grid: Grid,
     alphas: &[f64],
-) -> Uncertainty {
+    lights: &LightSet,
+) -> Result<Uncertainty> {
     use rand::{Rng, SeedableRng};
     let p = weights[0].len();
     let n = observed.len();
-    let covariance: [Vec<f64>; 3] = std::array::from_fn(|c| {
+    let per_channel: [DMatrix<f64>; 3] = std::array::from_fn(|c| {
         let (g, b, yy) = &systems[c];
         let w = &weights[c];
         let rss = ((w.transpose() * g * w)[0] - 2.0 * w.dot(b) + yy).max(0.0);
@@ -709,22 +699,36 @@ fn uncertainty(
         let inv = sub
             .try_inverse()
             .unwrap_or_else(|| DMatrix::from_element(free.len(), free.len(), f64::INFINITY));
-        let mut cov = vec![0.0; p * p];
+        let mut cov = DMatrix::zeros(p, p);
         for (i, &a) in free.iter().enumerate() {
             for (j, &b) in free.iter().enumerate() {
-                cov[a * p + b] = variance * inv[(i, j)];
+                cov[(a, b)] = variance * inv[(i, j)];
             }
         }
         cov
     });
-    // Standard deviations in the order of `Microfacet::names`: kd of R, G, B; then per lobe F₀
-    // of R, G, B, F₉₀ of R, G, B, α.
-    let sd = |c: usize, k: usize| covariance[c][k * p + k].max(0.0).sqrt();
-    let mut std: Vec<f64> = (0..3).map(|c| sd(c, 0)).collect();
-    for (l, a_std) in alpha_std.iter().enumerate() {
-        std.extend((0..3).map(|c| sd(c, 1 + 2 * l)));
-        std.extend((0..3).map(|c| sd(c, 2 + 2 * l)));
-        std.push(*a_std);
+    // Into the order of `Microfacet::values`: kd of R, G, B; then per lobe F₀ of R, G, B, F₉₀
+    // of R, G, B, α. Channels are solved apart, so their blocks do not mix.
+    let m = 3 + 7 * alphas.len();
+    let position = |c: usize, k: usize| -> usize {
+        if k == 0 {
+            c
+        } else {
+            let (lobe, part) = ((k - 1) / 2, (k - 1) % 2);
+            3 + 7 * lobe + 3 * part + c
+        }
+    };
+    let mut covariance = vec![0.0; m * m];
+    for (c, cov) in per_channel.iter().enumerate() {
+        for i in 0..p {
+            for j in 0..p {
+                covariance[position(c, i) * m + position(c, j)] = cov[(i, j)];
+            }
+        }
+    }
+    for (l, s) in alpha_std.iter().enumerate() {
+        let k = 9 + 7 * l;
+        covariance[k * m + k] = s * s;
     }
     // Bootstrap: the pixels resampled with replacement, the weights solved again at the fitted
     // roughnesses, the BRDF rebuilt from them.
@@ -744,35 +748,33 @@ fn uncertainty(
         }
         values
     };
+    // The sphere relit under the estimate's lights, linear in the weights.
+    let refs: Vec<&[f64]> = std::iter::once(cols[0][0].as_slice())
+        .chain(cols.iter().flat_map(|l| [l[1].as_slice(), l[2].as_slice()]))
+        .collect();
+    let sphere =
+        RenderingMatrix::build(&spread_sphere()?, lights, &refs, None, grid.theta_h_binning);
+    let image = |w: &[DVector<f64>; 3]| {
+        sphere.predict_per_channel([w[0].as_slice(), w[1].as_slice(), w[2].as_slice()])
+    };
     let full: Vec<usize> = (0..p).collect();
     let mut rng = rand::rngs::StdRng::seed_from_u64(BOOTSTRAP_SEED);
-    let mut sum = vec![0.0; VALUES];
-    let mut sum2 = vec![0.0; VALUES];
+    let (mut brdfs, mut images) = (Vec::new(), Vec::new());
     for _ in 0..BOOTSTRAP_RESAMPLES {
         let picks: Vec<usize> = (0..n).map(|_| rng.random_range(0..n)).collect();
-        let resampled = matrix.subset(&picks);
         let obs: Vec<[f64; 3]> = picks.iter().map(|&i| observed[i]).collect();
-        let (w, _) = solve_weights(&resampled, &obs, &full);
-        for (k, v) in rebuild(&w).into_iter().enumerate() {
-            sum[k] += v;
-            sum2[k] += v * v;
-        }
+        let w = solve_weights(&matrix.subset(&picks), &obs, &full).0;
+        brdfs.push(rebuild(&w));
+        images.push(image(&w));
     }
-    let b = BOOTSTRAP_RESAMPLES as f64;
-    let band: Vec<f64> = sum
-        .iter()
-        .zip(&sum2)
-        .map(|(s, s2)| ((s2 / b - (s / b).powi(2)) * b / (b - 1.0)).max(0.0).sqrt())
-        .collect();
-    let fitted = rebuild(weights);
-    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
-    Uncertainty {
-        std,
+    Ok(Uncertainty {
+        std: std_of(&covariance, m),
         covariance,
-        bootstrap_spread: rms(&band) / rms(&fitted).max(f64::MIN_POSITIVE),
-        resamples: BOOTSTRAP_RESAMPLES,
-        band,
-    }
+        covariance_from: "linearised",
+        bootstrap_spread: image_spread(&images, &image(weights)),
+        resamples: images.len(),
+        band: band(&brdfs),
+    })
 }
 
 /// κ of X from its Gram matrix G = XᵀX, with X's columns scaled to unit norm first (the

@@ -3,7 +3,8 @@
 //!
 //! Data flow: [`merl`]/[`nbrdf`] sources → [`bivariate`] reduction → [`basis`] (PCA) →
 //! [`render`] builds A from [`geometry`] and [`envmap`] lights → [`select`] picks pixels →
-//! [`solve`] gives the coefficients. [`estimate`] runs that chain; [`eval`] measures it.
+//! [`solve`] gives the coefficients; [`analytic`] is the other model. [`estimate`] runs the chain;
+//! `crate::evaluation` measures it from outside.
 
 pub mod analytic;
 pub mod basis;
@@ -12,7 +13,6 @@ pub mod brdf;
 pub mod envmap;
 pub mod error;
 pub mod estimate;
-pub mod eval;
 pub mod geometry;
 pub mod merl;
 pub mod nbrdf;
@@ -20,5 +20,6 @@ pub mod raster;
 pub mod render;
 pub mod select;
 pub mod solve;
+pub mod uncertainty;
 
 pub use error::{CoreError, Result};

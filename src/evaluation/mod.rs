@@ -2,8 +2,10 @@
 //! pipeline as `brdfd estimate` and compare its output with ground truth.
 //!
 //! - [`relight`]: the headline measure, relighting under maps the estimate never saw.
-//!
-//! The paper's own protocol (BRDF and image error against pixel count) is still
-//! [`crate::core::eval`].
+//! - [`paper`]: the paper's own protocol for the basis model (BRDF and image error against
+//!   pixel count, Fig. 5 and Fig. 6). For speed it selects once per lighting and solves every
+//!   material on the shared selection, so it calls the pipeline's steps (`chosen_rows`, the
+//!   solvers) rather than the whole `estimate`.
 
+pub mod paper;
 pub mod relight;

@@ -28,13 +28,13 @@ use crate::core::brdf::IsotropicBrdf;
 use crate::core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use crate::core::error::{CoreError, Result};
 use crate::core::estimate::{estimate, EstimateOptions, Model, View};
-use crate::core::eval::{add_sensor_noise, default_basis, GT_LIGHTS, TEST_SET};
 use crate::core::geometry::{Camera, PixelGeometry, Shape};
 use crate::core::merl::MerlBrdf;
 use crate::core::nbrdf::NbrdfSet;
 use crate::core::raster::{linear_to_srgb, Raster};
 use crate::core::render::{render_bivariate, render_merl};
 use crate::core::solve::{ColourChoice, Solver};
+use crate::evaluation::paper::{add_sensor_noise, default_basis, GT_LIGHTS, TEST_SET};
 
 /// Directions of the log error's Monte Carlo mean (uniform over both hemispheres): its
 /// standard error is below 1% of the error at this count.
@@ -133,6 +133,10 @@ pub struct Row {
     pub method: &'static str,
     /// How well the estimate re-renders its own photo (`fit_error`).
     pub fit: f64,
+    /// The BRDF's bootstrap spread (`uncertainty.bootstrap_spread`).
+    pub spread: f64,
+    /// Whether the estimate's summary warns not to trust it (a poor fit, or unsteady).
+    pub flagged: bool,
     pub relight_error: f64,
     pub psnr: f64,
     pub log_error: f64,
@@ -317,6 +321,11 @@ pub fn run(cfg: &RelightConfig) -> Result<String> {
                 };
                 let est = estimate(&basis, view, &options)?;
                 let log = log_error(&est.brdf, &material.table, 11 + mi as u64);
+                let flagged = est.certainty_text().is_some_and(|(_, distrust)| distrust);
+                let spread = est
+                    .uncertainty
+                    .as_ref()
+                    .map_or(f64::NAN, |u| u.bootstrap_spread);
                 for (li, other) in lightings.iter().enumerate() {
                     if li == ci {
                         continue;
@@ -329,6 +338,8 @@ pub fn run(cfg: &RelightConfig) -> Result<String> {
                         analytic: material.analytic,
                         method: method.name,
                         fit: est.fit_error,
+                        spread,
+                        flagged,
                         relight_error: relit.relative_rmse(&truths[li]),
                         psnr: tone_mapped_psnr(&relit, &truths[li]),
                         log_error: log,
@@ -347,18 +358,20 @@ pub fn run(cfg: &RelightConfig) -> Result<String> {
 
 fn write_csv(path: &Path, rows: &[Row]) -> Result<()> {
     let mut s = String::from(
-        "capture,relight,material,analytic,method,fit_error,relight_error,psnr_db,log_error\n",
+        "capture,relight,material,analytic,method,fit_error,bootstrap_spread,flagged,relight_error,psnr_db,log_error\n",
     );
     for r in rows {
         let _ = writeln!(
             s,
-            "{},{},{},{},{},{:.6},{:.6},{:.3},{:.6}",
+            "{},{},{},{},{},{:.6},{:.6},{},{:.6},{:.3},{:.6}",
             r.capture,
             r.relight,
             r.material,
             r.analytic,
             r.method,
             r.fit,
+            r.spread,
+            r.flagged,
             r.relight_error,
             r.psnr,
             r.log_error
@@ -440,6 +453,47 @@ fn markdown(rows: &[Row], methods: &[Method], cfg: &RelightConfig, seconds: f64)
             pick(&psnr, None),
             pick(&log, None),
             pick(&fit, None),
+        );
+    }
+    // Does the warning catch the bad estimates? Per method: how many estimates it flags, and
+    // the median relight error of the flagged and the unflagged ones.
+    let _ = writeln!(
+        s,
+        "\n## The summary's warning (poor fit, or unsteady under resampling)\n\n| method | estimates flagged | relight, flagged | relight, not flagged |\n|---|---|---|---|"
+    );
+    for m in methods {
+        let of = |flag: bool| -> Vec<f64> {
+            let mut keys: Vec<(&str, &str)> = Vec::new();
+            let mut out = Vec::new();
+            for r in rows
+                .iter()
+                .filter(|r| r.method == m.name && r.flagged == flag)
+            {
+                if !keys.contains(&(r.capture.as_str(), r.material.as_str())) {
+                    keys.push((r.capture.as_str(), r.material.as_str()));
+                    out.push(median(
+                        rows.iter()
+                            .filter(|q| {
+                                q.method == m.name
+                                    && q.capture == r.capture
+                                    && q.material == r.material
+                            })
+                            .map(|q| q.relight_error)
+                            .collect(),
+                    ));
+                }
+            }
+            out
+        };
+        let (flagged, clear) = (of(true), of(false));
+        let _ = writeln!(
+            s,
+            "| {} | {} of {} | {:.4} | {:.4} |",
+            m.name,
+            flagged.len(),
+            flagged.len() + clear.len(),
+            median(flagged.clone()),
+            median(clear.clone()),
         );
     }
     let _ = writeln!(

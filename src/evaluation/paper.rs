@@ -24,18 +24,18 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Poisson};
 
-use super::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
-use super::bivariate::{Bivariate, Grid, GRID_CELLS};
-use super::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
-use super::error::{CoreError, Result};
-use super::estimate::{chosen_rows, keep_better_fit, relative_misfit};
-use super::geometry::{Camera, PixelGeometry, Shape};
-use super::merl::MerlBrdf;
-use super::nbrdf::NbrdfSet;
-use super::raster::Raster;
-use super::render::{render_bivariate, render_merl, RenderingMatrix};
-use super::select::{self, Blocks, Selection};
-use super::solve::{channel_coefficients, Colour, ColourChoice, Solver};
+use crate::core::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
+use crate::core::bivariate::{Bivariate, Grid, GRID_CELLS};
+use crate::core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
+use crate::core::error::{CoreError, Result};
+use crate::core::estimate::{chosen_rows, keep_better_fit, relative_misfit};
+use crate::core::geometry::{Camera, PixelGeometry, Shape};
+use crate::core::merl::MerlBrdf;
+use crate::core::nbrdf::NbrdfSet;
+use crate::core::raster::Raster;
+use crate::core::render::{render_bivariate, render_merl, RenderingMatrix};
+use crate::core::select::{self, Blocks, Selection};
+use crate::core::solve::{channel_coefficients, Colour, ColourChoice, Solver};
 
 pub const TEST_SET: [&str; 10] = [
     "black-soft-plastic",
@@ -608,7 +608,7 @@ fn measure_choices(
     set: &NbrdfSet,
     reduced: &[(String, Bivariate)],
 ) -> Result<String> {
-    use super::bivariate::{PhiReduction, ThetaHBinning};
+    use crate::core::bivariate::{PhiReduction, ThetaHBinning};
     let size = LOO_SIZE;
     let lighting = load_lighting(&cfg.data, "grace")?;
     let geometry =
