@@ -610,14 +610,14 @@ pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize) -> Result<AnalyticFit
     let alpha_std: Vec<f64> = (0..alphas.len())
         .map(|l| profile_std(&mut search, &alphas, l))
         .collect();
+    let lobes: Vec<(f64, f64)> = alphas.iter().copied().zip(alpha_std).collect();
     let uncertainty = uncertainty(
         &matrix,
         &observed,
         &systems,
         &w,
-        &alpha_std,
+        &lobes,
         grid,
-        &alphas,
         views[0].lights,
     )?;
     let model = Microfacet {
@@ -675,17 +675,17 @@ fn profile_std(search: &mut Search, alphas: &[f64], l: usize) -> f64 {
 /// σ²(XᵀX)⁻¹ over the weights the fit keeps (a weight held at zero by its bound gets 0), with
 /// σ² the residual's variance, so model error counts as noise and a poor fit is reported as
 /// unsure; each α's variance from the misfit's profile ([`profile_std`]); and the bootstrap
-/// band with the roughnesses fixed.
+/// band with the roughnesses fixed. `lobes` holds each lobe's α and its 1-σ.
 fn uncertainty(
     matrix: &RenderingMatrix,
     observed: &[[f64; 3]],
     systems: &[(DMatrix<f64>, DVector<f64>, f64); 3],
     weights: &[DVector<f64>; 3],
-    alpha_std: &[f64],
+    lobes: &[(f64, f64)],
     grid: Grid,
-    alphas: &[f64],
     lights: &LightSet,
 ) -> Result<Uncertainty> {
+    let alphas: Vec<f64> = lobes.iter().map(|l| l.0).collect();
     use rand::{Rng, SeedableRng};
     let p = weights[0].len();
     let n = observed.len();
@@ -726,7 +726,7 @@ fn uncertainty(
             }
         }
     }
-    for (l, s) in alpha_std.iter().enumerate() {
+    for (l, (_, s)) in lobes.iter().enumerate() {
         let k = 9 + 7 * l;
         covariance[k * m + k] = s * s;
     }
