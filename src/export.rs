@@ -6,8 +6,10 @@
 //! published one) is rendered beside the estimate under a map neither was fitted to, and the
 //! relative RMSE is written beside the files ([`Export::relight_error`]).
 //!
-//! Not here: exporting a basis estimate (it has no analytic form), and OpenPBR's extras
-//! (energy compensation, F82 tint): the `.mtlx` carries the same parameters as the glTF.
+//! Not here: exporting a basis estimate (it has no analytic form), and a measured OpenPBR
+//! mapping: the `.mtlx` puts the glTF material's numbers into OpenPBR's nearest inputs (base
+//! colour and metalness, specular weight, colour capped at 1, roughness, IOR). OpenPBR's model
+//! differs in its details (energy compensation, F82 tint), and `relight_error` is the glTF's.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -15,7 +17,7 @@ use std::path::Path;
 use serde::Serialize;
 
 use crate::bench::studio_envmap;
-use crate::core::analytic::{Lobe, Microfacet};
+use crate::core::analytic::{schlick_weight, Lobe, Microfacet};
 use crate::core::bivariate::{Bivariate, Grid};
 use crate::core::brdf::{from_rusinkiewicz, IsotropicBrdf};
 use crate::core::geometry::{Camera, PixelGeometry, Shape};
@@ -24,6 +26,9 @@ use crate::core::{CoreError, Result};
 
 /// F₀ of glTF's default dielectric (IOR 1.5).
 const DIELECTRIC_F0: f64 = 0.04;
+/// The smallest specular factor the specular colour is divided by (a lobe with no grazing
+/// reflection would otherwise divide by zero).
+const MIN_SPECULAR: f64 = 1e-3;
 /// The map and sphere the export's loss is measured on: the procedural studio turned 120°,
 /// which no capture is fitted under.
 const CHECK_YAW_DEG: f64 = 120.0;
@@ -73,6 +78,7 @@ impl GltfMaterial {
         let lobe = main_lobe(m)?;
         let mean = |v: [f64; 3]| v.iter().sum::<f64>() / 3.0;
         let roughness = lobe.alpha.sqrt().clamp(0.0, 1.0);
+        let specular = mean(lobe.f90).clamp(0.0, 1.0);
         Some(if mean(lobe.f0) > mean(m.diffuse) {
             GltfMaterial {
                 base_color: lobe.f0.map(|v| v.clamp(0.0, 1.0)),
@@ -87,8 +93,11 @@ impl GltfMaterial {
                 base_color: m.diffuse.map(|v| v.clamp(0.0, 1.0)),
                 metallic: 0.0,
                 roughness,
-                specular: mean(lobe.f90).clamp(0.0, 1.0),
-                specular_color: lobe.f0.map(|v| (v / DIELECTRIC_F0).max(0.0)),
+                specular,
+                // glTF's dielectric F₀ is 0.04 · specularColor · specularFactor.
+                specular_color: lobe
+                    .f0
+                    .map(|v| (v / (DIELECTRIC_F0 * specular.max(MIN_SPECULAR))).max(0.0)),
                 ior: 1.5,
             }
         })
@@ -170,7 +179,7 @@ impl IsotropicBrdf for GltfBrdf {
         let alpha = m.roughness * m.roughness;
         let specular = Microfacet::one_lobe([0.0; 3], [1.0; 3], [1.0; 3], alpha)
             .eval_angles(theta_h, theta_d, phi_d)[0];
-        let w = (1.0 - theta_d.cos()).clamp(0.0, 1.0).powi(5);
+        let w = schlick_weight(theta_d.cos());
         let ior_f0 = ((m.ior - 1.0) / (m.ior + 1.0)).powi(2);
         std::array::from_fn(|c| {
             let dielectric_f0 = (ior_f0 * m.specular_color[c]).min(1.0) * m.specular;
@@ -237,6 +246,11 @@ mod tests {
             ),
             (
                 Microfacet::one_lobe([0.5, 0.1, 0.1], [0.04; 3], [1.0; 3], 0.2),
+                0.0,
+            ),
+            // A weaker grazing reflection (F₉₀ 0.5): glTF's F₀ is 0.04 · colour · factor.
+            (
+                Microfacet::one_lobe([0.5, 0.1, 0.1], [0.04; 3], [0.5; 3], 0.2),
                 0.0,
             ),
         ] {

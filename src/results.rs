@@ -11,7 +11,7 @@ use crate::core::basis::Basis;
 use crate::core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
 use crate::core::brdf::directional_albedo;
 use crate::core::envmap::{write_exr, LightSet};
-use crate::core::estimate::{Estimate, Timings};
+use crate::core::estimate::{Estimate, Model, Timings};
 use crate::core::geometry::{Camera, PixelGeometry, Shape};
 use crate::core::render::render_bivariate;
 use crate::core::uncertainty::Uncertainty;
@@ -84,7 +84,7 @@ pub struct CoefficientsFile<'a> {
 pub struct Plausibility {
     /// The smallest value of the bivariate BRDF over the cells that hold one (1/sr).
     pub min_value: f64,
-    /// Cells (of 8,100, per channel) below zero. The analytic model has none by construction;
+    /// Values below zero, counted over the three channels' cells (8,100 each). The analytic model has none by construction;
     /// the basis's coefficients can make some negative.
     pub negative_cells: usize,
     /// The largest directional albedo over view angles 0°, 10°, …, 80°, per channel.
@@ -177,7 +177,11 @@ pub fn write_results(
         coefficients: &estimate.solution.coefficients,
         pixel_count: estimate.selection.pixels.len(),
         selection_method: if all { "all" } else { method },
-        solver: estimate.solver.name(),
+        // The analytic weights are solved by non-negative least squares, whatever `--solve`.
+        solver: match estimate.model {
+            Model::Analytic => "non-negative-least-squares",
+            Model::Basis => estimate.solver.name(),
+        },
         colour: estimate.colour.name(),
         colour_fits: estimate
             .colour_fits
@@ -216,7 +220,13 @@ pub fn write_results(
     let json = serde_json::to_string_pretty(&file).expect("coefficients serialise");
     std::fs::write(&files.coefficients, json).map_err(|e| CoreError::io(&files.coefficients, e))?;
     write_bivariate_exr(&files.brdf_exr, brdf)?;
-    if let Some(u) = &estimate.uncertainty {
+    // Every resample may fail to solve (least squares on a few repeated pixels): then there is
+    // no band to write.
+    if let Some(u) = estimate
+        .uncertainty
+        .as_ref()
+        .filter(|u| u.band.len() == brdf.values.len())
+    {
         let band = Bivariate::from_values(brdf.grid, u.band.clone(), brdf.valid.clone());
         write_bivariate_exr(&dir.join("brdf-sigma.exr"), &band)?;
     }

@@ -281,6 +281,8 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
         if v["model"] == "analytic" {
             let m: Microfacet = serde_json::from_value(v["analytic"].clone())
                 .with_context(|| format!("{}: field `analytic`", p.display()))?;
+            m.check()
+                .map_err(|e| anyhow::anyhow!("{}: field `analytic`: {e}", p.display()))?;
             let b = m.bivariate(basis.header.grid);
             return finish_render(&a.out, render_bivariate(&geometry, &lights, &b));
         }

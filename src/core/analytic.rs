@@ -16,13 +16,13 @@
 //! model of the estimate, the lobes are used through their bivariate reduction; the
 //! [`Microfacet`] itself is a full BRDF, which tabulates analytic test materials).
 
-use std::sync::OnceLock;
+use std::sync::{Arc, Mutex, OnceLock};
 
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::bivariate::{Bivariate, Grid, GRID_CELLS, N_THETA_D, N_THETA_H, VALUES};
+use super::bivariate::{Bivariate, Grid, PhiReduction, GRID_CELLS, N_THETA_D, N_THETA_H, VALUES};
 use super::brdf::{from_rusinkiewicz, IsotropicBrdf};
 use super::envmap::LightSet;
 use super::error::{CoreError, Result};
@@ -71,6 +71,31 @@ pub struct Microfacet {
 }
 
 impl Microfacet {
+    /// Checks parameters that came from a file: weights finite and ≥ 0, each α finite within
+    /// [`ALPHA_MIN`] … [`ALPHA_MAX`] (the range the fit searches; α = 0 has no GGX lobe).
+    pub fn check(&self) -> std::result::Result<(), String> {
+        let weights = self
+            .diffuse
+            .iter()
+            .chain(self.lobes.iter().flat_map(|l| l.f0.iter().chain(&l.f90)));
+        if let Some(w) = weights.into_iter().find(|w| !(w.is_finite() && **w >= 0.0)) {
+            return Err(format!(
+                "a weight is {w}; weights are finite and at least 0"
+            ));
+        }
+        match self
+            .lobes
+            .iter()
+            .find(|l| !(ALPHA_MIN..=ALPHA_MAX).contains(&l.alpha))
+        {
+            Some(l) => Err(format!(
+                "a lobe's alpha is {}; it is between {ALPHA_MIN} and {ALPHA_MAX}",
+                l.alpha
+            )),
+            None => Ok(()),
+        }
+    }
+
     /// Lambert and one lobe.
     pub fn one_lobe(diffuse: [f64; 3], f0: [f64; 3], f90: [f64; 3], alpha: f64) -> Microfacet {
         Microfacet {
@@ -100,7 +125,7 @@ fn visibility(ci: f64, co: f64, alpha: f64) -> f64 {
 }
 
 /// Schlick's weight w = (1 − cos θd)⁵.
-fn schlick_weight(cos_d: f64) -> f64 {
+pub(crate) fn schlick_weight(cos_d: f64) -> f64 {
     (1.0 - cos_d).clamp(0.0, 1.0).powi(5)
 }
 
@@ -133,25 +158,39 @@ struct CellSamples {
     cos_d: Vec<f64>,
 }
 
-fn cell_samples(grid: Grid) -> &'static CellSamples {
-    static SAMPLES: OnceLock<(Grid, CellSamples)> = OnceLock::new();
-    let (made_for, samples) = SAMPLES.get_or_init(|| (grid, CellSamples::new(grid)));
-    assert_eq!(*made_for, grid, "one grid per process");
-    samples
+/// Each grid's samples, made once per process (a process uses one or two grids).
+type SampleCache = Mutex<Vec<(Grid, Arc<CellSamples>)>>;
+
+/// The samples of `grid`, from the [`SampleCache`].
+fn cell_samples(grid: Grid) -> Arc<CellSamples> {
+    static SAMPLES: OnceLock<SampleCache> = OnceLock::new();
+    let cache = SAMPLES.get_or_init(|| Mutex::new(Vec::new()));
+    // A poisoned lock only means another thread panicked while making samples; the list itself
+    // is still whole.
+    let mut made = cache.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, s)) = made.iter().find(|(g, _)| *g == grid) {
+        return Arc::clone(s);
+    }
+    let s = Arc::new(CellSamples::new(grid));
+    made.push((grid, Arc::clone(&s)));
+    s
 }
 
 impl CellSamples {
     fn new(grid: Grid) -> CellSamples {
-        // φd over [0, π/2): the reduction's samples (reciprocity and the mirror symmetry of an
-        // isotropic BRDF cover the rest).
-        let phis = merl::PHI_D_BINS / 2;
+        // φd as the grid's reduction samples it: over [0, π/2) (reciprocity and the mirror
+        // symmetry of an isotropic BRDF cover the rest), or the φd = 90° slice alone.
+        let phis: Vec<f64> = match grid.phi_reduction {
+            PhiReduction::ValidMean => (0..merl::PHI_D_BINS / 2).map(merl::phi_d_center).collect(),
+            PhiReduction::Slice90 => vec![std::f64::consts::FRAC_PI_2],
+        };
         let per_cell: Vec<Vec<(f64, f64)>> = (0..GRID_CELLS)
             .into_par_iter()
             .map(|g| {
                 let (th, td) = cell_angles(grid, g);
-                (0..phis)
-                    .filter_map(|k| {
-                        let (wi, wo) = from_rusinkiewicz(th, td, merl::phi_d_center(k));
+                phis.iter()
+                    .filter_map(|&phi| {
+                        let (wi, wo) = from_rusinkiewicz(th, td, phi);
                         (wi[2] > 0.0 && wo[2] > 0.0).then_some((wi[2], wo[2]))
                     })
                     .collect()
@@ -237,15 +276,24 @@ impl Microfacet {
                 }
             }
         };
-        for (i, l) in self.lobes.iter().enumerate() {
-            let [lambert, f0, f90] = columns(grid, l.alpha);
-            if i == 0 {
-                add(&lambert, self.diffuse);
-            }
+        let s = cell_samples(grid);
+        let lambert: Vec<f64> = (0..3)
+            .flat_map(|_| {
+                (0..GRID_CELLS).map(|g| {
+                    if s.valid(g) {
+                        std::f64::consts::FRAC_1_PI
+                    } else {
+                        0.0
+                    }
+                })
+            })
+            .collect();
+        add(&lambert, self.diffuse);
+        for l in &self.lobes {
+            let [_, f0, f90] = columns(grid, l.alpha);
             add(&f0, l.f0);
             add(&f90, l.f90);
         }
-        let s = cell_samples(grid);
         let valid = (0..GRID_CELLS).map(|g| s.valid(g)).collect();
         Bivariate::from_values(grid, values, valid)
     }
@@ -278,7 +326,7 @@ impl Microfacet {
 
 /// Non-negative least squares on the normal equations (Lawson–Hanson active set): minimises
 /// ‖Xc − y‖² subject to c ≥ 0, given G = XᵀX and b = Xᵀy. Small systems only (a dozen
-/// unknowns); returns c and the squared residual up to the constant ‖y‖².
+/// unknowns); returns c.
 pub fn nnls(g: &DMatrix<f64>, b: &DVector<f64>) -> DVector<f64> {
     let m = b.len();
     let mut c = DVector::zeros(m);
@@ -643,7 +691,9 @@ pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize) -> Result<AnalyticFit
 }
 
 /// 1-σ of lobe `l`'s α from the curvature of the residual sum of squares along log α on the
-/// search pixels, the other lobes fixed: RSS(u) ≈ RSS* + a (u − u*)², σᵤ = √(σ² / a).
+/// search pixels, the other lobes fixed: RSS(u) ≈ RSS* + a (u − u*)², σᵤ = √(σ² / a). It is
+/// measured on the [`SEARCH_PIXELS`] search pixels, not every candidate, so it is the wider of
+/// the two (by up to √(candidates / search pixels)): a bound, not a tight figure.
 fn profile_std(search: &mut Search, alphas: &[f64], l: usize) -> f64 {
     let fixed: Vec<f64> = alphas
         .iter()
@@ -659,8 +709,9 @@ fn profile_std(search: &mut Search, alphas: &[f64], l: usize) -> f64 {
     let y2: f64 = search.observed.iter().flatten().map(|v| v * v).sum();
     let rss: Vec<f64> = m.iter().map(|m| m * m * y2).collect();
     let curvature = (rss[0] - 2.0 * rss[1] + rss[2]) / (2.0 * PROFILE_STEP * PROFILE_STEP);
+    // Unknowns: kd per channel, and per lobe F₀ and F₉₀ per channel and α.
     let dof = (3 * search.observed.len())
-        .saturating_sub(1 + 4 * alphas.len())
+        .saturating_sub(3 + 7 * alphas.len())
         .max(1);
     let variance = rss[1] / dof as f64;
     if curvature > 0.0 {

@@ -356,8 +356,7 @@ fn basis_uncertainty(
     let n = rows.pixels.len();
     let prior = basis.column_prior();
     let mut rng = rand::rngs::StdRng::seed_from_u64(uncertainty::BOOTSTRAP_SEED);
-    // The sphere relit under the estimate's lights (the first chosen pixel's view), linear in
-    // the coefficients.
+    // The sphere relit under the first view's candidate lights, linear in the coefficients.
     let sphere = basis.rendering_matrix(&uncertainty::spread_sphere()?, lights);
     let image = |c: &[f64]| -> Result<Vec<f64>> {
         Ok(sphere.predict_per_channel(channel_coefficients(c, sphere.columns)?))
@@ -366,7 +365,14 @@ fn basis_uncertainty(
     let (mut brdfs, mut images) = (Vec::new(), Vec::new());
     for _ in 0..uncertainty::BOOTSTRAP_RESAMPLES {
         let picks: Vec<usize> = (0..n).map(|_| rng.random_range(0..n)).collect();
-        // A resample with too few distinct pixels for least squares is left out.
+        // A resample with fewer distinct pixels than a channel system has unknowns is left
+        // out: least squares would solve it through a pseudo-inverse, a spread of its own.
+        let mut distinct = picks.clone();
+        distinct.sort_unstable();
+        distinct.dedup();
+        if distinct.len() < rows.columns {
+            continue;
+        }
         if let Ok(s) = solver.solve_colour(colour, rows, &picks, observed, &prior) {
             brdfs.push(basis.reconstruct_solution(&s.coefficients)?.values);
             images.push(image(&s.coefficients)?);

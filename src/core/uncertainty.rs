@@ -30,8 +30,8 @@ pub struct Uncertainty {
     /// How much the estimate's relit sphere moves over [`BOOTSTRAP_RESAMPLES`] resamples of the
     /// pixels ([`image_spread`]).
     pub bootstrap_spread: f64,
-    /// Resamples that solved (a resample with too few distinct pixels for its solver is left
-    /// out).
+    /// Resamples used (a resample with fewer distinct pixels than unknowns per channel system
+    /// is left out).
     pub resamples: usize,
     /// Each grid value's bootstrap standard deviation (the 1-σ band), channel-planar like
     /// [`super::bivariate::Bivariate::values`].

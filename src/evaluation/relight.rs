@@ -421,7 +421,7 @@ fn markdown(rows: &[Row], methods: &[Method], cfg: &RelightConfig, seconds: f64)
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# Relighting\n\nEach estimate is made from one noisy photo ({0}² sphere) under the capture map, then rendered under every other map and compared with the truth rendered there from the full BRDF. Relight error: relative RMSE of the linear images over the object; PSNR: tone-mapped images; log error: Liu, Fischer & Ritschel 2023. Medians over held-out maps, then over materials. Captured under: {1}. {2:.0} s.\n",
+        "# Relighting\n\nEach estimate is made from one noisy photo ({0}² sphere) under the capture map, then rendered under every other map and compared with the truth rendered there from the full BRDF. Relight error: relative RMSE of the linear images over the object; PSNR: tone-mapped images; log error: Liu, Fischer & Ritschel 2023. Medians over held-out maps, then over estimates (one per capture map and material). Captured under: {1}. {2:.0} s.\n",
         cfg.size,
         cfg.capture_maps.join(", "),
         seconds
