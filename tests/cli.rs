@@ -657,6 +657,14 @@ fn analytic_estimate_from_files_and_argument_checks() {
     assert_eq!(json["coefficients"].as_array().unwrap().len(), 17);
     assert_eq!(json["plausibility"]["negative_cells"], 0);
     assert_eq!(json["plausibility"]["albedo_at_most_one"], true, "{json}");
+    // A basis setting given to the analytic model is said to be unused, not silently dropped.
+    let o = estimate(&["--shape", "sphere", "--pixels", "20", "--out", "est4"]);
+    assert!(o.status.success(), "{:?}", text(&o));
+    assert!(
+        text(&o).1.contains("--pixels sets the basis model"),
+        "{}",
+        text(&o).1
+    );
     let o = estimate(&["--shape", "sphere", "--lobes", "3", "--out", "est3"]);
     assert!(!o.status.success());
     assert!(text(&o).1.contains("--lobes"), "{}", text(&o).1);

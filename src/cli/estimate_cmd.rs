@@ -43,20 +43,21 @@ pub struct EstimateArgs {
     /// Specular lobes of the analytic model: 1, or 2 for a clear coat over a rougher base.
     #[arg(long, default_value_t = DEFAULT_LOBES as u64, value_parser = clap::value_parser!(u64).range(1..=MAX_LOBES as u64))]
     pub lobes: u64,
-    /// Pixels to use: a number, or `all`.
-    #[arg(long, default_value = "20")]
-    pub pixels: String,
-    #[arg(long, value_enum, default_value = "fast")]
-    pub method: MethodArg,
-    /// How the coefficients are solved: with the training set's prior (default), or by plain
-    /// least squares as in the paper (see the README's evaluation).
-    #[arg(long, value_enum, default_value = "prior")]
-    pub solve: SolveArg,
-    /// How colour is modelled: one set of coefficients for all channels (the paper's), one
-    /// per channel, which leaves colour free, or both, keeping the better fit to the photo
-    /// (see the README's method and evaluation).
-    #[arg(long, value_enum, default_value = "auto")]
-    pub colour: ColourArg,
+    /// Basis model: pixels to use, a number or `all` [default: 20].
+    #[arg(long)]
+    pub pixels: Option<String>,
+    /// Basis model: how pixels are selected [default: fast].
+    #[arg(long, value_enum)]
+    pub method: Option<MethodArg>,
+    /// Basis model: how the coefficients are solved, with the training set's prior, or by
+    /// plain least squares as in the paper (see the README's evaluation) [default: prior].
+    #[arg(long, value_enum)]
+    pub solve: Option<SolveArg>,
+    /// Basis model: how colour is modelled, one set of coefficients for all channels (the
+    /// paper's), one per channel, which leaves colour free, or both, keeping the better fit to
+    /// the photo (see the README's method and evaluation) [default: auto].
+    #[arg(long, value_enum)]
+    pub colour: Option<ColourArg>,
     /// Basis stem (STEM.exr + STEM.json); the embedded default if absent.
     #[arg(long)]
     pub basis: Option<PathBuf>,
@@ -155,22 +156,41 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
     let (lights, chosen_lights) =
         env.estimate_lights(a.lights, a.chosen_lights, a.yaw.to_radians());
     let geometry = a.geometry.scene()?.pixels(photo.width, photo.height)?;
-    let method = match a.method {
+    let model: Model = a.model.into();
+    let given: Vec<&str> = [
+        ("--pixels", a.pixels.is_some()),
+        ("--method", a.method.is_some()),
+        ("--solve", a.solve.is_some()),
+        ("--colour", a.colour.is_some()),
+    ]
+    .into_iter()
+    .filter_map(|(flag, set)| set.then_some(flag))
+    .collect();
+    if model == Model::Analytic && !given.is_empty() {
+        eprintln!(
+            "warning: {} set{} the basis model, which this estimate does not use (--model basis uses {}); the analytic model fits every pixel",
+            given.join(", "),
+            if given.len() == 1 { "s" } else { "" },
+            if given.len() == 1 { "it" } else { "them" }
+        );
+    }
+    let method_arg = a.method.unwrap_or(MethodArg::Fast);
+    let method = match method_arg {
         MethodArg::Fast => SelectionMethod::Fast,
         MethodArg::Paper => SelectionMethod::Paper,
     };
     let options = EstimateOptions {
-        model: a.model.into(),
+        model,
         lobes: a.lobes as usize,
-        pixel_count: parse_pixels(&a.pixels)?,
+        pixel_count: parse_pixels(a.pixels.as_deref().unwrap_or("20"))?,
         method,
         swap: SwapParams {
             seed: a.seed,
             ..SwapParams::default()
         },
         max_candidates: a.max_candidates,
-        solver: a.solve.into(),
-        colour: a.colour.into(),
+        solver: a.solve.unwrap_or(SolveArg::Prior).into(),
+        colour: a.colour.unwrap_or(ColourArg::Auto).into(),
         white: a.white.or(file_white),
     };
     let view = View {
@@ -184,7 +204,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         &a.out,
         &basis,
         &est,
-        match a.method {
+        match method_arg {
             MethodArg::Fast => "fast",
             MethodArg::Paper => "paper",
         },

@@ -402,6 +402,22 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         white: clip_level,
         ..EstimateOptions::default()
     };
+    if options.model == Model::Analytic {
+        let given: Vec<&str> = [
+            ("pixels", plan.pixels.is_some()),
+            ("solve", plan.solve.is_some()),
+            ("colour", plan.colour.is_some()),
+        ]
+        .into_iter()
+        .filter_map(|(name, set)| set.then_some(name))
+        .collect();
+        if !given.is_empty() {
+            cx.warn(format!(
+                "{} asked for, but those are settings of the basis model and this capture estimates with the analytic model (--model basis to use them)",
+                given.join(", ")
+            ));
+        }
+    }
     let as_views: Vec<View> = views
         .iter()
         .map(|(geometry, lights, chosen_lights, photo)| View {
