@@ -8,8 +8,8 @@ use brdfd::core::basis::Basis;
 use brdfd::core::bivariate::Bivariate;
 use brdfd::core::envmap::{CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd::core::estimate::{
-    estimate as run_estimate, fit_verdict, EstimateOptions, Model, SelectionMethod, View,
-    DEFAULT_LOBES, DEFAULT_MAX_CANDIDATES,
+    estimate as run_estimate, fit_verdict, unused_basis_settings, EstimateOptions, Model,
+    SelectionMethod, View, DEFAULT_LOBES, DEFAULT_MAX_CANDIDATES,
 };
 use brdfd::core::merl::MerlBrdf;
 use brdfd::core::nbrdf::NbrdfSet;
@@ -157,22 +157,16 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         env.estimate_lights(a.lights, a.chosen_lights, a.yaw.to_radians());
     let geometry = a.geometry.scene()?.pixels(photo.width, photo.height)?;
     let model: Model = a.model.into();
-    let given: Vec<&str> = [
-        ("--pixels", a.pixels.is_some()),
-        ("--method", a.method.is_some()),
-        ("--solve", a.solve.is_some()),
-        ("--colour", a.colour.is_some()),
-    ]
-    .into_iter()
-    .filter_map(|(flag, set)| set.then_some(flag))
-    .collect();
-    if model == Model::Analytic && !given.is_empty() {
-        eprintln!(
-            "warning: {} set{} the basis model, which this estimate does not use (--model basis uses {}); the analytic model fits every pixel",
-            given.join(", "),
-            if given.len() == 1 { "s" } else { "" },
-            if given.len() == 1 { "it" } else { "them" }
-        );
+    if let Some(warning) = unused_basis_settings(
+        model,
+        &[
+            ("--pixels", a.pixels.is_some()),
+            ("--method", a.method.is_some()),
+            ("--solve", a.solve.is_some()),
+            ("--colour", a.colour.is_some()),
+        ],
+    ) {
+        eprintln!("warning: {warning}");
     }
     let method_arg = a.method.unwrap_or(MethodArg::Fast);
     let method = match method_arg {

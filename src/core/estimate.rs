@@ -615,6 +615,25 @@ pub fn relative_misfit(predicted: &[f64], observed: &[[f64; 3]]) -> f64 {
     (num / den.max(f64::MIN_POSITIVE)).sqrt()
 }
 
+/// The warning for basis-model settings given to an estimate that uses another model: the
+/// names of the settings that were given (`(name, given)`), or `None` if none was or the model
+/// is the basis. The CLI's flags and a capture's plan both say it this way.
+pub fn unused_basis_settings(model: Model, settings: &[(&str, bool)]) -> Option<String> {
+    let given: Vec<&str> = settings
+        .iter()
+        .filter_map(|(name, set)| set.then_some(*name))
+        .collect();
+    (model != Model::Basis && !given.is_empty()).then(|| {
+        format!(
+            "{} set{} the basis model, which this estimate does not use (--model basis uses {}); the {} model fits every pixel",
+            given.join(", "),
+            if given.len() == 1 { "s" } else { "" },
+            if given.len() == 1 { "it" } else { "them" },
+            model.name()
+        )
+    })
+}
+
 /// A fit to the photo ([`Estimate::fit_error`]) at or below this is called good: the estimate
 /// re-renders the photo about as well as the best model of a real material does (measured:
 /// the analytic model fits the MERL test materials' photos to a median 0.055, the basis with

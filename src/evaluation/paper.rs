@@ -183,13 +183,13 @@ pub fn brdf_error(estimate: &Bivariate, truth: &Bivariate, weight: CellWeight) -
 
 /// A lighting with its discretisations: the ground truth's, the estimate's candidate rows',
 /// and the estimate's chosen rows'.
-struct Lighting {
-    gt: LightSet,
-    est: LightSet,
-    chosen: LightSet,
+pub(crate) struct Lighting {
+    pub(crate) gt: LightSet,
+    pub(crate) est: LightSet,
+    pub(crate) chosen: LightSet,
 }
 
-fn load_lighting(data: &Path, name: &str) -> Result<Lighting> {
+pub(crate) fn load_lighting(data: &Path, name: &str) -> Result<Lighting> {
     let map = EnvMap::load(&data.join("envmaps").join(format!("{name}.hdr")))?;
     let mut levels = map.compressed_levels(&[DEFAULT_LIGHTS, GT_LIGHTS, CHOSEN_LIGHTS], 0.0);
     let chosen = levels.pop().expect("three levels");

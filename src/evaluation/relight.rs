@@ -7,7 +7,7 @@
 //!   GGX materials that brdfd tabulates itself ([`analytic_materials`]), which no basis was
 //!   trained on.
 //! - Photo: a unit sphere, orthographic, `size`², rendered from the full table under the
-//!   capture map with [`GT_LIGHTS`] lights, with sensor noise ([`add_sensor_noise`]).
+//!   capture map with [`GT_LIGHTS`](crate::evaluation::paper::GT_LIGHTS) lights, with sensor noise ([`add_sensor_noise`]).
 //! - Each method is an [`EstimateOptions`] run through the one estimate pipeline
 //!   ([`estimate`]), exactly as `brdfd estimate` runs it.
 //! - Measures, per held-out map: relative RMSE of the linear images over the object (as
@@ -25,7 +25,6 @@ use rand::{Rng, SeedableRng};
 use crate::core::analytic::Microfacet;
 use crate::core::bivariate::{Bivariate, Grid};
 use crate::core::brdf::IsotropicBrdf;
-use crate::core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use crate::core::error::{CoreError, Result};
 use crate::core::estimate::{estimate, EstimateOptions, Model, View};
 use crate::core::geometry::{Camera, PixelGeometry, Shape};
@@ -34,7 +33,9 @@ use crate::core::nbrdf::NbrdfSet;
 use crate::core::raster::{linear_to_srgb, Raster};
 use crate::core::render::{render_bivariate, render_merl};
 use crate::core::solve::{ColourChoice, Solver};
-use crate::evaluation::paper::{add_sensor_noise, default_basis, GT_LIGHTS, TEST_SET};
+use crate::evaluation::paper::{
+    add_sensor_noise, default_basis, load_lighting, Lighting, TEST_SET,
+};
 
 /// Directions of the log error's Monte Carlo mean (uniform over both hemispheres): its
 /// standard error is below 1% of the error at this count.
@@ -142,15 +143,6 @@ pub struct Row {
     pub log_error: f64,
 }
 
-struct Lighting {
-    name: String,
-    /// For ground truth and for relit estimates alike (one renderer, one light set).
-    gt: LightSet,
-    /// The estimate's candidate rows and chosen rows, as `brdfd estimate` compresses them.
-    est: LightSet,
-    chosen: LightSet,
-}
-
 /// The maps of `data/envmaps/` (`.hdr`), sorted by name.
 fn map_names(data: &Path) -> Result<Vec<String>> {
     let dir = data.join("envmaps");
@@ -164,20 +156,6 @@ fn map_names(data: &Path) -> Result<Vec<String>> {
         .collect();
     names.sort();
     Ok(names)
-}
-
-fn load_lighting(data: &Path, name: &str) -> Result<Lighting> {
-    let map = EnvMap::load(&data.join("envmaps").join(format!("{name}.hdr")))?;
-    let mut levels = map.compressed_levels(&[DEFAULT_LIGHTS, GT_LIGHTS, CHOSEN_LIGHTS], 0.0);
-    let chosen = levels.pop().expect("three levels");
-    let gt = levels.pop().expect("three levels");
-    let est = levels.pop().expect("three levels");
-    Ok(Lighting {
-        name: name.into(),
-        gt,
-        est,
-        chosen,
-    })
 }
 
 /// PSNR (dB) of the tone-mapped estimate against the tone-mapped truth, over the object: both
@@ -333,7 +311,7 @@ pub fn run(cfg: &RelightConfig) -> Result<String> {
                     let relit = render_bivariate(&geometry, &other.gt, &est.brdf);
                     rows.push(Row {
                         capture: capture.clone(),
-                        relight: other.name.clone(),
+                        relight: names[li].clone(),
                         material: material.name.clone(),
                         analytic: material.analytic,
                         method: method.name,

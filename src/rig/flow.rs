@@ -22,7 +22,9 @@ use crate::config::{MaterialPreset, PixelCount, Rig};
 use crate::core::basis::Basis;
 use crate::core::bivariate::Bivariate;
 use crate::core::envmap::{write_exr, EnvMap, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
-use crate::core::estimate::{estimate_views, fit_verdict, Estimate, EstimateOptions, Model, View};
+use crate::core::estimate::{
+    estimate_views, fit_verdict, unused_basis_settings, Estimate, EstimateOptions, Model, View,
+};
 use crate::core::geometry::SceneGeometry;
 use crate::core::merl::MerlBrdf;
 use crate::core::nbrdf::NbrdfSet;
@@ -402,21 +404,15 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         white: clip_level,
         ..EstimateOptions::default()
     };
-    if options.model == Model::Analytic {
-        let given: Vec<&str> = [
+    if let Some(warning) = unused_basis_settings(
+        options.model,
+        &[
             ("pixels", plan.pixels.is_some()),
             ("solve", plan.solve.is_some()),
             ("colour", plan.colour.is_some()),
-        ]
-        .into_iter()
-        .filter_map(|(name, set)| set.then_some(name))
-        .collect();
-        if !given.is_empty() {
-            cx.warn(format!(
-                "{} asked for, but those are settings of the basis model and this capture estimates with the analytic model (--model basis to use them)",
-                given.join(", ")
-            ));
-        }
+        ],
+    ) {
+        cx.warn(warning);
     }
     let as_views: Vec<View> = views
         .iter()
