@@ -2,7 +2,7 @@
 //! exposure from its EXIF, and the HDR merge of a bracket into linear radiance.
 //!
 //! The map keeps the camera's own frame: the image centre is the THETA's front. The rig's
-//! yaw turns it into the world frame (README, Conventions). GPano's pose angles are recorded
+//! yaw turns it into the world frame (docs/bench-setup.md, "Conventions"). GPano's pose angles are recorded
 //! by the camera after it has already levelled the image (top/bottom correction), so they are
 //! reported, not applied.
 //!

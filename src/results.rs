@@ -35,7 +35,7 @@ pub struct CoefficientsFile<'a> {
     /// Pixels used; equal to `candidates` for an all-pixel estimate.
     pub pixel_count: usize,
     pub selection_method: &'a str,
-    /// `least-squares` (the paper's) or `prior` (with the training set's prior; README).
+    /// `least-squares` (the paper's) or `prior` (with the training set's prior; docs/method.md).
     pub solver: &'a str,
     /// `joint` (one set of coefficients for all channels, the paper's) or `per-channel`
     /// (`coefficients` holds the R, G and B sets in turn, named in `columns`): the model that

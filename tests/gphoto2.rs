@@ -60,10 +60,9 @@ fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
             .stdout(Stdio::piped())
             .spawn()
             .unwrap();
+        let mut lines = BufReader::new(child.stdout.take().unwrap());
         let mut ready = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut ready)
-            .unwrap();
+        lines.read_line(&mut ready).unwrap();
         let _sim = Sim(child);
         let addr = ready.trim().rsplit(' ').next().unwrap().to_string();
         assert!(ready.contains("PTP/IP on"), "{ready}");
@@ -88,6 +87,12 @@ fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
         if profile == "nikon-d5100" {
             assert!(text.contains("Vendor Extension ID: 0xa"), "{text}");
         }
+
+        // The summary above came while the simulator was still rendering its scene; the
+        // capture waits until it has one, as a script would.
+        let mut rendered = String::new();
+        lines.read_line(&mut rendered).unwrap();
+        assert!(rendered.contains("camera: ready"), "{rendered}");
 
         // gphoto2 exits 0 even when a capture fails: only the file counts.
         let file = home.path().join("gphoto2.jpg");

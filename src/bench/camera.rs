@@ -58,6 +58,10 @@ impl ImageSource for BenchCamera {
         let (w, h) = self.bench.geometry.camera.size();
         (w as u32, h as u32)
     }
+
+    fn ready(&self) -> bool {
+        self.radiance.get().is_some()
+    }
 }
 
 /// What a sensor with an sRGB JPEG pipeline records of linear `radiance` scaled by `k`:

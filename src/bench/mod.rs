@@ -6,6 +6,7 @@
 //! evaluation test materials (derived data, see `test_materials.json` for provenance) and a
 //! procedural studio environment written for this project.
 
+pub mod cache;
 pub mod camera;
 pub mod panorama;
 
@@ -17,6 +18,8 @@ use crate::core::nbrdf::NbrdfSet;
 use crate::core::raster::Raster;
 use crate::core::render::{render_bivariate, render_merl};
 use crate::core::Result;
+
+use cache::{Key, RenderCache};
 
 /// Short names a bench operator types, mapped to MERL names.
 const ALIASES: [(&str, &str); 6] = [
@@ -110,6 +113,8 @@ pub struct VirtualBench {
     /// Yaw of the panorama in the world, radians.
     pub yaw: f64,
     pub geometry: SceneGeometry,
+    /// Where renders are kept between runs; none by default.
+    pub cache: Option<RenderCache>,
 }
 
 impl VirtualBench {
@@ -124,6 +129,7 @@ impl VirtualBench {
             env: studio_envmap(512),
             yaw: 0.0,
             geometry: default_geometry(size),
+            cache: None,
         })
     }
 
@@ -132,10 +138,49 @@ impl VirtualBench {
         self.geometry.pixels(w, h)
     }
 
+    /// Keeps this bench's renders in `cache` between runs.
+    pub fn with_cache(mut self, cache: Option<RenderCache>) -> VirtualBench {
+        self.cache = cache;
+        self
+    }
+
     /// The linear radiance the object camera records (before any camera response).
     pub fn photo(&self) -> Result<Raster> {
-        let lights: LightSet = self.env.compressed(PHOTO_LIGHTS, self.yaw);
-        Ok(render_merl(&self.pixels()?, &lights, &self.material))
+        self.cached("photo", self.yaw, &self.geometry, || {
+            let lights: LightSet = self.env.compressed(PHOTO_LIGHTS, self.yaw);
+            Ok(render_merl(&self.pixels()?, &lights, &self.material))
+        })
+    }
+
+    /// `render()`, or its image from the cache if this bench has one. The key holds what the
+    /// render reads of the bench: the material, the map turned by `yaw`, and `geometry`.
+    fn cached(
+        &self,
+        what: &str,
+        yaw: f64,
+        geometry: &SceneGeometry,
+        render: impl FnOnce() -> Result<Raster>,
+    ) -> Result<Raster> {
+        let Some(cache) = &self.cache else {
+            return render();
+        };
+        let mut key = Key::new(what);
+        key.add_f64s(self.material.values())
+            .add(&(self.env.width as u64).to_le_bytes())
+            .add_f32s(self.env.pixels.iter().flatten().copied())
+            .add_f64s(&[yaw])
+            .add(&(PHOTO_LIGHTS as u64).to_le_bytes())
+            .add(
+                serde_json::to_string(geometry)
+                    .unwrap_or_default()
+                    .as_bytes(),
+            );
+        if let Some(path) = &geometry.normal_map {
+            // The map's file is read by the render: its size and time stand for its content.
+            let m = std::fs::metadata(path).ok();
+            key.add(format!("{:?}", m.map(|m| (m.len(), m.modified().ok()))).as_bytes());
+        }
+        cache.get_or_render(&key, render)
     }
 
     /// How far `estimate` is from the bench's material under light it was not fitted to:
@@ -147,10 +192,14 @@ impl VirtualBench {
             &Camera::eval_orthographic(RELIGHT_SIZE),
             &Shape::unit_sphere(),
         )?;
-        let lights = self
-            .env
-            .compressed(PHOTO_LIGHTS, self.yaw + HELD_OUT_YAW_DEG.to_radians());
-        let truth = render_merl(&sphere, &lights, &self.material);
+        let yaw = self.yaw + HELD_OUT_YAW_DEG.to_radians();
+        let lights = self.env.compressed(PHOTO_LIGHTS, yaw);
+        let truth = self.cached(
+            "relight truth",
+            yaw,
+            &default_geometry(RELIGHT_SIZE),
+            || Ok(render_merl(&sphere, &lights, &self.material)),
+        )?;
         Ok(render_bivariate(&sphere, &lights, estimate).relative_rmse(&truth))
     }
 }

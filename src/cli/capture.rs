@@ -49,11 +49,11 @@ pub struct CaptureArgs {
     /// The BRDF model; the material preset's, else `analytic` (see `brdfd estimate --help`).
     #[arg(long, value_enum)]
     pub model: Option<ModelArg>,
-    /// How the coefficients are solved; the material preset's, else `prior` (README,
-    /// "Evaluation").
+    /// Basis model: how the coefficients are solved; the material preset's, else `prior`
+    /// (docs/evaluation.md).
     #[arg(long, value_enum)]
     pub solve: Option<SolveArg>,
-    /// How colour is modelled; the material preset's, else `auto` (README, "Colour").
+    /// Basis model: how colour is modelled; the material preset's, else `auto` (docs/method.md).
     #[arg(long, value_enum)]
     pub colour: Option<ColourArg>,
     /// Shutter speeds of the DSLR's exposure bracket, in seconds; the material preset's,

@@ -50,12 +50,12 @@ pub struct EstimateArgs {
     #[arg(long, value_enum)]
     pub method: Option<MethodArg>,
     /// Basis model: how the coefficients are solved, with the training set's prior, or by
-    /// plain least squares as in the paper (see the README's evaluation) [default: prior].
+    /// plain least squares as in the paper (docs/evaluation.md) [default: prior].
     #[arg(long, value_enum)]
     pub solve: Option<SolveArg>,
     /// Basis model: how colour is modelled, one set of coefficients for all channels (the
     /// paper's), one per channel, which leaves colour free, or both, keeping the better fit to
-    /// the photo (see the README's method and evaluation) [default: auto].
+    /// the photo (docs/method.md) [default: auto].
     #[arg(long, value_enum)]
     pub colour: Option<ColourArg>,
     /// Basis stem (STEM.exr + STEM.json); the embedded default if absent.
@@ -65,7 +65,7 @@ pub struct EstimateArgs {
     #[arg(long, default_value_t = DEFAULT_LIGHTS)]
     pub lights: usize,
     /// Lights for the chosen pixels' rows, which are rebuilt before the solve (a finer sky
-    /// where it matters; see the README's method). 0, or no more than --lights, keeps the
+    /// where it matters; docs/method.md). 0, or no more than --lights, keeps the
     /// candidates' rows.
     #[arg(long, default_value_t = CHOSEN_LIGHTS)]
     pub chosen_lights: usize,

@@ -47,7 +47,8 @@ pub enum Command {
     Estimate(estimate_cmd::EstimateArgs),
     /// Render a BRDF (MERL file, NBRDF material, or an estimate) on a geometry under a map.
     Render(estimate_cmd::RenderArgs),
-    /// Run the evaluation protocol (DESIGN.md section 4) and write tables and figures.
+    /// Run the evaluation (the paper's protocol, or relighting with --relight) on reference data
+    /// and write tables and figures (docs/evaluation.md describes both).
     Eval(EvalArgs),
     /// Capture a material at the bench and estimate its BRDF (in the daemon if one runs).
     Capture(capture::CaptureArgs),
@@ -94,7 +95,7 @@ pub enum Command {
 #[derive(clap::Args)]
 pub struct EvalArgs {
     /// The reference data folder (holds merl-nbrdf/ and envmaps/).
-    #[arg(long, default_value = "../shared/data")]
+    #[arg(long, env = "BRDFD_DATA")]
     pub data: PathBuf,
     /// Where the tables and figures go.
     #[arg(long, default_value = "eval")]

@@ -1,11 +1,13 @@
 //! `brdfd sim`: run a simulated device on its own, for trying clients (ours, gphoto2, a THETA
 //! app) without hardware. It serves until it is stopped.
 
+use std::io::Write;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{anyhow, bail, Context};
+use brdfd::bench::cache::RenderCache;
 use brdfd::bench::camera::BenchCamera;
 use brdfd::bench::panorama::BenchPanorama;
 use brdfd::bench::VirtualBench;
@@ -82,6 +84,7 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
                     Profile::NAMES.join(", ")
                 )
             })?;
+            let mut rendering: Option<Arc<BenchCamera>> = None;
             let source: Arc<dyn ImageSource> = match (a.payload_bytes, profile) {
                 (Some(bytes), _) => Arc::new(SizedPayload { bytes }),
                 (None, Profile::ThetaV) => Arc::new(BenchPanorama::new(
@@ -90,19 +93,30 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
                     "RICOH THETA V",
                 )),
                 (None, _) => {
-                    let bench = VirtualBench::embedded(&a.material, a.size)?;
-                    let camera =
-                        BenchCamera::new(bench, "brdfd", &format!("simulated {}", a.profile));
-                    camera
-                        .prepare()
-                        .map_err(|e| anyhow!("rendering the virtual bench: {e}"))?;
-                    Arc::new(camera)
+                    let bench = VirtualBench::embedded(&a.material, a.size)?
+                        .with_cache(RenderCache::user());
+                    rendering = Some(Arc::new(BenchCamera::new(
+                        bench,
+                        "brdfd",
+                        &format!("simulated {}", a.profile),
+                    )));
+                    rendering.clone().unwrap()
                 }
             };
             let server = Server::start(&a.ptpip, Responder::new(profile, source).shared())
                 .with_context(|| format!("listening on {}", a.ptpip))?;
             // Scripts wait for this line before connecting.
             println!("simulated {} camera: PTP/IP on {}", a.profile, server.addr);
+            // The scene renders while the camera already answers (captures get DeviceBusy
+            // until it is done); scripts that want the first shot at once wait for this line.
+            if let Some(camera) = rendering {
+                camera
+                    .prepare()
+                    .map_err(|e| anyhow!("rendering the virtual bench: {e}"))?;
+            }
+            // A script that read only the first line may have closed its end: that is no
+            // reason for the camera to stop.
+            let _ = writeln!(std::io::stdout(), "simulated {} camera: ready", a.profile);
             loop {
                 std::thread::park();
             }

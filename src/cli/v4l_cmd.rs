@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
+use brdfd::bench::cache::RenderCache;
 use brdfd::bench::camera::BenchCamera;
 use brdfd::bench::VirtualBench;
 use brdfd::radiometry::{average_frames, Exposure};
@@ -48,7 +49,7 @@ pub fn run(cmd: V4lCommand) -> anyhow::Result<()> {
         bail!("--frames must be at least 1");
     }
     let mut source: Box<dyn FrameSource> = if a.device == "sim" {
-        let bench = VirtualBench::embedded(&a.material, 128)?;
+        let bench = VirtualBench::embedded(&a.material, 128)?.with_cache(RenderCache::user());
         let camera = BenchCamera::new(bench, "brdfd", "simulated webcam");
         camera
             .prepare()

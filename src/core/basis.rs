@@ -1,5 +1,5 @@
 //! The data-driven BRDF basis: PCA of bivariate BRDFs, its file format, and the embedded
-//! default built from the 90 training materials of DESIGN.md section 4.
+//! default built from the 90 training materials of docs/evaluation.md.
 //!
 //! File format (`brdfd-basis/1`): two files with one stem.
 //! - `NAME.exr`: one layer per vector, named `mean` (when the basis has a mean term) and

@@ -1,7 +1,7 @@
 //! Equirectangular (latitude-longitude) environment maps: loading Radiance `.hdr` and OpenEXR,
 //! the direction and solid angle of each pixel, yaw, and compression to a few thousand lights.
 //!
-//! Convention (DESIGN.md section 3): world frame right-handed, +Y up. Row 0 looks straight up
+//! Convention (docs/bench-setup.md, "Conventions"): world frame right-handed, +Y up. Row 0 looks straight up
 //! (+Y); rows span the polar angle θ from 0 to π. Column centre u ∈ [0, 1) has azimuth
 //! φ = 2π(u − ½), and the direction is (sin θ sin φ, cos θ, −sin θ cos φ): the centre column
 //! faces −Z (the camera's forward), the column at u = ¾ faces +X, and u = ¼ faces −X. This is
@@ -18,7 +18,7 @@ use super::error::{CoreError, Result};
 /// clamped to zero with a warning; anything more negative is an error.
 pub const NEGATIVE_TOLERANCE: f32 = 0.05;
 /// Default number of lights after compression: enough that re-renders change by little
-/// (measured in `tests/core.rs` and the README), few enough for a fast rendering matrix.
+/// (measured in `tests/core.rs` and docs/evaluation.md), few enough for a fast rendering matrix.
 pub const DEFAULT_LIGHTS: usize = 4096;
 /// Lights for the chosen pixels' rows (see `estimate::chosen_rows`): sixteen times the
 /// default. A few chosen pixels carry the whole estimate, so their rows are worth the finer
@@ -594,7 +594,7 @@ impl CellSums {
         };
         Cell {
             rect: r,
-            // Measured against other orders (README, "Environment maps"): splitting where the
+            // Measured against other orders (docs/evaluation.md, "Measured choices"): splitting where the
             // power is uneven, or by power × spread², left mirror-like renders worse.
             priority: power * spread,
             direction,

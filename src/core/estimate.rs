@@ -25,7 +25,7 @@ use super::uncertainty::{self, Uncertainty};
 pub const MAX_CHOSEN_ROWS: usize = 2_000;
 
 /// Candidate pixels considered at most: a 16-megapixel photo holds millions of object pixels,
-/// and conditioning saturates long before this many (see README, "Speed").
+/// and conditioning saturates long before this many (see docs/evaluation.md, "Speed").
 pub const DEFAULT_MAX_CANDIDATES: usize = 50_000;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]

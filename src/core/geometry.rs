@@ -4,7 +4,7 @@
 //!
 //! Camera frame (OpenGL): the camera looks along its −Z, +Y is up in the image, +X right;
 //! image rows run downward. A pose is given as position, look-at point and up vector in the
-//! world frame (+Y up, DESIGN.md section 3).
+//! world frame (+Y up, docs/bench-setup.md, "Conventions").
 
 use std::path::{Path, PathBuf};
 
@@ -73,7 +73,7 @@ struct Ray {
 }
 
 impl Camera {
-    /// The evaluation camera of DESIGN.md section 4: orthographic, looking down −Z at a unit
+    /// The evaluation camera of docs/evaluation.md: orthographic, looking down −Z at a unit
     /// sphere at the origin that fills the frame.
     pub fn eval_orthographic(size: usize) -> Camera {
         Camera::Orthographic {

@@ -168,6 +168,11 @@ impl MerlBrdf {
         MerlBrdf { values }
     }
 
+    /// The whole table, channel-planar (see the field): what identifies a material.
+    pub fn values(&self) -> &[f64] {
+        &self.values
+    }
+
     /// The raw cell value (negative: not measured).
     pub fn cell(&self, channel: usize, ih: usize, jd: usize, kp: usize) -> f64 {
         self.values[channel * CELLS + cell_index(ih, jd, kp)]

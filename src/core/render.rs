@@ -1,4 +1,4 @@
-//! The rendering equation as a dot product (DESIGN.md section 2), and forward rendering.
+//! The rendering equation as a dot product (docs/method.md), and forward rendering.
 //!
 //! For pixel x with normal n and view v, and lights ωⱼ with radiance Lⱼ and solid angle Δωⱼ:
 //!     Lo(x) = Σⱼ f(θh, θd) · Lⱼ · max(0, n·ωⱼ) · Δωⱼ          (per colour channel)
@@ -223,7 +223,22 @@ fn pack(lights: &LightSet, footprints: &Footprints, stride: usize) -> Vec<Packed
             base: *level as usize * stride,
         })
         .collect();
-    packed.sort_by_key(|l| l.base);
+    // By footprint, then by direction (azimuth within bands of elevation), so that the lights
+    // one pixel visits in turn read nearby cells of its table.
+    packed.sort_by_key(|l| {
+        let band = ((l.dir[1].clamp(-1.0, 1.0).asin() + 1.6) * 10.0) as u32;
+        let azimuth = l.dir[2].atan2(l.dir[0]);
+        let az = ((azimuth + 4.0) * 1000.0) as u32;
+        (
+            l.base,
+            band,
+            if band.is_multiple_of(2) {
+                az
+            } else {
+                u32::MAX - az
+            },
+        )
+    });
     packed
 }
 

@@ -1,4 +1,4 @@
-//! Choosing the pixels whose rows of A make a well-conditioned system (DESIGN.md section 2).
+//! Choosing the pixels whose rows of A make a well-conditioned system (docs/method.md).
 //!
 //! Rows of one pixel (its three channels) go together. For a set S of pixels the Gram matrix is
 //! G = Σ_{i∈S} Pᵢᵀ Pᵢ (m × m, m = number of model columns), and the condition number of the
@@ -94,7 +94,7 @@ type Grams = [Sym; MAX_SYSTEMS];
 /// is solved from its own rows alone, so there are three, pixel i adds its channel-c row to
 /// system c, and a set's κ is its worst channel's: that is the system whose conditioning
 /// the per-channel solve depends on, and 20 pixels chosen for the joint κ leave each channel
-/// 5–10× worse conditioned than 20 chosen for the channels (README, "Selection").
+/// 5–10× worse conditioned than 20 chosen for the channels (docs/method.md, "Selection").
 #[derive(Clone)]
 pub struct Blocks {
     pub m: usize,

@@ -14,7 +14,7 @@ pub enum Solver {
     /// Least squares, as in the paper.
     LeastSquares,
     /// Least squares with the training set's prior ([`with_prior`]); the default, measured in
-    /// the README's evaluation.
+    /// docs/evaluation.md.
     #[default]
     Prior,
 }
@@ -127,7 +127,7 @@ pub enum ColourChoice {
     /// pixel (not only the chosen ones, so the per-channel model's three times as many
     /// unknowns cannot win by fitting its own pixels). The default: per channel fixes the
     /// colour of coloured materials, but tints mirrors, whose joint estimate fits better
-    /// (README, "Colour").
+    /// (docs/method.md, "Colour").
     #[default]
     Auto,
 }

@@ -73,7 +73,7 @@ pub fn router(daemon: Shared) -> Router {
     Router::new()
         .nest("/api/v1", api)
         .fallback(|| async {
-            not_found("no such endpoint; the API is under /api/v1 (see the README)")
+            not_found("no such endpoint; the API is under /api/v1 (docs/api.md)")
         })
         .with_state(daemon)
 }

@@ -1,4 +1,4 @@
-//! The evaluation protocol of DESIGN.md section 4, made runnable: `brdfd eval`.
+//! The evaluation protocol of docs/evaluation.md, made runnable: `brdfd eval`.
 //!
 //! - Materials: the 100 MERL materials as NBRDF fits, tabulated to full (θh, θd, φd) tables, so
 //!   the bivariate approximation counts as error. Test set [`TEST_SET`]; training: the other 90.
@@ -215,7 +215,7 @@ fn observations(a: &RenderingMatrix, img: &Raster) -> Vec<[f64; 3]> {
         .collect()
 }
 
-/// The default basis settings (the measured choice; see README) with `k` components.
+/// The default basis settings (the measured choice; see docs/evaluation.md) with `k` components.
 pub fn default_basis(training: &[(String, Bivariate)], k: usize) -> Result<Basis> {
     Basis::build(
         training,

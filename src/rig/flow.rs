@@ -204,17 +204,21 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
                 basis.header.k
             );
         }
+        // The preset's pixel count only matters to the basis model.
+        let model = match plan.model.unwrap_or(p.model) {
+            Model::Analytic => "analytic model".to_string(),
+            Model::Basis => match p.pixels {
+                PixelCount::All => "basis model, every pixel".to_string(),
+                PixelCount::Count(n) => format!("basis model, {n} pixels"),
+            },
+        };
         cx.say(format!(
-            "material preset {}: {}, {} pixels{}",
+            "material preset {}: {}, {model}{}",
             plan.material,
             if rig.simulated {
                 format!("simulated as {}", p.simulate_as)
             } else {
                 "on the bench".into()
-            },
-            match p.pixels {
-                PixelCount::All => "all".to_string(),
-                PixelCount::Count(n) => n.to_string(),
             },
             if p.notes.is_empty() {
                 String::new()
@@ -573,6 +577,7 @@ fn simulated_bench(
     }
     bench.geometry = scene.clone();
     bench.yaw = yaw;
+    bench.cache = crate::bench::cache::RenderCache::user();
     if let Some(p) = &plan.env {
         bench.env = crate::panorama::load_envmap(p)?;
     }

@@ -15,7 +15,10 @@ pub const NO_DAEMON: &str = "127.0.0.1:9";
 /// `brdfd` as a command, with no daemon to find unless the test gives one.
 pub fn command() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_brdfd"));
+    // Simulated scenes are rendered once for the whole test run, not into the user's cache.
+    let renders = Path::new(env!("CARGO_TARGET_TMPDIR")).join("render-cache");
     c.env("BRDFD_DAEMON", NO_DAEMON)
+        .env("BRDFD_RENDER_CACHE", renders)
         .env_remove("BRDFD_STATE_DIR");
     c
 }

@@ -32,6 +32,11 @@ pub trait ImageSource: Send + Sync {
     fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String>;
     /// Pixel size, for ObjectInfo.
     fn dimensions(&self) -> (u32, u32);
+    /// Whether a shot can be taken now; a camera whose source is not ready answers a capture
+    /// with DeviceBusy.
+    fn ready(&self) -> bool {
+        true
+    }
 }
 
 /// A file of a fixed size with JPEG markers and deterministic filler, for transfer tests and

@@ -158,6 +158,41 @@ fn generic_capture_over_ptpip_reads_events_from_the_event_connection() {
     );
 }
 
+/// A source still making its picture, as the virtual bench is while it renders.
+struct Rendering {
+    ready_at: std::time::Instant,
+}
+
+impl ImageSource for Rendering {
+    fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String> {
+        SizedPayload { bytes: 500 }.photo(shot)
+    }
+    fn dimensions(&self) -> (u32, u32) {
+        (8, 8)
+    }
+    fn ready(&self) -> bool {
+        std::time::Instant::now() >= self.ready_at
+    }
+}
+
+#[test]
+fn a_camera_still_rendering_answers_at_once_and_captures_once_ready() {
+    for profile in [Profile::Generic, Profile::NikonD5100] {
+        let source = Rendering {
+            ready_at: std::time::Instant::now() + Duration::from_millis(400),
+        };
+        let r = Responder::new(profile, Arc::new(source)).shared();
+        let server = Server::start("127.0.0.1:0", r.clone()).unwrap();
+        // The session opens and the camera describes itself while it renders.
+        let mut cam = ptpip_camera(&server);
+        assert!(!cam.info.model.is_empty());
+        let shot = cam
+            .capture(&CaptureOptions::default(), &mut |_, _, _| {})
+            .unwrap();
+        assert_eq!(shot.data.len(), 500, "{profile:?}");
+    }
+}
+
 #[test]
 fn busy_storm_is_retried() {
     let r = responder(Profile::NikonD5100, 1000);

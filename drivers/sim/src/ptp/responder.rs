@@ -388,6 +388,11 @@ impl Responder {
     }
 
     fn shoot(&mut self, sdram: bool) -> Result<u32, u16> {
+        if !self.source.ready() {
+            // Still making its first picture (a simulator rendering its scene): a real camera
+            // that cannot shoot yet answers DeviceBusy, and clients retry.
+            return Err(rc::DEVICE_BUSY);
+        }
         let shot = self.shot_settings();
         let data = self.source.photo(&shot).map_err(|e| {
             tracing::error!("simulated camera: image source failed: {e}");
