@@ -25,7 +25,12 @@ pub enum ConfigError {
     Read { file: String, reason: String },
     /// Syntax, types and unknown fields; the parser's message has the line and column.
     #[error("{file}: {message}")]
-    Parse { file: String, message: String },
+    Parse {
+        file: String,
+        message: String,
+        /// The line (from 1) where the error is, when the parser points at one.
+        line: Option<usize>,
+    },
     /// A value the schema accepts but the rig cannot use.
     #[error("{file}: field `{field}`: {reason}")]
     Invalid {
@@ -221,15 +226,33 @@ pub fn validate_name(kind: &str, name: &str) -> Result<(), String> {
         Ok(())
     } else {
         Err(format!(
-            "{kind} name {name:?}: use 1 to 64 lower-case letters, digits and dashes, not starting with a dash"
+            "{kind} {name:?} is not a valid name: use 1 to 64 lower-case letters, digits and dashes, not starting with a dash"
         ))
     }
+}
+
+/// Where brdfd.toml is looked for when no `--config` is given: `BRDFD_CONFIG`, else
+/// `$XDG_CONFIG_HOME/brdfd/brdfd.toml`, else `~/.config/brdfd/brdfd.toml`.
+pub fn default_config_path() -> Option<PathBuf> {
+    let var = |k: &str| {
+        std::env::var_os(k)
+            .filter(|v| !v.is_empty())
+            .map(PathBuf::from)
+    };
+    var("BRDFD_CONFIG").or_else(|| {
+        var("XDG_CONFIG_HOME")
+            .or_else(|| var("HOME").map(|h| h.join(".config")))
+            .map(|d| d.join("brdfd/brdfd.toml"))
+    })
 }
 
 fn parse<T: serde::de::DeserializeOwned>(file: &str, text: &str) -> Result<T, ConfigError> {
     toml::from_str(text).map_err(|e| ConfigError::Parse {
         file: file.into(),
         message: e.to_string().trim_end().to_string(),
+        line: e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1),
     })
 }
 
@@ -285,6 +308,20 @@ impl DaemonConfig {
     pub fn read(path: &Path) -> Result<DaemonConfig, ConfigError> {
         let (file, text) = read(path)?;
         DaemonConfig::parse(&file, &text)
+    }
+
+    /// The settings a command uses, and where they came from: the file given, else the
+    /// default path's file if there is one (see [`default_config_path`]), else the shipped
+    /// defaults. The CLI and the daemon both start here, so they agree on `api`, `token` and
+    /// `state_dir`.
+    pub fn load(given: Option<&Path>) -> Result<(DaemonConfig, String), ConfigError> {
+        if let Some(p) = given {
+            return Ok((DaemonConfig::read(p)?, p.display().to_string()));
+        }
+        match default_config_path() {
+            Some(p) if p.is_file() => Ok((DaemonConfig::read(&p)?, p.display().to_string())),
+            _ => Ok((DaemonConfig::embedded(), "the built-in defaults".into())),
+        }
     }
 
     /// The shipped defaults.
@@ -425,6 +462,11 @@ const PRESETS: [(&str, &str); 4] = [
     ("paint", include_str!("../config/materials/paint.toml")),
     ("fabric", include_str!("../config/materials/fabric.toml")),
 ];
+
+/// The names of the shipped presets.
+pub fn preset_names() -> Vec<&'static str> {
+    PRESETS.iter().map(|(n, _)| *n).collect()
+}
 
 /// The text of a shipped preset, as stored in a session's manifest.
 pub fn preset_text(name: &str) -> Option<&'static str> {

@@ -7,10 +7,20 @@ use clap::Parser;
 
 fn main() -> std::process::ExitCode {
     let args = cli::Cli::parse();
+    if args.command.ends_quietly_on_a_closed_pipe() {
+        // `brdfd session list | head` should end quietly, as other tools do, not panic on the
+        // closed pipe (Rust ignores SIGPIPE by default). Commands that run a capture, the
+        // daemon and the simulators keep ignoring it: a reader or client that goes away must
+        // not stop them.
+        // SAFETY: called before any thread starts; SIG_DFL is a valid disposition.
+        unsafe {
+            libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        }
+    }
     // A simulator logs each transaction it serves; everything else is quiet unless asked.
     let serve_log;
     let default = match &args.command {
-        cli::Command::Sim { .. } => "warn,brdfd_sim=info",
+        cli::Command::Sim { .. } => "warn,brdfd_sim=debug",
         // The daemon logs as its config says (`log` in brdfd.toml).
         cli::Command::Serve(a) => {
             serve_log = a.log_filter();
@@ -24,6 +34,8 @@ fn main() -> std::process::ExitCode {
                 .unwrap_or_else(|_| default.into()),
         )
         .with_writer(std::io::stderr)
+        // Colour only for a person at a terminal: a log file or journal gets plain text.
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,

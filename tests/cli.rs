@@ -573,14 +573,44 @@ fn a_rig_file_drives_the_devices_it_names() {
         .and_then(|s| s.parse().ok())
         .unwrap_or_else(|| panic!("no fit reported:\n{stdout}"));
     assert!(fit > 0.0 && fit < 1.0, "fit {fit}\n{stdout}");
-    let list = brdfd(&["session", "list", "--state-dir", "state"], dir.path());
-    assert!(text(&list).0.contains("Done"), "{}", text(&list).0);
-    let id = text(&list).0.split_whitespace().next().unwrap().to_string();
+    // The listing: a header, then one row with the state, the model and the fit.
+    let list = text(&brdfd(
+        &["session", "list", "--state-dir", "state"],
+        dir.path(),
+    ))
+    .0;
+    let rows: Vec<&str> = list.lines().collect();
+    assert!(
+        rows[0].starts_with("ID") && rows[0].contains("FIT"),
+        "{list}"
+    );
+    assert!(
+        rows[1].contains("done") && rows[1].contains("analytic"),
+        "{list}"
+    );
+    assert!(rows[1].contains(&format!("{fit:.3}")), "{list}");
+    let json = text(&brdfd(
+        &["session", "list", "--json", "--state-dir", "state"],
+        dir.path(),
+    ))
+    .0;
+    let listed: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let id = listed[0]["id"].as_str().unwrap().to_string();
+    assert_eq!(listed[0]["state"], "done", "{json}");
+    // `latest` is this session; its summary comes before the manifest.
     let show = brdfd(
-        &["session", "show", &id, "--state-dir", "state"],
+        &["session", "show", "latest", "--state-dir", "state"],
         dir.path(),
     );
     let shown = text(&show).0;
+    assert!(
+        shown.starts_with(&format!("session {id}: done, material gold")),
+        "{shown}"
+    );
+    assert!(
+        shown.contains("estimate: analytic model, fit to the photo"),
+        "{shown}"
+    );
     assert!(shown.contains("RICOH THETA V (serial"), "{shown}");
     assert!(shown.contains(&format!("ptpip:{}", camera.addr)), "{shown}");
     assert!(shown.contains("13 raw files verified"), "{shown}");

@@ -166,7 +166,7 @@ fn bad_session_ids_and_material_names_are_refused() {
         dir.path(),
     );
     assert!(
-        out(&o).contains("session id name \"../../etc\""),
+        out(&o).contains("session id \"../../etc\" is not a valid name"),
         "{}",
         out(&o)
     );
@@ -182,7 +182,31 @@ fn bad_session_ids_and_material_names_are_refused() {
         dir.path(),
     );
     assert!(!o.status.success());
-    assert!(out(&o).contains("material name"), "{}", out(&o));
+    assert!(
+        out(&o).contains("material \"Gold/../x\" is not a valid name"),
+        "{}",
+        out(&o)
+    );
+    assert!(!dir.path().join("sessions").exists(), "nothing was created");
+    // A well-formed name the simulator does not have is refused before a session exists too.
+    let o = brdfd(
+        &[
+            "capture",
+            "--simulate",
+            "--material",
+            "unobtainium",
+            "--state-dir",
+            state,
+        ],
+        dir.path(),
+    );
+    assert!(!o.status.success());
+    let text = out(&o);
+    assert!(
+        text.contains("no material \"unobtainium\"") && text.contains("gold-metallic-paint"),
+        "{text}"
+    );
+    assert!(!text.contains("resume"), "{text}");
     assert!(!dir.path().join("sessions").exists(), "nothing was created");
 }
 
@@ -260,4 +284,37 @@ fn a_full_disk_fails_the_session_clearly_and_it_resumes_once_there_is_room() {
     let after = read("show-after.log");
     assert!(after.contains("\"state\": \"done\""), "{after}");
     assert!(after.contains("13 raw files verified"), "{after}");
+}
+
+/// A session that a vanished process left capturing: `session cancel latest` records it as
+/// interrupted, and says how to resume it; a session being captured right now is left alone.
+#[test]
+fn cancel_records_a_session_left_capturing_as_interrupted() {
+    use brdfd::session::{Session, State};
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let mut s = Session::create(&state, "gold", "", None, serde_json::json!({})).unwrap();
+    s.set_state(State::Capturing, None).unwrap();
+    let id = s.manifest.id.clone();
+    let state_arg = state.to_str().unwrap();
+    let cancel = ["session", "cancel", "latest", "--state-dir", state_arg];
+
+    // Claimed, as by a running capture: refused, and nothing changes.
+    let claim = s.claim().unwrap();
+    let o = brdfd(&cancel, dir.path());
+    assert!(!o.status.success());
+    assert!(out(&o).contains("press Ctrl-C there"), "{}", out(&o));
+    drop(claim);
+
+    let o = brdfd(&cancel, dir.path());
+    assert!(o.status.success(), "{}", out(&o));
+    assert!(
+        out(&o).contains(&format!("`brdfd session resume {id}` continues it")),
+        "{}",
+        out(&o)
+    );
+    let after = Session::open(&state, &id).unwrap();
+    assert_eq!(after.manifest.state, State::Failed);
+    let o = brdfd(&cancel, dir.path());
+    assert!(out(&o).contains("is already failed"), "{}", out(&o));
 }

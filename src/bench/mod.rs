@@ -43,6 +43,11 @@ pub fn embedded_materials() -> NbrdfSet {
     .expect("embedded materials are checked by tests")
 }
 
+/// The short names, as "alias (MERL name)".
+pub fn aliases() -> Vec<String> {
+    ALIASES.iter().map(|(a, m)| format!("{a} ({m})")).collect()
+}
+
 /// MERL name for a material name or alias.
 pub fn resolve_material(name: &str) -> &str {
     ALIASES

@@ -87,18 +87,15 @@ pub struct DaemonArgs {
     /// Run in this process even if a daemon is running.
     #[arg(long)]
     pub in_process: bool,
-    /// The daemon config to read `api`, `token` and `state_dir` from; the embedded defaults
-    /// if absent.
+    /// The daemon config to read `api`, `token` and `state_dir` from; else BRDFD_CONFIG, else
+    /// ~/.config/brdfd/brdfd.toml (XDG) if it exists, else the built-in defaults.
     #[arg(long)]
     pub config: Option<PathBuf>,
 }
 
 impl DaemonArgs {
     pub fn config(&self) -> anyhow::Result<DaemonConfig> {
-        Ok(match &self.config {
-            Some(p) => DaemonConfig::read(p)?,
-            None => DaemonConfig::embedded(),
-        })
+        Ok(DaemonConfig::load(self.config.as_deref())?.0)
     }
 
     /// The running daemon, unless `--in-process`; says which way the work goes.
@@ -147,6 +144,9 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         )),
         (None, false) => None,
     };
+    if rig.as_ref().is_some_and(|(r, _)| r.simulated) {
+        plan.check_simulated_material()?;
+    }
     if let Some(d) = a.daemon.find(&config)? {
         let health = d.json("/health")?;
         let simulated = health["rig"]["simulated"].as_bool().unwrap_or(false);
@@ -190,13 +190,21 @@ fn in_process(
 ) -> anyhow::Result<()> {
     let devices = Devices::start(rig, KEEP_ALIVE)?;
     let bars: Arc<dyn Progress> = Arc::new(Bars::new());
+    let cancel = Cancel::default();
+    interrupt_cancels(&cancel, &session.manifest.id);
     let cx = Context {
         rig,
         devices: &devices,
         progress: bars,
-        cancel: Cancel::default(),
+        cancel: cancel.clone(),
     };
-    flow::execute(session, plan, &cx)?;
+    if let Err(e) = flow::execute(session, plan, &cx) {
+        if cancel.is_cancelled() {
+            let id = &session.manifest.id;
+            bail!("session {id} interrupted; what was captured is kept: `brdfd session resume {id}` continues it");
+        }
+        return Err(e);
+    }
     print_phases(&session.manifest.phases);
     println!(
         "session {} done: {}",
@@ -209,9 +217,37 @@ fn in_process(
     Ok(())
 }
 
+/// Ctrl-C stops the capture at its next step, which records the session as interrupted; a
+/// second Ctrl-C quits at once.
+fn interrupt_cancels(cancel: &Cancel, id: &str) {
+    let (cancel, id) = (cancel.clone(), id.to_string());
+    let handler = ctrlc::set_handler(move || {
+        if cancel.is_cancelled() {
+            eprintln!("\nquitting now; session {id} may still say it is capturing: `brdfd session resume {id}` continues it");
+            std::process::exit(130);
+        }
+        eprintln!("\nstopping after the current step (Ctrl-C again to quit at once)");
+        cancel.cancel();
+    });
+    if let Err(e) = handler {
+        tracing::warn!("Ctrl-C will not stop the capture cleanly: {e}");
+    }
+}
+
 /// Follows a capture in the daemon to its end.
-fn follow(d: &Daemon, id: &str, out: Option<&Path>) -> anyhow::Result<()> {
+pub fn follow(d: &Daemon, id: &str, out: Option<&Path>) -> anyhow::Result<()> {
     println!("session {id} (in the daemon)");
+    // Leaving stops only the watching: the capture is the daemon's, and goes on.
+    let detach = {
+        let id = id.to_string();
+        ctrlc::set_handler(move || {
+            eprintln!("\nstopped following; the capture continues in the daemon. `brdfd session follow {id}` watches it again, `brdfd session cancel {id}` stops it");
+            std::process::exit(130);
+        })
+    };
+    if let Err(e) = detach {
+        tracing::warn!("Ctrl-C will end the program without a word: {e}");
+    }
     let last = d.follow(id, &Bars::new())?;
     let stored = d.json(&format!("/sessions/{id}"))?;
     let phases: Vec<PhaseTime> = serde_json::from_value(stored["manifest"]["phases"].clone())?;

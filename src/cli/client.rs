@@ -97,6 +97,12 @@ impl Daemon {
             .to_string())
     }
 
+    /// Asks the daemon to stop a running capture.
+    pub fn cancel(&self, id: &str) -> anyhow::Result<()> {
+        self.check(self.post(&format!("/sessions/{id}/cancel")).send()?)?;
+        Ok(())
+    }
+
     /// Follows a session's events until it finishes; returns the last one.
     pub fn follow(&self, id: &str, progress: &dyn Progress) -> anyhow::Result<Event> {
         let r = self.check(self.get(&format!("/sessions/{id}/events")).send()?)?;

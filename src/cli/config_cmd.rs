@@ -1,32 +1,76 @@
 //! `brdfd config check`: validate configuration files before a session uses them.
+//!
+//! A file's kind comes from `--kind`, else from where it sits (`rigs/`, `materials/`,
+//! `geometry/`, `brdfd.toml`), else from its content, so a rig copied to `my-rig.toml` is still
+//! a rig. Every error in a file is reported, not only the first: after an error on a line, that
+//! line is set aside and the file read again.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::bail;
-use brdfd::config::{DaemonConfig, MaterialPreset, Rig};
+use brdfd::config::{ConfigError, DaemonConfig, MaterialPreset, Rig};
 use brdfd::core::geometry::SceneGeometry;
 
 #[derive(clap::Subcommand)]
 pub enum ConfigCommand {
-    /// Check files: `brdfd.toml`, `rigs/*.toml`, `materials/*.toml`, `geometry/*.toml`
-    /// (the kind comes from the file's folder or name).
-    Check { files: Vec<PathBuf> },
+    /// Check files: daemon settings (`brdfd.toml`), rigs, material presets and geometry. The
+    /// kind comes from --kind, else the file's folder or name, else its content.
+    Check {
+        files: Vec<PathBuf>,
+        /// What the files are, when neither their place nor their content says.
+        #[arg(long, value_enum)]
+        kind: Option<Kind>,
+    },
 }
 
-pub fn run(cmd: ConfigCommand) -> anyhow::Result<()> {
-    let ConfigCommand::Check { files } = cmd;
-    if files.is_empty() {
-        bail!("name the files to check, for example config/rigs/*.toml");
-    }
-    let mut failed = 0;
-    for f in &files {
-        let folder = f
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Kind {
+    Rig,
+    Material,
+    Geometry,
+    Daemon,
+}
+
+/// At most this many errors are listed per file.
+const MAX_ERRORS: usize = 20;
+
+impl Kind {
+    /// From the folder the file sits in, or its name.
+    fn of_path(path: &Path) -> Option<Kind> {
+        let folder = path
             .parent()
             .and_then(|p| p.file_name())
-            .and_then(|n| n.to_str())
-            .unwrap_or("");
-        let result: anyhow::Result<String> = match folder {
-            "rigs" => Rig::read(f).map(|r| {
+            .and_then(|n| n.to_str());
+        match folder {
+            Some("rigs") => Some(Kind::Rig),
+            Some("materials") => Some(Kind::Material),
+            Some("geometry") => Some(Kind::Geometry),
+            _ if path.file_name().is_some_and(|n| n == "brdfd.toml") => Some(Kind::Daemon),
+            _ => None,
+        }
+    }
+
+    /// From the keys only one kind has at the top of the file.
+    fn of_text(text: &str) -> Option<Kind> {
+        let table: toml::Table = toml::from_str(text).ok()?;
+        let has = |k: &str| table.contains_key(k);
+        if has("devices") || has("brackets") || has("geometry") {
+            Some(Kind::Rig)
+        } else if has("simulate_as") {
+            Some(Kind::Material)
+        } else if has("camera") {
+            Some(Kind::Geometry)
+        } else if has("api") || has("state_dir") || has("token") {
+            Some(Kind::Daemon)
+        } else {
+            None
+        }
+    }
+
+    /// A one-line description of a valid file, or its first error.
+    fn check(self, file: &str, text: &str) -> Result<String, ConfigError> {
+        match self {
+            Kind::Rig => Rig::parse(file, text).map(|r| {
                 format!(
                     "rig{}: dslr {}, theta {}, turntable {}",
                     if r.simulated { " (simulated)" } else { "" },
@@ -34,25 +78,100 @@ pub fn run(cmd: ConfigCommand) -> anyhow::Result<()> {
                     r.devices.theta.map_or("-".into(), |s| s.to_string()),
                     r.devices.turntable.map_or("-".into(), |s| s.to_string())
                 )
-            }).map_err(Into::into),
-            "materials" => MaterialPreset::read(f)
-                .map(|m| format!("material preset, simulated as {}", m.simulate_as))
-                .map_err(Into::into),
-            "geometry" => SceneGeometry::read(f)
+            }),
+            Kind::Material => MaterialPreset::parse(file, text)
+                .map(|m| format!("material preset, simulated as {}", m.simulate_as)),
+            Kind::Geometry => toml::from_str::<SceneGeometry>(text)
                 .map(|_| "geometry".to_string())
-                .map_err(Into::into),
-            _ if f.file_name().is_some_and(|n| n == "brdfd.toml") => DaemonConfig::read(f)
-                .map(|d| format!("daemon settings, API on {}", d.api))
-                .map_err(Into::into),
-            _ => Err(anyhow::anyhow!(
-                "cannot tell what kind of file this is: put it in rigs/, materials/ or geometry/, or name it brdfd.toml"
-            )),
-        };
-        match result {
-            Ok(what) => println!("ok  {}: {what}", f.display()),
+                .map_err(|e| ConfigError::Parse {
+                    file: file.into(),
+                    message: e.to_string().trim_end().to_string(),
+                    line: e
+                        .span()
+                        .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1),
+                }),
+            Kind::Daemon => DaemonConfig::parse(file, text)
+                .map(|d| format!("daemon settings, API on {}", d.api)),
+        }
+    }
+}
+
+/// The file's description if it is valid, else every error found in it.
+fn check_file(kind: Kind, file: &str, text: &str) -> Result<String, Vec<ConfigError>> {
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    let mut errors = Vec::new();
+    // Keys set aside: a later "missing field" for one of them is our doing, not the file's.
+    let mut set_aside: Vec<String> = Vec::new();
+    loop {
+        match kind.check(file, &(lines.join("\n") + "\n")) {
+            Ok(what) if errors.is_empty() => return Ok(what),
+            Ok(_) => return Err(errors),
+            Err(e)
+                if set_aside
+                    .iter()
+                    .any(|k| e.to_string().contains(&format!("missing field `{k}`"))) =>
+            {
+                return Err(errors)
+            }
+            Err(e) => {
+                // Set the line aside (as a comment, so that later lines keep their numbers)
+                // and read on; an error without a line, or a line already set aside, ends it.
+                let line = match &e {
+                    ConfigError::Parse { line: Some(l), .. } => Some(*l),
+                    _ => None,
+                };
+                errors.push(e);
+                match line {
+                    Some(l)
+                        if errors.len() < MAX_ERRORS
+                            && lines.get(l - 1).is_some_and(|t| !t.starts_with('#')) =>
+                    {
+                        if let Some((key, _)) = lines[l - 1].split_once('=') {
+                            set_aside.push(key.trim().to_string());
+                        }
+                        lines[l - 1].insert(0, '#');
+                    }
+                    _ => return Err(errors),
+                }
+            }
+        }
+    }
+}
+
+pub fn run(cmd: ConfigCommand) -> anyhow::Result<()> {
+    let ConfigCommand::Check { files, kind } = cmd;
+    if files.is_empty() {
+        bail!("name the files to check, for example config/rigs/*.toml");
+    }
+    let mut failed = 0;
+    for f in &files {
+        let file = f.display().to_string();
+        let text = match std::fs::read_to_string(f) {
+            Ok(t) => t,
             Err(e) => {
                 failed += 1;
-                println!("ERR {e:#}");
+                println!("ERR {file}: {e}");
+                continue;
+            }
+        };
+        let Some(kind) = kind
+            .or_else(|| Kind::of_path(f))
+            .or_else(|| Kind::of_text(&text))
+        else {
+            failed += 1;
+            println!(
+                "ERR {file}: cannot tell what kind of file this is (no [devices], simulate_as, \
+                 [camera] or api in it): give --kind rig|material|geometry|daemon"
+            );
+            continue;
+        };
+        match check_file(kind, &file, &text) {
+            Ok(what) => println!("ok  {file}: {what}"),
+            Err(errors) => {
+                failed += 1;
+                for e in errors {
+                    println!("ERR {e}");
+                }
             }
         }
     }
@@ -60,4 +179,48 @@ pub fn run(cmd: ConfigCommand) -> anyhow::Result<()> {
         bail!("{failed} of {} files have errors", files.len());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const RIG: &str = include_str!("../../config/rigs/bench.toml");
+
+    #[test]
+    fn a_copied_file_is_known_by_its_content() {
+        assert_eq!(Kind::of_text(RIG), Some(Kind::Rig));
+        let preset = include_str!("../../config/materials/gold.toml");
+        assert_eq!(Kind::of_text(preset), Some(Kind::Material));
+        let geometry = include_str!("../../config/geometry/eval-sphere.toml");
+        assert_eq!(Kind::of_text(geometry), Some(Kind::Geometry));
+        assert_eq!(
+            Kind::of_text(include_str!("../../config/brdfd.toml")),
+            Some(Kind::Daemon)
+        );
+        assert_eq!(Kind::of_text("x = 1\n"), None);
+    }
+
+    #[test]
+    fn every_error_is_reported_with_its_line() {
+        let broken = RIG
+            .replace("dslr_iso = 100", "dslr_iso = \"a hundred\"")
+            .replace("theta_iso = 100", "theta_iso = 100\nflash = true");
+        let errors = check_file(Kind::Rig, "my-rig.toml", &broken).unwrap_err();
+        let line_of = |needle: &str| broken.lines().position(|l| l.contains(needle)).unwrap() + 1;
+        let lines: Vec<Option<usize>> = errors
+            .iter()
+            .map(|e| match e {
+                ConfigError::Parse { line, .. } => *line,
+                _ => None,
+            })
+            .collect();
+        assert_eq!(
+            lines,
+            [Some(line_of("a hundred")), Some(line_of("flash"))],
+            "{errors:?}"
+        );
+        assert!(errors[1].to_string().contains("flash"), "{}", errors[1]);
+        assert!(check_file(Kind::Rig, "bench.toml", RIG).is_ok());
+    }
 }

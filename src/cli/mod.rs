@@ -85,6 +85,16 @@ pub enum Command {
     },
     /// List what is plugged in and whether brdfd can open it.
     Devices(devices_cmd::DevicesArgs),
+    /// Print a shell completion script, e.g. `brdfd completions bash > ~/.local/share/bash-completion/completions/brdfd`.
+    Completions {
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
+    /// Write man pages (brdfd.1 and one per subcommand) into a folder.
+    Man {
+        #[arg(long, default_value = "man")]
+        out: PathBuf,
+    },
     /// Run a simulated device until stopped.
     Sim {
         #[command(subcommand)]
@@ -154,6 +164,22 @@ pub fn write_new(dir: &std::path::Path, name: &str, bytes: &[u8]) -> anyhow::Res
     unreachable!("an unbounded range ends only by returning")
 }
 
+impl Command {
+    /// Whether the command only reports: ended by SIGPIPE when its reader goes away, rather
+    /// than going on (a capture, the daemon, a simulator).
+    pub fn ends_quietly_on_a_closed_pipe(&self) -> bool {
+        match self {
+            Command::Capture(_) | Command::Serve(_) | Command::Sim { .. } => false,
+            Command::Session(a) => !matches!(
+                a.command,
+                session_cmd::SessionCommand::Resume { .. }
+                    | session_cmd::SessionCommand::Follow { .. }
+            ),
+            _ => true,
+        }
+    }
+}
+
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Basis { command } => basis_cmd::run(command),
@@ -194,5 +220,23 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Config { command } => config_cmd::run(command),
         Command::Session(a) => session_cmd::run(a),
         Command::Sim { command } => sim::run(command),
+        Command::Completions { shell } => {
+            let mut cmd = <Cli as clap::CommandFactory>::command();
+            // Into memory first: the generator panics on a write error, such as a closed pipe.
+            let mut script = Vec::new();
+            clap_complete::generate(shell, &mut cmd, "brdfd", &mut script);
+            std::io::Write::write_all(&mut std::io::stdout(), &script)?;
+            Ok(())
+        }
+        Command::Man { out } => {
+            std::fs::create_dir_all(&out)?;
+            clap_mangen::generate_to(<Cli as clap::CommandFactory>::command(), &out)?;
+            println!(
+                "man pages in {} (try: man {}/brdfd.1)",
+                out.display(),
+                out.display()
+            );
+            Ok(())
+        }
     }
 }

@@ -40,10 +40,11 @@ impl Bars {
         let mut bars = self.bars.lock().expect("bars");
         bars.entry(phase.to_string())
             .or_insert_with(|| {
+                // The spinner turns while a device or the simulator works between updates.
                 let template = if bytes {
-                    "{prefix:<32} [{bar:30}] {bytes}/{total_bytes}"
+                    "{spinner} {prefix:<46} [{bar:30}] {bytes}/{total_bytes}"
                 } else {
-                    "{prefix:<32} [{bar:30}] {pos}/{len} {elapsed_precise}"
+                    "{spinner} {prefix:<46} [{bar:30}] {pos}/{len} {elapsed}"
                 };
                 let b = self.multi.add(ProgressBar::new(total));
                 b.set_style(
@@ -77,7 +78,15 @@ impl Progress for Bars {
             Event::PhaseDone { phase, seconds, .. } => {
                 let b = self.bar(&phase, 1, false);
                 b.set_position(b.length().unwrap_or(1));
+                // The phase's own time, frozen: a finished bar is never drawn again (it leaves
+                // the map), so its clock cannot run on to the end of the capture.
+                b.set_style(
+                    ProgressStyle::with_template("  {prefix:<46} [{bar:30}] {pos}/{len} {msg}")
+                        .expect("a valid template")
+                        .progress_chars("=> "),
+                );
                 b.finish_with_message(format!("{seconds:.2} s"));
+                self.bars.lock().expect("bars").remove(&phase);
                 if let Some(d) = self.bars.lock().expect("bars").remove(&format!(
                     "{}: download",
                     phase.trim_end_matches(": DSLR bracket")

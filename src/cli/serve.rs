@@ -12,8 +12,8 @@ use brdfd::daemon::{api, Daemon};
 
 #[derive(clap::Args)]
 pub struct ServeArgs {
-    /// The daemon config (API address, token, state directory); the embedded defaults if
-    /// absent.
+    /// The daemon config (API address, token, state directory, log); else BRDFD_CONFIG, else
+    /// ~/.config/brdfd/brdfd.toml (XDG) if it exists, else the built-in defaults.
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// The rig file of the bench's devices.
@@ -38,28 +38,19 @@ pub struct ServeArgs {
 impl ServeArgs {
     /// The config's log filter; an unreadable config is reported by `run`, so "info" here.
     pub fn log_filter(&self) -> String {
-        self.config
-            .as_ref()
-            .and_then(|p| brdfd::config::DaemonConfig::read(p).ok())
-            .unwrap_or_else(brdfd::config::DaemonConfig::embedded)
-            .log
+        brdfd::config::DaemonConfig::load(self.config.as_deref())
+            .map_or_else(|_| "info".into(), |(c, _)| c.log)
     }
 }
 
 pub fn run(a: ServeArgs) -> anyhow::Result<()> {
-    let mut config = match &a.config {
-        Some(p) => brdfd::config::DaemonConfig::read(p)?,
-        None => brdfd::config::DaemonConfig::embedded(),
-    };
+    let (mut config, config_source) = brdfd::config::DaemonConfig::load(a.config.as_deref())?;
     let source = match &a.api {
         Some(api) => {
             config.api = api.clone();
             "--api".to_string()
         }
-        None => a
-            .config
-            .as_ref()
-            .map_or("config/brdfd.toml".into(), |p| p.display().to_string()),
+        None => config_source,
     };
     let addr = config.check_api(&source)?;
     if !(a.keep_alive.is_finite() && a.keep_alive > 0.0) {

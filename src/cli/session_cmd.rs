@@ -3,27 +3,47 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
-use brdfd::session::{Session, State};
+use anyhow::{bail, Context};
+use brdfd::session::{Manifest, Session, State};
 
 #[derive(clap::Args)]
 pub struct SessionArgs {
     #[command(subcommand)]
     pub command: SessionCommand,
-    /// Where sessions are stored; else BRDFD_STATE_DIR, else the XDG data directory.
+    /// Where sessions are stored; else BRDFD_STATE_DIR, else the `state_dir` of the daemon's
+    /// config (BRDFD_CONFIG, else ~/.config/brdfd/brdfd.toml), else the XDG data directory:
+    /// the daemon's own order.
     #[arg(long, global = true)]
     pub state_dir: Option<PathBuf>,
 }
 
 #[derive(clap::Subcommand)]
 pub enum SessionCommand {
-    /// Every session: id, state, material, created.
-    List,
-    /// One session's manifest, with every raw file's checksum verified.
+    /// Every session, oldest first: id, state, material, model and fit, created.
+    List {
+        /// One JSON object per session, as an array.
+        #[arg(long)]
+        json: bool,
+    },
+    /// One session: a summary, then its manifest, with every raw file's checksum verified.
+    /// ID may be `latest`.
     Show { id: String },
     /// Continue an interrupted or failed session from its last complete step (in the daemon
-    /// if one is running).
+    /// if one is running). ID may be `latest`.
     Resume {
+        id: String,
+        #[command(flatten)]
+        daemon: super::capture::DaemonArgs,
+    },
+    /// Stop a capture: in the daemon if one runs it; else a session left capturing by a
+    /// process that is gone is recorded as interrupted. ID may be `latest`.
+    Cancel {
+        id: String,
+        #[command(flatten)]
+        daemon: super::capture::DaemonArgs,
+    },
+    /// Watch a capture running in the daemon until it ends. ID may be `latest`.
+    Follow {
         id: String,
         #[command(flatten)]
         daemon: super::capture::DaemonArgs,
@@ -37,35 +57,199 @@ pub enum SessionCommand {
 }
 
 pub fn run(a: SessionArgs) -> anyhow::Result<()> {
-    let state = brdfd::session::state_dir(a.state_dir.as_deref(), None)?;
+    let given = match &a.command {
+        SessionCommand::Resume { daemon, .. }
+        | SessionCommand::Cancel { daemon, .. }
+        | SessionCommand::Follow { daemon, .. } => daemon.config.as_deref(),
+        _ => None,
+    };
+    let (config, _) = brdfd::config::DaemonConfig::load(given)?;
+    let state = brdfd::session::state_dir(a.state_dir.as_deref(), config.state_dir.as_deref())?;
+    let id = |id: &str| resolve_id(&state, id);
     match a.command {
-        SessionCommand::List => {
-            let all = Session::list(&state)?;
-            if all.is_empty() {
-                println!("no sessions in {}", state.display());
+        SessionCommand::List { json } => list(&state, json)?,
+        SessionCommand::Show { id: i } => {
+            let s = Session::open(&state, &id(&i)?)?;
+            for line in summary(&s) {
+                println!("{line}");
             }
-            for m in all {
-                println!("{}  {:?}  {}  {}", m.id, m.state, m.material, m.created);
-            }
-        }
-        SessionCommand::Show { id } => {
-            let s = Session::open(&state, &id)?;
-            println!("{}", serde_json::to_string_pretty(&s.manifest)?);
+            println!(
+                "\nmanifest:\n{}",
+                serde_json::to_string_pretty(&s.manifest)?
+            );
             let n = s.verify()?;
             println!("{n} raw files verified (sha256)");
         }
-        SessionCommand::Resume { id, daemon } => super::capture::resume(&state, &id, &daemon)?,
-        SessionCommand::Export { id, to } => {
+        SessionCommand::Resume { id: i, daemon } => {
+            super::capture::resume(&state, &id(&i)?, &daemon)?
+        }
+        SessionCommand::Cancel { id: i, daemon } => cancel(&state, &id(&i)?, &daemon)?,
+        SessionCommand::Follow { id: i, daemon } => {
+            let id = id(&i)?;
+            let Some(d) = daemon.find(&daemon.config()?)? else {
+                bail!("no daemon runs, so nothing is capturing {id} to follow: `brdfd session show {id}` shows where it stands");
+            };
+            super::capture::follow(&d, &id, None)?
+        }
+        SessionCommand::Export { id: i, to } => {
+            let id = id(&i)?;
             let s = Session::open(&state, &id)?;
             let n = s.verify()?;
             if s.manifest.state != State::Done {
-                eprintln!("note: session {id} is {:?}, not done", s.manifest.state);
+                eprintln!(
+                    "note: session {id} is {}, not done",
+                    state_name(s.manifest.state)
+                );
             }
             let dest = to.join(&id);
             copy_dir(&s.dir, &dest)?;
             println!("{} ({n} raw files verified)", dest.display());
         }
     }
+    Ok(())
+}
+
+/// `latest` is the newest session (ids start with their creation time); any other id as is.
+fn resolve_id(state: &Path, id: &str) -> anyhow::Result<String> {
+    if id != "latest" {
+        return Ok(id.to_string());
+    }
+    Session::list(state)?
+        .pop()
+        .map(|m| m.id)
+        .with_context(|| format!("no sessions in {}, so none is the latest", state.display()))
+}
+
+/// The result a session wrote, if it got that far: its model and fit to the photo.
+fn result_of(dir: &Path) -> Option<(String, f64)> {
+    let text = std::fs::read_to_string(dir.join("result/coefficients.json")).ok()?;
+    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+    Some((
+        v["model"].as_str().unwrap_or("basis").to_string(),
+        v["fit_error"].as_f64()?,
+    ))
+}
+
+fn list(state: &Path, json: bool) -> anyhow::Result<()> {
+    let all = Session::list(state)?;
+    let rows: Vec<(Manifest, Option<(String, f64)>)> = all
+        .into_iter()
+        .map(|m| {
+            let r = result_of(&state.join("sessions").join(&m.id));
+            (m, r)
+        })
+        .collect();
+    if json {
+        let v: Vec<serde_json::Value> = rows
+            .iter()
+            .map(|(m, r)| {
+                serde_json::json!({
+                    "id": m.id,
+                    "state": m.state,
+                    "material": m.material,
+                    "created": m.created,
+                    "model": r.as_ref().map(|r| &r.0),
+                    "fit_error": r.as_ref().map(|r| r.1),
+                })
+            })
+            .collect();
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(());
+    }
+    if rows.is_empty() {
+        println!("no sessions in {}", state.display());
+        return Ok(());
+    }
+    let width = rows
+        .iter()
+        .map(|(m, _)| m.id.len())
+        .max()
+        .unwrap_or(2)
+        .max(2);
+    println!(
+        "{:<width$}  {:<10}  {:<12}  {:<8}  {:>6}  created",
+        "ID", "STATE", "MATERIAL", "MODEL", "FIT"
+    );
+    for (m, r) in &rows {
+        let (model, fit) = match r {
+            Some((model, fit)) => (model.as_str(), format!("{fit:.3}")),
+            None => ("-", "-".to_string()),
+        };
+        println!(
+            "{:<width$}  {:<10}  {:<12}  {:<8}  {:>6}  {}",
+            m.id,
+            state_name(m.state),
+            m.material,
+            model,
+            fit,
+            m.created
+        );
+    }
+    Ok(())
+}
+
+/// A state as the manifest and the API spell it (`done`, `capturing`, ...).
+fn state_name(state: State) -> String {
+    serde_json::to_value(state)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_else(|| format!("{state:?}"))
+}
+
+/// What a person wants first: where the session stands, why, and what it found.
+fn summary(s: &Session) -> Vec<String> {
+    let m = &s.manifest;
+    let mut lines = vec![
+        format!(
+            "session {}: {}, material {}",
+            m.id,
+            state_name(m.state),
+            m.material
+        ),
+        format!("created {} by {}", m.created, m.software),
+        format!("folder {}", s.dir.display()),
+    ];
+    if let Some(t) = m.history.last() {
+        if let Some(reason) = &t.reason {
+            lines.push(format!("last change {}: {reason}", t.at));
+        }
+    }
+    match result_of(&s.dir) {
+        Some((model, fit)) => lines.push(format!(
+            "estimate: {model} model, fit to the photo {fit:.4} ({})",
+            brdfd::core::estimate::fit_verdict(fit)
+        )),
+        None if m.state != State::Done => lines.push(format!(
+            "no estimate yet: `brdfd session resume {}` continues it",
+            m.id
+        )),
+        None => {}
+    }
+    lines
+}
+
+/// Cancels through the daemon when one runs; else records a session that a vanished process
+/// left capturing as interrupted, so that it can be resumed.
+fn cancel(state: &Path, id: &str, daemon: &super::capture::DaemonArgs) -> anyhow::Result<()> {
+    if let Some(d) = daemon.find(&daemon.config()?)? {
+        d.cancel(id)?;
+        println!("asked the daemon to stop {id} at its next step; what was captured is kept");
+        return Ok(());
+    }
+    let mut s = Session::open(state, id)?;
+    if matches!(s.manifest.state, State::Done | State::Failed) {
+        println!("session {id} is already {}", state_name(s.manifest.state));
+        return Ok(());
+    }
+    // Another process capturing it holds the claim: only it can stop cleanly.
+    let _claim = s.claim().with_context(|| {
+        format!("session {id} is being captured by another process: press Ctrl-C there")
+    })?;
+    s.set_state(
+        State::Failed,
+        Some("cancelled by `brdfd session cancel`; what was captured is kept".into()),
+    )?;
+    println!("session {id} recorded as interrupted: `brdfd session resume {id}` continues it");
     Ok(())
 }
 

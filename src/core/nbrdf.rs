@@ -126,6 +126,11 @@ impl NbrdfSet {
         Ok(NbrdfSet { materials })
     }
 
+    /// The materials' names, in order.
+    pub fn names(&self) -> Vec<&str> {
+        self.materials.keys().map(String::as_str).collect()
+    }
+
     pub fn get(&self, name: &str) -> Result<&NbrdfMaterial> {
         self.materials.get(name).ok_or_else(|| {
             CoreError::Invalid(format!(

@@ -150,6 +150,10 @@ impl Daemon {
         // A malformed plan is refused as such whether or not a capture runs: the caller
         // learns what to fix, not only that it must wait.
         plan.validate().map_err(StartError::Invalid)?;
+        if self.rig.simulated {
+            plan.check_simulated_material()
+                .map_err(StartError::Invalid)?;
+        }
         self.check_idle()?;
         let session = plan
             .new_session(&self.state_dir, &self.rig_text)
@@ -235,7 +239,10 @@ impl Daemon {
     pub fn shut_down(&self) {
         let r = self.running.lock().expect("running").take();
         if let Some(r) = r {
-            tracing::info!(session = %r.id, "shutting down: cancelling the running capture");
+            // A capture that finished earlier has nothing to cancel: say so only when one runs.
+            if !r.over() {
+                tracing::info!(session = %r.id, "shutting down: cancelling the running capture");
+            }
             r.cancel.cancel();
             let _ = r.thread.join();
         }

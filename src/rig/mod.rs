@@ -103,10 +103,38 @@ impl Plan {
         )?)
     }
 
+    /// On a simulated rig, the material must be one the simulator can render: a shipped
+    /// preset, an alias or embedded test material, or one of the plan's NBRDF file. Checked
+    /// before a session exists, so that a typo leaves nothing behind.
+    pub fn check_simulated_material(&self) -> anyhow::Result<()> {
+        let preset =
+            crate::config::MaterialPreset::embedded(&self.material).map_err(anyhow::Error::msg)?;
+        let name = preset
+            .as_ref()
+            .map_or(self.material.as_str(), |p| p.simulate_as.as_str());
+        let merl = crate::bench::resolve_material(name);
+        if crate::bench::embedded_materials().get(merl).is_ok() {
+            return Ok(());
+        }
+        if let Some(path) = &self.nbrdf {
+            let set = crate::core::nbrdf::NbrdfSet::read(path)?;
+            set.get(merl)?;
+            return Ok(());
+        }
+        let embedded = crate::bench::embedded_materials();
+        anyhow::bail!(
+            "the simulator has no material {:?}. Use a preset ({}), a short name ({}), a test \
+             material ({}), or give --nbrdf FILE holding it",
+            self.material,
+            crate::config::preset_names().join(", "),
+            crate::bench::aliases().join(", "),
+            embedded.names().join(", ")
+        )
+    }
+
     /// Checks what can be checked before any device moves.
     pub fn validate(&self) -> anyhow::Result<()> {
-        crate::config::validate_name("material name", &self.material)
-            .map_err(anyhow::Error::msg)?;
+        crate::config::validate_name("material", &self.material).map_err(anyhow::Error::msg)?;
         anyhow::ensure!(self.views != Some(0), "views must be at least 1");
         anyhow::ensure!(
             (8..=8192).contains(&self.size),

@@ -19,6 +19,12 @@ pub fn command() -> Command {
     let renders = Path::new(env!("CARGO_TARGET_TMPDIR")).join("render-cache");
     c.env("BRDFD_DAEMON", NO_DAEMON)
         .env("BRDFD_RENDER_CACHE", renders)
+        // No settings from the developer's own ~/.config/brdfd.
+        .env(
+            "XDG_CONFIG_HOME",
+            Path::new(env!("CARGO_TARGET_TMPDIR")).join("no-config"),
+        )
+        .env_remove("BRDFD_CONFIG")
         .env_remove("BRDFD_STATE_DIR");
     c
 }

@@ -182,7 +182,7 @@ impl Responder {
         if code != rc::OK {
             reply.data = None;
         }
-        tracing::info!(
+        tracing::debug!(
             "simulated {:?}: op {:#06x} {:x?} tid {} -> {:#06x}{}",
             self.profile,
             m.code,
