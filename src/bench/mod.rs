@@ -193,19 +193,34 @@ impl VirtualBench {
     /// truth (the full table), both rendered under the bench's map turned [`HELD_OUT_YAW_DEG`]
     /// about the vertical, so that its bright regions light the object from other sides.
     pub fn relight_error(&self, estimate: &Bivariate) -> Result<f64> {
+        self.relight_error_with(&self.relight_truth()?, estimate)
+    }
+
+    /// The truth of [`VirtualBench::relight_error`]: the material under the held-out light.
+    pub fn relight_truth(&self) -> Result<Raster> {
+        let (sphere, lights, yaw) = self.held_out()?;
+        self.cached(
+            "relight truth",
+            yaw,
+            &default_geometry(RELIGHT_SIZE),
+            || Ok(render_merl(&sphere, &lights, &self.material)),
+        )
+    }
+
+    /// [`VirtualBench::relight_error`] against a truth rendered beforehand.
+    pub fn relight_error_with(&self, truth: &Raster, estimate: &Bivariate) -> Result<f64> {
+        let (sphere, lights, _) = self.held_out()?;
+        Ok(render_bivariate(&sphere, &lights, estimate).relative_rmse(truth))
+    }
+
+    /// The sphere and the light of the relight check, and the light's yaw.
+    fn held_out(&self) -> Result<(PixelGeometry, LightSet, f64)> {
         let sphere = PixelGeometry::rasterize(
             &Camera::eval_orthographic(RELIGHT_SIZE),
             &Shape::unit_sphere(),
         )?;
         let yaw = self.yaw + HELD_OUT_YAW_DEG.to_radians();
-        let lights = self.env.compressed(PHOTO_LIGHTS, yaw);
-        let truth = self.cached(
-            "relight truth",
-            yaw,
-            &default_geometry(RELIGHT_SIZE),
-            || Ok(render_merl(&sphere, &lights, &self.material)),
-        )?;
-        Ok(render_bivariate(&sphere, &lights, estimate).relative_rmse(&truth))
+        Ok((sphere, self.env.compressed(PHOTO_LIGHTS, yaw), yaw))
     }
 }
 

@@ -660,13 +660,8 @@ pub fn render_merl(geom: &PixelGeometry, lights: &LightSet, brdf: &MerlBrdf) -> 
                 e2[2] * h[0] - e2[0] * h[2],
                 e2[0] * h[1] - e2[1] * h[0],
             ];
-            let phi = dot3(l.dir, e2).atan2(dot3(l.dir, e1));
-            // φd bin over [0, π) with reciprocity, as merl::phi_d_bin, in f32.
-            let p = if phi < 0.0 {
-                phi + std::f32::consts::PI
-            } else {
-                phi
-            };
+            // φd over [0, π) with reciprocity, as merl::phi_d_bin, in f32.
+            let p = phi_mod_pi(dot3(l.dir, e2), dot3(l.dir, e1));
             let kp = ((p * (merl::PHI_D_BINS as f32 / std::f32::consts::PI)) as usize)
                 .min(merl::PHI_D_BINS - 1);
             let f = table[l.base + merl::cell_index(bh, bd, kp)];
@@ -677,6 +672,36 @@ pub fn render_merl(geom: &PixelGeometry, lights: &LightSet, brdf: &MerlBrdf) -> 
         acc.map(|x| x as f32)
     };
     shade_pixels(geom, shade)
+}
+
+/// atan2(y, x) taken modulo π, in [0, π]: the φd of reciprocity. A polynomial arctangent
+/// (error at most 1e-5 rad, against a φd bin of 1°) in place of `atan2`, one of the costliest
+/// steps of the MERL renderer's inner loop: 8% of its time, measured.
+#[inline(always)]
+fn phi_mod_pi(y: f32, x: f32) -> f32 {
+    // Adding π turns (x, y) into (−x, −y): the upper half plane holds every class.
+    let (y, x) = if y < 0.0 { (-y, -x) } else { (y, x) };
+    let ax = x.abs();
+    let atan01 = |z: f32| {
+        // atan on [0, 1]: Abramowitz & Stegun 4.4.49, |error| ≤ 1e-5.
+        let z2 = z * z;
+        z * (0.999_866
+            + z2 * (-0.330_299_5 + z2 * (0.180_141 + z2 * (-0.085_133 + z2 * 0.020_835_1))))
+    };
+    let a = if ax >= y {
+        if ax == 0.0 {
+            0.0
+        } else {
+            atan01(y / ax)
+        }
+    } else {
+        std::f32::consts::FRAC_PI_2 - atan01(ax / y)
+    };
+    if x < 0.0 {
+        std::f32::consts::PI - a
+    } else {
+        a
+    }
 }
 
 /// Renders any isotropic BRDF by evaluating it per (pixel, light) pair: slow, general, and
@@ -733,6 +758,23 @@ fn shade_pixels(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_polynomial_phi_matches_atan2_modulo_pi() {
+        let mut worst = 0f64;
+        for i in 0..20_000 {
+            let t = i as f64 / 20_000.0 * std::f64::consts::TAU;
+            for r in [1e-3, 0.5, 1.0] {
+                let (y, x) = ((t.sin() * r) as f32, (t.cos() * r) as f32);
+                let exact = (y as f64).atan2(x as f64).rem_euclid(std::f64::consts::PI);
+                let d = (phi_mod_pi(y, x) as f64 - exact).abs();
+                // π and 0 are the same class.
+                worst = worst.max(d.min((d - std::f64::consts::PI).abs()));
+            }
+        }
+        assert!(worst < 1.5e-5, "worst {worst}");
+        assert_eq!(phi_mod_pi(0.0, 0.0), 0.0);
+    }
 
     #[test]
     fn lut_matches_direct_binning() {

@@ -253,6 +253,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         }
         None => None,
     };
+    let mut relight_truth = None;
     let shutters = if !plan.bracket.is_empty() {
         plan.bracket.clone()
     } else if let Some(s) = preset.as_ref().and_then(|p| p.dslr_shutters.clone()) {
@@ -367,6 +368,13 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
                 if let (Some(sim), Some(b)) = (&cx.devices.sim, &bench) {
                     // The simulated turntable only reports angles; the object turns here.
                     sim.show_object(&turned_bench(b, deg))?;
+                    // The truth the estimate is relit against needs no estimate: it renders
+                    // while the camera's modelled exposures wait and the estimate runs. (Not
+                    // before the scene's own render: two renders at once only slow each other.)
+                    if relight_truth.is_none() {
+                        let b = b.clone();
+                        relight_truth = Some(std::thread::spawn(move || b.relight_truth()));
+                    }
                 }
                 session.begin_step(&step, json!({ "turntable_deg": deg }))?;
                 let files = dslr_bracket(cx, session, &step, &shutters)?;
@@ -460,7 +468,14 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     let relight = match &bench {
         Some(b) => {
             let p = phases.start("relight against the ground truth (simulator)", 1);
-            let error = b.relight_error(&est.brdf)?;
+            let truth = match relight_truth {
+                Some(render) => render
+                    .join()
+                    .map_err(|_| anyhow::anyhow!("rendering the relight truth panicked"))??,
+                // Every view was already on disk (a resumed session): render it now.
+                None => b.relight_truth()?,
+            };
+            let error = b.relight_error_with(&truth, &est.brdf)?;
             phases.end_as_device(p);
             Some(error)
         }
