@@ -77,6 +77,27 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     result.map_err(|e| io(path, e))
 }
 
+/// A file name a device chose, made safe to create in a folder of ours: letters, digits,
+/// `.`, `-` and `_` only (so no separator, `..` component or absolute path survives), not
+/// hidden, not empty. A camera's ObjectInfo name is whatever the camera says.
+pub fn safe_file_name(device_name: &str) -> String {
+    let safe: String = device_name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '.' || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    match safe.strip_prefix('.') {
+        _ if safe.is_empty() => "unnamed".into(),
+        Some(_) => format!("_{safe}"),
+        None => safe,
+    }
+}
+
 pub fn sha256_hex(bytes: &[u8]) -> String {
     Sha256::digest(bytes)
         .iter()
@@ -389,17 +410,7 @@ impl Session {
     /// records it in the manifest.
     pub fn add_raw(&mut self, step: &str, device_name: &str, bytes: &[u8]) -> Result<PathBuf> {
         let attempt = self.current_step(step)?.attempt;
-        let safe: String = device_name
-            .chars()
-            .map(|c| {
-                if c.is_ascii_alphanumeric() || c == '.' || c == '-' || c == '_' {
-                    c
-                } else {
-                    '_'
-                }
-            })
-            .collect();
-        let name = format!("{step}-a{attempt}-{safe}");
+        let name = format!("{step}-a{attempt}-{}", safe_file_name(device_name));
         let path = self.dir.join("raw").join(&name);
         if path.exists() {
             return Err(SessionError::Invalid(format!(
@@ -494,6 +505,21 @@ impl Session {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_device_cannot_name_a_file_outside_our_folder() {
+        for (given, safe) in [
+            ("DSC_0001.JPG", "DSC_0001.JPG"),
+            ("../../x.JPG", "_.._.._x.JPG"),
+            ("/etc/passwd", "_etc_passwd"),
+            ("..", "_.."),
+            (".hidden", "_.hidden"),
+            ("", "unnamed"),
+            ("R0010001 (1).JPG", "R0010001__1_.JPG"),
+        ] {
+            assert_eq!(safe_file_name(given), safe, "{given:?}");
+        }
+    }
 
     #[test]
     fn steps_attempts_and_checksums() {

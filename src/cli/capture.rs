@@ -37,7 +37,7 @@ pub struct CaptureArgs {
     #[arg(long)]
     pub nbrdf: Option<PathBuf>,
     /// Image size of the simulated camera.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 256, value_parser = super::image_size)]
     pub size: usize,
     /// Simulated rig: put the material's projection onto the basis on the bench, so that the
     /// estimate can be checked against known coefficients.

@@ -260,8 +260,8 @@ pub struct RenderArgs {
     pub yaw: f64,
     #[command(flatten)]
     pub geometry: GeometryArgs,
-    /// Image size for built-in shapes.
-    #[arg(long, default_value_t = 256)]
+    /// Image size for built-in shapes, 8 to 8192 pixels.
+    #[arg(long, default_value_t = 256, value_parser = super::image_size)]
     pub size: usize,
     #[arg(long, default_value_t = 16384)]
     pub lights: usize,

@@ -111,7 +111,7 @@ pub struct EvalArgs {
     #[arg(long, default_value = "eval")]
     pub out: PathBuf,
     /// Image size of the evaluation sphere, in pixels.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 256, value_parser = image_size)]
     pub size: usize,
     /// Skip leave-one-out over all 100 materials (it dominates the run time).
     #[arg(long)]
@@ -135,10 +135,25 @@ pub struct EvalArgs {
     pub materials: Vec<String>,
 }
 
+/// An image size in pixels on the command line: 8 to 8192, so that a typo cannot ask for an
+/// image whose buffers alone exceed the machine's memory.
+pub fn image_size(s: &str) -> Result<usize, String> {
+    let n: usize = s
+        .parse()
+        .map_err(|e| format!("{s:?} is not a size in pixels: {e}"))?;
+    if (8..=8192).contains(&n) {
+        Ok(n)
+    } else {
+        Err(format!("{n} is outside 8 to 8192 pixels"))
+    }
+}
+
 /// Writes a camera file into `dir` under its own name, or `N-name` if that exists: an earlier
 /// capture is never overwritten. Returns the path written.
 pub fn write_new(dir: &std::path::Path, name: &str, bytes: &[u8]) -> anyhow::Result<PathBuf> {
     use std::io::Write;
+    // The name may come from a device: it must not lead out of `dir`.
+    let name = &brdfd::session::safe_file_name(name);
     for i in 0.. {
         let path = if i == 0 {
             dir.join(name)

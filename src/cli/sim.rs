@@ -37,7 +37,7 @@ pub struct CameraArgs {
     #[arg(long, default_value = "gold")]
     pub material: String,
     /// Image size of the simulated camera, in pixels.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 256, value_parser = super::image_size)]
     pub size: usize,
     /// Serve files of exactly this many bytes instead of rendered photos (transfer tests).
     #[arg(long)]

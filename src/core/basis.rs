@@ -508,6 +508,9 @@ impl Basis {
                 format!("K is {}; this brdfd estimates with 1 to {MAX_K}", header.k),
             ));
         }
+        let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(exr_bytes), false)
+            .map_err(|e| CoreError::format(format!("{what} (EXR)"), e.to_string()))?;
+        super::envmap::check_exr_size(&meta, &format!("{what} (EXR)"))?;
         let image = read()
             .no_deep_data()
             .largest_resolution_level()

@@ -378,9 +378,37 @@ pub(crate) struct ExrRgb {
     pub white: Option<f32>,
 }
 
+/// The most pixels an OpenEXR file may declare: a 16384 × 8192 panorama. The header's size is
+/// checked before anything is allocated for it, so a small file claiming a huge image is an
+/// error, not an abort.
+pub const MAX_EXR_PIXELS: usize = 16384 * 8192;
+
+/// Refuses an OpenEXR file whose headers declare more than [`MAX_EXR_PIXELS`] in a layer.
+pub(crate) fn check_exr_size(meta: &exr::meta::MetaData, what: &str) -> Result<()> {
+    for header in &meta.headers {
+        let size = header.layer_size;
+        if size.area() > MAX_EXR_PIXELS {
+            return Err(CoreError::format(
+                what,
+                format!(
+                    "the header declares {} × {} pixels, more than the {MAX_EXR_PIXELS} brdfd reads",
+                    size.width(),
+                    size.height()
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 pub(crate) fn read_exr_rgb(path: &Path) -> Result<ExrRgb> {
     use exr::prelude::*;
     let what = path.display().to_string();
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| match e {
+        exr::error::Error::Io(io) => CoreError::io(path, io),
+        other => CoreError::format(&what, format!("not a readable OpenEXR header: {other}")),
+    })?;
+    check_exr_size(&meta, &what)?;
     let image = read_first_rgba_layer_from_file(
         path,
         |res, _| {
@@ -608,6 +636,23 @@ impl CellSums {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_small_file_declaring_a_huge_image_is_refused_before_reading() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("huge.exr");
+        write_exr(&path, 2, 2, &[[1.0; 3]; 4]).unwrap();
+        // dataWindow (box2i: xMin, yMin, xMax, yMax) made 100000 × 100000.
+        let mut bytes = std::fs::read(&path).unwrap();
+        let key = b"dataWindow\0box2i\0";
+        let at = bytes.windows(key.len()).position(|w| w == key).unwrap() + key.len() + 4;
+        bytes[at + 8..at + 12].copy_from_slice(&99_999i32.to_le_bytes());
+        bytes[at + 12..at + 16].copy_from_slice(&99_999i32.to_le_bytes());
+        std::fs::write(&path, &bytes).unwrap();
+        let e = EnvMap::load(&path).unwrap_err().to_string();
+        assert!(e.contains("huge.exr"), "{e}");
+        assert!(e.contains("declares 100000 × 100000 pixels"), "{e}");
+    }
 
     #[test]
     fn direction_convention() {

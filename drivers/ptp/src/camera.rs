@@ -266,7 +266,7 @@ impl Camera {
         progress: &mut dyn FnMut(u64, u64),
     ) -> Result<Vec<u8>> {
         let partial = self.info.supports(op::GET_PARTIAL_OBJECT) && size > PARTIAL_CHUNK as u64;
-        let mut out = Vec::with_capacity(size as usize);
+        let mut out = Vec::with_capacity((size as usize).min(crate::PREALLOCATE_MAX));
         let mut attempt = 0;
         loop {
             let r = if partial {

@@ -10,6 +10,11 @@
 //! Behaviour follows ISO 15740, CIPA DC-005 (PTP/IP) and what libgphoto2's `camlibs/ptp2`
 //! documents about real cameras; no code is taken from either.
 
+/// The most a buffer is given up front from a length the device declares (a data container's,
+/// StartData's, ObjectInfo's size). The device may lie: beyond this, the buffer grows only as
+/// bytes actually arrive.
+pub const PREALLOCATE_MAX: usize = 16 << 20;
+
 pub mod camera;
 pub mod capture;
 pub mod codes;

@@ -54,6 +54,11 @@ const RETRY_PAUSE: Duration = Duration::from_millis(100);
 const RETRY_PAUSE_MAX: Duration = Duration::from_secs(2);
 /// Attempts at one file download before giving up.
 pub const DOWNLOAD_ATTEMPTS: u32 = 3;
+/// The largest file a THETA download may be: its biggest pictures (a Z1's DNG, an X's 11K
+/// JPEG) are under 100 MB. A camera announcing or sending more is refused, not believed.
+pub const MAX_FILE_BYTES: u64 = 512 << 20;
+/// The largest JSON answer: a long `camera.listFiles` is well under this.
+pub const MAX_JSON_BYTES: u64 = 16 << 20;
 
 /// Commands that change nothing on the camera, or set it to the same state when repeated.
 const IDEMPOTENT_COMMANDS: [&str; 6] = [
@@ -104,6 +109,9 @@ impl OscClient {
             // The camera is on the local network: a proxy from the environment would only
             // get in the way.
             .no_proxy()
+            // A THETA never redirects; following one would fetch another host's bytes as if
+            // they were the camera's (a downloaded frame, say).
+            .redirect(reqwest::redirect::Policy::none())
             .build()
             .map_err(|e| ThetaError::Unreachable {
                 what: "HTTP client".into(),
@@ -254,6 +262,20 @@ impl OscClient {
         })
     }
 
+    /// A body of `n` bytes, announced or received, is refused above `limit`.
+    fn check_size(&self, what: &str, n: u64, limit: u64) -> Result<()> {
+        if n <= limit {
+            return Ok(());
+        }
+        Err(ThetaError::Malformed {
+            what: what.into(),
+            reason: format!(
+                "the camera at {} sends {n} bytes or more, beyond the {limit} a THETA answer can be",
+                self.base
+            ),
+        })
+    }
+
     async fn download_once(&self, url: &Url, progress: Progress<'_>) -> Result<Vec<u8>> {
         let what = format!("download {}", url.path());
         let mut resp = self
@@ -263,7 +285,11 @@ impl OscClient {
             return Err(http_error(resp, &what).await);
         }
         let expected = resp.content_length();
-        let mut data = Vec::with_capacity(expected.unwrap_or(0) as usize);
+        if let Some(n) = expected {
+            self.check_size(&what, n, MAX_FILE_BYTES)?;
+        }
+        // Room for what was announced (checked above), in steps, not all at once on trust.
+        let mut data = Vec::with_capacity(expected.unwrap_or(0).min(64 << 20) as usize);
         let deadline = Instant::now() + self.timeouts.download;
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
@@ -273,6 +299,7 @@ impl OscClient {
                 .map_err(|e| self.unreachable(&what, &e))?;
             let Some(chunk) = chunk else { break };
             data.extend_from_slice(&chunk);
+            self.check_size(&what, data.len() as u64, MAX_FILE_BYTES)?;
             if let Some(n) = expected {
                 progress("download", data.len() as f64 / n.max(1) as f64);
             }
@@ -309,9 +336,13 @@ impl OscClient {
             what: what.into(),
             reason: e.to_string(),
         })?;
-        let resp = self.send(method, url, body, what, idempotent).await?;
+        let mut resp = self.send(method, url, body, what, idempotent).await?;
         let status = resp.status();
-        let bytes = resp.bytes().await.map_err(|e| self.unreachable(what, &e))?;
+        let mut bytes = Vec::new();
+        while let Some(chunk) = resp.chunk().await.map_err(|e| self.unreachable(what, &e))? {
+            bytes.extend_from_slice(&chunk);
+            self.check_size(what, bytes.len() as u64, MAX_JSON_BYTES)?;
+        }
         let v: Value = serde_json::from_slice(&bytes).map_err(|e| {
             if status.is_success() {
                 ThetaError::Malformed {
@@ -521,9 +552,16 @@ fn api_error(v: &Value, what: &str, status: StatusCode) -> ThetaError {
     }
 }
 
-async fn http_error(resp: reqwest::Response, what: &str) -> ThetaError {
+async fn http_error(mut resp: reqwest::Response, what: &str) -> ThetaError {
     let status = resp.status();
-    let body = resp.bytes().await.unwrap_or_default();
+    // Enough of the body to say what went wrong; an endless one is not read to its end.
+    let mut body = Vec::new();
+    while let Ok(Some(chunk)) = resp.chunk().await {
+        body.extend_from_slice(&chunk);
+        if body.len() > 64 << 10 {
+            break;
+        }
+    }
     match serde_json::from_slice::<Value>(&body) {
         Ok(v) => api_error(&v, what, status),
         Err(_) => ThetaError::Http {

@@ -295,7 +295,9 @@ impl Transport for PtpIpTransport {
                     if total as usize > 4 << 30 {
                         return Err(r.error(format!("data phase of {total} bytes")));
                     }
-                    data = Some(Vec::with_capacity(total as usize));
+                    data = Some(Vec::with_capacity(
+                        (total as usize).min(crate::PREALLOCATE_MAX),
+                    ));
                     progress(0, total);
                 }
                 ty::DATA | ty::END_DATA => {

@@ -165,7 +165,7 @@ impl<P: BulkPipe> UsbTransport<P> {
                 format!("{:?} container of {total} bytes", header.kind),
             ));
         }
-        let mut payload = Vec::with_capacity(header.payload_len());
+        let mut payload = Vec::with_capacity(header.payload_len().min(crate::PREALLOCATE_MAX));
         payload.extend_from_slice(&self.pending[HEADER_LEN..self.pending.len().min(total)]);
         self.pending.drain(..self.pending.len().min(total));
         // The timeout bounds each read, not the whole phase: a large file over a slow link

@@ -110,8 +110,13 @@ fn accept_loop(listener: TcpListener, responder: SharedResponder, stop: Arc<Atom
                     .map(|(_, e)| e.clone());
                 match slot {
                     Some(e) => {
-                        let _ = s.write_all(&Packet::new(ty::INIT_EVENT_ACK, vec![]).to_bytes());
+                        // The stream is in place before the initiator hears the ack: once it
+                        // has, its next command may raise events at once, and none may be lost.
+                        let Ok(mut ack) = s.try_clone() else {
+                            continue;
+                        };
                         *e.lock().unwrap() = Some(s);
+                        let _ = ack.write_all(&Packet::new(ty::INIT_EVENT_ACK, vec![]).to_bytes());
                     }
                     None => {
                         let _ = s.write_all(
