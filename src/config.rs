@@ -318,6 +318,11 @@ impl DaemonConfig {
         if let Some(p) = given {
             return Ok((DaemonConfig::read(p)?, p.display().to_string()));
         }
+        // Named on purpose: a file that is not there is an error, not the defaults.
+        if let Some(p) = std::env::var_os("BRDFD_CONFIG").filter(|v| !v.is_empty()) {
+            let p = PathBuf::from(p);
+            return Ok((DaemonConfig::read(&p)?, p.display().to_string()));
+        }
         match default_config_path() {
             Some(p) if p.is_file() => Ok((DaemonConfig::read(&p)?, p.display().to_string())),
             _ => Ok((DaemonConfig::embedded(), "the built-in defaults".into())),

@@ -9,9 +9,8 @@ fn main() -> std::process::ExitCode {
     let args = cli::Cli::parse();
     if args.command.ends_quietly_on_a_closed_pipe() {
         // `brdfd session list | head` should end quietly, as other tools do, not panic on the
-        // closed pipe (Rust ignores SIGPIPE by default). Commands that run a capture, the
-        // daemon and the simulators keep ignoring it: a reader or client that goes away must
-        // not stop them.
+        // closed pipe (Rust ignores SIGPIPE by default). Every other command keeps ignoring
+        // it: a reader or client that goes away must not stop a capture, a device or a copy.
         // SAFETY: called before any thread starts; SIG_DFL is a valid disposition.
         unsafe {
             libc::signal(libc::SIGPIPE, libc::SIG_DFL);

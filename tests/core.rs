@@ -290,7 +290,7 @@ fn clipped_pixels_are_left_out() {
 /// compression) into implausible coefficients; the training prior keeps the BRDF closer to the
 /// truth. The evaluation's scene at 64²: a sphere under grace, rendered from the full 3D BRDF,
 /// for the ten test materials, none of them in the embedded basis's training set. Under a
-/// smooth studio map least squares rarely goes astray and the two solvers agree (README).
+/// smooth studio map least squares rarely goes astray and the two solvers agree (docs/evaluation.md).
 #[test]
 fn the_prior_steadies_few_pixel_estimates_under_grace() {
     let Some(data) = shared_data() else { return };
@@ -434,7 +434,7 @@ fn light_at_plus_x() -> EnvMap {
     EnvMap::from_pixels(w, h, px, "asymmetric").unwrap()
 }
 
-/// The orientation test of DESIGN.md section 3: a light the convention puts at +X must light
+/// The orientation test of the conventions (docs/bench-setup.md): a light the convention puts at +X must light
 /// the right side of the sphere (image right = world +X).
 fn lit_from_plus_x(map: &EnvMap, yaw: f64) -> bool {
     let g = sphere(32);
@@ -534,7 +534,7 @@ fn selection_beats_random_and_fast_matches_paper() {
         fast.condition,
         random[10]
     );
-    // Ours must be at least as good as the paper's within 25% (measured ratios in the README).
+    // Ours must be at least as good as the paper's within 25% (measured ratios in docs/evaluation.md).
     assert!(
         fast.condition < 1.25 * paper.condition,
         "fast {} paper {}",
@@ -619,7 +619,7 @@ fn estimate_recovers_an_embedded_material_on_the_virtual_bench() {
         };
         let est = estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap();
         let re = render_bivariate(&g, &lights, &est.brdf);
-        // Pearl paint is well inside the basis: measured 0.08–0.19 image error (README table).
+        // Pearl paint is well inside the basis: measured 0.08–0.19 image error (docs/evaluation.md).
         assert!(
             re.relative_rmse(&photo) < 0.25,
             "{method:?}: {}",

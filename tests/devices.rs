@@ -77,7 +77,20 @@ fn devices_lists_every_kind_and_finds_a_theta_on_the_network() {
         ],
         dir.path(),
     );
+    let json = brdfd(
+        &["devices", "--json", "--theta", &url, "--timeout-ms", "300"],
+        dir.path(),
+    );
     drop(sim);
+    let rows: serde_json::Value = serde_json::from_slice(&json.stdout).unwrap();
+    let theta = rows
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["selector"] == format!("osc:{url}"))
+        .unwrap_or_else(|| panic!("no THETA row: {rows}"));
+    assert_eq!(theta["ok"], true, "{theta}");
+    assert_eq!(theta["section"], "THETA over Wi-Fi", "{theta}");
     let text = out(&o);
     assert!(o.status.success(), "{text}");
     for section in [

@@ -3,6 +3,8 @@
 //! byte for byte the file our own client gets. CI installs gphoto2 and sets BRDFD_REQUIRE_GPHOTO2=1, so there the test
 //! cannot skip.
 
+mod common;
+
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
@@ -46,7 +48,7 @@ fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
         return;
     }
     for profile in ["generic", "nikon-d5100"] {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_brdfd"))
+        let mut child = common::isolated(&mut Command::new(env!("CARGO_BIN_EXE_brdfd")))
             .args([
                 "sim",
                 "camera",

@@ -241,12 +241,11 @@ fn a_full_disk_fails_the_session_clearly_and_it_resumes_once_there_is_room() {
         echo $? > "$KEPT/resume.rc"
         "$BRDFD" session show "$(ls "$STATE/sessions")" --state-dir "$STATE" > "$KEPT/show-after.log" 2>&1
     "#;
-    let ran = Command::new("unshare")
+    let ran = common::isolated(&mut Command::new("unshare"))
         .args(["-rm", "sh", "-c", script])
         .env("STATE", &state)
         .env("KEPT", &kept)
         .env("BRDFD", env!("CARGO_BIN_EXE_brdfd"))
-        .env("BRDFD_DAEMON", common::NO_DAEMON)
         .status()
         .unwrap();
     assert!(ran.success(), "the namespace script failed: {ran}");

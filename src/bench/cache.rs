@@ -74,12 +74,12 @@ impl RenderCache {
         }
         tmp.write_all(&bytes)?;
         tmp.persist(path)?;
-        self.evict();
+        self.evict(path);
         Ok(())
     }
 
-    /// Keeps the newest [`MAX_ENTRIES`] entries.
-    fn evict(&self) {
+    /// Keeps the newest [`MAX_ENTRIES`] entries, and always `just_written`.
+    fn evict(&self, just_written: &Path) {
         let Ok(dir) = std::fs::read_dir(&self.dir) else {
             return;
         };
@@ -91,7 +91,8 @@ impl RenderCache {
         if entries.len() <= MAX_ENTRIES {
             return;
         }
-        entries.sort();
+        // Oldest first; among equal times (coarse clocks), the one just written last.
+        entries.sort_by_key(|(t, p)| (*t, p == just_written));
         for (_, p) in &entries[..entries.len() - MAX_ENTRIES] {
             let _ = std::fs::remove_file(p);
         }
@@ -102,23 +103,19 @@ impl RenderCache {
 pub struct Key(Sha256);
 
 impl Key {
-    /// Starts a key for a render of kind `what`, tied to this brdfd executable.
-    pub fn new(what: &str) -> Key {
+    /// Starts a key for a render of kind `what`, tied to this brdfd executable; `None` when
+    /// the executable cannot be identified (replaced while running, say), since renders of
+    /// another build must never be served as this one's.
+    pub fn new(what: &str) -> Option<Key> {
+        let exe = std::fs::metadata(std::env::current_exe().ok()?).ok()?;
         let mut h = Sha256::new();
         h.update(MAGIC);
         h.update(env!("CARGO_PKG_VERSION"));
-        if let Some(m) = std::env::current_exe()
-            .ok()
-            .and_then(|p| std::fs::metadata(p).ok())
-        {
-            h.update(m.len().to_le_bytes());
-            if let Ok(t) = m.modified() {
-                h.update(format!("{t:?}"));
-            }
-        }
+        h.update(exe.len().to_le_bytes());
+        h.update(format!("{:?}", exe.modified().ok()?));
         let mut k = Key(h);
         k.add(what.as_bytes());
-        k
+        Some(k)
     }
 
     /// Adds a part, length-prefixed so that parts cannot run into each other.
@@ -189,7 +186,7 @@ mod tests {
         let cache = RenderCache {
             dir: dir.path().join("renders"),
         };
-        let mut key = Key::new("photo");
+        let mut key = Key::new("photo").unwrap();
         key.add(b"gold").add_f64s(&[0.25]);
         let calls = std::cell::Cell::new(0);
         let render = || {
@@ -200,7 +197,7 @@ mod tests {
         assert_eq!(cache.get_or_render(&key, render).unwrap(), raster());
         assert_eq!(calls.get(), 1);
         // Another part, another entry.
-        let mut other = Key::new("photo");
+        let mut other = Key::new("photo").unwrap();
         other.add(b"gold").add_f64s(&[0.26]);
         cache.get_or_render(&other, render).unwrap();
         assert_eq!(calls.get(), 2);
@@ -212,7 +209,7 @@ mod tests {
         let cache = RenderCache {
             dir: dir.path().to_path_buf(),
         };
-        let key = Key::new("photo");
+        let key = Key::new("photo").unwrap();
         cache
             .get_or_render(&key, || Ok::<_, String>(raster()))
             .unwrap();
@@ -235,13 +232,17 @@ mod tests {
         let cache = RenderCache {
             dir: dir.path().to_path_buf(),
         };
+        let mut last = None;
         for i in 0..MAX_ENTRIES + 3 {
-            let mut key = Key::new("photo");
+            let mut key = Key::new("photo").unwrap();
             key.add(&i.to_le_bytes());
             cache
                 .get_or_render(&key, || Ok::<_, String>(raster()))
                 .unwrap();
+            last = Some(key);
         }
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), MAX_ENTRIES);
+        let newest = dir.path().join(format!("{}.bin", last.unwrap().hex()));
+        assert!(newest.exists(), "the entry just written is kept");
     }
 }

@@ -166,20 +166,18 @@ impl VirtualBench {
         geometry: &SceneGeometry,
         render: impl FnOnce() -> Result<Raster>,
     ) -> Result<Raster> {
-        let Some(cache) = &self.cache else {
+        // Without every part of the key, no cache: a wrong hit would be a wrong picture.
+        let (Some(cache), Some(mut key), Ok(geometry_json)) =
+            (&self.cache, Key::new(what), serde_json::to_string(geometry))
+        else {
             return render();
         };
-        let mut key = Key::new(what);
         key.add_f64s(self.material.values())
             .add(&(self.env.width as u64).to_le_bytes())
             .add_f32s(self.env.pixels.iter().flatten().copied())
             .add_f64s(&[yaw])
             .add(&(PHOTO_LIGHTS as u64).to_le_bytes())
-            .add(
-                serde_json::to_string(geometry)
-                    .unwrap_or_default()
-                    .as_bytes(),
-            );
+            .add(geometry_json.as_bytes());
         if let Some(path) = &geometry.normal_map {
             // The map's file is read by the render: its size and time stand for its content.
             let m = std::fs::metadata(path).ok();

@@ -98,18 +98,26 @@ impl DaemonArgs {
         Ok(DaemonConfig::load(self.config.as_deref())?.0)
     }
 
+    /// The daemon this command would talk to, if one runs there; says nothing.
+    pub fn running(&self, config: &DaemonConfig) -> anyhow::Result<Option<Daemon>> {
+        let addr = self.daemon.clone().unwrap_or_else(|| config.api.clone());
+        let token = std::env::var("BRDFD_TOKEN").ok().or(config.token.clone());
+        Daemon::find(&addr, token)
+    }
+
     /// The running daemon, unless `--in-process`; says which way the work goes.
     pub fn find(&self, config: &DaemonConfig) -> anyhow::Result<Option<Daemon>> {
         if self.in_process {
             println!("running in this process (--in-process)");
             return Ok(None);
         }
-        let addr = self.daemon.clone().unwrap_or_else(|| config.api.clone());
-        let token = std::env::var("BRDFD_TOKEN").ok().or(config.token.clone());
-        let d = Daemon::find(&addr, token)?;
+        let d = self.running(config)?;
         match &d {
             Some(d) => println!("running in the daemon at {}", d.base),
-            None => println!("no daemon at {addr}; running in this process"),
+            None => println!(
+                "no daemon at {}; running in this process",
+                self.daemon.as_deref().unwrap_or(&config.api)
+            ),
         }
         Ok(d)
     }
@@ -199,7 +207,8 @@ fn in_process(
         cancel: cancel.clone(),
     };
     if let Err(e) = flow::execute(session, plan, &cx) {
-        if cancel.is_cancelled() {
+        // Stopped by Ctrl-C, not by a failure of its own (which is reported as it is).
+        if cancel.is_cancelled() && e.chain().any(|c| c.to_string() == "cancelled") {
             let id = &session.manifest.id;
             bail!("session {id} interrupted; what was captured is kept: `brdfd session resume {id}` continues it");
         }

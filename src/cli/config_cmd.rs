@@ -115,7 +115,9 @@ fn check_file(kind: Kind, file: &str, text: &str) -> Result<String, Vec<ConfigEr
             }
             Err(e) => {
                 // Set the line aside (as a comment, so that later lines keep their numbers)
-                // and read on; an error without a line, or a line already set aside, ends it.
+                // and read on. Only a whole `key = value` line can go without changing what
+                // the rest means: an error elsewhere (a table header, inside a multi-line
+                // value, or with no line) ends the list.
                 let line = match &e {
                     ConfigError::Parse { line: Some(l), .. } => Some(*l),
                     _ => None,
@@ -124,7 +126,7 @@ fn check_file(kind: Kind, file: &str, text: &str) -> Result<String, Vec<ConfigEr
                 match line {
                     Some(l)
                         if errors.len() < MAX_ERRORS
-                            && lines.get(l - 1).is_some_and(|t| !t.starts_with('#')) =>
+                            && lines.get(l - 1).is_some_and(|t| a_whole_key_value(t)) =>
                     {
                         if let Some((key, _)) = lines[l - 1].split_once('=') {
                             set_aside.push(key.trim().to_string());
@@ -136,6 +138,15 @@ fn check_file(kind: Kind, file: &str, text: &str) -> Result<String, Vec<ConfigEr
             }
         }
     }
+}
+
+/// Whether a line is a complete `key = value` on its own (not a header, not part of a value
+/// that spans lines, not already a comment).
+fn a_whole_key_value(line: &str) -> bool {
+    let t = line.trim_start();
+    !t.starts_with('[')
+        && !t.starts_with('#')
+        && toml::from_str::<toml::Table>(line).is_ok_and(|table| table.len() == 1)
 }
 
 pub fn run(cmd: ConfigCommand) -> anyhow::Result<()> {
@@ -222,5 +233,11 @@ mod tests {
         );
         assert!(errors[1].to_string().contains("flash"), "{}", errors[1]);
         assert!(check_file(Kind::Rig, "bench.toml", RIG).is_ok());
+        // An unknown table: setting its header aside would move its keys into the table
+        // above and report errors the file does not have, so the list ends there.
+        let header = RIG.replace("[brackets]", "[flash]\nbright = 1\n\n[brackets]");
+        let errors = check_file(Kind::Rig, "my-rig.toml", &header).unwrap_err();
+        assert_eq!(errors.len(), 1, "{errors:?}");
+        assert!(errors[0].to_string().contains("flash"), "{}", errors[0]);
     }
 }

@@ -17,33 +17,93 @@ pub struct DevicesArgs {
     /// How long the Wi-Fi THETA and serial devices have to answer, in milliseconds.
     #[arg(long, default_value_t = 1500)]
     pub timeout_ms: u64,
+    /// One JSON object per device found (section, selector, ok, text), as an array.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One line of the listing: a device found (with the selector a rig file names it by, and
+/// whether brdfd can open it), or a note about a section.
+#[derive(serde::Serialize)]
+struct Found {
+    section: &'static str,
+    selector: Option<String>,
+    ok: bool,
+    text: String,
+}
+
+/// What each section found, in order: its heading, then its lines.
+struct Listing {
+    rows: Vec<Found>,
+    section: &'static str,
+}
+
+impl Listing {
+    fn device(&mut self, selector: String, ok: bool, text: String) {
+        self.rows.push(Found {
+            section: self.section,
+            selector: Some(selector),
+            ok,
+            text,
+        });
+    }
+
+    fn note(&mut self, text: String) {
+        self.rows.push(Found {
+            section: self.section,
+            selector: None,
+            ok: false,
+            text,
+        });
+    }
 }
 
 pub fn run(a: DevicesArgs) -> anyhow::Result<()> {
     let timeout = Duration::from_millis(a.timeout_ms);
-    ptp_cameras();
+    let mut l = Listing {
+        rows: Vec::new(),
+        section: "PTP cameras on USB (DSLRs, THETAs)",
+    };
+    ptp_cameras(&mut l);
     if !a.no_theta_http {
-        theta_http(&a.theta, timeout);
+        l.section = "THETA over Wi-Fi";
+        theta_http(&mut l, &a.theta, timeout);
     }
-    v4l_devices();
-    serial_ports(timeout);
+    l.section = "V4L2 cameras";
+    v4l_devices(&mut l);
+    l.section = "Serial ports";
+    serial_ports(&mut l, timeout);
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&l.rows)?);
+        return Ok(());
+    }
+    let mut heading = "";
+    for r in &l.rows {
+        if r.section != heading {
+            heading = r.section;
+            println!("{heading}:");
+        }
+        match &r.selector {
+            Some(sel) => println!("  {sel}  {}", r.text),
+            None => println!("  {}", r.text),
+        }
+    }
     Ok(())
 }
 
-fn ptp_cameras() {
-    println!("PTP cameras on USB (DSLRs, THETAs):");
+fn ptp_cameras(l: &mut Listing) {
     let list = match brdfd_ptp::transport::usb::list_still_image_devices() {
         Ok(l) => l,
         Err(e) => {
             // Inside a container or sandbox, usbfs (/dev/bus/usb) is usually not there.
-            println!(
-                "  cannot list USB devices: {e} (no USB access here? a container needs /dev/bus/usb passed in)"
-            );
+            l.note(format!(
+                "cannot list USB devices: {e} (no USB access here? a container needs /dev/bus/usb passed in)"
+            ));
             return;
         }
     };
     if list.is_empty() {
-        println!("  none found");
+        l.note("none found".into());
     }
     for info in list {
         let sel = info.selector();
@@ -51,13 +111,14 @@ fn ptp_cameras() {
         match super::ptp_cmd::open(&sel) {
             Ok(cam) => {
                 let i = &cam.info;
-                println!(
-                    "  {sel}  {} {} (serial {}){}: ok",
+                let text = format!(
+                    "{} {} (serial {}){}: ok",
                     i.manufacturer,
                     i.model,
                     i.serial_number,
                     if theta { ", THETA over USB" } else { "" }
                 );
+                l.device(sel.to_string(), true, text);
                 let _ = cam.close();
             }
             Err(e) => {
@@ -68,88 +129,95 @@ fn ptp_cameras() {
                         || format!("{} camera", info.vendor.unwrap_or("unknown")),
                         |(_, name)| format!("RICOH {name}"),
                     );
-                println!(
-                    "  {sel}  {model} (bus {} address {}): cannot open: {e:#}",
+                let text = format!(
+                    "{model} (bus {} address {}): cannot open: {e:#}",
                     info.bus, info.address
                 );
+                l.device(sel.to_string(), false, text);
             }
         }
     }
 }
 
-fn theta_http(url: &str, timeout: Duration) {
-    println!("THETA over Wi-Fi ({url}):");
+fn theta_http(l: &mut Listing, url: &str, timeout: Duration) {
     let timeouts = HttpTimeouts {
         request: timeout,
         retry_budget: Duration::ZERO,
         ..HttpTimeouts::default()
     };
+    let sel = format!("osc:{url}");
     match Theta::connect_http(url, None, timeouts) {
-        Ok(t) => println!("  osc:{url}  {}: ok", t.describe()),
-        Err(ThetaError::Auth { .. }) => println!(
-            "  osc:{url}  a THETA in client mode: it asks for a password; give --user and --password to `brdfd theta`"
+        Ok(t) => l.device(sel, true, format!("{}: ok", t.describe())),
+        Err(ThetaError::Auth { .. }) => l.device(
+            sel,
+            false,
+            "a THETA in client mode: it asks for a password; give --user and --password to `brdfd theta`".into(),
         ),
-        Err(e @ ThetaError::Unsupported(_)) => println!("  osc:{url}  {e}"),
-        Err(_) => println!("  none answered within {timeout:?}"),
+        Err(e @ ThetaError::Unsupported(_)) => l.device(sel, false, e.to_string()),
+        Err(_) => l.note(format!("none answered within {timeout:?} at {url}")),
     }
 }
 
-fn v4l_devices() {
-    println!("V4L2 cameras:");
+fn v4l_devices(l: &mut Listing) {
     let nodes = brdfd_v4l::device::list_devices();
     if nodes.is_empty() {
-        println!("  none found");
+        l.note("none found".into());
     }
     for n in nodes {
+        let sel = format!("v4l:{}", n.path);
         match n.status {
             Ok(formats) => {
                 let best = brdfd_v4l::choose_format(&formats)
                     .map(|(f, w, h)| format!("{f:?} {w}×{h}"))
                     .unwrap_or_else(|| "no YUYV or MJPG format".into());
-                println!("  v4l:{}  {}  {best}: ok", n.path, n.name);
+                l.device(sel, true, format!("{}  {best}: ok", n.name));
             }
-            Err(e) => println!("  v4l:{}  {}: cannot open: {e}", n.path, n.name),
+            Err(e) => l.device(sel, false, format!("{}: cannot open: {e}", n.name)),
         }
     }
 }
 
-fn serial_ports(timeout: Duration) {
-    println!("Serial ports:");
+fn serial_ports(l: &mut Listing, timeout: Duration) {
     let ports = match brdfd_serial::list_ports() {
         Ok(p) => p,
         Err(e) => {
-            println!("  cannot list serial ports: {e}");
+            l.note(format!("cannot list serial ports: {e}"));
             return;
         }
     };
     if ports.is_empty() {
-        println!("  none found");
+        l.note("none found".into());
     }
     let timeouts = RigTimeouts {
         answer: timeout,
         ..RigTimeouts::default()
     };
     for p in ports {
+        let sel = format!("serial:{}", p.path);
         match RigController::open(&p.path, timeouts) {
             Ok(rig) => {
                 let id = &rig.identity;
-                println!(
-                    "  serial:{}  {}  {} {}{}{}: ok",
-                    p.path,
+                let text = format!(
+                    "{}  {} {}{}{}: ok",
                     p.kind,
                     id.name,
                     id.version,
                     if id.can_fire { " FIRE" } else { "" },
                     if id.can_rotate { " ROT" } else { "" }
                 );
+                l.device(sel, true, text);
             }
             // Opens, but nothing speaks the rig protocol: a bare adapter, or an Arduino
             // still booting (opening the port resets most of them).
-            Err(SerialError::Timeout { .. } | SerialError::Protocol { .. }) => println!(
-                "  serial:{}  {}: opens, no rig-protocol answer (as a release cable: cable:dtr:{})",
-                p.path, p.kind, p.path
+            Err(SerialError::Timeout { .. } | SerialError::Protocol { .. }) => l.device(
+                sel,
+                true,
+                format!(
+                    "{}: opens, no rig-protocol answer (as a release cable: cable:dtr:{})",
+                    p.kind, p.path
+                ),
             ),
-            Err(e) => println!("  serial:{}  {}: cannot open: {e}", p.path, p.kind),
+            Err(e) => l.device(sel, false, format!("{}: cannot open: {e}", p.kind)),
         }
     }
 }

@@ -183,14 +183,18 @@ impl Command {
     /// Whether the command only reports: ended by SIGPIPE when its reader goes away, rather
     /// than going on (a capture, the daemon, a simulator).
     pub fn ends_quietly_on_a_closed_pipe(&self) -> bool {
+        // Only listings: anything that drives a device, copies files or runs a capture must
+        // not die half-way because its reader went away.
         match self {
-            Command::Capture(_) | Command::Serve(_) | Command::Sim { .. } => false,
-            Command::Session(a) => !matches!(
+            Command::Session(a) => matches!(
                 a.command,
-                session_cmd::SessionCommand::Resume { .. }
-                    | session_cmd::SessionCommand::Follow { .. }
+                session_cmd::SessionCommand::List { .. } | session_cmd::SessionCommand::Show { .. }
             ),
-            _ => true,
+            Command::Config { .. }
+            | Command::Devices(_)
+            | Command::Completions { .. }
+            | Command::Man { .. } => true,
+            _ => false,
         }
     }
 }

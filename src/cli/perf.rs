@@ -1,5 +1,5 @@
 //! `brdfd bench`: speed of the estimation core, as medians of repeated runs, with the
-//! machine's core count. Figures go in issue notes and the README, never in timed tests.
+//! machine's core count. Figures go in issue notes and docs/evaluation.md, never in timed tests.
 
 use std::time::Instant;
 

@@ -2,7 +2,7 @@
 //! otherwise. The same events arrive from an in-process flow or from the daemon's stream.
 
 use std::collections::HashMap;
-use std::io::IsTerminal;
+use std::io::{IsTerminal, Write};
 use std::sync::Mutex;
 use std::time::Duration;
 
@@ -30,7 +30,8 @@ impl Bars {
 
     fn line(&self, text: &str) {
         if self.multi.is_hidden() {
-            println!("{text}");
+            // A reader that went away (`| head`) must not stop the capture with a panic.
+            let _ = writeln!(std::io::stdout(), "{text}");
         } else {
             let _ = self.multi.println(text);
         }

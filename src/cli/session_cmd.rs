@@ -86,7 +86,7 @@ pub fn run(a: SessionArgs) -> anyhow::Result<()> {
         SessionCommand::Cancel { id: i, daemon } => cancel(&state, &id(&i)?, &daemon)?,
         SessionCommand::Follow { id: i, daemon } => {
             let id = id(&i)?;
-            let Some(d) = daemon.find(&daemon.config()?)? else {
+            let Some(d) = daemon.running(&daemon.config()?)? else {
                 bail!("no daemon runs, so nothing is capturing {id} to follow: `brdfd session show {id}` shows where it stands");
             };
             super::capture::follow(&d, &id, None)?
@@ -231,7 +231,7 @@ fn summary(s: &Session) -> Vec<String> {
 /// Cancels through the daemon when one runs; else records a session that a vanished process
 /// left capturing as interrupted, so that it can be resumed.
 fn cancel(state: &Path, id: &str, daemon: &super::capture::DaemonArgs) -> anyhow::Result<()> {
-    if let Some(d) = daemon.find(&daemon.config()?)? {
+    if let Some(d) = daemon.running(&daemon.config()?)? {
         d.cancel(id)?;
         println!("asked the daemon to stop {id} at its next step; what was captured is kept");
         return Ok(());

@@ -48,7 +48,7 @@ pub struct Grid {
 }
 
 impl Default for Grid {
-    /// The choice `brdfd eval --grid-study` measured best (see docs/evaluation.md, "Measured choices").
+    /// The choice `brdfd eval --choices` measured best (see docs/evaluation.md, "Measured choices").
     fn default() -> Self {
         Grid {
             theta_h_binning: ThetaHBinning::Sqrt,

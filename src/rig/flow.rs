@@ -253,7 +253,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         }
         None => None,
     };
-    let mut relight_truth = None;
+    let mut relight_truth: Option<Joined<crate::core::Result<Raster>>> = None;
     let shutters = if !plan.bracket.is_empty() {
         plan.bracket.clone()
     } else if let Some(s) = preset.as_ref().and_then(|p| p.dslr_shutters.clone()) {
@@ -373,7 +373,8 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
                     // before the scene's own render: two renders at once only slow each other.)
                     if relight_truth.is_none() {
                         let b = b.clone();
-                        relight_truth = Some(std::thread::spawn(move || b.relight_truth()));
+                        relight_truth =
+                            Some(Joined(Some(std::thread::spawn(move || b.relight_truth()))));
                     }
                 }
                 session.begin_step(&step, json!({ "turntable_deg": deg }))?;
@@ -469,9 +470,9 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         Some(b) => {
             let p = phases.start("relight against the ground truth (simulator)", 1);
             let truth = match relight_truth {
-                Some(render) => render
+                Some(mut render) => render
                     .join()
-                    .map_err(|_| anyhow::anyhow!("rendering the relight truth panicked"))??,
+                    .ok_or_else(|| anyhow::anyhow!("rendering the relight truth panicked"))??,
                 // Every view was already on disk (a resumed session): render it now.
                 None => b.relight_truth()?,
             };
@@ -560,6 +561,25 @@ fn theta_plan(rig: &Rig) -> BracketPlan {
                 iso: rig.brackets.theta_iso,
             })
             .collect(),
+    }
+}
+
+/// A thread the flow started, joined when dropped: a capture that ends early (an error, a
+/// cancel) does not leave it running into the next one.
+struct Joined<T>(Option<std::thread::JoinHandle<T>>);
+
+impl<T> Joined<T> {
+    /// Its result; `None` if it panicked.
+    fn join(&mut self) -> Option<T> {
+        self.0.take()?.join().ok()
+    }
+}
+
+impl<T> Drop for Joined<T> {
+    fn drop(&mut self) {
+        if let Some(h) = self.0.take() {
+            let _ = h.join();
+        }
     }
 }
 

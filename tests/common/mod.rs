@@ -15,18 +15,20 @@ pub const NO_DAEMON: &str = "127.0.0.1:9";
 /// `brdfd` as a command, with no daemon to find unless the test gives one.
 pub fn command() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_brdfd"));
-    // Simulated scenes are rendered once for the whole test run, not into the user's cache.
-    let renders = Path::new(env!("CARGO_TARGET_TMPDIR")).join("render-cache");
-    c.env("BRDFD_DAEMON", NO_DAEMON)
-        .env("BRDFD_RENDER_CACHE", renders)
-        // No settings from the developer's own ~/.config/brdfd.
-        .env(
-            "XDG_CONFIG_HOME",
-            Path::new(env!("CARGO_TARGET_TMPDIR")).join("no-config"),
-        )
-        .env_remove("BRDFD_CONFIG")
-        .env_remove("BRDFD_STATE_DIR");
+    isolated(&mut c);
     c
+}
+
+/// A command that runs brdfd, kept apart from the developer's own brdfd: no daemon to find,
+/// no settings from ~/.config/brdfd, no state directory of theirs, and simulated scenes
+/// rendered once for the whole test run rather than into their cache.
+pub fn isolated(c: &mut Command) -> &mut Command {
+    let tmp = Path::new(env!("CARGO_TARGET_TMPDIR"));
+    c.env("BRDFD_DAEMON", NO_DAEMON)
+        .env("BRDFD_RENDER_CACHE", tmp.join("render-cache"))
+        .env("XDG_CONFIG_HOME", tmp.join("no-config"))
+        .env_remove("BRDFD_CONFIG")
+        .env_remove("BRDFD_STATE_DIR")
 }
 
 /// Runs `brdfd ARGS` in `dir` and waits for it.

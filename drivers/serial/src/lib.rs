@@ -56,6 +56,15 @@ pub struct PortInfo {
 
 /// The serial ports present (USB adapters, on-board UARTs, pseudo-terminals are not listed).
 pub fn list_ports() -> Result<Vec<PortInfo>> {
+    // serialport lists from sysfs (brdfd builds it without libudev), and panics where there
+    // is no /sys/class/tty, as in some containers: say so instead.
+    #[cfg(target_os = "linux")]
+    if !std::path::Path::new("/sys/class/tty").is_dir() {
+        return Err(SerialError::Io {
+            port: "(listing ports)".into(),
+            reason: "/sys/class/tty is missing (no sysfs here?)".into(),
+        });
+    }
     let ports = serialport::available_ports().map_err(|e| SerialError::Io {
         port: "(listing ports)".into(),
         reason: e.to_string(),

@@ -165,6 +165,10 @@ struct Rendering {
 
 impl ImageSource for Rendering {
     fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String> {
+        // Asked too early, it has no picture: the camera must not have asked.
+        if !self.ready() {
+            return Err("asked for a picture before it was rendered".into());
+        }
         SizedPayload { bytes: 500 }.photo(shot)
     }
     fn dimensions(&self) -> (u32, u32) {
@@ -178,8 +182,9 @@ impl ImageSource for Rendering {
 #[test]
 fn a_camera_still_rendering_answers_at_once_and_captures_once_ready() {
     for profile in [Profile::Generic, Profile::NikonD5100] {
+        let start = std::time::Instant::now();
         let source = Rendering {
-            ready_at: std::time::Instant::now() + Duration::from_millis(400),
+            ready_at: start + Duration::from_millis(400),
         };
         let r = Responder::new(profile, Arc::new(source)).shared();
         let server = Server::start("127.0.0.1:0", r.clone()).unwrap();
@@ -190,6 +195,7 @@ fn a_camera_still_rendering_answers_at_once_and_captures_once_ready() {
             .capture(&CaptureOptions::default(), &mut |_, _, _| {})
             .unwrap();
         assert_eq!(shot.data.len(), 500, "{profile:?}");
+        assert!(start.elapsed() >= Duration::from_millis(400), "{profile:?}");
     }
 }
 

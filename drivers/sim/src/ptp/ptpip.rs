@@ -110,13 +110,12 @@ fn accept_loop(listener: TcpListener, responder: SharedResponder, stop: Arc<Atom
                     .map(|(_, e)| e.clone());
                 match slot {
                     Some(e) => {
-                        // The stream is in place before the initiator hears the ack: once it
-                        // has, its next command may raise events at once, and none may be lost.
-                        let Ok(mut ack) = s.try_clone() else {
-                            continue;
-                        };
-                        *e.lock().unwrap() = Some(s);
-                        let _ = ack.write_all(&Packet::new(ty::INIT_EVENT_ACK, vec![]).to_bytes());
+                        // Ack and install under the slot's lock: no event can go out before
+                        // the ack, and once the initiator has the ack, its next command's
+                        // events find the stream in place.
+                        let mut slot = e.lock().unwrap();
+                        let _ = s.write_all(&Packet::new(ty::INIT_EVENT_ACK, vec![]).to_bytes());
+                        *slot = Some(s);
                     }
                     None => {
                         let _ = s.write_all(

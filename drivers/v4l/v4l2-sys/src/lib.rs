@@ -2,7 +2,8 @@
 //!
 //! The `v4l` crate reads these through `v4l2-sys-mit`, whose build script runs bindgen (and so
 //! needs libclang) on every build. A fresh machine has no libclang, so brdfd patches that crate
-//! with this one: same name, same items, no build script. `regenerate.sh` beside this file
+//! with this one: same name, no build script, and the items `v4l` uses (V4L2's types and
+//! constants, and the time types; see `regenerate.sh`). `regenerate.sh` beside this file
 //! remakes `bindings.rs`.
 //!
 //! The bindings carry bindgen's layout tests, so `cargo test -p v4l2-sys-mit` checks every
