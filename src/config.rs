@@ -246,7 +246,9 @@ pub fn default_config_path() -> Option<PathBuf> {
     })
 }
 
-fn parse<T: serde::de::DeserializeOwned>(file: &str, text: &str) -> Result<T, ConfigError> {
+/// Any configuration file's TOML as `T`; errors carry the file, the parser's message and the
+/// line.
+pub fn parse<T: serde::de::DeserializeOwned>(file: &str, text: &str) -> Result<T, ConfigError> {
     toml::from_str(text).map_err(|e| ConfigError::Parse {
         file: file.into(),
         message: e.to_string().trim_end().to_string(),

@@ -218,6 +218,11 @@ fn sessions_dir(state: &Path) -> PathBuf {
     state.join("sessions")
 }
 
+/// The folder of session `id` under the state directory (not checked: see [`Session::open`]).
+pub fn session_dir(state: &Path, id: &str) -> PathBuf {
+    sessions_dir(state).join(id)
+}
+
 impl Session {
     /// A new session folder for `material`, in state `created`.
     pub fn create(
@@ -273,7 +278,7 @@ impl Session {
     /// Opens a session by id (validated: an id names a folder under `sessions/`, no more).
     pub fn open(state: &Path, id: &str) -> Result<Session> {
         validate_name("session id", id).map_err(SessionError::Invalid)?;
-        let dir = sessions_dir(state).join(id);
+        let dir = session_dir(state, id);
         let path = dir.join("manifest.json");
         let text = std::fs::read_to_string(&path).map_err(|e| {
             if e.kind() == std::io::ErrorKind::NotFound {

@@ -81,15 +81,9 @@ impl Kind {
             }),
             Kind::Material => MaterialPreset::parse(file, text)
                 .map(|m| format!("material preset, simulated as {}", m.simulate_as)),
-            Kind::Geometry => toml::from_str::<SceneGeometry>(text)
-                .map(|_| "geometry".to_string())
-                .map_err(|e| ConfigError::Parse {
-                    file: file.into(),
-                    message: e.to_string().trim_end().to_string(),
-                    line: e
-                        .span()
-                        .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1),
-                }),
+            Kind::Geometry => {
+                brdfd::config::parse::<SceneGeometry>(file, text).map(|_| "geometry".to_string())
+            }
             Kind::Daemon => DaemonConfig::parse(file, text)
                 .map(|d| format!("daemon settings, API on {}", d.api)),
         }

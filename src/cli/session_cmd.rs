@@ -135,7 +135,7 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
     let rows: Vec<(Manifest, Option<(String, f64)>)> = all
         .into_iter()
         .map(|m| {
-            let r = result_of(&state.join("sessions").join(&m.id));
+            let r = result_of(&brdfd::session::session_dir(state, &m.id));
             (m, r)
         })
         .collect();
