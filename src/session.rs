@@ -290,10 +290,22 @@ impl Session {
                 io(&path, e)
             }
         })?;
-        let manifest = serde_json::from_str(&text).map_err(|e| SessionError::Io {
+        let manifest: Manifest = serde_json::from_str(&text).map_err(|e| SessionError::Io {
             path: path.display().to_string(),
             reason: format!("not a brdfd manifest: {e}"),
         })?;
+        // Raw names are joined to raw/ when files are read back: an edited manifest must not
+        // lead outside the session. brdfd only ever writes names safe_file_name keeps as they
+        // are.
+        for f in manifest.steps.iter().flat_map(|s| &s.files) {
+            if safe_file_name(&f.name) != f.name {
+                return Err(SessionError::Invalid(format!(
+                    "{}: raw file {:?} is not a plain file name (was the manifest edited?)",
+                    path.display(),
+                    f.name
+                )));
+            }
+        }
         Ok(Session { dir, manifest })
     }
 
@@ -510,6 +522,26 @@ impl Session {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_manifest_naming_a_file_outside_the_session_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut s = Session::create(dir.path(), "gold", "", None, serde_json::json!({})).unwrap();
+        s.begin_step("view1", serde_json::json!({})).unwrap();
+        s.add_raw("view1", "DSC_0001.JPG", b"jpeg").unwrap();
+        let id = s.manifest.id.clone();
+        assert!(Session::open(dir.path(), &id).is_ok());
+        // Tampered: the raw name climbs out of raw/.
+        let path = s.dir.join("manifest.json");
+        let text = std::fs::read_to_string(&path).unwrap();
+        let name = &s.manifest.steps[0].files[0].name;
+        std::fs::write(&path, text.replace(name.as_str(), "../../../../etc/passwd")).unwrap();
+        let e = Session::open(dir.path(), &id).unwrap_err().to_string();
+        assert!(
+            e.contains("\"../../../../etc/passwd\" is not a plain file name"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn a_device_cannot_name_a_file_outside_our_folder() {
