@@ -194,8 +194,9 @@ pub struct MaterialPreset {
     /// if absent.
     #[serde(default)]
     pub dslr_shutters: Option<Vec<f64>>,
-    /// The BRDF model: `analytic` (the default, Lambert + GGX) or `basis` (the paper's PCA
-    /// basis, which `pixels`, `solve` and `colour` configure).
+    /// The BRDF model: `hybrid` (the default: GGX lobes plus measured materials), `analytic`
+    /// (Lambert + GGX) or `basis` (the paper's PCA basis, which `pixels`, `solve` and `colour`
+    /// configure).
     #[serde(default)]
     pub model: Model,
     /// How coefficients are solved: `prior` (the default) or `least-squares` (the paper's).

@@ -13,6 +13,7 @@ use crate::core::brdf::directional_albedo;
 use crate::core::envmap::{write_exr, LightSet};
 use crate::core::estimate::{Estimate, Model, Timings};
 use crate::core::geometry::{Camera, PixelGeometry, Shape};
+use crate::core::hybrid::MixWeight;
 use crate::core::render::render_bivariate;
 use crate::core::uncertainty::Uncertainty;
 use crate::core::{CoreError, Result};
@@ -21,12 +22,18 @@ use crate::export::{write_exports, Export};
 /// The contents of `coefficients.json`.
 #[derive(Serialize)]
 pub struct CoefficientsFile<'a> {
-    /// `basis` (the PCA basis's coefficients, as in the paper) or `analytic` (Lambert plus a
-    /// GGX lobe: `columns` are its per-channel weights and `alpha`; also in `analytic`).
+    /// `basis` (the PCA basis's coefficients, as in the paper), `analytic` (Lambert plus GGX
+    /// lobes: `columns` are their per-channel weights and each `alpha`; also in `analytic`) or
+    /// `hybrid` (the analytic part, in `analytic`, plus the measured materials in `mixture`).
     pub model: &'a str,
-    /// The analytic model's parameters, for `model = "analytic"`.
+    /// The analytic model's parameters, for `model = "analytic"`; the analytic part, for
+    /// `model = "hybrid"`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub analytic: Option<&'a Microfacet>,
+    /// For `model = "hybrid"`: each measured material kept (a training material of the basis
+    /// `basis_id`) and its weight per channel.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mixture: Option<&'a [MixWeight]>,
     pub basis_id: &'a str,
     pub k: usize,
     /// Names of the model columns, in the order of `coefficients`.
@@ -171,6 +178,7 @@ pub fn write_results(
     let file = CoefficientsFile {
         model: estimate.model.name(),
         analytic: estimate.analytic.as_ref(),
+        mixture: (estimate.model == Model::Hybrid).then_some(estimate.mixture.as_slice()),
         basis_id: &basis.header.id,
         k: basis.header.k,
         columns: &estimate.names,
@@ -179,7 +187,7 @@ pub fn write_results(
         selection_method: if all { "all" } else { method },
         // The analytic weights are solved by non-negative least squares, whatever `--solve`.
         solver: match estimate.model {
-            Model::Analytic => "non-negative-least-squares",
+            Model::Analytic | Model::Hybrid => "non-negative-least-squares",
             Model::Basis => estimate.solver.name(),
         },
         colour: estimate.colour.name(),

@@ -869,6 +869,7 @@ fn analytic_model_recovers_a_tabulated_ggx_material() {
     let lights = env.compressed(brdfd::core::envmap::DEFAULT_LIGHTS, 0.0);
     let opts = EstimateOptions {
         model: Model::Analytic,
+        lobes: 1,
         ..Default::default()
     };
     let est = estimate(&Basis::embedded(), one_view(&g, &lights, &photo), &opts).unwrap();
@@ -929,4 +930,64 @@ fn default_estimates_are_plausible_on_every_evaluation_material() {
         assert_eq!(p.negative_cells, 0, "{name}: {p:?}");
         assert!(p.albedo_at_most_one, "{name}: {p:?}");
     }
+}
+
+#[test]
+fn hybrid_model_recovers_a_measured_material_in_its_mix() {
+    // Issue 18: a photo of one of the basis's measured materials (scaled, over a little
+    // Lambert) is re-rendered by the hybrid model to within 2%, the material carries the mix,
+    // and the estimate relights under a turned map as the truth does. Tolerances: the photo is
+    // rendered under finer lights than the estimate uses, and the embedded tables are half
+    // precision, so neither the fit nor the relight is exact (measured: fit 0.006, relight
+    // 0.010; the tests hold 0.02 and 0.05).
+    use brdfd::core::hybrid::HybridFit;
+    let basis = Basis::embedded();
+    let (name, table) = basis
+        .atoms()
+        .find(|(n, _)| *n == "gold-paint")
+        .expect("gold-paint is a training material");
+    let grid = basis.header.grid;
+    let mut values: Vec<f64> = table.iter().map(|v| 0.7 * v).collect();
+    for c in 0..3 {
+        for g in 0..brdfd::core::bivariate::GRID_CELLS {
+            values[c * brdfd::core::bivariate::GRID_CELLS + g] += 0.05 / std::f64::consts::PI;
+        }
+    }
+    let reference = Bivariate::reduce(
+        &brdfd::core::analytic::Microfacet::one_lobe([0.0; 3], [0.0; 3], [0.0; 3], 0.5),
+        grid,
+    );
+    let truth = Bivariate::from_values(grid, values, reference.valid.clone());
+    let g = sphere(96);
+    let env = studio_envmap(256);
+    let photo = render_bivariate(&g, &env.compressed(8192, 0.0), &truth);
+    let lights = env.compressed(brdfd::core::envmap::DEFAULT_LIGHTS, 0.0);
+    let opts = EstimateOptions {
+        model: Model::Hybrid,
+        ..Default::default()
+    };
+    let est = estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap();
+    assert!(est.fit_error < 0.02, "fit {}", est.fit_error);
+    let main = est
+        .mixture
+        .iter()
+        .max_by(|a, b| a.weight[1].total_cmp(&b.weight[1]))
+        .expect("a mix");
+    assert_eq!(main.material, name, "{:?}", est.mixture);
+    assert!(est.brdf.values.iter().all(|v| *v >= 0.0));
+    // Relit under the map turned 120°, against the truth relit there.
+    let turned = env.compressed(8192, 120f64.to_radians());
+    let relit = render_bivariate(&g, &turned, &est.brdf);
+    let error = relit.relative_rmse(&render_bivariate(&g, &turned, &truth));
+    assert!(error < 0.05, "relight {error}");
+    // What `render --coefficients` rebuilds from coefficients.json is the estimate itself.
+    let rebuilt = HybridFit::rebuild(est.analytic.as_ref().unwrap(), &est.mixture, &basis).unwrap();
+    let most = rebuilt
+        .values
+        .iter()
+        .zip(&est.brdf.values)
+        .map(|(a, b)| (a - b).abs() / (1.0 + b.abs()))
+        .fold(0.0, f64::max);
+    assert!(most < 1e-9, "rebuilt differs by {most}");
+    assert_eq!(est.names.len(), est.solution.coefficients.len());
 }

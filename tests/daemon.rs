@@ -165,9 +165,13 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
 
     let (status, result) = daemon.get(&format!("/sessions/{id}/result"));
     assert_eq!(status, 200);
-    // The default model: three weights per channel and the roughness.
-    assert_eq!(result["model"], "analytic");
-    assert_eq!(result["coefficients"].as_array().unwrap().len(), 10);
+    // The default model: two lobes' weights and roughnesses, and the mix's weights.
+    assert_eq!(result["model"], "hybrid");
+    let mixed = result["mixture"].as_array().unwrap().len();
+    assert_eq!(
+        result["coefficients"].as_array().unwrap().len(),
+        17 + 3 * mixed
+    );
     let (status, png) = daemon.get_bytes(&format!("/sessions/{id}/result/preview.png"));
     assert_eq!(status, 200);
     assert!(png.starts_with(b"\x89PNG"));

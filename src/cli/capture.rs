@@ -46,7 +46,7 @@ pub struct CaptureArgs {
     /// Pixels to estimate from (a number or `all`); the material preset's, else 20.
     #[arg(long)]
     pub pixels: Option<String>,
-    /// The BRDF model; the material preset's, else `analytic` (see `brdfd estimate --help`).
+    /// The BRDF model; the material preset's, else `hybrid` (see `brdfd estimate --help`).
     #[arg(long, value_enum)]
     pub model: Option<ModelArg>,
     /// Basis model: how the coefficients are solved; the material preset's, else `prior`

@@ -11,6 +11,7 @@ use brdfd::core::estimate::{
     estimate as run_estimate, fit_verdict, unused_basis_settings, EstimateOptions, Model,
     SelectionMethod, View, DEFAULT_LOBES, DEFAULT_MAX_CANDIDATES,
 };
+use brdfd::core::hybrid::{HybridFit, MixWeight};
 use brdfd::core::merl::MerlBrdf;
 use brdfd::core::nbrdf::NbrdfSet;
 use brdfd::core::raster::Raster;
@@ -35,12 +36,15 @@ pub struct EstimateArgs {
     pub yaw: f64,
     #[command(flatten)]
     pub geometry: GeometryArgs,
-    /// The BRDF model: an analytic Lambert + GGX model fitted to every candidate pixel (the
-    /// default: it relights most accurately, see docs/evaluation.md), or the data-driven PCA
-    /// basis (the paper's; --pixels, --method, --solve and --colour are its settings).
-    #[arg(long, value_enum, default_value = "analytic")]
+    /// The BRDF model: hybrid (the default: Lambert + GGX lobes plus a non-negative mix of
+    /// measured materials, fitted on pixels spread over the object; it relights most
+    /// accurately, see docs/evaluation.md), analytic (Lambert + GGX lobes alone, fitted to every
+    /// candidate pixel), or the data-driven PCA basis
+    /// (the paper's; --pixels, --method, --solve and --colour are its settings).
+    #[arg(long, value_enum, default_value = "hybrid")]
     pub model: ModelArg,
-    /// Specular lobes of the analytic model: 1, or 2 for a clear coat over a rougher base.
+    /// Specular lobes of the hybrid and analytic models: 2 (a clear coat over a rougher base,
+    /// or a metal's core and halo), or 1.
     #[arg(long, default_value_t = DEFAULT_LOBES as u64, value_parser = clap::value_parser!(u64).range(1..=MAX_LOBES as u64))]
     pub lobes: u64,
     /// Basis model: pixels to use, a number or `all` [default: 20].
@@ -88,6 +92,7 @@ pub struct EstimateArgs {
 pub enum ModelArg {
     Basis,
     Analytic,
+    Hybrid,
 }
 
 impl From<ModelArg> for Model {
@@ -95,6 +100,7 @@ impl From<ModelArg> for Model {
         match a {
             ModelArg::Basis => Model::Basis,
             ModelArg::Analytic => Model::Analytic,
+            ModelArg::Hybrid => Model::Hybrid,
         }
     }
 }
@@ -292,12 +298,26 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
             std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
         let v: serde_json::Value =
             serde_json::from_str(&text).with_context(|| format!("parsing {}", p.display()))?;
-        if v["model"] == "analytic" {
+        if v["model"] == "analytic" || v["model"] == "hybrid" {
             let m: Microfacet = serde_json::from_value(v["analytic"].clone())
                 .with_context(|| format!("{}: field `analytic`", p.display()))?;
             m.check()
                 .map_err(|e| anyhow::anyhow!("{}: field `analytic`: {e}", p.display()))?;
-            let b = m.bivariate(basis.header.grid);
+            let mixture: Vec<MixWeight> = match v.get("mixture") {
+                Some(mix) => serde_json::from_value(mix.clone())
+                    .with_context(|| format!("{}: field `mixture`", p.display()))?,
+                None => Vec::new(),
+            };
+            if !mixture.is_empty() && v["basis_id"].as_str() != Some(basis.header.id.as_str()) {
+                bail!(
+                    "{} mixes the measured materials of basis {}, not {}; pass that basis with --basis",
+                    p.display(),
+                    v["basis_id"],
+                    basis.header.id
+                );
+            }
+            let b = HybridFit::rebuild(&m, &mixture, &basis)
+                .map_err(|e| anyhow::anyhow!("{}: field `mixture`: {e}", p.display()))?;
             return finish_render(&a.out, render_bivariate(&geometry, &lights, &b));
         }
         let coeffs: Vec<f64> = serde_json::from_value(v["coefficients"].clone())

@@ -190,6 +190,9 @@ impl Command {
                 a.command,
                 session_cmd::SessionCommand::List { .. } | session_cmd::SessionCommand::Show { .. }
             ),
+            Command::Basis {
+                command: basis_cmd::BasisCommand::Show { .. },
+            } => true,
             Command::Config { .. }
             | Command::Devices(_)
             | Command::Completions { .. }

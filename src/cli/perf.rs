@@ -234,7 +234,7 @@ fn estimate_end_to_end(runs: usize) -> anyhow::Result<()> {
     let s = run(&[]);
     let basis = run(&["--model", "basis", "--pixels", "20"]);
     println!(
-        "\n`brdfd estimate` end to end, {w} × {h} photo (object ≈ ⅓), 2048 × 1024 map: {s:.2} s with the default (analytic) model; {basis:.2} s with --model basis --pixels 20 (ratio {:.2})",
+        "\n`brdfd estimate` end to end, {w} × {h} photo (object ≈ ⅓), 2048 × 1024 map: {s:.2} s with the default (hybrid) model; {basis:.2} s with --model basis --pixels 20 (ratio {:.2})",
         s / basis
     );
     let _ = std::fs::remove_dir_all(&dir);

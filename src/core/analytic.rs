@@ -39,10 +39,13 @@ pub const ALPHA_MAX: f64 = 1.0;
 /// Log-spaced α values of the coarse search. Neighbours differ by a factor of 1.34, so the
 /// refinement below starts within 16% of the best α.
 const COARSE_ALPHAS: usize = 20;
-/// Golden-section steps on log α between the coarse search's neighbours: each shrinks the
-/// bracket by 0.618, so eight leave it within 2% of α.
-const REFINE_STEPS: usize = 8;
-/// Pixels the α search fits (spread over the candidates); the final weights use every one.
+/// Points per refinement round: as many candidate lobes as one matrix build holds beside a
+/// fixed lobe (Lambert, two columns for the fixed lobe, two per candidate).
+const REFINE_POINTS: usize = (MAX_COLUMNS - 1) / 2 - 1;
+/// Refinement rounds: each narrows the bracket to 2/5, so three leave it within 2% of α.
+const REFINE_ROUNDS: usize = 3;
+/// Pixels the α search fits (spread over the candidates); the analytic model's final weights
+/// use every candidate, the hybrid model's these pixels.
 pub const SEARCH_PIXELS: usize = 4_000;
 /// Lobes at most (two cover a clear coat over a rougher base, or a metal's core and halo).
 pub const MAX_LOBES: usize = 2;
@@ -265,6 +268,23 @@ pub fn columns(grid: Grid, alpha: f64) -> [Vec<f64>; 3] {
 }
 
 impl Microfacet {
+    /// The model of per-channel weights in the column order of the fit (Lambert, then each
+    /// lobe's F₀ and F₉₀; further columns are not read) at roughnesses `alphas`.
+    pub fn from_weights(w: &[DVector<f64>; 3], alphas: &[f64]) -> Microfacet {
+        Microfacet {
+            diffuse: std::array::from_fn(|c| w[c][0]),
+            lobes: alphas
+                .iter()
+                .enumerate()
+                .map(|(i, alpha)| Lobe {
+                    f0: std::array::from_fn(|c| w[c][1 + 2 * i]),
+                    f90: std::array::from_fn(|c| w[c][2 + 2 * i]),
+                    alpha: *alpha,
+                })
+                .collect(),
+        }
+    }
+
     /// The model's bivariate reduction (what the estimate renders and writes).
     pub fn bivariate(&self, grid: Grid) -> Bivariate {
         let mut values = vec![0.0; VALUES];
@@ -326,13 +346,13 @@ impl Microfacet {
 
 /// Non-negative least squares on the normal equations (Lawson–Hanson active set): minimises
 /// ‖Xc − y‖² subject to c ≥ 0, given G = XᵀX and b = Xᵀy. Small systems only (a dozen
-/// unknowns); returns c.
+/// unknowns here, about a hundred for the hybrid model's mix); returns c.
 pub fn nnls(g: &DMatrix<f64>, b: &DVector<f64>) -> DVector<f64> {
     let m = b.len();
     let mut c = DVector::zeros(m);
     let mut passive = vec![false; m];
-    // Each outer step frees one variable, each inner step fixes at least one: bounded well
-    // within this for m ≤ 12.
+    // Each outer step frees one variable, each inner step fixes at least one: solutions keep
+    // few variables (a sparse mix), well within this bound.
     for _ in 0..(4 * m + 8) {
         let grad = b - g * &c;
         let next = (0..m)
@@ -511,11 +531,18 @@ fn solve_weights(
     (weights, (r2 / y2.max(f64::MIN_POSITIVE)).sqrt())
 }
 
+/// How the roughness search scores a set of roughnesses: given the search pixels' matrix and
+/// the columns of the lobes tried (Lambert first, then each lobe's F₀ and F₉₀), the
+/// relative misfit of the best non-negative weights. The analytic model solves the lobes'
+/// weights alone; the hybrid model solves them beside its measured materials.
+pub type Scorer<'f> = Box<dyn Fn(&RenderingMatrix, &[usize]) -> f64 + 'f>;
+
 /// The α search on the search pixels: every misfit it computes is recorded.
 struct Search<'v, 'a> {
     views: &'v [ViewPixels<'a>],
     grid: Grid,
     observed: Vec<[f64; 3]>,
+    score: Scorer<'v>,
     tried: Vec<(Vec<f64>, f64)>,
 }
 
@@ -531,7 +558,7 @@ impl Search<'_, '_> {
             let a = matrix_for(self.views, self.grid, &alphas, true);
             for (i, alpha) in chunk.iter().enumerate() {
                 let lobes: Vec<usize> = (0..fixed.len()).chain([fixed.len() + i]).collect();
-                let (_, misfit) = solve_weights(&a, &self.observed, &lobe_columns(&lobes));
+                let misfit = (self.score)(&a, &lobe_columns(&lobes));
                 let mut set = fixed.to_vec();
                 set.push(*alpha);
                 self.tried.push((set, misfit));
@@ -541,8 +568,8 @@ impl Search<'_, '_> {
         out
     }
 
-    /// The best α for one more lobe beside `fixed`: the coarse grid, then golden-section
-    /// refinement on log α between the best grid point's neighbours.
+    /// The best α for one more lobe beside `fixed`: the coarse grid, then the refinement
+    /// ([`Search::refine`]) between the best grid point's neighbours.
     fn best_lobe(&mut self, fixed: &[f64]) -> f64 {
         let log_span = (ALPHA_MAX / ALPHA_MIN).ln();
         let coarse: Vec<f64> = (0..COARSE_ALPHAS)
@@ -560,35 +587,31 @@ impl Search<'_, '_> {
         )
     }
 
-    /// Golden-section search for one more lobe's α in [lo, hi] (log scale), never returning
-    /// worse than `start` (an α and its misfit).
+    /// Refines one more lobe's α in [lo, hi] (log scale): [`REFINE_ROUNDS`] rounds of
+    /// [`REFINE_POINTS`] evenly spaced points, each round narrowed to the best point's
+    /// neighbours. A round's points share one matrix build, which costs far more than the
+    /// solves, so this is three builds where a golden-section search of the same precision
+    /// takes ten. Never returns worse than `start` (an α and its misfit).
     fn refine(&mut self, fixed: &[f64], lo: f64, hi: f64, start: (f64, f64)) -> f64 {
-        let ratio = (5f64.sqrt() - 1.0) / 2.0;
-        let (mut lo, mut hi) = (lo.ln(), hi.ln());
         let mut best = start;
-        let mut at = |x: f64, s: &mut Self| {
-            let f = s.misfits(fixed, &[x.exp()])[0];
-            if f < best.1 {
-                best = (x.exp(), f);
+        let (mut lo, mut hi) = (lo.ln(), hi.ln());
+        for _ in 0..REFINE_ROUNDS {
+            let step = (hi - lo) / (REFINE_POINTS + 1) as f64;
+            let points: Vec<f64> = (1..=REFINE_POINTS)
+                .map(|i| (lo + step * i as f64).exp())
+                .collect();
+            let misfits = self.misfits(fixed, &points);
+            for (alpha, misfit) in points.into_iter().zip(misfits) {
+                if misfit < best.1 {
+                    best = (alpha, misfit);
+                }
             }
-            f
-        };
-        let mut x1 = hi - ratio * (hi - lo);
-        let mut x2 = lo + ratio * (hi - lo);
-        let mut f1 = at(x1, self);
-        let mut f2 = at(x2, self);
-        for _ in 0..REFINE_STEPS {
-            if f1 <= f2 {
-                hi = x2;
-                (x2, f2) = (x1, f1);
-                x1 = hi - ratio * (hi - lo);
-                f1 = at(x1, self);
-            } else {
-                lo = x1;
-                (x1, f1) = (x2, f2);
-                x2 = lo + ratio * (hi - lo);
-                f2 = at(x2, self);
-            }
+            // Within the searched range: a bracket at the grid's end (a mirror, a nearly
+            // diffuse lobe) must not step past it.
+            (lo, hi) = (
+                (best.0.ln() - step).max(ALPHA_MIN.ln()),
+                (best.0.ln() + step).min(ALPHA_MAX.ln()),
+            );
         }
         best.0
     }
@@ -598,39 +621,34 @@ impl Search<'_, '_> {
 /// second lobe is in place: fitted alone, the first lobe also covered what the second now does.
 const RESEARCH_SPAN: f64 = 1.8;
 
-/// Fits the model with `lobes` lobes (1 or 2) to the candidates of every view, by variable
-/// projection on a spread of [`SEARCH_PIXELS`] pixels: the first lobe's α over a coarse grid
-/// and a golden-section refinement; then the second lobe's the same way beside it, and the
-/// first searched again beside the second. The weights of the best roughnesses then come from
-/// every candidate.
-pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize) -> Result<AnalyticFit> {
+/// The roughness search of [`fit`] on the search pixels: the roughnesses found, sorted, and the
+/// search (with every misfit it computed).
+fn search_roughness<'v, 'a>(
+    views: &'v [ViewPixels<'a>],
+    grid: Grid,
+    lobes: usize,
+    score: Option<Scorer<'v>>,
+) -> Result<(Search<'v, 'a>, Vec<f64>)> {
     if views.iter().all(|v| v.pixels.is_empty()) {
         return Err(CoreError::Invalid(
-            "no pixels to fit the analytic model to".into(),
+            "no pixels to fit the model's lobes to".into(),
         ));
     }
     if !(1..=MAX_LOBES).contains(&lobes) {
         return Err(CoreError::Invalid(format!(
-            "the analytic model has 1 to {MAX_LOBES} lobes, not {lobes}"
+            "the model has 1 to {MAX_LOBES} lobes, not {lobes}"
         )));
     }
-    let observed_of = |subset: bool| -> Vec<[f64; 3]> {
-        views
-            .iter()
-            .flat_map(|v| {
-                let idx: Vec<usize> = if subset {
-                    search_subset(v.pixels.len(), views.len())
-                } else {
-                    (0..v.pixels.len()).collect()
-                };
-                idx.into_iter().map(|i| v.observed[i]).collect::<Vec<_>>()
-            })
-            .collect()
-    };
+    let observed = observed_of(views, true);
+    let score = score.unwrap_or_else(|| {
+        let observed = observed.clone();
+        Box::new(move |a: &RenderingMatrix, cols: &[usize]| solve_weights(a, &observed, cols).1)
+    });
     let mut search = Search {
         views,
         grid,
-        observed: observed_of(true),
+        observed,
+        score,
         tried: Vec::new(),
     };
     let mut alphas = vec![search.best_lobe(&[])];
@@ -639,15 +657,70 @@ pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize) -> Result<AnalyticFit
         let current = search.misfits(&[second], &[alphas[0]])[0];
         let first = search.refine(
             &[second],
-            alphas[0] / RESEARCH_SPAN,
-            alphas[0] * RESEARCH_SPAN,
+            (alphas[0] / RESEARCH_SPAN).max(ALPHA_MIN),
+            (alphas[0] * RESEARCH_SPAN).min(ALPHA_MAX),
             (alphas[0], current),
         );
         alphas = vec![first, second];
         alphas.sort_by(f64::total_cmp);
     }
+    Ok((search, alphas))
+}
+
+/// The observations of every view's candidates, or of its search pixels (`subset`).
+fn observed_of(views: &[ViewPixels], subset: bool) -> Vec<[f64; 3]> {
+    views
+        .iter()
+        .flat_map(|v| {
+            let idx: Vec<usize> = if subset {
+                search_subset(v.pixels.len(), views.len())
+            } else {
+                (0..v.pixels.len()).collect()
+            };
+            idx.into_iter().map(|i| v.observed[i]).collect::<Vec<_>>()
+        })
+        .collect()
+}
+
+/// The search pixels of every view (spread over its candidates, [`SEARCH_PIXELS`] in all) and
+/// what they measured, in the order the search's matrices hold them.
+pub fn search_pixels(views: &[ViewPixels]) -> (Vec<Vec<GeomPixel>>, Vec<[f64; 3]>) {
+    let pixels = views
+        .iter()
+        .map(|v| {
+            search_subset(v.pixels.len(), views.len())
+                .into_iter()
+                .map(|i| v.pixels[i])
+                .collect()
+        })
+        .collect();
+    (pixels, observed_of(views, true))
+}
+
+/// The roughnesses [`fit`]'s search finds with the given `score` (the analytic model's own if
+/// `None`), each with its 1-σ from the misfit's profile, without the fit's weights over every
+/// candidate: for a model that solves its own weights beside the lobes ([`super::hybrid`]).
+pub fn roughnesses<'v>(
+    views: &'v [ViewPixels],
+    grid: Grid,
+    lobes: usize,
+    score: Option<Scorer<'v>>,
+) -> Result<Vec<(f64, f64)>> {
+    let (mut search, alphas) = search_roughness(views, grid, lobes, score)?;
+    Ok((0..alphas.len())
+        .map(|l| (alphas[l], profile_std(&mut search, &alphas, l)))
+        .collect())
+}
+
+/// Fits the model with `lobes` lobes (1 or 2) to the candidates of every view, by variable
+/// projection on a spread of [`SEARCH_PIXELS`] pixels: the first lobe's α over a coarse grid
+/// and a refinement around the best; then the second lobe's the same way beside it, and the
+/// first searched again beside the second. The weights of the best roughnesses then come from
+/// every candidate.
+pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize) -> Result<AnalyticFit> {
+    let (mut search, alphas) = search_roughness(views, grid, lobes, None)?;
+    let observed = observed_of(views, false);
     let matrix = matrix_for(views, grid, &alphas, false);
-    let observed = observed_of(false);
     let cols = lobe_columns(&(0..alphas.len()).collect::<Vec<_>>());
     let (w, _) = solve_weights(&matrix, &observed, &cols);
     let systems = channel_systems(&matrix, &observed, &cols);
@@ -668,18 +741,7 @@ pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize) -> Result<AnalyticFit
         grid,
         views[0].lights,
     )?;
-    let model = Microfacet {
-        diffuse: std::array::from_fn(|c| w[c][0]),
-        lobes: alphas
-            .iter()
-            .enumerate()
-            .map(|(i, alpha)| Lobe {
-                f0: std::array::from_fn(|c| w[c][1 + 2 * i]),
-                f90: std::array::from_fn(|c| w[c][2 + 2 * i]),
-                alpha: *alpha,
-            })
-            .collect(),
-    };
+    let model = Microfacet::from_weights(&w, &alphas);
     Ok(AnalyticFit {
         model,
         matrix,
@@ -742,21 +804,7 @@ fn uncertainty(
     let n = observed.len();
     let per_channel: [DMatrix<f64>; 3] = std::array::from_fn(|c| {
         let (g, b, yy) = &systems[c];
-        let w = &weights[c];
-        let rss = ((w.transpose() * g * w)[0] - 2.0 * w.dot(b) + yy).max(0.0);
-        let free: Vec<usize> = (0..p).filter(|&k| w[k] > 0.0).collect();
-        let variance = rss / n.saturating_sub(free.len()).max(1) as f64;
-        let sub = DMatrix::from_fn(free.len(), free.len(), |i, j| g[(free[i], free[j])]);
-        let inv = sub
-            .try_inverse()
-            .unwrap_or_else(|| DMatrix::from_element(free.len(), free.len(), f64::INFINITY));
-        let mut cov = DMatrix::zeros(p, p);
-        for (i, &a) in free.iter().enumerate() {
-            for (j, &b) in free.iter().enumerate() {
-                cov[(a, b)] = variance * inv[(i, j)];
-            }
-        }
-        cov
+        linearised_covariance(g, b, *yy, &weights[c], n)
     });
     // Into the order of `Microfacet::values`: kd of R, G, B; then per lobe F₀ of R, G, B, F₉₀
     // of R, G, B, α. Channels are solved apart, so their blocks do not mix.
@@ -828,9 +876,37 @@ fn uncertainty(
     })
 }
 
+/// The covariance σ²(XᵀX)⁻¹ of non-negative least-squares weights `w` (given G = XᵀX,
+/// b = Xᵀy and yᵀy, over `n` observations), over the weights the fit keeps: a weight held at
+/// zero by its bound gets 0. σ² is the residual's variance, so model error counts as noise and
+/// a poor fit is reported as unsure.
+pub fn linearised_covariance(
+    g: &DMatrix<f64>,
+    b: &DVector<f64>,
+    yy: f64,
+    w: &DVector<f64>,
+    n: usize,
+) -> DMatrix<f64> {
+    let p = w.len();
+    let rss = ((w.transpose() * g * w)[0] - 2.0 * w.dot(b) + yy).max(0.0);
+    let free: Vec<usize> = (0..p).filter(|&k| w[k] > 0.0).collect();
+    let variance = rss / n.saturating_sub(free.len()).max(1) as f64;
+    let sub = DMatrix::from_fn(free.len(), free.len(), |i, j| g[(free[i], free[j])]);
+    let inv = sub
+        .try_inverse()
+        .unwrap_or_else(|| DMatrix::from_element(free.len(), free.len(), f64::INFINITY));
+    let mut cov = DMatrix::zeros(p, p);
+    for (i, &a) in free.iter().enumerate() {
+        for (j, &b) in free.iter().enumerate() {
+            cov[(a, b)] = variance * inv[(i, j)];
+        }
+    }
+    cov
+}
+
 /// κ of X from its Gram matrix G = XᵀX, with X's columns scaled to unit norm first (the
 /// columns' units differ; their overlap is what matters).
-fn scaled_condition(g: &DMatrix<f64>) -> f64 {
+pub fn scaled_condition(g: &DMatrix<f64>) -> f64 {
     let n = g.nrows();
     let d: Vec<f64> = (0..n)
         .map(|i| g[(i, i)].max(f64::MIN_POSITIVE).sqrt())

@@ -94,7 +94,9 @@ impl CellWeight {
 #[serde(deny_unknown_fields)]
 pub struct BasisHeader {
     pub format: String,
-    /// A digest of the vectors: equal ids mean equal bases.
+    /// A digest of the PCA vectors (mean and components): equal ids mean equal basis models.
+    /// The measured materials' tables (`atoms`) are not in it: they are the named training
+    /// materials themselves.
     pub id: String,
     pub k: usize,
     pub materials: Vec<String>,
@@ -110,6 +112,11 @@ pub struct BasisHeader {
     pub score_std: Vec<f64>,
     /// Where the vectors live and how they are laid out, for readers without this code.
     pub layout: String,
+    /// Whether the EXR also holds each training material's own table (a layer
+    /// `atom.<material>` per name in `materials`): the measured materials the hybrid model
+    /// mixes. The `id` covers the PCA vectors only, which basis-model coefficients depend on.
+    #[serde(default)]
+    pub atoms: bool,
 }
 
 /// A basis: header plus vectors in BRDF units.
@@ -119,6 +126,9 @@ pub struct Basis {
     /// Mean BRDF (zero vector when the basis has no mean term).
     pub mean: Vec<f64>,
     pub components: Vec<Vec<f64>>,
+    /// The training materials' tables in BRDF units, in the order of `header.materials`;
+    /// empty if the basis file has none (`header.atoms`).
+    pub atoms: Vec<Vec<f64>>,
 }
 
 /// The linear model the estimate solves: BRDF = offset + Σ coefficientsⱼ · columnsⱼ.
@@ -243,11 +253,13 @@ impl Basis {
             explained_variance: explained,
             score_std,
             layout: layout_text(),
+            atoms: true,
         };
         let mut basis = Basis {
             header: header.clone(),
             mean: mean_vec,
             components,
+            atoms: training.iter().map(|(_, b)| b.values.clone()).collect(),
         };
         header.id = basis.digest();
         basis.header = header;
@@ -434,7 +446,20 @@ impl Basis {
         for (i, c) in self.components.iter().enumerate() {
             out.push((format!("pc{:02}", i + 1), c));
         }
+        for (name, a) in self.header.materials.iter().zip(&self.atoms) {
+            out.push((atom_layer(name), a));
+        }
         out
+    }
+
+    /// The measured materials the hybrid model mixes: each training material's name and
+    /// table. Empty for a basis file written without them.
+    pub fn atoms(&self) -> impl Iterator<Item = (&str, &[f64])> {
+        self.header
+            .materials
+            .iter()
+            .map(String::as_str)
+            .zip(self.atoms.iter().map(Vec::as_slice))
     }
 
     fn exr_bytes(&self) -> Result<Vec<u8>> {
@@ -444,15 +469,19 @@ impl Basis {
             .layers()
             .into_iter()
             .map(|(name, v)| {
+                // A measured material's table is data, not a model vector: half precision
+                // (0.05%) halves the file, where its range allows.
+                let half = name.starts_with("atom.")
+                    && v.iter().all(|x| x.abs() < f64::from(f16::MAX.to_f32()));
                 let channel = |label: &str, c: usize| {
+                    let plane = &v[c * GRID_CELLS..(c + 1) * GRID_CELLS];
                     AnyChannel::new(
                         label,
-                        FlatSamples::F32(
-                            v[c * GRID_CELLS..(c + 1) * GRID_CELLS]
-                                .iter()
-                                .map(|x| *x as f32)
-                                .collect(),
-                        ),
+                        if half {
+                            FlatSamples::F16(plane.iter().map(|x| f16::from_f64(*x)).collect())
+                        } else {
+                            FlatSamples::F32(plane.iter().map(|x| *x as f32).collect())
+                        },
                     )
                 };
                 Layer::new(
@@ -573,6 +602,25 @@ impl Basis {
         let components = (1..=header.k)
             .map(|i| take(&format!("pc{i:02}")))
             .collect::<std::result::Result<Vec<_>, CoreError>>()?;
+        let atoms = if header.atoms {
+            header
+                .materials
+                .iter()
+                .map(|n| take(&atom_layer(n)))
+                .collect::<std::result::Result<Vec<_>, CoreError>>()?
+        } else {
+            Vec::new()
+        };
+        if let Some(i) = atoms.iter().flatten().position(|v| *v < 0.0) {
+            return Err(CoreError::format(
+                what,
+                format!(
+                    "measured material {} has a negative value at cell {}",
+                    header.materials[i / VALUES],
+                    i % VALUES
+                ),
+            ));
+        }
         if header.score_std.len() < header.k {
             return Err(CoreError::format(
                 what,
@@ -583,6 +631,7 @@ impl Basis {
             header,
             mean,
             components,
+            atoms,
         })
     }
 
@@ -598,5 +647,9 @@ impl Basis {
 }
 
 fn layout_text() -> String {
-    "EXR beside this file: layers 'mean' (if mean) and 'pc01'..; each 90x90 RGB float32, rows = theta_h bins, columns = theta_d bins; values in 1/sr; f = offset + sum(c_k * b_k)".into()
+    "EXR beside this file: layers 'mean' (if mean) and 'pc01'..; if atoms, 'atom.<material>' per training material (its own table); each 90x90 RGB, float32 (atoms half where their range allows), rows = theta_h bins, columns = theta_d bins; values in 1/sr; f = offset + sum(c_k * b_k)".into()
+}
+
+fn atom_layer(material: &str) -> String {
+    format!("atom.{material}")
 }

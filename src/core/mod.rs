@@ -3,7 +3,7 @@
 //!
 //! Data flow: [`merl`]/[`nbrdf`] sources → [`bivariate`] reduction → [`basis`] (PCA) →
 //! [`render`] builds A from [`geometry`] and [`envmap`] lights → [`select`] picks pixels →
-//! [`solve`] gives the coefficients; [`analytic`] is the other model. [`estimate`] runs the chain;
+//! [`solve`] gives the coefficients; [`analytic`] and [`hybrid`] are the other models. [`estimate`] runs the chain;
 //! `crate::evaluation` measures it from outside.
 
 pub mod analytic;
@@ -14,6 +14,7 @@ pub mod envmap;
 pub mod error;
 pub mod estimate;
 pub mod geometry;
+pub mod hybrid;
 pub mod merl;
 pub mod nbrdf;
 pub mod raster;

@@ -207,6 +207,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         // The preset's pixel count only matters to the basis model.
         let model = match plan.model.unwrap_or(p.model) {
             Model::Analytic => "analytic model".to_string(),
+            Model::Hybrid => "hybrid model".to_string(),
             Model::Basis => match p.pixels {
                 PixelCount::All => "basis model, every pixel".to_string(),
                 PixelCount::Count(n) => format!("basis model, {n} pixels"),

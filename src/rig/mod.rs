@@ -42,7 +42,7 @@ pub struct Plan {
     /// Pixels to estimate from: a number or "all"; the preset's, else 20.
     #[serde(default)]
     pub pixels: Option<String>,
-    /// The BRDF model: "analytic" or "basis"; the preset's, else analytic.
+    /// The BRDF model: "hybrid", "analytic" or "basis"; the preset's, else hybrid.
     #[serde(default)]
     pub model: Option<Model>,
     /// How the coefficients are solved: "prior" or "least-squares"; the preset's, else prior.

@@ -1,0 +1,475 @@
+//! The hybrid model: the analytic model's Lambert and GGX lobes ([`super::analytic`]) plus a
+//! non-negative mix of measured materials (the basis's training set, [`Basis::atoms`]),
+//! fitted jointly to the photo.
+//!
+//! ```text
+//! f = kd/π + Σₗ lobeₗ(αₗ) · (F₀ₗ (1 − w) + F₉₀ₗ w) + Σₘ aₘ · fₘ,   every weight ≥ 0,
+//! ```
+//!
+//! per colour channel, with fₘ the measured material m's table in that channel. Why: the
+//! analytic model extrapolates well from the angles a photo sees to the ones it does not, but
+//! a real material's shape (a paint's flake, a fabric's sheen, a plastic's two-part peak) is
+//! not a GGX lobe; the measured materials hold those shapes, and the lobes hold peaks sharper
+//! than any of them. Every column is non-negative and a function of (θh, θd), so the estimate
+//! is non-negative and reciprocal by construction, with no clamp afterwards.
+//!
+//! The roughnesses come from the analytic model's search ([`analytic::roughnesses`]), with each
+//! set tried scored with every weight solved; the weights, by non-negative least squares, keep
+//! few materials (a sparse mix). They are solved on the search's spread pixels
+//! ([`analytic::SEARCH_PIXELS`]); the fit to the photo is measured over every candidate.
+
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+
+use super::analytic::{self, nnls, Microfacet, ViewPixels};
+use super::basis::Basis;
+use super::bivariate::{Bivariate, Grid, GRID_CELLS, VALUES};
+use super::envmap::LightSet;
+use super::error::{CoreError, Result};
+use super::estimate::relative_misfit;
+use super::geometry::GeomPixel;
+use super::render::{RenderingMatrix, MAX_COLUMNS};
+use super::solve::CHANNELS;
+use super::uncertainty::{
+    band, image_spread, spread_sphere, std_of, Uncertainty, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED,
+};
+
+/// One measured material in the mix and its weight per channel.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MixWeight {
+    pub material: String,
+    pub weight: [f64; 3],
+}
+
+/// The fit of [`fit`].
+#[derive(Clone, Debug)]
+pub struct HybridFit {
+    /// The analytic part: Lambert and the lobes with their weights from the joint fit.
+    pub analytic: Microfacet,
+    /// The measured materials kept (a weight above zero in some channel), in the basis's order.
+    pub mixture: Vec<MixWeight>,
+    pub brdf: Bivariate,
+    /// Names of [`HybridFit::coefficients`]: the analytic part's ([`Microfacet::names`]), then
+    /// `<material>.R`, `.G`, `.B` per material kept.
+    pub names: Vec<String>,
+    pub coefficients: Vec<f64>,
+    /// ‖A·c − y‖/‖y‖ over every candidate.
+    pub fit_error: f64,
+    /// ‖A·c − y‖/‖y‖ over the pixels the weights were solved on.
+    pub solved_misfit: f64,
+    /// Pixels the weights were solved on.
+    pub solved: usize,
+    /// Candidates the fit error was measured on.
+    pub candidates: usize,
+    /// κ of the per-channel systems over the columns kept (the worst channel's), columns
+    /// scaled to unit norm.
+    pub condition: f64,
+    pub uncertainty: Uncertainty,
+}
+
+impl HybridFit {
+    /// The BRDF of an analytic part and a mix, with the measured tables of `basis`: what
+    /// `brdfd render --coefficients` rebuilds from `coefficients.json`.
+    pub fn rebuild(
+        analytic: &Microfacet,
+        mixture: &[MixWeight],
+        basis: &Basis,
+    ) -> std::result::Result<Bivariate, String> {
+        if !mixture.is_empty() && basis.atoms.is_empty() {
+            return Err(format!(
+                "the basis {} holds no measured materials; pass the basis the estimate was made with (--basis), or one rebuilt by this brdfd's `basis build`",
+                basis.header.id
+            ));
+        }
+        let mut brdf = analytic.bivariate(basis.header.grid);
+        for m in mixture {
+            let (_, table) = basis
+                .atoms()
+                .find(|(n, _)| *n == m.material)
+                .ok_or_else(|| format!("the basis has no measured material {}", m.material))?;
+            if m.weight.iter().any(|w| !w.is_finite() || *w < 0.0) {
+                return Err(format!("material {}: weights must be ≥ 0", m.material));
+            }
+            for c in 0..3 {
+                let plane = c * GRID_CELLS..(c + 1) * GRID_CELLS;
+                for (v, x) in brdf.values[plane.clone()].iter_mut().zip(&table[plane]) {
+                    *v += m.weight[c] * x;
+                }
+            }
+        }
+        Ok(brdf)
+    }
+}
+
+/// Dense rows of the rendering matrix of `columns` for `pixels`, built [`MAX_COLUMNS`] at a
+/// time: row (3·p + c) holds every column's value for pixel p, channel c.
+fn dense_rows(pixels: &[GeomPixel], lights: &LightSet, columns: &[&[f64]], grid: Grid) -> Vec<f64> {
+    let n = columns.len();
+    let mut rows = vec![0.0; 3 * pixels.len() * n];
+    for (k, chunk) in columns.chunks(MAX_COLUMNS).enumerate() {
+        let a = RenderingMatrix::build(pixels, lights, chunk, None, grid.theta_h_binning);
+        for r in 0..3 * pixels.len() {
+            for (j, v) in a.row(r).iter().enumerate() {
+                rows[r * n + k * MAX_COLUMNS + j] = *v as f64;
+            }
+        }
+    }
+    rows
+}
+
+/// Per channel, the Gram matrix and right-hand side of the columns `cols` over the pixels
+/// `picks` (repeats count twice: a bootstrap resample), and yᵀy.
+fn systems(
+    rows: &[f64],
+    n: usize,
+    observed: &[[f64; 3]],
+    picks: &[usize],
+    cols: &[usize],
+) -> [(DMatrix<f64>, DVector<f64>, f64); 3] {
+    std::array::from_fn(|c| {
+        let m = cols.len();
+        let mut g = DMatrix::zeros(m, m);
+        let mut b = DVector::zeros(m);
+        let mut yy = 0.0;
+        let mut x = vec![0.0; m];
+        for &p in picks {
+            let row = &rows[(3 * p + c) * n..(3 * p + c + 1) * n];
+            for (xi, &k) in x.iter_mut().zip(cols) {
+                *xi = row[k];
+            }
+            let y = observed[p][c];
+            yy += y * y;
+            for i in 0..m {
+                b[i] += x[i] * y;
+                for j in 0..=i {
+                    g[(i, j)] += x[i] * x[j];
+                }
+            }
+        }
+        for i in 0..m {
+            for j in 0..i {
+                g[(j, i)] = g[(i, j)];
+            }
+        }
+        (g, b, yy)
+    })
+}
+
+/// Lambert's column, then each lobe's F₀ and F₉₀ columns.
+fn lobe_refs(cols: &[[Vec<f64>; 3]]) -> Vec<&[f64]> {
+    std::iter::once(cols[0][0].as_slice())
+        .chain(cols.iter().flat_map(|l| [l[1].as_slice(), l[2].as_slice()]))
+        .collect()
+}
+
+/// The measured materials' part of the per-channel systems, computed once: their rows on the
+/// mix pixels, their Gram blocks and right-hand sides. [`Mix::solve`] adds the lobes' rows.
+struct Mix {
+    rows: Vec<f64>,
+    na: usize,
+    observed: Vec<[f64; 3]>,
+    aa: [DMatrix<f64>; 3],
+    ba: [DVector<f64>; 3],
+    yy: [f64; 3],
+}
+
+impl Mix {
+    fn new(rows: Vec<f64>, na: usize, observed: &[[f64; 3]]) -> Mix {
+        let picks: Vec<usize> = (0..observed.len()).collect();
+        let cols: Vec<usize> = (0..na).collect();
+        let s = systems(&rows, na, observed, &picks, &cols);
+        let [(a0, b0, y0), (a1, b1, y1), (a2, b2, y2)] = s;
+        Mix {
+            rows,
+            na,
+            observed: observed.to_vec(),
+            aa: [a0, a1, a2],
+            ba: [b0, b1, b2],
+            yy: [y0, y1, y2],
+        }
+    }
+
+    /// The non-negative weights per channel, lobes' columns (`nl` of them, rows `lobe_rows`)
+    /// first, and the relative misfit over every channel.
+    fn solve(&self, lobe_rows: &[f64], nl: usize) -> ([DVector<f64>; 3], f64) {
+        let (na, m) = (self.na, nl + self.na);
+        let (mut r2, mut y2) = (0.0, 0.0);
+        let weights = std::array::from_fn(|c| {
+            let mut g = DMatrix::zeros(m, m);
+            let mut b = DVector::zeros(m);
+            g.view_mut((nl, nl), (na, na)).copy_from(&self.aa[c]);
+            b.rows_mut(nl, na).copy_from(&self.ba[c]);
+            for (p, obs) in self.observed.iter().enumerate() {
+                let r = 3 * p + c;
+                let l = &lobe_rows[r * nl..(r + 1) * nl];
+                let a = &self.rows[r * na..(r + 1) * na];
+                for i in 0..nl {
+                    b[i] += l[i] * obs[c];
+                    for j in 0..=i {
+                        g[(i, j)] += l[i] * l[j];
+                    }
+                    for (j, x) in a.iter().enumerate() {
+                        g[(nl + j, i)] += l[i] * x;
+                    }
+                }
+            }
+            for i in 0..m {
+                for j in 0..i {
+                    g[(j, i)] = g[(i, j)];
+                }
+            }
+            let w = nnls(&g, &b);
+            // ‖Xw − y‖² = wᵀGw − 2wᵀb + yᵀy.
+            r2 += ((w.transpose() * &g * &w)[0] - 2.0 * w.dot(&b) + self.yy[c]).max(0.0);
+            y2 += self.yy[c];
+            w
+        });
+        (weights, (r2 / y2.max(f64::MIN_POSITIVE)).sqrt())
+    }
+
+    /// Dense rows with the lobes' columns (`nl`) first, then the materials'.
+    fn joined(&self, lobe_rows: &[f64], nl: usize) -> Vec<f64> {
+        lobe_rows
+            .chunks(nl)
+            .zip(self.rows.chunks(self.na))
+            .flat_map(|(l, a)| l.iter().chain(a).copied())
+            .collect()
+    }
+}
+
+/// Fits the hybrid model to the candidates of every view on the analytic model's search pixels
+/// ([`analytic::SEARCH_PIXELS`], spread over them: the measured materials make about a hundred
+/// columns, and every candidate of a 16-megapixel photo would cost a hundred matrix passes,
+/// while 4,000 pixels still give about 40 equations per unknown): its roughness search (`lobes` lobes), with every weight, the lobes' and
+/// the materials', solved for each roughness set tried; then the weights of the best.
+pub fn fit(views: &[ViewPixels], basis: &Basis, lobes: usize) -> Result<HybridFit> {
+    if basis.atoms.is_empty() {
+        return Err(CoreError::Invalid(format!(
+            "the basis {} holds no measured materials, which the hybrid model mixes; rebuild it with this brdfd's `basis build`, or use --model analytic",
+            basis.header.id
+        )));
+    }
+    let grid = basis.header.grid;
+    let names: Vec<&str> = basis.atoms().map(|(n, _)| n).collect();
+    let atom_columns: Vec<&[f64]> = basis.atoms().map(|(_, t)| t).collect();
+
+    // The mix is solved on the roughness search's pixels: the materials' rows are built once,
+    // and each roughness set tried adds only its lobes'.
+    let (pixel_sets, observed) = analytic::search_pixels(views);
+    let atom_rows: Vec<f64> = pixel_sets
+        .iter()
+        .zip(views)
+        .flat_map(|(px, v)| dense_rows(px, v.lights, &atom_columns, grid))
+        .collect();
+    let mix = Mix::new(atom_rows, atom_columns.len(), &observed);
+    // Variable projection over the whole model: each roughness set is scored with every weight
+    // (lobes and materials) solved, so a lobe need not cover what a material does.
+    let score: analytic::Scorer = Box::new(|a: &RenderingMatrix, cols: &[usize]| {
+        let rows: Vec<f64> = (0..a.pixels.len() * 3)
+            .flat_map(|r| {
+                let row = a.row(r);
+                cols.iter().map(move |&j| row[j] as f64)
+            })
+            .collect();
+        mix.solve(&rows, cols.len()).1
+    });
+    let found = analytic::roughnesses(views, grid, lobes, Some(score))?;
+    let alphas: Vec<f64> = found.iter().map(|(alpha, _)| *alpha).collect();
+    let alpha_std: Vec<f64> = found.iter().map(|(_, std)| *std).collect();
+    let lobe_cols: Vec<[Vec<f64>; 3]> =
+        alphas.iter().map(|a| analytic::columns(grid, *a)).collect();
+    let mut columns = lobe_refs(&lobe_cols);
+    let lobe_rows: Vec<f64> = pixel_sets
+        .iter()
+        .zip(views)
+        .flat_map(|(px, v)| dense_rows(px, v.lights, &columns, grid))
+        .collect();
+    let (weights, solved_misfit) = mix.solve(&lobe_rows, columns.len());
+    let analytic_cols = columns.len();
+    columns.extend(&atom_columns);
+    let n = columns.len();
+    let rows = mix.joined(&lobe_rows, analytic_cols);
+    let all: Vec<usize> = (0..observed.len()).collect();
+
+    let brdf = combine(&columns, &weights, grid);
+    // Fit to the photo over every candidate: the estimate's own table as one column.
+    let mut predicted = Vec::new();
+    let mut all_observed = Vec::new();
+    for v in views {
+        let a = RenderingMatrix::build(
+            v.pixels,
+            v.lights,
+            &[&brdf.values],
+            None,
+            grid.theta_h_binning,
+        );
+        predicted.extend(a.predict(&[1.0]));
+        all_observed.extend_from_slice(v.observed);
+    }
+    let fit_error = relative_misfit(&predicted, &all_observed);
+
+    // The columns the fit keeps in some channel: the analytic ones always, the materials with
+    // a weight. The uncertainty is measured over these.
+    let kept: Vec<usize> = (0..n)
+        .filter(|&j| j < analytic_cols || weights.iter().any(|w| w[j] > 0.0))
+        .collect();
+    let analytic_part = Microfacet::from_weights(&weights, &alphas);
+    let mixture: Vec<MixWeight> = kept
+        .iter()
+        .filter(|&&j| j >= analytic_cols)
+        .map(|&j| MixWeight {
+            material: names[j - analytic_cols].to_string(),
+            weight: std::array::from_fn(|c| weights[c][j]),
+        })
+        .collect();
+    let mut coefficient_names = analytic_part.names();
+    let mut coefficients = analytic_part.values();
+    for m in &mixture {
+        for (c, ch) in CHANNELS.iter().enumerate() {
+            coefficient_names.push(format!("{}.{ch}", m.material));
+            coefficients.push(m.weight[c]);
+        }
+    }
+    let kept_systems = systems(&rows, n, &observed, &all, &kept);
+    let condition = kept_systems
+        .iter()
+        .map(|(g, _, _)| analytic::scaled_condition(g))
+        .fold(0.0, f64::max);
+    let uncertainty = uncertainty(
+        Inputs {
+            rows: &rows,
+            n,
+            observed: &observed,
+            columns: &columns,
+            kept: &kept,
+            weights: &weights,
+            analytic_cols,
+            alpha_std: &alpha_std,
+            grid,
+            lights: views[0].lights,
+        },
+        &kept_systems,
+    )?;
+    Ok(HybridFit {
+        analytic: analytic_part,
+        mixture,
+        brdf,
+        names: coefficient_names,
+        coefficients,
+        fit_error,
+        solved_misfit,
+        solved: observed.len(),
+        candidates: all_observed.len(),
+        condition,
+        uncertainty,
+    })
+}
+
+/// The BRDF Σⱼ wⱼ · columnⱼ per channel (one weight per column), with the grid's valid cells.
+fn combine(columns: &[&[f64]], weights: &[DVector<f64>; 3], grid: Grid) -> Bivariate {
+    let mut values = vec![0.0; VALUES];
+    for c in 0..3 {
+        let plane = c * GRID_CELLS..(c + 1) * GRID_CELLS;
+        for (column, &w) in columns.iter().zip(weights[c].iter()) {
+            if w == 0.0 {
+                continue;
+            }
+            for (v, x) in values[plane.clone()].iter_mut().zip(&column[plane.clone()]) {
+                *v += w * x;
+            }
+        }
+    }
+    // Lambert's column (the first) is 1/π exactly where the grid has a cell.
+    let valid = columns[0][..GRID_CELLS].iter().map(|v| *v > 0.0).collect();
+    Bivariate::from_values(grid, values, valid)
+}
+
+/// What [`uncertainty`] measures from.
+struct Inputs<'a> {
+    rows: &'a [f64],
+    n: usize,
+    observed: &'a [[f64; 3]],
+    columns: &'a [&'a [f64]],
+    kept: &'a [usize],
+    weights: &'a [DVector<f64>; 3],
+    analytic_cols: usize,
+    /// Each lobe's α 1-σ, from the analytic search's misfit profile.
+    alpha_std: &'a [f64],
+    grid: Grid,
+    lights: &'a LightSet,
+}
+
+/// The hybrid fit's [`Uncertainty`]: the kept weights' linearised covariance σ²(XᵀX)⁻¹ per
+/// channel (a weight held at zero gets 0), each α's variance from the analytic fit, and a
+/// bootstrap over the pixels with the kept columns, which gives the BRDF's band and the relit
+/// sphere's spread.
+fn uncertainty(
+    i: Inputs,
+    kept_systems: &[(DMatrix<f64>, DVector<f64>, f64); 3],
+) -> Result<Uncertainty> {
+    use rand::{Rng, SeedableRng};
+    let k = i.kept.len();
+    let pixels = i.observed.len();
+    // Coefficient positions: the analytic part as Microfacet::values orders it (kd RGB, then
+    // per lobe F₀ RGB, F₉₀ RGB, α), then each kept material's R, G, B.
+    let analytic_len = 3 + 7 * i.alpha_std.len();
+    let position = |c: usize, kk: usize| -> usize {
+        let j = i.kept[kk];
+        if j == 0 {
+            c
+        } else if j < i.analytic_cols {
+            let (lobe, part) = ((j - 1) / 2, (j - 1) % 2);
+            3 + 7 * lobe + 3 * part + c
+        } else {
+            analytic_len + 3 * (kk - i.analytic_cols) + c
+        }
+    };
+    let m = analytic_len + 3 * (k - i.analytic_cols);
+    let mut covariance = vec![0.0; m * m];
+    for c in 0..3 {
+        let (g, b, yy) = &kept_systems[c];
+        let w = DVector::from_fn(k, |kk, _| i.weights[c][i.kept[kk]]);
+        let cov = analytic::linearised_covariance(g, b, *yy, &w, pixels);
+        for ka in 0..k {
+            for kb in 0..k {
+                covariance[position(c, ka) * m + position(c, kb)] = cov[(ka, kb)];
+            }
+        }
+    }
+    for (l, s) in i.alpha_std.iter().enumerate() {
+        let at = 9 + 7 * l;
+        covariance[at * m + at] = s * s;
+    }
+    // Bootstrap with the roughnesses held and the materials the fit left at zero dropped: a
+    // resample re-weighs the mix the photo chose, which is what its steadiness is about, at the
+    // cost of a dozen columns instead of a hundred.
+    let kept_columns: Vec<&[f64]> = i.kept.iter().map(|&j| i.columns[j]).collect();
+    let sphere = dense_rows(&spread_sphere()?, i.lights, &kept_columns, i.grid);
+    let image = |w: &[DVector<f64>; 3]| -> Vec<f64> {
+        sphere
+            .chunks(k)
+            .enumerate()
+            .map(|(r, row)| row.iter().zip(w[r % 3].iter()).map(|(x, v)| x * v).sum())
+            .collect()
+    };
+    let own = |c: usize| DVector::from_fn(k, |kk, _| i.weights[c][i.kept[kk]]);
+    let fitted: [DVector<f64>; 3] = std::array::from_fn(own);
+    let mut rng = rand::rngs::StdRng::seed_from_u64(BOOTSTRAP_SEED);
+    let (mut brdfs, mut images) = (Vec::new(), Vec::new());
+    for _ in 0..BOOTSTRAP_RESAMPLES {
+        let picks: Vec<usize> = (0..pixels).map(|_| rng.random_range(0..pixels)).collect();
+        let s = systems(i.rows, i.n, i.observed, &picks, i.kept);
+        let w: [DVector<f64>; 3] = std::array::from_fn(|c| nnls(&s[c].0, &s[c].1));
+        brdfs.push(combine(&kept_columns, &w, i.grid).values);
+        images.push(image(&w));
+    }
+    Ok(Uncertainty {
+        std: std_of(&covariance, m),
+        covariance,
+        covariance_from: "linearised",
+        bootstrap_spread: image_spread(&images, &image(&fitted)),
+        resamples: images.len(),
+        band: band(&brdfs),
+    })
+}
