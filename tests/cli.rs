@@ -816,6 +816,35 @@ fn the_relighting_table_reproduces_from_one_command() {
     }
     let md = std::fs::read_to_string(dir.path().join("a/relight.md")).unwrap();
     assert!(md.contains("| analytic |"), "{md}");
+    // Leave-one-out takes any MERL material (not only the test set), with its three methods
+    // and the reference row.
+    let o = brdfd(
+        &[
+            "eval",
+            "--relight",
+            "--leave-one-out",
+            "--data",
+            data.to_str().unwrap(),
+            "--size",
+            "16",
+            "--capture",
+            "grace",
+            "--materials",
+            "chrome",
+            "--out",
+            "loo",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{:?}", text(&o));
+    let csv = std::fs::read_to_string(dir.path().join("loo/relight.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 4 * 4, "{csv}");
+    for method in ["paper", "analytic", "hybrid-2", "truth-on-grid"] {
+        assert!(
+            csv.contains(&format!(",chrome,false,{method},")),
+            "{method}\n{csv}"
+        );
+    }
     // An unknown material is named, with the choices.
     let o = brdfd(
         &[

@@ -49,6 +49,10 @@ pub const TONE_MAP_MEAN: f64 = 0.18;
 /// is not a bound: an estimate fitted to the photo can relight better than the φd mean does.
 pub const REFERENCE: &str = "truth-on-grid";
 
+/// The methods of a leave-one-out run (each of the 100 materials costs a basis build and a
+/// full table): the paper's, the analytic baseline and the default.
+pub const LEAVE_ONE_OUT_METHODS: [&str; 3] = ["paper", "analytic", "hybrid-2"];
+
 /// A method of the table: a name and the estimate's settings.
 pub struct Method {
     pub name: &'static str,
@@ -137,6 +141,9 @@ pub fn analytic_materials() -> Vec<(&'static str, Microfacet)> {
 
 pub struct RelightConfig {
     pub data: PathBuf,
+    /// Every MERL material instead of the test set, each estimated with a basis (and measured
+    /// materials) built from the other 99, with [`LEAVE_ONE_OUT_METHODS`] only.
+    pub leave_one_out: bool,
     pub out: PathBuf,
     pub size: usize,
     /// The maps the photos are taken under; each estimate is relit under every other map.
@@ -244,23 +251,33 @@ pub fn run(cfg: &RelightConfig) -> Result<String> {
     std::fs::create_dir_all(&cfg.out).map_err(|e| CoreError::io(&cfg.out, e))?;
     let set = NbrdfSet::read(&cfg.data.join("merl-nbrdf").join("merl_nbrdf.json"))?;
     let grid = Grid::default();
-    let training: Vec<(String, Bivariate)> = set
+    // Every material's reduction for leave-one-out (each basis is built from the other 99),
+    // else the 90 training materials' for the one shared basis.
+    let reduced: Vec<(String, Bivariate)> = set
         .materials
         .iter()
-        .filter(|(n, _)| !TEST_SET.contains(&n.as_str()))
+        .filter(|(n, _)| cfg.leave_one_out || !TEST_SET.contains(&n.as_str()))
         .map(|(n, m)| (n.clone(), Bivariate::reduce(m, grid)))
         .collect();
-    let basis = default_basis(&training, crate::core::basis::DEFAULT_K)?;
+    let shared = if cfg.leave_one_out {
+        None
+    } else {
+        Some(default_basis(&reduced, crate::core::basis::DEFAULT_K)?)
+    };
     // Names first, so that a filtered run tabulates only what it uses.
-    let mut chosen: Vec<(String, Option<Microfacet>)> = TEST_SET
-        .iter()
-        .map(|n| (n.to_string(), None))
-        .chain(
-            analytic_materials()
-                .into_iter()
-                .map(|(n, m)| (n.to_string(), Some(m))),
-        )
-        .collect();
+    let mut chosen: Vec<(String, Option<Microfacet>)> = if cfg.leave_one_out {
+        set.materials.keys().map(|n| (n.clone(), None)).collect()
+    } else {
+        TEST_SET
+            .iter()
+            .map(|n| (n.to_string(), None))
+            .chain(
+                analytic_materials()
+                    .into_iter()
+                    .map(|(n, m)| (n.to_string(), Some(m))),
+            )
+            .collect()
+    };
     if !cfg.materials.is_empty() {
         let known: Vec<&str> = chosen.iter().map(|(n, _)| n.as_str()).collect();
         if let Some(unknown) = cfg.materials.iter().find(|n| !known.contains(&n.as_str())) {
@@ -271,20 +288,6 @@ pub fn run(cfg: &RelightConfig) -> Result<String> {
         }
         chosen.retain(|(n, _)| cfg.materials.contains(n));
     }
-    let materials: Vec<Material> = chosen
-        .into_iter()
-        .map(|(name, analytic)| {
-            let table = match &analytic {
-                Some(m) => MerlBrdf::tabulate(m),
-                None => MerlBrdf::tabulate(set.get(&name)?),
-            };
-            Ok(Material {
-                name,
-                table,
-                analytic: analytic.is_some(),
-            })
-        })
-        .collect::<Result<_>>()?;
     let names = map_names(&cfg.data)?;
     let lightings: Vec<Lighting> = names
         .iter()
@@ -292,9 +295,31 @@ pub fn run(cfg: &RelightConfig) -> Result<String> {
         .collect::<Result<_>>()?;
     let geometry =
         PixelGeometry::rasterize(&Camera::eval_orthographic(cfg.size), &Shape::unit_sphere())?;
-    let methods = methods();
+    let methods: Vec<Method> = methods()
+        .into_iter()
+        .filter(|m| !cfg.leave_one_out || LEAVE_ONE_OUT_METHODS.contains(&m.name))
+        .collect();
     let mut rows = Vec::new();
-    for (mi, material) in materials.iter().enumerate() {
+    for (mi, (name, analytic)) in chosen.iter().enumerate() {
+        // Tabulated one at a time: a full table is 35 MB, and leave-one-out has 100.
+        let material = Material {
+            name: name.clone(),
+            table: match analytic {
+                Some(m) => MerlBrdf::tabulate(m),
+                None => MerlBrdf::tabulate(set.get(name)?),
+            },
+            analytic: analytic.is_some(),
+        };
+        let own;
+        let basis = match &shared {
+            Some(b) => b,
+            None => {
+                let others: Vec<(String, Bivariate)> =
+                    reduced.iter().filter(|(n, _)| n != name).cloned().collect();
+                own = default_basis(&others, crate::core::basis::DEFAULT_K)?;
+                &own
+            }
+        };
         let truths: Vec<Raster> = lightings
             .iter()
             .map(|l| render_merl(&geometry, &l.gt, &material.table))
@@ -337,7 +362,7 @@ pub fn run(cfg: &RelightConfig) -> Result<String> {
                     white,
                     ..method.options.clone()
                 };
-                let est = estimate(&basis, view, &options)?;
+                let est = estimate(basis, view, &options)?;
                 let log = log_error(&est.brdf, &material.table, 11 + mi as u64);
                 let flagged = est.certainty_text().is_some_and(|(_, distrust)| distrust);
                 let spread = est
@@ -441,11 +466,16 @@ fn markdown(rows: &[Row], methods: &[&'static str], cfg: &RelightConfig, seconds
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# Relighting\n\nEach estimate is made from one noisy photo ({0}² sphere) under the capture map, then rendered under every other map and compared with the truth rendered there from the full BRDF. Relight error: relative RMSE of the linear images over the object; PSNR: tone-mapped images; log error: Liu, Fischer & Ritschel 2023. Medians over held-out maps, then over estimates (one per capture map and material). Captured under: {1}. The row {3} is no estimate: the truth reduced to the (θh, θd) grid estimates are written on (its mean over φd), what the form alone loses. {2:.0} s.\n",
+        "# Relighting\n\nEach estimate is made from one noisy photo ({0}² sphere) under the capture map, then rendered under every other map and compared with the truth rendered there from the full BRDF. Relight error: relative RMSE of the linear images over the object; PSNR: tone-mapped images; log error: Liu, Fischer & Ritschel 2023. Medians over held-out maps, then over estimates (one per capture map and material). Captured under: {1}.{4} The row {3} is no estimate: the truth reduced to the (θh, θd) grid estimates are written on (its mean over φd), what the form alone loses. {2:.0} s.\n",
         cfg.size,
         cfg.capture_maps.join(", "),
         seconds,
-        REFERENCE
+        REFERENCE,
+        if cfg.leave_one_out {
+            " Leave-one-out: every MERL material, each estimated with a basis and measured materials built from the other 99 (the column \"MERL test\" is over all of them)."
+        } else {
+            ""
+        }
     );
     let relight = per_estimate(rows, |r| r.relight_error);
     let psnr = per_estimate(rows, |r| r.psnr);
