@@ -105,6 +105,24 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
     // A bad plan is a bad request even while a capture runs: the caller learns what to fix.
     let (status, body) = daemon.post("/sessions", json!({ "material": "../x" }));
     assert_eq!((status, body["error"].as_str()), (400, Some("bad_request")));
+    // Issue 20, D4: what a web page may send across sites without asking first (a text/plain
+    // body, or a POST with no body) is refused, so no page can cancel or start a capture.
+    let http = reqwest::blocking::Client::new();
+    let url = |path: &str| format!("http://{}/api/v1{path}", daemon.addr);
+    let page = http
+        .post(url(&format!("/sessions/{id}/cancel")))
+        .header("Content-Type", "text/plain")
+        .body("{}")
+        .send()
+        .unwrap();
+    assert_eq!(page.status().as_u16(), 415);
+    let body: serde_json::Value = page.json().unwrap();
+    assert_eq!(body["error"], "unsupported_media_type", "{body}");
+    let bare = http.post(url("/sessions")).send().unwrap();
+    assert_eq!(bare.status().as_u16(), 415);
+    // The capture was not cancelled by either.
+    let (status, _) = daemon.post("/sessions", json!({ "material": "chrome" }));
+    assert_eq!(status, 409);
     let o = brdfd(
         &[
             "capture",

@@ -89,7 +89,12 @@ impl Daemon {
     }
 
     pub fn resume(&self, id: &str) -> anyhow::Result<String> {
-        let r = self.check(self.post(&format!("/sessions/{id}/resume")).send()?)?;
+        // Every POST is JSON, a body or not (the daemon refuses others: docs/api.md).
+        let r = self.check(
+            self.post(&format!("/sessions/{id}/resume"))
+                .json(&serde_json::json!({}))
+                .send()?,
+        )?;
         let v: Value = r.json()?;
         Ok(v["id"]
             .as_str()
@@ -99,7 +104,11 @@ impl Daemon {
 
     /// Asks the daemon to stop a running capture.
     pub fn cancel(&self, id: &str) -> anyhow::Result<()> {
-        self.check(self.post(&format!("/sessions/{id}/cancel")).send()?)?;
+        self.check(
+            self.post(&format!("/sessions/{id}/cancel"))
+                .json(&serde_json::json!({}))
+                .send()?,
+        )?;
         Ok(())
     }
 

@@ -15,7 +15,8 @@
 //! | `POST /api/v1/sessions/{id}/resume` | 202 as for a new capture; 409 `busy` |
 //!
 //! With a token configured, every request needs `Authorization: Bearer <token>` (401
-//! `unauthorized` otherwise).
+//! `unauthorized` otherwise). Every POST needs `Content-Type: application/json`, its body or
+//! not (415 `unsupported_media_type` otherwise).
 
 use std::convert::Infallible;
 use std::sync::Arc;
@@ -66,6 +67,7 @@ pub fn router(daemon: Shared) -> Router {
         .route("/sessions/{id}/result/{file}", get(result_file))
         .route("/sessions/{id}/cancel", post(cancel))
         .route("/sessions/{id}/resume", post(resume))
+        .layer(axum::middleware::from_fn(require_json_posts))
         .layer(axum::middleware::from_fn_with_state(
             daemon.clone(),
             require_token,
@@ -99,6 +101,30 @@ async fn require_token(State(d): State<Shared>, req: Request, next: Next) -> Res
                 "unauthorized",
                 "this daemon requires `Authorization: Bearer <token>` (the token in its brdfd.toml)"
                     .into(),
+            )
+            .into_response();
+        }
+    }
+    next.run(req).await
+}
+
+/// Refuses a POST whose `Content-Type` is not JSON. Why: a web page open in the bench user's
+/// browser may send a cross-site "simple request" (a form, or `text/plain`) to a daemon on
+/// localhost without asking first; a JSON content type makes the browser ask (a CORS
+/// preflight), which this daemon never grants. So no page can start, cancel or resume a capture.
+async fn require_json_posts(req: Request, next: Next) -> Response {
+    if req.method() == axum::http::Method::POST {
+        let json = req
+            .headers()
+            .get(header::CONTENT_TYPE)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.split(';').next())
+            .is_some_and(|v| v.trim().eq_ignore_ascii_case("application/json"));
+        if !json {
+            return ApiError(
+                StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                "unsupported_media_type",
+                "every POST needs `Content-Type: application/json` (with a JSON body, `{}` if there is nothing to say), so that a web page cannot send one across sites".into(),
             )
             .into_response();
         }
