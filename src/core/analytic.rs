@@ -480,6 +480,35 @@ fn search_subset(n: usize, views: usize) -> Vec<usize> {
     super::estimate::spread(n, (SEARCH_PIXELS / views.max(1)).max(1))
 }
 
+/// The normal equations of `rows` rows of m unknowns: G = XᵀX, b = Xᵀy and yᵀy. `row(r, x)`
+/// writes row r of X into `x` and returns its observation. Only G's lower half is summed.
+pub fn normal_equations(
+    m: usize,
+    rows: usize,
+    mut row: impl FnMut(usize, &mut [f64]) -> f64,
+) -> (DMatrix<f64>, DVector<f64>, f64) {
+    let mut g = DMatrix::zeros(m, m);
+    let mut b = DVector::zeros(m);
+    let mut yy = 0.0;
+    let mut x = vec![0.0; m];
+    for r in 0..rows {
+        let y = row(r, &mut x);
+        yy += y * y;
+        for i in 0..m {
+            b[i] += x[i] * y;
+            for j in 0..=i {
+                g[(i, j)] += x[i] * x[j];
+            }
+        }
+    }
+    for i in 0..m {
+        for j in 0..i {
+            g[(j, i)] = g[(i, j)];
+        }
+    }
+    (g, b, yy)
+}
+
 /// Per channel, the Gram blocks of the columns `cols` of `a` against the observations.
 fn channel_systems(
     a: &RenderingMatrix,
@@ -487,28 +516,13 @@ fn channel_systems(
     cols: &[usize],
 ) -> [(DMatrix<f64>, DVector<f64>, f64); 3] {
     std::array::from_fn(|c| {
-        let n = cols.len();
-        let mut g = DMatrix::zeros(n, n);
-        let mut b = DVector::zeros(n);
-        let mut yy = 0.0;
-        for (p, obs) in observed.iter().enumerate() {
+        normal_equations(cols.len(), observed.len(), |p, x| {
             let row = a.row(3 * p + c);
-            let y = obs[c];
-            yy += y * y;
-            for i in 0..n {
-                let xi = row[cols[i]] as f64;
-                b[i] += xi * y;
-                for j in 0..=i {
-                    g[(i, j)] += xi * row[cols[j]] as f64;
-                }
+            for (xi, &k) in x.iter_mut().zip(cols) {
+                *xi = row[k] as f64;
             }
-        }
-        for i in 0..n {
-            for j in 0..i {
-                g[(j, i)] = g[(i, j)];
-            }
-        }
-        (g, b, yy)
+            observed[p][c]
+        })
     })
 }
 

@@ -128,31 +128,14 @@ fn systems(
     cols: &[usize],
 ) -> [(DMatrix<f64>, DVector<f64>, f64); 3] {
     std::array::from_fn(|c| {
-        let m = cols.len();
-        let mut g = DMatrix::zeros(m, m);
-        let mut b = DVector::zeros(m);
-        let mut yy = 0.0;
-        let mut x = vec![0.0; m];
-        for &p in picks {
+        analytic::normal_equations(cols.len(), picks.len(), |r, x| {
+            let p = picks[r];
             let row = &rows[(3 * p + c) * n..(3 * p + c + 1) * n];
             for (xi, &k) in x.iter_mut().zip(cols) {
                 *xi = row[k];
             }
-            let y = observed[p][c];
-            yy += y * y;
-            for i in 0..m {
-                b[i] += x[i] * y;
-                for j in 0..=i {
-                    g[(i, j)] += x[i] * x[j];
-                }
-            }
-        }
-        for i in 0..m {
-            for j in 0..i {
-                g[(j, i)] = g[(i, j)];
-            }
-        }
-        (g, b, yy)
+            observed[p][c]
+        })
     })
 }
 
