@@ -41,9 +41,31 @@ fn in_span_gold(basis: &Basis) -> Vec<f64> {
     basis.project(&truth)
 }
 
-/// [`in_span_gold`] and its render on a 48² sphere under the studio map.
-fn in_span_gold_photo(basis: &Basis) -> (Vec<f64>, PixelGeometry, LightSet, Raster) {
-    let c_true = in_span_gold(basis);
+/// In-span coefficients whose BRDF is ≥ 0 in every cell (gold's projection is not): the
+/// training set's mean shape, nudged by a tenth of a spread along every component.
+fn in_span_nonnegative(basis: &Basis) -> Vec<f64> {
+    nudged_mean(basis, 0.1)
+}
+
+/// The training set's mean shape plus `nudge` spreads along every component; checked ≥ 0.
+fn nudged_mean(basis: &Basis, nudge: f64) -> Vec<f64> {
+    let c: Vec<f64> = basis
+        .column_prior()
+        .iter()
+        .map(|p| p.map_or(1.0, |s| nudge * s))
+        .collect();
+    let brdf = basis.reconstruct(&c);
+    let lowest = brdf.values.iter().copied().fold(f64::INFINITY, f64::min);
+    assert!(
+        lowest >= 0.0,
+        "the test's coefficients go negative: {lowest}"
+    );
+    c
+}
+
+/// [`in_span_nonnegative`] and its render on a 48² sphere under the studio map.
+fn in_span_photo(basis: &Basis) -> (Vec<f64>, PixelGeometry, LightSet, Raster) {
+    let c_true = in_span_nonnegative(basis);
     let g = sphere(48);
     let lights = studio_envmap(256).compressed(2048, 0.0);
     let photo = render_bivariate(&g, &lights, &basis.reconstruct(&c_true));
@@ -107,6 +129,85 @@ fn relative_error(a: &[f64], b: &[f64]) -> f64 {
     (d / n).sqrt()
 }
 
+/// A solve kept non-negative gives back in-span coefficients whose BRDF is non-negative, as
+/// the unconstrained solve does; where the unconstrained answer goes negative (gold's
+/// projection, from 20 pixels), it keeps every cell ≥ 0, and no feasible step from its answer
+/// fits the pixels better (it is the constrained optimum, not a clamp).
+#[test]
+fn the_nonnegative_solve_keeps_every_cell_and_is_optimal() {
+    use rand::{Rng, SeedableRng};
+    let basis = Basis::embedded();
+    let model = basis.model();
+    let prior = basis.column_prior();
+    let a = studio_matrix(&basis, 64);
+    let observe = |c: &[f64]| -> Vec<[f64; 3]> {
+        a.predict(c).chunks(3).map(|c| [c[0], c[1], c[2]]).collect()
+    };
+    let blocks = Blocks::scaled(&a, &basis.column_scales());
+    let sel = select::fast_exchange(&blocks, 20);
+    let c_true = in_span_nonnegative(&basis);
+    for solver in [Solver::LeastSquares, Solver::Prior] {
+        let sol = solver
+            .solve(&a, &sel.pixels, &observe(&c_true), &prior, Some(&model))
+            .unwrap();
+        let err = relative_error(&sol.coefficients, &c_true);
+        assert!(err < 1e-6, "{solver:?}: relative coefficient error {err}");
+    }
+    // Gold's projection goes negative in some cells; solved from its own render.
+    let y = observe(&in_span_gold(&basis));
+    let negative = |c: &[f64]| {
+        basis
+            .reconstruct(c)
+            .values
+            .iter()
+            .filter(|v| **v < 0.0)
+            .count()
+    };
+    let free = Solver::LeastSquares
+        .solve(&a, &sel.pixels, &y, &prior, None)
+        .unwrap();
+    assert!(
+        negative(&free.coefficients) > 0,
+        "the test needs negative cells"
+    );
+    let kept = Solver::LeastSquares
+        .solve(&a, &sel.pixels, &y, &prior, Some(&model))
+        .unwrap();
+    assert_eq!(negative(&kept.coefficients), 0);
+    let misfit = |c: &[f64]| -> f64 {
+        let p = a.predict(c);
+        sel.pixels
+            .iter()
+            .flat_map(|&i| (0..3).map(move |ch| (i, ch)))
+            .map(|(i, ch)| (p[3 * i + ch] - y[i][ch]).powi(2))
+            .sum()
+    };
+    let best = misfit(&kept.coefficients);
+    assert!(best >= misfit(&free.coefficients) * (1.0 - 1e-9));
+    let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+    let scale: f64 = kept.coefficients.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let mut tried = 0;
+    for _ in 0..2_000 {
+        let step: Vec<f64> = (0..kept.coefficients.len())
+            .map(|_| rng.random_range(-1.0..1.0) * 1e-3 * scale)
+            .collect();
+        let c: Vec<f64> = kept
+            .coefficients
+            .iter()
+            .zip(&step)
+            .map(|(a, b)| a + b)
+            .collect();
+        if negative(&c) == 0 {
+            tried += 1;
+            assert!(
+                misfit(&c) >= best * (1.0 - 1e-9),
+                "a feasible step fits better"
+            );
+        }
+    }
+    assert!(tried > 0, "no feasible step was tried");
+}
+
 /// Observations made by the model itself (y = A·c) must give back c: the only error is
 /// floating point, so 1e-6 relative is generous.
 #[test]
@@ -135,7 +236,7 @@ fn coefficients_inside_the_span_are_recovered() {
     ] {
         for solver in [Solver::LeastSquares, Solver::Prior] {
             let sol = solver
-                .solve(&a, &sel.pixels, &y, &basis.column_prior())
+                .solve(&a, &sel.pixels, &y, &basis.column_prior(), None)
                 .unwrap();
             let err = relative_error(&sol.coefficients, &c_true);
             assert!(
@@ -154,15 +255,15 @@ fn coefficients_inside_the_span_are_recovered() {
 fn per_channel_colour_recovers_what_the_joint_basis_cannot() {
     use brdfd::core::solve::{channel_coefficients, Colour};
     let basis = Basis::embedded();
-    let project = |name: &str| {
-        basis.project(&Bivariate::reduce(
-            embedded_materials().get(name).unwrap(),
-            basis.header.grid,
-        ))
-    };
-    let truth: Vec<f64> = ["gold-metallic-paint", "nickel", "blue-fabric"]
+    // A different in-span shape and scale per channel, each ≥ 0 in every cell: a colour the
+    // joint basis's RGB patterns cannot mix.
+    let truth: Vec<f64> = [(0.1, 1.0), (-0.05, 0.6), (0.0, 0.3)]
         .iter()
-        .flat_map(|n| project(n))
+        .flat_map(|(nudge, scale)| {
+            nudged_mean(&basis, *nudge)
+                .into_iter()
+                .map(move |c| c * scale)
+        })
         .collect();
     let m = basis.model().columns.len();
     let brdf = basis.reconstruct_channels(channel_coefficients(&truth, m).unwrap());
@@ -228,7 +329,7 @@ fn per_channel_colour_recovers_what_the_joint_basis_cannot() {
 fn auto_colour_keeps_joint_on_a_tie() {
     use brdfd::core::estimate::COLOUR_FIT_MARGIN;
     let basis = Basis::embedded();
-    let (c_true, g, lights, photo) = in_span_gold_photo(&basis);
+    let (c_true, g, lights, photo) = in_span_photo(&basis);
     let opts = EstimateOptions {
         model: Model::Basis,
         solver: Solver::LeastSquares,
@@ -251,7 +352,7 @@ fn auto_colour_keeps_joint_on_a_tie() {
 #[test]
 fn clipped_pixels_are_left_out() {
     let basis = Basis::embedded();
-    let (c_true, g, lights, mut photo) = in_span_gold_photo(&basis);
+    let (c_true, g, lights, mut photo) = in_span_photo(&basis);
     let mut values: Vec<f32> = photo.pixels.iter().flatten().copied().collect();
     values.sort_by(f32::total_cmp);
     let white = values[values.len() * 99 / 100];
@@ -286,9 +387,9 @@ fn clipped_pixels_are_left_out() {
     );
 }
 
-/// With few pixels, least squares follows the model error (bivariate reduction, K = 5, light
-/// compression) into implausible coefficients; the training prior keeps the BRDF closer to the
-/// truth. The evaluation's scene at 64²: a sphere under grace, rendered from the full 3D BRDF,
+/// With few pixels, the paper's least squares follows the model error (bivariate reduction,
+/// K = 5, light compression) into implausible coefficients; brdfd's basis solve, with the
+/// training prior and the BRDF kept ≥ 0, keeps it closer to the truth. The evaluation's scene at 64²: a sphere under grace, rendered from the full 3D BRDF,
 /// for the ten test materials, none of them in the embedded basis's training set. Under a
 /// smooth studio map least squares rarely goes astray and the two solvers agree (docs/evaluation.md).
 #[test]
@@ -304,27 +405,31 @@ fn the_prior_steadies_few_pixel_estimates_under_grace() {
         let table = MerlBrdf::tabulate(fit);
         let photo = render_merl(&g, &truth_lights, &table);
         let truth = Bivariate::reduce(&table, basis.header.grid);
-        let error = |solver| {
+        let error = |solver, nonnegative| {
             let opts = EstimateOptions {
                 model: Model::Basis,
                 pixel_count: Some(5),
                 solver,
                 // The paper's model: its least squares solves 5 pixels, per channel cannot.
                 colour: ColourChoice::Joint,
+                nonnegative,
                 ..Default::default()
             };
             let est = estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap();
             brdf_error(&est.brdf, &truth, basis.header.cell_weight)
         };
-        let (ls, prior) = (error(Solver::LeastSquares), error(Solver::Prior));
-        eprintln!("{name}: BRDF error with 5 pixels, least squares {ls:.3}, prior {prior:.3}");
+        let (ls, prior) = (
+            error(Solver::LeastSquares, false),
+            error(Solver::Prior, true),
+        );
+        eprintln!("{name}: BRDF error with 5 pixels, the paper's {ls:.3}, brdfd's {prior:.3}");
         ratios.push(prior / ls);
     }
     ratios.sort_by(f64::total_cmp);
     let median = ratios[ratios.len() / 2];
     assert!(
         median < 0.8,
-        "median BRDF error ratio prior / least squares {median:.3} (ratios {ratios:?})"
+        "median BRDF error ratio brdfd / paper {median:.3} (ratios {ratios:?})"
     );
 }
 
@@ -768,11 +873,7 @@ fn embedded_defaults_load() {
 fn turntable_views_recover_the_coefficients_and_improve_conditioning() {
     use brdfd::core::estimate::estimate_views;
     let basis = Basis::embedded();
-    let truth = Bivariate::reduce(
-        embedded_materials().get("blue-metallic-paint").unwrap(),
-        basis.header.grid,
-    );
-    let c_true = basis.project(&truth);
+    let c_true = in_span_nonnegative(&basis);
     let in_span = basis.reconstruct(&c_true);
     let sheet = Shape::Corrugated {
         center: [0.0; 3],
@@ -896,7 +997,7 @@ fn analytic_model_recovers_a_tabulated_ggx_material() {
 #[test]
 fn default_estimates_are_plausible_on_every_evaluation_material() {
     // Issue 18: f ≥ 0 in every cell and directional albedo ≤ 1, for the default model's
-    // estimate of each of the 10 test materials (embedded NBRDF fits) and of brdfd's own GGX
+    // estimate (and f ≥ 0 for the basis model's) of each of the 10 test materials (embedded NBRDF fits) and of brdfd's own GGX
     // materials, from a 48² sphere under the studio map.
     use brdfd::evaluation::relight::analytic_materials;
     use brdfd::results::Plausibility;
@@ -929,6 +1030,18 @@ fn default_estimates_are_plausible_on_every_evaluation_material() {
         let p = Plausibility::of(&est.brdf);
         assert_eq!(p.negative_cells, 0, "{name}: {p:?}");
         assert!(p.albedo_at_most_one, "{name}: {p:?}");
+        // The basis model keeps f ≥ 0 in its solve, from 20 pixels and from every pixel (its
+        // albedo is reported, not bounded: coefficients.json's plausibility).
+        for pixel_count in [Some(20), None] {
+            let options = EstimateOptions {
+                model: Model::Basis,
+                pixel_count,
+                ..EstimateOptions::default()
+            };
+            let est = estimate(&basis, one_view(&g, &lights, &photo), &options).unwrap();
+            let p = Plausibility::of(&est.brdf);
+            assert_eq!(p.negative_cells, 0, "{name}, basis, {pixel_count:?}: {p:?}");
+        }
     }
 }
 

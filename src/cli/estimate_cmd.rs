@@ -62,6 +62,11 @@ pub struct EstimateArgs {
     /// the photo (docs/method.md) [default: auto].
     #[arg(long, value_enum)]
     pub colour: Option<ColourArg>,
+    /// Basis model: solve without keeping the BRDF ≥ 0 in every cell. With --pixels 20
+    /// --solve least-squares --colour joint, this is the paper's method exactly as published;
+    /// its BRDF can go negative (coefficients.json's plausibility counts the cells).
+    #[arg(long)]
+    pub allow_negative: bool,
     /// Basis stem (STEM.exr + STEM.json); the embedded default if absent.
     #[arg(long)]
     pub basis: Option<PathBuf>,
@@ -170,6 +175,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
             ("--method", a.method.is_some()),
             ("--solve", a.solve.is_some()),
             ("--colour", a.colour.is_some()),
+            ("--allow-negative", a.allow_negative),
         ],
     ) {
         eprintln!("warning: {warning}");
@@ -192,6 +198,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         solver: a.solve.unwrap_or(SolveArg::Prior).into(),
         colour: a.colour.unwrap_or(ColourArg::Auto).into(),
         white: a.white.or(file_white),
+        nonnegative: !a.allow_negative,
     };
     let view = View {
         geometry: &geometry,

@@ -28,6 +28,7 @@ use super::envmap::LightSet;
 use super::error::{CoreError, Result};
 use super::geometry::GeomPixel;
 use super::merl;
+use super::nnls::nnls;
 use super::render::{RenderingMatrix, MAX_COLUMNS};
 use super::uncertainty::{
     band, image_spread, spread_sphere, std_of, Uncertainty, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED,
@@ -342,71 +343,6 @@ impl Microfacet {
         }
         out
     }
-}
-
-/// Non-negative least squares on the normal equations (Lawson–Hanson active set): minimises
-/// ‖Xc − y‖² subject to c ≥ 0, given G = XᵀX and b = Xᵀy. Small systems only (a dozen
-/// unknowns here, about a hundred for the hybrid model's mix); returns c.
-pub fn nnls(g: &DMatrix<f64>, b: &DVector<f64>) -> DVector<f64> {
-    let m = b.len();
-    let mut c = DVector::zeros(m);
-    let mut passive = vec![false; m];
-    // Each outer step frees one variable, each inner step fixes at least one: solutions keep
-    // few variables (a sparse mix), well within this bound.
-    for _ in 0..(4 * m + 8) {
-        let grad = b - g * &c;
-        let next = (0..m)
-            .filter(|&j| !passive[j] && grad[j] > 1e-12 * (1.0 + b[j].abs()))
-            .max_by(|&i, &j| grad[i].total_cmp(&grad[j]));
-        let Some(j) = next else { break };
-        passive[j] = true;
-        loop {
-            let z = solve_passive(g, b, &passive);
-            if (0..m).all(|k| !passive[k] || z[k] > 0.0) {
-                c = z;
-                break;
-            }
-            // Step from c towards z until the first passive variable reaches zero.
-            let mut step = 1.0f64;
-            for k in 0..m {
-                if passive[k] && z[k] <= 0.0 {
-                    step = step.min(c[k] / (c[k] - z[k]).max(f64::MIN_POSITIVE));
-                }
-            }
-            c = &c + (&z - &c) * step;
-            for k in 0..m {
-                if passive[k] && c[k] <= 1e-15 {
-                    passive[k] = false;
-                    c[k] = 0.0;
-                }
-            }
-            if !passive.iter().any(|p| *p) {
-                break;
-            }
-        }
-    }
-    c
-}
-
-/// The unconstrained solution over the passive variables (the others zero).
-fn solve_passive(g: &DMatrix<f64>, b: &DVector<f64>, passive: &[bool]) -> DVector<f64> {
-    let idx: Vec<usize> = (0..b.len()).filter(|&k| passive[k]).collect();
-    let n = idx.len();
-    let mut sub = DMatrix::from_fn(n, n, |i, j| g[(idx[i], idx[j])]);
-    let rhs = DVector::from_fn(n, |i, _| b[idx[i]]);
-    // A negligible ridge keeps the Cholesky defined for a column that sees no light.
-    let tiny = 1e-13 * (0..n).map(|i| sub[(i, i)]).fold(0.0, f64::max);
-    (0..n).for_each(|i| sub[(i, i)] += tiny.max(f64::MIN_POSITIVE));
-    let z = sub
-        .clone()
-        .cholesky()
-        .map(|ch| ch.solve(&rhs))
-        .unwrap_or_else(|| DVector::zeros(n));
-    let mut out = DVector::zeros(b.len());
-    for (i, &k) in idx.iter().enumerate() {
-        out[k] = z[i];
-    }
-    out
 }
 
 /// One view's candidates: pixels, what they measured, and the view's lights.
@@ -958,37 +894,6 @@ impl AnalyticFit {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn nnls_matches_enumeration_of_active_sets() {
-        // Against the brute-force answer: every subset of free variables, solved and checked.
-        // Tolerance 1e-9 relative: both are f64 Cholesky solves of the same small systems.
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
-        for _ in 0..200 {
-            let (rows, m) = (12, 4);
-            let x = DMatrix::from_fn(rows, m, |_, _| rng.random_range(-1.0..1.0));
-            let y = DVector::from_fn(rows, |_, _| rng.random_range(-1.0..1.0));
-            let g = x.transpose() * &x;
-            let b = x.transpose() * &y;
-            let c = nnls(&g, &b);
-            let cost = |c: &DVector<f64>| (&x * c - &y).norm_squared();
-            let mut best = f64::INFINITY;
-            for mask in 0..(1u32 << m) {
-                let passive: Vec<bool> = (0..m).map(|k| mask & (1 << k) != 0).collect();
-                let z = solve_passive(&g, &b, &passive);
-                if z.iter().all(|v| *v >= 0.0) {
-                    best = best.min(cost(&z));
-                }
-            }
-            assert!(c.iter().all(|v| *v >= 0.0));
-            assert!(
-                cost(&c) <= best * (1.0 + 1e-9) + 1e-12,
-                "{} > {best}",
-                cost(&c)
-            );
-        }
-    }
 
     #[test]
     fn a_white_lobe_reflects_at_most_all_light() {

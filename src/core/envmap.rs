@@ -41,7 +41,7 @@ pub struct EnvMap {
 
 /// Discrete lights: a direction (world frame, unit), radiance, the solid angle each covers,
 /// and how far its power spreads around its direction.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct LightSet {
     pub directions: Vec<[f32; 3]>,
     pub radiance: Vec<[f32; 3]>,

@@ -1,12 +1,13 @@
 //! The estimate from measurements: photo + lights + geometry + basis → coefficients.
 //! Used by `brdfd estimate`, the evaluation and the capture flow alike.
 
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
 use super::analytic::{self, Microfacet, ViewPixels};
-use super::basis::Basis;
+use super::basis::{Basis, LinearModel};
 use super::bivariate::Bivariate;
 use super::envmap::LightSet;
 use super::error::{CoreError, Result};
@@ -89,6 +90,10 @@ pub struct EstimateOptions {
     /// only a lower bound on the radiance. Pixels with a clipped channel are not candidates.
     /// 8-bit photos have one (1.0 after decoding); an HDR merge or a linear EXR usually not.
     pub white: Option<f32>,
+    /// Keep the basis model's BRDF ≥ 0 in every cell, in the solve (the default). Off only for
+    /// the paper's method exactly as published (`--allow-negative`), whose least squares can
+    /// leave cells negative. The other models are non-negative by construction.
+    pub nonnegative: bool,
 }
 
 impl Default for EstimateOptions {
@@ -103,6 +108,7 @@ impl Default for EstimateOptions {
             solver: Solver::default(),
             colour: ColourChoice::default(),
             white: None,
+            nonnegative: true,
         }
     }
 }
@@ -311,10 +317,11 @@ fn rebuilds_rows(chosen: usize) -> bool {
     chosen <= MAX_CHOSEN_ROWS
 }
 
-/// Selection, the chosen rows ([`chosen_rows`]), the solve with `colour` and its uncertainty
-/// (with the sphere of [`Uncertainty::bootstrap_spread`] relit under `lights`), on a prepared
-/// rendering matrix.
-pub fn estimate_from_matrix<'l>(
+/// Selection (`select`: [`select_pixels`], or a selection made before on the same matrix), the
+/// chosen rows ([`chosen_rows`]), the solve with `colour` and its uncertainty (with the sphere
+/// of [`Uncertainty::bootstrap_spread`] relit under `lights`), on a prepared rendering matrix.
+#[allow(clippy::too_many_arguments)]
+fn estimate_from_matrix<'l>(
     basis: &Basis,
     a: &RenderingMatrix,
     observed: &[[f64; 3]],
@@ -322,10 +329,11 @@ pub fn estimate_from_matrix<'l>(
     colour: Colour,
     lights: &LightSet,
     lights_of: impl Fn(usize) -> Option<&'l LightSet>,
+    select: impl FnOnce() -> Selection,
 ) -> Result<(Selection, Solution, Uncertainty, Timings)> {
     let mut timings = Timings::default();
     let t = Instant::now();
-    let selection = select_pixels(basis, a, options, colour);
+    let selection = select();
     timings.selection_s = secs(t.elapsed());
     let t = Instant::now();
     let rows = chosen_rows(basis, a, &selection.pixels, lights_of);
@@ -333,18 +341,21 @@ pub fn estimate_from_matrix<'l>(
     timings.chosen_rows_s = secs(t.elapsed());
     let t = Instant::now();
     let all_rows: Vec<usize> = (0..rows.pixels.len()).collect();
+    let model = basis.model();
+    let nonnegative = options.nonnegative.then_some(&model);
     let solution = options.solver.solve_colour(
         colour,
         &rows,
         &all_rows,
         &chosen_observed,
         &basis.column_prior(),
+        nonnegative,
     )?;
     let uncertainty = basis_uncertainty(
         basis,
         &rows,
         &chosen_observed,
-        options.solver,
+        (options.solver, nonnegative),
         colour,
         &solution,
         lights,
@@ -360,7 +371,7 @@ fn basis_uncertainty(
     basis: &Basis,
     rows: &RenderingMatrix,
     observed: &[[f64; 3]],
-    solver: Solver,
+    (solver, nonnegative): (Solver, Option<&LinearModel>),
     colour: Colour,
     solution: &Solution,
     lights: &LightSet,
@@ -386,7 +397,7 @@ fn basis_uncertainty(
         if distinct.len() < rows.columns {
             continue;
         }
-        if let Ok(s) = solver.solve_colour(colour, rows, &picks, observed, &prior) {
+        if let Ok(s) = solver.solve_colour(colour, rows, &picks, observed, &prior, nonnegative) {
             brdfs.push(basis.reconstruct_solution(&s.coefficients)?.values);
             images.push(image(&s.coefficients)?);
             coefficients.push(s.coefficients);
@@ -428,6 +439,88 @@ pub fn estimate(basis: &Basis, view: View, options: &EstimateOptions) -> Result<
     estimate_views(basis, &[view], options)
 }
 
+/// Work that estimates of the same scene share: the basis model's rendering matrix for a set
+/// of candidates, and each selection made on it. The evaluation estimates every material,
+/// with several settings, from photos of one scene; it passes one `Shared` to all of them
+/// ([`estimate_views_shared`]) and so builds each matrix and makes each selection once, as the
+/// paper's protocol does (selection depends on the rows, not on what the pixels measured).
+/// The estimate is the same with or without it.
+///
+/// Entries are keyed by what they were built from, compared by value: the basis, and each
+/// view's candidate pixels (position, normal, view vector) and lights.
+#[derive(Default)]
+pub struct Shared {
+    matrices: Mutex<Vec<(MatrixKey, Arc<RenderingMatrix>)>>,
+    selections: Mutex<Vec<(SelectionKey, Selection)>>,
+}
+
+/// What a stacked candidate matrix was built from.
+#[derive(PartialEq)]
+struct MatrixKey {
+    basis: String,
+    views: Vec<(Vec<GeomPixel>, LightSet)>,
+}
+
+/// A selection's settings, on the matrix `matrix` (an index into [`Shared::matrices`]).
+#[derive(PartialEq)]
+struct SelectionKey {
+    matrix: usize,
+    colour: Colour,
+    pixel_count: Option<usize>,
+    method: SelectionMethod,
+    swap: SwapParams,
+}
+
+impl Shared {
+    /// The stacked matrix of `candidates` (built by `build` the first time) and its index.
+    fn matrix(
+        &self,
+        basis: &Basis,
+        candidates: &[Candidates],
+        build: impl FnOnce() -> Result<RenderingMatrix>,
+    ) -> Result<(usize, Arc<RenderingMatrix>)> {
+        let key = MatrixKey {
+            basis: basis.header.id.clone(),
+            views: candidates
+                .iter()
+                .map(|c| (c.pixels.clone(), c.view.lights.clone()))
+                .collect(),
+        };
+        let mut matrices = self.matrices.lock().expect("not poisoned");
+        if let Some(i) = matrices.iter().position(|(k, _)| *k == key) {
+            return Ok((i, matrices[i].1.clone()));
+        }
+        let a = Arc::new(build()?);
+        matrices.push((key, a.clone()));
+        Ok((matrices.len() - 1, a))
+    }
+
+    /// [`select_pixels`] on matrix `matrix`, made once per setting.
+    fn selection(
+        &self,
+        matrix: usize,
+        basis: &Basis,
+        a: &RenderingMatrix,
+        options: &EstimateOptions,
+        colour: Colour,
+    ) -> Selection {
+        let key = SelectionKey {
+            matrix,
+            colour,
+            pixel_count: options.pixel_count,
+            method: options.method,
+            swap: options.swap.clone(),
+        };
+        let mut selections = self.selections.lock().expect("not poisoned");
+        if let Some((_, s)) = selections.iter().find(|(k, _)| *k == key) {
+            return s.clone();
+        }
+        let s = select_pixels(basis, a, options, colour);
+        selections.push((key, s.clone()));
+        s
+    }
+}
+
 /// One view's candidate pixels ([`candidate_pixels`]) and the view they came from.
 struct Candidates<'v, 'a> {
     view: &'v View<'a>,
@@ -442,6 +535,16 @@ pub fn estimate_views(
     basis: &Basis,
     views: &[View],
     options: &EstimateOptions,
+) -> Result<Estimate> {
+    estimate_views_shared(basis, views, options, &Shared::default())
+}
+
+/// [`estimate_views`], sharing work with other estimates of the same scene ([`Shared`]).
+pub fn estimate_views_shared(
+    basis: &Basis,
+    views: &[View],
+    options: &EstimateOptions,
+    shared: &Shared,
 ) -> Result<Estimate> {
     if views.is_empty() {
         return Err(CoreError::Invalid("no views to estimate from".into()));
@@ -461,7 +564,7 @@ pub fn estimate_views(
         });
     }
     let mut estimate = match options.model {
-        Model::Basis => basis_estimate(basis, &candidates, options)?,
+        Model::Basis => basis_estimate(basis, &candidates, options, shared)?,
         Model::Analytic => analytic_estimate(basis, &candidates, options.lobes)?,
         Model::Hybrid => hybrid_estimate(basis, &candidates, options.lobes)?,
     };
@@ -583,24 +686,16 @@ fn basis_estimate(
     basis: &Basis,
     candidates: &[Candidates],
     options: &EstimateOptions,
+    shared: &Shared,
 ) -> Result<Estimate> {
     let t = Instant::now();
-    let mut stacked: Option<RenderingMatrix> = None;
     let mut observed = Vec::new();
     let mut view_of_pixel = Vec::new();
     for (i, c) in candidates.iter().enumerate() {
-        let a = basis.rendering_matrix(&c.pixels, c.view.lights);
-        view_of_pixel.extend(std::iter::repeat_n(i, a.pixels.len()));
+        view_of_pixel.extend(std::iter::repeat_n(i, c.pixels.len()));
         observed.extend_from_slice(&c.observed);
-        stacked = Some(match stacked {
-            None => a,
-            Some(mut all) => {
-                all.append(a).map_err(CoreError::Invalid)?;
-                all
-            }
-        });
     }
-    let a = stacked.ok_or_else(|| CoreError::Invalid("no views to estimate from".into()))?;
+    let (matrix, a) = shared.matrix(basis, candidates, || stacked_matrix(basis, candidates))?;
     let matrix_s = secs(t.elapsed());
     // Each model the choice names, fewer unknowns first, keeping the one that re-renders the
     // photo best ([`keep_better_fit`]). A model that cannot solve (say, least squares per channel
@@ -614,9 +709,16 @@ fn basis_estimate(
     let mut failure = None;
     for &colour in options.colour.models() {
         let lights = candidates[0].view.lights;
-        let tried = estimate_from_matrix(basis, &a, &observed, options, colour, lights, |p| {
-            candidates[view_of_pixel[p]].view.chosen_lights
-        });
+        let tried = estimate_from_matrix(
+            basis,
+            &a,
+            &observed,
+            options,
+            colour,
+            lights,
+            |p| candidates[view_of_pixel[p]].view.chosen_lights,
+            || shared.selection(matrix, basis, &a, options, colour),
+        );
         let (selection, solution, uncertainty, t) = match tried {
             Ok(done) => done,
             Err(e) => {
@@ -671,6 +773,22 @@ fn basis_estimate(
         chosen_lights,
         timings,
     })
+}
+
+/// The basis's rendering matrix over every view's candidates, stacked in view order.
+fn stacked_matrix(basis: &Basis, candidates: &[Candidates]) -> Result<RenderingMatrix> {
+    let mut stacked: Option<RenderingMatrix> = None;
+    for c in candidates {
+        let a = basis.rendering_matrix(&c.pixels, c.view.lights);
+        stacked = Some(match stacked {
+            None => a,
+            Some(mut all) => {
+                all.append(a).map_err(CoreError::Invalid)?;
+                all
+            }
+        });
+    }
+    stacked.ok_or_else(|| CoreError::Invalid("no views to estimate from".into()))
 }
 
 /// ‖predicted − observed‖ / ‖observed‖ over every pixel and channel.

@@ -21,13 +21,14 @@
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
-use super::analytic::{self, nnls, Microfacet, ViewPixels};
+use super::analytic::{self, Microfacet, ViewPixels};
 use super::basis::Basis;
 use super::bivariate::{Bivariate, Grid, GRID_CELLS, VALUES};
 use super::envmap::LightSet;
 use super::error::{CoreError, Result};
 use super::estimate::relative_misfit;
 use super::geometry::GeomPixel;
+use super::nnls::nnls;
 use super::render::{RenderingMatrix, MAX_COLUMNS};
 use super::solve::CHANNELS;
 use super::uncertainty::{

@@ -17,6 +17,7 @@ pub mod geometry;
 pub mod hybrid;
 pub mod merl;
 pub mod nbrdf;
+pub mod nnls;
 pub mod raster;
 pub mod render;
 pub mod select;

@@ -55,7 +55,7 @@ impl Selection {
 }
 
 /// Parameters of the paper's search.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct SwapParams {
     pub restarts: usize,
     pub seed: u64,

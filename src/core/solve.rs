@@ -4,7 +4,10 @@
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
+use super::basis::LinearModel;
+use super::bivariate::{GRID_CELLS, VALUES};
 use super::error::{CoreError, Result};
+use super::nnls::least_distance;
 use super::render::RenderingMatrix;
 
 /// How coefficients are solved from the chosen rows.
@@ -27,22 +30,40 @@ impl Solver {
         }
     }
 
+    /// Solves for one set of coefficients for all three channels. With `nonnegative`, the
+    /// model whose coefficients these are, the BRDF they reconstruct is kept ≥ 0 in every cell
+    /// ([`Cells`]); without, the solve is unconstrained (the paper's).
     pub fn solve(
         self,
         a: &RenderingMatrix,
         pixels: &[usize],
         observed: &[[f64; 3]],
         prior: &[Option<f64>],
+        nonnegative: Option<&LinearModel>,
+    ) -> Result<Solution> {
+        let (x, y) = system(a, pixels, observed);
+        let cells = nonnegative.map(|model| Cells::new(model, 0..VALUES));
+        self.solve_system(pixels.len(), x, y, prior, cells)
+    }
+
+    fn solve_system(
+        self,
+        pixels: usize,
+        x: DMatrix<f64>,
+        y: DVector<f64>,
+        prior: &[Option<f64>],
+        cells: Option<Cells>,
     ) -> Result<Solution> {
         match self {
-            Solver::LeastSquares => least_squares(a, pixels, observed),
-            Solver::Prior => with_prior(a, pixels, observed, prior),
+            Solver::LeastSquares => least_squares_system(pixels, x, y, cells),
+            Solver::Prior => with_prior_system(pixels, x, y, prior, cells),
         }
     }
 
     /// Solves with the given colour model: [`Colour::Joint`] is [`Solver::solve`];
     /// [`Colour::PerChannel`] solves each channel from its own rows, and the coefficients are
-    /// the three channels' in turn (R, G, B; see [`channel_coefficients`]).
+    /// the three channels' in turn (R, G, B; see [`channel_coefficients`]), each channel's
+    /// BRDF kept ≥ 0 with `nonnegative` as in [`Solver::solve`].
     pub fn solve_colour(
         self,
         colour: Colour,
@@ -50,9 +71,10 @@ impl Solver {
         pixels: &[usize],
         observed: &[[f64; 3]],
         prior: &[Option<f64>],
+        nonnegative: Option<&LinearModel>,
     ) -> Result<Solution> {
         if colour == Colour::Joint {
-            return self.solve(a, pixels, observed, prior);
+            return self.solve(a, pixels, observed, prior, nonnegative);
         }
         let mut coefficients = Vec::with_capacity(3 * a.columns);
         let (mut residual2, mut observed2, mut condition) = (0.0, 0.0, 0.0f64);
@@ -60,11 +82,11 @@ impl Solver {
             let (x, y) = system_of(a, pixels, observed, &[c]);
             let rows = y.len() as f64;
             observed2 += y.norm_squared();
-            let sol = match self {
-                Solver::LeastSquares => least_squares_system(pixels.len(), x, y),
-                Solver::Prior => with_prior_system(pixels.len(), x, y, prior),
-            }
-            .map_err(|e| CoreError::Invalid(format!("{} channel: {e}", CHANNELS[c])))?;
+            let cells =
+                nonnegative.map(|model| Cells::new(model, c * GRID_CELLS..(c + 1) * GRID_CELLS));
+            let sol = self
+                .solve_system(pixels.len(), x, y, prior, cells)
+                .map_err(|e| CoreError::Invalid(format!("{} channel: {e}", CHANNELS[c])))?;
             // The channel's squared residual, back from its RMS over its rows.
             residual2 += sol.residual_rms.powi(2) * rows;
             condition = condition.max(sol.condition);
@@ -229,17 +251,22 @@ fn finish(x: &DMatrix<f64>, y: &DVector<f64>, c: DVector<f64>) -> Solution {
     }
 }
 
-/// Ordinary least squares via SVD.
+/// Ordinary least squares via SVD, unconstrained: the paper's solve.
 pub fn least_squares(
     a: &RenderingMatrix,
     pixels: &[usize],
     observed: &[[f64; 3]],
 ) -> Result<Solution> {
     let (x, y) = system(a, pixels, observed);
-    least_squares_system(pixels.len(), x, y)
+    least_squares_system(pixels.len(), x, y, None)
 }
 
-fn least_squares_system(pixels: usize, x: DMatrix<f64>, y: DVector<f64>) -> Result<Solution> {
+fn least_squares_system(
+    pixels: usize,
+    x: DMatrix<f64>,
+    y: DVector<f64>,
+    cells: Option<Cells>,
+) -> Result<Solution> {
     if x.nrows() < x.ncols() {
         let per_pixel = (x.nrows() / pixels.max(1)).max(1);
         return Err(CoreError::Invalid(format!(
@@ -254,8 +281,158 @@ fn least_squares_system(pixels: usize, x: DMatrix<f64>, y: DVector<f64>) -> Resu
     let c = svd
         .solve(&y, 1e-14 * svd.singular_values.max())
         .map_err(|e| CoreError::Invalid(e.to_string()))?;
+    let c = match cells {
+        Some(cells) if !cells.hold(&c) => {
+            let (xtx, rhs) = (x.tr_mul(&x), x.tr_mul(&y));
+            cells.constrained(&with_ridge(xtx), &rhs)?
+        }
+        _ => c,
+    };
     Ok(finish(&x, &y, c))
 }
+
+/// `h` with a negligible ridge, so that its Cholesky exists when rows are fewer than unknowns
+/// or a column sees no light.
+fn with_ridge(mut h: DMatrix<f64>) -> DMatrix<f64> {
+    let m = h.ncols();
+    let tiny = (1e-12 * h.trace() / m.max(1) as f64).max(f64::MIN_POSITIVE);
+    (0..m).for_each(|k| h[(k, k)] += tiny);
+    h
+}
+
+/// The values of a model's BRDF a solve must keep ≥ 0: `values` (indices into its three
+/// planes, [`VALUES`]) of `offset + Σₖ cₖ·columnₖ`. Cells that no column reaches are left out.
+struct Cells {
+    /// One row per cell: the columns' values there.
+    g: DMatrix<f64>,
+    /// The offset's value at each cell (zero without one).
+    offset: DVector<f64>,
+}
+
+impl Cells {
+    fn new(model: &LinearModel, values: std::ops::Range<usize>) -> Cells {
+        let cells: Vec<usize> = values
+            .filter(|&v| model.columns.iter().any(|col| col[v] != 0.0))
+            .collect();
+        Cells {
+            g: DMatrix::from_fn(cells.len(), model.columns.len(), |i, k| {
+                model.columns[k][cells[i]]
+            }),
+            offset: DVector::from_fn(cells.len(), |i, _| {
+                model.offset.map_or(0.0, |o| o[cells[i]])
+            }),
+        }
+    }
+
+    /// The BRDF's value at every cell for coefficients `c`.
+    fn values(&self, c: &DVector<f64>) -> DVector<f64> {
+        &self.g * c + &self.offset
+    }
+
+    /// Whether every value is ≥ 0 for `c`.
+    fn hold(&self, c: &DVector<f64>) -> bool {
+        self.values(c).iter().all(|v| *v >= 0.0)
+    }
+
+    /// min ½cᵀHc − rhsᵀc subject to every value ≥ 0 (H positive definite).
+    ///
+    /// With H = LLᵀ and c₀ = H⁻¹rhs, c = c₀ + L⁻ᵀz turns this into the shortest z with
+    /// (G·L⁻ᵀ) z ≥ −offset − G·c₀ (G: the columns' values, one row per cell), a least-distance
+    /// problem ([`least_distance`]): the exact constrained optimum, not a clamp.
+    ///
+    /// Only the cells that bind matter, and they are few, so the rows are cutting planes: the
+    /// cells negative at c₀ first, then, after each solve, any cell that the answer leaves
+    /// negative, until none is. The answer then holds on every cell and is optimal on a
+    /// subset of them, so it is the optimum over all.
+    fn constrained(&self, h: &DMatrix<f64>, rhs: &DVector<f64>) -> Result<DVector<f64>> {
+        // A ridge of 1e-10 of H's mean eigenvalue: where the pixels leave a direction of c
+        // (almost) free, L⁻¹ would amplify the reduction's rounding past any margin; the ridge
+        // bounds that, and moves a determined solution by a negligible amount.
+        let mut h = h.clone();
+        let ridge = 1e-10 * h.trace() / h.ncols().max(1) as f64;
+        (0..h.ncols()).for_each(|k| h[(k, k)] += ridge);
+        let factor = h
+            .cholesky()
+            .ok_or_else(|| CoreError::Invalid("the chosen pixels see no light".into()))?;
+        let c0 = factor.solve(rhs);
+        let l = factor.l();
+
+        let values0 = self.values(&c0);
+        let largest = values0.amax();
+        let mut working = Vec::new();
+        let mut in_working = vec![false; values0.len()];
+        let mut hairs = HAIRS.iter();
+        let mut hair = hairs.next().expect("hairs");
+        let mut c = c0.clone();
+        for _ in 0..MAX_CUTS {
+            // The bound is raised by a hair, so that rounding (amplified by L⁻¹ where the
+            // pixels pin the BRDF down poorly) cannot leave a value just below zero; a larger
+            // hair if it did. Each is far below anything a render shows.
+            let bound = hair * largest;
+            let values = self.values(&c);
+            let before = working.len();
+            for (i, v) in values.iter().enumerate() {
+                if !in_working[i] && *v < bound {
+                    in_working[i] = true;
+                    working.push(i);
+                }
+            }
+            if working.len() == before {
+                if values.min() >= 0.0 {
+                    return Ok(c);
+                }
+                match hairs.next() {
+                    Some(h) => hair = h,
+                    None => break,
+                }
+            }
+            c = self.nearest(&l, &c0, &values0, &working, hair * largest)?;
+        }
+        Err(CoreError::Invalid(
+            "the non-negative solve did not converge".into(),
+        ))
+    }
+
+    /// The least-distance step of [`Cells::constrained`] on the cells `working`, each held at
+    /// `bound` or above; `values0` are the values at c₀.
+    fn nearest(
+        &self,
+        l: &DMatrix<f64>,
+        c0: &DVector<f64>,
+        values0: &DVector<f64>,
+        working: &[usize],
+        bound: f64,
+    ) -> Result<DVector<f64>> {
+        let g = self.g.select_rows(working);
+        // Eᵀ = L⁻¹Gᵀ, each row of E (and its bound) scaled to unit length: the feasible set
+        // stays as it is, and the reduction's tolerances keep their meaning.
+        let mut et = l
+            .solve_lower_triangular(&g.transpose())
+            .expect("a Cholesky factor is invertible");
+        let mut f = DVector::from_fn(working.len(), |i, _| bound - values0[working[i]]);
+        for i in 0..working.len() {
+            let norm = et.column(i).norm();
+            if norm > 0.0 {
+                et.column_mut(i).unscale_mut(norm);
+                f[i] /= norm;
+            }
+        }
+        let z = least_distance(&et.transpose(), &f).ok_or_else(|| {
+            CoreError::Invalid("no BRDF of the model is non-negative in every cell".into())
+        })?;
+        let step = l
+            .transpose()
+            .solve_upper_triangular(&z)
+            .expect("a Cholesky factor is invertible");
+        Ok(c0 + step)
+    }
+}
+
+/// Margins of [`Cells::constrained`], relative to the largest value of the BRDF, tried in turn.
+const HAIRS: [f64; 4] = [1e-9, 1e-7, 1e-5, 1e-3];
+
+/// Rounds of cutting planes in [`Cells::constrained`] at most; a handful are needed.
+const MAX_CUTS: usize = 64;
 
 /// Iterations of [`with_prior`]; it settles in a handful (the change is checked each time).
 const PRIOR_ITERATIONS: usize = 50;
@@ -283,7 +460,7 @@ pub fn with_prior(
     prior: &[Option<f64>],
 ) -> Result<Solution> {
     let (x, y) = system(a, pixels, observed);
-    with_prior_system(pixels.len(), x, y, prior)
+    with_prior_system(pixels.len(), x, y, prior, None)
 }
 
 fn with_prior_system(
@@ -291,6 +468,7 @@ fn with_prior_system(
     x: DMatrix<f64>,
     y: DVector<f64>,
     prior: &[Option<f64>],
+    cells: Option<Cells>,
 ) -> Result<Solution> {
     let m = x.ncols();
     if pixels == 0 {
@@ -301,14 +479,12 @@ fn with_prior_system(
     let scale_column = prior.iter().position(|p| p.is_none());
     // Least squares to start, made definite by a negligible ridge when rows are fewer than
     // unknowns.
-    let mut c = {
-        let mut lhs = xtx.clone();
-        let tiny = 1e-12 * xtx.trace() / m as f64;
-        (0..m).for_each(|k| lhs[(k, k)] += tiny);
-        lhs.cholesky()
-            .map(|ch| ch.solve(&rhs))
-            .ok_or_else(|| CoreError::Invalid("the chosen pixels see no light".into()))?
-    };
+    let mut lhs = with_ridge(xtx.clone());
+    let mut c = lhs
+        .clone()
+        .cholesky()
+        .map(|ch| ch.solve(&rhs))
+        .ok_or_else(|| CoreError::Invalid("the chosen pixels see no light".into()))?;
     let dof = (x.nrows() as f64 - m as f64).max(1.0);
     for _ in 0..PRIOR_ITERATIONS {
         let scale = scale_column.map_or(1.0, |f| c[f].abs());
@@ -317,18 +493,28 @@ fn with_prior_system(
             // Data fit exactly, or a zero scale: nothing for the prior to weigh against.
             break;
         }
-        let mut lhs = xtx.clone();
+        let mut next_lhs = xtx.clone();
         for k in 0..m {
             if let Some(Some(sigma)) = prior.get(k) {
-                lhs[(k, k)] += misfit / (scale * sigma).powi(2);
+                next_lhs[(k, k)] += misfit / (scale * sigma).powi(2);
             }
         }
-        let Some(ch) = lhs.cholesky() else { break };
+        let Some(ch) = next_lhs.clone().cholesky() else {
+            break;
+        };
         let next = ch.solve(&rhs);
         let settled = (&next - &c).norm() <= 1e-10 * next.norm();
-        c = next;
+        (c, lhs) = (next, next_lhs);
         if settled {
             break;
+        }
+    }
+    // The prior's weights settle without the constraint; the last step's quadratic is then
+    // solved with it. (Constraining every step would cost a constrained solve per step for
+    // weights that hardly move.)
+    if let Some(cells) = cells {
+        if !cells.hold(&c) {
+            c = cells.constrained(&lhs, &rhs)?;
         }
     }
     Ok(finish(&x, &y, c))

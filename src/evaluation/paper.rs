@@ -14,8 +14,10 @@
 //!   with one set of coefficients per colour channel, and brdfd's default, which keeps the
 //!   prior's joint or per-channel estimate, whichever fits the photo better ([`METHODS`]).
 //!
-//! Selection depends only on the basis, the lights and the geometry, not on the material, so
-//! it runs once per lighting and pixel count, as it would before a real measurement.
+//! Every estimate runs through the estimate's own pipeline (`estimate_views_shared`, as
+//! `brdfd estimate` does). Selection depends only on the basis, the lights and the geometry,
+//! not on the material, so the estimates of one lighting share it (`Shared`): it runs once
+//! per lighting, pixel count and colour model, as it would before a real measurement.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -28,14 +30,15 @@ use crate::core::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
 use crate::core::bivariate::{Bivariate, Grid, GRID_CELLS};
 use crate::core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use crate::core::error::{CoreError, Result};
-use crate::core::estimate::{chosen_rows, keep_better_fit, relative_misfit};
+use crate::core::estimate::{
+    estimate_views_shared, EstimateOptions, Model, SelectionMethod, Shared, View,
+};
 use crate::core::geometry::{Camera, PixelGeometry, Shape};
 use crate::core::merl::MerlBrdf;
 use crate::core::nbrdf::NbrdfSet;
 use crate::core::raster::Raster;
 use crate::core::render::{render_bivariate, render_merl, RenderingMatrix};
-use crate::core::select::{self, Blocks, Selection};
-use crate::core::solve::{channel_coefficients, Colour, ColourChoice, Solver};
+use crate::core::solve::{channel_coefficients, ColourChoice, Solver};
 
 pub const TEST_SET: [&str; 10] = [
     "black-soft-plastic",
@@ -80,6 +83,22 @@ impl Method {
             other => format!("{}-{}", self.solver.name(), other.name()),
         }
     }
+
+    /// The estimate's settings for this method with `pixels`: the basis model, with the
+    /// protocol's fast selection. The paper's method solves unconstrained, as published; the
+    /// others keep the BRDF ≥ 0 in every cell, as `brdfd estimate` does.
+    pub fn options(self, pixels: Option<usize>, white: Option<f32>) -> EstimateOptions {
+        EstimateOptions {
+            model: Model::Basis,
+            pixel_count: pixels,
+            method: SelectionMethod::Fast,
+            solver: self.solver,
+            colour: self.colour,
+            white,
+            nonnegative: self != METHODS[0],
+            ..EstimateOptions::default()
+        }
+    }
 }
 
 /// The methods compared, the paper's first.
@@ -96,8 +115,8 @@ pub const METHODS: [Method; 4] = [
         solver: Solver::Prior,
         colour: ColourChoice::PerChannel,
     },
-    // brdfd's default: the prior's joint or per-channel estimate, whichever re-renders the
-    // photo better. It is picked from the two above, so it costs no solve of its own.
+    // brdfd's basis default: the prior's joint or per-channel estimate, whichever re-renders
+    // the photo better.
     Method {
         solver: Solver::Prior,
         colour: ColourChoice::Auto,
@@ -208,13 +227,6 @@ struct Truth {
     bivariate: Bivariate,
 }
 
-fn observations(a: &RenderingMatrix, img: &Raster) -> Vec<[f64; 3]> {
-    a.pixels
-        .iter()
-        .map(|p| img.get(p.x as usize, p.y as usize).map(|v| v as f64))
-        .collect()
-}
-
 /// The default basis settings (the measured choice; see docs/evaluation.md) with `k` components.
 pub fn default_basis(training: &[(String, Bivariate)], k: usize) -> Result<Basis> {
     Basis::build(
@@ -226,44 +238,26 @@ pub fn default_basis(training: &[(String, Bivariate)], k: usize) -> Result<Basis
     )
 }
 
-/// The colour models of [`METHODS`]; selection runs once for each.
-const COLOUR_MODELS: [Colour; 2] = [Colour::Joint, Colour::PerChannel];
-
-/// The selection for every pixel count of [`PIXEL_COUNTS`].
-type Selections = Vec<(Option<usize>, Selection)>;
-
-struct Prepared {
+/// One scene of the protocol: the sphere under one lighting, with the work its estimates
+/// share (each selection is made once per lighting, as in the paper).
+struct Scene<'s> {
+    geometry: &'s PixelGeometry,
+    lighting: &'s Lighting,
+    /// The basis's rows for every object pixel under the estimate's lights, to re-render an
+    /// estimate (A·c) without rendering again.
     a: RenderingMatrix,
-    /// Per colour model of [`COLOUR_MODELS`]: each conditions the systems its solve uses.
-    selections: Vec<Selections>,
+    shared: Shared,
 }
 
-fn prepare(basis: &Basis, geometry: &PixelGeometry, lights: &LightSet) -> Prepared {
-    let a = basis.rendering_matrix(&geometry.pixels, lights);
-    let selections = select_each_colour(basis, &a);
-    Prepared { a, selections }
-}
-
-/// [`Selections`] for each colour model of [`COLOUR_MODELS`].
-fn select_each_colour(basis: &Basis, a: &RenderingMatrix) -> Vec<Selections> {
-    COLOUR_MODELS
-        .iter()
-        .map(|colour| {
-            let blocks = Blocks::for_colour(a, &basis.column_scales(), *colour);
-            PIXEL_COUNTS
-                .iter()
-                .map(|l| {
-                    (
-                        *l,
-                        match l {
-                            Some(n) => select::fast_exchange(&blocks, *n),
-                            None => select::all_pixels(&blocks),
-                        },
-                    )
-                })
-                .collect()
-        })
-        .collect()
+impl<'s> Scene<'s> {
+    fn new(basis: &Basis, geometry: &'s PixelGeometry, lighting: &'s Lighting) -> Scene<'s> {
+        Scene {
+            geometry,
+            lighting,
+            a: basis.rendering_matrix(&geometry.pixels, &lighting.est),
+            shared: Shared::default(),
+        }
+    }
 }
 
 /// The image of `y`, A's prediction (A·c, 3 values a pixel) for some coefficients: A covers
@@ -284,110 +278,37 @@ fn predicted_image(a: &RenderingMatrix, y: &[f64], width: usize, height: usize) 
 /// One estimate: pixel count, method, reconstructed BRDF, its re-render, condition number.
 type Outcome = (Option<usize>, Method, Bivariate, Raster, f64);
 
-/// Estimates from `photo` with every pixel count and method. Pixels with a channel at the
-/// photo's `white` level are not candidates; if there are any, selection runs again without
-/// them, as it would for that photo.
+/// Estimates from `photo` with every pixel count and method, each by the estimate's own
+/// pipeline ([`estimate_views_shared`]). Pixels with a channel at the photo's `white` level
+/// are not candidates, as for `brdfd estimate`.
 fn estimate_all(
     basis: &Basis,
-    prep: &Prepared,
-    chosen_lights: &LightSet,
+    scene: &Scene,
     photo: &Raster,
     white: Option<f32>,
 ) -> Result<Vec<Outcome>> {
-    let y = observations(&prep.a, photo);
-    let keep: Vec<usize> = (0..y.len())
-        .filter(|&p| white.is_none_or(|w| y[p].iter().all(|v| *v < w as f64)))
-        .collect();
-    let reselected;
-    let selections = if keep.len() == y.len() {
-        &prep.selections
-    } else {
-        let mut sub = select_each_colour(basis, &prep.a.subset(&keep));
-        for (_, sel) in sub.iter_mut().flatten() {
-            sel.pixels.iter_mut().for_each(|p| *p = keep[*p]);
-        }
-        reselected = sub;
-        &reselected
+    let view = View {
+        geometry: scene.geometry,
+        lights: &scene.lighting.est,
+        chosen_lights: Some(&scene.lighting.chosen),
+        photo,
     };
-    let prior = basis.column_prior();
-    // Per colour model and selection: its rows (rebuilt under the chosen lights) and what its
-    // pixels measured.
-    let systems: Vec<Vec<(RenderingMatrix, Vec<[f64; 3]>)>> = selections
-        .iter()
-        .map(|per_count| {
-            per_count
-                .iter()
-                .map(|(_, sel)| {
-                    (
-                        chosen_rows(basis, &prep.a, &sel.pixels, |_| Some(chosen_lights)),
-                        sel.pixels.iter().map(|&p| y[p]).collect(),
-                    )
-                })
-                .collect()
-        })
-        .collect();
-    let mut out: Vec<Outcome> = Vec::new();
-    // How well each outcome re-renders the photo over the candidates, as `brdfd estimate`
-    // measures it (`Estimate::fit_error`).
-    let mut fits = Vec::new();
+    let mut out = Vec::new();
     for method in METHODS {
-        let [colour] = method.colour.models() else {
-            continue; // a choice between models: picked below
-        };
-        let ci = COLOUR_MODELS
-            .iter()
-            .position(|c| c == colour)
-            .expect("every method's colour is selected for");
-        for ((l, sel), (rows, chosen_y)) in selections[ci].iter().zip(&systems[ci]) {
-            let every: Vec<usize> = (0..chosen_y.len()).collect();
-            let sol = method
-                .solver
-                .solve_colour(*colour, rows, &every, chosen_y, &prior)?;
-            let per_channel = channel_coefficients(&sol.coefficients, prep.a.columns)?;
-            let predicted = prep.a.predict_per_channel(per_channel);
-            let img = predicted_image(&prep.a, &predicted, photo.width, photo.height);
-            fits.push(photo_fit(&predicted, &y, &keep));
-            out.push((
-                *l,
-                method,
-                basis.reconstruct_solution(&sol.coefficients)?,
-                img,
-                sel.condition,
-            ));
-        }
-    }
-    // A choice between models takes, per pixel count, the outcome of its solver whose model
-    // fits the photo best, as `brdfd estimate` does (fewer unknowns first: [`METHODS`] lists
-    // joint before per channel).
-    for method in METHODS.iter().filter(|m| m.colour.models().len() > 1) {
-        // The single-model methods of the same solver whose model the choice names.
-        let member = |m: &Method| {
-            m.solver == method.solver
-                && matches!(m.colour.models(), [c] if method.colour.models().contains(c))
-        };
         for l in PIXEL_COUNTS {
-            let best = out
-                .iter()
-                .zip(&fits)
-                .filter(|(o, _)| o.0 == l && member(&o.1))
-                .fold(None, |kept, (o, fit)| keep_better_fit(kept, (o, *fit)))
-                .map(|(o, _)| o.clone());
-            if let Some((l, _, brdf, render, condition)) = best {
-                out.push((l, *method, brdf, render, condition));
-            }
+            let est = estimate_views_shared(
+                basis,
+                std::slice::from_ref(&view),
+                &method.options(l, white),
+                &scene.shared,
+            )?;
+            let per_channel = channel_coefficients(&est.solution.coefficients, scene.a.columns)?;
+            let predicted = scene.a.predict_per_channel(per_channel);
+            let img = predicted_image(&scene.a, &predicted, photo.width, photo.height);
+            out.push((l, method, est.brdf, img, est.selection.condition));
         }
     }
     Ok(out)
-}
-
-/// ‖predicted − y‖ / ‖y‖ over the pixels `keep`.
-fn photo_fit(predicted: &[f64], y: &[[f64; 3]], keep: &[usize]) -> f64 {
-    let kept: Vec<f64> = keep
-        .iter()
-        .flat_map(|&p| predicted[3 * p..3 * p + 3].iter().copied())
-        .collect();
-    let observed: Vec<[f64; 3]> = keep.iter().map(|&p| y[p]).collect();
-    relative_misfit(&kept, &observed)
 }
 
 fn method_index(m: Method) -> usize {
@@ -447,7 +368,7 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
     let mut fig6: Vec<(String, Vec<Vec<Raster>>)> = Vec::new();
     for light_name in ["grace", "courtyard"] {
         let lighting = load_lighting(&cfg.data, light_name)?;
-        let prep = prepare(&basis, &geometry, &lighting.est);
+        let scene = Scene::new(&basis, &geometry, &lighting);
         for (i, truth) in truths.iter().enumerate() {
             let gt = render_merl(&geometry, &lighting.gt, &truth.table);
             let floor =
@@ -460,9 +381,7 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
                 } else {
                     (gt.clone(), None)
                 };
-                for (l, method, est, re, cond) in
-                    estimate_all(&basis, &prep, &lighting.chosen, &photo, white)?
-                {
+                for (l, method, est, re, cond) in estimate_all(&basis, &scene, &photo, white)? {
                     rows.push(Row {
                         lighting: light_name.into(),
                         material: truth.name.clone(),
@@ -546,12 +465,12 @@ fn leave_one_out(
         let others: Vec<(String, Bivariate)> =
             reduced.iter().filter(|(n, _)| n != name).cloned().collect();
         let basis = default_basis(&others, cfg.k)?;
-        let prep = prepare(&basis, &geometry, &lighting.est);
+        let scene = Scene::new(&basis, &geometry, &lighting);
         let gt = render_merl(&geometry, &lighting.gt, &MerlBrdf::tabulate(set.get(name)?));
         // (image error, BRDF error) per method, at 20 pixels and with all.
         let mut twenty = [(0.0, 0.0); METHODS.len()];
         let mut all = twenty;
-        for (l, method, est, re, _) in estimate_all(&basis, &prep, &lighting.chosen, &gt, None)? {
+        for (l, method, est, re, _) in estimate_all(&basis, &scene, &gt, None)? {
             let errors = (
                 re.relative_rmse(&gt),
                 brdf_error(&est, truth_biv, basis.header.cell_weight),
@@ -653,12 +572,11 @@ fn measure_choices(
         (Normalisation::None, CellWeight::None, true),
     ] {
         let basis = Basis::build(&training, DEFAULT_K, norm, weight, with_mean)?;
-        let prep = prepare(&basis, &geometry, &lighting.est);
+        let scene = Scene::new(&basis, &geometry, &lighting);
         let (mut all, mut twenty, mut brdf) = (Vec::new(), Vec::new(), Vec::new());
         for (name, _, gt) in &tables {
             let truth = reduced_of(reduced, name);
-            for (l, method, est, re, _) in estimate_all(&basis, &prep, &lighting.chosen, gt, None)?
-            {
+            for (l, method, est, re, _) in estimate_all(&basis, &scene, gt, None)? {
                 // The basis choices were measured with the paper's method.
                 if method != METHODS[0] {
                     continue;
@@ -717,13 +635,11 @@ fn measure_k(
             ),
             ("courtyard", &courtyard, courtyard_gt.iter().collect()),
         ] {
-            let prep = prepare(&basis, geometry, &lighting.est);
+            let scene = Scene::new(&basis, geometry, lighting);
             let mut rows = Vec::new();
             for ((name, _, _), gt) in grace.iter().zip(truths) {
                 let truth = reduced_of(reduced, name);
-                for (l, method, est, re, cond) in
-                    estimate_all(&basis, &prep, &lighting.chosen, gt, None)?
-                {
+                for (l, method, est, re, cond) in estimate_all(&basis, &scene, gt, None)? {
                     rows.push(Row {
                         lighting: light_name.into(),
                         material: name.clone(),

@@ -73,7 +73,10 @@ pub fn methods() -> Vec<Method> {
     vec![
         Method {
             name: "paper",
-            options: basis(Some(20), Solver::LeastSquares, ColourChoice::Joint),
+            options: EstimateOptions {
+                nonnegative: false,
+                ..basis(Some(20), Solver::LeastSquares, ColourChoice::Joint)
+            },
         },
         Method {
             name: "basis-20",
