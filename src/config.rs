@@ -72,6 +72,11 @@ pub struct DaemonConfig {
     /// Log filter (`info`, `debug`, `brdfd_theta=debug`, ...).
     #[serde(default = "default_log")]
     pub log: String,
+    /// Host names the API answers to, besides IP addresses and `localhost` (say, the bench
+    /// PC's name on the lab network). A request naming any other host is refused: that is
+    /// what a web page does after DNS rebinding.
+    #[serde(default)]
+    pub hosts: Vec<String>,
 }
 
 fn default_api() -> String {

@@ -405,3 +405,149 @@ fn a_configured_token_is_required_and_other_machines_need_one() {
         out(&o)
     );
 }
+
+/// Issue 20, D3: sockets that send nothing, or half a request, cannot lock the daemon up, and
+/// they are what an attacker gets before authentication. With the cap at 64 connections, 300
+/// held sockets later `/health` still answers (the oldest idle connections are closed to make
+/// room); a socket that sends nothing is closed after the header timeout; and SIGTERM stops
+/// the daemon while clients still hold half-sent requests.
+#[test]
+fn idle_and_half_sent_connections_cannot_lock_the_daemon_up() {
+    use std::io::{Read, Write};
+    use std::net::TcpStream;
+    let dir = tempfile::tempdir().unwrap();
+    let mut daemon = Daemon::start(
+        &dir.path().join("state"),
+        &[
+            "--simulate",
+            "--max-connections",
+            "64",
+            "--header-timeout",
+            "2",
+        ],
+    );
+    let mut held = Vec::new();
+    for i in 0..300 {
+        let mut s = TcpStream::connect(&daemon.addr).unwrap();
+        if i % 10 == 0 {
+            s.write_all(b"GET /api/v1/health HTTP/1.1\r\nHost: brdfd\r\n")
+                .unwrap();
+        }
+        held.push(s);
+    }
+    let t = Instant::now();
+    let (status, body) = daemon.get("/health");
+    eprintln!("/health with 300 sockets held: {:?}", t.elapsed());
+    assert_eq!(status, 200, "{body}");
+
+    // A socket that sends nothing is closed by the daemon (a read returns end of stream or a
+    // reset), long before the client's own 60 s read timeout.
+    let mut quiet = TcpStream::connect(&daemon.addr).unwrap();
+    quiet
+        .set_read_timeout(Some(Duration::from_secs(60)))
+        .unwrap();
+    let t = Instant::now();
+    let mut buf = [0u8; 64];
+    match quiet.read(&mut buf) {
+        Ok(0) => {}
+        Ok(n) => panic!("the daemon answered {n} bytes to nothing"),
+        Err(e) => assert!(
+            !matches!(
+                e.kind(),
+                std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+            ),
+            "the daemon kept a silent socket open: {e}"
+        ),
+    }
+    eprintln!("a silent socket was closed after {:?}", t.elapsed());
+
+    // Half-sent requests held open do not keep SIGTERM from ending the daemon.
+    let mut half = TcpStream::connect(&daemon.addr).unwrap();
+    half.write_all(
+        b"POST /api/v1/sessions HTTP/1.1\r\nHost: brdfd\r\nContent-Length: 100\r\n\r\n{",
+    )
+    .unwrap();
+    daemon.signal("-TERM");
+    let t = Instant::now();
+    let status = loop {
+        if let Some(s) = daemon.child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(30),
+            "the daemon did not stop"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    eprintln!("stopped {:?} after SIGTERM", t.elapsed());
+    assert!(status.success(), "{status}");
+    drop((held, half));
+}
+
+/// Issue 20, D4: a page after DNS rebinding names its own host, and is refused whatever it
+/// asks; a plan names scene files from the daemon's `scenes/` folder and never gives a path
+/// (`/dev/zero` would be read without end), and `brdfd capture` says so before sending.
+#[test]
+fn other_hosts_and_server_paths_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let mut daemon = Daemon::simulated(&state);
+    let http = reqwest::blocking::Client::new();
+    let url = format!("http://{}/api/v1/sessions", daemon.addr);
+    let r = http
+        .get(&url)
+        .header("Host", "evil.example:7878")
+        .send()
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 421);
+    let body: serde_json::Value = r.json().unwrap();
+    assert_eq!(body["error"], "unknown_host", "{body}");
+    let r = http
+        .get(&url)
+        .header("Host", "localhost:7878")
+        .send()
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+
+    for (plan, says) in [
+        (
+            json!({ "material": "gold", "env": "/dev/zero" }),
+            "not give a path",
+        ),
+        (
+            json!({ "material": "gold", "nbrdf": "../../etc/passwd" }),
+            "not give a path",
+        ),
+        (
+            json!({ "material": "gold", "env": "missing.hdr" }),
+            "no file \"missing.hdr\"",
+        ),
+    ] {
+        let (status, body) = daemon.post("/sessions", plan.clone());
+        assert_eq!(status, 400, "{plan}: {body}");
+        assert!(body["message"].as_str().unwrap().contains(says), "{body}");
+    }
+    // Nothing was started, and no session was created for the refused plans.
+    let (_, list) = daemon.get("/sessions");
+    assert_eq!(list.as_array().expect("a list").len(), 0, "{list}");
+
+    // The CLI refuses a path for the daemon before sending it, and says what to do.
+    let o = brdfd(
+        &[
+            "capture",
+            "--simulate",
+            "--material",
+            "gold",
+            "--env",
+            "/dev/zero",
+            "--daemon",
+            &daemon.addr,
+        ],
+        dir.path(),
+    );
+    let (stdout, stderr) = text(&o);
+    assert!(!o.status.success(), "{stdout}");
+    assert!(stderr.contains("copy the file there"), "{stderr}");
+    daemon.signal("-TERM");
+    let _ = daemon.child.wait();
+}

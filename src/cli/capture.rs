@@ -123,10 +123,34 @@ impl DaemonArgs {
     }
 }
 
+/// The plan as the daemon takes it: scene files (`--env`, `--nbrdf`) by bare name, which the
+/// daemon looks up in its state directory's `scenes/` folder; it takes no path from a client.
+fn daemon_plan(
+    plan: Plan,
+    (env, nbrdf): (Option<PathBuf>, Option<PathBuf>),
+) -> anyhow::Result<Plan> {
+    let bare = |flag: &str, p: Option<PathBuf>| -> anyhow::Result<Option<PathBuf>> {
+        match p {
+            Some(p) if p.components().count() != 1 || p.is_absolute() => bail!(
+                "{flag} {}: the daemon takes scene files by name from the `{}` folder of its state directory; copy the file there and give its name, or capture with --in-process",
+                p.display(),
+                brdfd::daemon::SCENES_DIR
+            ),
+            other => Ok(other),
+        }
+    };
+    Ok(Plan {
+        env: bare("--env", env)?,
+        nbrdf: bare("--nbrdf", nbrdf)?,
+        ..plan
+    })
+}
+
 pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
     if a.views == Some(0) {
         bail!("--views must be at least 1");
     }
+    let scene_names = (a.env.clone(), a.nbrdf.clone());
     let plan = Plan {
         material: a.material,
         size: a.size,
@@ -169,6 +193,7 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
             ),
             _ => {}
         }
+        let plan = daemon_plan(plan, scene_names)?;
         let id = match d.start(&plan) {
             Ok(id) => id,
             Err(e) if e.is::<Busy>() => return Err(e.context("the capture was not started")),

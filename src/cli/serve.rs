@@ -33,6 +33,14 @@ pub struct ServeArgs {
     /// Seconds between keep-alive requests to idle devices.
     #[arg(long, default_value_t = brdfd::rig::KEEP_ALIVE.as_secs_f64())]
     pub keep_alive: f64,
+    /// Open API connections at most; a new one beyond closes the oldest idle one. Default:
+    /// the open-file limit less 256 for the daemon's own files, at most 4,096.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    pub max_connections: Option<u64>,
+    /// Seconds a connection may take to send a request's head (new or idle between
+    /// requests) before it is closed.
+    #[arg(long, default_value_t = 10.0)]
+    pub header_timeout: f64,
 }
 
 impl ServeArgs {
@@ -56,6 +64,16 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
     if !(a.keep_alive.is_finite() && a.keep_alive > 0.0) {
         bail!("--keep-alive must be a positive number of seconds");
     }
+    if !(a.header_timeout.is_finite() && a.header_timeout > 0.0) {
+        bail!("--header-timeout must be a positive number of seconds");
+    }
+    let mut limits = brdfd::daemon::server::Limits {
+        header_timeout: Duration::from_secs_f64(a.header_timeout),
+        ..Default::default()
+    };
+    if let Some(n) = a.max_connections {
+        limits.max_connections = usize::try_from(n).unwrap_or(usize::MAX);
+    }
     let (rig, rig_text) = match &a.rig {
         Some(p) => (Rig::read(p)?, std::fs::read_to_string(p)?),
         None => (
@@ -77,7 +95,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
             .with_context(|| format!("listening on {addr}"))?;
         let bound = listener.local_addr()?;
         let simulated = rig.simulated;
-        let daemon = Arc::new(tokio::task::block_in_place(|| {
+        let mut daemon = tokio::task::block_in_place(|| {
             Daemon::start(
                 rig,
                 rig_text,
@@ -85,7 +103,9 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
                 config.token.clone(),
                 Duration::from_secs_f64(a.keep_alive),
             )
-        })?);
+        })?;
+        daemon.hosts = config.hosts.clone();
+        let daemon = Arc::new(daemon);
         // Scripts and tests wait for this line.
         println!(
             "brdfd daemon listening on http://{bound} ({} rig; sessions in {})",
@@ -96,17 +116,17 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         std::io::stdout().flush()?;
         let app = api::router(daemon.clone());
         let d = daemon.clone();
-        axum::serve(listener, app)
-            .with_graceful_shutdown(async move {
-                shutdown_signal().await;
-                tracing::info!("shutting down");
-                println!("shutting down");
-                // The capture's end is written before the server stops answering, so event
-                // streams see `finished` and close.
-                let _ = tokio::task::spawn_blocking(move || d.shut_down()).await;
-            })
-            .await
-            .context("serving the API")?;
+        tracing::debug!(?limits, "serving");
+        brdfd::daemon::server::serve(listener, app, limits, async move {
+            shutdown_signal().await;
+            tracing::info!("shutting down");
+            println!("shutting down");
+            // The capture's end is written before the server stops answering, so event
+            // streams see `finished` and close.
+            let _ = tokio::task::spawn_blocking(move || d.shut_down()).await;
+        })
+        .await
+        .context("serving the API")?;
         println!("stopped");
         Ok(())
     })

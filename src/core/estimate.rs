@@ -54,7 +54,7 @@ pub enum Model {
     /// object ([`super::hybrid`]). The default: relit under maps the estimate never saw, it is
     /// the most accurate model brdfd has (`brdfd eval --relight`; docs/evaluation.md): median
     /// relight error 0.107 on the MERL test materials with two lobes, against 0.136 for the
-    /// analytic model, 0.229 for the basis with every pixel and 0.435 for the paper's method.
+    /// analytic model, 0.243 for the basis with every pixel and 0.435 for the paper's method.
     #[default]
     Hybrid,
 }

@@ -32,7 +32,8 @@ impl Solver {
 
     /// Solves for one set of coefficients for all three channels. With `nonnegative`, the
     /// model whose coefficients these are, the BRDF they reconstruct is kept ≥ 0 in every cell
-    /// ([`Cells`]); without, the solve is unconstrained (the paper's).
+    /// (the constrained optimum, not a clamp); without, the solve is unconstrained (the
+    /// paper's).
     pub fn solve(
         self,
         a: &RenderingMatrix,

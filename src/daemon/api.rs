@@ -71,6 +71,10 @@ pub fn router(daemon: Shared) -> Router {
         .layer(axum::middleware::from_fn_with_state(
             daemon.clone(),
             require_token,
+        ))
+        .layer(axum::middleware::from_fn_with_state(
+            daemon.clone(),
+            require_own_host,
         ));
     Router::new()
         .nest("/api/v1", api)
@@ -106,6 +110,46 @@ async fn require_token(State(d): State<Shared>, req: Request, next: Next) -> Res
         }
     }
     next.run(req).await
+}
+
+/// Refuses a request that names another host than this daemon's. Why: after DNS rebinding, a
+/// web page's own name (`evil.example`) resolves to the bench PC, and the browser lets the
+/// page read what it fetches there; the request still says `Host: evil.example`. An IP
+/// address, `localhost` and brdfd.toml's `hosts` are this daemon's; a request without `Host`
+/// (not a browser's) passes.
+async fn require_own_host(State(d): State<Shared>, req: Request, next: Next) -> Response {
+    if let Some(host) = req.headers().get(header::HOST) {
+        let host = host.to_str().unwrap_or("");
+        if !is_own_host(host, &d.hosts) {
+            return ApiError(
+                StatusCode::MISDIRECTED_REQUEST,
+                "unknown_host",
+                format!(
+                    "this daemon does not answer to the host {host:?}: reach it by IP address or localhost, or add the name to `hosts` in its brdfd.toml"
+                ),
+            )
+            .into_response();
+        }
+    }
+    next.run(req).await
+}
+
+/// Whether a `Host` header's value (name or address, with or without a port) is this
+/// daemon's: an IP address, `localhost`, or one of `hosts` (case-insensitive).
+pub fn is_own_host(host: &str, hosts: &[String]) -> bool {
+    let name = if let Some(rest) = host.strip_prefix('[') {
+        // [v6]:port
+        match rest.split_once(']') {
+            Some((addr, _)) => return addr.parse::<std::net::Ipv6Addr>().is_ok(),
+            None => return false,
+        }
+    } else {
+        host.rsplit_once(':').map_or(host, |(name, _)| name)
+    };
+    let name = name.trim_end_matches('.');
+    name.parse::<std::net::Ipv4Addr>().is_ok()
+        || name.eq_ignore_ascii_case("localhost")
+        || hosts.iter().any(|h| h.eq_ignore_ascii_case(name))
 }
 
 /// Refuses a POST whose `Content-Type` is not JSON. Why: a web page open in the bench user's
@@ -308,4 +352,36 @@ async fn events(
     });
     use futures_util::StreamExt;
     Ok(Sse::new(first.chain(rest)).keep_alive(KeepAlive::default()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::is_own_host;
+
+    #[test]
+    fn own_hosts_are_addresses_localhost_and_the_configured_names() {
+        let hosts = vec!["bench-pc.lab".to_string()];
+        for ok in [
+            "127.0.0.1:7878",
+            "127.0.0.1",
+            "192.168.1.20:7878",
+            "[::1]:7878",
+            "localhost:7878",
+            "LOCALHOST",
+            "bench-pc.lab:7878",
+            "Bench-PC.lab.",
+        ] {
+            assert!(is_own_host(ok, &hosts), "{ok}");
+        }
+        for refused in [
+            "evil.example:7878",
+            "evil.example",
+            "localhost.evil.example",
+            "127.0.0.1.evil.example",
+            "[not-an-address]:80",
+            "",
+        ] {
+            assert!(!is_own_host(refused, &hosts), "{refused}");
+        }
+    }
 }

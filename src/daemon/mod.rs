@@ -6,6 +6,7 @@
 //! side only starts it, relays its events and answers questions.
 
 pub mod api;
+pub mod server;
 
 use std::collections::VecDeque;
 use std::path::PathBuf;
@@ -78,10 +79,51 @@ pub struct Daemon {
     devices: Arc<Devices>,
     pub state_dir: PathBuf,
     pub token: Option<String>,
+    /// Host names the API answers to besides IP addresses and `localhost` (brdfd.toml's
+    /// `hosts`).
+    pub hosts: Vec<String>,
     running: Mutex<Option<Running>>,
     /// Event logs of the latest captures, oldest first (a stored session older than these
     /// streams its outcome alone).
     events: Mutex<VecDeque<(String, Arc<EventLog>)>>,
+}
+
+/// The state directory's folder of scene files (environment maps, NBRDF files) that a
+/// simulated capture through the daemon may name.
+pub const SCENES_DIR: &str = "scenes";
+
+/// The scene file `name` of the plan's field `what`: a bare file name, found as a regular
+/// file in `state`'s [`SCENES_DIR`].
+fn scene_file(
+    state: &std::path::Path,
+    what: &str,
+    name: &std::path::Path,
+) -> anyhow::Result<PathBuf> {
+    use std::path::Component;
+    let dir = state.join(SCENES_DIR);
+    let mut parts = name.components();
+    if !matches!(
+        (parts.next(), parts.next()),
+        (Some(Component::Normal(_)), None)
+    ) {
+        anyhow::bail!(
+            "`{what}` must name a file in the daemon's {} folder, not give a path: {:?}",
+            dir.display(),
+            name.display().to_string()
+        );
+    }
+    let path = dir.join(name);
+    let meta = std::fs::metadata(&path).with_context(|| {
+        format!(
+            "`{what}`: no file {:?} in {}",
+            name.display().to_string(),
+            dir.display()
+        )
+    })?;
+    if !meta.is_file() {
+        anyhow::bail!("`{what}`: {} is not a regular file", path.display());
+    }
+    Ok(path)
 }
 
 /// Captures whose events the daemon keeps.
@@ -119,6 +161,7 @@ impl Daemon {
             devices,
             state_dir,
             token,
+            hosts: Vec::new(),
             running: Mutex::new(None),
             events: Mutex::new(VecDeque::new()),
         })
@@ -154,11 +197,25 @@ impl Daemon {
             plan.check_simulated_material()
                 .map_err(StartError::Invalid)?;
         }
+        let plan = self.scene_files(plan).map_err(StartError::Invalid)?;
         self.check_idle()?;
         let session = plan
             .new_session(&self.state_dir, &self.rig_text)
             .map_err(StartError::Invalid)?;
         self.launch(session, plan)
+    }
+
+    /// The plan with its scene files (`env`, `nbrdf`) looked up by name in the state
+    /// directory's [`SCENES_DIR`]. A client names them and never hands the daemon a path:
+    /// a path would let any client make the daemon read any file on its machine, or
+    /// `/dev/zero` without end.
+    fn scene_files(&self, mut plan: Plan) -> anyhow::Result<Plan> {
+        for (what, file) in [("env", &mut plan.env), ("nbrdf", &mut plan.nbrdf)] {
+            if let Some(name) = file.as_ref() {
+                *file = Some(scene_file(&self.state_dir, what, name)?);
+            }
+        }
+        Ok(plan)
     }
 
     /// Continues a stored session from its last complete step.
