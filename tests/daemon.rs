@@ -301,17 +301,7 @@ fn sigterm_cancels_the_capture_and_stops_the_daemon() {
     let id = start_slow(&daemon);
     daemon.wait_for_step(&id, "panorama");
     daemon.signal("-TERM");
-    let start = Instant::now();
-    let status = loop {
-        if let Some(s) = daemon.child.try_wait().unwrap() {
-            break s;
-        }
-        assert!(
-            start.elapsed() < Duration::from_secs(60),
-            "the daemon did not stop"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let (status, _) = daemon.wait_for_exit(Duration::from_secs(60));
     assert!(status.success(), "{status}");
     let said = daemon.rest_of_stdout();
     assert!(
@@ -468,18 +458,8 @@ fn idle_and_half_sent_connections_cannot_lock_the_daemon_up() {
     )
     .unwrap();
     daemon.signal("-TERM");
-    let t = Instant::now();
-    let status = loop {
-        if let Some(s) = daemon.child.try_wait().unwrap() {
-            break s;
-        }
-        assert!(
-            t.elapsed() < Duration::from_secs(30),
-            "the daemon did not stop"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    eprintln!("stopped {:?} after SIGTERM", t.elapsed());
+    let (status, took) = daemon.wait_for_exit(Duration::from_secs(30));
+    eprintln!("stopped {took:?} after SIGTERM");
     assert!(status.success(), "{status}");
     drop((held, half));
 }

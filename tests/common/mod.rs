@@ -192,6 +192,22 @@ impl Daemon {
     }
 
     /// The rest of what the daemon printed, after it exits.
+    /// Waits for the daemon to exit, failing the test after `limit` (a hang, not a speed
+    /// check); its exit status and how long it took.
+    pub fn wait_for_exit(
+        &mut self,
+        limit: std::time::Duration,
+    ) -> (std::process::ExitStatus, std::time::Duration) {
+        let start = std::time::Instant::now();
+        loop {
+            if let Some(s) = self.child.try_wait().unwrap() {
+                return (s, start.elapsed());
+            }
+            assert!(start.elapsed() < limit, "the daemon did not stop");
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+    }
+
     pub fn rest_of_stdout(&mut self) -> String {
         let mut s = String::new();
         let _ = std::io::Read::read_to_string(&mut self.stdout, &mut s);
