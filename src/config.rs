@@ -378,12 +378,18 @@ impl Rig {
                 "must be a number of degrees",
             ));
         }
+        r.geometry
+            .check()
+            .map_err(|e| invalid(file, "geometry", e))?;
         if let Some(t) = &r.turntable {
-            if t.views == 0 || !t.step_deg.is_finite() {
+            if !(1..=crate::rig::MAX_VIEWS).contains(&t.views) || !t.step_deg.is_finite() {
                 return Err(invalid(
                     file,
                     "turntable",
-                    "views must be at least 1 and step_deg a number",
+                    format!(
+                        "views must be 1 to {} and step_deg a number",
+                        crate::rig::MAX_VIEWS
+                    ),
                 ));
             }
             if t.views > 1 && r.devices.turntable.is_none() && !r.simulated {

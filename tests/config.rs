@@ -78,3 +78,40 @@ fn every_shipped_rig_material_and_daemon_file_loads() {
     );
     assert!(MaterialPreset::embedded("../gold").is_err());
 }
+
+/// Issue 20, D14: a rig file with an impossible number is refused by `config check` (and so by
+/// every reader), with the field named: each of these passed before.
+#[test]
+fn rig_files_with_impossible_numbers_are_refused() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let bench = std::fs::read_to_string(root.join("config/rigs/bench.toml")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    for (from, to, says) in [
+        ("fx = 7000.0", "fx = nan", "camera.fx"),
+        ("width = 4928", "width = 0", "camera.width"),
+        (
+            "look_at = [0.0, 0.0, 0.0]",
+            "look_at = [0.0, 0.3, 1.2]",
+            "look_at equals position",
+        ),
+        ("half_size = 0.05", "half_size = -5.0", "shape.half_size"),
+        (
+            "views = 3",
+            "views = 100000000000",
+            "views must be 1 to 360",
+        ),
+    ] {
+        assert!(bench.contains(from), "{from}");
+        let path = dir.path().join("rig.toml");
+        std::fs::write(&path, bench.replace(from, to)).unwrap();
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_brdfd"))
+            .args(["config", "check"])
+            .arg(&path)
+            .output()
+            .unwrap();
+        // The per-file verdicts go to stdout, the summary to stderr.
+        let err = String::from_utf8_lossy(&o.stdout) + String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{to}: accepted");
+        assert!(err.contains(says), "{to}: {err}");
+    }
+}

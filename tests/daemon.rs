@@ -451,6 +451,19 @@ fn idle_and_half_sent_connections_cannot_lock_the_daemon_up() {
     }
     eprintln!("a silent socket was closed after {:?}", t.elapsed());
 
+    // A plan whose body does not arrive is answered 408 (after 10 s), so a body trickled a
+    // byte at a time cannot hold a connection busy for good.
+    let mut slow = TcpStream::connect(&daemon.addr).unwrap();
+    slow.write_all(
+        b"POST /api/v1/sessions HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{",
+    )
+    .unwrap();
+    slow.set_read_timeout(Some(Duration::from_secs(60)))
+        .unwrap();
+    let mut answer = String::new();
+    let _ = slow.read_to_string(&mut answer);
+    assert!(answer.starts_with("HTTP/1.1 408"), "{answer}");
+
     // Half-sent requests held open do not keep SIGTERM from ending the daemon.
     let mut half = TcpStream::connect(&daemon.addr).unwrap();
     half.write_all(

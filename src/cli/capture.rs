@@ -131,11 +131,18 @@ fn daemon_plan(
 ) -> anyhow::Result<Plan> {
     let bare = |flag: &str, p: Option<PathBuf>| -> anyhow::Result<Option<PathBuf>> {
         match p {
-            Some(p) if p.components().count() != 1 || p.is_absolute() => bail!(
+            Some(p)
+                if !matches!(
+                    p.components().collect::<Vec<_>>()[..],
+                    [std::path::Component::Normal(_)]
+                ) =>
+            {
+                bail!(
                 "{flag} {}: the daemon takes scene files by name from the `{}` folder of its state directory; copy the file there and give its name, or capture with --in-process",
                 p.display(),
                 brdfd::daemon::SCENES_DIR
-            ),
+            )
+            }
             other => Ok(other),
         }
     };
@@ -176,10 +183,13 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         )),
         (None, false) => None,
     };
-    if rig.as_ref().is_some_and(|(r, _)| r.simulated) {
+    let daemon = a.daemon.find(&config)?;
+    // In this process the material is checked before a session exists; a daemon checks it
+    // itself, against its own scene files (the plan's are this machine's).
+    if daemon.is_none() && rig.as_ref().is_some_and(|(r, _)| r.simulated) {
         plan.check_simulated_material()?;
     }
-    if let Some(d) = a.daemon.find(&config)? {
+    if let Some(d) = daemon {
         let health = d.json("/health")?;
         let simulated = health["rig"]["simulated"].as_bool().unwrap_or(false);
         match &rig {

@@ -32,7 +32,7 @@ pub struct EstimateArgs {
     #[arg(long)]
     pub env: PathBuf,
     /// Yaw of the panorama about +Y, degrees (right-handed).
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = finite_degrees)]
     pub yaw: f64,
     #[command(flatten)]
     pub geometry: GeometryArgs,
@@ -83,7 +83,7 @@ pub struct EstimateArgs {
     /// The photo's white level: pixels with a channel at or above it were clipped and are left
     /// out. Default: 1.0 for PNG and JPEG (the top code); for EXR, the level brdfd recorded
     /// when it merged the photo from a bracket, else none. `inf` turns it off.
-    #[arg(long)]
+    #[arg(long, value_parser = white_level)]
     pub white: Option<f32>,
     /// Seed of the paper's random restarts.
     #[arg(long, default_value_t = 1)]
@@ -149,6 +149,26 @@ pub enum MethodArg {
 }
 
 pub use brdfd::rig::flow::parse_pixels;
+
+/// An angle in degrees: any finite number (`inf` and `NaN` would turn every light into NaN).
+fn finite_degrees(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        Ok(v) => Err(format!("{v} is not an angle; give a number of degrees")),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// A white level: a positive number, or `inf` for none (`NaN` would clip nothing, silently).
+fn white_level(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(v) if v > 0.0 => Ok(v),
+        Ok(v) => Err(format!(
+            "{v} is not a white level; give a positive number, or inf for none"
+        )),
+        Err(e) => Err(e.to_string()),
+    }
+}
 
 pub fn load_basis(path: &Option<PathBuf>) -> anyhow::Result<Basis> {
     Ok(match path {
@@ -269,7 +289,7 @@ pub struct RenderArgs {
     /// The environment map; the procedural studio if absent.
     #[arg(long)]
     pub env: Option<PathBuf>,
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = finite_degrees)]
     pub yaw: f64,
     #[command(flatten)]
     pub geometry: GeometryArgs,

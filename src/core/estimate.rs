@@ -480,17 +480,28 @@ impl Shared {
         build: impl FnOnce() -> Result<RenderingMatrix>,
     ) -> Result<(usize, Arc<RenderingMatrix>)> {
         let key = MatrixKey {
-            basis: basis.header.id.clone(),
+            // The id names the training data; the settings change the model's columns.
+            basis: format!(
+                "{} {:?} {:?} {}",
+                basis.header.id,
+                basis.header.normalisation,
+                basis.header.cell_weight,
+                basis.header.mean
+            ),
             views: candidates
                 .iter()
                 .map(|c| (c.pixels.clone(), c.view.lights.clone()))
                 .collect(),
         };
-        let mut matrices = self.matrices.lock().expect("not poisoned");
-        if let Some(i) = matrices.iter().position(|(k, _)| *k == key) {
-            return Ok((i, matrices[i].1.clone()));
+        {
+            let matrices = self.matrices.lock().expect("not poisoned");
+            if let Some(i) = matrices.iter().position(|(k, _)| *k == key) {
+                return Ok((i, matrices[i].1.clone()));
+            }
         }
+        // Built without the lock (the build runs on rayon); a race builds twice, harmlessly.
         let a = Arc::new(build()?);
+        let mut matrices = self.matrices.lock().expect("not poisoned");
         matrices.push((key, a.clone()));
         Ok((matrices.len() - 1, a))
     }
@@ -511,12 +522,17 @@ impl Shared {
             method: options.method,
             swap: options.swap.clone(),
         };
-        let mut selections = self.selections.lock().expect("not poisoned");
-        if let Some((_, s)) = selections.iter().find(|(k, _)| *k == key) {
-            return s.clone();
+        {
+            let selections = self.selections.lock().expect("not poisoned");
+            if let Some((_, s)) = selections.iter().find(|(k, _)| *k == key) {
+                return s.clone();
+            }
         }
         let s = select_pixels(basis, a, options, colour);
-        selections.push((key, s.clone()));
+        self.selections
+            .lock()
+            .expect("not poisoned")
+            .push((key, s.clone()));
         s
     }
 }

@@ -449,6 +449,10 @@ impl PixelGeometry {
     }
 }
 
+/// The largest image side a geometry may ask for: beyond any camera's, and it bounds the
+/// per-pixel buffers before they are allocated.
+pub const MAX_IMAGE_SIDE: usize = 65_536;
+
 /// Geometry as a rig or the command line describes it: a camera plus a shape or normal map.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -466,12 +470,96 @@ impl SceneGeometry {
         let text = std::fs::read_to_string(path).map_err(|e| CoreError::io(path, e))?;
         let mut g: SceneGeometry =
             toml::from_str(&text).map_err(|e| CoreError::format(path.display(), e.to_string()))?;
+        g.check()
+            .map_err(|e| CoreError::format(path.display(), e))?;
         if let Some(nm) = &g.normal_map {
             if nm.is_relative() {
                 g.normal_map = Some(path.parent().unwrap_or(Path::new(".")).join(nm));
             }
         }
         Ok(g)
+    }
+
+    /// Checks every number a file can get wrong, so that a typo is an error naming the field
+    /// rather than a NaN image or an empty mask later: sizes, intrinsics, the pose, the
+    /// shape's dimensions.
+    pub fn check(&self) -> std::result::Result<(), String> {
+        let finite = |field: &str, v: &[f64]| -> std::result::Result<(), String> {
+            match v.iter().find(|x| !x.is_finite()) {
+                Some(x) => Err(format!("{field} must be a finite number, not {x}")),
+                None => Ok(()),
+            }
+        };
+        let positive = |field: &str, v: f64| -> std::result::Result<(), String> {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("{field} must be a positive number, not {v}"))
+            }
+        };
+        let (width, height) = self.camera.size();
+        for (field, n) in [("camera.width", width), ("camera.height", height)] {
+            if !(1..=MAX_IMAGE_SIDE).contains(&n) {
+                return Err(format!(
+                    "{field} {n} is outside 1..={MAX_IMAGE_SIDE} pixels"
+                ));
+            }
+        }
+        let pose = match &self.camera {
+            Camera::Orthographic { extent, pose, .. } => {
+                positive("camera.extent", *extent)?;
+                pose
+            }
+            Camera::Pinhole {
+                fx,
+                fy,
+                cx,
+                cy,
+                pose,
+                ..
+            } => {
+                positive("camera.fx", *fx)?;
+                positive("camera.fy", *fy)?;
+                finite("camera.cx, cy", &[*cx, *cy])?;
+                pose
+            }
+        };
+        finite("camera.position", &pose.position)?;
+        finite("camera.look_at", &pose.look_at)?;
+        finite("camera.up", &pose.up)?;
+        pose.axes().map_err(|e| e.to_string())?;
+        match &self.shape {
+            Some(Shape::Sphere { center, radius }) => {
+                finite("shape.center", center)?;
+                positive("shape.radius", *radius)?;
+            }
+            Some(Shape::Plane {
+                center,
+                normal,
+                half_size,
+            }) => {
+                finite("shape.center", center)?;
+                finite("shape.normal", normal)?;
+                if dot(*normal, *normal) == 0.0 {
+                    return Err("shape.normal must not be zero".into());
+                }
+                positive("shape.half_size", *half_size)?;
+            }
+            Some(Shape::Corrugated {
+                center,
+                half_size,
+                amplitude,
+                period,
+                tilt_deg,
+            }) => {
+                finite("shape.center", center)?;
+                positive("shape.half_size", *half_size)?;
+                finite("shape.amplitude, tilt_deg", &[*amplitude, *tilt_deg])?;
+                positive("shape.period", *period)?;
+            }
+            None => {}
+        }
+        Ok(())
     }
 
     /// Per-pixel geometry at the given image size.
@@ -516,6 +604,65 @@ mod tests {
         assert!(right.normal[0] > 0.8);
         let top = g.pixels.iter().find(|p| p.x == 32 && p.y == 4).unwrap();
         assert!(top.normal[1] > 0.8);
+    }
+
+    #[test]
+    fn geometry_files_with_impossible_numbers_are_refused() {
+        // Issue 20, D14: each of these passed `config check` before.
+        let good = SceneGeometry {
+            camera: Camera::eval_orthographic(64),
+            shape: Some(Shape::unit_sphere()),
+            normal_map: None,
+        };
+        assert_eq!(good.check(), Ok(()));
+        let pinhole = |fx: f64, width: usize| Camera::Pinhole {
+            width,
+            height: 64,
+            fx,
+            fy: 100.0,
+            cx: 32.0,
+            cy: 32.0,
+            pose: Pose {
+                position: [0.0, 0.0, 5.0],
+                look_at: [0.0; 3],
+                up: up_y(),
+            },
+        };
+        let cases = [
+            (pinhole(f64::NAN, 64), Shape::unit_sphere(), "camera.fx"),
+            (pinhole(100.0, 0), Shape::unit_sphere(), "camera.width"),
+            (
+                pinhole(100.0, 64),
+                Shape::Sphere {
+                    center: [0.0; 3],
+                    radius: -5.0,
+                },
+                "shape.radius",
+            ),
+            (
+                Camera::Orthographic {
+                    width: 64,
+                    height: 64,
+                    extent: 2.0,
+                    pose: Pose {
+                        position: [1.0; 3],
+                        look_at: [1.0; 3],
+                        up: up_y(),
+                    },
+                },
+                Shape::unit_sphere(),
+                "look_at equals position",
+            ),
+        ];
+        for (camera, shape, says) in cases {
+            let g = SceneGeometry {
+                camera,
+                shape: Some(shape),
+                normal_map: None,
+            };
+            let e = g.check().unwrap_err();
+            assert!(e.contains(says), "{e}");
+        }
     }
 
     #[test]

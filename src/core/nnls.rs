@@ -101,11 +101,15 @@ fn lawson_hanson(p: &impl NormalEquations) -> DVector<f64> {
     let m = p.len();
     let mut c = DVector::zeros(m);
     let mut passive = vec![false; m];
+    // A variable that was freed and at once fixed again (its unconstrained value not
+    // positive, by rounding) is not tried again until another one is freed for good; without
+    // this, it would be picked again and again until the step bound.
+    let mut skip = vec![false; m];
     // Each outer step frees one variable, each inner step fixes at least one.
     for _ in 0..p.max_steps() {
         let grad = p.gradient(&c);
         let next = (0..m)
-            .filter(|&j| !passive[j] && grad[j] > 1e-12 * (1.0 + p.b(j).abs()))
+            .filter(|&j| !passive[j] && !skip[j] && grad[j] > 1e-12 * (1.0 + p.b(j).abs()))
             .max_by(|&i, &j| grad[i].total_cmp(&grad[j]));
         let Some(j) = next else { break };
         passive[j] = true;
@@ -133,6 +137,11 @@ fn lawson_hanson(p: &impl NormalEquations) -> DVector<f64> {
                 break;
             }
         }
+        if passive[j] {
+            skip.iter_mut().for_each(|s| *s = false);
+        } else {
+            skip[j] = true;
+        }
     }
     c
 }
@@ -157,19 +166,26 @@ fn solve_passive(p: &impl NormalEquations, passive: &[bool]) -> DVector<f64> {
 /// length.
 pub fn least_distance(e: &DMatrix<f64>, f: &DVector<f64>) -> Option<DVector<f64>> {
     let n = e.ncols();
+    // z = 0 when every bound is at most zero; otherwise the bounds are scaled to at most 1, so
+    // that the reduction's tolerances are relative (z scales with them).
+    let scale = f.max();
+    if scale <= 0.0 {
+        return Some(DVector::zeros(n));
+    }
     let mut x = DMatrix::zeros(n + 1, e.nrows());
     x.view_mut((0, 0), (n, e.nrows())).copy_from(&e.transpose());
-    x.row_mut(n).copy_from(&f.transpose());
+    x.row_mut(n).copy_from(&(f / scale).transpose());
     let mut y = DVector::zeros(n + 1);
     y[n] = 1.0;
     let b = x.tr_mul(&y);
     let u = lawson_hanson(&Columns { x: &x, y: &y, b });
     let r = &x * u - y;
-    // A residual of (almost) zero means the rows cannot all hold.
-    if r.norm() <= 1e-12 || r[n].abs() <= 1e-14 {
+    // At the answer rₙ₊₁ = −1 / (1 + ‖z‖²); a residual of (almost) zero means the rows cannot
+    // all hold.
+    if r.norm() <= 1e-12 || r[n].abs() <= 1e-12 {
         return None;
     }
-    Some(DVector::from_fn(n, |i, _| -r[i] / r[n]))
+    Some(DVector::from_fn(n, |i, _| -r[i] / r[n] * scale))
 }
 
 #[cfg(test)]

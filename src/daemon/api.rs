@@ -149,7 +149,9 @@ pub fn is_own_host(host: &str, hosts: &[String]) -> bool {
     let name = name.trim_end_matches('.');
     name.parse::<std::net::Ipv4Addr>().is_ok()
         || name.eq_ignore_ascii_case("localhost")
-        || hosts.iter().any(|h| h.eq_ignore_ascii_case(name))
+        || hosts
+            .iter()
+            .any(|h| h.trim_end_matches('.').eq_ignore_ascii_case(name))
 }
 
 /// Refuses a POST whose `Content-Type` is not JSON. Why: a web page open in the bench user's
@@ -218,7 +220,30 @@ fn start_error(e: StartError) -> ApiError {
     }
 }
 
-async fn start(State(d): State<Shared>, body: axum::body::Bytes) -> ApiResult<Response> {
+/// A plan's size at most: a plan is a few hundred bytes.
+const MAX_PLAN_BYTES: usize = 64 * 1024;
+
+/// Time a client has to send a plan once its request's head is in: a body sent a byte at a
+/// time would otherwise hold the connection busy, where the connection cap cannot close it.
+const PLAN_READ_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10);
+
+async fn start(State(d): State<Shared>, body: axum::body::Body) -> ApiResult<Response> {
+    let body = tokio::time::timeout(
+        PLAN_READ_TIMEOUT,
+        axum::body::to_bytes(body, MAX_PLAN_BYTES),
+    )
+    .await
+    .map_err(|_| {
+        ApiError(
+            StatusCode::REQUEST_TIMEOUT,
+            "request_timeout",
+            format!(
+                "the plan did not arrive within {} s",
+                PLAN_READ_TIMEOUT.as_secs()
+            ),
+        )
+    })?
+    .map_err(|e| bad_request(format!("the plan (at most {MAX_PLAN_BYTES} bytes): {e}")))?;
     // Parsed here rather than by the Json extractor, so that the error names the field in
     // our own error shape.
     let plan: Plan =

@@ -193,11 +193,13 @@ impl Daemon {
         // A malformed plan is refused as such whether or not a capture runs: the caller
         // learns what to fix, not only that it must wait.
         plan.validate().map_err(StartError::Invalid)?;
+        // The scene files by name first: every later step reads the files they resolve to,
+        // never a path the client sent.
+        let plan = self.scene_files(plan).map_err(StartError::Invalid)?;
         if self.rig.simulated {
             plan.check_simulated_material()
                 .map_err(StartError::Invalid)?;
         }
-        let plan = self.scene_files(plan).map_err(StartError::Invalid)?;
         self.check_idle()?;
         let session = plan
             .new_session(&self.state_dir, &self.rig_text)

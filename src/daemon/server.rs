@@ -6,9 +6,11 @@
 //!   [`Limits::header_timeout`] is closed, whether it is new or idle between requests
 //!   (hyper's header-read timeout, which needs a timer to run at all).
 //! - **Connections.** At most [`Limits::max_connections`] are open. A new one beyond that
-//!   closes the oldest connection with no request in flight (an idle or half-sent one),
-//!   so 1,000 idle sockets cannot lock a bench user out; if every connection is busy, the new
-//!   one is refused. The cap stays below the process's file limit, so a capture always has
+//!   closes the oldest connection with no request in flight (idle, or with half a request
+//!   head), so 1,000 idle sockets cannot lock a bench user out; if every connection is busy,
+//!   the new one is refused. A request is busy until its response is handed back; the one
+//!   request with a body, a plan, must arrive within 10 s (`api`), so only event streams stay
+//!   busy for long. The cap stays below the process's file limit, so a capture always has
 //!   descriptors left for its files.
 //! - **Shutdown.** On the signal, no connection is accepted; open ones are asked to finish
 //!   their response, and after [`Limits::shutdown_grace`] the rest are dropped, so a client

@@ -135,7 +135,18 @@ impl Plan {
     /// Checks what can be checked before any device moves.
     pub fn validate(&self) -> anyhow::Result<()> {
         crate::config::validate_name("material", &self.material).map_err(anyhow::Error::msg)?;
-        anyhow::ensure!(self.views != Some(0), "views must be at least 1");
+        if let Some(views) = self.views {
+            anyhow::ensure!(
+                (1..=MAX_VIEWS).contains(&views),
+                "views must be 1 to {MAX_VIEWS}, not {views}"
+            );
+        }
+        if let Some(turn) = self.turn {
+            anyhow::ensure!(
+                turn.is_finite(),
+                "turn must be a number of degrees, not {turn}"
+            );
+        }
         anyhow::ensure!(
             (8..=8192).contains(&self.size),
             "size {} is outside 8..=8192",
@@ -151,6 +162,10 @@ impl Plan {
         Ok(())
     }
 }
+
+/// Turntable views at most: one per degree, more than any bench turns for one estimate, and a
+/// bound on what a plan or rig file can make the capture allocate and shoot.
+pub const MAX_VIEWS: usize = 360;
 
 /// What the flow reports as it goes; the CLI draws progress bars from it, the daemon sends it
 /// to its event stream. Serialised as `{"type": "phase_started", ...}`.
