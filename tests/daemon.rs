@@ -544,3 +544,57 @@ fn other_hosts_and_server_paths_are_refused() {
     daemon.signal("-TERM");
     let _ = daemon.child.wait();
 }
+
+/// Issue 20, D9: plans sent at once start one capture, and the ones refused as busy leave no
+/// session behind (before, 10 rounds of 6 left 43 sessions stuck in `created`).
+#[test]
+fn plans_sent_at_once_leave_no_orphan_sessions() {
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = Daemon::simulated(&dir.path().join("state"));
+    let mut started = Vec::new();
+    for _round in 0..3 {
+        let answers: Vec<(u16, serde_json::Value)> = std::thread::scope(|s| {
+            let posts: Vec<_> = (0..6)
+                .map(|_| {
+                    s.spawn(|| daemon.post("/sessions", json!({ "material": "gold", "size": 32 })))
+                })
+                .collect();
+            posts.into_iter().map(|p| p.join().unwrap()).collect()
+        });
+        let ok: Vec<&serde_json::Value> = answers
+            .iter()
+            .filter(|(status, _)| *status == 202)
+            .map(|(_, body)| body)
+            .collect();
+        assert!(
+            answers
+                .iter()
+                .all(|(status, _)| [202, 409].contains(status)),
+            "{answers:?}"
+        );
+        assert_eq!(ok.len(), 1, "{answers:?}");
+        let id = ok[0]["id"].as_str().unwrap().to_string();
+        // Wait for it to end (cancelled, so that the round is short).
+        let (status, _) = daemon.post(&format!("/sessions/{id}/cancel"), json!({}));
+        assert!([202, 409].contains(&status));
+        let t = Instant::now();
+        while daemon.get("/health").1["busy"] != serde_json::Value::Null {
+            assert!(
+                t.elapsed() < Duration::from_secs(120),
+                "the capture never ended"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        started.push(id);
+    }
+    let (_, list) = daemon.get("/sessions");
+    let mut listed: Vec<String> = list
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["id"].as_str().unwrap().to_string())
+        .collect();
+    listed.sort();
+    started.sort();
+    assert_eq!(listed, started, "{list}");
+}

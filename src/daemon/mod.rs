@@ -200,11 +200,13 @@ impl Daemon {
             plan.check_simulated_material()
                 .map_err(StartError::Invalid)?;
         }
-        self.check_idle()?;
+        // One lock from the busy check to the launch: two plans sent at once must not both
+        // pass the check and leave a session behind for the one that loses.
+        let mut running = self.lock_idle()?;
         let session = plan
             .new_session(&self.state_dir, &self.rig_text)
             .map_err(StartError::Invalid)?;
-        self.launch(session, plan)
+        self.launch(&mut running, session, plan)
     }
 
     /// The plan with its scene files (`env`, `nbrdf`) looked up by name in the state
@@ -226,7 +228,9 @@ impl Daemon {
         let mut s =
             Session::open(&self.state_dir, id).map_err(|e| StartError::Invalid(e.into()))?;
         let plan = resumable(&mut s).map_err(StartError::Invalid)?;
-        self.launch(s, plan)
+        // Checked again under the lock: another capture may have started meanwhile.
+        let mut running = self.lock_idle()?;
+        self.launch(&mut running, s, plan)
     }
 
     fn check_idle(&self) -> Result<(), StartError> {
@@ -236,11 +240,23 @@ impl Daemon {
         }
     }
 
-    fn launch(&self, session: Session, plan: Plan) -> Result<Session, StartError> {
-        let mut running = self.running.lock().expect("running");
-        if let Some(r) = running.as_ref().filter(|r| !r.over()) {
-            return Err(StartError::Busy(r.id.clone()));
+    /// The lock on the running capture, if none runs; [`StartError::Busy`] otherwise.
+    fn lock_idle(&self) -> Result<std::sync::MutexGuard<'_, Option<Running>>, StartError> {
+        let running = self.running.lock().expect("running");
+        match running.as_ref().filter(|r| !r.over()) {
+            Some(r) => Err(StartError::Busy(r.id.clone())),
+            None => Ok(running),
         }
+    }
+
+    /// Starts capturing `session` on its thread; `running` is the lock [`Daemon::lock_idle`]
+    /// gave.
+    fn launch(
+        &self,
+        running: &mut Option<Running>,
+        session: Session,
+        plan: Plan,
+    ) -> Result<Session, StartError> {
         let id = session.manifest.id.clone();
         let log = EventLog::new();
         {
