@@ -55,6 +55,11 @@ pub struct RigController {
     pub identity: Identity,
     pub timeouts: RigTimeouts,
     pending: Vec<u8>,
+    /// What the device answered to `ID?`, to recognise it when resynchronising.
+    id_answer: String,
+    /// A command ended without its answer (a timeout, or a line that was not one): the answer
+    /// may still come, and must not be taken for the next command's.
+    out_of_step: bool,
 }
 
 impl RigController {
@@ -79,8 +84,11 @@ impl RigController {
             },
             timeouts,
             pending: Vec::new(),
+            id_answer: String::new(),
+            out_of_step: false,
         };
         let id = rig.command("ID?", timeouts.answer)?;
+        rig.id_answer = id.clone();
         let mut words = id.split_whitespace();
         let (Some(name), Some(version)) = (words.next(), words.next()) else {
             return Err(SerialError::Protocol {
@@ -204,8 +212,52 @@ impl RigController {
         }
     }
 
-    /// Sends one command and returns what follows `OK` in its answer.
+    /// Sends one command and returns what follows `OK` in its answer. A command that ends
+    /// without its answer leaves the link out of step, and the next command resynchronises
+    /// first ([`RigController::resync`]).
     fn command(&mut self, cmd: &str, timeout: Duration) -> Result<String> {
+        if self.out_of_step {
+            self.resync(cmd)?;
+        } else {
+            // Nothing is owed between commands: a line that came since the last answer was
+            // said out of turn, and would be read as this command's answer.
+            self.pending.clear();
+            let _ = self.port.clear(serialport::ClearBuffer::Input);
+        }
+        let answer = self.exchange(cmd, timeout);
+        if matches!(
+            answer,
+            Err(SerialError::Timeout { .. } | SerialError::Protocol { .. })
+        ) {
+            self.out_of_step = true;
+        }
+        answer
+    }
+
+    /// Brings the link back in step before `cmd`: whatever is buffered is dropped, then `ID?`
+    /// is sent and every line is skipped until the device's own identity comes back. The
+    /// device answers in order, so a late answer to the command that timed out comes before
+    /// it, and is dropped rather than read as `cmd`'s. It may take as long as the slowest
+    /// command (a homing run).
+    fn resync(&mut self, cmd: &str) -> Result<()> {
+        tracing::debug!(port = %self.name, "resynchronising before `{cmd}`");
+        self.pending.clear();
+        let _ = self.port.clear(serialport::ClearBuffer::Input);
+        self.send("ID?")?;
+        let wait = self.timeouts.home.max(self.timeouts.answer);
+        let deadline = Instant::now() + wait;
+        loop {
+            let line = self.read_line(cmd, deadline, wait)?;
+            if line.strip_prefix("OK ").map(str::trim) == Some(self.id_answer.as_str()) {
+                self.out_of_step = false;
+                return Ok(());
+            }
+            tracing::debug!(port = %self.name, "skipped while resynchronising: {line}");
+        }
+    }
+
+    /// Writes one command line.
+    fn send(&mut self, cmd: &str) -> Result<()> {
         tracing::debug!(port = %self.name, "> {cmd}");
         let unplugged = || SerialError::Unplugged {
             port: self.name.clone(),
@@ -236,7 +288,12 @@ impl RigController {
             } else {
                 unplugged()
             }
-        })?;
+        })
+    }
+
+    /// Sends `cmd` and reads its answer.
+    fn exchange(&mut self, cmd: &str, timeout: Duration) -> Result<String> {
+        self.send(cmd)?;
         let deadline = Instant::now() + timeout;
         loop {
             let line = self.read_line(cmd, deadline, timeout)?;

@@ -67,6 +67,9 @@ fn each_fault_is_a_clear_error_and_the_link_carries_on() {
     let e = rig.fire(10).unwrap_err();
     assert!(matches!(e, SerialError::Timeout { .. }), "{e}");
     assert!(e.to_string().contains("no answer within"), "{e}");
+    // The link is out of step after a timeout: the next command resynchronises (with `ID?`,
+    // which would take the next fault), so one command runs before the next fault.
+    rig.fire(10).unwrap();
 
     peer.inject(PeerFaults {
         garble_next: true,
@@ -74,6 +77,7 @@ fn each_fault_is_a_clear_error_and_the_link_carries_on() {
     });
     let e = rig.position().unwrap_err();
     assert!(matches!(e, SerialError::Protocol { .. }), "{e}");
+    rig.fire(10).unwrap();
 
     peer.inject(PeerFaults {
         error_next: Some("motor driver overheated".into()),
@@ -144,4 +148,31 @@ fn a_cable_on_a_port_without_modem_lines_says_so() {
         }
         Err(e) => assert!(e.to_string().contains("cannot drive Dtr"), "{e}"),
     }
+}
+
+/// Issue 20, D15: the link resynchronises. An answer that comes after its command timed out,
+/// and a line the device says out of turn, are not taken for the next command's answer.
+#[test]
+fn late_answers_and_stray_lines_do_not_answer_the_next_command() {
+    let (peer, mut rig) = rig(PeerConfig::default());
+    rig.rotate(30.0).unwrap();
+    // The answer to this pulse comes 0.5 s late, after the host's 0.3 s timeout.
+    peer.inject(PeerFaults {
+        late_next: Some(Duration::from_millis(500)),
+        ..PeerFaults::default()
+    });
+    let e = rig.fire(5).unwrap_err();
+    assert!(matches!(e, SerialError::Timeout { .. }), "{e}");
+    // The late "OK" must not answer the position.
+    let at = rig.position().unwrap();
+    assert!((at - 30.0).abs() < 1e-6, "{at} {:?}", peer.log());
+    // Nor a stray "OK 123.00" after an answer.
+    peer.inject(PeerFaults {
+        stray_next: Some("OK 123.00".into()),
+        ..PeerFaults::default()
+    });
+    rig.fire(5).unwrap();
+    let at = rig.position().unwrap();
+    assert!((at - 30.0).abs() < 1e-6, "{at} {:?}", peer.log());
+    assert!((rig.rotate(10.0).unwrap() - 40.0).abs() < 1e-6);
 }

@@ -47,6 +47,13 @@ pub struct PeerFaults {
     pub slip_deg: Option<f64>,
     /// Close the port on the next command, as if the USB cable were pulled.
     pub unplug_next: bool,
+    /// Answer the next command this much later than it would (a device that was busy, or a
+    /// slow rotation): the answer arrives after the host gave up on it.
+    pub late_next: Option<Duration>,
+    /// Send this line unasked after answering the next command (a device that speaks out of
+    /// turn, or an answer the line doubled), where the host would take it for the answer to
+    /// the command after.
+    pub stray_next: Option<String>,
 }
 
 #[derive(Debug, Default)]
@@ -147,6 +154,9 @@ fn serve(port: &mut TTYPort, config: &PeerConfig, state: &Mutex<PeerState>) {
             if faults.silent_next {
                 continue;
             }
+            if let Some(late) = faults.late_next {
+                std::thread::sleep(late);
+            }
             let reply = if faults.garble_next {
                 "\u{fffd}\u{7}~~ 9600 baud? ~~".to_string()
             } else if let Some(reason) = faults.error_next {
@@ -156,6 +166,9 @@ fn serve(port: &mut TTYPort, config: &PeerConfig, state: &Mutex<PeerState>) {
             };
             // A device's own log line, which the host must skip.
             let _ = port.write_all(format!("# {cmd}\r\n{reply}\r\n").as_bytes());
+            if let Some(line) = &faults.stray_next {
+                let _ = port.write_all(format!("{line}\r\n").as_bytes());
+            }
         }
     }
 }
