@@ -128,6 +128,39 @@ pub fn read_packet(r: &mut impl Read) -> Result<Packet> {
     Ok(Packet { ty, body })
 }
 
+/// A stream read against an overall deadline: each read waits at most the time left, so a
+/// camera that trickles a byte at a time (each read alone well within a read timeout) cannot
+/// stretch a packet, or a transaction, past it.
+struct UntilDeadline<'s> {
+    stream: &'s TcpStream,
+    deadline: Instant,
+}
+
+impl Read for UntilDeadline<'_> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let left = self.deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::TimedOut,
+                "the deadline passed",
+            ));
+        }
+        self.stream.set_read_timeout(Some(left))?;
+        let mut stream = self.stream;
+        stream.read(buf)
+    }
+}
+
+/// One packet from `stream`, whole by `deadline`.
+fn read_packet_by(stream: &TcpStream, deadline: Instant) -> Result<Packet> {
+    read_packet(&mut UntilDeadline { stream, deadline })
+}
+
+/// The slowest data phase allowed for, in bytes per second: far below any camera's link
+/// (USB 2 and Wi-Fi move megabytes a second), and a bound on how long a camera announcing a
+/// large object may take to send it.
+pub const MIN_DATA_RATE: f64 = 100_000.0;
+
 pub fn write_packet(w: &mut impl Write, p: &Packet) -> Result<()> {
     w.write_all(&p.to_bytes())?;
     Ok(())
@@ -183,9 +216,16 @@ impl PtpIpTransport {
         })
     }
 
-    fn read_cmd(&mut self, timeout: Duration, during: &'static str) -> Result<Packet> {
-        self.cmd.set_read_timeout(Some(timeout))?;
-        read_packet(&mut self.cmd).map_err(|e| match e {
+    /// The next packet on the command stream, whole within `timeout` and by `deadline`.
+    fn read_cmd(
+        &mut self,
+        timeout: Duration,
+        deadline: Option<Instant>,
+        during: &'static str,
+    ) -> Result<Packet> {
+        let by = Instant::now() + timeout;
+        let by = deadline.map_or(by, |d| d.min(by));
+        read_packet_by(&self.cmd, by).map_err(|e| match e {
             PtpError::Io(_) => PtpError::Timeout {
                 what: during,
                 after: timeout,
@@ -217,8 +257,7 @@ fn handshake(
     }
     w.u16(0).u32(PROTOCOL_VERSION);
     write_packet(&mut cmd, &Packet::new(ty::INIT_COMMAND_REQUEST, w.finish()))?;
-    cmd.set_read_timeout(Some(timeout))?;
-    let ack = read_packet(&mut cmd)?;
+    let ack = read_packet_by(&cmd, Instant::now() + timeout)?;
     match ack.ty {
         ty::INIT_COMMAND_ACK => {}
         ty::INIT_FAIL => {
@@ -251,8 +290,7 @@ fn handshake(
     let mut w = Writer::new();
     w.u32(conn);
     write_packet(&mut evt, &Packet::new(ty::INIT_EVENT_REQUEST, w.finish()))?;
-    evt.set_read_timeout(Some(timeout))?;
-    let ack = read_packet(&mut evt)?;
+    let ack = read_packet_by(&evt, Instant::now() + timeout)?;
     if ack.ty != ty::INIT_EVENT_ACK {
         return Err(PtpError::malformed(
             "InitEventAck",
@@ -284,8 +322,12 @@ impl Transport for PtpIpTransport {
 
         let mut data: Option<Vec<u8>> = None;
         let mut total = 0u64;
+        // Each packet must come whole within the response timeout; once the data phase is
+        // announced, the whole transaction must end within the time its size allows at
+        // MIN_DATA_RATE.
+        let mut deadline: Option<Instant> = None;
         loop {
-            let p = self.read_cmd(response_timeout, "camera response")?;
+            let p = self.read_cmd(response_timeout, deadline, "camera response")?;
             let tid_of = |p: &Packet| Reader::new(&p.body, "PTP/IP data packet").u32();
             match p.ty {
                 ty::START_DATA => {
@@ -298,6 +340,11 @@ impl Transport for PtpIpTransport {
                     data = Some(Vec::with_capacity(
                         (total as usize).min(crate::PREALLOCATE_MAX),
                     ));
+                    deadline = Some(
+                        Instant::now()
+                            + response_timeout
+                            + Duration::from_secs_f64(total as f64 / MIN_DATA_RATE),
+                    );
                     progress(0, total);
                 }
                 ty::DATA | ty::END_DATA => {
@@ -416,5 +463,41 @@ impl Transport for PtpIpTransport {
 
     fn describe(&self) -> String {
         format!("ptpip:{}", self.addr)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::net::TcpListener;
+
+    /// Issue 20, D11: a camera that trickles a packet a byte at a time, each byte well within
+    /// any read timeout, is cut off at the packet's deadline, not after the whole packet.
+    #[test]
+    fn a_trickled_packet_ends_at_its_deadline() {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        let camera = std::thread::spawn(move || {
+            let (mut s, _) = listener.accept().unwrap();
+            // A 64-byte packet, one byte every 50 ms: 3.2 s in all.
+            let packet = Packet::new(ty::OPERATION_RESPONSE, vec![0u8; 56]).to_bytes();
+            for b in packet {
+                if s.write_all(&[b]).is_err() {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        });
+        let stream = TcpStream::connect(addr).unwrap();
+        let start = Instant::now();
+        let Err(e) = read_packet_by(&stream, start + Duration::from_millis(400)) else {
+            panic!("a packet trickled for 3.2 s was read by a 0.4 s deadline");
+        };
+        let took = start.elapsed();
+        assert!(matches!(e, PtpError::Io(_)), "{e}");
+        // Cut off near its deadline: far less than the 3.2 s the packet would take.
+        assert!(took < Duration::from_secs(2), "{took:?}");
+        drop(stream);
+        camera.join().unwrap();
     }
 }
