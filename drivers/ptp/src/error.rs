@@ -19,6 +19,13 @@ pub enum PtpError {
     Response { op: u16, code: u16 },
     #[error("timed out after {after:?} waiting for {what} (raise `{what}` in the rig's timeouts if the camera is slow)")]
     Timeout { what: &'static str, after: Duration },
+    /// A PTP/IP camera accepted the connection but did not finish the handshake in time.
+    #[error("the camera at {addr} did not finish the PTP/IP handshake ({step}) within {after:?}: check that it is in PTP/IP (PC connection) mode, that no other program is connected to it, and confirm the pairing on its screen if it asks")]
+    Handshake {
+        addr: String,
+        step: &'static str,
+        after: Duration,
+    },
     /// The camera went away (unplugged, powered off, connection closed).
     #[error("camera disconnected during {during}")]
     Disconnected { during: &'static str },
@@ -51,6 +58,7 @@ impl PtpError {
             PtpError::Io(_)
                 | PtpError::Disconnected { .. }
                 | PtpError::Timeout { .. }
+                | PtpError::Handshake { .. }
                 | PtpError::Malformed { .. }
         )
     }

@@ -257,7 +257,21 @@ fn handshake(
     }
     w.u16(0).u32(PROTOCOL_VERSION);
     write_packet(&mut cmd, &Packet::new(ty::INIT_COMMAND_REQUEST, w.finish()))?;
-    let ack = read_packet_by(&cmd, Instant::now() + timeout)?;
+    // A read that fails once the deadline has passed is the handshake's timeout, whatever the
+    // socket called it ("Resource temporarily unavailable" is EAGAIN from a read timeout).
+    let handshake_step = |step: &'static str, deadline: Instant| {
+        move |e: PtpError| match e {
+            PtpError::Io(_) if Instant::now() >= deadline => PtpError::Handshake {
+                addr: addr.to_string(),
+                step,
+                after: timeout,
+            },
+            e => e,
+        }
+    };
+    let deadline = Instant::now() + timeout;
+    let ack = read_packet_by(&cmd, deadline)
+        .map_err(handshake_step("waiting for InitCommandAck", deadline))?;
     match ack.ty {
         ty::INIT_COMMAND_ACK => {}
         ty::INIT_FAIL => {
@@ -290,7 +304,9 @@ fn handshake(
     let mut w = Writer::new();
     w.u32(conn);
     write_packet(&mut evt, &Packet::new(ty::INIT_EVENT_REQUEST, w.finish()))?;
-    let ack = read_packet_by(&evt, Instant::now() + timeout)?;
+    let deadline = Instant::now() + timeout;
+    let ack = read_packet_by(&evt, deadline)
+        .map_err(handshake_step("waiting for InitEventAck", deadline))?;
     if ack.ty != ty::INIT_EVENT_ACK {
         return Err(PtpError::malformed(
             "InitEventAck",
@@ -498,6 +514,31 @@ mod tests {
         // Cut off near its deadline: far less than the 3.2 s the packet would take.
         assert!(took < Duration::from_secs(2), "{took:?}");
         drop(stream);
+        camera.join().unwrap();
+    }
+
+    /// Issue 20, D13: a camera that accepts the connection and then says nothing is a
+    /// handshake timeout that says what to check, not "Resource temporarily unavailable".
+    #[test]
+    fn a_silent_camera_is_a_handshake_timeout() {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        let camera = std::thread::spawn(move || {
+            let (s, _) = listener.accept().unwrap();
+            std::thread::sleep(Duration::from_millis(600));
+            drop(s);
+        });
+        let Err(e) =
+            PtpIpTransport::connect(addr, Initiator::default(), Duration::from_millis(300))
+        else {
+            panic!("a silent camera was connected");
+        };
+        let text = e.to_string();
+        assert!(matches!(e, PtpError::Handshake { .. }), "{text}");
+        assert!(
+            text.contains("InitCommandAck") && text.contains("PTP/IP (PC connection) mode"),
+            "{text}"
+        );
         camera.join().unwrap();
     }
 }
