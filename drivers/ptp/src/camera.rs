@@ -109,7 +109,9 @@ impl Camera {
                 }
                 Err(e) if attempt == 0 && e.is_link_failure() => {
                     tracing::warn!("OpenSession failed ({e}); resetting the camera and retrying");
-                    self.link.reset()?;
+                    if let Err(reset) = self.link.reset() {
+                        return Err(e.and_recovery(reset));
+                    }
                 }
                 Err(e) => return Err(e),
             }
@@ -286,7 +288,9 @@ impl Camera {
                     tracing::warn!(
                         "download of {handle:#010x} failed ({e}); recovering (attempt {attempt})"
                     );
-                    self.recover()?;
+                    if let Err(reset) = self.recover() {
+                        return Err(e.and_recovery(reset));
+                    }
                 }
                 Err(e) => return Err(e),
             }

@@ -26,6 +26,13 @@ pub enum PtpError {
         step: &'static str,
         after: Duration,
     },
+    /// A failure, and the reset meant to recover from it failed too: both are said, the
+    /// cause first, so that the reset's error does not hide what went wrong.
+    #[error("{cause}; the reset that followed failed too: {reset}")]
+    RecoveryFailed {
+        cause: Box<PtpError>,
+        reset: Box<PtpError>,
+    },
     /// The camera went away (unplugged, powered off, connection closed).
     #[error("camera disconnected during {during}")]
     Disconnected { during: &'static str },
@@ -59,8 +66,17 @@ impl PtpError {
                 | PtpError::Disconnected { .. }
                 | PtpError::Timeout { .. }
                 | PtpError::Handshake { .. }
+                | PtpError::RecoveryFailed { .. }
                 | PtpError::Malformed { .. }
         )
+    }
+
+    /// `self`, the cause of a recovery, with the recovery's own failure added.
+    pub fn and_recovery(self, reset: PtpError) -> PtpError {
+        PtpError::RecoveryFailed {
+            cause: Box::new(self),
+            reset: Box::new(reset),
+        }
     }
 
     pub fn response_code(&self) -> Option<u16> {

@@ -241,6 +241,33 @@ fn disconnect_mid_download_recovers_over_usb_and_ptpip() {
     }
 }
 
+/// Issue 20, D13: when the reset after a failure fails too, the error says both, the cause
+/// first; before, the reset's error replaced it. Here the link drops mid-download, and the
+/// camera's server is gone when the reset reconnects.
+#[test]
+fn a_failed_reset_keeps_the_cause() {
+    let r = responder(Profile::Generic, 2_000_000);
+    let mut server = Server::start("127.0.0.1:0", r.clone()).unwrap();
+    let mut cam = ptpip_camera(&server);
+    let opts = CaptureOptions {
+        target: Target::Card,
+        delete_after: false,
+    };
+    let shot = cam.capture(&opts, &mut |_, _, _| {}).unwrap();
+    server.stop();
+    r.lock().unwrap().faults.disconnect_in_download = Some(700_000);
+    let e = cam
+        .download(shot.handle, 2_000_000, &mut |_, _| {})
+        .unwrap_err();
+    let text = e.to_string();
+    assert!(matches!(e, PtpError::RecoveryFailed { .. }), "{text}");
+    let (cause, reset) = text
+        .split_once("; the reset that followed failed too: ")
+        .expect("both errors");
+    assert!(cause.contains("disconnected"), "{text}");
+    assert!(reset.contains("connecting to PTP/IP camera"), "{text}");
+}
+
 #[test]
 fn halted_endpoint_is_cleared_and_retried() {
     let r = responder(Profile::Generic, 5000);
