@@ -261,6 +261,8 @@ fn a_full_disk_fails_the_session_clearly_and_it_resumes_once_there_is_room() {
     assert!(show.contains("13 raw files verified"), "{show}");
     assert!(show.contains("\"state\": \"failed\""), "{show}");
     assert!(show.contains("No space left on device"), "{show}");
+    // ...and what to do: the failure the core wrote (the results' table) says the disk is full.
+    assert!(show.contains("the disk is full; free space"), "{show}");
     let sessions: Vec<_> = std::fs::read_dir(kept.join("full/sessions"))
         .unwrap()
         .map(|e| e.unwrap().path())

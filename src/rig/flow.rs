@@ -101,6 +101,12 @@ pub fn execute(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Resu
         let reason = result.as_ref().err().map(|e| {
             let reason = if cx.cancel.is_cancelled() {
                 "cancelled; what was captured is kept".to_string()
+            } else if disk_full(e) && !format!("{e:#}").contains("the disk is full") {
+                // A derived map or a result, written by the core, says only ENOSPC.
+                format!(
+                    "{e:#}: the disk is full; free space, then `brdfd session resume {}` continues it (what was captured is kept)",
+                    session.manifest.id
+                )
             } else {
                 format!("{e:#}")
             };
@@ -129,6 +135,22 @@ pub fn execute(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Resu
         e.context(format!(
             "session {id} failed; what was captured is kept: `brdfd session resume {id}` continues it"
         ))
+    })
+}
+
+/// Whether a full disk (ENOSPC) caused `e`, wherever in its chain: a session file's error, a
+/// plain I/O error, or the core's (whose I/O error is a field, not a source).
+fn disk_full(e: &anyhow::Error) -> bool {
+    const ENOSPC: i32 = 28;
+    e.chain().any(|c| {
+        c.downcast_ref::<std::io::Error>()
+            .and_then(std::io::Error::raw_os_error)
+            == Some(ENOSPC)
+            || matches!(
+                c.downcast_ref::<crate::core::CoreError>(),
+                Some(crate::core::CoreError::Io { error, .. }) if error.raw_os_error() == Some(ENOSPC)
+            )
+            || c.to_string().contains("the disk is full")
     })
 }
 
