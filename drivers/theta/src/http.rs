@@ -445,8 +445,20 @@ impl OscClient {
         let header = r
             .headers()
             .get("WWW-Authenticate")
-            .and_then(|h| h.to_str().ok())
             .ok_or_else(|| auth_err("HTTP 401 without a WWW-Authenticate header"))?;
+        // digest_auth 0.3 panics on a challenge that is not ASCII (the issue 20 fuzzer found
+        // it), so only visible ASCII reaches it: `to_str` accepts nothing else, and a camera's
+        // challenge has no reason to hold anything else.
+        let header = header
+            .to_str()
+            .ok()
+            .filter(|h| h.is_ascii())
+            .ok_or_else(|| {
+                auth_err(&format!(
+                    "the Digest challenge is not ASCII text: {:?}",
+                    String::from_utf8_lossy(header.as_bytes())
+                ))
+            })?;
         let challenge = digest_auth::parse(header)
             .map_err(|e| auth_err(&format!("cannot read the Digest challenge {header:?}: {e}")))?;
         *self.challenge.lock().unwrap_or_else(|p| p.into_inner()) = Some(challenge);

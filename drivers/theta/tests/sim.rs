@@ -387,6 +387,35 @@ fn file_urls_off_the_camera_are_refused() {
     assert!(e.to_string().contains("192.0.2.1"), "{e}");
 }
 
+/// Issue 20, dependency: digest_auth 0.3 panics on a challenge that is not ASCII. A camera
+/// (or anything on its address) sending one gets a clear error from brdfd, not a panic.
+#[test]
+fn a_challenge_that_is_not_ascii_is_an_error_not_a_panic() {
+    use std::io::{Read, Write};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let url = format!("http://{}", listener.local_addr().unwrap());
+    let server = std::thread::spawn(move || {
+        // Every request of the connection attempt gets the same 401.
+        for stream in listener.incoming().take(4) {
+            let Ok(mut s) = stream else { return };
+            let mut buf = [0u8; 4096];
+            let _ = s.read(&mut buf);
+            let answer = b"HTTP/1.1 401 Unauthorized\r\nContent-Length: 0\r\nConnection: close\r\nWWW-Authenticate: Digest realm=\"cam\xc3\xa9ra\", nonce=\"\xff\xfe\", qop=\"auth\"\r\n\r\n".to_vec();
+            let _ = s.write_all(&answer);
+        }
+    });
+    let creds = Credentials {
+        user: "THETAYL00165759".into(),
+        password: "00165759".into(),
+    };
+    let e = Theta::connect_http(&url, Some(creds), quick())
+        .err()
+        .expect("a camera whose challenge cannot be read")
+        .to_string();
+    assert!(e.contains("not ASCII"), "{e}");
+    drop(server);
+}
+
 #[test]
 fn digest_authentication_in_client_mode() {
     let creds = ("THETAYL00165759".to_string(), "00165759".to_string());
