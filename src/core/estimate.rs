@@ -455,10 +455,33 @@ pub struct Shared {
 }
 
 /// What a stacked candidate matrix was built from.
-#[derive(PartialEq)]
 struct MatrixKey {
     basis: String,
     views: Vec<(Vec<GeomPixel>, LightSet)>,
+}
+
+impl MatrixKey {
+    /// Whether this key is of `basis` (its [`basis_tag`]) and these views' pixels and lights:
+    /// compared in place, so that a lookup copies nothing.
+    fn is(&self, basis: &str, views: &[(&[GeomPixel], &LightSet)]) -> bool {
+        self.basis == basis
+            && self.views.len() == views.len()
+            && self
+                .views
+                .iter()
+                .zip(views)
+                .all(|((p, l), (q, m))| p.as_slice() == *q && l == *m)
+    }
+}
+
+/// The basis as far as its rendering matrix depends on it: the id names the training data,
+/// the settings change the model's columns.
+fn basis_tag(basis: &Basis) -> String {
+    let h = &basis.header;
+    format!(
+        "{} {:?} {:?} {}",
+        h.id, h.normalisation, h.cell_weight, h.mean
+    )
 }
 
 /// A selection's settings, on the matrix `matrix` (an index into [`Shared::matrices`]).
@@ -479,31 +502,53 @@ impl Shared {
         candidates: &[Candidates],
         build: impl FnOnce() -> Result<RenderingMatrix>,
     ) -> Result<(usize, Arc<RenderingMatrix>)> {
-        let key = MatrixKey {
-            // The id names the training data; the settings change the model's columns.
-            basis: format!(
-                "{} {:?} {:?} {}",
-                basis.header.id,
-                basis.header.normalisation,
-                basis.header.cell_weight,
-                basis.header.mean
-            ),
-            views: candidates
-                .iter()
-                .map(|c| (c.pixels.clone(), c.view.lights.clone()))
-                .collect(),
-        };
+        let tag = basis_tag(basis);
+        let views: Vec<(&[GeomPixel], &LightSet)> = candidates
+            .iter()
+            .map(|c| (c.pixels.as_slice(), c.view.lights))
+            .collect();
         {
             let matrices = self.matrices.lock().expect("not poisoned");
-            if let Some(i) = matrices.iter().position(|(k, _)| *k == key) {
+            if let Some(i) = matrices.iter().position(|(k, _)| k.is(&tag, &views)) {
                 return Ok((i, matrices[i].1.clone()));
             }
         }
         // Built without the lock (the build runs on rayon); a race builds twice, harmlessly.
         let a = Arc::new(build()?);
+        Ok((self.insert(tag, &views, a.clone()), a))
+    }
+
+    /// Keeps `a` as the matrix of `views`; its index.
+    fn insert(
+        &self,
+        basis: String,
+        views: &[(&[GeomPixel], &LightSet)],
+        a: Arc<RenderingMatrix>,
+    ) -> usize {
+        let key = MatrixKey {
+            basis,
+            views: views
+                .iter()
+                .map(|(p, l)| (p.to_vec(), (*l).clone()))
+                .collect(),
+        };
         let mut matrices = self.matrices.lock().expect("not poisoned");
-        matrices.push((key, a.clone()));
-        Ok((matrices.len() - 1, a))
+        matrices.push((key, a));
+        matrices.len() - 1
+    }
+
+    /// Gives the basis's rendering matrix `a`, already built for one view's `pixels` under
+    /// `lights`, to the estimates that share this: an estimate whose candidates are those
+    /// pixels (every object pixel of a photo with none clipped, under the candidate cap)
+    /// uses it rather than building it again.
+    pub fn seed(
+        &self,
+        basis: &Basis,
+        pixels: &[GeomPixel],
+        lights: &LightSet,
+        a: Arc<RenderingMatrix>,
+    ) {
+        self.insert(basis_tag(basis), &[(pixels, lights)], a);
     }
 
     /// [`select_pixels`] on matrix `matrix`, made once per setting.

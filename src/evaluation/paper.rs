@@ -244,18 +244,22 @@ struct Scene<'s> {
     geometry: &'s PixelGeometry,
     lighting: &'s Lighting,
     /// The basis's rows for every object pixel under the estimate's lights, to re-render an
-    /// estimate (A·c) without rendering again.
-    a: RenderingMatrix,
+    /// estimate (A·c) without rendering again. The estimates share it too ([`Shared::seed`]):
+    /// with nothing clipped, every object pixel is a candidate.
+    a: std::sync::Arc<RenderingMatrix>,
     shared: Shared,
 }
 
 impl<'s> Scene<'s> {
     fn new(basis: &Basis, geometry: &'s PixelGeometry, lighting: &'s Lighting) -> Scene<'s> {
+        let a = std::sync::Arc::new(basis.rendering_matrix(&geometry.pixels, &lighting.est));
+        let shared = Shared::default();
+        shared.seed(basis, &geometry.pixels, &lighting.est, a.clone());
         Scene {
             geometry,
             lighting,
-            a: basis.rendering_matrix(&geometry.pixels, &lighting.est),
-            shared: Shared::default(),
+            a,
+            shared,
         }
     }
 }
