@@ -29,7 +29,7 @@ use super::error::{CoreError, Result};
 use super::geometry::GeomPixel;
 use super::merl;
 use super::nnls::nnls;
-use super::render::{RenderingMatrix, MAX_COLUMNS};
+use super::render::{RenderingMatrix, PASS_COLUMNS};
 use super::uncertainty::{
     band, image_spread, spread_sphere, std_of, Uncertainty, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED,
 };
@@ -40,9 +40,9 @@ pub const ALPHA_MAX: f64 = 1.0;
 /// Log-spaced α values of the coarse search. Neighbours differ by a factor of 1.34, so the
 /// refinement below starts within 16% of the best α.
 const COARSE_ALPHAS: usize = 20;
-/// Points per refinement round: as many candidate lobes as one matrix build holds beside a
-/// fixed lobe (Lambert, two columns for the fixed lobe, two per candidate).
-const REFINE_POINTS: usize = (MAX_COLUMNS - 1) / 2 - 1;
+/// Points per refinement round: a round's new roughnesses (two columns each) are rendered in
+/// one pass over the pixels.
+const REFINE_POINTS: usize = 4;
 /// Refinement rounds: each narrows the bracket to 2/5, so three leave it within 2% of α.
 const REFINE_ROUNDS: usize = 3;
 /// Pixels the α search fits (spread over the candidates); the analytic model's final weights
@@ -371,9 +371,9 @@ pub struct AnalyticFit {
 /// Step in log α of the misfit profile's curvature (10%).
 const PROFILE_STEP: f64 = 0.1;
 
-/// Builds the matrix of several α at once: Lambert, then (F₀, F₉₀) columns of each α. One
-/// pass over the (pixel, light) pairs serves every α.
-fn matrix_for(views: &[ViewPixels], grid: Grid, alphas: &[f64], subset: bool) -> RenderingMatrix {
+/// Builds the matrix of several α over every candidate: Lambert, then (F₀, F₉₀) columns of
+/// each α. One pass over the (pixel, light) pairs serves every α.
+fn matrix_for(views: &[ViewPixels], grid: Grid, alphas: &[f64]) -> RenderingMatrix {
     let cols: Vec<[Vec<f64>; 3]> = alphas.iter().map(|a| columns(grid, *a)).collect();
     let mut refs: Vec<&[f64]> = vec![&cols[0][0]];
     for c in &cols {
@@ -382,15 +382,7 @@ fn matrix_for(views: &[ViewPixels], grid: Grid, alphas: &[f64], subset: bool) ->
     }
     let mut out: Option<RenderingMatrix> = None;
     for v in views {
-        let pixels: Vec<GeomPixel> = if subset {
-            search_subset(v.pixels.len(), views.len())
-                .into_iter()
-                .map(|i| v.pixels[i])
-                .collect()
-        } else {
-            v.pixels.to_vec()
-        };
-        let a = RenderingMatrix::build(&pixels, v.lights, &refs, None, grid.theta_h_binning);
+        let a = RenderingMatrix::build(v.pixels, v.lights, &refs, None, grid.theta_h_binning);
         out = Some(match out {
             None => a,
             Some(mut all) => {
@@ -494,28 +486,110 @@ struct Search<'v, 'a> {
     observed: Vec<[f64; 3]>,
     score: Scorer<'v>,
     tried: Vec<(Vec<f64>, f64)>,
+    /// Each view's search pixels ([`search_pixels`]).
+    view_pixels: Vec<Vec<GeomPixel>>,
+    /// The same, every view's in turn: the rows of [`Search::columns`].
+    pixels: Vec<GeomPixel>,
+    /// The search pixels' rendered columns, each computed once: a set of roughnesses tried
+    /// shares Lambert and its fixed lobes with every other set, so only a new α costs a pass
+    /// over the (pixel, light) pairs.
+    columns: SearchColumns,
+}
+
+/// Rendered columns of the search pixels: Lambert, and (F₀, F₉₀) per α, each as rows
+/// `3·p + c`.
+#[derive(Default)]
+struct SearchColumns {
+    lambert: Vec<f32>,
+    /// By α's bits: the F₀ column's rows, then the F₉₀ column's.
+    lobes: std::collections::HashMap<u64, [Vec<f32>; 2]>,
 }
 
 impl Search<'_, '_> {
-    /// The misfit of each candidate α as one more lobe beside the `fixed` ones, as many per
-    /// matrix as the column limit allows.
-    fn misfits(&mut self, fixed: &[f64], candidates: &[f64]) -> Vec<f64> {
-        // Lambert, two columns per fixed lobe, two per candidate.
-        let per_build = ((MAX_COLUMNS - 1) / 2 - fixed.len()).max(1);
-        let mut out = Vec::with_capacity(candidates.len());
-        for chunk in candidates.chunks(per_build) {
-            let alphas: Vec<f64> = fixed.iter().chain(chunk).copied().collect();
-            let a = matrix_for(self.views, self.grid, &alphas, true);
-            for (i, alpha) in chunk.iter().enumerate() {
-                let lobes: Vec<usize> = (0..fixed.len()).chain([fixed.len() + i]).collect();
-                let misfit = (self.score)(&a, &lobe_columns(&lobes));
-                let mut set = fixed.to_vec();
-                set.push(*alpha);
-                self.tried.push((set, misfit));
-                out.push(misfit);
+    /// Renders the columns of the αs not rendered yet (and Lambert, the first time), as many
+    /// per pass over the pixels as [`PASS_COLUMNS`] allows, the passes evenly filled.
+    fn render(&mut self, alphas: &[f64]) {
+        let mut missing: Vec<f64> = Vec::new();
+        for a in alphas {
+            if !self.columns.lobes.contains_key(&a.to_bits())
+                && !missing.iter().any(|m| m.to_bits() == a.to_bits())
+            {
+                missing.push(*a);
             }
         }
-        out
+        let need_lambert = self.columns.lambert.is_empty();
+        let total = 2 * missing.len() + usize::from(need_lambert);
+        if total == 0 {
+            return;
+        }
+        let passes = total.div_ceil(PASS_COLUMNS);
+        let per_pass = missing.len().div_ceil(passes).max(1);
+        let chunks: Vec<&[f64]> = if missing.is_empty() {
+            vec![&[]]
+        } else {
+            missing.chunks(per_pass).collect()
+        };
+        for (k, chunk) in chunks.into_iter().enumerate() {
+            let lambert = need_lambert && k == 0;
+            let cols: Vec<[Vec<f64>; 3]> = chunk.iter().map(|a| columns(self.grid, *a)).collect();
+            let lambert_col = lambert.then(|| columns(self.grid, ALPHA_MAX)[0].clone());
+            let mut refs: Vec<&[f64]> = lambert_col.iter().map(|c| c.as_slice()).collect();
+            for c in &cols {
+                refs.push(&c[1]);
+                refs.push(&c[2]);
+            }
+            let m = refs.len();
+            let mut rows: Vec<f32> = Vec::with_capacity(3 * self.pixels.len() * m);
+            for (v, pixels) in self.views.iter().zip(&self.view_pixels) {
+                let binning = self.grid.theta_h_binning;
+                rows.extend(RenderingMatrix::build(pixels, v.lights, &refs, None, binning).rows);
+            }
+            let column = |j: usize| -> Vec<f32> { rows.chunks(m).map(|r| r[j]).collect() };
+            let first = usize::from(lambert);
+            if lambert {
+                self.columns.lambert = column(0);
+            }
+            for (i, a) in chunk.iter().enumerate() {
+                let pair = [column(first + 2 * i), column(first + 2 * i + 1)];
+                self.columns.lobes.insert(a.to_bits(), pair);
+            }
+        }
+    }
+
+    /// The search pixels' matrix of the model with these lobes: Lambert, then (F₀, F₉₀) of
+    /// each α (all rendered by [`Search::render`]).
+    fn matrix(&self, alphas: &[f64]) -> RenderingMatrix {
+        let mut cols: Vec<&[f32]> = vec![&self.columns.lambert];
+        for a in alphas {
+            let [f0, f90] = &self.columns.lobes[&a.to_bits()];
+            cols.push(f0);
+            cols.push(f90);
+        }
+        let rows = (0..self.columns.lambert.len())
+            .flat_map(|r| cols.iter().map(move |c| c[r]))
+            .collect();
+        RenderingMatrix {
+            columns: cols.len(),
+            pixels: self.pixels.clone(),
+            rows,
+            offset: None,
+        }
+    }
+
+    /// The misfit of each candidate α as one more lobe beside the `fixed` ones.
+    fn misfits(&mut self, fixed: &[f64], candidates: &[f64]) -> Vec<f64> {
+        self.render(&[fixed, candidates].concat());
+        let cols: Vec<usize> = (0..1 + 2 * (fixed.len() + 1)).collect();
+        candidates
+            .iter()
+            .map(|alpha| {
+                let mut set = fixed.to_vec();
+                set.push(*alpha);
+                let misfit = (self.score)(&self.matrix(&set), &cols);
+                self.tried.push((set, misfit));
+                misfit
+            })
+            .collect()
     }
 
     /// The best α for one more lobe beside `fixed`: the coarse grid, then the refinement
@@ -594,12 +668,16 @@ fn search_roughness<'v, 'a>(
         let observed = observed.clone();
         Box::new(move |a: &RenderingMatrix, cols: &[usize]| solve_weights(a, &observed, cols).1)
     });
+    let (view_pixels, _) = search_pixels(views);
     let mut search = Search {
         views,
         grid,
         observed,
         score,
         tried: Vec::new(),
+        pixels: view_pixels.concat(),
+        view_pixels,
+        columns: SearchColumns::default(),
     };
     let mut alphas = vec![search.best_lobe(&[])];
     if lobes == 2 {
@@ -670,7 +748,7 @@ pub fn roughnesses<'v>(
 pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize) -> Result<AnalyticFit> {
     let (mut search, alphas) = search_roughness(views, grid, lobes, None)?;
     let observed = observed_of(views, false);
-    let matrix = matrix_for(views, grid, &alphas, false);
+    let matrix = matrix_for(views, grid, &alphas);
     let cols = lobe_columns(&(0..alphas.len()).collect::<Vec<_>>());
     let (w, _) = solve_weights(&matrix, &observed, &cols);
     let systems = channel_systems(&matrix, &observed, &cols);
