@@ -30,6 +30,7 @@ fn serial_commands_drive_a_simulated_turntable_on_a_pseudo_terminal() {
         dir.path(),
     );
     let again = brdfd(&["serial", "info", "--port", &port], dir.path());
+    let json = brdfd(&["serial", "info", "--port", &port, "--json"], dir.path());
     let cable_port = port.replace("serial:", "cable:dtr:");
     let cable = brdfd(&["serial", "fire", "--port", &cable_port], dir.path());
     drop(sim);
@@ -38,6 +39,15 @@ fn serial_commands_drive_a_simulated_turntable_on_a_pseudo_terminal() {
         out(&info).contains("brdfd-sim-turntable version 1; shutter output: yes; turntable: yes")
     );
     assert!(out(&rot).contains("at 330.00°"), "{}", out(&rot));
+    let parsed: serde_json::Value = serde_json::from_str(&out(&json)).expect("JSON");
+    assert_eq!(parsed["name"], "brdfd-sim-turntable", "{}", out(&json));
+    assert_eq!(parsed["can_rotate"], true);
+    assert_eq!(
+        parsed["position_deg"].as_f64(),
+        Some(330.0),
+        "{}",
+        out(&json)
+    );
     assert!(out(&fire).contains("fired 50 ms"), "{}", out(&fire));
     // A second process sees the position the first left.
     assert!(out(&again).contains("position 330.00°"), "{}", out(&again));

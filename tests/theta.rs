@@ -256,6 +256,10 @@ fn theta_commands_drive_a_simulated_theta_over_http() {
     let info = run(&["theta", "info", "--port", &url]);
     let out = String::from_utf8_lossy(&info.stdout).into_owned();
     assert!(out.contains("RICOH THETA V (serial 00165759"), "{out}");
+    let json = run(&["theta", "info", "--port", &url, "--json"]);
+    let info: serde_json::Value = serde_json::from_slice(&json.stdout).expect("JSON");
+    assert_eq!(info["serial_number"], "00165759");
+    assert_eq!(info["link"], format!("HTTP at {url}/"));
 
     let cap = run(&["theta", "capture", "--port", &url, "--out", "pano"]);
     let (out, err) = text(&cap);

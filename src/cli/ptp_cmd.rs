@@ -9,7 +9,13 @@ use brdfd_ptp::{Camera, CaptureOptions, Exposure, Target};
 #[derive(clap::Subcommand)]
 pub enum PtpCommand {
     /// Print what the camera reports: model, serial, storage, operations.
-    Info(PortArg),
+    Info {
+        #[command(flatten)]
+        port: PortArg,
+        /// Print it as JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Take one picture (or a bracket) and save the files exactly as the camera sent them.
     Capture(CaptureArgs),
 }
@@ -47,39 +53,15 @@ pub fn open(port: &str) -> anyhow::Result<Camera> {
 
 pub fn run(cmd: PtpCommand) -> anyhow::Result<()> {
     match cmd {
-        PtpCommand::Info(p) => {
-            let mut cam = open(&p.port)?;
-            let i = cam.info.clone();
-            println!(
-                "{} {} (version {}, serial {})",
-                i.manufacturer, i.model, i.device_version, i.serial_number
-            );
-            println!("link: {}", cam.describe());
-            println!(
-                "vendor extension: {:#x} ({})",
-                i.vendor_extension_id, i.vendor_extension_desc
-            );
-            println!(
-                "capture flow: {}",
-                if cam.is_nikon() {
-                    "Nikon (SDRAM or card, GetEvent polling)"
-                } else {
-                    "generic (InitiateCapture, events)"
-                }
-            );
-            for id in cam.storage_ids()? {
-                match cam.storage_info(id) {
-                    Ok(s) => println!(
-                        "storage {id:#010x}: {} MB free of {} MB",
-                        s.free_space_bytes >> 20,
-                        s.max_capacity >> 20
-                    ),
-                    Err(e) => println!("storage {id:#010x}: {e}"),
-                }
-            }
-            let ops: Vec<String> = i.operations.iter().map(|o| format!("{o:04x}")).collect();
-            println!("operations: {}", ops.join(" "));
+        PtpCommand::Info { port, json } => {
+            let mut cam = open(&port.port)?;
+            let info = camera_info(&mut cam)?;
             cam.close()?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&info)?);
+            } else {
+                print_info(&info);
+            }
         }
         PtpCommand::Capture(a) => {
             let mut cam = open(&a.port.port)?;
@@ -120,4 +102,110 @@ pub fn run(cmd: PtpCommand) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// What `ptp info` reports, as `--json` prints it.
+#[derive(serde::Serialize)]
+struct CameraInfo {
+    manufacturer: String,
+    model: String,
+    device_version: String,
+    serial_number: String,
+    link: String,
+    vendor_extension_id: u32,
+    vendor_extension_desc: String,
+    capture_flow: CaptureFlow,
+    storage: Vec<StorageRow>,
+    /// Operation codes, as hex.
+    operations: Vec<String>,
+}
+
+#[derive(serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+enum CaptureFlow {
+    /// SDRAM or card, GetEvent polling.
+    Nikon,
+    /// InitiateCapture, events.
+    Generic,
+}
+
+#[derive(serde::Serialize)]
+struct StorageRow {
+    id: String,
+    free_bytes: Option<u64>,
+    capacity_bytes: Option<u64>,
+    /// Why the storage could not be read, if it could not.
+    error: Option<String>,
+}
+
+fn camera_info(cam: &mut Camera) -> anyhow::Result<CameraInfo> {
+    let i = cam.info.clone();
+    let storage = cam
+        .storage_ids()?
+        .into_iter()
+        .map(|id| match cam.storage_info(id) {
+            Ok(s) => StorageRow {
+                id: format!("{id:#010x}"),
+                free_bytes: Some(s.free_space_bytes),
+                capacity_bytes: Some(s.max_capacity),
+                error: None,
+            },
+            Err(e) => StorageRow {
+                id: format!("{id:#010x}"),
+                free_bytes: None,
+                capacity_bytes: None,
+                error: Some(e.to_string()),
+            },
+        })
+        .collect();
+    Ok(CameraInfo {
+        link: cam.describe(),
+        capture_flow: if cam.is_nikon() {
+            CaptureFlow::Nikon
+        } else {
+            CaptureFlow::Generic
+        },
+        operations: i.operations.iter().map(|o| format!("{o:04x}")).collect(),
+        manufacturer: i.manufacturer,
+        model: i.model,
+        device_version: i.device_version,
+        serial_number: i.serial_number,
+        vendor_extension_id: i.vendor_extension_id,
+        vendor_extension_desc: i.vendor_extension_desc,
+        storage,
+    })
+}
+
+fn print_info(i: &CameraInfo) {
+    println!(
+        "{} {} (version {}, serial {})",
+        i.manufacturer, i.model, i.device_version, i.serial_number
+    );
+    println!("link: {}", i.link);
+    println!(
+        "vendor extension: {:#x} ({})",
+        i.vendor_extension_id, i.vendor_extension_desc
+    );
+    println!(
+        "capture flow: {}",
+        match i.capture_flow {
+            CaptureFlow::Nikon => "Nikon (SDRAM or card, GetEvent polling)",
+            CaptureFlow::Generic => "generic (InitiateCapture, events)",
+        }
+    );
+    for s in &i.storage {
+        match (&s.error, s.free_bytes, s.capacity_bytes) {
+            (Some(e), _, _) => println!("storage {}: {e}", s.id),
+            (None, Some(free), Some(cap)) => {
+                println!(
+                    "storage {}: {} MB free of {} MB",
+                    s.id,
+                    free >> 20,
+                    cap >> 20
+                )
+            }
+            _ => {}
+        }
+    }
+    println!("operations: {}", i.operations.join(" "));
 }

@@ -8,7 +8,13 @@ use brdfd_serial::{ControlLine, RigController, ShutterCable};
 #[derive(clap::Subcommand)]
 pub enum SerialCommand {
     /// What the device says it is (`ID?`) and where the turntable stands.
-    Info(SerialPort),
+    Info {
+        #[command(flatten)]
+        port: SerialPort,
+        /// Print it as JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Press the shutter for `--ms` milliseconds (rig protocol or release cable).
     Fire {
         #[command(flatten)]
@@ -43,9 +49,26 @@ fn rig(port: &str) -> anyhow::Result<RigController> {
 
 pub fn run(cmd: SerialCommand) -> anyhow::Result<()> {
     match cmd {
-        SerialCommand::Info(p) => {
-            let mut r = rig(&p.port)?;
+        SerialCommand::Info { port, json } => {
+            let mut r = rig(&port.port)?;
             let id = r.identity.clone();
+            if json {
+                let position = if id.can_rotate {
+                    Some(r.position()?)
+                } else {
+                    None
+                };
+                let info = serde_json::json!({
+                    "port": r.port_name(),
+                    "name": id.name,
+                    "version": id.version,
+                    "can_fire": id.can_fire,
+                    "can_rotate": id.can_rotate,
+                    "position_deg": position,
+                });
+                println!("{}", serde_json::to_string_pretty(&info)?);
+                return Ok(());
+            }
             println!(
                 "{}: {} version {}; shutter output: {}; turntable: {}",
                 r.port_name(),

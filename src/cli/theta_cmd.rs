@@ -14,7 +14,13 @@ use brdfd_theta::{BracketPlan, Credentials, Exposure, Frame, HttpTimeouts, Theta
 #[derive(clap::Subcommand)]
 pub enum ThetaCommand {
     /// Print what the camera reports: model, serial, firmware, link.
-    Info(ThetaPort),
+    Info {
+        #[command(flatten)]
+        port: ThetaPort,
+        /// Print it as JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Shoot an exposure bracket for light measurement, save the frames unchanged and the
     /// merged linear map as `panorama.exr`.
     Capture(ThetaCaptureArgs),
@@ -115,9 +121,19 @@ pub fn plan_from(shutter: &[f64], iso: u32) -> BracketPlan {
 
 pub fn run(cmd: ThetaCommand) -> anyhow::Result<()> {
     match cmd {
-        ThetaCommand::Info(p) => {
-            let theta = open(&p, HttpTimeouts::default())?;
-            println!("{}", theta.describe());
+        ThetaCommand::Info { port, json } => {
+            let theta = open(&port, HttpTimeouts::default())?;
+            if json {
+                let info = serde_json::json!({
+                    "model": theta.model,
+                    "serial_number": theta.serial,
+                    "firmware": theta.firmware,
+                    "link": theta.link(),
+                });
+                println!("{}", serde_json::to_string_pretty(&info)?);
+            } else {
+                println!("{}", theta.describe());
+            }
             theta.close()?;
         }
         ThetaCommand::Capture(a) => {

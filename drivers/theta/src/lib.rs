@@ -166,14 +166,21 @@ impl Theta {
 
     /// "RICOH THETA V (serial 00165759, firmware 3.50.1) over HTTP".
     pub fn describe(&self) -> String {
-        let link = match &self.link {
+        format!(
+            "{} (serial {}, firmware {}) over {}",
+            self.model,
+            self.serial,
+            self.firmware,
+            self.link()
+        )
+    }
+
+    /// The link it is reached by: `HTTP at URL` or `USB (PTP)`.
+    pub fn link(&self) -> String {
+        match &self.link {
             Link::Http { client, .. } => format!("HTTP at {}", client.base()),
             Link::Usb(_) => "USB (PTP)".into(),
-        };
-        format!(
-            "{} (serial {}, firmware {}) over {link}",
-            self.model, self.serial, self.firmware
-        )
+        }
     }
 
     /// Sets the camera up for light measurement; returns a line per setting, as applied.
