@@ -13,7 +13,8 @@
 //! - [`session`]: sessions on disk (manifest state machine, raw files with sha256, atomic
 //!   writes).
 //! - [`selector`]: the strings that name devices (`usb:04b0:0429`, `osc:http://...`, ...).
-//! - [`results`]: the files an estimate leaves behind.
+//! - [`results`]: the files an estimate leaves behind; [`compare`]: its photo-against-estimate
+//!   picture.
 //! - [`export`]: the analytic estimate as a glTF material and an OpenPBR `.mtlx`.
 //! - [`rig`]: the devices on their worker threads, and the capture flow.
 //! - [`daemon`]: `brdfd serve`: the devices kept open, one capture at a time, the HTTP API.
@@ -24,6 +25,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod bench;
+pub mod compare;
 pub mod config;
 pub mod core;
 pub mod daemon;

@@ -14,6 +14,7 @@ use crate::core::envmap::{write_exr, LightSet};
 use crate::core::estimate::{Estimate, Model, Timings};
 use crate::core::geometry::{Camera, PixelGeometry, Shape};
 use crate::core::hybrid::MixWeight;
+use crate::core::raster::Raster;
 use crate::core::render::render_bivariate;
 use crate::core::uncertainty::Uncertainty;
 use crate::core::{CoreError, Result};
@@ -142,6 +143,8 @@ pub struct ResultFiles {
     pub brdf_exr: PathBuf,
     pub merl: PathBuf,
     pub preview_png: PathBuf,
+    /// The photo beside the estimate, when the photo was given.
+    pub compare_png: Option<PathBuf>,
 }
 
 fn write_bivariate_exr(path: &Path, b: &Bivariate) -> Result<()> {
@@ -161,12 +164,15 @@ fn write_bivariate_exr(path: &Path, b: &Bivariate) -> Result<()> {
 /// size (a full-resolution re-render of a 16-megapixel photo would dominate the run time).
 pub const PREVIEW_SIZE: usize = 128;
 
+/// Writes every result file into `dir`; with the first view's `photo`, also `compare.png`
+/// ([`crate::compare`]).
 pub fn write_results(
     dir: &Path,
     basis: &Basis,
     estimate: &Estimate,
     method: &str,
     lights: &LightSet,
+    photo: Option<&Raster>,
 ) -> Result<ResultFiles> {
     std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
     let brdf = &estimate.brdf;
@@ -224,6 +230,7 @@ pub fn write_results(
         brdf_exr: dir.join("brdf-bivariate.exr"),
         merl: dir.join("brdf.binary"),
         preview_png: dir.join("preview.png"),
+        compare_png: photo.map(|_| dir.join("compare.png")),
     };
     let json = serde_json::to_string_pretty(&file).expect("coefficients serialise");
     std::fs::write(&files.coefficients, json).map_err(|e| CoreError::io(&files.coefficients, e))?;
@@ -238,14 +245,21 @@ pub fn write_results(
         let band = Bivariate::from_values(brdf.grid, u.band.clone(), brdf.valid.clone());
         write_bivariate_exr(&dir.join("brdf-sigma.exr"), &band)?;
     }
-    brdf.to_merl().write(&files.merl)?;
-    let sphere = PixelGeometry::rasterize(
-        &Camera::eval_orthographic(PREVIEW_SIZE),
-        &Shape::unit_sphere(),
-    )?;
-    let preview = render_bivariate(&sphere, lights, brdf);
-    preview.write_exr(&dir.join("preview.exr"))?;
-    preview.write_png(&files.preview_png, preview.auto_exposure())?;
+    if let (Some(photo), Some(path)) = (photo, &files.compare_png) {
+        crate::compare::write(path, photo, &estimate.rerender)?;
+    }
+    // The MERL table (35 MB) is written while the preview renders.
+    std::thread::scope(|s| {
+        let merl = s.spawn(|| brdf.to_merl().write(&files.merl));
+        let sphere = PixelGeometry::rasterize(
+            &Camera::eval_orthographic(PREVIEW_SIZE),
+            &Shape::unit_sphere(),
+        )?;
+        let preview = render_bivariate(&sphere, lights, brdf);
+        preview.write_exr(&dir.join("preview.exr"))?;
+        preview.write_png(&files.preview_png, preview.auto_exposure())?;
+        merl.join().expect("writing the MERL table panicked")
+    })?;
     Ok(files)
 }
 

@@ -59,6 +59,7 @@ fn simulated_capture_prints_coefficients() {
         "brdf.binary",
         "preview.png",
         "preview.exr",
+        "compare.png",
         "photo.exr",
         "panorama.exr",
     ] {
@@ -477,6 +478,25 @@ fn ptp_commands_drive_a_simulated_camera_over_ptpip() {
     assert!(info.status.success(), "{out}\n{err}");
     assert!(
         out.contains("Nikon Corporation D5100") && out.contains("capture flow: Nikon"),
+        "{out}"
+    );
+    let json = brdfd(&["ptp", "info", "--port", &port, "--json"], dir.path());
+    let (out, err) = text(&json);
+    assert!(json.status.success(), "{out}\n{err}");
+    let info: serde_json::Value = serde_json::from_str(&out).expect("ptp info --json is JSON");
+    assert_eq!(info["model"], "D5100", "{out}");
+    assert_eq!(info["capture_flow"], "nikon", "{out}");
+    assert!(info["link"].as_str().unwrap().contains(&addr), "{out}");
+    assert!(
+        info["storage"][0]["capacity_bytes"].as_u64().unwrap() > 0,
+        "{out}"
+    );
+    assert!(
+        info["operations"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|o| o == "90c8"),
         "{out}"
     );
 

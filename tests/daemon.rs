@@ -193,6 +193,9 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
     let (status, png) = daemon.get_bytes(&format!("/sessions/{id}/result/preview.png"));
     assert_eq!(status, 200);
     assert!(png.starts_with(b"\x89PNG"));
+    let (status, png) = daemon.get_bytes(&format!("/sessions/{id}/result/compare.png"));
+    assert_eq!(status, 200);
+    assert!(png.starts_with(b"\x89PNG"));
     let (status, _) = daemon.get_bytes(&format!("/sessions/{id}/result/manifest.json"));
     assert_eq!(status, 404);
     let (status, body) = daemon.get("/sessions/..%2F..%2Fetc");

@@ -236,6 +236,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
             MethodArg::Paper => "paper",
         },
         &lights,
+        Some(&photo),
     )?;
     print_estimate(&est.names, &est.solution.coefficients);
     if est.clipped > 0 {

@@ -159,11 +159,47 @@ pub struct Estimate {
     /// ‖A·c − y‖ / ‖y‖ over every candidate pixel, not only the chosen ones: how well the
     /// estimate re-renders the photo, with no ground truth needed.
     pub fit_error: f64,
+    /// What the estimate renders at each candidate pixel, beside what the photo measured
+    /// there: the re-render [`Estimate::fit_error`] is measured on, every view's in turn.
+    pub rerender: Vec<Rerendered>,
     pub lights: usize,
     /// Lights the chosen pixels' rows were rebuilt with (first view); 0 if they kept the
     /// candidates' rows.
     pub chosen_lights: usize,
     pub timings: Timings,
+}
+
+/// One candidate pixel of the re-render: where it is, what the estimate renders there and
+/// what the photo measured (linear RGB).
+#[derive(Clone, Copy, Debug)]
+pub struct Rerendered {
+    /// The view (0 for the first).
+    pub view: usize,
+    pub x: u32,
+    pub y: u32,
+    pub predicted: [f32; 3],
+    pub observed: [f32; 3],
+}
+
+/// The re-render of every candidate from `predicted` (three values per candidate, in the
+/// candidates' order).
+fn rerendered(candidates: &[Candidates], predicted: &[f64]) -> Vec<Rerendered> {
+    let pixels = candidates.iter().enumerate().flat_map(|(view, c)| {
+        c.pixels
+            .iter()
+            .zip(&c.observed)
+            .map(move |(p, o)| (view, p, o))
+    });
+    pixels
+        .zip(predicted.chunks_exact(3))
+        .map(|((view, p, o), rgb)| Rerendered {
+            view,
+            x: p.x,
+            y: p.y,
+            predicted: [rgb[0] as f32, rgb[1] as f32, rgb[2] as f32],
+            observed: [o[0] as f32, o[1] as f32, o[2] as f32],
+        })
+        .collect()
 }
 
 /// How much better (in [`Estimate::fit_error`], a relative RMSE) a colour model with more
@@ -680,6 +716,7 @@ fn hybrid_estimate(basis: &Basis, candidates: &[Candidates], lobes: usize) -> Re
         candidates: n,
         clipped: 0,
         fit_error: fit.fit_error,
+        rerender: rerendered(candidates, &fit.predicted),
         lights: candidates.first().map_or(0, |c| c.view.lights.len()),
         chosen_lights: 0,
         solved: fit.solved,
@@ -698,7 +735,8 @@ fn analytic_estimate(basis: &Basis, candidates: &[Candidates], lobes: usize) -> 
     let t = Instant::now();
     let grid = basis.header.grid;
     let fit = analytic::fit(&view_pixels(candidates), grid, lobes)?;
-    let fit_error = relative_misfit(&fit.predicted(), &fit.observed);
+    let predicted = fit.predicted();
+    let fit_error = relative_misfit(&predicted, &fit.observed);
     let n = fit.observed.len();
     let rows = (3 * n).max(1) as f64;
     let y2: f64 = fit.observed.iter().flatten().map(|v| v * v).sum();
@@ -728,6 +766,7 @@ fn analytic_estimate(basis: &Basis, candidates: &[Candidates], lobes: usize) -> 
         candidates: n,
         clipped: 0,
         fit_error,
+        rerender: rerendered(candidates, &predicted),
         lights: candidates.first().map_or(0, |c| c.view.lights.len()),
         chosen_lights: 0,
         solved: n,
@@ -765,7 +804,8 @@ fn basis_estimate(
         rendering_matrix_s: matrix_s,
         ..Timings::default()
     };
-    let mut best: Option<((Colour, Selection, Solution, Uncertainty), f64)> = None;
+    type Tried = (Colour, Selection, Solution, Uncertainty, Vec<f64>);
+    let mut best: Option<(Tried, f64)> = None;
     let mut colour_fits = Vec::new();
     let mut failure = None;
     for &colour in options.colour.models() {
@@ -794,11 +834,13 @@ fn basis_estimate(
         timings.chosen_rows_s += t.chosen_rows_s;
         timings.solve_s += t.solve_s;
         let per_channel = channel_coefficients(&solution.coefficients, a.columns)?;
-        let fit = relative_misfit(&a.predict_per_channel(per_channel), &observed);
+        let predicted = a.predict_per_channel(per_channel);
+        let fit = relative_misfit(&predicted, &observed);
         colour_fits.push((colour, fit));
-        best = keep_better_fit(best, ((colour, selection, solution, uncertainty), fit));
+        let tried = (colour, selection, solution, uncertainty, predicted);
+        best = keep_better_fit(best, (tried, fit));
     }
-    let Some(((colour, selection, solution, uncertainty), fit_error)) = best else {
+    let Some(((colour, selection, solution, uncertainty, predicted), fit_error)) = best else {
         return Err(failure.expect("every colour choice names a model"));
     };
     let chosen_lights = candidates
@@ -830,6 +872,7 @@ fn basis_estimate(
         candidates: a.pixels.len(),
         clipped: 0,
         fit_error,
+        rerender: rerendered(candidates, &predicted),
         lights: candidates.first().map_or(0, |c| c.view.lights.len()),
         chosen_lights,
         timings,

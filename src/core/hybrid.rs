@@ -29,7 +29,7 @@ use super::error::{CoreError, Result};
 use super::estimate::relative_misfit;
 use super::geometry::GeomPixel;
 use super::nnls::nnls;
-use super::render::{RenderingMatrix, MAX_COLUMNS};
+use super::render::{RenderingMatrix, PASS_COLUMNS};
 use super::solve::CHANNELS;
 use super::uncertainty::{
     band, image_spread, spread_sphere, std_of, Uncertainty, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED,
@@ -63,6 +63,9 @@ pub struct HybridFit {
     pub solved: usize,
     /// Candidates the fit error was measured on.
     pub candidates: usize,
+    /// What the fit renders at each candidate, three values (R, G, B) per candidate, every
+    /// view's in turn.
+    pub predicted: Vec<f64>,
     /// κ of the per-channel systems over the columns kept (the worst channel's), columns
     /// scaled to unit norm.
     pub condition: f64,
@@ -103,16 +106,16 @@ impl HybridFit {
     }
 }
 
-/// Dense rows of the rendering matrix of `columns` for `pixels`, built [`MAX_COLUMNS`] at a
+/// Dense rows of the rendering matrix of `columns` for `pixels`, built [`PASS_COLUMNS`] at a
 /// time: row (3·p + c) holds every column's value for pixel p, channel c.
 fn dense_rows(pixels: &[GeomPixel], lights: &LightSet, columns: &[&[f64]], grid: Grid) -> Vec<f64> {
     let n = columns.len();
     let mut rows = vec![0.0; 3 * pixels.len() * n];
-    for (k, chunk) in columns.chunks(MAX_COLUMNS).enumerate() {
+    for (k, chunk) in columns.chunks(PASS_COLUMNS).enumerate() {
         let a = RenderingMatrix::build(pixels, lights, chunk, None, grid.theta_h_binning);
         for r in 0..3 * pixels.len() {
             for (j, v) in a.row(r).iter().enumerate() {
-                rows[r * n + k * MAX_COLUMNS + j] = *v as f64;
+                rows[r * n + k * PASS_COLUMNS + j] = *v as f64;
             }
         }
     }
@@ -345,6 +348,7 @@ pub fn fit(views: &[ViewPixels], basis: &Basis, lobes: usize) -> Result<HybridFi
         solved_misfit,
         solved: observed.len(),
         candidates: all_observed.len(),
+        predicted,
         condition,
         uncertainty,
     })

@@ -10,7 +10,7 @@
 //! | `GET /api/v1/sessions/{id}` | `{"id", "dir", "manifest"}`: where it is stored, and its manifest |
 //! | `GET /api/v1/sessions/{id}/events` | Server-Sent Events, one JSON [`Event`] each, from the session's first; ends after `finished` |
 //! | `GET /api/v1/sessions/{id}/result` | `coefficients.json`; 409 `not_done` until the session is done |
-//! | `GET /api/v1/sessions/{id}/result/{file}` | `preview.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`; for a hybrid or analytic estimate also `material.gltf`, `material.mtlx` |
+//! | `GET /api/v1/sessions/{id}/result/{file}` | `preview.png`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`; for a hybrid or analytic estimate also `material.gltf`, `material.mtlx` |
 //! | `POST /api/v1/sessions/{id}/cancel` | 202; 409 `not_running` |
 //! | `POST /api/v1/sessions/{id}/resume` | 202 as for a new capture; 409 `busy` |
 //!
@@ -316,7 +316,7 @@ async fn result_file(
 ) -> ApiResult<Response> {
     // A fixed list: a file name from the request never reaches the file system unchecked.
     let kind = match file.as_str() {
-        "preview.png" => "image/png",
+        "preview.png" | "compare.png" => "image/png",
         "preview.exr" | "brdf-bivariate.exr" | "brdf-sigma.exr" => "image/x-exr",
         "brdf.binary" | "coefficients.json" => "application/octet-stream",
         // glTF's registered media type; MaterialX has none, and is XML.

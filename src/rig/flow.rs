@@ -512,7 +512,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         env.height,
         &env.pixels,
     )?;
-    write_result(session, &basis, &est, lights)?;
+    write_result(session, &basis, &est, lights, &views[0].3)?;
     phases.end(p);
     cx.say(format!(
         "{}, condition number {}; the estimate re-renders the photo{} to a relative RMSE of {:.4} over {} pixels ({})",
@@ -559,10 +559,11 @@ fn write_result(
     basis: &Basis,
     est: &Estimate,
     lights: &crate::core::envmap::LightSet,
+    photo: &Raster,
 ) -> anyhow::Result<()> {
     let fresh = session.dir.join("result.partial");
     let _ = std::fs::remove_dir_all(&fresh);
-    crate::results::write_results(&fresh, basis, est, "fast", lights)?;
+    crate::results::write_results(&fresh, basis, est, "fast", lights, Some(photo))?;
     let result = session.dir.join("result");
     let _ = std::fs::remove_dir_all(&result);
     std::fs::rename(&fresh, &result).context("moving the results into place")?;
