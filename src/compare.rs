@@ -152,6 +152,27 @@ pub fn picture(photo: &Raster, rerender: &[Rerendered], view: usize) -> RgbImage
     img
 }
 
+/// Marks `points` (photo coordinates: the chosen pixels) with small green squares on the
+/// photo and estimate panels of a [`picture`] of `photo`.
+pub fn mark(img: &mut RgbImage, photo: &Raster, points: &[(u32, u32)]) {
+    let factor = photo.width.max(photo.height).div_ceil(PANEL_MAX).max(1) as u32;
+    let w = photo.width.div_ceil(factor as usize) as u32;
+    let h = photo.height.div_ceil(factor as usize) as u32;
+    for &(x, y) in points {
+        let (cx, cy) = (x / factor, y / factor);
+        for panel in [0, w + GAP] {
+            for d in -3i32..=3 {
+                for (dx, dy) in [(d, -3), (d, 3), (-3, d), (3, d)] {
+                    let (px, py) = (cx as i32 + dx, cy as i32 + dy);
+                    if px >= 0 && py >= 0 && (px as u32) < w && (py as u32) < h {
+                        img.put_pixel(panel + px as u32, py as u32, Rgb([0, 230, 0]));
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// Writes [`picture`] of the first view to `path`.
 pub fn write(path: &Path, photo: &Raster, rerender: &[Rerendered]) -> Result<()> {
     picture(photo, rerender, 0)

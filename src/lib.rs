@@ -14,7 +14,7 @@
 //!   writes).
 //! - [`selector`]: the strings that name devices (`usb:04b0:0429`, `osc:http://...`, ...).
 //! - [`results`]: the files an estimate leaves behind; [`compare`]: its photo-against-estimate
-//!   picture.
+//!   picture; [`report`]: its `report.html`.
 //! - [`export`]: the analytic estimate as a glTF material and an OpenPBR `.mtlx`.
 //! - [`rig`]: the devices on their worker threads, and the capture flow.
 //! - [`daemon`]: `brdfd serve`: the devices kept open, one capture at a time, the HTTP API.
@@ -33,6 +33,7 @@ pub mod evaluation;
 pub mod export;
 pub mod panorama;
 pub mod radiometry;
+pub mod report;
 pub mod results;
 pub mod rig;
 pub mod selector;

@@ -14,11 +14,11 @@ use crate::core::envmap::{write_exr, LightSet};
 use crate::core::estimate::{Estimate, Model, Timings};
 use crate::core::geometry::{Camera, PixelGeometry, Shape};
 use crate::core::hybrid::MixWeight;
-use crate::core::raster::Raster;
 use crate::core::render::render_bivariate;
 use crate::core::uncertainty::Uncertainty;
 use crate::core::{CoreError, Result};
 use crate::export::{write_exports, Export};
+use crate::report::Context;
 
 /// The contents of `coefficients.json`.
 #[derive(Serialize)]
@@ -145,6 +145,7 @@ pub struct ResultFiles {
     pub preview_png: PathBuf,
     /// The photo beside the estimate, when the photo was given.
     pub compare_png: Option<PathBuf>,
+    pub report: PathBuf,
 }
 
 fn write_bivariate_exr(path: &Path, b: &Bivariate) -> Result<()> {
@@ -164,15 +165,15 @@ fn write_bivariate_exr(path: &Path, b: &Bivariate) -> Result<()> {
 /// size (a full-resolution re-render of a 16-megapixel photo would dominate the run time).
 pub const PREVIEW_SIZE: usize = 128;
 
-/// Writes every result file into `dir`; with the first view's `photo`, also `compare.png`
-/// ([`crate::compare`]).
+/// Writes every result file into `dir`, `report.html` among them ([`crate::report`], with
+/// what `cx` knows); with the first view's photo, also `compare.png` ([`crate::compare`]).
 pub fn write_results(
     dir: &Path,
     basis: &Basis,
     estimate: &Estimate,
     method: &str,
     lights: &LightSet,
-    photo: Option<&Raster>,
+    cx: &Context,
 ) -> Result<ResultFiles> {
     std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
     let brdf = &estimate.brdf;
@@ -230,7 +231,8 @@ pub fn write_results(
         brdf_exr: dir.join("brdf-bivariate.exr"),
         merl: dir.join("brdf.binary"),
         preview_png: dir.join("preview.png"),
-        compare_png: photo.map(|_| dir.join("compare.png")),
+        compare_png: cx.photo.map(|_| dir.join("compare.png")),
+        report: dir.join("report.html"),
     };
     let json = serde_json::to_string_pretty(&file).expect("coefficients serialise");
     std::fs::write(&files.coefficients, json).map_err(|e| CoreError::io(&files.coefficients, e))?;
@@ -245,7 +247,7 @@ pub fn write_results(
         let band = Bivariate::from_values(brdf.grid, u.band.clone(), brdf.valid.clone());
         write_bivariate_exr(&dir.join("brdf-sigma.exr"), &band)?;
     }
-    if let (Some(photo), Some(path)) = (photo, &files.compare_png) {
+    if let (Some(photo), Some(path)) = (cx.photo, &files.compare_png) {
         crate::compare::write(path, photo, &estimate.rerender)?;
     }
     // The MERL table (35 MB) is written while the preview renders.
@@ -257,7 +259,15 @@ pub fn write_results(
         )?;
         let preview = render_bivariate(&sphere, lights, brdf);
         preview.write_exr(&dir.join("preview.exr"))?;
-        preview.write_png(&files.preview_png, preview.auto_exposure())?;
+        let preview = preview.to_srgb8(preview.auto_exposure());
+        preview.save(&files.preview_png).map_err(|e| {
+            CoreError::format(
+                files.preview_png.display(),
+                format!("could not write PNG: {e}"),
+            )
+        })?;
+        let basis_id = &basis.header.id;
+        crate::report::write(&files.report, estimate, basis_id, &preview, lights, cx)?;
         merl.join().expect("writing the MERL table panicked")
     })?;
     Ok(files)

@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{brdfd, text, Simulator};
+use common::{brdfd, check_report, text, Simulator};
 
 /// The `coefficients.json` that a command wrote to `dir/out`.
 fn coefficients_json(dir: &std::path::Path, out: &str) -> serde_json::Value {
@@ -65,6 +65,15 @@ fn simulated_capture_prints_coefficients() {
     ] {
         assert!(dir.path().join("result").join(f).is_file(), "{f} missing");
     }
+    // The report: photo against estimate, the sphere, the map; the simulator's truth on the
+    // slices, and the relight figure among the numbers.
+    let report = check_report(&dir.path().join("result/report.html"), 3);
+    assert!(report.contains("truth (dashed)"), "no truth on the slices");
+    assert!(report.contains("relit under light it was not fitted to"));
+    assert!(
+        report.contains("Nikon Corporation D5100"),
+        "no device record"
+    );
     // The bracket came through the simulated D5100 over PTP/IP, as JPEGs with EXIF; the
     // panorama through the simulated THETA V over HTTP, as an 8-frame bracket.
     assert!(out.contains("D5100 on ptpip:127.0.0.1:"), "{out}");
@@ -212,6 +221,11 @@ fn estimate_from_files() {
     let joint = ["--colour", "joint"];
     let json = estimate(&joint, "est");
     assert_eq!(json["k"], 5);
+    let report = check_report(&dir.path().join("est/report.html"), 3);
+    assert!(
+        report.contains("green squares mark the 20 pixels the solve used"),
+        "chosen pixels not marked"
+    );
     assert_eq!(json["pixel_count"], 20);
     assert_eq!(json["solver"], "prior");
     assert!(json["condition_number"].as_f64().unwrap().is_finite());

@@ -193,6 +193,9 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
     let (status, png) = daemon.get_bytes(&format!("/sessions/{id}/result/preview.png"));
     assert_eq!(status, 200);
     assert!(png.starts_with(b"\x89PNG"));
+    let (status, html) = daemon.get_bytes(&format!("/sessions/{id}/result/report.html"));
+    assert_eq!(status, 200);
+    assert!(html.starts_with(b"<!DOCTYPE html>"));
     let (status, png) = daemon.get_bytes(&format!("/sessions/{id}/result/compare.png"));
     assert_eq!(status, 200);
     assert!(png.starts_with(b"\x89PNG"));

@@ -18,6 +18,7 @@ use brdfd::core::raster::Raster;
 use brdfd::core::render::{render_bivariate, render_merl};
 use brdfd::core::select::SwapParams;
 use brdfd::core::solve::{ColourChoice, Solver};
+use brdfd::report::Context as ReportContext;
 use brdfd::results::write_results;
 
 use super::GeometryArgs;
@@ -236,7 +237,20 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
             MethodArg::Paper => "paper",
         },
         &lights,
-        Some(&photo),
+        &ReportContext {
+            title: format!("{} under {}", a.photo.display(), a.env.display()),
+            photo: Some(&photo),
+            env: Some(&env),
+            record: vec![
+                ("photo".into(), a.photo.display().to_string()),
+                ("environment map".into(), a.env.display().to_string()),
+                (
+                    "software".into(),
+                    format!("brdfd {}", env!("CARGO_PKG_VERSION")),
+                ),
+            ],
+            ..ReportContext::default()
+        },
     )?;
     print_estimate(&est.names, &est.solution.coefficients);
     if est.clipped > 0 {

@@ -10,7 +10,7 @@
 //! | `GET /api/v1/sessions/{id}` | `{"id", "dir", "manifest"}`: where it is stored, and its manifest |
 //! | `GET /api/v1/sessions/{id}/events` | Server-Sent Events, one JSON [`Event`] each, from the session's first; ends after `finished` |
 //! | `GET /api/v1/sessions/{id}/result` | `coefficients.json`; 409 `not_done` until the session is done |
-//! | `GET /api/v1/sessions/{id}/result/{file}` | `preview.png`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`; for a hybrid or analytic estimate also `material.gltf`, `material.mtlx` |
+//! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `preview.png`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`; for a hybrid or analytic estimate also `material.gltf`, `material.mtlx` |
 //! | `POST /api/v1/sessions/{id}/cancel` | 202; 409 `not_running` |
 //! | `POST /api/v1/sessions/{id}/resume` | 202 as for a new capture; 409 `busy` |
 //!
@@ -319,6 +319,7 @@ async fn result_file(
         "preview.png" | "compare.png" => "image/png",
         "preview.exr" | "brdf-bivariate.exr" | "brdf-sigma.exr" => "image/x-exr",
         "brdf.binary" | "coefficients.json" => "application/octet-stream",
+        "report.html" => "text/html; charset=utf-8",
         // glTF's registered media type; MaterialX has none, and is XML.
         "material.gltf" => "model/gltf+json",
         "material.mtlx" => "application/xml",
@@ -328,7 +329,16 @@ async fn result_file(
     let bytes = tokio::fs::read(s.dir.join("result").join(&file))
         .await
         .map_err(not_found)?;
-    Ok(([(header::CONTENT_TYPE, kind)], bytes).into_response())
+    // The report is a page of inline images, SVG and CSS: nothing in it may run or load.
+    let policy = "default-src 'none'; img-src data:; style-src 'unsafe-inline'";
+    Ok((
+        [
+            (header::CONTENT_TYPE, kind),
+            (header::CONTENT_SECURITY_POLICY, policy),
+        ],
+        bytes,
+    )
+        .into_response())
 }
 
 async fn events(

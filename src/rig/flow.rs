@@ -32,6 +32,7 @@ use crate::core::raster::Raster;
 use crate::core::solve::Colour;
 use crate::panorama::merge_bracket;
 use crate::radiometry::{decode_jpeg, merge_hdr, merged_white_level};
+use crate::report::Context as ReportContext;
 use crate::session::{PhaseTime, Session, State};
 
 /// Camera files by name, exactly as the camera sent them.
@@ -512,7 +513,27 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         env.height,
         &env.pixels,
     )?;
-    write_result(session, &basis, &est, lights, &views[0].3)?;
+    // The simulator knows the material: the report overlays it on the estimate's slices.
+    let true_brdf = bench
+        .as_ref()
+        .map(|b| Bivariate::reduce(&b.material, basis.header.grid));
+    let m = &session.manifest;
+    let report = ReportContext {
+        title: format!("session {} ({})", m.id, m.material),
+        photo: Some(&views[0].3),
+        env: Some(&env),
+        relight_error: relight,
+        truth: true_brdf.as_ref(),
+        record: vec![
+            ("session".into(), m.id.clone()),
+            ("material".into(), m.material.clone()),
+            ("created".into(), m.created.clone()),
+            ("views".into(), views.len().to_string()),
+            ("devices".into(), m.devices.join("; ")),
+            ("software".into(), m.software.clone()),
+        ],
+    };
+    write_result(session, &basis, &est, lights, &report)?;
     phases.end(p);
     cx.say(format!(
         "{}, condition number {}; the estimate re-renders the photo{} to a relative RMSE of {:.4} over {} pixels ({})",
@@ -559,11 +580,11 @@ fn write_result(
     basis: &Basis,
     est: &Estimate,
     lights: &crate::core::envmap::LightSet,
-    photo: &Raster,
+    report: &ReportContext,
 ) -> anyhow::Result<()> {
     let fresh = session.dir.join("result.partial");
     let _ = std::fs::remove_dir_all(&fresh);
-    crate::results::write_results(&fresh, basis, est, "fast", lights, Some(photo))?;
+    crate::results::write_results(&fresh, basis, est, "fast", lights, report)?;
     let result = session.dir.join("result");
     let _ = std::fs::remove_dir_all(&result);
     std::fs::rename(&fresh, &result).context("moving the results into place")?;

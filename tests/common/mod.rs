@@ -258,3 +258,57 @@ pub fn assert_verifies(dir: &Path, state: &str, id: &str, files: usize) {
         out(&show)
     );
 }
+
+/// Checks a `report.html` as a reader would need it: one HTML document whose elements all
+/// close, every inline image a PNG that decodes, the three BRDF-slice plots with their axis
+/// labels, and `figures` figures. Returns the page.
+pub fn check_report(path: &Path, figures: usize) -> String {
+    use base64::Engine as _;
+    let html = std::fs::read_to_string(path).expect("report.html is written");
+    assert!(html.starts_with("<!DOCTYPE html>"), "not an HTML document");
+    // Elements close in order (void elements and self-closed SVG ones aside).
+    const VOID: [&str; 4] = ["meta", "img", "br", "hr"];
+    let mut open: Vec<String> = Vec::new();
+    let mut rest = html.as_str();
+    while let Some(i) = rest.find('<') {
+        rest = &rest[i + 1..];
+        let end = rest.find('>').expect("a tag that ends");
+        let tag = &rest[..end];
+        rest = &rest[end + 1..];
+        if tag.starts_with('!') || tag.ends_with('/') {
+            continue;
+        }
+        let name: String = tag
+            .trim_start_matches('/')
+            .chars()
+            .take_while(|c| c.is_ascii_alphanumeric())
+            .collect();
+        if VOID.contains(&name.as_str()) {
+            continue;
+        }
+        if tag.starts_with('/') {
+            assert_eq!(
+                open.pop().as_deref(),
+                Some(name.as_str()),
+                "</{name}> closes nothing open"
+            );
+        } else {
+            open.push(name);
+        }
+    }
+    assert!(open.is_empty(), "left open: {open:?}");
+    let images: Vec<&str> = html.split("data:image/png;base64,").skip(1).collect();
+    assert!(images.len() >= figures, "{} images", images.len());
+    for data in images {
+        let data = &data[..data.find('"').expect("a quoted data URI")];
+        let png = base64::engine::general_purpose::STANDARD
+            .decode(data)
+            .expect("base64");
+        image::load_from_memory_with_format(&png, image::ImageFormat::Png).expect("a PNG");
+    }
+    assert_eq!(html.matches("<svg").count(), 3, "three BRDF slices");
+    assert_eq!(html.matches("θh (degrees)").count(), 3, "x axis labels");
+    assert_eq!(html.matches("BRDF (1/sr)").count(), 3, "y axis labels");
+    assert_eq!(html.matches("<figure>").count(), figures, "figures");
+    html
+}

@@ -1,0 +1,433 @@
+//! `report.html`: one self-contained page per estimate, to read in a browser with no network.
+//! It shows what the numbers alone hide: the photo beside the estimate and their difference
+//! ([`crate::compare`]), the estimate on a sphere, BRDF slices against θh with the 1-σ band
+//! (and the truth, from a simulator), the environment map with the lights used, and the
+//! numbers with their verdicts and the session's record. Images are inline PNGs and plots
+//! inline SVGs, so the file can be mailed or archived on its own.
+
+use std::fmt::Write as _;
+use std::io::Cursor;
+use std::path::Path;
+
+use base64::Engine as _;
+use image::{ImageFormat, Rgb, RgbImage};
+use plotters::prelude::*;
+
+use crate::core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
+use crate::core::envmap::{uv_of, EnvMap, LightSet};
+use crate::core::error::{CoreError, Result};
+use crate::core::estimate::{fit_verdict, Estimate};
+use crate::core::merl;
+use crate::core::raster::{linear_to_srgb, Raster};
+
+/// What a report shows besides the estimate itself; every part is optional.
+#[derive(Default)]
+pub struct Context<'a> {
+    /// The page's title: the session, or the files estimated from.
+    pub title: String,
+    /// The first view's photo (linear).
+    pub photo: Option<&'a Raster>,
+    /// The environment map the estimate was lit by.
+    pub env: Option<&'a EnvMap>,
+    /// The estimate's relit error against a known truth (a simulator's).
+    pub relight_error: Option<f64>,
+    /// The true BRDF on the estimate's grid (a simulator's).
+    pub truth: Option<&'a Bivariate>,
+    /// The session's record: what, when, which devices.
+    pub record: Vec<(String, String)>,
+}
+
+/// θd of the BRDF slices, in degrees: near the retro direction, a middle angle, near grazing.
+const SLICE_THETA_D: [f64; 3] = [5.0, 30.0, 60.0];
+/// Lowest value the log axis shows, as a fraction of the plotted peak.
+const LOG_FLOOR: f64 = 1e-4;
+const CHANNELS: [(&str, RGBColor); 3] = [
+    ("R", RGBColor(200, 30, 30)),
+    ("G", RGBColor(30, 150, 30)),
+    ("B", RGBColor(30, 60, 210)),
+];
+
+/// Writes the report for `estimate` (with its `preview`, the estimate on a sphere, and the
+/// `lights` it was fitted under) to `path`.
+pub fn write(
+    path: &Path,
+    estimate: &Estimate,
+    basis_id: &str,
+    preview: &RgbImage,
+    lights: &LightSet,
+    cx: &Context,
+) -> Result<()> {
+    let html = page(estimate, basis_id, preview, lights, cx)?;
+    std::fs::write(path, html).map_err(|e| CoreError::io(path, e))
+}
+
+fn page(
+    est: &Estimate,
+    basis_id: &str,
+    preview: &RgbImage,
+    lights: &LightSet,
+    cx: &Context,
+) -> Result<String> {
+    let mut h = String::new();
+    let title = escape(&cx.title);
+    let _ = writeln!(
+        h,
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
+         <title>brdfd report: {title}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n\
+         <h1>brdfd report: {title}</h1>\n<p class=\"summary\">{}</p>",
+        escape(&est.method_text())
+    );
+
+    h.push_str("<h2>Photo against estimate</h2>\n");
+    match cx.photo {
+        Some(photo) => {
+            let mut img = crate::compare::picture(photo, &est.rerender, 0);
+            let chosen: Vec<(u32, u32)> = est
+                .chosen
+                .iter()
+                .zip(&est.chosen_views)
+                .filter(|(_, v)| **v == 0)
+                .map(|(p, _)| *p)
+                .collect();
+            crate::compare::mark(&mut img, photo, &chosen);
+            let _ = writeln!(
+                h,
+                "<figure>{}<figcaption>Left: the photo (first view). Middle: the estimate \
+                 re-rendered under the same light, at the photo's exposure{}. Right: the \
+                 difference in brightness, estimate − photo; the bar below runs from blue \
+                 (estimate darker by {pct}% of the photo's RMS brightness) through white \
+                 (equal) to red (brighter by {pct}%). Black: not compared (background, or \
+                 clipped in every frame).</figcaption></figure>",
+                img_tag(&img, "photo, estimate and difference")?,
+                if chosen.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        "; green squares mark the {} pixels the solve used",
+                        chosen.len()
+                    )
+                },
+                pct = (100.0 * crate::compare::ERROR_SCALE).round(),
+            );
+        }
+        None => h.push_str("<p>No photo was given to this report.</p>\n"),
+    }
+
+    h.push_str("<h2>The estimate</h2>\n<div class=\"row\">\n");
+    let _ = writeln!(
+        h,
+        "<figure>{}<figcaption>The estimate on a sphere, under the light it was fitted \
+         to.</figcaption></figure>",
+        img_tag(preview, "the estimate on a sphere")?
+    );
+    if let Some(env) = cx.env {
+        let _ = writeln!(
+            h,
+            "<figure>{}<figcaption>The environment map (equirectangular, tone-mapped), with \
+             the {} lights the estimate was rendered with as dots.</figcaption></figure>",
+            img_tag(&map_thumbnail(env, lights), "environment map")?,
+            lights.len()
+        );
+    }
+    h.push_str("</div>\n");
+
+    h.push_str("<h2>BRDF slices</h2>\n<div class=\"row\">\n");
+    for theta_d in SLICE_THETA_D {
+        h.push_str(&slice_svg(est, cx.truth, theta_d)?);
+    }
+    let _ = writeln!(
+        h,
+        "</div>\n<p class=\"note\">The estimate's BRDF against the half-angle θh at three \
+         difference angles θd, per channel, on a log axis{}{}.</p>",
+        if est.uncertainty.as_ref().is_some_and(|u| !u.band.is_empty()) {
+            "; the shaded band is its 1-σ uncertainty"
+        } else {
+            ""
+        },
+        if cx.truth.is_some() {
+            "; dashed: the truth (the simulator's material)"
+        } else {
+            ""
+        }
+    );
+
+    h.push_str("<h2>Numbers</h2>\n<table>\n");
+    for (k, v) in numbers(est, basis_id, cx) {
+        let _ = writeln!(h, "<tr><th>{}</th><td>{}</td></tr>", escape(&k), escape(&v));
+    }
+    h.push_str("</table>\n<details><summary>Coefficients</summary>\n<table>\n");
+    for (n, c) in est.names.iter().zip(&est.solution.coefficients) {
+        let _ = writeln!(h, "<tr><th>{}</th><td>{c:+.6}</td></tr>", escape(n));
+    }
+    h.push_str("</table>\n</details>\n");
+    if !cx.record.is_empty() {
+        h.push_str("<h2>Record</h2>\n<table>\n");
+        for (k, v) in &cx.record {
+            let _ = writeln!(h, "<tr><th>{}</th><td>{}</td></tr>", escape(k), escape(v));
+        }
+        h.push_str("</table>\n");
+    }
+    let _ = writeln!(
+        h,
+        "<p class=\"note\">Written by brdfd {}.</p>\n</body>\n</html>",
+        env!("CARGO_PKG_VERSION")
+    );
+    Ok(h)
+}
+
+const STYLE: &str = "body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;\
+color:#222}h1{font-size:1.4em}h2{font-size:1.15em;margin-top:1.6em;border-bottom:1px solid #ccc}\
+figure{margin:0.5em 1em 0.5em 0;display:inline-block;vertical-align:top;max-width:100%}\
+figure img{max-width:100%;image-rendering:pixelated}figcaption{font-size:0.85em;color:#555;\
+max-width:780px}.row{display:flex;flex-wrap:wrap;gap:0.5em}table{border-collapse:collapse}\
+th,td{text-align:left;padding:0.2em 0.8em;border-bottom:1px solid #eee;vertical-align:top}\
+th{font-weight:normal;color:#555}.summary{font-size:1.05em}.note{font-size:0.85em;color:#555}";
+
+/// The numbers, each with its verdict where brdfd has one.
+fn numbers(est: &Estimate, basis_id: &str, cx: &Context) -> Vec<(String, String)> {
+    let mut rows = vec![
+        ("model".to_string(), est.model.name().to_string()),
+        (
+            "fit to the photo".to_string(),
+            format!(
+                "{:.4} relative RMSE over {} pixels ({})",
+                est.fit_error,
+                est.candidates,
+                fit_verdict(est.fit_error)
+            ),
+        ),
+    ];
+    if let Some(e) = cx.relight_error {
+        rows.push((
+            "relit under light it was not fitted to".into(),
+            format!("{e:.4} relative RMSE against the truth"),
+        ));
+    }
+    rows.push(("condition number".into(), est.selection.condition_text()));
+    if let Some((text, _)) = est.certainty_text() {
+        rows.push(("steadiness".into(), text));
+    }
+    rows.push((
+        "clipped pixels".into(),
+        if est.clipped == 0 {
+            "none".into()
+        } else {
+            format!(
+                "{} (clipped in every frame of their bracket, left out)",
+                est.clipped
+            )
+        },
+    ));
+    rows.push(("lights".into(), est.lights.to_string()));
+    rows.push(("basis".into(), basis_id.to_string()));
+    let t = &est.timings;
+    rows.push((
+        "timings".into(),
+        format!(
+            "rendering matrix {:.3} s, selection {:.3} s, chosen rows {:.3} s, solve {:.3} s",
+            t.rendering_matrix_s, t.selection_s, t.chosen_rows_s, t.solve_s
+        ),
+    ));
+    rows
+}
+
+/// One BRDF slice at the θd bin nearest `theta_d_deg`, as an inline SVG plot.
+fn slice_svg(est: &Estimate, truth: Option<&Bivariate>, theta_d_deg: f64) -> Result<String> {
+    let brdf = &est.brdf;
+    let jd = (0..N_THETA_D)
+        .min_by(|&a, &b| {
+            let d = |j: usize| (merl::theta_d_center(j).to_degrees() - theta_d_deg).abs();
+            d(a).total_cmp(&d(b))
+        })
+        .expect("θd bins");
+    let band = est
+        .uncertainty
+        .as_ref()
+        .map(|u| u.band.as_slice())
+        .filter(|b| b.len() == brdf.values.len());
+    let cells: Vec<(f64, usize)> = (0..N_THETA_H)
+        .map(|ih| (ih, ih * N_THETA_D + jd))
+        .filter(|&(_, g)| brdf.valid[g])
+        .map(|(ih, g)| (brdf.grid.theta_h_binning.center(ih).to_degrees(), g))
+        .collect();
+    let value = |b: &Bivariate, c: usize, g: usize| b.values[c * GRID_CELLS + g];
+    let peak = cells
+        .iter()
+        .flat_map(|&(_, g)| {
+            (0..3).flat_map(move |c| {
+                let mut v = vec![value(brdf, c, g)];
+                if let Some(t) = truth {
+                    v.push(value(t, c, g));
+                }
+                v
+            })
+        })
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, f64::max)
+        .max(1e-12);
+    let floor = peak * LOG_FLOOR;
+    let top = peak * 2.0;
+    let clamp = |v: f64| {
+        if v.is_finite() {
+            v.clamp(floor, top)
+        } else {
+            floor
+        }
+    };
+
+    let mut svg = String::new();
+    let plot_err = |e: &dyn std::fmt::Display| CoreError::Invalid(format!("plotting: {e}"));
+    {
+        let root = SVGBackend::with_string(&mut svg, (360, 280)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| plot_err(&e))?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(
+                format!("θd = {:.1}°", merl::theta_d_center(jd).to_degrees()),
+                ("sans-serif", 15),
+            )
+            .margin(8)
+            .x_label_area_size(36)
+            .y_label_area_size(58)
+            .build_cartesian_2d(0f64..90f64, (floor..top).log_scale())
+            .map_err(|e| plot_err(&e))?;
+        chart
+            .configure_mesh()
+            .x_desc("θh (degrees)")
+            .y_desc("BRDF (1/sr)")
+            .x_labels(10)
+            .x_label_formatter(&|v| format!("{v:.0}"))
+            .y_label_formatter(&|v| format!("{v:.0e}"))
+            .light_line_style(TRANSPARENT)
+            .bold_line_style(BLACK.mix(0.08))
+            .draw()
+            .map_err(|e| plot_err(&e))?;
+        for (c, (name, colour)) in CHANNELS.iter().enumerate() {
+            if let Some(band) = band {
+                let upper: Vec<(f64, f64)> = cells
+                    .iter()
+                    .map(|&(x, g)| (x, clamp(value(brdf, c, g) + band[c * GRID_CELLS + g])))
+                    .collect();
+                let lower: Vec<(f64, f64)> = cells
+                    .iter()
+                    .rev()
+                    .map(|&(x, g)| (x, clamp(value(brdf, c, g) - band[c * GRID_CELLS + g])))
+                    .collect();
+                chart
+                    .draw_series(std::iter::once(Polygon::new(
+                        [upper, lower].concat(),
+                        colour.mix(0.15).filled(),
+                    )))
+                    .map_err(|e| plot_err(&e))?;
+            }
+            chart
+                .draw_series(LineSeries::new(
+                    cells.iter().map(|&(x, g)| (x, clamp(value(brdf, c, g)))),
+                    colour.stroke_width(2),
+                ))
+                .map_err(|e| plot_err(&e))?
+                .label(format!("estimate {name}"))
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
+            if let Some(t) = truth {
+                let drawn = chart
+                    .draw_series(DashedLineSeries::new(
+                        cells.iter().map(|&(x, g)| (x, clamp(value(t, c, g)))),
+                        5,
+                        4,
+                        colour.stroke_width(1),
+                    ))
+                    .map_err(|e| plot_err(&e))?;
+                if c == 0 {
+                    drawn.label("truth (dashed)").legend(|(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 6, y)], BLACK.stroke_width(1))
+                    });
+                }
+            }
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK.mix(0.3))
+            .draw()
+            .map_err(|e| plot_err(&e))?;
+        root.present().map_err(|e| plot_err(&e))?;
+    }
+    Ok(svg)
+}
+
+/// The environment map, tone-mapped and at most 512 pixels wide, with the lights as dots.
+fn map_thumbnail(env: &EnvMap, lights: &LightSet) -> RgbImage {
+    let step = env.width.div_ceil(512).max(1);
+    let (w, h) = (env.width.div_ceil(step), env.height.div_ceil(step));
+    let mut small = Raster::black(w, h);
+    let mut count = vec![0u32; w * h];
+    for y in 0..env.height {
+        for x in 0..env.width {
+            let i = (y / step) * w + x / step;
+            let p = env.pixels[y * env.width + x];
+            for c in 0..3 {
+                small.pixels[i][c] += p[c];
+            }
+            count[i] += 1;
+        }
+    }
+    for (p, n) in small.pixels.iter_mut().zip(&count) {
+        *p = p.map(|v| v / (*n).max(1) as f32);
+    }
+    let exposure = small.auto_exposure();
+    let mut img = RgbImage::from_fn(w as u32, h as u32, |x, y| {
+        let p = small.get(x as usize, y as usize);
+        Rgb(p.map(|v| (linear_to_srgb((v * exposure).clamp(0.0, 1.0)) * 255.0 + 0.5) as u8))
+    });
+    for d in &lights.directions {
+        let (u, v) = uv_of([d[0] as f64, d[1] as f64, d[2] as f64]);
+        let (x, y) = ((u * w as f64) as u32, (v * h as f64) as u32);
+        if x < w as u32 && y < h as u32 {
+            img.put_pixel(x, y, Rgb([0, 220, 255]));
+        }
+    }
+    img
+}
+
+/// An `<img>` with the image inline as a PNG data URI.
+fn img_tag(img: &RgbImage, alt: &str) -> Result<String> {
+    let mut png = Vec::new();
+    img.write_to(&mut Cursor::new(&mut png), ImageFormat::Png)
+        .map_err(|e| CoreError::Invalid(format!("encoding a PNG for the report: {e}")))?;
+    Ok(format!(
+        "<img alt=\"{}\" width=\"{}\" height=\"{}\" src=\"data:image/png;base64,{}\">",
+        escape(alt),
+        img.width(),
+        img.height(),
+        base64::engine::general_purpose::STANDARD.encode(png)
+    ))
+}
+
+/// Text made safe for HTML content and attribute values.
+fn escape(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for ch in s.chars() {
+        match ch {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&#39;"),
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn text_from_a_session_cannot_open_a_tag() {
+        assert_eq!(
+            escape("<script>alert('x')</script> & \"q\""),
+            "&lt;script&gt;alert(&#39;x&#39;)&lt;/script&gt; &amp; &quot;q&quot;"
+        );
+    }
+}
