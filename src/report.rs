@@ -25,6 +25,8 @@ use crate::core::raster::{linear_to_srgb, Raster};
 pub struct Context<'a> {
     /// The page's title: the session, or the files estimated from.
     pub title: String,
+    /// The session's id (also recorded in `coefficients.json`).
+    pub session: Option<String>,
     /// The first view's photo (linear).
     pub photo: Option<&'a Raster>,
     /// The environment map the estimate was lit by.

@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use crate::core::analytic::Microfacet;
 use crate::core::basis::Basis;
-use crate::core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
+use crate::core::bivariate::{Bivariate, Grid, GRID_CELLS, N_THETA_D, N_THETA_H};
 use crate::core::brdf::directional_albedo;
 use crate::core::envmap::{write_exr, LightSet};
 use crate::core::estimate::{Estimate, Model, Timings};
@@ -20,9 +20,36 @@ use crate::core::{CoreError, Result};
 use crate::export::{write_exports, Export};
 use crate::report::Context;
 
+/// `coefficients.json`'s format name and version: a reader checks both. The version grows
+/// when a field changes meaning or goes; new fields may appear within a version.
+pub const COEFFICIENTS_FORMAT: &str = "brdfd-coefficients";
+pub const COEFFICIENTS_VERSION: u32 = 1;
+
+/// The grid of `brdf-bivariate.exr` and `brdf-sigma.exr`, as `coefficients.json` records it.
+#[derive(Serialize)]
+pub struct GridRecord {
+    pub theta_h_bins: usize,
+    pub theta_d_bins: usize,
+    #[serde(flatten)]
+    pub grid: Grid,
+    /// The BRDF's unit.
+    pub unit: &'static str,
+}
+
 /// The contents of `coefficients.json`.
 #[derive(Serialize)]
 pub struct CoefficientsFile<'a> {
+    /// [`COEFFICIENTS_FORMAT`].
+    pub format: &'static str,
+    /// [`COEFFICIENTS_VERSION`].
+    pub format_version: u32,
+    /// `brdfd` and its version.
+    pub software: String,
+    /// The session the estimate belongs to (absent for `brdfd estimate` on files).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub session: Option<&'a str>,
+    /// The (θh, θd) grid the estimate's BRDF is tabulated on.
+    pub grid: GridRecord,
     /// `basis` (the PCA basis's coefficients, as in the paper), `analytic` (Lambert plus GGX
     /// lobes: `columns` are their per-channel weights and each `alpha`; also in `analytic`) or
     /// `hybrid` (the analytic part, in `analytic`, plus the measured materials in `mixture`).
@@ -183,6 +210,16 @@ pub fn write_results(
     };
     let all = estimate.selection.pixels.len() == estimate.candidates;
     let file = CoefficientsFile {
+        format: COEFFICIENTS_FORMAT,
+        format_version: COEFFICIENTS_VERSION,
+        software: format!("brdfd {}", env!("CARGO_PKG_VERSION")),
+        session: cx.session.as_deref(),
+        grid: GridRecord {
+            theta_h_bins: N_THETA_H,
+            theta_d_bins: N_THETA_D,
+            grid: brdf.grid,
+            unit: "1/sr",
+        },
         model: estimate.model.name(),
         analytic: estimate.analytic.as_ref(),
         mixture: (estimate.model == Model::Hybrid).then_some(estimate.mixture.as_slice()),

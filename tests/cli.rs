@@ -5,6 +5,37 @@ mod common;
 use common::{brdfd, check_report, text, Simulator};
 
 /// The `coefficients.json` that a command wrote to `dir/out`.
+/// Every layer of an EXR (unnamed: ""), as its R, G and B planes.
+fn exr_layers(path: &std::path::Path) -> std::collections::HashMap<String, [Vec<f32>; 3]> {
+    use exr::prelude::*;
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .all_layers()
+        .all_attributes()
+        .from_file(path)
+        .unwrap();
+    image
+        .layer_data
+        .iter()
+        .map(|layer| {
+            let name = layer
+                .attributes
+                .layer_name
+                .as_ref()
+                .map(|t| t.to_string())
+                .unwrap_or_default();
+            let plane = |label: &str| -> Vec<f32> {
+                let ch = layer.channel_data.list.iter();
+                let ch = ch.clone().find(|c| c.name.to_string() == label).unwrap();
+                ch.sample_data.values_as_f32().collect()
+            };
+            (name, [plane("R"), plane("G"), plane("B")])
+        })
+        .collect()
+}
+
 fn coefficients_json(dir: &std::path::Path, out: &str) -> serde_json::Value {
     let file = dir.join(out).join("coefficients.json");
     serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap()
@@ -34,6 +65,15 @@ fn simulated_capture_prints_coefficients() {
         "{out}"
     );
     let json = coefficients_json(dir.path(), "result");
+    // The file says what it is: format, version, writer, session and grid.
+    assert_eq!(json["format"], "brdfd-coefficients");
+    assert_eq!(json["format_version"], 1);
+    assert!(json["software"].as_str().unwrap().starts_with("brdfd "));
+    let session = json["session"].as_str().expect("the session's id");
+    assert!(out.contains(&format!("session {session} done")), "{out}");
+    assert_eq!(json["grid"]["theta_h_bins"], 90);
+    assert_eq!(json["grid"]["theta_h_binning"], "sqrt");
+    assert_eq!(json["grid"]["unit"], "1/sr");
     // The default model (issue 18): Lambert + two GGX lobes (kd, then F₀, F₉₀ and α per lobe:
     // 17 values) and the measured materials of the mix (three weights each), fitted to every
     // pixel.
@@ -221,6 +261,46 @@ fn estimate_from_files() {
     let joint = ["--colour", "joint"];
     let json = estimate(&joint, "est");
     assert_eq!(json["k"], 5);
+    assert_eq!(json["format"], "brdfd-coefficients");
+    assert!(json.get("session").is_none(), "no session for files");
+    // Outside brdfd, the exported basis turns the coefficients back into the estimate's BRDF:
+    // f = Σ coefficientⱼ · layer(columnⱼ), with `mean` and `pc01`… as docs/formats.md says
+    // (this basis's mean is a column, not an offset: its header's normalisation is `rms`).
+    let o = brdfd(&["basis", "export", "--out", "exported"], dir.path());
+    assert!(o.status.success(), "{:?}", text(&o));
+    let header: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("exported.json")).unwrap())
+            .unwrap();
+    assert_eq!(header["normalisation"], "rms");
+    let layers = exr_layers(&dir.path().join("exported.exr"));
+    let mut rebuilt = vec![[0f64; 3]; 90 * 90];
+    let names = json["columns"].as_array().unwrap();
+    for (name, c) in names.iter().zip(json["coefficients"].as_array().unwrap()) {
+        let name = name.as_str().unwrap();
+        let layer = match name.strip_prefix("pc") {
+            Some(k) => format!("pc{:02}", k.parse::<usize>().unwrap()),
+            None => name.to_string(),
+        };
+        let planes = &layers[&layer];
+        for (i, v) in rebuilt.iter_mut().enumerate() {
+            for ch in 0..3 {
+                v[ch] += c.as_f64().unwrap() * planes[ch][i] as f64;
+            }
+        }
+    }
+    let written = &exr_layers(&dir.path().join("est/brdf-bivariate.exr"))[""];
+    let peak = written[0].iter().fold(0f32, |m, v| m.max(v.abs())) as f64;
+    for (i, v) in rebuilt.iter().enumerate() {
+        for ch in 0..3 {
+            let d = (v[ch] - written[ch][i] as f64).abs();
+            assert!(
+                d <= 1e-5 * peak,
+                "cell {i} channel {ch}: {} vs {}",
+                v[ch],
+                written[ch][i]
+            );
+        }
+    }
     let report = check_report(&dir.path().join("est/report.html"), 3);
     assert!(
         report.contains("green squares mark the 20 pixels the solve used"),

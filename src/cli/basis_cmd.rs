@@ -1,4 +1,4 @@
-//! `brdfd basis build` and `brdfd basis show`.
+//! `brdfd basis build`, `brdfd basis show` and `brdfd basis export`.
 
 use std::path::{Path, PathBuf};
 
@@ -15,6 +15,17 @@ pub enum BasisCommand {
     Build(BuildArgs),
     /// Print a basis header (the embedded default if no path is given).
     Show { path: Option<PathBuf> },
+    /// Write a basis (the embedded default unless --basis names one) as `STEM.exr` and
+    /// `STEM.json`, so that an estimate's coefficients can be turned back into a BRDF outside
+    /// brdfd (docs/formats.md describes both files).
+    Export {
+        /// The basis to export (a `.exr` with its `.json` beside it).
+        #[arg(long)]
+        basis: Option<PathBuf>,
+        /// Where to write: `STEM.exr` and `STEM.json` (an extension is replaced).
+        #[arg(long)]
+        out: PathBuf,
+    },
 }
 
 #[derive(clap::Args)]
@@ -85,6 +96,27 @@ pub fn run(cmd: BasisCommand) -> anyhow::Result<()> {
             Ok(())
         }
         BasisCommand::Build(a) => build(a),
+        BasisCommand::Export { basis, out } => {
+            let b = match basis {
+                Some(p) => Basis::read(&p)?,
+                None => Basis::embedded(),
+            };
+            for f in [out.with_extension("exr"), out.with_extension("json")] {
+                if f.exists() {
+                    bail!("{} exists; brdfd does not overwrite it", f.display());
+                }
+            }
+            let (exr, json) = b.write(&out)?;
+            println!(
+                "basis {} (K = {}, {} measured materials) written to {} and {}",
+                b.header.id,
+                b.header.k,
+                b.atoms.len(),
+                exr.display(),
+                json.display()
+            );
+            Ok(())
+        }
     }
 }
 

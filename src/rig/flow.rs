@@ -520,6 +520,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     let m = &session.manifest;
     let report = ReportContext {
         title: format!("session {} ({})", m.id, m.material),
+        session: Some(m.id.clone()),
         photo: Some(&views[0].3),
         env: Some(&env),
         relight_error: relight,
