@@ -8,9 +8,9 @@ use serde::Serialize;
 
 use crate::core::analytic::Microfacet;
 use crate::core::basis::Basis;
-use crate::core::bivariate::{Bivariate, Grid, GRID_CELLS, N_THETA_D, N_THETA_H};
+use crate::core::bivariate::{Bivariate, Grid, ThetaHBinning, GRID_CELLS, N_THETA_D, N_THETA_H};
 use crate::core::brdf::directional_albedo;
-use crate::core::envmap::{write_exr, LightSet};
+use crate::core::envmap::{write_exr_attributed, ExrAttribute, LightSet};
 use crate::core::estimate::{Estimate, Model, Timings};
 use crate::core::geometry::{Camera, PixelGeometry, Shape};
 use crate::core::hybrid::MixWeight;
@@ -175,7 +175,24 @@ pub struct ResultFiles {
     pub report: PathBuf,
 }
 
-fn write_bivariate_exr(path: &Path, b: &Bivariate) -> Result<()> {
+/// Writes a bivariate table (`quantity`: what its values are) as a 90 × 90 EXR whose header
+/// says how to read it (docs/formats.md).
+fn write_bivariate_exr(path: &Path, b: &Bivariate, quantity: &str, basis_id: &str) -> Result<()> {
+    let binning = match b.grid.theta_h_binning {
+        ThetaHBinning::Sqrt => "sqrt: bin i covers theta_h in [(i/90)^2, ((i+1)/90)^2] x 90 deg",
+        ThetaHBinning::Uniform => "uniform: bin i covers theta_h in [i, i+1] deg",
+    };
+    let text = |s: &str| ExrAttribute::Text(s.to_string());
+    let attributes = [
+        ("brdfdQuantity", text(quantity)),
+        (
+            "brdfdAxes",
+            text("rows: theta_h bins, top = 0; columns: theta_d bins of 1 deg, left = 0"),
+        ),
+        ("brdfdThetaHBinning", text(binning)),
+        ("brdfdUnit", text("1/sr, linear RGB")),
+        ("brdfdBasis", text(basis_id)),
+    ];
     let px: Vec<[f32; 3]> = (0..GRID_CELLS)
         .map(|g| {
             [
@@ -185,7 +202,7 @@ fn write_bivariate_exr(path: &Path, b: &Bivariate) -> Result<()> {
             ]
         })
         .collect();
-    write_exr(path, N_THETA_D, N_THETA_H, &px)
+    write_exr_attributed(path, N_THETA_D, N_THETA_H, &px, &attributes)
 }
 
 /// Size of the preview: the estimate on a sphere, like the paper's Fig. 6, whatever the photo's
@@ -273,7 +290,8 @@ pub fn write_results(
     };
     let json = serde_json::to_string_pretty(&file).expect("coefficients serialise");
     std::fs::write(&files.coefficients, json).map_err(|e| CoreError::io(&files.coefficients, e))?;
-    write_bivariate_exr(&files.brdf_exr, brdf)?;
+    let basis_id = &basis.header.id;
+    write_bivariate_exr(&files.brdf_exr, brdf, "BRDF (the estimate)", basis_id)?;
     // Every resample may fail to solve (least squares on a few repeated pixels): then there is
     // no band to write.
     if let Some(u) = estimate
@@ -282,7 +300,8 @@ pub fn write_results(
         .filter(|u| u.band.len() == brdf.values.len())
     {
         let band = Bivariate::from_values(brdf.grid, u.band.clone(), brdf.valid.clone());
-        write_bivariate_exr(&dir.join("brdf-sigma.exr"), &band)?;
+        let sigma = "BRDF 1-sigma (bootstrap over the pixels)";
+        write_bivariate_exr(&dir.join("brdf-sigma.exr"), &band, sigma, basis_id)?;
     }
     if let (Some(photo), Some(path)) = (cx.photo, &files.compare_png) {
         crate::compare::write(path, photo, &estimate.rerender)?;
@@ -303,7 +322,6 @@ pub fn write_results(
                 format!("could not write PNG: {e}"),
             )
         })?;
-        let basis_id = &basis.header.id;
         crate::report::write(&files.report, estimate, basis_id, &preview, lights, cx)?;
         merl.join().expect("writing the MERL table panicked")
     })?;

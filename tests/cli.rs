@@ -289,6 +289,25 @@ fn estimate_from_files() {
         }
     }
     let written = &exr_layers(&dir.path().join("est/brdf-bivariate.exr"))[""];
+    // The EXR says what it holds: quantity, axes, binning, unit, basis and software.
+    let meta =
+        exr::meta::MetaData::read_from_file(dir.path().join("est/brdf-bivariate.exr"), false)
+            .unwrap();
+    let own = &meta.headers[0].own_attributes;
+    assert!(own
+        .software_name
+        .as_ref()
+        .unwrap()
+        .to_string()
+        .starts_with("brdfd "));
+    let attribute = |name: &str| match own.other.get(&exr::meta::attribute::Text::from(name)) {
+        Some(exr::meta::attribute::AttributeValue::Text(t)) => t.to_string(),
+        other => panic!("{name}: {other:?}"),
+    };
+    assert!(attribute("brdfdAxes").contains("rows: theta_h"));
+    assert!(attribute("brdfdThetaHBinning").starts_with("sqrt"));
+    assert_eq!(attribute("brdfdUnit"), "1/sr, linear RGB");
+    assert_eq!(attribute("brdfdBasis"), json["basis_id"].as_str().unwrap());
     let peak = written[0].iter().fold(0f32, |m, v| m.max(v.abs())) as f64;
     for (i, v) in rebuilt.iter().enumerate() {
         for ch in 0..3 {

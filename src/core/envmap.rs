@@ -465,17 +465,51 @@ pub fn write_exr_with_white(
     pixels: &[[f32; 3]],
     white: Option<f32>,
 ) -> Result<()> {
+    let attributes: Vec<(&str, ExrAttribute)> = white
+        .map(|w| (WHITE_LEVEL_ATTRIBUTE, ExrAttribute::F32(w)))
+        .into_iter()
+        .collect();
+    write_exr_attributed(path, width, height, pixels, &attributes)
+}
+
+/// A header attribute of an EXR brdfd writes: a number, or ASCII text.
+#[derive(Clone, Debug)]
+pub enum ExrAttribute {
+    F32(f32),
+    Text(String),
+}
+
+/// [`write_exr`] with header attributes that say what the pixels are (axes, units, software).
+pub fn write_exr_attributed(
+    path: &Path,
+    width: usize,
+    height: usize,
+    pixels: &[[f32; 3]],
+    attributes: &[(&str, ExrAttribute)],
+) -> Result<()> {
     use exr::prelude::*;
     let channels = SpecificChannels::rgb(|Vec2(x, y): Vec2<usize>| {
         let p = pixels[y * width + x];
         (p[0], p[1], p[2])
     });
-    let mut attributes = LayerAttributes::default();
-    if let Some(w) = white {
-        attributes
-            .other
-            .insert(Text::from(WHITE_LEVEL_ATTRIBUTE), AttributeValue::F32(w));
+    let mut layer_attributes = LayerAttributes {
+        software_name: Some(Text::from(
+            format!("brdfd {}", env!("CARGO_PKG_VERSION")).as_str(),
+        )),
+        ..LayerAttributes::default()
+    };
+    for (name, value) in attributes {
+        let value = match value {
+            ExrAttribute::F32(v) => AttributeValue::F32(*v),
+            ExrAttribute::Text(t) => {
+                AttributeValue::Text(Text::new_or_none(t).ok_or_else(|| {
+                    CoreError::Invalid(format!("EXR attribute {name}: {t:?} is not plain text"))
+                })?)
+            }
+        };
+        layer_attributes.other.insert(Text::from(*name), value);
     }
+    let attributes = layer_attributes;
     let layer = Layer::new((width, height), attributes, Encoding::default(), channels);
     Image::from_layer(layer)
         .write()
