@@ -173,7 +173,22 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
         texts.contains(&"panorama: 8 frames already in the session"),
         "{texts:?}"
     );
-    assert_eq!(events.last().unwrap()["state"], "done");
+    let finished = events.last().unwrap();
+    assert_eq!(finished["state"], "done");
+    // The finished event carries the result itself, not prose: model, columns, coefficients
+    // and the fit, as coefficients.json has them.
+    let summary = &finished["result"];
+    assert_eq!(summary["model"], "hybrid", "{finished}");
+    assert_eq!(
+        summary["columns"].as_array().unwrap().len(),
+        summary["coefficients"].as_array().unwrap().len()
+    );
+    assert!(summary["fit_error"].as_f64().unwrap() < 0.1, "{finished}");
+    assert!(summary["fit_verdict"].as_str().unwrap().starts_with("good"));
+    assert!(
+        summary["relight_error"].as_f64().is_some(),
+        "a simulator knows the truth"
+    );
     let (_, stored) = daemon.get(&format!("/sessions/{id}"));
     let steps = stored["manifest"]["steps"].as_array().unwrap();
     for step in ["panorama", "view1"] {
@@ -183,6 +198,13 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
 
     let (status, result) = daemon.get(&format!("/sessions/{id}/result"));
     assert_eq!(status, 200);
+    assert_eq!(result["coefficients"], summary["coefficients"]);
+    // A stream asked for later, by a client that missed it, ends with the same result.
+    let replayed = daemon.events(&id);
+    assert_eq!(
+        replayed.last().unwrap()["result"]["columns"],
+        summary["columns"]
+    );
     // The default model: two lobes' weights and roughnesses, and the mix's weights.
     assert_eq!(result["model"], "hybrid");
     let mixed = result["mixture"].as_array().unwrap().len();

@@ -354,7 +354,9 @@ async fn events(
             log.push(Event::Finished {
                 session: id.clone(),
                 state: s.manifest.state,
-                coefficients: None,
+                result: (s.manifest.state == crate::session::State::Done)
+                    .then(|| crate::rig::Summary::read(&s.dir.join("result/coefficients.json")))
+                    .flatten(),
                 error: s.manifest.history.last().and_then(|t| t.reason.clone()),
             });
             log

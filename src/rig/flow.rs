@@ -43,6 +43,8 @@ pub type RawFiles = Vec<(String, Vec<u8>)>;
 pub struct Outcome {
     pub names: Vec<String>,
     pub coefficients: Vec<f64>,
+    /// What the `finished` event carries.
+    pub summary: super::Summary,
     /// Simulated rig only: the material's own projection onto the basis.
     pub truth: Option<Vec<f64>>,
     pub pixels: usize,
@@ -129,7 +131,7 @@ pub fn execute(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Resu
         } else {
             State::Failed
         },
-        coefficients: result.as_ref().ok().map(|o| o.coefficients.clone()),
+        result: result.as_ref().ok().map(|o| o.summary.clone()),
         error: reason,
     });
     result.map_err(|e| {
@@ -565,9 +567,18 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     }
     session.manifest.phases = phases.done;
     session.set_state(State::Done, None)?;
+    let fit = est.fit_error;
     Ok(Outcome {
         names: est.names.clone(),
         coefficients: est.solution.coefficients.clone(),
+        summary: super::Summary {
+            model: est.model.name().to_string(),
+            columns: est.names.clone(),
+            coefficients: est.solution.coefficients.clone(),
+            fit_error: fit.is_finite().then_some(fit),
+            fit_verdict: fit_verdict(fit),
+            relight_error: relight,
+        },
         truth,
         pixels: est.selection.pixels.len(),
         condition: est.selection.condition,

@@ -190,13 +190,47 @@ pub enum Event {
     Message { text: String },
     /// Something the operator should look at; the capture goes on.
     Warning { text: String },
-    /// The end: the session's final state, with the coefficients or the error.
+    /// The end: the session's final state, with the result or the error.
     Finished {
         session: String,
         state: crate::session::State,
-        coefficients: Option<Vec<f64>>,
+        result: Option<Summary>,
         error: Option<String>,
     },
+}
+
+/// A finished estimate in brief, as the `finished` event carries it: the model, its columns
+/// and coefficients, and how it fits (the whole record is `result/coefficients.json`).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct Summary {
+    /// `hybrid`, `analytic` or `basis`.
+    pub model: String,
+    /// Names of the coefficients, in their order.
+    pub columns: Vec<String>,
+    pub coefficients: Vec<f64>,
+    /// How well the estimate re-renders the photo (relative RMSE; `null` if not a number).
+    pub fit_error: Option<f64>,
+    /// The fit in words: `good`, `fair` or `poor`, with its threshold.
+    pub fit_verdict: String,
+    /// A simulated capture's relit error against the truth, under light it was not fitted to.
+    pub relight_error: Option<f64>,
+}
+
+impl Summary {
+    /// The summary of a stored result (`result/coefficients.json`), if it can be read.
+    pub fn read(coefficients_json: &std::path::Path) -> Option<Summary> {
+        let text = std::fs::read_to_string(coefficients_json).ok()?;
+        let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+        let fit = v["fit_error"].as_f64();
+        Some(Summary {
+            model: v["model"].as_str()?.to_string(),
+            columns: serde_json::from_value(v["columns"].clone()).ok()?,
+            coefficients: serde_json::from_value(v["coefficients"].clone()).ok()?,
+            fit_error: fit,
+            fit_verdict: crate::core::estimate::fit_verdict(fit.unwrap_or(f64::NAN)),
+            relight_error: None,
+        })
+    }
 }
 
 pub trait Progress: Send + Sync {
