@@ -4,6 +4,7 @@
 //! | method and path | answer |
 //! |---|---|
 //! | `GET /api/v1/health` | `{"software", "rig": {"simulated", "file"}, "busy": id or null}` |
+//! | `GET /api/v1/materials` | `{"presets": [...]}`: the material presets a capture can name |
 //! | `GET /api/v1/devices` | `[{"role", "selector", "state": "closed"/"open"/"lost", "identity", "last_error", "opened"}]` |
 //! | `GET /api/v1/sessions` | `[{"id", "state", "material", "created"}]`, oldest first |
 //! | `POST /api/v1/sessions` | body: a plan (`{"material": "gold", "pixels": "20", "views": 1, ...}`); 202 `{"id", "dir", "events"}`; 409 `busy`; 400 `bad_request` |
@@ -14,14 +15,14 @@
 //! | `POST /api/v1/sessions/{id}/cancel` | 202; 409 `not_running` |
 //! | `POST /api/v1/sessions/{id}/resume` | 202 as for a new capture; 409 `busy` |
 //!
-//! With a token configured, every request needs `Authorization: Bearer <token>` (401
-//! `unauthorized` otherwise). Every POST needs `Content-Type: application/json`, its body or
+//! With a token configured, every request needs `Authorization: Bearer <token>`, or the
+//! cookie the web page's sign-in sets ([`web`]) (401 `unauthorized` otherwise). Every POST needs `Content-Type: application/json`, its body or
 //! not (415 `unsupported_media_type` otherwise).
 
 use std::convert::Infallible;
 use std::sync::Arc;
 
-use axum::extract::{Path, Request, State};
+use axum::extract::{DefaultBodyLimit, Path, Request, State};
 use axum::http::{header, StatusCode};
 use axum::middleware::Next;
 use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
@@ -31,11 +32,11 @@ use axum::{Json, Router};
 use futures_util::stream::{self, Stream};
 use serde_json::{json, Value};
 
-use super::{Daemon, StartError};
+use super::{web, Daemon, StartError};
 use crate::rig::{Event, Plan};
 use crate::session::{Session, State as SessionState};
 
-type Shared = Arc<Daemon>;
+pub type Shared = Arc<Daemon>;
 
 /// An error answer.
 struct ApiError(StatusCode, &'static str, String);
@@ -60,6 +61,7 @@ pub fn router(daemon: Shared) -> Router {
     let api = Router::new()
         .route("/health", get(health))
         .route("/devices", get(devices))
+        .route("/materials", get(materials))
         .route("/sessions", get(list).post(start))
         .route("/sessions/{id}", get(show))
         .route("/sessions/{id}/events", get(events))
@@ -76,8 +78,23 @@ pub fn router(daemon: Shared) -> Router {
             daemon.clone(),
             require_own_host,
         ));
+    // The web page: its files need no token (they hold no data), but the host check, as
+    // every answer does.
+    let page = Router::new()
+        .route("/", get(web::index))
+        .route("/app.js", get(web::script))
+        .route("/app.css", get(web::style))
+        .route(
+            "/login",
+            post(web::login).layer(DefaultBodyLimit::max(web::MAX_LOGIN_BYTES)),
+        )
+        .layer(axum::middleware::from_fn_with_state(
+            daemon.clone(),
+            require_own_host,
+        ));
     Router::new()
         .nest("/api/v1", api)
+        .merge(page)
         .fallback(|| async {
             not_found("no such endpoint; the API is under /api/v1 (docs/api.md)")
         })
@@ -90,15 +107,11 @@ async fn require_token(State(d): State<Shared>, req: Request, next: Next) -> Res
             .headers()
             .get(header::AUTHORIZATION)
             .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "));
-        // Compared in full whatever the prefix: no early exit that times the match.
-        let ok = given.is_some_and(|g| {
-            g.len() == token.len()
-                && g.bytes()
-                    .zip(token.bytes())
-                    .fold(0u8, |acc, (a, b)| acc | (a ^ b))
-                    == 0
-        });
+            .and_then(|v| v.strip_prefix("Bearer "))
+            .map(|g| g.as_bytes().to_vec())
+            // The web page's sign-in cookie (see [`web`]).
+            .or_else(|| web::token_from_cookie(req.headers()));
+        let ok = given.is_some_and(|g| web::same_secret(&g, token.as_bytes()));
         if !ok {
             return ApiError(
                 StatusCode::UNAUTHORIZED,
@@ -188,6 +201,10 @@ async fn health(State(d): State<Shared>) -> Json<Value> {
 
 async fn devices(State(d): State<Shared>) -> Json<Value> {
     Json(json!(d.devices()))
+}
+
+async fn materials() -> Json<Value> {
+    Json(json!({ "presets": crate::config::preset_names() }))
 }
 
 async fn list(State(d): State<Shared>) -> ApiResult<Json<Value>> {

@@ -1,12 +1,13 @@
 //! `brdfd serve`: the long-running daemon. It owns the rig's devices (one worker thread
 //! each, kept alive and re-opened; see [`crate::rig::worker`]), runs one capture at a time
-//! on them, and serves the HTTP API of [`api`] on tokio.
+//! on them, and serves the HTTP API of [`api`] on tokio, and a web page ([`web`]).
 //!
 //! A capture runs on a thread of its own, because the flow and the devices block; the async
 //! side only starts it, relays its events and answers questions.
 
 pub mod api;
 pub mod server;
+pub mod web;
 
 use std::collections::VecDeque;
 use std::path::PathBuf;

@@ -1,0 +1,177 @@
+//! The daemon's web page at `/`: devices, a capture from a material preset followed live,
+//! cancel and resume, and the sessions with their reports. Its three files are compiled in,
+//! so the page works with no network. It talks to the API like any client.
+//!
+//! With a token configured, the browser signs in once (`POST /login`, a form) and keeps the
+//! token in a cookie: an address never holds it, and `EventSource`, which cannot send an
+//! `Authorization` header, is let in by the cookie. The cookie is `SameSite=Strict`, so a
+//! request another site makes carries none, and `HttpOnly`, so no script reads it.
+
+use axum::body::Bytes;
+use axum::extract::State;
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
+use axum::response::{Html, IntoResponse, Redirect, Response};
+
+use super::api::Shared;
+
+const INDEX: &str = include_str!("web/index.html");
+const SCRIPT: &str = include_str!("web/app.js");
+const STYLE: &str = include_str!("web/app.css");
+
+/// The cookie that carries the token, hex-encoded (a token may hold any character).
+const COOKIE: &str = "brdfd_token";
+/// The page may load only its own files and talk only to its own daemon.
+const PAGE_POLICY: &str = "default-src 'none'; script-src 'self'; style-src 'self'; \
+     connect-src 'self'; img-src 'self' data:; form-action 'self'; frame-ancestors 'none'; \
+     base-uri 'none'";
+/// The longest login form read: a token and its field name.
+pub const MAX_LOGIN_BYTES: usize = 4096;
+
+fn page(kind: &'static str, body: &'static str) -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, HeaderValue::from_static(kind)),
+            (
+                header::CONTENT_SECURITY_POLICY,
+                HeaderValue::from_static(PAGE_POLICY),
+            ),
+            (
+                header::X_CONTENT_TYPE_OPTIONS,
+                HeaderValue::from_static("nosniff"),
+            ),
+        ],
+        body,
+    )
+        .into_response()
+}
+
+pub async fn index() -> Response {
+    page("text/html; charset=utf-8", INDEX)
+}
+
+pub async fn script() -> Response {
+    page("text/javascript; charset=utf-8", SCRIPT)
+}
+
+pub async fn style() -> Response {
+    page("text/css; charset=utf-8", STYLE)
+}
+
+/// `POST /login` with the form field `token`: a matching token sets the cookie and returns to
+/// the page; another gets 401 and a line saying so.
+pub async fn login(State(d): State<Shared>, body: Bytes) -> Response {
+    let Some(token) = &d.token else {
+        // No token configured: nothing to sign in to.
+        return Redirect::to("/").into_response();
+    };
+    let given = form_field(&body, "token").unwrap_or_default();
+    if !same_secret(given.as_bytes(), token.as_bytes()) {
+        return (
+            StatusCode::UNAUTHORIZED,
+            Html(
+                "<!DOCTYPE html><title>brdfd</title><p>That is not this daemon's token (the \
+                  <code>token</code> in its brdfd.toml). <a href=\"/\">Try again</a>.</p>",
+            ),
+        )
+            .into_response();
+    }
+    let cookie = format!(
+        "{COOKIE}={}; HttpOnly; SameSite=Strict; Path=/",
+        hex(token.as_bytes())
+    );
+    let mut response = Redirect::to("/").into_response();
+    if let Ok(v) = HeaderValue::from_str(&cookie) {
+        response.headers_mut().insert(header::SET_COOKIE, v);
+    }
+    response
+}
+
+/// The token a request's cookie carries, if any.
+pub fn token_from_cookie(headers: &HeaderMap) -> Option<Vec<u8>> {
+    headers
+        .get_all(header::COOKIE)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(';'))
+        .filter_map(|pair| pair.trim().split_once('='))
+        .find(|(name, _)| *name == COOKIE)
+        .and_then(|(_, value)| unhex(value))
+}
+
+/// Compares two secrets in full, whatever the first difference: no early exit that times
+/// the match.
+pub fn same_secret(given: &[u8], secret: &[u8]) -> bool {
+    given.len() == secret.len()
+        && given
+            .iter()
+            .zip(secret)
+            .fold(0u8, |acc, (a, b)| acc | (a ^ b))
+            == 0
+}
+
+/// A field of an `application/x-www-form-urlencoded` body, decoded.
+fn form_field(body: &[u8], name: &str) -> Option<String> {
+    let text = std::str::from_utf8(body).ok()?;
+    text.split('&').find_map(|pair| {
+        let (k, v) = pair.split_once('=').unwrap_or((pair, ""));
+        (percent_decode(k)? == name)
+            .then(|| percent_decode(v))
+            .flatten()
+    })
+}
+
+/// Form decoding: `+` is a space, `%XX` a byte; the result must be UTF-8.
+fn percent_decode(s: &str) -> Option<String> {
+    let mut out = Vec::with_capacity(s.len());
+    let mut bytes = s.bytes();
+    while let Some(b) = bytes.next() {
+        match b {
+            b'+' => out.push(b' '),
+            b'%' => {
+                let hi = (bytes.next()? as char).to_digit(16)?;
+                let lo = (bytes.next()? as char).to_digit(16)?;
+                out.push((hi * 16 + lo) as u8);
+            }
+            b => out.push(b),
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn unhex(s: &str) -> Option<Vec<u8>> {
+    if !s.len().is_multiple_of(2) {
+        return None;
+    }
+    (0..s.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(s.get(i..i + 2)?, 16).ok())
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_form_token_is_decoded_and_the_cookie_round_trips() {
+        assert_eq!(
+            form_field(b"x=1&token=a%2Bb+c%3D", "token").as_deref(),
+            Some("a+b c=")
+        );
+        assert_eq!(form_field(b"token=%zz", "token"), None);
+        let mut headers = HeaderMap::new();
+        let token = "s3cret; with=odd \"chars\"";
+        headers.insert(
+            header::COOKIE,
+            HeaderValue::from_str(&format!("other=1; {COOKIE}={}", hex(token.as_bytes()))).unwrap(),
+        );
+        assert_eq!(token_from_cookie(&headers).unwrap(), token.as_bytes());
+        assert!(same_secret(b"abc", b"abc"));
+        assert!(!same_secret(b"abd", b"abc"));
+        assert!(!same_secret(b"ab", b"abc"));
+    }
+}

@@ -1,0 +1,251 @@
+// brdfd's page: the daemon's devices, a capture started from a material preset and followed
+// live from its event stream, and the stored sessions with their reports. Plain DOM, no
+// libraries, nothing fetched from outside the daemon. Text from the daemon is only ever set
+// as textContent, never parsed as HTML.
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+let following = null; // { id, source }
+
+class Unauthorized extends Error {}
+
+async function api(path, options = {}) {
+  const response = await fetch("/api/v1" + path, { credentials: "same-origin", ...options });
+  if (response.status === 401) {
+    $("app").hidden = true;
+    $("login").hidden = false;
+    throw new Unauthorized("sign in first");
+  }
+  const body = await response.json().catch(() => ({}));
+  if (!response.ok) {
+    throw new Error(body.message || `${response.status} ${response.statusText}`);
+  }
+  return body;
+}
+
+function post(path, body) {
+  return api(path, {
+    method: "POST",
+    headers: { "Content-Type": "application/json" },
+    body: JSON.stringify(body || {}),
+  });
+}
+
+function el(tag, text, attributes = {}) {
+  const e = document.createElement(tag);
+  if (text !== undefined && text !== null) e.textContent = String(text);
+  for (const [k, v] of Object.entries(attributes)) e.setAttribute(k, v);
+  return e;
+}
+
+function row(cells) {
+  const tr = el("tr");
+  for (const c of cells) {
+    const td = el("td");
+    if (c instanceof Node) td.append(c);
+    else td.textContent = c ?? "";
+    tr.append(td);
+  }
+  return tr;
+}
+
+function showError(e) {
+  if (!(e instanceof Unauthorized)) $("error").textContent = String(e.message || e);
+}
+
+async function refreshHealth() {
+  const h = await api("/health");
+  $("health").textContent =
+    `${h.software}; ${h.rig.simulated ? "simulated rig" : "hardware rig"}; ` +
+    (h.busy ? `capturing ${h.busy}` : "idle");
+  $("size-field").hidden = !h.rig.simulated;
+  return h;
+}
+
+async function refreshDevices() {
+  const body = $("devices").tBodies[0];
+  const devices = await api("/devices");
+  body.replaceChildren(
+    ...devices.map((d) =>
+      row([d.role, d.identity || d.selector, d.state, d.last_error || ""])
+    )
+  );
+}
+
+function resultLinks(id) {
+  const span = el("span");
+  const base = `/api/v1/sessions/${encodeURIComponent(id)}/result`;
+  for (const [file, label] of [
+    ["report.html", "report"],
+    ["compare.png", "photo vs estimate"],
+    ["", "coefficients"],
+  ]) {
+    const a = el("a", label, { href: file ? `${base}/${file}` : base, target: "_blank" });
+    span.append(a, " ");
+  }
+  return span;
+}
+
+async function refreshSessions() {
+  const sessions = await api("/sessions");
+  const body = $("sessions").tBodies[0];
+  body.replaceChildren(
+    ...sessions.reverse().map((s) => {
+      const state = el("span", s.state, { class: `state-${s.state}` });
+      let action = "";
+      if (s.state === "failed" || s.state === "created") {
+        action = el("button", "Resume", { type: "button" });
+        action.addEventListener("click", () => resume(s.id).catch(showError));
+      }
+      return row([
+        s.id,
+        state,
+        s.material,
+        s.created,
+        s.state === "done" ? resultLinks(s.id) : "",
+        action,
+      ]);
+    })
+  );
+}
+
+async function loadMaterials() {
+  const m = await api("/materials");
+  $("material").replaceChildren(...m.presets.map((p) => el("option", p, { value: p })));
+}
+
+function phaseRow(phases, name) {
+  let p = phases.get(name);
+  if (!p) {
+    const bar = el("progress", null, { max: "1", value: "0" });
+    const time = el("span", "");
+    const div = el("div", null, { class: "phase" });
+    div.append(el("span", name), bar, time);
+    $("phases").append(div);
+    p = { div, bar, time };
+    phases.set(name, p);
+  }
+  return p;
+}
+
+function follow(id) {
+  if (following) following.source.close();
+  $("run").hidden = false;
+  $("run-title").textContent = `session ${id}`;
+  $("phases").replaceChildren();
+  $("messages").replaceChildren();
+  $("outcome").textContent = "";
+  $("outcome").className = "";
+  $("cancel").hidden = false;
+  $("start").disabled = true;
+  const phases = new Map();
+  const source = new EventSource(`/api/v1/sessions/${encodeURIComponent(id)}/events`);
+  following = { id, source };
+  source.onmessage = (message) => {
+    const e = JSON.parse(message.data);
+    switch (e.type) {
+      case "phase_started": {
+        const p = phaseRow(phases, e.phase);
+        p.bar.max = Math.max(e.total, 1);
+        break;
+      }
+      case "progress": {
+        const p = phaseRow(phases, e.phase);
+        p.bar.max = Math.max(e.total, 1);
+        p.bar.value = e.done;
+        break;
+      }
+      case "phase_done": {
+        const p = phaseRow(phases, e.phase);
+        p.bar.value = p.bar.max;
+        p.time.textContent = `${e.seconds.toFixed(2)} s`;
+        p.div.classList.add("done");
+        break;
+      }
+      case "message":
+      case "warning":
+        $("messages").append(el("li", e.text, { class: e.type }));
+        break;
+      case "finished":
+        source.close();
+        following = null;
+        finished(e);
+        break;
+    }
+  };
+  source.onerror = () => {
+    // The stream ends after `finished`; an error before that is a lost connection, which
+    // EventSource retries on its own.
+    if (!following) source.close();
+  };
+}
+
+function finished(e) {
+  $("cancel").hidden = true;
+  $("start").disabled = false;
+  const out = $("outcome");
+  out.replaceChildren();
+  if (e.state === "done" && e.result) {
+    const r = e.result;
+    const fit = r.fit_error === null ? "not a number" : r.fit_error.toFixed(4);
+    out.append(
+      `Done: model ${r.model}, fit to the photo ${fit} (${r.fit_verdict})` +
+        (r.relight_error != null ? `, relit error ${r.relight_error.toFixed(4)}` : "") +
+        ". ",
+      resultLinks(e.session)
+    );
+  } else {
+    out.className = "failed";
+    out.textContent = `${e.state}: ${e.error || "no reason given"}`;
+  }
+  refreshAll();
+}
+
+async function start(event) {
+  event.preventDefault();
+  const form = new FormData($("capture"));
+  const plan = { material: form.get("material") };
+  if (!$("size-field").hidden) plan.size = Number(form.get("size"));
+  $("error").textContent = "";
+  const started = await post("/sessions", plan);
+  follow(started.id);
+  refreshAll();
+}
+
+async function resume(id) {
+  $("error").textContent = "";
+  await post(`/sessions/${encodeURIComponent(id)}/resume`);
+  follow(id);
+}
+
+async function cancel() {
+  if (following) await post(`/sessions/${encodeURIComponent(following.id)}/cancel`);
+}
+
+async function refreshAll() {
+  try {
+    await Promise.all([refreshHealth(), refreshDevices(), refreshSessions()]);
+  } catch (e) {
+    showError(e);
+  }
+}
+
+async function main() {
+  $("capture").addEventListener("submit", (e) => start(e).catch(showError));
+  $("cancel").addEventListener("click", () => cancel().catch(showError));
+  try {
+    const health = await refreshHealth();
+    $("app").hidden = false;
+    await Promise.all([loadMaterials(), refreshDevices(), refreshSessions()]);
+    if (health.busy) follow(health.busy);
+  } catch (e) {
+    showError(e);
+    return;
+  }
+  setInterval(() => {
+    refreshHealth().catch(showError);
+    refreshDevices().catch(showError);
+  }, 5000);
+}
+
+main();

@@ -1,0 +1,304 @@
+//! The daemon's web page in a real browser: Debian's headless Chromium, driven through
+//! chromedriver over the W3C WebDriver protocol (a few JSON requests, spoken here directly).
+//! It signs in with the token, starts a capture from the form, sees progress arrive, opens
+//! the finished session's report and checks its images and plots, and saves screenshots.
+//! CI installs chromium and chromium-driver and sets BRDFD_REQUIRE_BROWSER=1, so there the
+//! test cannot skip.
+
+mod common;
+
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::{json, Value};
+
+use common::Daemon;
+
+const CHROMIUM: &str = "/usr/bin/chromium";
+
+fn browser_present() -> bool {
+    let present = Command::new("chromedriver")
+        .arg("--version")
+        .output()
+        .is_ok()
+        && std::path::Path::new(CHROMIUM).exists();
+    if !present {
+        assert!(
+            std::env::var_os("BRDFD_REQUIRE_BROWSER").is_none(),
+            "chromium and chromedriver are required here but not installed"
+        );
+        eprintln!("skipping: apt-get install chromium chromium-driver");
+    }
+    present
+}
+
+/// A chromedriver process with one headless Chromium session.
+struct Browser {
+    driver: Child,
+    base: String,
+    http: reqwest::blocking::Client,
+    _profile: tempfile::TempDir,
+}
+
+impl Browser {
+    fn start() -> Browser {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let driver = Command::new("chromedriver")
+            .arg(format!("--port={port}"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("chromedriver starts");
+        let http = reqwest::blocking::Client::builder()
+            .timeout(Duration::from_secs(60))
+            .build()
+            .unwrap();
+        let root = format!("http://127.0.0.1:{port}");
+        let start = Instant::now();
+        while http
+            .get(format!("{root}/status"))
+            .send()
+            .ok()
+            .and_then(|r| r.json::<Value>().ok())
+            .is_none_or(|v| v["value"]["ready"] != true)
+        {
+            assert!(
+                start.elapsed() < Duration::from_secs(20),
+                "chromedriver never ready"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let profile = tempfile::tempdir().unwrap();
+        // The flags Chromium needs as root in a closed sandbox: no background connections.
+        let args = [
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--window-size=1200,1600",
+            &format!("--user-data-dir={}", profile.path().display()),
+        ];
+        let caps = json!({"capabilities": {"alwaysMatch": {
+            "browserName": "chrome",
+            "goog:chromeOptions": {"binary": CHROMIUM, "args": args},
+        }}});
+        let created: Value = http
+            .post(format!("{root}/session"))
+            .json(&caps)
+            .send()
+            .unwrap()
+            .json()
+            .unwrap();
+        let session = created["value"]["sessionId"]
+            .as_str()
+            .unwrap_or_else(|| panic!("no browser session: {created}"))
+            .to_string();
+        Browser {
+            driver,
+            base: format!("{root}/session/{session}"),
+            http,
+            _profile: profile,
+        }
+    }
+
+    fn call(&self, method: reqwest::Method, path: &str, body: Option<Value>) -> Value {
+        let mut r = self.http.request(method, format!("{}{path}", self.base));
+        if let Some(b) = body {
+            r = r.json(&b);
+        }
+        let v: Value = r.send().unwrap().json().unwrap();
+        assert!(v["value"]["error"].is_null(), "WebDriver {path}: {v}");
+        v["value"].clone()
+    }
+
+    fn go(&self, url: &str) {
+        self.call(reqwest::Method::POST, "/url", Some(json!({ "url": url })));
+    }
+
+    /// Runs `script` in the page (its `arguments`: `args`); what it returns.
+    fn run(&self, script: &str, args: Value) -> Value {
+        self.call(
+            reqwest::Method::POST,
+            "/execute/sync",
+            Some(json!({ "script": script, "args": args })),
+        )
+    }
+
+    fn element(&self, css: &str) -> String {
+        let v = self.call(
+            reqwest::Method::POST,
+            "/element",
+            Some(json!({"using": "css selector", "value": css})),
+        );
+        v.as_object()
+            .and_then(|o| o.values().next())
+            .and_then(Value::as_str)
+            .unwrap_or_else(|| panic!("no element {css}: {v}"))
+            .to_string()
+    }
+
+    fn click(&self, css: &str) {
+        let e = self.element(css);
+        self.call(
+            reqwest::Method::POST,
+            &format!("/element/{e}/click"),
+            Some(json!({})),
+        );
+    }
+
+    fn type_into(&self, css: &str, text: &str) {
+        let e = self.element(css);
+        self.call(
+            reqwest::Method::POST,
+            &format!("/element/{e}/value"),
+            Some(json!({ "text": text })),
+        );
+    }
+
+    /// Waits until `script` returns something truthy; that value.
+    fn wait_for(&self, what: &str, script: &str, limit: Duration) -> Value {
+        let start = Instant::now();
+        loop {
+            let v = self.run(script, json!([]));
+            if !(v.is_null() || v == false || v == "") {
+                return v;
+            }
+            assert!(start.elapsed() < limit, "{what}: not seen within {limit:?}");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    /// Saves a screenshot where CI keeps test artefacts.
+    fn screenshot(&self, name: &str) {
+        use base64::Engine as _;
+        let png = self.call(reqwest::Method::GET, "/screenshot", None);
+        let png = base64::engine::general_purpose::STANDARD
+            .decode(png.as_str().unwrap())
+            .unwrap();
+        let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("browser");
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join(name), png).unwrap();
+    }
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        let _ = self.http.delete(&self.base).send();
+        let _ = self.driver.kill();
+        let _ = self.driver.wait();
+    }
+}
+
+#[test]
+fn the_page_signs_in_captures_follows_progress_and_opens_the_report() {
+    if !browser_present() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("brdfd.toml");
+    std::fs::write(&config, "token = \"bench-token\"\n").unwrap();
+    let config = config.to_str().unwrap();
+    let daemon = Daemon::start(
+        &dir.path().join("state"),
+        &["--simulate", "--config", config],
+    );
+    let page = format!("http://{}/", daemon.addr);
+    let browser = Browser::start();
+
+    // Without the token the page asks for it, and a wrong one is refused.
+    browser.go(&page);
+    browser.wait_for(
+        "the sign-in form",
+        "return !document.getElementById('login').hidden",
+        Duration::from_secs(10),
+    );
+    browser.type_into("#login input[name=token]", "wrong");
+    browser.click("#login button");
+    // The form's answer replaces the page once it arrives.
+    browser.wait_for(
+        "the refusal",
+        "return document.body.textContent.includes(\"That is not this daemon's token\")",
+        Duration::from_secs(10),
+    );
+    browser.go(&page);
+    browser.type_into("#login input[name=token]", "bench-token");
+    browser.click("#login button");
+    // Signed in: the token is in no address, and the devices are listed.
+    let url = browser.call(reqwest::Method::GET, "/url", None);
+    assert!(!url.as_str().unwrap().contains("bench-token"), "{url}");
+    browser.wait_for(
+        "the devices",
+        "return document.querySelectorAll('#devices tbody tr').length >= 3",
+        Duration::from_secs(10),
+    );
+    // For the record (not a check: speed is measured, not tested): how long the page took
+    // to load, from the browser's own navigation timing.
+    let load = browser.run(
+        "const n = performance.getEntriesByType('navigation')[0]; return n.loadEventEnd - n.startTime",
+        json!([]),
+    );
+    eprintln!("page load after sign-in: {load} ms");
+
+    // A capture from the form, at a small size; progress arrives while it runs.
+    browser.run(
+        "document.querySelector('#capture input[name=size]').value = '64';
+         document.getElementById('material').value = 'gold';",
+        json!([]),
+    );
+    browser.click("#start");
+    browser.wait_for(
+        "a phase's progress bar",
+        "return document.querySelectorAll('#phases .phase').length > 0",
+        Duration::from_secs(30),
+    );
+    browser.screenshot("capture-running.png");
+    let outcome = browser.wait_for(
+        "the capture's outcome",
+        "return document.getElementById('outcome').textContent",
+        Duration::from_secs(300),
+    );
+    assert!(
+        outcome.as_str().unwrap().starts_with("Done: model hybrid"),
+        "{outcome}"
+    );
+    let phases = browser.run(
+        "return document.querySelectorAll('#phases .phase.done').length",
+        json!([]),
+    );
+    assert!(phases.as_u64().unwrap() >= 5, "phases done: {phases}");
+    browser.screenshot("capture-done.png");
+
+    // The session list links its report; the report's images decode and its plots have axes.
+    let report = browser.wait_for(
+        "the report link",
+        "const a = [...document.querySelectorAll('#sessions a')].find(a => a.textContent === 'report');
+         return a && a.href",
+        Duration::from_secs(10),
+    );
+    browser.go(report.as_str().unwrap());
+    let checked = browser.wait_for(
+        "the report's images",
+        "const imgs = [...document.images];
+         if (imgs.length < 3 || !imgs.every(i => i.complete)) return null;
+         return {
+           images: imgs.length,
+           decoded: imgs.filter(i => i.naturalWidth > 0).length,
+           plots: document.querySelectorAll('svg').length,
+           axes: [...document.querySelectorAll('svg text')]
+             .filter(t => t.textContent.includes('θh (degrees)')).length,
+         };",
+        Duration::from_secs(20),
+    );
+    assert_eq!(checked["decoded"], checked["images"], "{checked}");
+    assert_eq!(checked["plots"], 3, "{checked}");
+    assert_eq!(checked["axes"], 3, "{checked}");
+    browser.screenshot("report.png");
+}
