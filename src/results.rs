@@ -91,6 +91,10 @@ pub struct CoefficientsFile<'a> {
     pub relative_residual: f64,
     /// ‖A·c − y‖ / ‖y‖ over every candidate pixel: how well the estimate re-renders the photo.
     pub fit_error: f64,
+    /// A simulated capture only: the estimate's relative RMSE against the truth, relit under
+    /// light it was not fitted to.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub relight_error: Option<f64>,
     pub candidates: usize,
     /// Object pixels left out because a channel was at the photo's white level.
     pub clipped_pixels: usize,
@@ -271,6 +275,7 @@ pub fn write_results(
         residual_rms: estimate.solution.residual_rms,
         relative_residual: estimate.solution.relative_residual,
         fit_error: estimate.fit_error,
+        relight_error: cx.relight_error,
         candidates: estimate.candidates,
         clipped_pixels: estimate.clipped,
         lights: estimate.lights,

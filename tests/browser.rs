@@ -14,14 +14,17 @@ use serde_json::{json, Value};
 
 use common::Daemon;
 
-const CHROMIUM: &str = "/usr/bin/chromium";
+/// Debian's Chromium, unless `BRDFD_CHROMIUM` names another.
+fn chromium() -> String {
+    std::env::var("BRDFD_CHROMIUM").unwrap_or_else(|_| "/usr/bin/chromium".into())
+}
 
 fn browser_present() -> bool {
     let present = Command::new("chromedriver")
         .arg("--version")
         .output()
         .is_ok()
-        && std::path::Path::new(CHROMIUM).exists();
+        && std::path::Path::new(&chromium()).exists();
     if !present {
         assert!(
             std::env::var_os("BRDFD_REQUIRE_BROWSER").is_none(),
@@ -88,7 +91,7 @@ impl Browser {
         ];
         let caps = json!({"capabilities": {"alwaysMatch": {
             "browserName": "chrome",
-            "goog:chromeOptions": {"binary": CHROMIUM, "args": args},
+            "goog:chromeOptions": {"binary": chromium(), "args": args},
         }}});
         let created: Value = http
             .post(format!("{root}/session"))
@@ -229,11 +232,22 @@ fn the_page_signs_in_captures_follows_progress_and_opens_the_report() {
         Duration::from_secs(10),
     );
     browser.go(&page);
+    browser.wait_for(
+        "the sign-in form again",
+        "return !document.getElementById('login').hidden",
+        Duration::from_secs(10),
+    );
     browser.type_into("#login input[name=token]", "bench-token");
     browser.click("#login button");
     // Signed in: the token is in no address, and the devices are listed.
     let url = browser.call(reqwest::Method::GET, "/url", None);
     assert!(!url.as_str().unwrap().contains("bench-token"), "{url}");
+    // No script sees the cookie (HttpOnly).
+    let cookies = browser.run("return document.cookie", json!([]));
+    assert!(
+        !cookies.as_str().unwrap().contains("brdfd_token"),
+        "{cookies}"
+    );
     browser.wait_for(
         "the devices",
         "return document.querySelectorAll('#devices tbody tr').length >= 3",

@@ -4,7 +4,6 @@ mod common;
 
 use common::{brdfd, check_report, text, Simulator};
 
-/// The `coefficients.json` that a command wrote to `dir/out`.
 /// Every layer of an EXR (unnamed: ""), as its R, G and B planes.
 fn exr_layers(path: &std::path::Path) -> std::collections::HashMap<String, [Vec<f32>; 3]> {
     use exr::prelude::*;
@@ -36,6 +35,7 @@ fn exr_layers(path: &std::path::Path) -> std::collections::HashMap<String, [Vec<
         .collect()
 }
 
+/// The `coefficients.json` that a command wrote to `dir/out`.
 fn coefficients_json(dir: &std::path::Path, out: &str) -> serde_json::Value {
     let file = dir.join(out).join("coefficients.json");
     serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap()

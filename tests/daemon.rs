@@ -199,12 +199,6 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
     let (status, result) = daemon.get(&format!("/sessions/{id}/result"));
     assert_eq!(status, 200);
     assert_eq!(result["coefficients"], summary["coefficients"]);
-    // A stream asked for later, by a client that missed it, ends with the same result.
-    let replayed = daemon.events(&id);
-    assert_eq!(
-        replayed.last().unwrap()["result"]["columns"],
-        summary["columns"]
-    );
     // The default model: two lobes' weights and roughnesses, and the mix's weights.
     assert_eq!(result["model"], "hybrid");
     let mixed = result["mixture"].as_array().unwrap().len();
@@ -245,6 +239,18 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
         message.contains("`rgb`") && message.contains("per-channel"),
         "{body}"
     );
+
+    // Another daemon on the same sessions, which did not run this one, ends its stream with
+    // the same result, read back from the stored coefficients.json.
+    drop(daemon);
+    let later = Daemon::simulated(&dir.path().join("state"));
+    let replayed = later.events(&id);
+    assert_eq!(
+        replayed.len(),
+        1,
+        "a stored session's stream is its outcome"
+    );
+    assert_eq!(&replayed[0]["result"], summary, "{}", replayed[0]);
 }
 
 #[test]
@@ -389,6 +395,81 @@ fn a_configured_token_is_required_and_other_machines_need_one() {
         .send()
         .unwrap();
     assert_eq!(right.status().as_u16(), 200);
+
+    // The web page's sign-in: a form, a cookie the API accepts, and nothing else.
+    let page = format!("http://{}", daemon.addr);
+    let no_redirects = reqwest::blocking::Client::builder()
+        .redirect(reqwest::redirect::Policy::none())
+        .build()
+        .unwrap();
+    let login = |body: String, host: Option<&str>| {
+        let mut r = no_redirects
+            .post(format!("{page}/login"))
+            .header("Content-Type", "application/x-www-form-urlencoded")
+            .body(body);
+        if let Some(h) = host {
+            r = r.header("Host", h);
+        }
+        r.send().unwrap()
+    };
+    assert_eq!(
+        login("token=correct+horsf".into(), None).status().as_u16(),
+        401
+    );
+    let signed_in = login("token=correct+horse".into(), None);
+    assert_eq!(signed_in.status().as_u16(), 303);
+    let cookie = signed_in.headers()["set-cookie"]
+        .to_str()
+        .unwrap()
+        .to_string();
+    assert!(
+        cookie.contains("HttpOnly") && cookie.contains("SameSite=Strict"),
+        "{cookie}"
+    );
+    let pair = cookie.split(';').next().unwrap().to_string();
+    assert!(!pair.contains("correct"), "the token in clear: {pair}");
+    let with_cookie = |path: &str| {
+        no_redirects
+            .get(format!("{page}{path}"))
+            .header("Cookie", &pair)
+            .send()
+            .unwrap()
+    };
+    assert_eq!(with_cookie("/api/v1/health").status().as_u16(), 200);
+    // A wrong Authorization header is not rescued by the cookie's absence, nor the reverse.
+    let forged = no_redirects
+        .get(format!("{page}/api/v1/health"))
+        .header("Cookie", "brdfd_token=636f7272656374")
+        .send()
+        .unwrap();
+    assert_eq!(forged.status().as_u16(), 401);
+    // With the cookie, a form-encoded POST (what another page could send) is still refused.
+    let form_post = no_redirects
+        .post(format!("{page}/api/v1/sessions"))
+        .header("Cookie", &pair)
+        .header("Content-Type", "application/x-www-form-urlencoded")
+        .body("material=gold")
+        .send()
+        .unwrap();
+    assert_eq!(form_post.status().as_u16(), 415);
+    // The page and the sign-in answer only to this daemon's own names, and read little.
+    assert_eq!(
+        login("token=correct+horse".into(), Some("evil.example"))
+            .status()
+            .as_u16(),
+        421
+    );
+    assert_eq!(
+        login("token=".to_string() + &"x".repeat(10_000), None)
+            .status()
+            .as_u16(),
+        413
+    );
+    let index = with_cookie("/");
+    assert_eq!(index.status().as_u16(), 200);
+    let policy = index.headers()["content-security-policy"].to_str().unwrap();
+    assert!(policy.contains("default-src 'none'"), "{policy}");
+
     // The CLI without the token is told what is missing.
     let o = brdfd(
         &[

@@ -232,6 +232,21 @@ fn cell_angles(grid: Grid, g: usize) -> (f64, f64) {
     (grid.theta_h_binning.center(ih), merl::theta_d_center(jd))
 }
 
+/// Lambert's column (1/π where the grid has a cell), the first of [`columns`].
+pub fn lambert_column(grid: Grid) -> Vec<f64> {
+    let s = cell_samples(grid);
+    let plane: Vec<f64> = (0..GRID_CELLS)
+        .map(|g| {
+            if s.valid(g) {
+                std::f64::consts::FRAC_1_PI
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    plane.iter().chain(&plane).chain(&plane).copied().collect()
+}
+
 /// The model's columns for roughness α, each a grey bivariate vector (the same in R, G and B):
 /// Lambert (1/π), the lobe weighted by (1 − w), and by w. A BRDF is Σ weightᵢ · columnᵢ per
 /// channel.
@@ -256,13 +271,7 @@ pub fn columns(grid: Grid, alpha: f64) -> [Vec<f64>; 3] {
         let plane: Vec<f64> = (0..GRID_CELLS).map(f).collect();
         plane.iter().chain(&plane).chain(&plane).copied().collect()
     };
-    let lambert = grey(&|g| {
-        if s.valid(g) {
-            std::f64::consts::FRAC_1_PI
-        } else {
-            0.0
-        }
-    });
+    let lambert = lambert_column(grid);
     let f0 = grey(&|g| lobe[g] * (1.0 - schlick_weight(s.cos_d[g])));
     let f90 = grey(&|g| lobe[g] * schlick_weight(s.cos_d[g]));
     [lambert, f0, f90]
@@ -394,6 +403,22 @@ fn matrix_for(views: &[ViewPixels], grid: Grid, alphas: &[f64]) -> RenderingMatr
     out.expect("at least one view")
 }
 
+/// How many roughnesses each pass of [`Search::render`] renders, for `missing` of them (two
+/// columns each) and Lambert first if `lambert`: as few passes as [`PASS_COLUMNS`] allows,
+/// evenly filled. Empty if there is nothing to render.
+fn passes(missing: usize, lambert: bool) -> Vec<usize> {
+    if missing == 0 {
+        return if lambert { vec![0] } else { Vec::new() };
+    }
+    // Lambert takes one column of the first pass.
+    let first = (PASS_COLUMNS - usize::from(lambert)) / 2;
+    let full = PASS_COLUMNS / 2;
+    let n = 1 + missing.saturating_sub(first).div_ceil(full);
+    // Evenly spread, the first pass (with Lambert) taking a smaller share if any.
+    let (base, extra) = (missing / n, missing % n);
+    (0..n).map(|k| base + usize::from(k >= n - extra)).collect()
+}
+
 /// The columns of [`matrix_for`]'s matrix that model Lambert and the lobes at `lobes`
 /// (positions in its α list).
 fn lobe_columns(lobes: &[usize]) -> Vec<usize> {
@@ -518,21 +543,13 @@ impl Search<'_, '_> {
             }
         }
         let need_lambert = self.columns.lambert.is_empty();
-        let total = 2 * missing.len() + usize::from(need_lambert);
-        if total == 0 {
-            return;
-        }
-        let passes = total.div_ceil(PASS_COLUMNS);
-        let per_pass = missing.len().div_ceil(passes).max(1);
-        let chunks: Vec<&[f64]> = if missing.is_empty() {
-            vec![&[]]
-        } else {
-            missing.chunks(per_pass).collect()
-        };
-        for (k, chunk) in chunks.into_iter().enumerate() {
+        let mut rest = missing.as_slice();
+        for (k, count) in passes(missing.len(), need_lambert).into_iter().enumerate() {
+            let (chunk, after) = rest.split_at(count);
+            rest = after;
             let lambert = need_lambert && k == 0;
             let cols: Vec<[Vec<f64>; 3]> = chunk.iter().map(|a| columns(self.grid, *a)).collect();
-            let lambert_col = lambert.then(|| columns(self.grid, ALPHA_MAX)[0].clone());
+            let lambert_col = lambert.then(|| lambert_column(self.grid));
             let mut refs: Vec<&[f64]> = lambert_col.iter().map(|c| c.as_slice()).collect();
             for c in &cols {
                 refs.push(&c[1]);
@@ -972,6 +989,29 @@ impl AnalyticFit {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn search_passes_hold_every_roughness_and_never_overflow() {
+        for lambert in [false, true] {
+            for missing in 0..=100 {
+                let p = passes(missing, lambert);
+                assert_eq!(p.iter().sum::<usize>(), missing, "{missing} {lambert}");
+                for (k, n) in p.iter().enumerate() {
+                    let columns = 2 * n + usize::from(lambert && k == 0);
+                    assert!(columns <= PASS_COLUMNS, "{missing} {lambert}: {p:?}");
+                }
+                // As few passes as the columns need: one fewer could not hold them.
+                let first = (PASS_COLUMNS - usize::from(lambert)) / 2;
+                if p.len() > 1 {
+                    let fewer = first + (p.len() - 2) * (PASS_COLUMNS / 2);
+                    assert!(fewer < missing, "{missing} {lambert}: {p:?}");
+                }
+                assert_eq!(p.is_empty(), missing == 0 && !lambert);
+            }
+        }
+        // The coarse grid with Lambert: 41 columns in two passes of ten roughnesses.
+        assert_eq!(passes(COARSE_ALPHAS, true), vec![10, 10]);
+    }
 
     #[test]
     fn a_white_lobe_reflects_at_most_all_light() {

@@ -486,7 +486,12 @@ impl Basis {
                 };
                 Layer::new(
                     size,
-                    LayerAttributes::named(name.as_str()),
+                    LayerAttributes {
+                        software_name: Some(Text::from(
+                            format!("brdfd {}", env!("CARGO_PKG_VERSION")).as_str(),
+                        )),
+                        ..LayerAttributes::named(name.as_str())
+                    },
                     Encoding::SMALL_LOSSLESS,
                     AnyChannels::sort(smallvec::smallvec![
                         channel("R", 0),

@@ -472,7 +472,8 @@ pub fn write_exr_with_white(
     write_exr_attributed(path, width, height, pixels, &attributes)
 }
 
-/// A header attribute of an EXR brdfd writes: a number, or ASCII text.
+/// A header attribute of an EXR brdfd writes: a number, or text (OpenEXR's text attributes
+/// hold Latin-1; brdfd writes ASCII).
 #[derive(Clone, Debug)]
 pub enum ExrAttribute {
     F32(f32),

@@ -184,6 +184,11 @@ pub struct Rerendered {
 /// The re-render of every candidate from `predicted` (three values per candidate, in the
 /// candidates' order).
 fn rerendered(candidates: &[Candidates], predicted: &[f64]) -> Vec<Rerendered> {
+    debug_assert_eq!(
+        predicted.len(),
+        3 * candidates.iter().map(|c| c.pixels.len()).sum::<usize>(),
+        "one prediction per candidate and channel"
+    );
     let pixels = candidates.iter().enumerate().flat_map(|(view, c)| {
         c.pixels
             .iter()

@@ -116,7 +116,7 @@ async fn require_token(State(d): State<Shared>, req: Request, next: Next) -> Res
             return ApiError(
                 StatusCode::UNAUTHORIZED,
                 "unauthorized",
-                "this daemon requires `Authorization: Bearer <token>` (the token in its brdfd.toml)"
+                "this daemon requires `Authorization: Bearer <token>` (the token in its brdfd.toml), or, in a browser, signing in on its page at /"
                     .into(),
             )
             .into_response();
@@ -171,6 +171,9 @@ pub fn is_own_host(host: &str, hosts: &[String]) -> bool {
 /// browser may send a cross-site "simple request" (a form, or `text/plain`) to a daemon on
 /// localhost without asking first; a JSON content type makes the browser ask (a CORS
 /// preflight), which this daemon never grants. So no page can start, cancel or resume a capture.
+/// This, not the sign-in cookie's `SameSite`, is what guards the API against other pages: a
+/// page on another port of the same host counts as the same site and sends the cookie. Never
+/// answer CORS, and never relax this check.
 async fn require_json_posts(req: Request, next: Next) -> Response {
     if req.method() == axum::http::Method::POST {
         let json = req

@@ -4,8 +4,11 @@
 //!
 //! With a token configured, the browser signs in once (`POST /login`, a form) and keeps the
 //! token in a cookie: an address never holds it, and `EventSource`, which cannot send an
-//! `Authorization` header, is let in by the cookie. The cookie is `SameSite=Strict`, so a
-//! request another site makes carries none, and `HttpOnly`, so no script reads it.
+//! `Authorization` header, is let in by the cookie. The cookie is `HttpOnly`, so no script
+//! reads it, and `SameSite=Strict`, so another site's request carries none. A page on another
+//! port of the same host is the same site, though: what keeps such a page from acting through
+//! the cookie is the API's JSON-only POSTs and its never answering CORS (see
+//! `require_json_posts` in [`super::api`]).
 
 use axum::body::Bytes;
 use axum::extract::State;

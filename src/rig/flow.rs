@@ -574,7 +574,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         summary: super::Summary {
             model: est.model.name().to_string(),
             columns: est.names.clone(),
-            coefficients: est.solution.coefficients.clone(),
+            coefficients: super::Summary::numbers(&est.solution.coefficients),
             fit_error: fit.is_finite().then_some(fit),
             fit_verdict: fit_verdict(fit),
             relight_error: relight,

@@ -207,7 +207,8 @@ pub struct Summary {
     pub model: String,
     /// Names of the coefficients, in their order.
     pub columns: Vec<String>,
-    pub coefficients: Vec<f64>,
+    /// The coefficients; `null` for one that is not a number (JSON has no NaN).
+    pub coefficients: Vec<Option<f64>>,
     /// How well the estimate re-renders the photo (relative RMSE; `null` if not a number).
     pub fit_error: Option<f64>,
     /// The fit in words: `good`, `fair` or `poor`, with its threshold.
@@ -228,8 +229,13 @@ impl Summary {
             coefficients: serde_json::from_value(v["coefficients"].clone()).ok()?,
             fit_error: fit,
             fit_verdict: crate::core::estimate::fit_verdict(fit.unwrap_or(f64::NAN)),
-            relight_error: None,
+            relight_error: v["relight_error"].as_f64(),
         })
+    }
+
+    /// Coefficients as the summary carries them: a number, or `None` where there is none.
+    pub fn numbers(values: &[f64]) -> Vec<Option<f64>> {
+        values.iter().map(|v| v.is_finite().then_some(*v)).collect()
     }
 }
 

@@ -194,6 +194,8 @@ function finished(e) {
         ". ",
       resultLinks(e.session)
     );
+  } else if (e.state === "done") {
+    out.append("Done; the result could not be read back. ", resultLinks(e.session));
   } else {
     out.className = "failed";
     out.textContent = `${e.state}: ${e.error || "no reason given"}`;
