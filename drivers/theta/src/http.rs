@@ -446,21 +446,7 @@ impl OscClient {
             .headers()
             .get("WWW-Authenticate")
             .ok_or_else(|| auth_err("HTTP 401 without a WWW-Authenticate header"))?;
-        // digest_auth 0.3 panics on a challenge that is not ASCII (the issue 20 fuzzer found
-        // it), so only visible ASCII reaches it: `to_str` accepts nothing else, and a camera's
-        // challenge has no reason to hold anything else.
-        let header = header
-            .to_str()
-            .ok()
-            .filter(|h| h.is_ascii())
-            .ok_or_else(|| {
-                auth_err(&format!(
-                    "the Digest challenge is not ASCII text: {:?}",
-                    String::from_utf8_lossy(header.as_bytes())
-                ))
-            })?;
-        let challenge = digest_auth::parse(header)
-            .map_err(|e| auth_err(&format!("cannot read the Digest challenge {header:?}: {e}")))?;
+        let challenge = parse_challenge(header.as_bytes()).map_err(|e| auth_err(&e))?;
         *self.challenge.lock().unwrap_or_else(|p| p.into_inner()) = Some(challenge);
         Ok(())
     }
@@ -518,6 +504,24 @@ impl OscClient {
             reason,
         }
     }
+}
+
+/// A `WWW-Authenticate` Digest challenge, as bytes off the network. digest_auth 0.3 panics on
+/// a challenge that is not ASCII (the issue 20 fuzzer found it), so only visible ASCII (and
+/// tabs) reaches it: a camera's challenge has no reason to hold anything else.
+pub fn parse_challenge(
+    header: &[u8],
+) -> std::result::Result<digest_auth::WwwAuthenticateHeader, String> {
+    let text = std::str::from_utf8(header)
+        .ok()
+        .filter(|h| h.bytes().all(|b| b == b'\t' || (b' '..=b'~').contains(&b)))
+        .ok_or_else(|| {
+            format!(
+                "the Digest challenge is not ASCII text: {:?}",
+                String::from_utf8_lossy(header)
+            )
+        })?;
+    digest_auth::parse(text).map_err(|e| format!("cannot read the Digest challenge {text:?}: {e}"))
 }
 
 fn parse<T: serde::de::DeserializeOwned>(v: Value, what: &str) -> Result<T> {

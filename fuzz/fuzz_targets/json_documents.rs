@@ -1,0 +1,19 @@
+//! JSON from outside: a capture plan as a client POSTs it, a session manifest read back from
+//! disk, and the THETA's answers (`/osc/info`, `/osc/state`, command results).
+#![no_main]
+#[path = "allocation_limit.rs"]
+mod allocation_limit;
+use libfuzzer_sys::fuzz_target;
+
+fuzz_target!(|data: &[u8]| {
+    if let Ok(plan) = serde_json::from_slice::<brdfd::rig::Plan>(data) {
+        let _ = plan.validate();
+    }
+    let _ = serde_json::from_slice::<brdfd::session::Manifest>(data);
+    let _ = serde_json::from_slice::<brdfd_theta::osc::Info>(data);
+    let _ = serde_json::from_slice::<brdfd_theta::osc::StateResponse>(data);
+    if let Ok(command) = serde_json::from_slice::<brdfd_theta::osc::Command>(data) {
+        let _ = command.file_urls();
+        let _ = command.options();
+    }
+});
