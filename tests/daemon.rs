@@ -175,6 +175,12 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
     );
     let finished = events.last().unwrap();
     assert_eq!(finished["state"], "done");
+    // A client that reconnects with Last-Event-ID gets only what came after, with the ids.
+    let n = events.len();
+    let resumed = daemon.events_after(&id, n - 3);
+    let ids: Vec<usize> = resumed.iter().map(|(i, _)| *i).collect();
+    assert_eq!(ids, vec![n - 2, n - 1]);
+    assert_eq!(&resumed[1].1, finished);
     // The finished event carries the result itself, not prose: model, columns, coefficients
     // and the fit, as coefficients.json has them.
     let summary = &finished["result"];

@@ -9,7 +9,7 @@
 //! | `GET /api/v1/sessions` | `[{"id", "state", "material", "created"}]`, oldest first |
 //! | `POST /api/v1/sessions` | body: a plan (`{"material": "gold", "pixels": "20", "views": 1, ...}`); 202 `{"id", "dir", "events"}`; 409 `busy`; 400 `bad_request` |
 //! | `GET /api/v1/sessions/{id}` | `{"id", "dir", "manifest"}`: where it is stored, and its manifest |
-//! | `GET /api/v1/sessions/{id}/events` | Server-Sent Events, one JSON [`Event`] each, from the session's first; ends after `finished` |
+//! | `GET /api/v1/sessions/{id}/events` | Server-Sent Events, one JSON [`Event`] each with its place as `id`, from the session's first (after `Last-Event-ID` if given); ends after `finished` |
 //! | `GET /api/v1/sessions/{id}/result` | `coefficients.json`; 409 `not_done` until the session is done |
 //! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `preview.png`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`; for a hybrid or analytic estimate also `material.gltf`, `material.mtlx` |
 //! | `POST /api/v1/sessions/{id}/cancel` | 202; 409 `not_running` |
@@ -364,7 +364,14 @@ async fn result_file(
 async fn events(
     State(d): State<Shared>,
     Path(id): Path<String>,
+    headers: axum::http::HeaderMap,
 ) -> ApiResult<Sse<impl Stream<Item = Result<SseEvent, Infallible>>>> {
+    // A client that reconnects says the last event it saw; it gets the ones after it.
+    let from = headers
+        .get("last-event-id")
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<usize>().ok())
+        .map_or(0, |last| last.saturating_add(1));
     let log = match d.events(&id) {
         Some(log) => log,
         None => {
@@ -383,23 +390,37 @@ async fn events(
         }
     };
     let (history, live) = log.subscribe();
-    let sse = |e: &Event| {
+    let sse = |id: usize, e: &Event| {
         SseEvent::default()
+            .id(id.to_string())
             .json_data(e)
             .unwrap_or_else(|_| SseEvent::default().data("{}"))
     };
-    // The history first, then live events, until `finished`.
-    let first = stream::iter(history.clone().into_iter().map(move |e| Ok(sse(&e))));
+    // The history first (after `Last-Event-ID`), then live events, until `finished`.
     let ended = history.iter().any(|e| matches!(e, Event::Finished { .. }));
+    let first = stream::iter(
+        history
+            .into_iter()
+            .enumerate()
+            .skip(from)
+            .map(move |(id, e)| Ok(sse(id, &e))),
+    );
     let rest = stream::unfold((live, ended), move |(mut rx, ended)| async move {
         if ended {
             return None;
         }
         loop {
             match rx.recv().await {
-                Ok(e) => {
+                Ok((id, e)) => {
                     let last = matches!(e, Event::Finished { .. });
-                    return Some((Ok(sse(&e)), (rx, last)));
+                    if id < from {
+                        // Seen before the reconnect (the history and the channel overlap).
+                        if last {
+                            return None;
+                        }
+                        continue;
+                    }
+                    return Some((Ok(sse(id, &e)), (rx, last)));
                 }
                 // A slow reader misses events rather than stalling the capture.
                 Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,

@@ -23,10 +23,12 @@ use crate::rig::{Cancel, Devices, Event, Plan};
 use crate::session::{Session, State};
 
 /// Events of one session: everything so far, and a channel for what comes next. A client
-/// that connects late gets the history first, so no event is missed.
+/// that connects late gets the history first, so no event is missed. An event's id is its
+/// place in the history (0 for the first), which the event stream sends, so that a client
+/// that reconnects with `Last-Event-ID` resumes after the last event it saw.
 pub struct EventLog {
     history: Mutex<Vec<Event>>,
-    live: broadcast::Sender<Event>,
+    live: broadcast::Sender<(usize, Event)>,
 }
 
 impl EventLog {
@@ -40,8 +42,9 @@ impl EventLog {
     fn push(&self, e: Event) {
         // Pushed and sent under one lock, so that `subscribe` sees each event exactly once.
         let mut h = self.history.lock().expect("event log");
+        let id = h.len();
         h.push(e.clone());
-        let _ = self.live.send(e);
+        let _ = self.live.send((id, e));
     }
 
     /// Whether the session has sent its last event, `Finished`.
@@ -50,8 +53,8 @@ impl EventLog {
         matches!(h.last(), Some(Event::Finished { .. }))
     }
 
-    /// The history so far and a receiver for every later event.
-    pub fn subscribe(&self) -> (Vec<Event>, broadcast::Receiver<Event>) {
+    /// The history so far and a receiver for every later event, with its id.
+    pub fn subscribe(&self) -> (Vec<Event>, broadcast::Receiver<(usize, Event)>) {
         let h = self.history.lock().expect("event log");
         (h.clone(), self.live.subscribe())
     }

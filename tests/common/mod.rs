@@ -172,6 +172,32 @@ impl Daemon {
             .collect()
     }
 
+    /// A session's event stream resumed after the event `last` (`Last-Event-ID`), to its
+    /// end: each event's id and JSON.
+    pub fn events_after(&self, id: &str, last: usize) -> Vec<(usize, serde_json::Value)> {
+        let r = self
+            .http
+            .get(self.url(&format!("/sessions/{id}/events")))
+            .header("Last-Event-ID", last.to_string())
+            .send()
+            .expect("GET events");
+        assert_eq!(r.status().as_u16(), 200);
+        let mut out = Vec::new();
+        let mut current = None;
+        for line in BufReader::new(r).lines().map_while(Result::ok) {
+            if let Some(i) = line.strip_prefix("id:") {
+                current = Some(i.trim().parse::<usize>().expect("a numeric event id"));
+            } else if let Some(d) = line.strip_prefix("data:") {
+                let id = current.take().expect("every event has an id");
+                out.push((
+                    id,
+                    serde_json::from_str(d.trim()).expect("an event is JSON"),
+                ));
+            }
+        }
+        out
+    }
+
     /// Waits until the session's manifest says `step` is complete.
     pub fn wait_for_step(&self, id: &str, step: &str) {
         let start = std::time::Instant::now();
