@@ -133,6 +133,23 @@ fn page(
     }
     h.push_str("</div>\n");
 
+    h.push_str("<h2>Under other light</h2>\n<div class=\"row\">\n");
+    for (name, sphere) in relit_spheres(&est.brdf)? {
+        let _ = writeln!(
+            h,
+            "<figure>{}<figcaption>Relit under brdfd's {name} map.</figcaption></figure>",
+            img_tag(&sphere, &format!("the estimate under the {name} map"))?
+        );
+    }
+    let _ = writeln!(
+        h,
+        "</div>\n<p class=\"note\">The estimate on a sphere under two reference maps that \
+         ship with brdfd, the same for every session (the simulated bench itself uses the \
+         studio map). Each is exposed so that a white matte sphere (albedo 1) under the same \
+         map would reach white at its brightest: spheres of different sessions compare \
+         directly.</p>"
+    );
+
     h.push_str("<h2>BRDF slices</h2>\n<div class=\"row\">\n");
     for theta_d in SLICE_THETA_D {
         h.push_str(&slice_svg(est, cx.truth, theta_d)?);
@@ -180,7 +197,7 @@ fn page(
 const STYLE: &str = "body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;\
 color:#222}h1{font-size:1.4em}h2{font-size:1.15em;margin-top:1.6em;border-bottom:1px solid #ccc}\
 figure{margin:0.5em 1em 0.5em 0;display:inline-block;vertical-align:top;max-width:100%}\
-figure img{max-width:100%;image-rendering:pixelated}figcaption{font-size:0.85em;color:#555;\
+figure img{max-width:100%;height:auto;image-rendering:pixelated}figcaption{font-size:0.85em;color:#555;\
 max-width:780px}.row{display:flex;flex-wrap:wrap;gap:0.5em}table{border-collapse:collapse}\
 th,td{text-align:left;padding:0.2em 0.8em;border-bottom:1px solid #eee;vertical-align:top}\
 th{font-weight:normal;color:#555}.summary{font-size:1.05em}.note{font-size:0.85em;color:#555}";
@@ -360,6 +377,47 @@ fn slice_svg(est: &Estimate, truth: Option<&Bivariate>, theta_d_deg: f64) -> Res
         root.present().map_err(|e| plot_err(&e))?;
     }
     Ok(svg)
+}
+
+/// Pixels on a side of the relit spheres, and lights they are rendered with: enough for a
+/// picture, a few hundredths of a second each.
+const RELIT_SIZE: usize = 128;
+const RELIT_LIGHTS: usize = 512;
+
+/// The estimate on a sphere under each of [`crate::bench::reference_maps`], each on the fixed
+/// scale of a white Lambertian sphere under the same map.
+fn relit_spheres(brdf: &Bivariate) -> Result<Vec<(&'static str, RgbImage)>> {
+    use crate::core::geometry::{Camera, PixelGeometry, Shape};
+    use crate::core::render::RenderingMatrix;
+    let sphere = PixelGeometry::rasterize(
+        &Camera::eval_orthographic(RELIT_SIZE),
+        &Shape::unit_sphere(),
+    )?;
+    let white = crate::core::analytic::lambert_column(brdf.grid);
+    let mut out = Vec::new();
+    for (name, map) in crate::bench::reference_maps() {
+        let lights = map.compressed(RELIT_LIGHTS, 0.0);
+        let a = RenderingMatrix::build(
+            &sphere.pixels,
+            &lights,
+            &[&brdf.values, &white],
+            None,
+            brdf.grid.theta_h_binning,
+        );
+        // Column 0 is the estimate, column 1 the white sphere; rows are (pixel, channel).
+        let peak = (0..a.pixels.len() * 3)
+            .map(|r| a.row(r)[1])
+            .fold(0.0f32, f32::max)
+            .max(f32::MIN_POSITIVE);
+        let mut img = RgbImage::new(RELIT_SIZE as u32, RELIT_SIZE as u32);
+        for (p, px) in sphere.pixels.iter().enumerate() {
+            let rgb: [f32; 3] = std::array::from_fn(|c| a.row(3 * p + c)[0] / peak);
+            let srgb = rgb.map(|v| (linear_to_srgb(v.clamp(0.0, 1.0)) * 255.0 + 0.5) as u8);
+            img.put_pixel(px.x, px.y, Rgb(srgb));
+        }
+        out.push((name, img));
+    }
+    Ok(out)
 }
 
 /// The environment map, tone-mapped and at most 512 pixels wide, with the lights as dots.

@@ -96,6 +96,47 @@ pub fn studio_envmap(width: usize) -> EnvMap {
         .expect("procedural map is finite")
 }
 
+/// A procedural daylight: a blue sky brightening towards the horizon, a small sun 35° up
+/// in front and to the left (of a camera looking down −z), and grey ground. The second reference light (after
+/// [`studio_envmap`]) that reports relight every estimate under: one hard light, where the
+/// studio has soft ones. Radiance in arbitrary linear units.
+pub fn daylight_envmap(width: usize) -> EnvMap {
+    let height = width / 2;
+    let sun = unit([-0.45, 0.57, 0.68]);
+    let sun_radius = 0.03f64; // about 1.7°: larger than the real sun, so a coarse map holds it
+    let mut pixels = Vec::with_capacity(width * height);
+    for y in 0..height {
+        for x in 0..width {
+            let d = crate::core::envmap::direction(
+                (x as f64 + 0.5) / width as f64,
+                (y as f64 + 0.5) / height as f64,
+                0.0,
+            );
+            let mut l = if d[1] > 0.0 {
+                let t = (1.0 - d[1] as f32).powi(3);
+                [0.25 + 0.65 * t, 0.45 + 0.5 * t, 1.0 + 0.1 * t]
+            } else {
+                [0.22, 0.21, 0.19]
+            };
+            let cos = d.iter().zip(&sun).map(|(a, b)| a * b).sum::<f64>();
+            if cos > sun_radius.cos() {
+                l = [3000.0, 2900.0, 2600.0];
+            }
+            pixels.push(l);
+        }
+    }
+    EnvMap::from_pixels(width, height, pixels, "procedural daylight")
+        .expect("procedural map is finite")
+}
+
+/// The reference lights every report relights its estimate under, by name.
+pub fn reference_maps() -> [(&'static str, EnvMap); 2] {
+    [
+        ("studio", studio_envmap(512)),
+        ("daylight", daylight_envmap(512)),
+    ]
+}
+
 fn unit(v: [f64; 3]) -> [f64; 3] {
     crate::core::brdf::normalize(v)
 }
