@@ -6,6 +6,8 @@
 //!   pixel count, Fig. 5 and Fig. 6). For speed it selects once per lighting and solves every
 //!   material on the shared selection, so it calls the pipeline's steps (`chosen_rows`, the
 //!   solvers) rather than the whole `estimate`.
+//! - [`figures`]: their figures as SVG, with axes, labels and legends.
 
+pub mod figures;
 pub mod paper;
 pub mod relight;

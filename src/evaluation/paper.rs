@@ -332,7 +332,7 @@ fn label(l: Option<usize>) -> String {
     l.map_or("all".into(), |n| n.to_string())
 }
 
-/// Runs the protocol, writes `results.csv`, `results.md`, `fig5-*.png`, `fig6-*.png` and
+/// Runs the protocol, writes `results.csv`, `results.md`, `fig5-*.svg`, `fig6-*.svg` and
 /// (unless disabled) `loo.csv`; returns the Markdown report.
 pub fn run(cfg: &EvalConfig) -> Result<String> {
     let t0 = Instant::now();
@@ -408,7 +408,7 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
         for method in METHODS {
             write_fig5(
                 &cfg.out
-                    .join(format!("fig5-{light_name}{}.png", suffix(method))),
+                    .join(format!("fig5-{light_name}{}.svg", suffix(method))),
                 &rows,
                 light_name,
                 method,
@@ -421,8 +421,9 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
             .map(|(n, r)| (n.clone(), r[method_index(method)].clone()))
             .collect();
         write_fig6(
-            &cfg.out.join(format!("fig6-grace{}.png", suffix(method))),
+            &cfg.out.join(format!("fig6-grace{}.svg", suffix(method))),
             &per_method,
+            method,
         )?;
     }
     write_csv(&cfg.out.join("results.csv"), &rows)?;
@@ -914,122 +915,54 @@ fn summary(rows: &[Row]) -> String {
     s
 }
 
-const COLOURS: [[u8; 3]; 10] = [
-    [31, 119, 180],
-    [255, 127, 14],
-    [44, 160, 44],
-    [214, 39, 40],
-    [148, 103, 189],
-    [140, 86, 75],
-    [227, 119, 194],
-    [127, 127, 127],
-    [188, 189, 34],
-    [23, 190, 207],
-];
-
-/// Fig. 5: BRDF error against pixel count, one line per test material (colours in the order of
-/// [`TEST_SET`]), x = 5, 10, 20, all; y linear from 0 to the largest error.
+/// Fig. 5: BRDF error against pixel count, one line per test material (in the order of
+/// [`TEST_SET`]), as SVG with axes and a legend.
 fn write_fig5(path: &Path, rows: &[Row], lighting: &str, method: Method) -> Result<()> {
-    let (w, h, pad) = (640u32, 400u32, 40u32);
-    let mut img = image::RgbImage::from_pixel(w, h, image::Rgb([255, 255, 255]));
     let sel: Vec<&Row> = rows
         .iter()
         .filter(|r| r.lighting == lighting && !r.noisy && r.method == method)
         .collect();
-    let ymax = sel
+    let series: Vec<(String, Vec<Option<f64>>)> = TEST_SET
         .iter()
-        .map(|r| r.brdf_error)
-        .fold(0.0f64, f64::max)
-        .max(1e-6);
-    let to_px = |xi: usize, y: f64| -> (i64, i64) {
-        let x = pad as f64 + xi as f64 / 3.0 * (w - 2 * pad) as f64;
-        let yy = (h - pad) as f64 - (y / ymax) * (h - 2 * pad) as f64;
-        (x as i64, yy as i64)
-    };
-    for g in 0..=4 {
-        let y = (h - pad) as f64 - g as f64 / 4.0 * (h - 2 * pad) as f64;
-        line(
-            &mut img,
-            (pad as i64, y as i64),
-            ((w - pad) as i64, y as i64),
-            [220, 220, 220],
-        );
-    }
-    line(
-        &mut img,
-        (pad as i64, pad as i64),
-        (pad as i64, (h - pad) as i64),
-        [0, 0, 0],
-    );
-    line(
-        &mut img,
-        (pad as i64, (h - pad) as i64),
-        ((w - pad) as i64, (h - pad) as i64),
-        [0, 0, 0],
-    );
-    for (mi, m) in TEST_SET.iter().enumerate() {
-        let pts: Vec<(i64, i64)> = PIXEL_COUNTS
-            .iter()
-            .enumerate()
-            .filter_map(|(xi, l)| {
-                sel.iter()
-                    .find(|r| r.material == *m && r.pixels == *l)
-                    .map(|r| to_px(xi, r.brdf_error))
-            })
-            .collect();
-        for p in pts.windows(2) {
-            line(&mut img, p[0], p[1], COLOURS[mi]);
-        }
-        for p in &pts {
-            for dx in -3..=3 {
-                for dy in -3..=3 {
-                    put(&mut img, p.0 + dx, p.1 + dy, COLOURS[mi]);
-                }
-            }
-        }
-    }
-    img.save(path)
-        .map_err(|e| CoreError::format(path.display(), e.to_string()))
-}
-
-fn put(img: &mut image::RgbImage, x: i64, y: i64, c: [u8; 3]) {
-    if x >= 0 && y >= 0 && (x as u32) < img.width() && (y as u32) < img.height() {
-        img.put_pixel(x as u32, y as u32, image::Rgb(c));
-    }
-}
-
-fn line(img: &mut image::RgbImage, a: (i64, i64), b: (i64, i64), c: [u8; 3]) {
-    let steps = (b.0 - a.0).abs().max((b.1 - a.1).abs()).max(1);
-    for i in 0..=steps {
-        let x = a.0 + (b.0 - a.0) * i / steps;
-        let y = a.1 + (b.1 - a.1) * i / steps;
-        put(img, x, y, c);
-        put(img, x, y + 1, c);
-    }
+        .map(|m| {
+            let values = PIXEL_COUNTS
+                .iter()
+                .map(|l| {
+                    sel.iter()
+                        .find(|r| r.material == *m && r.pixels == *l)
+                        .map(|r| r.brdf_error)
+                })
+                .collect();
+            (m.to_string(), values)
+        })
+        .collect();
+    let categories: Vec<String> = PIXEL_COUNTS.iter().map(|l| label(*l)).collect();
+    let svg = super::figures::category_lines(
+        &format!(
+            "Fig. 5: BRDF error against pixels used ({lighting}, {}, no noise)",
+            method.name()
+        ),
+        "pixels used",
+        "BRDF error (relative RMSE over the grid)",
+        &categories,
+        &series,
+    )?;
+    std::fs::write(path, svg).map_err(|e| CoreError::io(path, e))
 }
 
 /// Fig. 6: one row per test material: ground truth, then estimates with 5, 10, 20 and all
-/// pixels, each tone-mapped with the ground truth's exposure.
-fn write_fig6(path: &Path, rows: &[(String, Vec<Raster>)]) -> Result<()> {
-    let Some((_, first)) = rows.first() else {
-        return Ok(());
-    };
-    let (tw, th) = (first[0].width as u32, first[0].height as u32);
-    let cols = first.len() as u32;
-    let mut img =
-        image::RgbImage::from_pixel(tw * cols, th * rows.len() as u32, image::Rgb([0, 0, 0]));
-    for (r, (_, renders)) in rows.iter().enumerate() {
-        let exposure = renders[0].auto_exposure();
-        for (c, render) in renders.iter().enumerate() {
-            let tile = render.to_srgb8(exposure);
-            image::imageops::overlay(
-                &mut img,
-                &tile,
-                (c as u32 * tw) as i64,
-                (r as u32 * th) as i64,
-            );
-        }
-    }
-    img.save(path)
-        .map_err(|e| CoreError::format(path.display(), e.to_string()))
+/// pixels, each row tone-mapped with the ground truth's exposure, as SVG with labels.
+fn write_fig6(path: &Path, rows: &[(String, Vec<Raster>)], method: Method) -> Result<()> {
+    let mut columns = vec!["truth".to_string()];
+    columns.extend(PIXEL_COUNTS.iter().map(|l| format!("{} pixels", label(*l))));
+    let columns: Vec<&str> = columns.iter().map(String::as_str).collect();
+    let svg = super::figures::image_grid(
+        &format!(
+            "Fig. 6: the truth and estimates re-rendered (grace, {})",
+            method.name()
+        ),
+        &columns,
+        rows,
+    )?;
+    std::fs::write(path, svg).map_err(|e| CoreError::io(path, e))
 }

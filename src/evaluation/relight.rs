@@ -247,8 +247,8 @@ struct Material {
     analytic: bool,
 }
 
-/// Runs the relighting evaluation; writes `relight.csv` and `relight.md` into `out` and
-/// returns the Markdown.
+/// Runs the relighting evaluation; writes `relight.csv`, `relight.md` and `relight.svg` (the
+/// relighting figure) into `out` and returns the Markdown.
 pub fn run(cfg: &RelightConfig) -> Result<String> {
     let t0 = std::time::Instant::now();
     std::fs::create_dir_all(&cfg.out).map_err(|e| CoreError::io(&cfg.out, e))?;
@@ -398,6 +398,7 @@ pub fn run(cfg: &RelightConfig) -> Result<String> {
     write_csv(&cfg.out.join("relight.csv"), &rows)?;
     let mut shown: Vec<&'static str> = methods.iter().map(|m| m.name).collect();
     shown.push(REFERENCE);
+    write_figure(&cfg.out.join("relight.svg"), &rows, &shown)?;
     let report = markdown(&rows, &shown, cfg, t0.elapsed().as_secs_f64());
     let md = cfg.out.join("relight.md");
     std::fs::write(&md, &report).map_err(|e| CoreError::io(&md, e))?;
@@ -426,6 +427,41 @@ fn write_csv(path: &Path, rows: &[Row]) -> Result<()> {
         );
     }
     std::fs::write(path, s).map_err(|e| CoreError::io(path, e))
+}
+
+/// The relighting figure: per material, each method's relight error (the median over its
+/// captures and held-out maps), one marker per method.
+fn write_figure(path: &Path, rows: &[Row], methods: &[&'static str]) -> Result<()> {
+    let mut materials: Vec<String> = Vec::new();
+    for r in rows {
+        if !materials.contains(&r.material) {
+            materials.push(r.material.clone());
+        }
+    }
+    let series: Vec<(String, Vec<Option<f64>>)> = methods
+        .iter()
+        .map(|method| {
+            let values = materials
+                .iter()
+                .map(|m| {
+                    let v: Vec<f64> = rows
+                        .iter()
+                        .filter(|r| r.material == *m && r.method == *method)
+                        .map(|r| r.relight_error)
+                        .collect();
+                    (!v.is_empty()).then(|| median(v))
+                })
+                .collect();
+            (method.to_string(), values)
+        })
+        .collect();
+    let svg = super::figures::category_dots(
+        "Relighting: error under maps the estimate never saw (median per material)",
+        "relight error (relative RMSE)",
+        &materials,
+        &series,
+    )?;
+    std::fs::write(path, svg).map_err(|e| CoreError::io(path, e))
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
