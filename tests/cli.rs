@@ -105,8 +105,8 @@ fn simulated_capture_prints_coefficients() {
     ] {
         assert!(dir.path().join("result").join(f).is_file(), "{f} missing");
     }
-    // The report: photo against estimate, the sphere, the map, two relit spheres; the simulator's truth on the
-    // slices, and the relight figure among the numbers.
+    // The report: photo against estimate, the sphere, the map, two relit spheres; the
+    // simulator's truth on the slices, and the relight figure among the numbers.
     let report = check_report(&dir.path().join("result/report.html"), 5);
     assert!(report.contains("truth (dashed)"), "no truth on the slices");
     assert!(report.contains("relit under light it was not fitted to"));

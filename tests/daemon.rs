@@ -175,12 +175,18 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
     );
     let finished = events.last().unwrap();
     assert_eq!(finished["state"], "done");
-    // A client that reconnects with Last-Event-ID gets only what came after, with the ids.
-    let n = events.len();
-    let resumed = daemon.events_after(&id, n - 3);
-    let ids: Vec<usize> = resumed.iter().map(|(i, _)| *i).collect();
-    assert_eq!(ids, vec![n - 2, n - 1]);
+    // Every event has an id; a client that reconnects with Last-Event-ID gets only what came
+    // after it, and one with an id of another run (say, before the session was resumed, or
+    // from another daemon) gets this run's events from the first.
+    let all = daemon.events_after(&id, None);
+    let n = all.len();
+    assert_eq!(n, events.len());
+    let resumed = daemon.events_after(&id, Some(&all[n - 3].0));
+    assert_eq!(resumed, all[n - 2..].to_vec());
     assert_eq!(&resumed[1].1, finished);
+    let run = all[0].0.split_once('-').unwrap().0;
+    let other_run = format!("{}-{}", run.parse::<u64>().unwrap() + 1, n - 3);
+    assert_eq!(daemon.events_after(&id, Some(&other_run)), all);
     // The finished event carries the result itself, not prose: model, columns, coefficients
     // and the fit, as coefficients.json has them.
     let summary = &finished["result"];
@@ -257,6 +263,11 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
         "a stored session's stream is its outcome"
     );
     assert_eq!(&replayed[0]["result"], summary, "{}", replayed[0]);
+    // A browser that reconnects with the earlier daemon's last id still gets the outcome.
+    let last_seen = all.last().unwrap().0.clone();
+    let again = later.events_after(&id, Some(&last_seen));
+    assert_eq!(again.len(), 1, "{again:?}");
+    assert_eq!(again[0].1["type"], "finished");
 }
 
 #[test]

@@ -2,7 +2,7 @@
 //! a valid handshake, the bytes are the camera's side of the command connection. The client
 //! opens a session, reads DeviceInfo, lists storage, reads an ObjectInfo and downloads the
 //! object with a size the input also gives, as `brdfd ptp capture` would. Device-declared
-//! lengths (StartData, ObjectInfo) must not drive huge allocations (`-malloc_limit_mb`).
+//! lengths (StartData, ObjectInfo) must not drive huge allocations (`allocation_limit.rs`).
 #![no_main]
 #[path = "allocation_limit.rs"]
 mod allocation_limit;
@@ -38,18 +38,21 @@ fuzz_target!(|data: &[u8]| {
     listener.set_nonblocking(true).unwrap();
     let peer = std::thread::spawn(move || {
         // The command connection, then the event connection, if the client gets that far.
-        let mut streams = Vec::new();
+        let mut streams: Vec<std::net::TcpStream> = Vec::new();
         let deadline = Instant::now() + Duration::from_millis(500);
         while streams.len() < 2 && Instant::now() < deadline {
             match listener.accept() {
                 Ok((mut s, _)) => {
                     s.set_nonblocking(false).unwrap();
-                    let bytes = if streams.is_empty() {
-                        [ack(ty::INIT_COMMAND_ACK), camera_says.clone()].concat()
+                    let _ = s.set_write_timeout(Some(Duration::from_secs(2)));
+                    if streams.is_empty() {
+                        let _ = s.write_all(&ack(ty::INIT_COMMAND_ACK));
                     } else {
-                        ack(ty::INIT_EVENT_ACK)
-                    };
-                    let _ = s.write_all(&bytes);
+                        let _ = s.write_all(&ack(ty::INIT_EVENT_ACK));
+                        // The session's bytes once the client has both connections: a large
+                        // input cannot hold up the handshake.
+                        let _ = streams[0].write_all(&camera_says);
+                    }
                     streams.push(s);
                 }
                 Err(_) => std::thread::sleep(Duration::from_micros(200)),

@@ -97,13 +97,14 @@ pub fn studio_envmap(width: usize) -> EnvMap {
 }
 
 /// A procedural daylight: a blue sky brightening towards the horizon, a small sun 35° up
-/// in front and to the left (of a camera looking down −z), and grey ground. The second reference light (after
+/// over the left shoulder of a camera looking down −z, and grey ground. The second reference light (after
 /// [`studio_envmap`]) that reports relight every estimate under: one hard light, where the
 /// studio has soft ones. Radiance in arbitrary linear units.
 pub fn daylight_envmap(width: usize) -> EnvMap {
     let height = width / 2;
     let sun = unit([-0.45, 0.57, 0.68]);
-    let sun_radius = 0.03f64; // about 1.7°: larger than the real sun, so a coarse map holds it
+    // About 1.7°: larger than the real sun, so that a coarse map holds it.
+    let sun_radius = 0.03f64;
     let mut pixels = Vec::with_capacity(width * height);
     for y in 0..height {
         for x in 0..width {

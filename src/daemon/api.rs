@@ -366,12 +366,6 @@ async fn events(
     Path(id): Path<String>,
     headers: axum::http::HeaderMap,
 ) -> ApiResult<Sse<impl Stream<Item = Result<SseEvent, Infallible>>>> {
-    // A client that reconnects says the last event it saw; it gets the ones after it.
-    let from = headers
-        .get("last-event-id")
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.trim().parse::<usize>().ok())
-        .map_or(0, |last| last.saturating_add(1));
     let log = match d.events(&id) {
         Some(log) => log,
         None => {
@@ -389,10 +383,13 @@ async fn events(
             log
         }
     };
+    // A client that reconnects says the last event it saw; it gets the ones after it.
+    let from = log.resume_from(headers.get("last-event-id").and_then(|v| v.to_str().ok()));
     let (history, live) = log.subscribe();
-    let sse = |id: usize, e: &Event| {
+    let run = log.run();
+    let sse = move |index: usize, e: &Event| {
         SseEvent::default()
-            .id(id.to_string())
+            .id(format!("{run}-{index}"))
             .json_data(e)
             .unwrap_or_else(|_| SseEvent::default().data("{}"))
     };
@@ -414,7 +411,7 @@ async fn events(
                 Ok((id, e)) => {
                     let last = matches!(e, Event::Finished { .. });
                     if id < from {
-                        // Seen before the reconnect (the history and the channel overlap).
+                        // Only when the client's id is ahead of this run's history: skip to it.
                         if last {
                             return None;
                         }

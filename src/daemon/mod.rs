@@ -23,20 +23,45 @@ use crate::rig::{Cancel, Devices, Event, Plan};
 use crate::session::{Session, State};
 
 /// Events of one session: everything so far, and a channel for what comes next. A client
-/// that connects late gets the history first, so no event is missed. An event's id is its
-/// place in the history (0 for the first), which the event stream sends, so that a client
-/// that reconnects with `Last-Event-ID` resumes after the last event it saw.
+/// that connects late gets the history first, so no event is missed. An event's id is
+/// `RUN-N`: this log's run and the event's place in it (0 for the first). The event stream
+/// sends it, so that a client that reconnects with `Last-Event-ID` resumes after the last
+/// event it saw; an id of another run (the session resumed since, or a daemon restarted)
+/// resumes nothing, and the client gets this run's events from the first.
 pub struct EventLog {
+    /// Unique among the logs this daemon makes, and unlike any earlier daemon's.
+    run: u64,
     history: Mutex<Vec<Event>>,
     live: broadcast::Sender<(usize, Event)>,
 }
 
 impl EventLog {
     fn new() -> Arc<EventLog> {
+        use std::sync::atomic::{AtomicU64, Ordering};
+        static NEXT: AtomicU64 = AtomicU64::new(0);
+        let started = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_micros() as u64);
         Arc::new(EventLog {
+            run: started.wrapping_add(NEXT.fetch_add(1, Ordering::Relaxed)),
             history: Mutex::new(Vec::new()),
             live: broadcast::channel(1024).0,
         })
+    }
+
+    /// This log's run: the event stream's ids are `RUN-N`.
+    pub fn run(&self) -> u64 {
+        self.run
+    }
+
+    /// Where a stream resumes for a client's `Last-Event-ID`: after it if it is this run's,
+    /// else from the first event.
+    pub fn resume_from(&self, last_event_id: Option<&str>) -> usize {
+        last_event_id
+            .and_then(|id| id.trim().split_once('-'))
+            .filter(|(run, _)| run.parse::<u64>().ok() == Some(self.run))
+            .and_then(|(_, n)| n.parse::<usize>().ok())
+            .map_or(0, |n| n.saturating_add(1))
     }
 
     fn push(&self, e: Event) {

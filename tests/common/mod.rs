@@ -172,21 +172,20 @@ impl Daemon {
             .collect()
     }
 
-    /// A session's event stream resumed after the event `last` (`Last-Event-ID`), to its
-    /// end: each event's id and JSON.
-    pub fn events_after(&self, id: &str, last: usize) -> Vec<(usize, serde_json::Value)> {
-        let r = self
-            .http
-            .get(self.url(&format!("/sessions/{id}/events")))
-            .header("Last-Event-ID", last.to_string())
-            .send()
-            .expect("GET events");
+    /// A session's event stream, resumed after the event `last` if given (`Last-Event-ID`),
+    /// to its end: each event's id and JSON.
+    pub fn events_after(&self, id: &str, last: Option<&str>) -> Vec<(String, serde_json::Value)> {
+        let mut r = self.http.get(self.url(&format!("/sessions/{id}/events")));
+        if let Some(last) = last {
+            r = r.header("Last-Event-ID", last);
+        }
+        let r = r.send().expect("GET events");
         assert_eq!(r.status().as_u16(), 200);
         let mut out = Vec::new();
         let mut current = None;
         for line in BufReader::new(r).lines().map_while(Result::ok) {
             if let Some(i) = line.strip_prefix("id:") {
-                current = Some(i.trim().parse::<usize>().expect("a numeric event id"));
+                current = Some(i.trim().to_string());
             } else if let Some(d) = line.strip_prefix("data:") {
                 let id = current.take().expect("every event has an id");
                 out.push((
