@@ -439,11 +439,7 @@ fn map_thumbnail(env: &EnvMap, lights: &LightSet) -> RgbImage {
     for (p, n) in small.pixels.iter_mut().zip(&count) {
         *p = p.map(|v| v / (*n).max(1) as f32);
     }
-    let exposure = small.auto_exposure();
-    let mut img = RgbImage::from_fn(w as u32, h as u32, |x, y| {
-        let p = small.get(x as usize, y as usize);
-        Rgb(p.map(|v| (linear_to_srgb((v * exposure).clamp(0.0, 1.0)) * 255.0 + 0.5) as u8))
-    });
+    let mut img = small.to_srgb8(small.auto_exposure());
     for d in &lights.directions {
         let (u, v) = uv_of([d[0] as f64, d[1] as f64, d[2] as f64]);
         let (x, y) = ((u * w as f64) as u32, (v * h as f64) as u32);

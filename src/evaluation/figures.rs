@@ -29,6 +29,57 @@ fn plot_err(e: impl std::fmt::Display) -> CoreError {
     CoreError::Invalid(format!("plotting: {e}"))
 }
 
+/// The largest finite value of any series (at least 1e-6, so an axis always has a span).
+fn peak(series: &[(String, Vec<Option<f64>>)]) -> f64 {
+    series
+        .iter()
+        .flat_map(|(_, v)| v.iter().flatten())
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, f64::max)
+        .max(1e-6)
+}
+
+/// How a legend entry shows its series.
+enum Marker {
+    Line,
+    Dot,
+}
+
+/// The series' names with their colours, one per line, in a drawing area beside the plot.
+fn draw_legend(
+    area: &DrawingArea<SVGBackend, plotters::coord::Shift>,
+    series: &[(String, Vec<Option<f64>>)],
+    marker: Marker,
+) -> Result<()> {
+    for (i, (name, _)) in series.iter().enumerate() {
+        let colour = COLOURS[i % COLOURS.len()];
+        let y = 60 + 18 * i as i32;
+        match marker {
+            Marker::Line => area.draw(&PathElement::new(
+                vec![(4, y), (24, y)],
+                colour.stroke_width(2),
+            )),
+            Marker::Dot => area.draw(&Circle::new((14, y), 4, colour.filled())),
+        }
+        .map_err(plot_err)?;
+        area.draw(&Text::new(name.clone(), (30, y - 6), ("sans-serif", 12)))
+            .map_err(plot_err)?;
+    }
+    Ok(())
+}
+
+/// The category at axis position `x` if it is a whole index, else no label (plotters may ask
+/// for ticks between the categories).
+fn tick_label(categories: &[String], x: f64) -> String {
+    let i = x.round();
+    if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < categories.len() {
+        categories[i as usize].clone()
+    } else {
+        String::new()
+    }
+}
+
 /// A line plot over categories: `categories` along x, one series per `(name, values)` (a
 /// value may be missing), y from 0, with title, axis labels and a legend.
 pub fn category_lines(
@@ -38,14 +89,7 @@ pub fn category_lines(
     categories: &[String],
     series: &[(String, Vec<Option<f64>>)],
 ) -> Result<String> {
-    let ymax = series
-        .iter()
-        .flat_map(|(_, v)| v.iter().flatten())
-        .copied()
-        .filter(|v| v.is_finite())
-        .fold(0.0f64, f64::max)
-        .max(1e-6)
-        * 1.08;
+    let ymax = peak(series) * 1.08;
     let n = categories.len().max(1);
     let mut svg = String::new();
     {
@@ -53,19 +97,7 @@ pub fn category_lines(
         root.fill(&WHITE).map_err(plot_err)?;
         // The legend beside the plot, not over its lines.
         let (plot, legend) = root.split_horizontally(620);
-        for (i, (name, _)) in series.iter().enumerate() {
-            let colour = COLOURS[i % COLOURS.len()];
-            let y = 60 + 18 * i as i32;
-            legend
-                .draw(&PathElement::new(
-                    vec![(4, y), (24, y)],
-                    colour.stroke_width(2),
-                ))
-                .map_err(plot_err)?;
-            legend
-                .draw(&Text::new(name.clone(), (30, y - 6), ("sans-serif", 12)))
-                .map_err(plot_err)?;
-        }
+        draw_legend(&legend, series, Marker::Line)?;
         let mut chart = ChartBuilder::on(&plot)
             .caption(title, ("sans-serif", 17))
             .margin(10)
@@ -80,14 +112,7 @@ pub fn category_lines(
             .x_desc(x_label)
             .y_desc(y_label)
             .x_labels(n)
-            .x_label_formatter(&move |x| {
-                let i = x.round();
-                if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < cats.len() {
-                    cats[i as usize].clone()
-                } else {
-                    String::new()
-                }
-            })
+            .x_label_formatter(&move |x| tick_label(&cats, *x))
             .y_label_formatter(&|y| format!("{y:.2}"))
             .light_line_style(TRANSPARENT)
             .bold_line_style(BLACK.mix(0.08))
@@ -121,14 +146,7 @@ pub fn category_dots(
     categories: &[String],
     series: &[(String, Vec<Option<f64>>)],
 ) -> Result<String> {
-    let xmax = series
-        .iter()
-        .flat_map(|(_, v)| v.iter().flatten())
-        .copied()
-        .filter(|v| v.is_finite())
-        .fold(0.0f64, f64::max)
-        .max(1e-6)
-        * 1.05;
+    let xmax = peak(series) * 1.05;
     let n = categories.len().max(1);
     let longest = categories
         .iter()
@@ -141,16 +159,7 @@ pub fn category_dots(
         let root = SVGBackend::with_string(&mut svg, (860, height)).into_drawing_area();
         root.fill(&WHITE).map_err(plot_err)?;
         let (plot, legend) = root.split_horizontally(700);
-        for (i, (name, _)) in series.iter().enumerate() {
-            let colour = COLOURS[i % COLOURS.len()];
-            let y = 60 + 18 * i as i32;
-            legend
-                .draw(&Circle::new((12, y), 4, colour.filled()))
-                .map_err(plot_err)?;
-            legend
-                .draw(&Text::new(name.clone(), (24, y - 6), ("sans-serif", 12)))
-                .map_err(plot_err)?;
-        }
+        draw_legend(&legend, series, Marker::Dot)?;
         // Row r of the plot is category r, the first at the top.
         let mut chart = ChartBuilder::on(&plot)
             .caption(title, ("sans-serif", 17))
@@ -165,12 +174,9 @@ pub fn category_dots(
             .x_desc(x_label)
             .y_labels(n)
             .y_label_formatter(&move |y| {
-                let i = y.round();
-                if (y - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < cats.len() {
-                    cats[cats.len() - 1 - i as usize].clone()
-                } else {
-                    String::new()
-                }
+                // Row r from the bottom is category n − 1 − r.
+                let flipped = (cats.len() as f64 - 1.0) - y;
+                tick_label(&cats, flipped)
             })
             .x_label_formatter(&|x| format!("{x:.2}"))
             .light_line_style(TRANSPARENT)
