@@ -18,7 +18,8 @@ use crate::core::envmap::{uv_of, EnvMap, LightSet};
 use crate::core::error::{CoreError, Result};
 use crate::core::estimate::{fit_verdict, Estimate};
 use crate::core::merl;
-use crate::core::raster::{linear_to_srgb, Raster};
+use crate::core::raster::Raster;
+use crate::core::render::SpherePicture;
 
 /// What a report shows besides the estimate itself; every part is optional.
 #[derive(Default)]
@@ -31,6 +32,9 @@ pub struct Context<'a> {
     pub photo: Option<&'a Raster>,
     /// The environment map the estimate was lit by.
     pub env: Option<&'a EnvMap>,
+    /// The map's turn (radians) for the first view: the one its lights were compressed with
+    /// ([`EnvMap::compressed`]).
+    pub yaw: f64,
     /// The estimate's relit error against a known truth (a simulator's).
     pub relight_error: Option<f64>,
     /// The true BRDF on the estimate's grid (a simulator's).
@@ -119,7 +123,8 @@ fn page(
     let _ = writeln!(
         h,
         "<figure>{}<figcaption>The estimate on a sphere, under the light it was fitted \
-         to.</figcaption></figure>",
+         to; white is the brightest point of a white matte sphere under that light \
+         (preview.png).</figcaption></figure>",
         img_tag(preview, "the estimate on a sphere")?
     );
     if let Some(env) = cx.env {
@@ -127,7 +132,7 @@ fn page(
             h,
             "<figure>{}<figcaption>The environment map (equirectangular, tone-mapped), with \
              the {} lights the estimate was rendered with as dots.</figcaption></figure>",
-            img_tag(&map_thumbnail(env, lights), "environment map")?,
+            img_tag(&map_thumbnail(env, cx.yaw, lights), "environment map")?,
             lights.len()
         );
     }
@@ -387,41 +392,20 @@ const RELIT_LIGHTS: usize = 512;
 /// The estimate on a sphere under each of [`crate::bench::reference_maps`], each on the fixed
 /// scale of a white Lambertian sphere under the same map.
 fn relit_spheres(brdf: &Bivariate) -> Result<Vec<(&'static str, RgbImage)>> {
-    use crate::core::geometry::{Camera, PixelGeometry, Shape};
-    use crate::core::render::RenderingMatrix;
-    let sphere = PixelGeometry::rasterize(
-        &Camera::eval_orthographic(RELIT_SIZE),
-        &Shape::unit_sphere(),
-    )?;
-    let white = crate::core::analytic::lambert_column(brdf.grid);
-    let mut out = Vec::new();
-    for (name, map) in crate::bench::reference_maps() {
-        let lights = map.compressed(RELIT_LIGHTS, 0.0);
-        let a = RenderingMatrix::build(
-            &sphere.pixels,
-            &lights,
-            &[&brdf.values, &white],
-            None,
-            brdf.grid.theta_h_binning,
-        );
-        // Column 0 is the estimate, column 1 the white sphere; rows are (pixel, channel).
-        let peak = (0..a.pixels.len() * 3)
-            .map(|r| a.row(r)[1])
-            .fold(0.0f32, f32::max)
-            .max(f32::MIN_POSITIVE);
-        let mut img = RgbImage::new(RELIT_SIZE as u32, RELIT_SIZE as u32);
-        for (p, px) in sphere.pixels.iter().enumerate() {
-            let rgb: [f32; 3] = std::array::from_fn(|c| a.row(3 * p + c)[0] / peak);
-            let srgb = rgb.map(|v| (linear_to_srgb(v.clamp(0.0, 1.0)) * 255.0 + 0.5) as u8);
-            img.put_pixel(px.x, px.y, Rgb(srgb));
-        }
-        out.push((name, img));
-    }
-    Ok(out)
+    crate::bench::reference_maps()
+        .into_iter()
+        .map(|(name, map)| {
+            let lights = map.compressed(RELIT_LIGHTS, 0.0);
+            Ok((
+                name,
+                SpherePicture::render(brdf, &lights, RELIT_SIZE)?.to_srgb8(),
+            ))
+        })
+        .collect()
 }
 
 /// The environment map, tone-mapped and at most 512 pixels wide, with the lights as dots.
-fn map_thumbnail(env: &EnvMap, lights: &LightSet) -> RgbImage {
+fn map_thumbnail(env: &EnvMap, yaw: f64, lights: &LightSet) -> RgbImage {
     let step = env.width.div_ceil(512).max(1);
     let (w, h) = (env.width.div_ceil(step), env.height.div_ceil(step));
     let mut small = Raster::black(w, h);
@@ -441,7 +425,9 @@ fn map_thumbnail(env: &EnvMap, lights: &LightSet) -> RgbImage {
     }
     let mut img = small.to_srgb8(small.auto_exposure());
     for d in &lights.directions {
+        // The lights were turned by `yaw` with the map: turn them back onto it.
         let (u, v) = uv_of([d[0] as f64, d[1] as f64, d[2] as f64]);
+        let u = (u + yaw / std::f64::consts::TAU).rem_euclid(1.0);
         let (x, y) = ((u * w as f64) as u32, (v * h as f64) as u32);
         if x < w as u32 && y < h as u32 {
             img.put_pixel(x, y, Rgb([0, 220, 255]));

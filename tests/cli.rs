@@ -99,12 +99,22 @@ fn simulated_capture_prints_coefficients() {
         "brdf.binary",
         "preview.png",
         "preview.exr",
+        "preview.json",
         "compare.png",
         "photo.exr",
         "panorama.exr",
     ] {
         assert!(dir.path().join("result").join(f).is_file(), "{f} missing");
     }
+    // The preview is 512², on the scale written beside it.
+    let preview = image::open(dir.path().join("result/preview.png")).unwrap();
+    assert_eq!((preview.width(), preview.height()), (512, 512));
+    let scale: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("result/preview.json")).unwrap())
+            .unwrap();
+    assert_eq!(scale["format"], "brdfd-preview");
+    assert_eq!(scale["size"], 512);
+    assert!(scale["white_peak"].as_f64().unwrap() > 0.0, "{scale}");
     // The report: photo against estimate, the sphere, the map, two relit spheres; the
     // simulator's truth on the slices, and the relight figure among the numbers.
     let report = check_report(&dir.path().join("result/report.html"), 5);

@@ -241,6 +241,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
             title: format!("{} under {}", a.photo.display(), a.env.display()),
             photo: Some(&photo),
             env: Some(&env),
+            yaw: a.yaw.to_radians(),
             record: vec![
                 ("photo".into(), a.photo.display().to_string()),
                 ("environment map".into(), a.env.display().to_string()),

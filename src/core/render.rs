@@ -635,6 +635,60 @@ pub fn render_bivariate(geom: &PixelGeometry, lights: &LightSet, brdf: &Bivariat
     img
 }
 
+/// A BRDF on a unit sphere seen orthographically (the camera of
+/// [`Camera::eval_orthographic`](super::geometry::Camera::eval_orthographic)), with the scale
+/// that makes two such pictures comparable.
+pub struct SpherePicture {
+    /// Linear radiance, black off the sphere.
+    pub radiance: Raster,
+    /// The brightest pixel (any channel) of a white Lambertian sphere (albedo 1) under the
+    /// same lights. Shown on this scale, a picture's brightness says how much light the
+    /// material returns, whatever the room's: a fixed exposure would show a dim room's
+    /// estimate black, and an automatic one would make every material look equally bright.
+    pub white_peak: f32,
+}
+
+impl SpherePicture {
+    /// `brdf` on a `size` × `size` sphere under `lights`, rendered with a white Lambertian
+    /// column beside it in one pass of the rendering kernel.
+    pub fn render(
+        brdf: &Bivariate,
+        lights: &LightSet,
+        size: usize,
+    ) -> super::error::Result<SpherePicture> {
+        use super::geometry::{Camera, Shape};
+        let sphere =
+            PixelGeometry::rasterize(&Camera::eval_orthographic(size), &Shape::unit_sphere())?;
+        let white = super::analytic::lambert_column(brdf.grid);
+        let a = RenderingMatrix::build(
+            &sphere.pixels,
+            lights,
+            &[&brdf.values, &white],
+            None,
+            brdf.grid.theta_h_binning,
+        );
+        // Column 0 is the BRDF, column 1 the white sphere; rows are (pixel, channel).
+        let white_peak = (0..a.pixels.len() * 3)
+            .map(|r| a.row(r)[1])
+            .fold(0.0f32, f32::max)
+            .max(f32::MIN_POSITIVE);
+        let mut radiance = Raster::black(sphere.width, sphere.height);
+        for (p, px) in sphere.pixels.iter().enumerate() {
+            let rgb = std::array::from_fn(|c| a.row(3 * p + c)[0]);
+            radiance.set(px.x as usize, px.y as usize, rgb);
+        }
+        Ok(SpherePicture {
+            radiance,
+            white_peak,
+        })
+    }
+
+    /// sRGB with [`SpherePicture::white_peak`] at full scale; brighter is clipped.
+    pub fn to_srgb8(&self) -> image::RgbImage {
+        self.radiance.to_srgb8(1.0 / self.white_peak)
+    }
+}
+
 /// Renders a full (θh, θd, φd) MERL table: the ground truth path, where φd matters.
 /// φd is the azimuth of ωᵢ about h, measured from the plane of n and h (Rusinkiewicz).
 pub fn render_merl(geom: &PixelGeometry, lights: &LightSet, brdf: &MerlBrdf) -> Raster {
@@ -858,6 +912,38 @@ mod tests {
                 assert_eq!(fast, portable, "shared-view loop, {m} columns");
             }
         }
+    }
+
+    /// The preview's scale: a white Lambertian sphere reaches full white, a grey one its
+    /// albedo, and neither depends on how bright the room was.
+    #[test]
+    fn sphere_pictures_are_on_the_white_spheres_scale() {
+        use crate::core::analytic::lambert_column;
+        use crate::core::bivariate::Grid;
+        use crate::core::envmap::EnvMap;
+        let (w, h) = (16, 8);
+        let room = |gain: f32| {
+            let pixels = (0..w * h)
+                .map(|i| [gain * (1.0 + (i % 5) as f32), gain, gain * 0.5])
+                .collect();
+            EnvMap::from_pixels(w, h, pixels, "test map")
+                .unwrap()
+                .lights(0.4)
+        };
+        let grid = Grid::default();
+        let lambert = |albedo: f64| {
+            let values = lambert_column(grid).iter().map(|v| v * albedo).collect();
+            Bivariate::from_values(grid, values, vec![true; GRID_CELLS])
+        };
+        let peak = |albedo: f64, gain: f32| {
+            let picture = SpherePicture::render(&lambert(albedo), &room(gain), 48).unwrap();
+            let srgb = picture.to_srgb8();
+            srgb.pixels().flat_map(|p| p.0).max().unwrap()
+        };
+        assert_eq!(peak(1.0, 1.0), 255);
+        // Linear 0.5 is sRGB 188.
+        assert_eq!(peak(0.5, 1.0), 188);
+        assert_eq!(peak(0.5, 40.0), 188, "a brighter room, the same picture");
     }
 
     #[test]

@@ -11,7 +11,7 @@
 //! | `GET /api/v1/sessions/{id}` | `{"id", "dir", "manifest"}`: where it is stored, and its manifest |
 //! | `GET /api/v1/sessions/{id}/events` | Server-Sent Events, one JSON [`Event`] each with its place as `id`, from the session's first (after `Last-Event-ID` if given); ends after `finished` |
 //! | `GET /api/v1/sessions/{id}/result` | `coefficients.json`; 409 `not_done` until the session is done |
-//! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `preview.png`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`; for a hybrid or analytic estimate also `material.gltf`, `material.mtlx` |
+//! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `preview.png`, `preview.json`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`; for a hybrid or analytic estimate also `material.gltf`, `material.mtlx` |
 //! | `POST /api/v1/sessions/{id}/cancel` | 202; 409 `not_running` |
 //! | `POST /api/v1/sessions/{id}/resume` | 202 as for a new capture; 409 `busy` |
 //!
@@ -338,7 +338,8 @@ async fn result_file(
     let kind = match file.as_str() {
         "preview.png" | "compare.png" => "image/png",
         "preview.exr" | "brdf-bivariate.exr" | "brdf-sigma.exr" => "image/x-exr",
-        "brdf.binary" | "coefficients.json" => "application/octet-stream",
+        "brdf.binary" => "application/octet-stream",
+        "coefficients.json" | "preview.json" => "application/json",
         "report.html" => "text/html; charset=utf-8",
         // glTF's registered media type; MaterialX has none, and is XML.
         "material.gltf" => "model/gltf+json",

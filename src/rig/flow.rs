@@ -355,6 +355,8 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
 
     // One DSLR bracket per turntable view.
     let mut views = Vec::with_capacity(n_views);
+    // The map's turn for the first view: the preview and the report show its lights.
+    let mut first_yaw = None;
     // Radiance at and above which a DSLR pixel was clipped in every frame of its bracket.
     let mut clip_level: Option<f32> = None;
     for i in 0..n_views {
@@ -417,6 +419,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         save_exr(session, &format!("photo-{step}.exr"), &photo, white)?;
         phases.end(p);
         let (geometry, view_yaw) = turned(&scene, yaw, deg);
+        first_yaw.get_or_insert(view_yaw);
         let (w, h) = geometry.camera.size();
         let pixels = geometry.pixels(w, h)?;
         let (lights, chosen_lights) = env.estimate_lights(DEFAULT_LIGHTS, CHOSEN_LIGHTS, view_yaw);
@@ -525,6 +528,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         session: Some(m.id.clone()),
         photo: Some(&views[0].3),
         env: Some(&env),
+        yaw: first_yaw.unwrap_or(yaw),
         relight_error: relight,
         truth: true_brdf.as_ref(),
         record: vec![

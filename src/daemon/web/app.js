@@ -78,6 +78,7 @@ function resultLinks(id) {
   for (const [file, label] of [
     ["report.html", "report"],
     ["compare.png", "photo vs estimate"],
+    ["preview.png", "sphere"],
     ["", "coefficients"],
   ]) {
     const a = el("a", label, { href: file ? `${base}/${file}` : base, target: "_blank" });
