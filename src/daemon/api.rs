@@ -3,6 +3,7 @@
 //!
 //! | method and path | answer |
 //! |---|---|
+//! | `GET /api/v1/openapi.json` | this API's OpenAPI 3.1 description ([`openapi`]); needs no token |
 //! | `GET /api/v1/health` | `{"software", "rig": {"simulated", "file"}, "busy": id or null}` |
 //! | `GET /api/v1/materials` | `{"presets": [...]}`: the material presets a capture can name |
 //! | `GET /api/v1/devices` | `[{"role", "selector", "state": "closed"/"open"/"lost", "identity", "last_error", "opened"}]` |
@@ -30,8 +31,14 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
 use futures_util::stream::{self, Stream};
-use serde_json::{json, Value};
+use serde_json::json;
+use utoipa::{Modify as _, OpenApi as _};
+use utoipa_axum::{router::OpenApiRouter, routes};
 
+use super::openapi::{
+    ApiDoc, Cancelling, ErrorBody, FileBytes, Guards, Health, Materials, RigSummary, SessionDetail,
+    SessionItem, Started, StreamEvent,
+};
 use super::{web, Daemon, StartError};
 use crate::rig::{Event, Plan};
 use crate::session::{Session, State as SessionState};
@@ -57,18 +64,41 @@ fn bad_request(e: impl std::fmt::Display) -> ApiError {
     ApiError(StatusCode::BAD_REQUEST, "bad_request", e.to_string())
 }
 
+/// The API's routes, each registered with its OpenAPI description ([`openapi`]).
+fn api() -> OpenApiRouter<Shared> {
+    OpenApiRouter::with_openapi(ApiDoc::openapi())
+        .routes(routes!(health))
+        .routes(routes!(devices))
+        .routes(routes!(materials))
+        .routes(routes!(list, start))
+        .routes(routes!(show))
+        .routes(routes!(events))
+        .routes(routes!(result))
+        .routes(routes!(result_file))
+        .routes(routes!(cancel))
+        .routes(routes!(resume))
+}
+
+/// The OpenAPI description of everything under `/api/v1`, as `GET /api/v1/openapi.json`
+/// serves it.
+pub fn openapi() -> utoipa::openapi::OpenApi {
+    let mut description = OpenApiRouter::<Shared>::new()
+        .nest(API, api())
+        .into_openapi();
+    Guards.modify(&mut description);
+    description
+}
+
+/// Where the API lives.
+pub const API: &str = "/api/v1";
+
 pub fn router(daemon: Shared) -> Router {
-    let api = Router::new()
-        .route("/health", get(health))
-        .route("/devices", get(devices))
-        .route("/materials", get(materials))
-        .route("/sessions", get(list).post(start))
-        .route("/sessions/{id}", get(show))
-        .route("/sessions/{id}/events", get(events))
-        .route("/sessions/{id}/result", get(result))
-        .route("/sessions/{id}/result/{file}", get(result_file))
-        .route("/sessions/{id}/cancel", post(cancel))
-        .route("/sessions/{id}/resume", post(resume))
+    let description: Arc<str> = openapi()
+        .to_pretty_json()
+        .expect("the OpenAPI description serialises")
+        .into();
+    let (api, _) = api().split_for_parts();
+    let api = api
         .layer(axum::middleware::from_fn(require_json_posts))
         .layer(axum::middleware::from_fn_with_state(
             daemon.clone(),
@@ -78,9 +108,18 @@ pub fn router(daemon: Shared) -> Router {
             daemon.clone(),
             require_own_host,
         ));
-    // The web page: its files need no token (they hold no data), but the host check, as
-    // every answer does.
+    // The web page and the API's description: they need no token (they hold no data), but
+    // the host check, as every answer does.
     let page = Router::new()
+        .route(
+            &format!("{API}/openapi.json"),
+            get(move || async move {
+                (
+                    [(header::CONTENT_TYPE, "application/json")],
+                    description.to_string(),
+                )
+            }),
+        )
         .route("/", get(web::index))
         .route("/app.js", get(web::script))
         .route("/app.css", get(web::style))
@@ -93,7 +132,7 @@ pub fn router(daemon: Shared) -> Router {
             require_own_host,
         ));
     Router::new()
-        .nest("/api/v1", api)
+        .nest(API, api)
         .merge(page)
         .fallback(|| async {
             not_found("no such endpoint; the API is under /api/v1 (docs/api.md)")
@@ -194,43 +233,61 @@ async fn require_json_posts(req: Request, next: Next) -> Response {
     next.run(req).await
 }
 
-async fn health(State(d): State<Shared>) -> Json<Value> {
-    Json(json!({
-        "software": format!("brdfd {}", env!("CARGO_PKG_VERSION")),
-        "rig": { "simulated": d.rig.simulated },
-        "busy": d.busy(),
-    }))
+/// The daemon's software, its rig, and the capture running now.
+#[utoipa::path(get, path = "/health", responses((status = 200, body = Health)))]
+async fn health(State(d): State<Shared>) -> Json<Health> {
+    Json(Health {
+        software: format!("brdfd {}", env!("CARGO_PKG_VERSION")),
+        rig: RigSummary {
+            simulated: d.rig.simulated,
+        },
+        busy: d.busy(),
+    })
 }
 
-async fn devices(State(d): State<Shared>) -> Json<Value> {
-    Json(json!(d.devices()))
+/// The rig's devices and their state.
+#[utoipa::path(get, path = "/devices", responses((status = 200, body = Vec<crate::rig::DeviceStatus>)))]
+async fn devices(State(d): State<Shared>) -> Json<Vec<crate::rig::DeviceStatus>> {
+    Json(d.devices())
 }
 
-async fn materials() -> Json<Value> {
-    Json(json!({ "presets": crate::config::preset_names() }))
+/// The material presets a capture can name.
+#[utoipa::path(get, path = "/materials", responses((status = 200, body = Materials)))]
+async fn materials() -> Json<Materials> {
+    Json(Materials {
+        presets: crate::config::preset_names(),
+    })
 }
 
-async fn list(State(d): State<Shared>) -> ApiResult<Json<Value>> {
+/// The stored sessions, oldest first.
+#[utoipa::path(
+    get,
+    path = "/sessions",
+    responses(
+        (status = 200, body = Vec<SessionItem>),
+        (status = 500, description = "`storage`: the state directory cannot be read", body = ErrorBody),
+    )
+)]
+async fn list(State(d): State<Shared>) -> ApiResult<Json<Vec<SessionItem>>> {
     let all = Session::list(&d.state_dir)
         .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, "storage", e.to_string()))?;
-    Ok(Json(Value::Array(
+    Ok(Json(
         all.into_iter()
-            .map(|m| json!({ "id": m.id, "state": m.state, "material": m.material, "created": m.created }))
+            .map(|m| SessionItem {
+                id: m.id,
+                state: m.state,
+                material: m.material,
+                created: m.created,
+            })
             .collect(),
-    )))
+    ))
 }
 
 fn started(s: Session) -> Response {
     let id = s.manifest.id;
-    (
-        StatusCode::ACCEPTED,
-        Json(json!({
-            "id": id,
-            "dir": s.dir,
-            "events": format!("/api/v1/sessions/{id}/events"),
-        })),
-    )
-        .into_response()
+    let events = format!("{API}/sessions/{id}/events");
+    let dir = s.dir.display().to_string();
+    (StatusCode::ACCEPTED, Json(Started { id, dir, events })).into_response()
 }
 
 fn start_error(e: StartError) -> ApiError {
@@ -247,6 +304,18 @@ const MAX_PLAN_BYTES: usize = 64 * 1024;
 /// time would otherwise hold the connection busy, where the connection cap cannot close it.
 const PLAN_READ_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10);
 
+/// Starts a capture from a plan.
+#[utoipa::path(
+    post,
+    path = "/sessions",
+    request_body = crate::rig::Plan,
+    responses(
+        (status = 202, description = "started; follow `events`", body = Started),
+        (status = 400, description = "`bad_request`: the plan is not valid JSON, or names what does not exist", body = ErrorBody),
+        (status = 408, description = "`request_timeout`: the plan did not arrive in time", body = ErrorBody),
+        (status = 409, description = "`busy`: a capture is running", body = ErrorBody),
+    )
+)]
 async fn start(State(d): State<Shared>, body: axum::body::Body) -> ApiResult<Response> {
     let body = tokio::time::timeout(
         PLAN_READ_TIMEOUT,
@@ -275,6 +344,18 @@ async fn start(State(d): State<Shared>, body: axum::body::Body) -> ApiResult<Res
     Ok(started(s))
 }
 
+/// Resumes a session that stopped: from its last complete step.
+#[utoipa::path(
+    post,
+    path = "/sessions/{id}/resume",
+    params(("id" = String, Path, description = "the session's id")),
+    request_body(content = Object, description = "`{}`", content_type = "application/json"),
+    responses(
+        (status = 202, description = "resumed; follow `events`", body = Started),
+        (status = 400, description = "`bad_request`: the session cannot be resumed", body = ErrorBody),
+        (status = 409, description = "`busy`: a capture is running", body = ErrorBody),
+    )
+)]
 async fn resume(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Response> {
     let s = tokio::task::spawn_blocking(move || d.resume(&id))
         .await
@@ -287,20 +368,43 @@ fn open(d: &Daemon, id: &str) -> ApiResult<Session> {
     Session::open(&d.state_dir, id).map_err(not_found)
 }
 
-async fn show(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+/// A session: where it is stored, and its manifest.
+#[utoipa::path(
+    get,
+    path = "/sessions/{id}",
+    params(("id" = String, Path, description = "the session's id")),
+    responses(
+        (status = 200, body = SessionDetail),
+        (status = 404, description = "`not_found`: no such session", body = ErrorBody),
+    )
+)]
+async fn show(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Json<SessionDetail>> {
     let s = open(&d, &id)?;
-    Ok(Json(
-        json!({ "id": id, "dir": s.dir, "manifest": s.manifest }),
-    ))
+    Ok(Json(SessionDetail {
+        id,
+        dir: s.dir.display().to_string(),
+        manifest: s.manifest,
+    }))
 }
 
+/// Cancels the running capture; it stops at the next step and can be resumed.
+#[utoipa::path(
+    post,
+    path = "/sessions/{id}/cancel",
+    params(("id" = String, Path, description = "the session's id")),
+    request_body(content = Object, description = "`{}`", content_type = "application/json"),
+    responses(
+        (status = 202, body = Cancelling),
+        (status = 409, description = "`not_running`: the session is not capturing now", body = ErrorBody),
+    )
+)]
 async fn cancel(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Response> {
     if d.cancel(&id) {
-        Ok((
-            StatusCode::ACCEPTED,
-            Json(json!({ "id": id, "cancelling": true })),
-        )
-            .into_response())
+        let body = Cancelling {
+            id,
+            cancelling: true,
+        };
+        Ok((StatusCode::ACCEPTED, Json(body)).into_response())
     } else {
         Err(ApiError(
             StatusCode::CONFLICT,
@@ -322,6 +426,17 @@ fn done(d: &Daemon, id: &str) -> ApiResult<Session> {
     Ok(s)
 }
 
+/// A finished session's `coefficients.json` (docs/formats.md).
+#[utoipa::path(
+    get,
+    path = "/sessions/{id}/result",
+    params(("id" = String, Path, description = "the session's id")),
+    responses(
+        (status = 200, body = Object, content_type = "application/json"),
+        (status = 404, description = "`not_found`: no such session, or no result file", body = ErrorBody),
+        (status = 409, description = "`not_done`: the session is not done", body = ErrorBody),
+    )
+)]
 async fn result(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Response> {
     let s = done(&d, &id)?;
     let bytes = tokio::fs::read(s.dir.join("result/coefficients.json"))
@@ -330,31 +445,120 @@ async fn result(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Re
     Ok(([(header::CONTENT_TYPE, "application/json")], bytes).into_response())
 }
 
+/// The result files the API serves. A fixed list, so a file name from a request never reaches
+/// the file system unchecked; the OpenAPI description lists the same names.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, utoipa::ToSchema)]
+pub enum ResultFile {
+    #[serde(rename = "report.html")]
+    Report,
+    #[serde(rename = "preview.png")]
+    PreviewPng,
+    #[serde(rename = "preview.json")]
+    PreviewScale,
+    #[serde(rename = "preview.exr")]
+    PreviewExr,
+    #[serde(rename = "compare.png")]
+    Compare,
+    #[serde(rename = "coefficients.json")]
+    Coefficients,
+    #[serde(rename = "brdf-bivariate.exr")]
+    Bivariate,
+    #[serde(rename = "brdf-sigma.exr")]
+    Sigma,
+    #[serde(rename = "brdf.binary")]
+    Merl,
+    #[serde(rename = "material.gltf")]
+    Gltf,
+    #[serde(rename = "material.mtlx")]
+    MaterialX,
+}
+
+impl ResultFile {
+    pub const ALL: [ResultFile; 11] = [
+        ResultFile::Report,
+        ResultFile::PreviewPng,
+        ResultFile::PreviewScale,
+        ResultFile::PreviewExr,
+        ResultFile::Compare,
+        ResultFile::Coefficients,
+        ResultFile::Bivariate,
+        ResultFile::Sigma,
+        ResultFile::Merl,
+        ResultFile::Gltf,
+        ResultFile::MaterialX,
+    ];
+
+    pub fn named(name: &str) -> Option<ResultFile> {
+        ResultFile::ALL.into_iter().find(|f| f.name() == name)
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ResultFile::Report => "report.html",
+            ResultFile::PreviewPng => "preview.png",
+            ResultFile::PreviewScale => "preview.json",
+            ResultFile::PreviewExr => "preview.exr",
+            ResultFile::Compare => "compare.png",
+            ResultFile::Coefficients => "coefficients.json",
+            ResultFile::Bivariate => "brdf-bivariate.exr",
+            ResultFile::Sigma => "brdf-sigma.exr",
+            ResultFile::Merl => "brdf.binary",
+            ResultFile::Gltf => "material.gltf",
+            ResultFile::MaterialX => "material.mtlx",
+        }
+    }
+
+    fn media_type(self) -> &'static str {
+        match self {
+            ResultFile::PreviewPng | ResultFile::Compare => "image/png",
+            ResultFile::PreviewExr | ResultFile::Bivariate | ResultFile::Sigma => "image/x-exr",
+            ResultFile::Merl => "application/octet-stream",
+            ResultFile::Coefficients | ResultFile::PreviewScale => "application/json",
+            ResultFile::Report => "text/html; charset=utf-8",
+            // glTF's registered media type; MaterialX has none, and is XML.
+            ResultFile::Gltf => "model/gltf+json",
+            ResultFile::MaterialX => "application/xml",
+        }
+    }
+}
+
+/// One of a finished session's result files (docs/formats.md).
+#[utoipa::path(
+    get,
+    path = "/sessions/{id}/result/{file}",
+    params(
+        ("id" = String, Path, description = "the session's id"),
+        ("file" = ResultFile, Path, description = "the file"),
+    ),
+    responses(
+        (status = 200, description = "the file", content(
+            (FileBytes = "image/png"),
+            (FileBytes = "image/x-exr"),
+            (FileBytes = "application/octet-stream"),
+            (Object = "application/json"),
+            (String = "text/html"),
+            (Object = "model/gltf+json"),
+            (String = "application/xml"),
+        )),
+        (status = 404, description = "`not_found`: no such session or file (`material.gltf` and `material.mtlx` come with a hybrid or analytic estimate)", body = ErrorBody),
+        (status = 409, description = "`not_done`: the session is not done", body = ErrorBody),
+    )
+)]
 async fn result_file(
     State(d): State<Shared>,
     Path((id, file)): Path<(String, String)>,
 ) -> ApiResult<Response> {
-    // A fixed list: a file name from the request never reaches the file system unchecked.
-    let kind = match file.as_str() {
-        "preview.png" | "compare.png" => "image/png",
-        "preview.exr" | "brdf-bivariate.exr" | "brdf-sigma.exr" => "image/x-exr",
-        "brdf.binary" => "application/octet-stream",
-        "coefficients.json" | "preview.json" => "application/json",
-        "report.html" => "text/html; charset=utf-8",
-        // glTF's registered media type; MaterialX has none, and is XML.
-        "material.gltf" => "model/gltf+json",
-        "material.mtlx" => "application/xml",
-        _ => return Err(not_found(format!("no result file {file:?}"))),
-    };
+    let file =
+        ResultFile::named(&file).ok_or_else(|| not_found(format!("no result file {file:?}")))?;
     let s = done(&d, &id)?;
-    let bytes = tokio::fs::read(s.dir.join("result").join(&file))
+    let bytes = tokio::fs::read(s.dir.join("result").join(file.name()))
         .await
         .map_err(not_found)?;
     // The report is a page of inline images, SVG and CSS: nothing in it may run or load.
     let policy = "default-src 'none'; img-src data:; style-src 'unsafe-inline'";
     Ok((
         [
-            (header::CONTENT_TYPE, kind),
+            (header::CONTENT_TYPE, file.media_type()),
             (header::CONTENT_SECURITY_POLICY, policy),
         ],
         bytes,
@@ -362,6 +566,20 @@ async fn result_file(
         .into_response())
 }
 
+/// The session's events as Server-Sent Events, one JSON [`Event`] each, with its place as
+/// `id`: from the first (after `Last-Event-ID`), ending after `finished`.
+#[utoipa::path(
+    get,
+    path = "/sessions/{id}/events",
+    params(
+        ("id" = String, Path, description = "the session's id"),
+        ("Last-Event-ID" = Option<String>, Header, description = "the last event a client saw: the stream resumes after it"),
+    ),
+    responses(
+        (status = 200, description = "a stream of events, each `data` an Event", content_type = "text/event-stream", body = StreamEvent),
+        (status = 404, description = "`not_found`: no such session", body = ErrorBody),
+    )
+)]
 async fn events(
     State(d): State<Shared>,
     Path(id): Path<String>,

@@ -6,6 +6,7 @@
 //! side only starts it, relays its events and answers questions.
 
 pub mod api;
+pub mod openapi;
 pub mod server;
 pub mod web;
 

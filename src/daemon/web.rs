@@ -22,7 +22,7 @@ const SCRIPT: &str = include_str!("web/app.js");
 const STYLE: &str = include_str!("web/app.css");
 
 /// The cookie that carries the token, hex-encoded (a token may hold any character).
-const COOKIE: &str = "brdfd_token";
+pub const COOKIE: &str = "brdfd_token";
 /// The page may load only its own files and talk only to its own daemon.
 const PAGE_POLICY: &str = "default-src 'none'; script-src 'self'; style-src 'self'; \
      connect-src 'self'; img-src 'self' data:; form-action 'self'; frame-ancestors 'none'; \

@@ -31,13 +31,14 @@ pub use worker::{Device, DeviceStatus, Worker};
 
 /// What a capture was asked to do. Stored in the session's manifest, so that a resume
 /// repeats it; also the body of the daemon's "start a capture" request.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Plan {
     /// A preset in config/materials, a MERL name, or an alias (gold, chrome, paint, ...).
     pub material: String,
     /// Image size of the simulated camera (ignored on a hardware rig).
     #[serde(default = "default_size")]
+    #[schema(minimum = 8, maximum = 8192, default = 256)]
     pub size: usize,
     /// Pixels to estimate from: a number or "all"; the preset's, else 20.
     #[serde(default)]
@@ -56,14 +57,17 @@ pub struct Plan {
     pub bracket: Vec<f64>,
     /// Turntable views (1: no turntable); the rig's `[turntable]` plan, else 1.
     #[serde(default)]
+    #[schema(minimum = 1, maximum = 360)]
     pub views: Option<usize>,
     /// Turntable step between views, degrees; the rig's, else 30.
     #[serde(default)]
     pub turn: Option<f64>,
     /// Simulated rig only: the environment map and NBRDF file of the scene.
     #[serde(default)]
+    #[schema(value_type = Option<String>)]
     pub env: Option<PathBuf>,
     #[serde(default)]
+    #[schema(value_type = Option<String>)]
     pub nbrdf: Option<PathBuf>,
     /// Simulated rig only: the sample is the material's projection onto the basis (its best
     /// K-term approximation) rather than the material itself. Its coefficients are then known
@@ -169,7 +173,7 @@ pub const MAX_VIEWS: usize = 360;
 
 /// What the flow reports as it goes; the CLI draws progress bars from it, the daemon sends it
 /// to its event stream. Serialised as `{"type": "phase_started", ...}`.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
 #[serde(tag = "type", rename_all = "snake_case")]
 pub enum Event {
     /// A phase began: `total` units (frames, or 1 for one piece of work).
@@ -201,7 +205,7 @@ pub enum Event {
 
 /// A finished estimate in brief, as the `finished` event carries it: the model, its columns
 /// and coefficients, and how it fits (the whole record is `result/coefficients.json`).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
 pub struct Summary {
     /// `hybrid`, `analytic` or `basis`.
     pub model: String,

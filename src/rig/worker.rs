@@ -28,7 +28,7 @@ type Job<D> = Box<dyn FnOnce(Result<&mut D, String>) -> (bool, Deliver) + Send>;
 type Deliver = Box<dyn FnOnce() + Send>;
 
 /// A device's state as the daemon reports it.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct DeviceStatus {
     /// The rig's role for the device: "dslr", "theta", "turntable".
     pub role: String,
@@ -42,7 +42,7 @@ pub struct DeviceStatus {
     pub opened: u32,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Link {
     /// Not yet opened.
