@@ -724,3 +724,72 @@ fn plans_sent_at_once_leave_no_orphan_sessions() {
     started.sort();
     assert_eq!(listed, started, "{list}");
 }
+
+/// Issue 20, D10: a capture that fails for want of file descriptors cannot write its failure
+/// either. The daemon goes idle all the same, and records the failure once it can; before,
+/// the manifest said `capturing` for as long as the daemon ran.
+#[test]
+fn a_failure_that_could_not_be_written_is_recorded_once_it_can() {
+    use std::net::TcpStream;
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    // Few descriptors, and a connection cap above them: held connections can take them all.
+    let daemon = Daemon::start_with_open_files(
+        &state,
+        &[
+            "--simulate",
+            "--max-connections",
+            "1000",
+            "--header-timeout",
+            "60",
+        ],
+        128,
+    );
+    let id = start_slow(&daemon);
+    let manifest = state.join("sessions").join(&id).join("manifest.json");
+    let on_disk = || -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(&manifest).unwrap()).unwrap()
+    };
+    std::thread::scope(|s| {
+        let stream = s.spawn(|| daemon.events(&id));
+        daemon.wait_for_step(&id, "view1");
+        // Every descriptor the daemon has left goes to a connection that says nothing.
+        let flood: Vec<TcpStream> = (0..200)
+            .filter_map(|_| TcpStream::connect(&daemon.addr).ok())
+            .collect();
+        let events = stream.join().unwrap();
+        let last = events.last().unwrap();
+        assert_eq!(last["state"], "failed", "{last}");
+        let unwritten = on_disk();
+        assert_eq!(
+            unwritten["state"], "capturing",
+            "the failure was written at once: the flood did not take every descriptor, so \
+             this test did not reach what it checks ({last})"
+        );
+        drop(flood);
+    });
+    // Once descriptors are free, the failure is recorded, the daemon is idle, and the
+    // session can be resumed.
+    let start = Instant::now();
+    while on_disk()["state"] != "failed" {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "the failure was never recorded: {}",
+            on_disk()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let written = on_disk();
+    let reason = written["history"].as_array().unwrap().last().unwrap()["reason"].clone();
+    assert!(
+        reason.as_str().unwrap().contains("resume")
+            || reason.as_str().unwrap().contains("Too many open files"),
+        "{written}"
+    );
+    let (status, health) = daemon.get("/health");
+    assert_eq!(status, 200);
+    assert_eq!(health["busy"], serde_json::Value::Null, "{health}");
+    let (status, shown) = daemon.get(&format!("/sessions/{id}"));
+    assert_eq!(status, 200);
+    assert_eq!(shown["manifest"]["state"], "failed", "{shown}");
+}

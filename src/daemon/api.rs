@@ -273,6 +273,7 @@ async fn list(State(d): State<Shared>) -> ApiResult<Json<Vec<SessionItem>>> {
         .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, "storage", e.to_string()))?;
     Ok(Json(
         all.into_iter()
+            .map(|m| d.shown(m))
             .map(|m| SessionItem {
                 id: m.id,
                 state: m.state,
@@ -383,7 +384,7 @@ async fn show(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Json
     Ok(Json(SessionDetail {
         id,
         dir: s.dir.display().to_string(),
-        manifest: s.manifest,
+        manifest: d.shown(s.manifest),
     }))
 }
 

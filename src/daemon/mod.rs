@@ -113,6 +113,9 @@ pub struct Daemon {
     /// `hosts`).
     pub hosts: Vec<String>,
     running: Mutex<Option<Running>>,
+    /// Failures the manifest could not record yet (issue 20, D10), by session id: retried
+    /// until written, and shown by the API meanwhile.
+    unrecorded: Unrecorded,
     /// Event logs of the latest captures, oldest first (a stored session older than these
     /// streams its outcome alone).
     events: Mutex<VecDeque<(String, Arc<EventLog>)>>,
@@ -156,6 +159,44 @@ fn scene_file(
     Ok(path)
 }
 
+type Unrecorded = Arc<Mutex<std::collections::BTreeMap<String, flow::Unrecorded>>>;
+
+/// How often a failure the manifest could not record is tried again.
+const RECORD_RETRY: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// Tries to record `id`'s failure every [`RECORD_RETRY`] until it is written, the session is
+/// resumed (its run then records its own state), or the daemon stops (`stop`; the next
+/// daemon's start marks the session interrupted). Why: a capture that failed for want of disk
+/// space or file descriptors could not write its failure either, and its manifest said
+/// `capturing` for as long as the daemon ran, idle.
+fn record_when_possible(state: &std::path::Path, id: &str, pending: &Unrecorded, stop: &Cancel) {
+    let step = std::time::Duration::from_millis(50);
+    let mut waited = std::time::Duration::ZERO;
+    loop {
+        if stop.is_cancelled() {
+            return;
+        }
+        std::thread::sleep(step);
+        waited += step;
+        if waited < RECORD_RETRY {
+            continue;
+        }
+        waited = std::time::Duration::ZERO;
+        let Some(u) = pending.lock().expect("unrecorded").get(id).cloned() else {
+            return;
+        };
+        match flow::record_failure(state, id, &u.reason) {
+            Ok(true) => {
+                tracing::info!(session = %id, "the failure is recorded in the manifest now");
+                pending.lock().expect("unrecorded").remove(id);
+                return;
+            }
+            Ok(false) => {}
+            Err(e) => tracing::debug!(session = %id, "the failure still cannot be recorded: {e:#}"),
+        }
+    }
+}
+
 /// Captures whose events the daemon keeps.
 const EVENT_LOGS_KEPT: usize = 32;
 
@@ -193,6 +234,7 @@ impl Daemon {
             token,
             hosts: Vec::new(),
             running: Mutex::new(None),
+            unrecorded: Unrecorded::default(),
             events: Mutex::new(VecDeque::new()),
         })
     }
@@ -216,6 +258,19 @@ impl Daemon {
             .rev()
             .find(|(i, _)| i == id)
             .map(|(_, l)| l.clone())
+    }
+
+    /// The manifest as the API shows it: with a failure it could not record yet.
+    pub fn shown(&self, mut m: crate::session::Manifest) -> crate::session::Manifest {
+        if let Some(u) = self.unrecorded.lock().expect("unrecorded").get(&m.id) {
+            m.state = State::Failed;
+            m.history.push(crate::session::Transition {
+                state: State::Failed,
+                at: m.history.last().map(|t| t.at.clone()).unwrap_or_default(),
+                reason: Some(format!("{} ({}; retried every second)", u.reason, u)),
+            });
+        }
+        m
     }
 
     /// Creates a session for the plan and starts capturing it.
@@ -300,6 +355,9 @@ impl Daemon {
         let reply = session.clone();
         let thread_log = log.clone();
         let (devices, rig, c) = (self.devices.clone(), self.rig.clone(), cancel.clone());
+        let (state_dir, pending) = (self.state_dir.clone(), self.unrecorded.clone());
+        // A resumed session records its own state.
+        pending.lock().expect("unrecorded").remove(&id);
         let thread = std::thread::Builder::new()
             .name(format!("capture-{id}"))
             .spawn(move || {
@@ -311,10 +369,20 @@ impl Daemon {
                     progress: Arc::new(move |e: Event| progress.push(e)),
                     cancel: c,
                 };
+                let id = session.manifest.id.clone();
                 match flow::execute(&mut session, &plan, &cx) {
-                    Ok(_) => tracing::info!(session = %session.manifest.id, "capture done"),
+                    Ok(_) => tracing::info!(session = %id, "capture done"),
                     Err(e) => {
-                        tracing::warn!(session = %session.manifest.id, "capture failed: {e:#}")
+                        tracing::warn!(session = %id, "capture failed: {e:#}");
+                        if let Some(u) = e.downcast_ref::<flow::Unrecorded>() {
+                            pending
+                                .lock()
+                                .expect("unrecorded")
+                                .insert(id.clone(), u.clone());
+                            // The capture is over (its `finished` event is sent), so the
+                            // daemon is idle while this thread waits to record it.
+                            record_when_possible(&state_dir, &id, &pending, &cx.cancel);
+                        }
                     }
                 }
             })

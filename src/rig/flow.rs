@@ -95,7 +95,9 @@ impl Context<'_> {
 /// Runs the flow on a session. A failure is recorded in the manifest, and the session stays
 /// resumable; either way the last event is `Finished`.
 pub fn execute(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outcome> {
-    // (result, why it failed), with the failure recorded while the session is still claimed.
+    // (result, why it failed, and whether the manifest could not record it), with the failure
+    // recorded while the session is still claimed.
+    let mut unrecorded = None;
     let (result, reason) = {
         // Refused before anything is written when another process runs this session. The
         // claim ends before `Finished` is sent: a client that saw it may resume at once.
@@ -118,6 +120,10 @@ pub fn execute(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Resu
             let _ = std::fs::remove_dir_all(session.dir.join("result.partial"));
             if let Err(record) = session.set_state(State::Failed, Some(reason.clone())) {
                 tracing::error!("could not record the failure in the manifest: {record}");
+                unrecorded = Some(Unrecorded {
+                    reason: reason.clone(),
+                    error: record.to_string(),
+                });
             }
             reason
         });
@@ -135,10 +141,49 @@ pub fn execute(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Resu
         error: reason,
     });
     result.map_err(|e| {
+        let e = match unrecorded {
+            Some(u) => e.context(u),
+            None => e,
+        };
         e.context(format!(
             "session {id} failed; what was captured is kept: `brdfd session resume {id}` continues it"
         ))
     })
+}
+
+/// A failure the manifest could not record (the disk full, no file descriptor left), in the
+/// error [`execute`] returns: the daemon records it once it can ([`record_failure`]).
+#[derive(Debug, Clone)]
+pub struct Unrecorded {
+    /// What the manifest should say.
+    pub reason: String,
+    /// Why it could not.
+    pub error: String,
+}
+
+impl std::fmt::Display for Unrecorded {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "the failure could not be recorded in the manifest ({})",
+            self.error
+        )
+    }
+}
+
+/// Records a failure that [`execute`] could not, if the session is still not done or failed
+/// and no one runs it. `Ok(true)` once the manifest says it (or says the session ended by
+/// other means); `Ok(false)` while someone else holds the session.
+pub fn record_failure(state: &std::path::Path, id: &str, reason: &str) -> anyhow::Result<bool> {
+    let mut session = Session::open(state, id)?;
+    if matches!(session.manifest.state, State::Done | State::Failed) {
+        return Ok(true);
+    }
+    let Ok(_lock) = session.claim() else {
+        return Ok(false);
+    };
+    session.set_state(State::Failed, Some(reason.to_string()))?;
+    Ok(true)
 }
 
 /// Whether a full disk (ENOSPC) caused `e`, wherever in its chain: a session file's error, a

@@ -96,7 +96,22 @@ pub struct Daemon {
 
 impl Daemon {
     pub fn start(state: &Path, extra: &[&str]) -> Daemon {
-        let mut child = command()
+        Daemon::spawn(command(), state, extra)
+    }
+
+    /// [`Daemon::start`] with at most `files` open file descriptors (soft and hard limit).
+    pub fn start_with_open_files(state: &Path, extra: &[&str], files: u32) -> Daemon {
+        let mut sh = Command::new("sh");
+        isolated(&mut sh).args([
+            "-c",
+            &format!("ulimit -n {files} && exec \"$0\" \"$@\""),
+            env!("CARGO_BIN_EXE_brdfd"),
+        ]);
+        Daemon::spawn(sh, state, extra)
+    }
+
+    fn spawn(mut brdfd: Command, state: &Path, extra: &[&str]) -> Daemon {
+        let mut child = brdfd
             .args(["serve", "--api", "127.0.0.1:0", "--state-dir"])
             .arg(state)
             .args(extra)
