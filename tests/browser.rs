@@ -288,6 +288,12 @@ fn the_page_signs_in_captures_follows_progress_and_opens_the_report() {
         json!([]),
     );
     assert!(phases.as_u64().unwrap() >= 5, "phases done: {phases}");
+    // No bar is left unfinished (a bracket's download bar went with its bracket's).
+    let open = browser.run(
+        "return [...document.querySelectorAll('#phases .phase:not(.done)')].map(p => p.textContent)",
+        json!([]),
+    );
+    assert_eq!(open, json!([]), "phases left open");
     browser.screenshot("capture-done.png");
 
     // The session list links its report; the report's images decode and its plots have axes.

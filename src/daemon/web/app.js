@@ -161,6 +161,13 @@ function follow(id) {
         p.bar.value = p.bar.max;
         p.time.textContent = `${e.seconds.toFixed(2)} s`;
         p.div.classList.add("done");
+        // A bracket's per-frame download bar has no end of its own: it goes with the
+        // bracket's, as on the command line.
+        const download = e.phase.replace(/: DSLR bracket$/, ": download");
+        if (download !== e.phase && phases.has(download)) {
+          phases.get(download).div.remove();
+          phases.delete(download);
+        }
         break;
       }
       case "message":
