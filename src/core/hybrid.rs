@@ -187,23 +187,34 @@ impl Mix {
             let mut b = DVector::zeros(m);
             g.view_mut((nl, nl), (na, na)).copy_from(&self.aa[c]);
             b.rows_mut(nl, na).copy_from(&self.ba[c]);
+            // Column i of a lobe: its products with the lobes up to it (the upper triangle)
+            // and with the materials, each a contiguous run of the column-major storage, so
+            // the loop is plain slices whatever the compiler inlines (it is the hybrid fit's
+            // hottest after the rendering kernel).
+            let gs = g.as_mut_slice();
             for (p, obs) in self.observed.iter().enumerate() {
                 let r = 3 * p + c;
                 let l = &lobe_rows[r * nl..(r + 1) * nl];
                 let a = &self.rows[r * na..(r + 1) * na];
-                for i in 0..nl {
-                    b[i] += l[i] * obs[c];
-                    for j in 0..=i {
-                        g[(i, j)] += l[i] * l[j];
+                for (i, &li) in l.iter().enumerate() {
+                    b[i] += li * obs[c];
+                    let column = &mut gs[i * m..(i + 1) * m];
+                    for (g, lj) in column[..=i].iter_mut().zip(l) {
+                        *g += li * lj;
                     }
-                    for (j, x) in a.iter().enumerate() {
-                        g[(nl + j, i)] += l[i] * x;
+                    for (g, x) in column[nl..].iter_mut().zip(a) {
+                        *g += li * x;
                     }
                 }
             }
-            for i in 0..m {
+            // The rest by symmetry: the lobes' lower triangle, and the lobes' rows of the
+            // materials' columns.
+            for i in 0..nl {
                 for j in 0..i {
-                    g[(j, i)] = g[(i, j)];
+                    g[(i, j)] = g[(j, i)];
+                }
+                for j in nl..m {
+                    g[(i, j)] = g[(j, i)];
                 }
             }
             let w = nnls(&g, &b);
