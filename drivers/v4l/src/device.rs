@@ -57,16 +57,22 @@ impl V4lCamera {
     pub fn open(path: &str) -> Result<V4lCamera> {
         let dev = Device::with_path(path).map_err(|e| io_error(path, e))?;
         let caps = dev.query_caps().map_err(|e| io_error(path, e))?;
-        if !caps
-            .capabilities
-            .contains(v4l::capability::Flags::VIDEO_CAPTURE)
-        {
+        use v4l::capability::Flags;
+        let has = |f: Flags| caps.capabilities.intersects(f);
+        if !has(Flags::VIDEO_CAPTURE) {
+            // A driver makes several nodes; say which kind this one is.
+            let what = if has(Flags::VIDEO_CAPTURE_MPLANE) {
+                "a multi-planar capture node, which brdfd does not read"
+            } else if has(Flags::VIDEO_OUTPUT | Flags::VIDEO_OUTPUT_MPLANE) {
+                "a video output node"
+            } else if has(Flags::META_CAPTURE | Flags::META_OUTPUT) {
+                "a metadata node"
+            } else {
+                "no video capture"
+            };
             return Err(V4lError::Unsupported {
                 path: path.into(),
-                reason: format!(
-                    "{} is not a video capture device (a metadata node?)",
-                    caps.card
-                ),
+                reason: format!("{} is not a video capture device: {what}", caps.card),
             });
         }
         Ok(V4lCamera {
