@@ -1,7 +1,9 @@
-//! brdfd's V4L2 driver on a real Linux kernel (issue 20): Debian's kernel boots in qemu with
-//! an initramfs that holds the brdfd binary, busybox and the `vivid` test driver, and brdfd
-//! finds `/dev/video0` and captures from it through the real ioctl path (format negotiation,
-//! controls, streaming, averaging).
+//! brdfd's drivers on a real Linux kernel (issue 20): Debian's kernel boots in qemu with an
+//! initramfs that holds the brdfd binary, busybox and the kernel modules a test needs. With
+//! the `vivid` test driver, brdfd finds `/dev/video0` and captures from it through the real
+//! ioctl path (format negotiation, controls, streaming, averaging). With `dummy_hcd` and
+//! FunctionFS, the simulated camera is a USB device on the same kernel, and brdfd reaches it
+//! through libusb and usbfs.
 //!
 //! Needs `qemu-system-x86_64`, a static `busybox`, and an unpacked Debian kernel package:
 //! `BRDFD_VM_KERNEL` names the folder holding its `boot/vmlinuz-*` and `lib/modules/`
@@ -414,4 +416,72 @@ fn brdfd_finds_and_captures_from_vivid_on_a_real_kernel() {
         .find_map(|l| l.trim().parse().ok())
         .expect("the frame's size");
     assert!(bytes > 10_000, "frame.exr is {bytes} bytes");
+}
+
+/// The simulated Nikon D5100 as a real USB gadget (configfs and FunctionFS on `dummy_hcd`'s
+/// loopback controller), and brdfd on the same kernel as the host: `brdfd ptp info` and
+/// `brdfd devices` reach it through libusb and usbfs, and a capture downloads its photo.
+#[test]
+fn brdfd_reaches_the_simulated_camera_as_a_usb_gadget_on_a_real_kernel() {
+    let Some(m) = machine_or_skip() else {
+        return;
+    };
+    let gadget = "\
+g=/sys/kernel/config/usb_gadget/brdfd
+mount -t configfs none /sys/kernel/config
+mkdir $g $g/strings/0x409 $g/configs/c.1 $g/functions/ffs.ptp
+echo 0x04b0 > $g/idVendor
+echo 0x0429 > $g/idProduct
+echo 'Nikon Corporation' > $g/strings/0x409/manufacturer
+echo 'NIKON DSC D5100' > $g/strings/0x409/product
+echo 0000000000000000000000000005100 > $g/strings/0x409/serialnumber
+ln -s $g/functions/ffs.ptp $g/configs/c.1/
+mkdir -p /dev/ffs-ptp
+mount -t functionfs ptp /dev/ffs-ptp
+brdfd sim camera --profile nikon-d5100 --size 48 --functionfs /dev/ffs-ptp > /tmp/sim.log 2>&1 &
+until grep -q 'descriptors written' /tmp/sim.log; do sleep 0.1; done
+ls /sys/class/udc > $g/UDC
+until ls /dev/bus/usb/*/* 2>/dev/null | grep -q 002; do sleep 0.1; done
+";
+    let script = [
+        gadget.to_string(),
+        step("info", "brdfd ptp info --port usb --json"),
+        step("devices", "brdfd devices --json"),
+        step("capture", "brdfd ptp capture --port usb --out /tmp/shots"),
+        step("jpeg", "od -A n -t x1 -N 3 /tmp/shots/DSC_0001.JPG"),
+    ]
+    .concat();
+    let console = boot(&m, &["dummy_hcd", "libcomposite", "usb_f_fs"], &script);
+    // The camera's DeviceInfo, over the bus: the model and serial the profile reports.
+    let info = section(&console, "info");
+    assert!(info.contains("exit 0"), "{info}");
+    let json: serde_json::Value = serde_json::from_str(
+        &info[info.find('{').expect("JSON")..info.rfind('}').expect("JSON") + 1],
+    )
+    .unwrap();
+    assert_eq!(json["model"], "D5100", "{json:#}");
+    assert_eq!(json["serial_number"], "0000000000000000000000000005100");
+    assert!(
+        json["link"]
+            .as_str()
+            .unwrap()
+            .contains("on usb:04b0:0429 (bus 1"),
+        "{json:#}"
+    );
+    // `brdfd devices` lists it by vendor and product, with its model and serial.
+    let devices = section(&console, "devices");
+    assert!(
+        devices.contains("\"selector\": \"usb:04b0:0429\""),
+        "{devices}"
+    );
+    assert!(
+        devices.contains("Nikon Corporation D5100 (serial 0000000000000000000000000005100): ok"),
+        "{devices}"
+    );
+    // A capture (Nikon's, to the camera's RAM) downloads a JPEG.
+    let capture = section(&console, "capture");
+    assert!(capture.contains("exit 0"), "{capture}");
+    assert!(capture.contains("/tmp/shots/DSC_0001.JPG"), "{capture}");
+    let magic = section(&console, "jpeg");
+    assert!(magic.contains("ff d8 ff"), "not a JPEG: {magic}");
 }

@@ -70,11 +70,13 @@ pub fn run(cmd: PtpCommand) -> anyhow::Result<()> {
                 f_number: a.f_number,
                 iso: a.iso,
             })?;
+            // What the camera applied, or "as set" for what was not asked (it was left alone).
+            let shown = |v: Option<String>| v.unwrap_or_else(|| "as set".into());
             println!(
-                "{}: f/{:?} ISO {:?} applied",
+                "{}: aperture {}, ISO {}",
                 cam.describe(),
-                applied.f_number,
-                applied.iso
+                shown(applied.f_number.map(|f| format!("f/{f}"))),
+                shown(applied.iso.map(|i| i.to_string()))
             );
             let opts = CaptureOptions {
                 target: if a.card { Target::Card } else { Target::Sdram },

@@ -42,6 +42,11 @@ pub struct CameraArgs {
     /// Serve files of exactly this many bytes instead of rendered photos (transfer tests).
     #[arg(long)]
     pub payload_bytes: Option<usize>,
+    /// Serve the camera as a real USB device instead of over PTP/IP: on the FunctionFS
+    /// mounted at DIR, of a configfs gadget that is bound to a device controller once this
+    /// prints `descriptors written` (Linux; docs/devices.md shows the steps).
+    #[arg(long, value_name = "DIR")]
+    pub functionfs: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -74,6 +79,50 @@ fn bench_env(env: &Option<PathBuf>) -> anyhow::Result<brdfd::core::envmap::EnvMa
     })
 }
 
+/// `sim camera --functionfs DIR`: the camera on a USB gadget's FunctionFS, rendered first
+/// (the host may ask for a photo as soon as the gadget is bound).
+#[cfg(target_os = "linux")]
+fn functionfs(
+    dir: &std::path::Path,
+    profile: &str,
+    responder: brdfd_sim::ptp::SharedResponder,
+    rendering: Option<Arc<BenchCamera>>,
+) -> anyhow::Result<()> {
+    if let Some(camera) = rendering {
+        camera
+            .prepare()
+            .map_err(|e| anyhow!("rendering the virtual bench: {e}"))?;
+    }
+    let name = format!("brdfd simulated {profile}");
+    // Written by `serve` before it waits for the host; a script binds the gadget after it.
+    let announce = dir.join("ep0");
+    std::thread::spawn({
+        let (dir, profile) = (dir.to_path_buf(), profile.to_string());
+        move || {
+            // ep1 appears once the descriptors are in.
+            while !dir.join("ep1").exists() {
+                std::thread::sleep(std::time::Duration::from_millis(10));
+            }
+            println!(
+                "simulated {profile} camera: descriptors written on {}",
+                dir.display()
+            );
+        }
+    });
+    brdfd_sim::ptp::functionfs::serve(dir, &name, responder)
+        .with_context(|| format!("serving on the FunctionFS at {}", announce.display()))
+}
+
+#[cfg(not(target_os = "linux"))]
+fn functionfs(
+    _: &std::path::Path,
+    _: &str,
+    _: brdfd_sim::ptp::SharedResponder,
+    _: Option<Arc<BenchCamera>>,
+) -> anyhow::Result<()> {
+    anyhow::bail!("--functionfs needs Linux")
+}
+
 pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
     match cmd {
         SimCommand::Camera(a) => {
@@ -103,7 +152,11 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
                     rendering.clone().unwrap()
                 }
             };
-            let server = Server::start(&a.ptpip, Responder::new(profile, source).shared())
+            let responder = Responder::new(profile, source).shared();
+            if let Some(dir) = &a.functionfs {
+                return functionfs(dir, &a.profile, responder, rendering);
+            }
+            let server = Server::start(&a.ptpip, responder)
                 .with_context(|| format!("listening on {}", a.ptpip))?;
             // Scripts wait for this line before connecting.
             println!("simulated {} camera: PTP/IP on {}", a.profile, server.addr);

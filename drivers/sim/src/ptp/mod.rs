@@ -1,6 +1,9 @@
 //! A simulated PTP camera: [`Responder`] holds the camera's state and answers operations;
-//! [`usb`] serves it over the in-memory USB pipe and [`ptpip`] as a PTP/IP server.
+//! [`usb`] serves it over the in-memory USB pipe, `functionfs` as a real USB gadget (Linux),
+//! and [`ptpip`] as a PTP/IP server.
 
+#[cfg(target_os = "linux")]
+pub mod functionfs;
 mod profiles;
 pub mod ptpip;
 mod responder;

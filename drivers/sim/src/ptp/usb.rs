@@ -24,8 +24,7 @@ pub fn plug(responder: SharedResponder) -> HostPipe {
 }
 
 fn serve(dev: DevicePipe, responder: SharedResponder) {
-    let mut buf: Vec<u8> = Vec::new();
-    let mut pending_op: Option<brdfd_ptp::container::Message> = None;
+    let mut framing = Framing::default();
     while let Ok(msg) = dev.from_host.recv() {
         match msg {
             ToDevice::Control {
@@ -33,82 +32,130 @@ fn serve(dev: DevicePipe, responder: SharedResponder) {
                 data: _,
                 reply,
             } => {
-                let answer = match request {
-                    class_request::DEVICE_RESET => {
-                        responder.lock().unwrap().reset();
-                        buf.clear();
-                        pending_op = None;
-                        Vec::new()
-                    }
-                    // Length 4, code OK.
-                    class_request::GET_DEVICE_STATUS => vec![4, 0, 0x01, 0x20],
-                    class_request::CANCEL => {
-                        buf.clear();
-                        pending_op = None;
-                        Vec::new()
-                    }
-                    _ => {
-                        let _ = reply.send(Err(PipeError::Stall));
-                        continue;
-                    }
-                };
-                let _ = reply.send(Ok(answer));
+                let answer = framing.class_request(request, &responder);
+                let _ = reply.send(answer.ok_or(PipeError::Stall));
             }
             ToDevice::ClearHalt(_) => {}
             ToDevice::Bulk(bytes) => {
-                buf.extend_from_slice(&bytes);
-                // Whole containers only; a zero-length packet adds nothing.
-                while buf.len() >= HEADER_LEN {
-                    let h = match Header::parse(&buf[..HEADER_LEN]) {
-                        Ok(h) => h,
-                        Err(e) => {
-                            tracing::warn!("simulated camera: bad container from host: {e}");
-                            buf.clear();
-                            break;
-                        }
-                    };
-                    if buf.len() < h.length as usize {
-                        break;
-                    }
-                    let c: Vec<u8> = buf.drain(..h.length as usize).collect();
-                    let payload = &c[HEADER_LEN..];
-                    let reply = match (h.kind, pending_op.take()) {
-                        (Kind::Command, _) => {
-                            let Ok(m) = container::decode_message(&h, payload) else {
-                                continue;
-                            };
-                            if Responder::expects_data_out(m.code) {
-                                pending_op = Some(m);
-                                continue;
-                            }
-                            (responder.lock().unwrap().handle(&m, None), m)
-                        }
-                        (Kind::Data, Some(m)) => {
-                            (responder.lock().unwrap().handle(&m, Some(payload)), m)
-                        }
-                        _ => continue,
-                    };
-                    if !send_reply(&dev, reply.0, reply.1.code) {
-                        return;
-                    }
+                if !framing.bulk_out(&bytes, &responder, &dev) {
+                    return;
                 }
             }
         }
     }
 }
 
+/// Where the device side of the framing sends: the in-memory pipe's channels, or
+/// FunctionFS's endpoint files ([`super::functionfs`]).
+pub(crate) trait Endpoints {
+    /// One bulk-in transfer; false when the host is gone.
+    fn bulk_in(&self, transfer: Vec<u8>) -> bool;
+    /// A failed bulk-in (a stall, the camera dropping off the bus), for the injected wire
+    /// faults; a real bus ignores it.
+    fn fail_bulk_in(&self, e: PipeError);
+    /// One transfer on the interrupt endpoint (an event).
+    fn interrupt_in(&self, transfer: Vec<u8>);
+}
+
+impl Endpoints for DevicePipe {
+    fn bulk_in(&self, transfer: Vec<u8>) -> bool {
+        self.bulk_in.send(FromDevice::Transfer(transfer)).is_ok()
+    }
+
+    fn fail_bulk_in(&self, e: PipeError) {
+        let _ = self.bulk_in.send(FromDevice::Fail(e));
+    }
+
+    fn interrupt_in(&self, transfer: Vec<u8>) {
+        let _ = self.interrupt.send(FromDevice::Transfer(transfer));
+    }
+}
+
+/// The device side of annex D: containers reassembled from bulk-out, answered by the
+/// responder, the answers sent on bulk-in and the events on the interrupt endpoint; and the
+/// class requests on the control endpoint.
+#[derive(Default)]
+pub(crate) struct Framing {
+    buf: Vec<u8>,
+    /// An operation whose data phase is still to come from the host.
+    pending_op: Option<brdfd_ptp::container::Message>,
+}
+
+impl Framing {
+    /// A class request (annex D.5): its answer (empty for none), or `None` to stall.
+    pub fn class_request(&mut self, request: u8, responder: &SharedResponder) -> Option<Vec<u8>> {
+        match request {
+            class_request::DEVICE_RESET => {
+                responder.lock().unwrap().reset();
+                self.buf.clear();
+                self.pending_op = None;
+                Some(Vec::new())
+            }
+            // Length 4, code OK.
+            class_request::GET_DEVICE_STATUS => Some(vec![4, 0, 0x01, 0x20]),
+            class_request::CANCEL => {
+                self.buf.clear();
+                self.pending_op = None;
+                Some(Vec::new())
+            }
+            _ => None,
+        }
+    }
+
+    /// Bytes the host sent on bulk-out; false when the host is gone.
+    pub fn bulk_out(
+        &mut self,
+        bytes: &[u8],
+        responder: &SharedResponder,
+        ep: &impl Endpoints,
+    ) -> bool {
+        self.buf.extend_from_slice(bytes);
+        // Whole containers only; a zero-length packet adds nothing.
+        while self.buf.len() >= HEADER_LEN {
+            let h = match Header::parse(&self.buf[..HEADER_LEN]) {
+                Ok(h) => h,
+                Err(e) => {
+                    tracing::warn!("simulated camera: bad container from host: {e}");
+                    self.buf.clear();
+                    break;
+                }
+            };
+            if self.buf.len() < h.length as usize {
+                break;
+            }
+            let c: Vec<u8> = self.buf.drain(..h.length as usize).collect();
+            let payload = &c[HEADER_LEN..];
+            let reply = match (h.kind, self.pending_op.take()) {
+                (Kind::Command, _) => {
+                    let Ok(m) = container::decode_message(&h, payload) else {
+                        continue;
+                    };
+                    if Responder::expects_data_out(m.code) {
+                        self.pending_op = Some(m);
+                        continue;
+                    }
+                    (responder.lock().unwrap().handle(&m, None), m)
+                }
+                (Kind::Data, Some(m)) => (responder.lock().unwrap().handle(&m, Some(payload)), m),
+                _ => continue,
+            };
+            if !send_reply(ep, reply.0, reply.1.code) {
+                return false;
+            }
+        }
+        true
+    }
+}
+
 /// Sends data phase, response and events; false when the host is gone.
-fn send_reply(dev: &DevicePipe, r: Reply, code: u16) -> bool {
+fn send_reply(ep: &impl Endpoints, r: Reply, code: u16) -> bool {
     if let Some(d) = r.delay {
         thread::sleep(d);
     }
     let tid = r.response.tid;
-    let send = |t: Vec<u8>| dev.bulk_in.send(FromDevice::Transfer(t)).is_ok();
     match r.fault {
         Some(WireFault::Silence) => return true,
-        Some(WireFault::HaltBulkIn) => {
-            let _ = dev.bulk_in.send(FromDevice::Fail(PipeError::Stall));
-        }
+        Some(WireFault::HaltBulkIn) => ep.fail_bulk_in(PipeError::Stall),
         _ => {}
     }
     if let Some(data) = &r.data {
@@ -120,18 +167,16 @@ fn send_reply(dev: &DevicePipe, r: Reply, code: u16) -> bool {
         };
         let end = limit.unwrap_or(c.len()).min(c.len());
         for chunk in c[..end].chunks(TRANSFER) {
-            if !send(chunk.to_vec()) {
+            if !ep.bulk_in(chunk.to_vec()) {
                 return false;
             }
         }
         if limit.is_some() {
             // The camera dropped off the bus mid-transfer.
-            let _ = dev
-                .bulk_in
-                .send(FromDevice::Fail(PipeError::Other("LIBUSB_ERROR_IO".into())));
+            ep.fail_bulk_in(PipeError::Other("LIBUSB_ERROR_IO".into()));
             return true;
         }
-        if c.len().is_multiple_of(MAX_PACKET) && !send(Vec::new()) {
+        if c.len().is_multiple_of(MAX_PACKET) && !ep.bulk_in(Vec::new()) {
             return false;
         }
     }
@@ -139,16 +184,11 @@ fn send_reply(dev: &DevicePipe, r: Reply, code: u16) -> bool {
     if r.fault == Some(WireFault::CorruptResponse) {
         resp[..4].copy_from_slice(&7u32.to_le_bytes());
     }
-    if !send(resp) {
+    if !ep.bulk_in(resp) {
         return false;
     }
     for e in &r.events {
-        let _ = dev
-            .interrupt
-            .send(FromDevice::Transfer(container::encode_message(
-                Kind::Event,
-                e,
-            )));
+        ep.interrupt_in(container::encode_message(Kind::Event, e));
     }
     true
 }
