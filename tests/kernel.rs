@@ -221,7 +221,9 @@ fn libraries(binary: &Path) -> Vec<PathBuf> {
 
 /// Boots the kernel with an initramfs whose `/init` runs `script` (busybox sh) after loading
 /// `modules`, and returns the console's text. The machine powers off when the script ends.
-fn boot(m: &Machine, modules: &[&str], script: &str) -> String {
+/// Besides brdfd (as `/bin/brdfd`) and busybox, it holds `programs` at their own paths, with
+/// the libraries of each.
+fn boot(m: &Machine, modules: &[&str], programs: &[PathBuf], script: &str) -> String {
     let brdfd = Path::new(env!("CARGO_BIN_EXE_brdfd"));
     let mut cpio = Cpio::default();
     for d in ["bin", "dev", "proc", "sys", "tmp", "root", "modules"] {
@@ -229,9 +231,13 @@ fn boot(m: &Machine, modules: &[&str], script: &str) -> String {
     }
     cpio.file("bin/busybox", 0o100755, &std::fs::read(&m.busybox).unwrap());
     cpio.file("bin/brdfd", 0o100755, &std::fs::read(brdfd).unwrap());
-    for lib in libraries(brdfd) {
-        let name = lib.to_str().unwrap().trim_start_matches('/').to_string();
-        cpio.file(&name, 0o100755, &std::fs::read(&lib).unwrap());
+    let mut files: std::collections::BTreeSet<PathBuf> = programs.iter().cloned().collect();
+    for p in std::iter::once(brdfd.to_path_buf()).chain(programs.iter().cloned()) {
+        files.extend(libraries(&p));
+    }
+    for f in files {
+        let name = f.to_str().unwrap().trim_start_matches('/').to_string();
+        cpio.file(&name, 0o100755, &std::fs::read(&f).unwrap());
     }
     let mut load = String::new();
     for ko in load_order(&m.modules, modules) {
@@ -251,7 +257,7 @@ fn boot(m: &Machine, modules: &[&str], script: &str) -> String {
          mount -t proc proc /proc\n\
          mount -t sysfs sys /sys\n\
          mount -t devtmpfs dev /dev\n\
-         export HOME=/root PATH=/bin BRDFD_RENDER_CACHE=off BRDFD_DAEMON=127.0.0.1:9\n\
+         export HOME=/root PATH=/bin:/usr/bin BRDFD_RENDER_CACHE=off BRDFD_DAEMON=127.0.0.1:9\n\
          cd /tmp\n\
          {load}\
          echo brdfd-vm: ready\n\
@@ -357,7 +363,7 @@ fn brdfd_finds_and_captures_from_vivid_on_a_real_kernel() {
         step("frame", "wc -c < /tmp/frame.exr"),
     ]
     .concat();
-    let console = boot(&m, &["vivid"], &script);
+    let console = boot(&m, &["vivid"], &[], &script);
     assert!(
         !console.contains("brdfd-vm: insmod"),
         "a module did not load:\n{console}"
@@ -451,7 +457,25 @@ until ls /dev/bus/usb/*/* 2>/dev/null | grep -q 002; do sleep 0.1; done
         step("jpeg", "od -A n -t x1 -N 3 /tmp/shots/DSC_0001.JPG"),
     ]
     .concat();
-    let console = boot(&m, &["dummy_hcd", "libcomposite", "usb_f_fs"], &script);
+    let gphoto2 = gphoto2_files();
+    let script = match &gphoto2 {
+        Some(_) => format!(
+            "{script}{}{}",
+            step("gphoto2-detect", "gphoto2 --auto-detect"),
+            step(
+                "gphoto2-capture",
+                "gphoto2 --capture-image-and-download --filename /tmp/gphoto2.jpg && od -A n -t x1 -N 3 /tmp/gphoto2.jpg"
+            )
+        ),
+        None => script,
+    };
+    let programs = gphoto2.clone().unwrap_or_default();
+    let console = boot(
+        &m,
+        &["dummy_hcd", "libcomposite", "usb_f_fs"],
+        &programs,
+        &script,
+    );
     // The camera's DeviceInfo, over the bus: the model and serial the profile reports.
     let info = section(&console, "info");
     assert!(info.contains("exit 0"), "{info}");
@@ -484,4 +508,56 @@ until ls /dev/bus/usb/*/* 2>/dev/null | grep -q 002; do sleep 0.1; done
     assert!(capture.contains("/tmp/shots/DSC_0001.JPG"), "{capture}");
     let magic = section(&console, "jpeg");
     assert!(magic.contains("ff d8 ff"), "not a JPEG: {magic}");
+
+    // Debian's gphoto2 (libgphoto2 over libusb) on the same gadget: it recognises the D5100 by
+    // its ids, captures to the camera's RAM and downloads the photo.
+    if gphoto2.is_some() {
+        let detect = section(&console, "gphoto2-detect");
+        assert!(detect.contains("Nikon DSC D5100"), "{detect}");
+        let capture = section(&console, "gphoto2-capture");
+        assert!(capture.contains("exit 0"), "{capture}");
+        assert!(capture.contains("ff d8 ff"), "{capture}");
+    }
+}
+
+/// gphoto2 with the two plugins a USB PTP camera needs (the `ptp2` camera driver and the
+/// `usb1` port driver), found beside its library; `None` where gphoto2 is not installed
+/// (CI installs it and sets BRDFD_REQUIRE_GPHOTO2=1).
+fn gphoto2_files() -> Option<Vec<PathBuf>> {
+    let Some(gphoto2) = on_path("gphoto2") else {
+        assert!(
+            std::env::var_os("BRDFD_REQUIRE_GPHOTO2").is_none(),
+            "gphoto2 is required here but not installed"
+        );
+        eprintln!("gphoto2 is not installed: the gadget is tested with brdfd alone");
+        return None;
+    };
+    let libraries = libraries(&gphoto2);
+    let plugin = |library: &str, folder: &str, file: &str| -> PathBuf {
+        let lib = libraries
+            .iter()
+            .find(|l| {
+                l.file_name()
+                    .unwrap()
+                    .to_str()
+                    .unwrap()
+                    .starts_with(library)
+            })
+            .unwrap_or_else(|| panic!("gphoto2 does not load {library}"));
+        let dir = std::fs::canonicalize(lib)
+            .unwrap()
+            .parent()
+            .unwrap()
+            .join(folder);
+        std::fs::read_dir(&dir)
+            .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+            .filter_map(|e| e.ok().map(|e| e.path().join(file)))
+            .find(|p| p.is_file())
+            .unwrap_or_else(|| panic!("no {file} under {}", dir.display()))
+    };
+    Some(vec![
+        gphoto2.clone(),
+        plugin("libgphoto2.so", "libgphoto2", "ptp2.so"),
+        plugin("libgphoto2_port.so", "libgphoto2_port", "usb1.so"),
+    ])
 }
