@@ -301,7 +301,12 @@ fn boot(m: &Machine, modules: &[&str], programs: &[PathBuf], script: &str) -> St
         let _ = stdout.read_to_end(&mut s);
         String::from_utf8_lossy(&s).into_owned()
     });
-    let limit = Duration::from_secs(240);
+    let limit = Duration::from_secs(
+        std::env::var("BRDFD_VM_LIMIT")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(240),
+    );
     loop {
         if child.try_wait().unwrap().is_some() {
             break;
@@ -309,7 +314,8 @@ fn boot(m: &Machine, modules: &[&str], programs: &[PathBuf], script: &str) -> St
         if start.elapsed() > limit {
             let _ = child.kill();
             let _ = child.wait();
-            panic!("the VM did not power off within {limit:?}");
+            let console = reader.join().unwrap();
+            panic!("the VM did not power off within {limit:?}:\n{console}");
         }
         std::thread::sleep(Duration::from_millis(100));
     }
@@ -427,12 +433,11 @@ fn brdfd_finds_and_captures_from_vivid_on_a_real_kernel() {
 /// The simulated Nikon D5100 as a real USB gadget (configfs and FunctionFS on `dummy_hcd`'s
 /// loopback controller), and brdfd on the same kernel as the host: `brdfd ptp info` and
 /// `brdfd devices` reach it through libusb and usbfs, and a capture downloads its photo.
-#[test]
-fn brdfd_reaches_the_simulated_camera_as_a_usb_gadget_on_a_real_kernel() {
-    let Some(m) = machine_or_skip() else {
-        return;
-    };
-    let gadget = "\
+/// The script that makes the simulated D5100 a USB gadget (the camera's flags after `sim
+/// camera`), binds it, and waits for the host side to enumerate it; `$g` names the gadget.
+fn gadget(camera: &str) -> String {
+    format!(
+        "\
 g=/sys/kernel/config/usb_gadget/brdfd
 mount -t configfs none /sys/kernel/config
 mkdir $g $g/strings/0x409 $g/configs/c.1 $g/functions/ffs.ptp
@@ -444,13 +449,21 @@ echo 0000000000000000000000000005100 > $g/strings/0x409/serialnumber
 ln -s $g/functions/ffs.ptp $g/configs/c.1/
 mkdir -p /dev/ffs-ptp
 mount -t functionfs ptp /dev/ffs-ptp
-brdfd sim camera --profile nikon-d5100 --size 48 --functionfs /dev/ffs-ptp > /tmp/sim.log 2>&1 &
+brdfd sim camera --profile nikon-d5100 {camera} --functionfs /dev/ffs-ptp > /tmp/sim.log 2>&1 &
 until grep -q 'descriptors written' /tmp/sim.log; do sleep 0.1; done
 ls /sys/class/udc > $g/UDC
 until ls /dev/bus/usb/*/* 2>/dev/null | grep -q 002; do sleep 0.1; done
-";
+"
+    )
+}
+
+#[test]
+fn brdfd_reaches_the_simulated_camera_as_a_usb_gadget_on_a_real_kernel() {
+    let Some(m) = machine_or_skip() else {
+        return;
+    };
     let script = [
-        gadget.to_string(),
+        gadget("--size 48"),
         step("info", "brdfd ptp info --port usb --json"),
         step("devices", "brdfd devices --json"),
         step("capture", "brdfd ptp capture --port usb --out /tmp/shots"),
@@ -560,4 +573,64 @@ fn gphoto2_files() -> Option<Vec<PathBuf>> {
         plugin("libgphoto2.so", "libgphoto2", "ptp2.so"),
         plugin("libgphoto2_port.so", "libgphoto2_port", "usb1.so"),
     ])
+}
+
+/// Faults on the real bus, each ending in the clear error the documentation promises or in
+/// recovery: a user without access to the device node (no udev rule), the interface held by
+/// another process (gvfs, on a desktop), and the camera leaving the bus mid-download (the
+/// gadget unbound), after which it is bound again and answers.
+#[test]
+fn usb_faults_on_a_real_bus_end_in_a_clear_error_or_recovery() {
+    let Some(m) = machine_or_skip() else {
+        return;
+    };
+    let script = [
+        // 100 MB photos: a download that lasts long enough to be cut.
+        gadget("--payload-bytes 100000000"),
+        "mkdir -p /etc\necho 'bench:x:1000:1000::/tmp:/bin/sh' >> /etc/passwd\n".to_string(),
+        step("no-access", "su bench -c 'brdfd ptp info --port usb'"),
+        // Another process holds the interface while brdfd asks for it.
+        "brdfd ptp capture --port usb --out /tmp/held > /tmp/holder.log 2>&1 &\nholder=$!\nsleep 1\n"
+            .to_string(),
+        step("held", "brdfd ptp info --port usb"),
+        "wait $holder\n".to_string(),
+        step("holder", "cat /tmp/holder.log; rm -r /tmp/held"),
+        // The camera leaves the bus mid-download: the gadget is unbound once the simulator
+        // has sent a few pieces of the photo (GetPartialObject, 0x101b, 3.5 MB each).
+        "n=$(grep -c 'op 0x101b' /tmp/sim.log)\n\
+         brdfd ptp capture --port usb --out /tmp/cut > /tmp/cut.log 2>&1 &\ncapture=$!\n\
+         until [ $(grep -c 'op 0x101b' /tmp/sim.log) -gt $((n + 3)) ]; do sleep 0.01; done\n\
+         echo '' > $g/UDC\nwait $capture\necho \"capture exit $?\" >> /tmp/cut.log\n"
+            .to_string(),
+        step("unplugged", "cat /tmp/cut.log"),
+        // Plugged in again: it answers.
+        "ls /sys/class/udc > $g/UDC\nuntil ls /dev/bus/usb/*/* 2>/dev/null | grep -q 003; do sleep 0.1; done\n"
+            .to_string(),
+        step("replugged", "brdfd ptp info --port usb"),
+    ]
+    .concat();
+    let console = boot(&m, &["dummy_hcd", "libcomposite", "usb_f_fs"], &[], &script);
+
+    let no_access = section(&console, "no-access");
+    assert!(!no_access.contains("exit 0"), "{no_access}");
+    assert!(
+        no_access.contains("no permission to open") && no_access.contains("70-brdfd.rules"),
+        "{no_access}"
+    );
+    let held = section(&console, "held");
+    assert!(!held.contains("exit 0"), "{held}");
+    assert!(held.contains("claimed by another process"), "{held}");
+    // The holder was not disturbed.
+    let holder = section(&console, "holder");
+    assert!(holder.contains("downloaded 100000000 bytes"), "{holder}");
+    let unplugged = section(&console, "unplugged");
+    assert!(!unplugged.contains("capture exit 0"), "{unplugged}");
+    assert!(
+        unplugged.contains("camera disconnected during"),
+        "{unplugged}"
+    );
+    assert!(!unplugged.contains("downloaded"), "{unplugged}");
+    let replugged = section(&console, "replugged");
+    assert!(replugged.contains("exit 0"), "{replugged}");
+    assert!(replugged.contains("D5100"), "{replugged}");
 }

@@ -92,11 +92,8 @@ pub fn run(cmd: PtpCommand) -> anyhow::Result<()> {
                 if let Some(s) = s {
                     println!("shutter {s} s: camera applied {} s", cam.set_shutter(s)?);
                 }
-                let shot = cam.capture(&opts, &mut |phase, done, total| {
-                    if phase == "download" && total > 0 && done == total {
-                        eprintln!("  downloaded {total} bytes");
-                    }
-                })?;
+                let shot = cam.capture(&opts, &mut |_, _, _| {})?;
+                eprintln!("  downloaded {} bytes", shot.data.len());
                 let path = super::write_new(&a.out, &shot.info.filename, &shot.data)?;
                 println!("{}", path.display());
             }

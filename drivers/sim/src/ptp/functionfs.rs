@@ -24,7 +24,6 @@ const HAS_HS_DESC: u32 = 2;
 const EVENT_LEN: usize = 12;
 const EVENT_ENABLE: u8 = 2;
 const EVENT_SETUP: u8 = 4;
-const EVENT_UNBIND: u8 = 1;
 
 /// The interface and its three endpoints, at one speed: bulk packets of `bulk` bytes, the
 /// interrupt endpoint polled every `interval` (frames at full speed, 2^(n-1) microframes at
@@ -74,10 +73,16 @@ fn strings(name: &str) -> Vec<u8> {
     d
 }
 
+/// Events a camera keeps for a host that does not read its interrupt endpoint (a Nikon's
+/// host polls GetEvent instead); later ones are dropped, as a full event queue drops them.
+const QUEUED_EVENTS: usize = 64;
+
 /// The endpoint files once the host has configured the interface.
 struct Files {
     bulk_in: Mutex<File>,
-    interrupt: Mutex<File>,
+    /// To the thread that writes the interrupt endpoint: a write there waits for the host
+    /// to poll, which must not hold up the bulk endpoints.
+    events: std::sync::mpsc::SyncSender<Vec<u8>>,
 }
 
 impl Endpoints for Files {
@@ -90,13 +95,14 @@ impl Endpoints for Files {
     }
 
     fn interrupt_in(&self, transfer: Vec<u8>) {
-        let _ = self.interrupt.lock().unwrap().write_all(&transfer);
+        let _ = self.events.try_send(transfer);
     }
 }
 
-/// Serves the camera on the FunctionFS mounted at `dir` until the function is unbound:
-/// writes the descriptors (after which the gadget can be bound to a controller), then answers
-/// ep0's events, and the bulk endpoints from each enable to the next disable.
+/// Serves the camera on the FunctionFS mounted at `dir` until the process ends: writes the
+/// descriptors (after which the gadget can be bound to a controller), then answers ep0's
+/// events, and the bulk endpoints from each enable to the next disable, across unbinding and
+/// binding again (unplugging and plugging in).
 pub fn serve(dir: &Path, name: &str, responder: SharedResponder) -> io::Result<()> {
     let mut ep0 = OpenOptions::new()
         .read(true)
@@ -122,8 +128,8 @@ pub fn serve(dir: &Path, name: &str, responder: SharedResponder) -> io::Result<(
                         })?;
                 }
                 EVENT_SETUP => setup(&mut ep0, e, &framing, &responder)?,
-                EVENT_UNBIND => return Ok(()),
-                // A disable ends the bulk thread's reads; bind, suspend and resume ask
+                // Unplugged: the camera waits to be plugged in again (bound), as a real one
+                // does. A disable ends the bulk thread's reads; bind, suspend and resume ask
                 // nothing.
                 _ => {}
             }
@@ -177,9 +183,20 @@ fn bulk(dir: &Path, responder: &SharedResponder, framing: &Mutex<Framing>) -> io
         let path: PathBuf = dir.join(n);
         OpenOptions::new().read(!write).write(write).open(path)
     };
+    let mut interrupt = open("ep3", true)?;
+    let (events, queue) = std::sync::mpsc::sync_channel::<Vec<u8>>(QUEUED_EVENTS);
+    std::thread::Builder::new()
+        .name("sim-ptp-events".into())
+        .spawn(move || {
+            for e in queue {
+                if interrupt.write_all(&e).is_err() {
+                    return;
+                }
+            }
+        })?;
     let files = Files {
         bulk_in: Mutex::new(open("ep1", true)?),
-        interrupt: Mutex::new(open("ep3", true)?),
+        events,
     };
     let mut bulk_out = open("ep2", false)?;
     let mut buf = vec![0u8; 1 << 20];
