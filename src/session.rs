@@ -109,6 +109,17 @@ fn now() -> String {
     humantime::format_rfc3339_seconds(SystemTime::now()).to_string()
 }
 
+/// What [`Session::fail_unless_running`] found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Marked {
+    /// Done or failed already: nothing written.
+    Ended,
+    /// A process holds the session: nothing written.
+    Running,
+    /// Recorded as failed now.
+    Failed,
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum State {
@@ -334,21 +345,27 @@ impl Session {
     /// process is running: the process running it died. Marked failed, so that it reads as
     /// what it is and `resume` continues it. Returns whether it was interrupted.
     pub fn mark_if_interrupted(&mut self) -> Result<bool> {
+        let id = self.manifest.id.clone();
+        let marked = self.fail_unless_running(|was| {
+            format!(
+                "interrupted while {was:?}: the process running it stopped; `brdfd session resume {id}` continues it"
+            )
+        })?;
+        Ok(marked == Marked::Failed)
+    }
+
+    /// Records the session as failed, with the reason `why` gives for the state it was left
+    /// in, unless it already ended or a process runs it (holds its claim).
+    pub fn fail_unless_running(&mut self, why: impl FnOnce(State) -> String) -> Result<Marked> {
         if matches!(self.manifest.state, State::Done | State::Failed) {
-            return Ok(false);
+            return Ok(Marked::Ended);
         }
         let Ok(_lock) = self.claim() else {
-            return Ok(false);
+            return Ok(Marked::Running);
         };
-        let was = self.manifest.state;
-        self.set_state(
-            State::Failed,
-            Some(format!(
-                "interrupted while {was:?}: the process running it stopped; `brdfd session resume {}` continues it",
-                self.manifest.id
-            )),
-        )?;
-        Ok(true)
+        let reason = why(self.manifest.state);
+        self.set_state(State::Failed, Some(reason))?;
+        Ok(Marked::Failed)
     }
 
     /// Every session's manifest, oldest first.

@@ -86,16 +86,36 @@ fn module_files(dir: &Path, out: &mut BTreeMap<String, PathBuf>) {
         if p.is_dir() {
             module_files(&p, out);
         } else if let Some(name) = p.file_name().and_then(|n| n.to_str()) {
-            if let Some(stem) = name.strip_suffix(".ko") {
+            // Newer kernel packages compress their modules.
+            let stem = [".ko", ".ko.xz", ".ko.zst"]
+                .iter()
+                .find_map(|ext| name.strip_suffix(ext));
+            if let Some(stem) = stem {
                 out.insert(stem.replace('-', "_"), p);
             }
         }
     }
 }
 
+/// A module file's contents, decompressed (busybox's insmod takes plain ELF).
+fn module_bytes(ko: &Path) -> Vec<u8> {
+    let tool = match ko.extension().and_then(|e| e.to_str()) {
+        Some("xz") => "xz",
+        Some("zst") => "zstd",
+        _ => return std::fs::read(ko).unwrap(),
+    };
+    let out = Command::new(tool)
+        .arg("-dc")
+        .arg(ko)
+        .output()
+        .unwrap_or_else(|e| panic!("{tool} (for {}): {e}", ko.display()));
+    assert!(out.status.success(), "{tool} -dc {}", ko.display());
+    out.stdout
+}
+
 /// The modules a module needs, from its `.modinfo` (`depends=a,b`).
 fn depends(ko: &Path) -> Vec<String> {
-    let bytes = std::fs::read(ko).unwrap();
+    let bytes = module_bytes(ko);
     let key = b"\0depends=";
     let Some(at) = bytes.windows(key.len()).position(|w| w == key) else {
         return Vec::new();
@@ -241,12 +261,9 @@ fn boot(m: &Machine, modules: &[&str], programs: &[PathBuf], script: &str) -> St
     }
     let mut load = String::new();
     for ko in load_order(&m.modules, modules) {
-        let name = ko.file_name().unwrap().to_str().unwrap().to_string();
-        cpio.file(
-            &format!("modules/{name}"),
-            0o100644,
-            &std::fs::read(&ko).unwrap(),
-        );
+        let file = ko.file_name().unwrap().to_str().unwrap();
+        let name = format!("{}.ko", file.split(".ko").next().unwrap());
+        cpio.file(&format!("modules/{name}"), 0o100644, &module_bytes(&ko));
         load.push_str(&format!(
             "insmod /modules/{name} || echo \"brdfd-vm: insmod {name} failed\"\n"
         ));

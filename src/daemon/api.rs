@@ -4,7 +4,7 @@
 //! | method and path | answer |
 //! |---|---|
 //! | `GET /api/v1/openapi.json` | this API's OpenAPI 3.1 description ([`openapi`]); needs no token |
-//! | `GET /api/v1/health` | `{"software", "rig": {"simulated", "file"}, "busy": id or null}` |
+//! | `GET /api/v1/health` | `{"software", "rig": {"simulated"}, "busy": id or null}` |
 //! | `GET /api/v1/materials` | `{"presets": [...]}`: the material presets a capture can name |
 //! | `GET /api/v1/devices` | `[{"role", "selector", "state": "closed"/"open"/"lost", "identity", "last_error", "opened"}]` |
 //! | `GET /api/v1/sessions` | `[{"id", "state", "material", "created"}]`, oldest first |
@@ -12,7 +12,7 @@
 //! | `GET /api/v1/sessions/{id}` | `{"id", "dir", "manifest"}`: where it is stored, and its manifest |
 //! | `GET /api/v1/sessions/{id}/events` | Server-Sent Events, one JSON [`Event`] each with its place as `id`, from the session's first (after `Last-Event-ID` if given); ends after `finished` |
 //! | `GET /api/v1/sessions/{id}/result` | `coefficients.json`; 409 `not_done` until the session is done |
-//! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `preview.png`, `preview.json`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`; for a hybrid or analytic estimate also `material.gltf`, `material.mtlx` |
+//! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `coefficients.json`, `preview.png`, `preview.json`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`; for a hybrid or analytic estimate also `material.gltf`, `material.mtlx` |
 //! | `POST /api/v1/sessions/{id}/cancel` | 202; 409 `not_running` |
 //! | `POST /api/v1/sessions/{id}/resume` | 202 as for a new capture; 409 `busy` |
 //!
@@ -31,7 +31,6 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
 use futures_util::stream::{self, Stream};
-use serde_json::json;
 use utoipa::{Modify as _, OpenApi as _};
 use utoipa_axum::{router::OpenApiRouter, routes};
 
@@ -50,7 +49,11 @@ struct ApiError(StatusCode, &'static str, String);
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        (self.0, Json(json!({ "error": self.1, "message": self.2 }))).into_response()
+        let body = ErrorBody {
+            error: self.1.into(),
+            message: self.2,
+        };
+        (self.0, Json(body)).into_response()
     }
 }
 
@@ -315,6 +318,7 @@ const PLAN_READ_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10
         (status = 400, description = "`bad_request`: the plan is not valid JSON, or names what does not exist", body = ErrorBody),
         (status = 408, description = "`request_timeout`: the plan did not arrive in time", body = ErrorBody),
         (status = 409, description = "`busy`: a capture is running", body = ErrorBody),
+        (status = 500, description = "`internal`: the daemon could not start the capture's thread", body = ErrorBody),
     )
 )]
 async fn start(State(d): State<Shared>, body: axum::body::Body) -> ApiResult<Response> {
@@ -355,6 +359,7 @@ async fn start(State(d): State<Shared>, body: axum::body::Body) -> ApiResult<Res
         (status = 202, description = "resumed; follow `events`", body = Started),
         (status = 400, description = "`bad_request`: the session cannot be resumed", body = ErrorBody),
         (status = 409, description = "`busy`: a capture is running", body = ErrorBody),
+        (status = 500, description = "`internal`: the daemon could not start the capture's thread", body = ErrorBody),
     )
 )]
 async fn resume(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Response> {
@@ -541,7 +546,7 @@ impl ResultFile {
             (Object = "model/gltf+json"),
             (String = "application/xml"),
         )),
-        (status = 404, description = "`not_found`: no such session or file (`material.gltf` and `material.mtlx` come with a hybrid or analytic estimate)", body = ErrorBody),
+        (status = 404, description = "`not_found`: no such session, or no such file in its result (`material.gltf` and `material.mtlx` come with a hybrid or analytic estimate, `brdf-sigma.exr` with an uncertainty band, `compare.png` with a photo)", body = ErrorBody),
         (status = 409, description = "`not_done`: the session is not done", body = ErrorBody),
     )
 )]

@@ -116,6 +116,8 @@ pub struct Daemon {
     /// Failures the manifest could not record yet (issue 20, D10), by session id: retried
     /// until written, and shown by the API meanwhile.
     unrecorded: Unrecorded,
+    /// Set when the daemon stops: ends the retries of [`Daemon::unrecorded`].
+    stopping: Cancel,
     /// Event logs of the latest captures, oldest first (a stored session older than these
     /// streams its outcome alone).
     events: Mutex<VecDeque<(String, Arc<EventLog>)>>,
@@ -164,31 +166,41 @@ type Unrecorded = Arc<Mutex<std::collections::BTreeMap<String, flow::Unrecorded>
 /// How often a failure the manifest could not record is tried again.
 const RECORD_RETRY: std::time::Duration = std::time::Duration::from_secs(1);
 
+/// How often a retry looks whether the daemon is stopping: SIGTERM must end it within 2 s.
+const STOP_CHECK: std::time::Duration = std::time::Duration::from_millis(50);
+
 /// Tries to record `id`'s failure every [`RECORD_RETRY`] until it is written, the session is
-/// resumed (its run then records its own state), or the daemon stops (`stop`; the next
-/// daemon's start marks the session interrupted). Why: a capture that failed for want of disk
-/// space or file descriptors could not write its failure either, and its manifest said
-/// `capturing` for as long as the daemon ran, idle.
-fn record_when_possible(state: &std::path::Path, id: &str, pending: &Unrecorded, stop: &Cancel) {
-    let step = std::time::Duration::from_millis(50);
+/// resumed (its entry in `pending` is gone: its run records its own state), or the daemon
+/// stops (`stopping`; the next daemon's start marks the session interrupted). Why: a capture
+/// that failed for want of disk space or file descriptors could not write its failure either,
+/// and its manifest said `capturing` for as long as the daemon ran, idle.
+fn record_when_possible(
+    state: &std::path::Path,
+    id: &str,
+    pending: &Unrecorded,
+    stopping: &Cancel,
+) {
     let mut waited = std::time::Duration::ZERO;
     loop {
-        if stop.is_cancelled() {
+        if stopping.is_cancelled() {
             return;
         }
-        std::thread::sleep(step);
-        waited += step;
+        std::thread::sleep(STOP_CHECK);
+        waited += STOP_CHECK;
         if waited < RECORD_RETRY {
             continue;
         }
         waited = std::time::Duration::ZERO;
-        let Some(u) = pending.lock().expect("unrecorded").get(id).cloned() else {
+        // Held while writing, so that a resume, which takes the entry out under this lock
+        // first, never meets a retry half done.
+        let mut pending = pending.lock().expect("unrecorded");
+        let Some(u) = pending.get(id).cloned() else {
             return;
         };
         match flow::record_failure(state, id, &u.reason) {
             Ok(true) => {
                 tracing::info!(session = %id, "the failure is recorded in the manifest now");
-                pending.lock().expect("unrecorded").remove(id);
+                pending.remove(id);
                 return;
             }
             Ok(false) => {}
@@ -235,6 +247,7 @@ impl Daemon {
             hosts: Vec::new(),
             running: Mutex::new(None),
             unrecorded: Unrecorded::default(),
+            stopping: Cancel::default(),
             events: Mutex::new(VecDeque::new()),
         })
     }
@@ -310,6 +323,9 @@ impl Daemon {
     /// Continues a stored session from its last complete step.
     pub fn resume(&self, id: &str) -> Result<Session, StartError> {
         self.check_idle()?;
+        // A failure not yet recorded is no longer retried: the resumed run records its own
+        // state, and no retry may write the manifest while `resumable` does.
+        self.unrecorded.lock().expect("unrecorded").remove(id);
         let mut s =
             Session::open(&self.state_dir, id).map_err(|e| StartError::Invalid(e.into()))?;
         let plan = resumable(&mut s).map_err(StartError::Invalid)?;
@@ -356,6 +372,7 @@ impl Daemon {
         let thread_log = log.clone();
         let (devices, rig, c) = (self.devices.clone(), self.rig.clone(), cancel.clone());
         let (state_dir, pending) = (self.state_dir.clone(), self.unrecorded.clone());
+        let stopping = self.stopping.clone();
         // A resumed session records its own state.
         pending.lock().expect("unrecorded").remove(&id);
         let thread = std::thread::Builder::new()
@@ -381,7 +398,7 @@ impl Daemon {
                                 .insert(id.clone(), u.clone());
                             // The capture is over (its `finished` event is sent), so the
                             // daemon is idle while this thread waits to record it.
-                            record_when_possible(&state_dir, &id, &pending, &cx.cancel);
+                            record_when_possible(&state_dir, &id, &pending, &stopping);
                         }
                     }
                 }
@@ -410,6 +427,7 @@ impl Daemon {
 
     /// Cancels the running capture, if any, and waits for it to record its state.
     pub fn shut_down(&self) {
+        self.stopping.cancel();
         let r = self.running.lock().expect("running").take();
         if let Some(r) = r {
             // A capture that finished earlier has nothing to cancel: say so only when one runs.

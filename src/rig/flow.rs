@@ -171,19 +171,11 @@ impl std::fmt::Display for Unrecorded {
     }
 }
 
-/// Records a failure that [`execute`] could not, if the session is still not done or failed
-/// and no one runs it. `Ok(true)` once the manifest says it (or says the session ended by
-/// other means); `Ok(false)` while someone else holds the session.
+/// Records a failure that [`execute`] could not. `Ok(true)` once the manifest says it (or
+/// says the session ended by other means); `Ok(false)` while another process holds it.
 pub fn record_failure(state: &std::path::Path, id: &str, reason: &str) -> anyhow::Result<bool> {
-    let mut session = Session::open(state, id)?;
-    if matches!(session.manifest.state, State::Done | State::Failed) {
-        return Ok(true);
-    }
-    let Ok(_lock) = session.claim() else {
-        return Ok(false);
-    };
-    session.set_state(State::Failed, Some(reason.to_string()))?;
-    Ok(true)
+    let marked = Session::open(state, id)?.fail_unless_running(|_| reason.to_string())?;
+    Ok(marked != crate::session::Marked::Running)
 }
 
 /// Whether a full disk (ENOSPC) caused `e`, wherever in its chain: a session file's error, a

@@ -177,6 +177,13 @@ function follow(id) {
       case "finished":
         source.close();
         following = null;
+        // A failed or cancelled capture ends phases that never finished: their bars stop
+        // where they were, and download bars go (as on the command line).
+        for (const [name, p] of phases) {
+          if (p.div.classList.contains("done")) continue;
+          if (name.endsWith(": download")) p.div.remove();
+          else p.div.classList.add("stopped");
+        }
         finished(e);
         break;
     }
