@@ -606,8 +606,11 @@ fn usb_faults_on_a_real_bus_end_in_a_clear_error_or_recovery() {
         gadget("--payload-bytes 100000000"),
         "mkdir -p /etc\necho 'bench:x:1000:1000::/tmp:/bin/sh' >> /etc/passwd\n".to_string(),
         step("no-access", "su bench -c 'brdfd ptp info --port usb'"),
-        // Another process holds the interface while brdfd asks for it.
-        "brdfd ptp capture --port usb --out /tmp/held > /tmp/holder.log 2>&1 &\nholder=$!\nsleep 1\n"
+        // Another process holds the interface while brdfd asks for it: asked once the
+        // holder has opened its session (0x1002), which it does after claiming.
+        "n=$(grep -c 'op 0x1002' /tmp/sim.log)\n\
+         brdfd ptp capture --port usb --out /tmp/held > /tmp/holder.log 2>&1 &\nholder=$!\n\
+         until [ $(grep -c 'op 0x1002' /tmp/sim.log) -gt $n ]; do sleep 0.01; done\n"
             .to_string(),
         step("held", "brdfd ptp info --port usb"),
         "wait $holder\n".to_string(),
