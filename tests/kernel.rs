@@ -302,9 +302,11 @@ fn boot(m: &Machine, modules: &[&str], programs: &[PathBuf], script: &str) -> St
     .arg(&m.vmlinuz)
     .arg("-initrd")
     .arg(&initrd)
-    .args(["-append", "console=ttyS0 panic=-1 quiet loglevel=3"]);
+    .args(["-append", "console=ttyS0 panic=-1 quiet loglevel=3 no_timer_check"]);
     // Software emulation (TCG): KVM inside this kind of virtual machine fails to set the
-    // host CPU's registers, and a boot takes seconds either way.
+    // host CPU's registers, and a boot takes seconds either way. `no_timer_check`: on a
+    // loaded host the emulated timer can look broken to the kernel's boot check, which
+    // then panics ("IO-APIC + timer doesn't work").
     let start = Instant::now();
     let mut child = qemu
         .stdin(Stdio::null())
@@ -450,23 +452,60 @@ fn brdfd_finds_and_captures_from_vivid_on_a_real_kernel() {
 /// The simulated Nikon D5100 as a real USB gadget (configfs and FunctionFS on `dummy_hcd`'s
 /// loopback controller), and brdfd on the same kernel as the host: `brdfd ptp info` and
 /// `brdfd devices` reach it through libusb and usbfs, and a capture downloads its photo.
+/// A simulated camera's USB identity: its `sim camera --profile`, ids and strings.
+struct UsbIdentity {
+    profile: &'static str,
+    ids: (u16, u16),
+    manufacturer: &'static str,
+    product: &'static str,
+    serial: &'static str,
+}
+
+const D5100: UsbIdentity = UsbIdentity {
+    profile: "nikon-d5100",
+    ids: (0x04b0, 0x0429),
+    manufacturer: "Nikon Corporation",
+    product: "NIKON DSC D5100",
+    serial: "0000000000000000000000000005100",
+};
+
+const THETA_V: UsbIdentity = UsbIdentity {
+    profile: "theta-v",
+    ids: (0x05ca, 0x0368),
+    manufacturer: "Ricoh Company, Ltd.",
+    product: "RICOH THETA V",
+    serial: "00165759",
+};
+
 /// The script that makes the simulated D5100 a USB gadget (the camera's flags after `sim
 /// camera`), binds it, and waits for the host side to enumerate it; `$g` names the gadget.
 fn gadget(camera: &str) -> String {
+    usb_camera(&D5100, camera)
+}
+
+/// [`gadget`] for any simulated camera.
+fn usb_camera(id: &UsbIdentity, camera: &str) -> String {
+    let UsbIdentity {
+        profile,
+        ids: (vendor, product_id),
+        manufacturer,
+        product,
+        serial,
+    } = id;
     format!(
         "\
 g=/sys/kernel/config/usb_gadget/brdfd
 mount -t configfs none /sys/kernel/config
 mkdir $g $g/strings/0x409 $g/configs/c.1 $g/functions/ffs.ptp
-echo 0x04b0 > $g/idVendor
-echo 0x0429 > $g/idProduct
-echo 'Nikon Corporation' > $g/strings/0x409/manufacturer
-echo 'NIKON DSC D5100' > $g/strings/0x409/product
-echo 0000000000000000000000000005100 > $g/strings/0x409/serialnumber
+echo {vendor:#06x} > $g/idVendor
+echo {product_id:#06x} > $g/idProduct
+echo '{manufacturer}' > $g/strings/0x409/manufacturer
+echo '{product}' > $g/strings/0x409/product
+echo {serial} > $g/strings/0x409/serialnumber
 ln -s $g/functions/ffs.ptp $g/configs/c.1/
 mkdir -p /dev/ffs-ptp
 mount -t functionfs ptp /dev/ffs-ptp
-brdfd sim camera --profile nikon-d5100 {camera} --functionfs /dev/ffs-ptp > /tmp/sim.log 2>&1 &
+brdfd sim camera --profile {profile} {camera} --functionfs /dev/ffs-ptp > /tmp/sim.log 2>&1 &
 until grep -q 'descriptors written' /tmp/sim.log; do sleep 0.1; done
 ls /sys/class/udc > $g/UDC
 until ls /dev/bus/usb/*/* 2>/dev/null | grep -q 002; do sleep 0.1; done
@@ -653,4 +692,34 @@ fn usb_faults_on_a_real_bus_end_in_a_clear_error_or_recovery() {
     let replugged = section(&console, "replugged");
     assert!(replugged.contains("exit 0"), "{replugged}");
     assert!(replugged.contains("D5100"), "{replugged}");
+}
+
+/// The simulated THETA V's USB profile (RICOH's PTP extensions) as a gadget: `brdfd theta
+/// info` and `brdfd devices` find it over USB, and `brdfd theta capture` shoots a bracket and
+/// merges it.
+#[test]
+fn brdfd_reaches_the_simulated_theta_as_a_usb_gadget_on_a_real_kernel() {
+    let Some(m) = machine_or_skip() else {
+        return;
+    };
+    let script = [
+        usb_camera(&THETA_V, ""),
+        step("info", "brdfd theta info --port usb --json"),
+        step("devices", "brdfd devices --json"),
+        step(
+            "capture",
+            "brdfd theta capture --port usb --shutter 0.01,0.04 --out /tmp/pano && ls /tmp/pano",
+        ),
+    ]
+    .concat();
+    let console = boot(&m, &["dummy_hcd", "libcomposite", "usb_f_fs"], &[], &script);
+    let info = section(&console, "info");
+    assert!(info.contains("exit 0"), "{info}");
+    assert!(info.contains("RICOH THETA V"), "{info}");
+    assert!(info.contains("00165759"), "{info}");
+    let devices = section(&console, "devices");
+    assert!(devices.contains("usb:05ca:0368"), "{devices}");
+    let capture = section(&console, "capture");
+    assert!(capture.contains("exit 0"), "{capture}");
+    assert!(capture.contains("panorama.exr"), "{capture}");
 }
