@@ -3,7 +3,7 @@
 //! gadget made in configfs with an `ffs.NAME` function, mounted (`mount -t functionfs NAME
 //! DIR`) and bound to a device controller (a board's, or `dummy_hcd`'s loopback one), then
 //! enumerates on the host like a camera, and a host's libusb or gphoto2 talks to it over a
-//! real USB stack. The framing is the in-memory pipe's ([`super::usb::Framing`]).
+//! real USB stack. The framing is the in-memory pipe's (`usb::Framing`).
 
 use std::fs::{File, OpenOptions};
 use std::io::{self, Read, Write};
