@@ -459,6 +459,9 @@ fn brdfd_finds_and_captures_from_vivid_on_a_real_kernel() {
 /// The simulated Nikon D5100 as a real USB gadget (configfs and FunctionFS on `dummy_hcd`'s
 /// loopback controller), and brdfd on the same kernel as the host: `brdfd ptp info` and
 /// `brdfd devices` reach it through libusb and usbfs, and a capture downloads its photo.
+/// The modules of a USB gadget on the kernel's loopback controller.
+const GADGET_MODULES: &[&str] = &["dummy_hcd", "libcomposite", "usb_f_fs"];
+
 /// A simulated camera's USB identity: its `sim camera --profile`, ids and strings.
 struct UsbIdentity {
     profile: &'static str,
@@ -546,12 +549,7 @@ fn brdfd_reaches_the_simulated_camera_as_a_usb_gadget_on_a_real_kernel() {
         None => script,
     };
     let programs = gphoto2.clone().unwrap_or_default();
-    let console = boot(
-        &m,
-        &["dummy_hcd", "libcomposite", "usb_f_fs"],
-        &programs,
-        &script,
-    );
+    let console = boot(&m, GADGET_MODULES, &programs, &script);
     // The camera's DeviceInfo, over the bus: the model and serial the profile reports.
     let info = section(&console, "info");
     assert!(info.contains("exit 0"), "{info}");
@@ -675,7 +673,7 @@ fn usb_faults_on_a_real_bus_end_in_a_clear_error_or_recovery() {
         step("replugged", "brdfd ptp info --port usb"),
     ]
     .concat();
-    let console = boot(&m, &["dummy_hcd", "libcomposite", "usb_f_fs"], &[], &script);
+    let console = boot(&m, GADGET_MODULES, &[], &script);
 
     let no_access = section(&console, "no-access");
     assert!(!no_access.contains("exit 0"), "{no_access}");
@@ -719,7 +717,7 @@ fn brdfd_reaches_the_simulated_theta_as_a_usb_gadget_on_a_real_kernel() {
         ),
     ]
     .concat();
-    let console = boot(&m, &["dummy_hcd", "libcomposite", "usb_f_fs"], &[], &script);
+    let console = boot(&m, GADGET_MODULES, &[], &script);
     let info = section(&console, "info");
     assert!(info.contains("exit 0"), "{info}");
     assert!(info.contains("RICOH THETA V"), "{info}");

@@ -342,7 +342,15 @@ async fn start(State(d): State<Shared>, body: axum::body::Body) -> ApiResult<Res
     // our own error shape.
     let plan: Plan =
         serde_json::from_slice(&body).map_err(|e| bad_request(format!("the plan: {e}")))?;
-    let s = tokio::task::spawn_blocking(move || d.start_capture(plan))
+    on_capture_thread(move || d.start_capture(plan)).await
+}
+
+/// Starts or resumes a capture off the async runtime (opening a session and its devices
+/// blocks): 202 with where to follow it, or why not.
+async fn on_capture_thread(
+    launch: impl FnOnce() -> Result<Session, StartError> + Send + 'static,
+) -> ApiResult<Response> {
+    let s = tokio::task::spawn_blocking(launch)
         .await
         .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, "internal", e.to_string()))?
         .map_err(start_error)?;
@@ -363,11 +371,7 @@ async fn start(State(d): State<Shared>, body: axum::body::Body) -> ApiResult<Res
     )
 )]
 async fn resume(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Response> {
-    let s = tokio::task::spawn_blocking(move || d.resume(&id))
-        .await
-        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, "internal", e.to_string()))?
-        .map_err(start_error)?;
-    Ok(started(s))
+    on_capture_thread(move || d.resume(&id)).await
 }
 
 fn open(d: &Daemon, id: &str) -> ApiResult<Session> {
