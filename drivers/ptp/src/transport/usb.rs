@@ -249,7 +249,16 @@ impl<P: BulkPipe> Transport for UsbTransport<P> {
         self.pending.clear();
         self.pipe
             .class_request(class_request::DEVICE_RESET, &[], 0)
-            .map_err(|e| pipe_err(e, "device reset", t))?;
+            .map_err(|e| {
+                // A camera that cannot take a control request on its default endpoint, after
+                // a bulk transfer failed, has left the bus: a camera unplugged mid-download
+                // gives an I/O error here as often as "no device".
+                let e = match e {
+                    PipeError::Other(_) => PipeError::Gone,
+                    e => e,
+                };
+                pipe_err(e, "device reset", t)
+            })?;
         let _ = self.pipe.clear_halt(Endpoint::BulkIn);
         let _ = self.pipe.clear_halt(Endpoint::BulkOut);
         let start = Instant::now();
