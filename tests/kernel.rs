@@ -637,7 +637,8 @@ fn gphoto2_files() -> Option<Vec<PathBuf>> {
 }
 
 /// Faults on the real bus, each ending in the clear error the documentation promises or in
-/// recovery: a user without access to the device node (no udev rule), the interface held by
+/// recovery: a user without access to the device node (no udev rule), the camera halting
+/// its bulk-in endpoint mid-download (a stall), the interface held by
 /// another process (gvfs, on a desktop), and the camera leaving the bus mid-download (the
 /// gadget unbound), after which it is bound again and answers.
 #[test]
@@ -646,10 +647,15 @@ fn usb_faults_on_a_real_bus_end_in_a_clear_error_or_recovery() {
         return;
     };
     let script = [
-        // 100 MB photos: a download that lasts long enough to be cut.
-        gadget("--payload-bytes 100000000"),
+        // 100 MB photos: a download that lasts long enough to be cut. The first download
+        // halts bulk-in after 1 MB.
+        gadget("--payload-bytes 100000000 --halt-in-download 1000000"),
         "mkdir -p /etc\necho 'bench:x:1000:1000::/tmp:/bin/sh' >> /etc/passwd\n".to_string(),
         step("no-access", "su bench -c 'brdfd ptp info --port usb'"),
+        step(
+            "halted",
+            "brdfd ptp capture --port usb --out /tmp/halted && ls -l /tmp/halted && rm -r /tmp/halted",
+        ),
         // Another process holds the interface while brdfd asks for it: asked once the
         // holder has opened its session (0x1002), which it does after claiming.
         "n=$(grep -c 'op 0x1002' /tmp/sim.log)\n\
@@ -681,6 +687,15 @@ fn usb_faults_on_a_real_bus_end_in_a_clear_error_or_recovery() {
         no_access.contains("no permission to open") && no_access.contains("70-brdfd.rules"),
         "{no_access}"
     );
+    // The endpoint halted mid-download: cleared, the camera reset, the download resumed.
+    let halted = section(&console, "halted");
+    assert!(halted.contains("exit 0"), "{halted}");
+    assert!(
+        halted.contains("stalled its bulk-in endpoint during data phase"),
+        "{halted}"
+    );
+    assert!(halted.contains("downloaded 100000000 bytes"), "{halted}");
+    assert!(halted.contains(" 100000000 "), "{halted}");
     let held = section(&console, "held");
     assert!(!held.contains("exit 0"), "{held}");
     assert!(held.contains("claimed by another process"), "{held}");

@@ -47,6 +47,10 @@ pub struct CameraArgs {
     /// prints `descriptors written` (Linux; docs/devices.md shows the steps).
     #[arg(long, value_name = "DIR")]
     pub functionfs: Option<PathBuf>,
+    /// A fault to test a host against (with --functionfs): the first download halts
+    /// (stalls) the bulk-in endpoint after this many bytes and abandons the transfer.
+    #[arg(long, value_name = "BYTES", requires = "functionfs")]
+    pub halt_in_download: Option<usize>,
 }
 
 #[derive(clap::Args)]
@@ -153,6 +157,7 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
                 }
             };
             let responder = Responder::new(profile, source).shared();
+            responder.lock().unwrap().faults.halt_in_download = a.halt_in_download;
             if let Some(dir) = &a.functionfs {
                 return functionfs(dir, &a.profile, responder, rendering);
             }

@@ -33,6 +33,10 @@ pub enum PtpError {
         cause: Box<PtpError>,
         reset: Box<PtpError>,
     },
+    /// The camera halted (stalled) its bulk-in endpoint: over USB, how a camera abandons a
+    /// transaction it cannot finish. The halt has been cleared; what it was sending is lost.
+    #[error("the camera stalled its bulk-in endpoint during {during} and abandoned the transaction (the halt was cleared)")]
+    Stalled { during: &'static str },
     /// The camera went away (unplugged, powered off, connection closed).
     #[error("camera disconnected during {during}")]
     Disconnected { during: &'static str },
@@ -64,6 +68,7 @@ impl PtpError {
             self,
             PtpError::Io(_)
                 | PtpError::Disconnected { .. }
+                | PtpError::Stalled { .. }
                 | PtpError::Timeout { .. }
                 | PtpError::Handshake { .. }
                 | PtpError::RecoveryFailed { .. }

@@ -268,19 +268,52 @@ fn a_failed_reset_keeps_the_cause() {
     assert!(reset.contains("connecting to PTP/IP camera"), "{text}");
 }
 
+/// A camera that halts bulk-in mid-download has abandoned the transfer: the halt is
+/// cleared, the camera reset, and the download asked again, whether the halt came before
+/// any data or in the middle of it.
 #[test]
-fn halted_endpoint_is_cleared_and_retried() {
+fn a_download_the_camera_halts_is_recovered() {
+    for after in [0, 1000] {
+        let r = responder(Profile::Generic, 5000);
+        let mut cam = usb_camera(&r);
+        r.lock().unwrap().faults.halt_in_download = Some(after);
+        let opts = CaptureOptions {
+            target: Target::Card,
+            delete_after: false,
+        };
+        let shot = cam.capture(&opts, &mut |_, _, _| {}).unwrap();
+        assert_eq!(shot.data.len(), 5000, "halted after {after} bytes");
+        assert!(r.lock().unwrap().faults.halt_in_download.is_none());
+    }
+}
+
+/// Without a download to retry it, a halt ends the operation with an error that says so,
+/// and the camera answers the next one.
+#[test]
+fn a_halt_outside_a_download_is_named_and_the_link_goes_on() {
     let r = responder(Profile::Generic, 5000);
     let mut cam = usb_camera(&r);
-    r.lock().unwrap().faults.halt_bulk_in = true;
     let opts = CaptureOptions {
         target: Target::Card,
         delete_after: false,
     };
-    assert_eq!(
-        cam.capture(&opts, &mut |_, _, _| {}).unwrap().data.len(),
-        5000
+    let shot = cam.capture(&opts, &mut |_, _, _| {}).unwrap();
+    r.lock().unwrap().faults.halt_in_download = Some(10);
+    let e = cam
+        .call_with(
+            op::GET_OBJECT,
+            &[shot.handle],
+            None,
+            Duration::from_secs(5),
+            &mut |_, _| {},
+        )
+        .unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("stalled its bulk-in endpoint during data phase"),
+        "{e}"
     );
+    cam.call(op::GET_STORAGE_IDS, &[]).unwrap();
 }
 
 #[test]

@@ -11,7 +11,7 @@ use crate::transport::{Progress, Transport};
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum PipeError {
     Timeout,
-    /// The endpoint halted (STALL); clear it and retry.
+    /// The endpoint halted (STALL): on bulk-in, the camera abandoned the transaction.
     Stall,
     /// The device is gone.
     Gone,
@@ -122,7 +122,6 @@ impl<P: BulkPipe> UsbTransport<P> {
 
     /// Reads at least `want` bytes into `pending`, skipping zero-length packets.
     fn fill(&mut self, want: usize, timeout: Duration, during: &'static str) -> Result<()> {
-        let mut stalled = false;
         let start = Instant::now();
         while self.pending.len() < want {
             let left = timeout.saturating_sub(start.elapsed());
@@ -132,21 +131,35 @@ impl<P: BulkPipe> UsbTransport<P> {
                     after: timeout,
                 });
             }
-            match self.pipe.read(Endpoint::BulkIn, &mut self.buf, left) {
-                Ok(n) => self.pending.extend_from_slice(&self.buf[..n]),
-                Err(PipeError::Stall) if !stalled => {
-                    stalled = true;
-                    tracing::warn!(
-                        "bulk-in stalled during {during}; clearing the halt and retrying once"
-                    );
-                    self.pipe
-                        .clear_halt(Endpoint::BulkIn)
-                        .map_err(|e| pipe_err(e, "clear halt", timeout))?;
-                }
-                Err(e) => return Err(pipe_err(e, during, timeout)),
-            }
+            let n = self.read_bulk_in(left, timeout, during)?;
+            self.pending.extend_from_slice(&self.buf[..n]);
         }
         Ok(())
+    }
+
+    /// One bulk-in read into `buf`. A stall means the camera abandoned the transaction
+    /// (still-image class, 7.2): the halt is cleared so that the next transaction can run,
+    /// and the transaction fails, for the caller to recover (a download resets the camera
+    /// and resumes). Waiting for more data after a stall would only time out. `wait` is
+    /// what is left of `timeout`, the phase's timeout that an error names.
+    fn read_bulk_in(
+        &mut self,
+        wait: Duration,
+        timeout: Duration,
+        during: &'static str,
+    ) -> Result<usize> {
+        match self.pipe.read(Endpoint::BulkIn, &mut self.buf, wait) {
+            Ok(n) => Ok(n),
+            Err(PipeError::Stall) => {
+                tracing::warn!("bulk-in stalled during {during}; clearing the halt");
+                self.pending.clear();
+                self.pipe
+                    .clear_halt(Endpoint::BulkIn)
+                    .map_err(|e| pipe_err(e, "clear halt", timeout))?;
+                Err(PtpError::Stalled { during })
+            }
+            Err(e) => Err(pipe_err(e, during, timeout)),
+        }
     }
 
     /// Reads one container. Data payloads are streamed into one buffer with progress.
@@ -172,14 +185,10 @@ impl<P: BulkPipe> UsbTransport<P> {
         // takes as long as it takes while bytes keep coming.
         while payload.len() < header.payload_len() {
             progress(payload.len() as u64, header.payload_len() as u64);
-            match self.pipe.read(Endpoint::BulkIn, &mut self.buf, timeout) {
-                Ok(n) => {
-                    let need = header.payload_len() - payload.len();
-                    payload.extend_from_slice(&self.buf[..n.min(need)]);
-                    self.pending.extend_from_slice(&self.buf[n.min(need)..n]);
-                }
-                Err(e) => return Err(pipe_err(e, "data phase", timeout)),
-            }
+            let n = self.read_bulk_in(timeout, timeout, "data phase")?;
+            let need = header.payload_len() - payload.len();
+            payload.extend_from_slice(&self.buf[..n.min(need)]);
+            self.pending.extend_from_slice(&self.buf[n.min(need)..n]);
         }
         progress(payload.len() as u64, header.payload_len() as u64);
         Ok((header, payload))

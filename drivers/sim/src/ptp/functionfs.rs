@@ -7,6 +7,7 @@
 
 use std::fs::{File, OpenOptions};
 use std::io::{self, Read, Write};
+use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
@@ -90,8 +91,14 @@ impl Endpoints for Files {
         self.bulk_in.lock().unwrap().write_all(&transfer).is_ok()
     }
 
-    fn fail_bulk_in(&self, _: PipeError) {
-        // A real bus's faults are the host's and the controller's, not injected.
+    fn fail_bulk_in(&self, e: PipeError) {
+        // FunctionFS halts an endpoint when its file is used in the wrong direction: a read
+        // on an IN endpoint sets the halt (and fails with EBADMSG). The host sees a stall
+        // until it clears the halt. Leaving the bus is done by unbinding the gadget.
+        if matches!(e, PipeError::Stall) {
+            let halted = self.bulk_in.lock().unwrap().read(&mut [0u8; 1]);
+            tracing::debug!("simulated camera: bulk-in halted ({halted:?})");
+        }
     }
 
     fn interrupt_in(&self, transfer: Vec<u8>) {
@@ -179,9 +186,16 @@ fn setup(
 
 /// The bulk endpoints from an enable until the host lets go (the reads then fail).
 fn bulk(dir: &Path, responder: &SharedResponder, framing: &Mutex<Framing>) -> io::Result<()> {
+    // Non-blocking: I/O on an endpoint of a disabled function (unbound, unplugged) then
+    // fails, where it would wait for the next enable and reach the next host with this
+    // connection's bytes. Transfers on an enabled endpoint still wait to complete.
     let open = |n: &str, write: bool| -> io::Result<File> {
         let path: PathBuf = dir.join(n);
-        OpenOptions::new().read(!write).write(write).open(path)
+        OpenOptions::new()
+            .read(true)
+            .write(write)
+            .custom_flags(libc::O_NONBLOCK)
+            .open(path)
     };
     let mut interrupt = open("ep3", true)?;
     let (events, queue) = std::sync::mpsc::sync_channel::<Vec<u8>>(QUEUED_EVENTS);
@@ -195,6 +209,7 @@ fn bulk(dir: &Path, responder: &SharedResponder, framing: &Mutex<Framing>) -> io
             }
         })?;
     let files = Files {
+        // Readable too: a read is how the endpoint is halted (`fail_bulk_in`).
         bulk_in: Mutex::new(open("ep1", true)?),
         events,
     };

@@ -29,8 +29,9 @@ pub struct Faults {
     pub stall: Option<Duration>,
     /// Send the next response with a corrupt length.
     pub corrupt_next_response: bool,
-    /// USB: halt the bulk-in endpoint once, at the next data phase.
-    pub halt_bulk_in: bool,
+    /// USB: halt (stall) the bulk-in endpoint after this many bytes of the next object
+    /// download, abandoning the transfer, as a camera does that cannot finish one.
+    pub halt_in_download: Option<usize>,
     /// Never answer OpenSession until the link is reset (a wedged camera).
     pub wedged: bool,
 }
@@ -50,7 +51,9 @@ pub enum WireFault {
     /// Send this many bytes of the data phase, then drop the link.
     DropAfter(usize),
     CorruptResponse,
-    HaltBulkIn,
+    /// Send this many bytes of the data phase, then halt the bulk-in endpoint and abandon
+    /// the transaction (USB).
+    HaltBulkIn(usize),
     /// Say nothing at all.
     Silence,
 }
@@ -247,8 +250,8 @@ impl Responder {
                 }
                 if let Some(n) = self.faults.disconnect_in_download.take() {
                     reply.fault = Some(WireFault::DropAfter(n));
-                } else if std::mem::take(&mut self.faults.halt_bulk_in) {
-                    reply.fault = Some(WireFault::HaltBulkIn);
+                } else if let Some(n) = self.faults.halt_in_download.take() {
+                    reply.fault = Some(WireFault::HaltBulkIn(n));
                 }
                 if p(0) == SDRAM_HANDLE && m.code == op::GET_OBJECT && reply.fault.is_none() {
                     // Nikon frees the SDRAM image once it has been read.

@@ -50,8 +50,9 @@ fn serve(dev: DevicePipe, responder: SharedResponder) {
 pub(crate) trait Endpoints {
     /// One bulk-in transfer; false when the host is gone.
     fn bulk_in(&self, transfer: Vec<u8>) -> bool;
-    /// A failed bulk-in (a stall, the camera dropping off the bus), for the injected wire
-    /// faults; a real bus ignores it.
+    /// A failed bulk-in, for the injected wire faults: a stall (a real bus halts the
+    /// endpoint), or the camera dropping off the bus (a real bus ignores it: unbind the
+    /// gadget instead).
     fn fail_bulk_in(&self, e: PipeError);
     /// One transfer on the interrupt endpoint (an event).
     fn interrupt_in(&self, transfer: Vec<u8>);
@@ -153,27 +154,30 @@ fn send_reply(ep: &impl Endpoints, r: Reply, code: u16) -> bool {
         thread::sleep(d);
     }
     let tid = r.response.tid;
-    match r.fault {
-        Some(WireFault::Silence) => return true,
-        Some(WireFault::HaltBulkIn) => ep.fail_bulk_in(PipeError::Stall),
-        _ => {}
+    if r.fault == Some(WireFault::Silence) {
+        return true;
     }
     if let Some(data) = &r.data {
         let mut c = container::encode_header(Kind::Data, code, tid, data.len());
         c.extend_from_slice(data);
-        let limit = match r.fault {
-            Some(WireFault::DropAfter(n)) => Some(HEADER_LEN + n),
+        // Where the transfer ends early, and how: the camera drops off the bus, or halts
+        // the endpoint and abandons the transaction (no response follows either way).
+        let cut = match r.fault {
+            Some(WireFault::DropAfter(n)) => Some((n, PipeError::Other("LIBUSB_ERROR_IO".into()))),
+            Some(WireFault::HaltBulkIn(n)) => Some((n, PipeError::Stall)),
             _ => None,
         };
-        let end = limit.unwrap_or(c.len()).min(c.len());
+        let end = cut
+            .as_ref()
+            .map_or(c.len(), |(n, _)| HEADER_LEN + n)
+            .min(c.len());
         for chunk in c[..end].chunks(TRANSFER) {
             if !ep.bulk_in(chunk.to_vec()) {
                 return false;
             }
         }
-        if limit.is_some() {
-            // The camera dropped off the bus mid-transfer.
-            ep.fail_bulk_in(PipeError::Other("LIBUSB_ERROR_IO".into()));
+        if let Some((_, e)) = cut {
+            ep.fail_bulk_in(e);
             return true;
         }
         if c.len().is_multiple_of(MAX_PACKET) && !ep.bulk_in(Vec::new()) {
