@@ -96,7 +96,8 @@ pub struct RigDevices {
     pub dslr: Option<Selector>,
     #[serde(default)]
     pub theta: Option<Selector>,
-    /// Used when no DSLR answers.
+    /// Used when no DSLR answers. On a simulated rig, `v4l:simulated` adds the simulated
+    /// V4L2 camera, which sees what the simulated DSLR sees.
     #[serde(default)]
     pub fallback_camera: Option<Selector>,
     /// A rig-protocol turntable or trigger box, or a release cable.
@@ -117,11 +118,39 @@ pub struct Brackets {
     pub theta_shutters: Vec<f64>,
     #[serde(default = "default_theta_iso")]
     pub theta_iso: u32,
+    /// The V4L2 fallback camera's exposure times, seconds (V4L2 sets them in 100 µs steps).
+    #[serde(default = "default_fallback_shutters")]
+    pub fallback_shutters: Vec<f64>,
+    /// Frames averaged per exposure: averaging N frames lowers the noise by √N.
+    #[serde(default = "default_fallback_frames")]
+    pub fallback_frames: usize,
+    /// The fallback camera's gain, in its own units; left as it is if absent. The
+    /// calibration's `theta_to_fallback` holds for this gain only.
+    #[serde(default)]
+    pub fallback_gain: Option<i64>,
+    /// The fallback camera's white balance, kelvin (auto white balance is switched off).
+    #[serde(default = "default_fallback_white_balance")]
+    pub fallback_white_balance_k: i64,
 }
 
 fn default_theta_iso() -> u32 {
     100
 }
+
+fn default_fallback_shutters() -> Vec<f64> {
+    vec![0.001, 0.004, 0.0166, 0.0666, 0.25]
+}
+
+fn default_fallback_frames() -> usize {
+    8
+}
+
+fn default_fallback_white_balance() -> i64 {
+    5000
+}
+
+/// Frames a fallback bracket averages per exposure at most.
+pub const MAX_FALLBACK_FRAMES: usize = 256;
 
 /// How the two cameras' radiance units relate.
 #[derive(Debug, Clone, Deserialize)]
@@ -130,6 +159,35 @@ pub struct Calibration {
     /// DSLR radiance per THETA radiance for the same light (from photographing a grey card
     /// with both). 1 for the simulated rig, whose sensors are modelled.
     pub theta_to_dslr: f64,
+    /// The fallback camera's radiance per THETA radiance, at the fallback's gain. The
+    /// fallback's radiance is its averaged linear value per second of exposure (V4L2 reports
+    /// no aperture): a rig with a `fallback_camera` needs it.
+    #[serde(default)]
+    pub theta_to_fallback: Option<f64>,
+}
+
+/// A simulated rig's devices, to rehearse failures at the bench: a DSLR that is not there,
+/// or one whose battery runs out mid-capture.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Simulation {
+    /// `present` (the default) or `absent` (nothing answers at its address).
+    #[serde(default)]
+    pub dslr: SimulatedPresence,
+    /// The simulated DSLR powers off when asked for the frame after this many.
+    #[serde(default)]
+    pub dslr_powers_off_after: Option<u32>,
+    /// `present` (the default) or `absent`: views are then turned by hand.
+    #[serde(default)]
+    pub turntable: SimulatedPresence,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SimulatedPresence {
+    #[default]
+    Present,
+    Absent,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -158,6 +216,9 @@ pub struct Rig {
     pub calibration: Calibration,
     #[serde(default)]
     pub turntable: Option<TurntablePlan>,
+    /// Simulated rigs only: devices that are missing or fail.
+    #[serde(default)]
+    pub simulation: Option<Simulation>,
 }
 
 /// Pixels to estimate from: a count, or "all".
@@ -182,6 +243,62 @@ impl<'de> Deserialize<'de> for PixelCount {
                 "pixels is a number or \"all\", not {s:?}"
             ))),
         }
+    }
+}
+
+/// A fallback camera needs its calibration and a bracket.
+fn check_fallback(file: &str, r: &Rig) -> Result<(), ConfigError> {
+    let b = &r.brackets;
+    check_exposures(file, "brackets.fallback_shutters", &b.fallback_shutters)?;
+    if !(1..=MAX_FALLBACK_FRAMES).contains(&b.fallback_frames) {
+        return Err(invalid(
+            file,
+            "brackets.fallback_frames",
+            format!("must be 1 to {MAX_FALLBACK_FRAMES}"),
+        ));
+    }
+    if r.simulation.is_some() && !r.simulated {
+        return Err(invalid(
+            file,
+            "simulation",
+            "is for simulated rigs (`simulated = true`)",
+        ));
+    }
+    let has_fallback = r.devices.fallback_camera.is_some();
+    let simulated_webcam = Selector::V4l(crate::rig::simulated::SIMULATED_WEBCAM.into());
+    if r.simulated
+        && r.devices
+            .fallback_camera
+            .as_ref()
+            .is_some_and(|s| *s != simulated_webcam)
+    {
+        return Err(invalid(
+            file,
+            "devices.fallback_camera",
+            format!(
+                "a simulated rig's fallback camera is the simulated webcam, `{simulated_webcam}`"
+            ),
+        ));
+    }
+    if has_fallback && b.fallback_shutters.is_empty() {
+        return Err(invalid(
+            file,
+            "brackets.fallback_shutters",
+            "needs at least one exposure",
+        ));
+    }
+    match r.calibration.theta_to_fallback {
+        Some(k) if !(k.is_finite() && k > 0.0) => Err(invalid(
+            file,
+            "calibration.theta_to_fallback",
+            "must be a positive scale",
+        )),
+        None if has_fallback => Err(invalid(
+            file,
+            "calibration.theta_to_fallback",
+            "a rig with a fallback_camera needs it: the fallback camera's radiance per THETA radiance (photograph a grey card with both)",
+        )),
+        _ => Ok(()),
     }
 }
 
@@ -371,6 +488,7 @@ impl Rig {
                 "must be a positive scale",
             ));
         }
+        check_fallback(file, &r)?;
         if !r.theta_yaw_deg.is_finite() {
             return Err(invalid(
                 file,
@@ -392,13 +510,7 @@ impl Rig {
                     ),
                 ));
             }
-            if t.views > 1 && r.devices.turntable.is_none() && !r.simulated {
-                return Err(invalid(
-                    file,
-                    "devices.turntable",
-                    "several views need a turntable",
-                ));
-            }
+            // Without a turntable device, the views are turned by hand.
         }
         if !r.simulated && r.devices.dslr.is_none() && r.devices.fallback_camera.is_none() {
             return Err(invalid(
@@ -414,7 +526,9 @@ impl Rig {
                 "needs a THETA to measure the light",
             ));
         }
-        for (field, sel, ok) in [
+        // What each role can be: the kinds of device the capture can run it with, said in
+        // the error.
+        for (field, sel, ok, kinds) in [
             (
                 "devices.dslr",
                 &r.devices.dslr,
@@ -422,27 +536,32 @@ impl Rig {
                     r.devices.dslr,
                     None | Some(Selector::Usb { .. } | Selector::PtpIp(_))
                 ),
+                "a PTP camera: usb, usb:VVVV[:PPPP] or ptpip:HOST[:PORT]",
             ),
             (
                 "devices.theta",
                 &r.devices.theta,
                 matches!(
                     r.devices.theta,
-                    None | Some(Selector::Osc(_) | Selector::Usb { .. } | Selector::V4l(_))
+                    None | Some(Selector::Osc(_) | Selector::Usb { .. })
                 ),
+                // A THETA's V4L2 (UVC) mode streams live video: it cannot shoot the
+                // bracket the light needs.
+                "a THETA the capture can bracket: osc:http://HOST or usb[:05ca:PPPP] (not its V4L2 live view)",
             ),
             (
                 "devices.fallback_camera",
                 &r.devices.fallback_camera,
                 matches!(r.devices.fallback_camera, None | Some(Selector::V4l(_))),
+                "a V4L2 camera: v4l:/dev/videoN",
             ),
             (
                 "devices.turntable",
                 &r.devices.turntable,
-                matches!(
-                    r.devices.turntable,
-                    None | Some(Selector::Serial(_) | Selector::Cable { .. })
-                ),
+                matches!(r.devices.turntable, None | Some(Selector::Serial(_))),
+                // The capture triggers the DSLR over PTP, so a release cable has nothing to
+                // do in it (`brdfd serial fire` drives one on its own).
+                "a turntable that speaks the brdfd rig protocol: serial:/dev/ttyUSB0 (a release cable, cable:..., neither turns the object nor is needed to trigger the DSLR, which the capture triggers over PTP)",
             ),
         ] {
             if !ok {
@@ -450,7 +569,7 @@ impl Rig {
                     file,
                     field,
                     format!(
-                        "{} is the wrong kind of device here",
+                        "{} cannot be used here: it must be {kinds}",
                         sel.as_ref().map(|s| s.to_string()).unwrap_or_default()
                     ),
                 ));

@@ -139,6 +139,41 @@ pub fn average_frames(
     })
 }
 
+/// What averaging left of the noise: over the pixels whose average is well exposed (between
+/// [`DARK`] and [`SATURATED`]), the median of the standard error of the mean relative to the
+/// mean, in linear light. `None` for fewer than two frames or no such pixel.
+pub fn averaging_noise(frames: &[brdfd_v4l::Rgb8Frame]) -> Option<f32> {
+    let n = frames.len();
+    let first = frames.first()?;
+    if n < 2 || frames.iter().any(|f| f.data.len() != first.data.len()) {
+        return None;
+    }
+    let lut: Vec<f32> = (0..256).map(|v| srgb_to_linear(v as f32 / 255.0)).collect();
+    // Every 7th value: the median of a few ten thousand is as good as of all.
+    let mut relative: Vec<f32> = (0..first.data.len())
+        .step_by(7)
+        .filter_map(|i| {
+            let (mut sum, mut sq) = (0.0f32, 0.0f32);
+            for f in frames {
+                let v = lut[f.data[i] as usize];
+                sum += v;
+                sq += v * v;
+            }
+            let mean = sum / n as f32;
+            if !(DARK..SATURATED).contains(&mean) {
+                return None;
+            }
+            let variance = ((sq - sum * mean) / (n - 1) as f32).max(0.0);
+            Some((variance / n as f32).sqrt() / mean)
+        })
+        .collect();
+    if relative.is_empty() {
+        return None;
+    }
+    let mid = relative.len() / 2;
+    Some(*relative.select_nth_unstable_by(mid, f32::total_cmp).1)
+}
+
 /// Values above this are treated as saturated, below `DARK` as noise.
 pub const SATURATED: f32 = 0.95;
 pub const DARK: f32 = 0.01;

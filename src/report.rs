@@ -39,6 +39,8 @@ pub struct Context<'a> {
     pub relight_error: Option<f64>,
     /// The true BRDF on the estimate's grid (a simulator's).
     pub truth: Option<&'a Bivariate>,
+    /// The V4L2 fallback camera's use, when it shot any view: which views, and its noise.
+    pub fallback: Option<String>,
     /// The session's record: what, when, which devices.
     pub record: Vec<(String, String)>,
 }

@@ -94,6 +94,10 @@ pub struct CoefficientsFile<'a> {
     /// light it was not fitted to.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub relight_error: Option<f64>,
+    /// When the V4L2 fallback camera shot any view: which, and what averaging left of its
+    /// noise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fallback: Option<String>,
     pub candidates: usize,
     /// Object pixels left out because a channel was at the photo's white level.
     pub clipped_pixels: usize,
@@ -296,6 +300,7 @@ pub fn write_results(
         relative_residual: estimate.solution.relative_residual,
         fit_error: estimate.fit_error,
         relight_error: cx.relight_error,
+        fallback: cx.fallback.clone(),
         candidates: estimate.candidates,
         clipped_pixels: estimate.clipped,
         lights: estimate.lights,

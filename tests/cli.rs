@@ -679,6 +679,7 @@ fn a_rig_file_drives_the_devices_it_names() {
     let theta = Simulator::start(&["sim", "theta", "--http", "127.0.0.1:0", "--shot-ms", "20"]);
     let rig = include_str!("../config/rigs/simulated.toml")
         .replace("simulated = true", "simulated = false")
+        .replace("fallback_camera = \"v4l:simulated\"\n", "")
         .replace(
             "[devices]\n",
             &format!(

@@ -100,6 +100,27 @@ fn rig_files_with_impossible_numbers_are_refused() {
             "views = 100000000000",
             "views must be 1 to 360",
         ),
+        // Devices the capture cannot run in their role are refused by name, not when opened.
+        (
+            "theta = \"osc:http://192.168.1.1\"",
+            "theta = \"v4l:/dev/video2\"",
+            "field `devices.theta`: v4l:/dev/video2 cannot be used here: it must be a THETA the capture can bracket",
+        ),
+        (
+            "turntable = \"serial:/dev/ttyUSB0\"",
+            "turntable = \"cable:dtr:/dev/ttyUSB0\"",
+            "field `devices.turntable`: cable:dtr:/dev/ttyUSB0 cannot be used here",
+        ),
+        (
+            "fallback_camera = \"v4l:/dev/video0\"",
+            "fallback_camera = \"usb\"",
+            "field `devices.fallback_camera`: usb cannot be used here: it must be a V4L2 camera",
+        ),
+        (
+            "theta_to_fallback = 1.0",
+            "",
+            "calibration.theta_to_fallback",
+        ),
     ] {
         assert!(bench.contains(from), "{from}");
         let path = dir.path().join("rig.toml");

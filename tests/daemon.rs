@@ -75,7 +75,8 @@ fn captures_in_the_daemon_and_in_process_recover_the_known_coefficients() {
     let (status, devices) = daemon.get("/devices");
     assert_eq!(status, 200);
     let devices = devices.as_array().unwrap();
-    assert_eq!(devices.len(), 3, "{devices:?}");
+    // The DSLR, its fallback webcam, the THETA and the turntable.
+    assert_eq!(devices.len(), 4, "{devices:?}");
     for d in devices {
         assert_eq!(d["state"], "open", "{d}");
         assert_eq!(d["opened"], 1, "{d}");
@@ -159,7 +160,7 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
         .any(|e| e["type"] == "phase_done" && e["phase"] == "panorama bracket"));
     assert!(events
         .iter()
-        .any(|e| e["type"] == "progress" && e["phase"] == "view1: DSLR bracket"));
+        .any(|e| e["type"] == "progress" && e["phase"] == "view1: object bracket"));
     let (status, body) = daemon.post(&format!("/sessions/{id}/cancel"), json!({}));
     assert_eq!((status, body["error"].as_str()), (409, Some("not_running")));
     let (status, body) = daemon.get(&format!("/sessions/{id}/result"));

@@ -16,7 +16,7 @@ use brdfd::session::{PhaseTime, Session, State};
 
 use super::client::{Busy, Daemon};
 use super::estimate_cmd::{ColourArg, ModelArg, SolveArg};
-use super::progress::Bars;
+use super::progress::{Bars, Terminal};
 
 #[derive(clap::Args)]
 pub struct CaptureArgs {
@@ -240,6 +240,7 @@ fn in_process(
         devices: &devices,
         progress: bars,
         cancel: cancel.clone(),
+        operator: Arc::new(Terminal),
     };
     if let Err(e) = flow::execute(session, plan, &cx) {
         // Stopped by Ctrl-C, not by a failure of its own (which is reported as it is).
@@ -278,6 +279,28 @@ fn interrupt_cancels(cancel: &Cancel, id: &str) {
     }
 }
 
+/// The bars of a capture in the daemon, and this terminal's operator: a capture that waits
+/// for the object to be turned by hand is told so once Enter is pressed.
+struct Answering<'a> {
+    bars: Bars,
+    daemon: &'a Daemon,
+    id: &'a str,
+}
+
+impl Progress for Answering<'_> {
+    fn event(&self, e: Event) {
+        let waiting = matches!(e, Event::WaitingForOperator { .. });
+        self.bars.event(e);
+        if waiting {
+            let told = Terminal::enter(None).and_then(|()| self.daemon.proceed(self.id));
+            if let Err(e) = told {
+                // The capture waits in the daemon; another client can still answer it.
+                eprintln!("  {e:#}");
+            }
+        }
+    }
+}
+
 /// Follows a capture in the daemon to its end.
 pub fn follow(d: &Daemon, id: &str, out: Option<&Path>) -> anyhow::Result<()> {
     println!("session {id} (in the daemon)");
@@ -292,7 +315,14 @@ pub fn follow(d: &Daemon, id: &str, out: Option<&Path>) -> anyhow::Result<()> {
     if let Err(e) = detach {
         tracing::warn!("Ctrl-C will end the program without a word: {e}");
     }
-    let last = d.follow(id, &Bars::new())?;
+    let last = d.follow(
+        id,
+        &Answering {
+            bars: Bars::new(),
+            daemon: d,
+            id,
+        },
+    )?;
     let stored = d.json(&format!("/sessions/{id}"))?;
     let phases: Vec<PhaseTime> = serde_json::from_value(stored["manifest"]["phases"].clone())?;
     match last {

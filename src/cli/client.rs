@@ -112,6 +112,16 @@ impl Daemon {
         Ok(())
     }
 
+    /// Tells a capture waiting for the object to be turned by hand that it is.
+    pub fn proceed(&self, id: &str) -> anyhow::Result<()> {
+        self.check(
+            self.post(&format!("/sessions/{id}/continue"))
+                .json(&serde_json::json!({}))
+                .send()?,
+        )?;
+        Ok(())
+    }
+
     /// Follows a session's events until it finishes; returns the last one.
     pub fn follow(&self, id: &str, progress: &dyn Progress) -> anyhow::Result<Event> {
         let r = self.check(self.get(&format!("/sessions/{id}/events")).send()?)?;

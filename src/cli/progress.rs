@@ -6,7 +6,7 @@ use std::io::{IsTerminal, Write};
 use std::sync::Mutex;
 use std::time::Duration;
 
-use brdfd::rig::{Event, Progress};
+use brdfd::rig::{Cancel, Event, Operator, Progress};
 use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 pub struct Bars {
@@ -90,12 +90,13 @@ impl Progress for Bars {
                 self.bars.lock().expect("bars").remove(&phase);
                 if let Some(d) = self.bars.lock().expect("bars").remove(&format!(
                     "{}: download",
-                    phase.trim_end_matches(": DSLR bracket")
+                    phase.trim_end_matches(": object bracket")
                 )) {
                     d.finish_and_clear();
                 }
             }
             Event::Message { text } => self.line(&text),
+            Event::WaitingForOperator { text, .. } => self.line(&text),
             Event::Warning { text } => {
                 self.multi.suspend(|| eprintln!("  warning: {text}"));
             }
@@ -105,5 +106,43 @@ impl Progress for Bars {
                 }
             }
         }
+    }
+}
+
+/// The operator at this terminal, for a capture that needs the object turned by hand: asked
+/// on the terminal, answering with Enter.
+pub struct Terminal;
+
+impl Terminal {
+    /// Waits for Enter on standard input; stops waiting with the capture's `cancel` (if it
+    /// runs here).
+    pub fn enter(cancel: Option<&Cancel>) -> anyhow::Result<()> {
+        eprintln!("  press Enter once it is turned (Ctrl-C stops; the session can be resumed)");
+        let (tx, rx) = std::sync::mpsc::channel();
+        // A blocked read cannot be interrupted: it is left behind if the capture is cancelled.
+        std::thread::spawn(move || {
+            let mut line = String::new();
+            let _ = tx.send(std::io::stdin().read_line(&mut line));
+        });
+        loop {
+            match rx.recv_timeout(std::time::Duration::from_millis(100)) {
+                Ok(Ok(0)) | Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
+                    anyhow::bail!("no one can say the object is turned: standard input is closed. A capture of several views on a rig with no turntable needs someone at the terminal (or a client that calls the API's `continue`)")
+                }
+                Ok(Ok(_)) => return Ok(()),
+                Ok(Err(e)) => return Err(anyhow::Error::new(e).context("reading standard input")),
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                    if let Some(c) = cancel {
+                        c.check()?;
+                    }
+                }
+            }
+        }
+    }
+}
+
+impl Operator for Terminal {
+    fn wait(&self, _request: &str, cancel: &Cancel) -> anyhow::Result<()> {
+        Terminal::enter(Some(cancel))
     }
 }

@@ -544,7 +544,7 @@ impl Basis {
         }
         let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(exr_bytes), false)
             .map_err(|e| CoreError::format(format!("{what} (EXR)"), e.to_string()))?;
-        super::envmap::check_exr_size(&meta, &format!("{what} (EXR)"))?;
+        super::envmap::check_exr_size(&meta, &format!("{what} (EXR)"), exr_bytes.len())?;
         let image = read()
             .no_deep_data()
             .largest_resolution_level()

@@ -371,7 +371,7 @@ impl EnvMap {
 pub const WHITE_LEVEL_ATTRIBUTE: &str = "brdfdWhiteLevel";
 
 /// An RGB EXR as read: size, linear pixels (row-major), and its [`WHITE_LEVEL_ATTRIBUTE`].
-pub(crate) struct ExrRgb {
+pub struct ExrRgb {
     pub width: usize,
     pub height: usize,
     pub pixels: Vec<[f32; 3]>,
@@ -383,8 +383,18 @@ pub(crate) struct ExrRgb {
 /// error, not an abort.
 pub const MAX_EXR_PIXELS: usize = 16384 * 8192;
 
-/// Refuses an OpenEXR file whose headers declare more than [`MAX_EXR_PIXELS`] in a layer.
-pub(crate) fn check_exr_size(meta: &exr::meta::MetaData, what: &str) -> Result<()> {
+/// How many times smaller than its pixels an OpenEXR file can be: deflate (ZIP), the
+/// strongest of its compressions, packs at most about 1032 to 1.
+const MAX_EXR_COMPRESSION: usize = 1100;
+
+/// Refuses an OpenEXR file whose headers declare more than [`MAX_EXR_PIXELS`] in a layer, or
+/// more pixel data than its `file_bytes` could hold compressed: a small file claiming a large
+/// image would otherwise cost the whole image's memory before its data runs out.
+pub(crate) fn check_exr_size(
+    meta: &exr::meta::MetaData,
+    what: &str,
+    file_bytes: usize,
+) -> Result<()> {
     for header in &meta.headers {
         let size = header.layer_size;
         if size.area() > MAX_EXR_PIXELS {
@@ -397,37 +407,72 @@ pub(crate) fn check_exr_size(meta: &exr::meta::MetaData, what: &str) -> Result<(
                 ),
             ));
         }
+        let sample_bytes: usize = header
+            .channels
+            .list
+            .iter()
+            .map(|c| c.sample_type.bytes_per_sample())
+            .sum();
+        let declared = size.area().saturating_mul(sample_bytes);
+        if declared > file_bytes.saturating_mul(MAX_EXR_COMPRESSION) {
+            return Err(CoreError::format(
+                what,
+                format!(
+                    "the header declares {} × {} pixels ({declared} bytes), more than a file of {file_bytes} bytes can hold: it is truncated",
+                    size.width(),
+                    size.height()
+                ),
+            ));
+        }
     }
     Ok(())
 }
 
 pub(crate) fn read_exr_rgb(path: &Path) -> Result<ExrRgb> {
+    let bytes = std::fs::read(path).map_err(|e| CoreError::io(path, e))?;
+    read_exr_rgb_bytes(&bytes, &path.display().to_string()).map(|(rgb, _)| rgb)
+}
+
+/// An RGB EXR from its bytes (`what` names it in errors), with its float attributes.
+pub fn read_exr_rgb_bytes(
+    bytes: &[u8],
+    what: &str,
+) -> Result<(ExrRgb, std::collections::BTreeMap<String, f32>)> {
     use exr::prelude::*;
-    let what = path.display().to_string();
-    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| match e {
-        exr::error::Error::Io(io) => CoreError::io(path, io),
-        other => CoreError::format(&what, format!("not a readable OpenEXR header: {other}")),
-    })?;
-    check_exr_size(&meta, &what)?;
-    let image = read_first_rgba_layer_from_file(
-        path,
-        |res, _| {
-            (
-                res.width(),
-                res.height(),
-                vec![[0f32; 3]; res.width() * res.height()],
-            )
-        },
-        |(w, _, px): &mut (usize, usize, Vec<[f32; 3]>),
-         pos,
-         (r, g, b, _a): (f32, f32, f32, f32)| {
-            px[pos.y() * *w + pos.x()] = [r, g, b];
-        },
-    )
-    .map_err(|e| match e {
-        exr::error::Error::Io(io) => CoreError::io(path, io),
-        other => CoreError::format(&what, format!("not a readable OpenEXR RGB image: {other}")),
-    })?;
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
+        .map_err(|e| CoreError::format(what, format!("not a readable OpenEXR header: {e}")))?;
+    check_exr_size(&meta, what, bytes.len())?;
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .rgba_channels(
+            |res, _| {
+                (
+                    res.width(),
+                    res.height(),
+                    vec![[0f32; 3]; res.width() * res.height()],
+                )
+            },
+            |(w, _, px): &mut (usize, usize, Vec<[f32; 3]>),
+             pos,
+             (r, g, b, _a): (f32, f32, f32, f32)| {
+                px[pos.y() * *w + pos.x()] = [r, g, b];
+            },
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(std::io::Cursor::new(bytes))
+        .map_err(|e| CoreError::format(what, format!("not a readable OpenEXR RGB image: {e}")))?;
+    let floats: std::collections::BTreeMap<String, f32> = image
+        .layer_data
+        .attributes
+        .other
+        .iter()
+        .filter_map(|(k, v)| match v {
+            AttributeValue::F32(f) => Some((k.to_string(), *f)),
+            _ => None,
+        })
+        .collect();
     let white = image
         .layer_data
         .attributes
@@ -436,7 +481,7 @@ pub(crate) fn read_exr_rgb(path: &Path) -> Result<ExrRgb> {
         .map(|v| match v {
             AttributeValue::F32(w) if w.is_finite() && *w > 0.0 => Ok(*w),
             other => Err(CoreError::format(
-                &what,
+                what,
                 format!(
                     "attribute {WHITE_LEVEL_ATTRIBUTE} should be a positive float, not {other:?}"
                 ),
@@ -444,12 +489,15 @@ pub(crate) fn read_exr_rgb(path: &Path) -> Result<ExrRgb> {
         })
         .transpose()?;
     let (width, height, pixels) = image.layer_data.channel_data.pixels;
-    Ok(ExrRgb {
-        width,
-        height,
-        pixels,
-        white,
-    })
+    Ok((
+        ExrRgb {
+            width,
+            height,
+            pixels,
+            white,
+        },
+        floats,
+    ))
 }
 
 /// Writes a linear RGB image as a float EXR.
@@ -488,6 +536,17 @@ pub fn write_exr_attributed(
     pixels: &[[f32; 3]],
     attributes: &[(&str, ExrAttribute)],
 ) -> Result<()> {
+    let bytes = exr_bytes(width, height, pixels, attributes)?;
+    std::fs::write(path, bytes).map_err(|e| CoreError::io(path, e))
+}
+
+/// An RGB float EXR with header attributes, in memory (a file's bytes, or a session's).
+pub fn exr_bytes(
+    width: usize,
+    height: usize,
+    pixels: &[[f32; 3]],
+    attributes: &[(&str, ExrAttribute)],
+) -> Result<Vec<u8>> {
     use exr::prelude::*;
     let channels = SpecificChannels::rgb(|Vec2(x, y): Vec2<usize>| {
         let p = pixels[y * width + x];
@@ -512,13 +571,12 @@ pub fn write_exr_attributed(
     }
     let attributes = layer_attributes;
     let layer = Layer::new((width, height), attributes, Encoding::default(), channels);
+    let mut out = std::io::Cursor::new(Vec::new());
     Image::from_layer(layer)
         .write()
-        .to_file(path)
-        .map_err(|e| match e {
-            exr::error::Error::Io(io) => CoreError::io(path, io),
-            other => CoreError::format(path.display(), other.to_string()),
-        })
+        .to_buffered(&mut out)
+        .map_err(|e| CoreError::Invalid(format!("encoding an EXR: {e}")))?;
+    Ok(out.into_inner())
 }
 
 /// A rectangle of map pixels, `x0..x1` × `y0..y1`.
@@ -671,6 +729,26 @@ impl CellSums {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A header that declares far more pixels than its file could hold, compressed, is
+    /// refused before anything is allocated for them; the same image whole reads.
+    #[test]
+    fn a_truncated_exr_is_refused_before_its_pixels_are_allocated() {
+        let (w, h) = (2048, 1024);
+        let pixels: Vec<[f32; 3]> = (0..w * h).map(|i| [i as f32, 0.25, 0.125]).collect();
+        let bytes = exr_bytes(w, h, &pixels, &[]).unwrap();
+        let (whole, _) = read_exr_rgb_bytes(&bytes, "whole.exr").unwrap();
+        assert_eq!((whole.width, whole.height), (w, h));
+        let cut = &bytes[..2000];
+        let e = read_exr_rgb_bytes(cut, "cut.exr")
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("cut.exr") && e.contains("more than a file of 2000 bytes can hold"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn a_small_file_declaring_a_huge_image_is_refused_before_reading() {

@@ -14,6 +14,7 @@
 //! | `GET /api/v1/sessions/{id}/result` | `coefficients.json`; 409 `not_done` until the session is done |
 //! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `coefficients.json`, `preview.png`, `preview.json`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`; for a hybrid or analytic estimate also `material.gltf`, `material.mtlx` |
 //! | `POST /api/v1/sessions/{id}/cancel` | 202; 409 `not_running` |
+//! | `POST /api/v1/sessions/{id}/continue` | the object is turned by hand, as the `waiting_for_operator` event asked: 202; 409 `not_waiting` |
 //! | `POST /api/v1/sessions/{id}/resume` | 202 as for a new capture; 409 `busy` |
 //!
 //! With a token configured, every request needs `Authorization: Bearer <token>`, or the
@@ -35,8 +36,8 @@ use utoipa::{Modify as _, OpenApi as _};
 use utoipa_axum::{router::OpenApiRouter, routes};
 
 use super::openapi::{
-    ApiDoc, Cancelling, ErrorBody, FileBytes, Guards, Health, Materials, RigSummary, SessionDetail,
-    SessionItem, Started, StreamEvent,
+    ApiDoc, Cancelling, Continuing, ErrorBody, FileBytes, Guards, Health, Materials, RigSummary,
+    SessionDetail, SessionItem, Started, StreamEvent,
 };
 use super::{web, Daemon, StartError};
 use crate::rig::{Event, Plan};
@@ -79,6 +80,7 @@ fn api() -> OpenApiRouter<Shared> {
         .routes(routes!(result))
         .routes(routes!(result_file))
         .routes(routes!(cancel))
+        .routes(routes!(continue_capture))
         .routes(routes!(resume))
 }
 
@@ -395,6 +397,34 @@ async fn show(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Json
         dir: s.dir.display().to_string(),
         manifest: d.shown(s.manifest),
     }))
+}
+
+/// Tells the running capture that the operator has turned the object by hand, as its
+/// `waiting_for_operator` event asked (a rig with no turntable, several views).
+#[utoipa::path(
+    post,
+    path = "/sessions/{id}/continue",
+    params(("id" = String, Path, description = "the session's id")),
+    request_body(content = Object, description = "`{}`", content_type = "application/json"),
+    responses(
+        (status = 202, body = Continuing),
+        (status = 409, description = "`not_waiting`: the session is not waiting for the operator now", body = ErrorBody),
+    )
+)]
+async fn continue_capture(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Response> {
+    if d.proceed(&id) {
+        let body = Continuing {
+            id,
+            continuing: true,
+        };
+        Ok((StatusCode::ACCEPTED, Json(body)).into_response())
+    } else {
+        Err(ApiError(
+            StatusCode::CONFLICT,
+            "not_waiting",
+            format!("session {id} is not waiting for the operator now"),
+        ))
+    }
 }
 
 /// Cancels the running capture; it stops at the next step and can be resumed.

@@ -20,7 +20,7 @@ use tokio::sync::broadcast;
 
 use crate::config::Rig;
 use crate::rig::flow::{self, Context};
-use crate::rig::{Cancel, Devices, Event, Plan};
+use crate::rig::{Cancel, Devices, Event, GoAhead, Plan};
 use crate::session::{Session, State};
 
 /// Events of one session: everything so far, and a channel for what comes next. A client
@@ -90,6 +90,8 @@ impl EventLog {
 struct Running {
     id: String,
     cancel: Cancel,
+    /// The operator's go-ahead, for a capture that waits for the object to be turned by hand.
+    go_ahead: GoAhead,
     thread: JoinHandle<()>,
     log: Arc<EventLog>,
 }
@@ -368,6 +370,8 @@ impl Daemon {
             logs.push_back((id.clone(), log.clone()));
         }
         let cancel = Cancel::default();
+        let go_ahead = GoAhead::default();
+        let operator: Arc<dyn crate::rig::Operator> = Arc::new(go_ahead.clone());
         let reply = session.clone();
         let thread_log = log.clone();
         let (devices, rig, c) = (self.devices.clone(), self.rig.clone(), cancel.clone());
@@ -385,6 +389,7 @@ impl Daemon {
                     devices: &devices,
                     progress: Arc::new(move |e: Event| progress.push(e)),
                     cancel: c,
+                    operator,
                 };
                 let id = session.manifest.id.clone();
                 match flow::execute(&mut session, &plan, &cx) {
@@ -407,6 +412,7 @@ impl Daemon {
         *running = Some(Running {
             id,
             cancel,
+            go_ahead,
             thread,
             log,
         });
@@ -421,6 +427,16 @@ impl Daemon {
                 r.cancel.cancel();
                 true
             }
+            _ => false,
+        }
+    }
+
+    /// Tells the running capture `id` that the operator has turned the object; false if it
+    /// is not running or not waiting for that.
+    pub fn proceed(&self, id: &str) -> bool {
+        let r = self.running.lock().expect("running");
+        match r.as_ref() {
+            Some(r) if r.id == id && !r.over() => r.go_ahead.give(),
             _ => false,
         }
     }

@@ -83,6 +83,13 @@ pub struct Cancelling {
     pub cancelling: bool,
 }
 
+/// `POST /sessions/{id}/continue`.
+#[derive(Serialize, ToSchema)]
+pub struct Continuing {
+    pub id: String,
+    pub continuing: bool,
+}
+
 /// One server-sent event of a session's stream (the fields of the `text/event-stream`
 /// format).
 #[derive(ToSchema)]

@@ -1,21 +1,20 @@
-//! The capture flow: panorama bracket, DSLR bracket per turntable view, HDR merges, estimate,
-//! results, as one session on disk.
+//! The capture flow: panorama bracket, the object camera's bracket per turntable view, HDR
+//! merges, estimate, results, as one session on disk.
 //!
 //! The flow is a list of steps (the panorama, then each view); each step's files are stored
 //! in the session as they arrive, and a step is skipped when the session already has it
 //! complete. That is what a resume relies on. Device calls run on the devices' workers; the
 //! flow itself runs on the caller's thread and is the only writer of the session.
 
-use std::sync::{mpsc, Arc};
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{bail, Context as _};
-use brdfd_ptp::{CaptureOptions, Exposure};
 use brdfd_theta::{BracketPlan, Frame, Theta};
 use serde_json::json;
 
-use super::{Cancel, Devices, Event, Plan, Progress};
-use crate::bench::camera::SENSOR_GAIN;
+use super::object::{self, FallbackUse, ObjectCamera};
+use super::{Cancel, Devices, Event, Operator, Plan, Progress};
 use crate::bench::panorama::THETA_SENSOR_GAIN;
 use crate::bench::{VirtualBench, HELD_OUT_YAW_DEG};
 use crate::config::{MaterialPreset, PixelCount, Rig};
@@ -31,7 +30,6 @@ use crate::core::nbrdf::NbrdfSet;
 use crate::core::raster::Raster;
 use crate::core::solve::Colour;
 use crate::panorama::merge_bracket;
-use crate::radiometry::{decode_jpeg, merge_hdr, merged_white_level};
 use crate::report::Context as ReportContext;
 use crate::session::{PhaseTime, Session, State};
 
@@ -73,13 +71,15 @@ pub struct Context<'a> {
     pub devices: &'a Devices,
     pub progress: Arc<dyn Progress>,
     pub cancel: Cancel,
+    /// Who turns the object between views when the rig has no turntable.
+    pub operator: Arc<dyn Operator>,
 }
 
 impl Context<'_> {
-    fn say(&self, text: impl Into<String>) {
+    pub(super) fn say(&self, text: impl Into<String>) {
         self.progress.event(Event::Message { text: text.into() });
     }
-    fn warn(&self, text: impl Into<String>) {
+    pub(super) fn warn(&self, text: impl Into<String>) {
         self.progress.event(Event::Warning { text: text.into() });
     }
     /// The simulated devices' own time so far (zero on hardware, where it is unknowable and
@@ -308,7 +308,10 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
             cx.say(format!(
                 "simulated rig: {} on a sphere; DSLR: simulated Nikon D5100 on {}, {}×{}",
                 b.material_name,
-                cx.devices.dslr.status().selector,
+                cx.devices
+                    .dslr
+                    .as_ref()
+                    .map_or("none".into(), |d| d.status().selector),
                 plan.size,
                 plan.size
             ));
@@ -333,12 +336,6 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         (None, None) => Some(20),
     };
     let (n_views, turn_step) = plan.turntable(rig);
-    if n_views > 1 && cx.devices.turntable.is_none() {
-        bail!(
-            "{} views need a turntable, and the rig names none (`turntable = \"serial:...\"` under [devices])",
-            n_views
-        );
-    }
     if matches!(session.manifest.state, State::Created | State::Failed) {
         session.set_state(State::Capturing, None)?;
     }
@@ -390,46 +387,48 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         "THETA panorama, calibrated to the DSLR",
     )?;
 
-    // One DSLR bracket per turntable view.
+    // One object-camera bracket per turntable view.
     let mut views = Vec::with_capacity(n_views);
     // The map's turn for the first view: the preview and the report show its lights.
     let mut first_yaw = None;
     // Radiance at and above which a DSLR pixel was clipped in every frame of its bracket.
     let mut clip_level: Option<f32> = None;
+    // The object camera for the views still to shoot; chosen when the first one is.
+    let mut camera: Option<ObjectCamera> = None;
+    let mut fallback_use = FallbackUse::default();
     for i in 0..n_views {
         cx.cancel.check()?;
         let step = format!("view{}", i + 1);
-        let (files, deg) = match stored(session, &step)? {
+        let (files, deg, shot_on) = match stored(session, &step)? {
             Some((files, meta)) => {
                 let deg = meta["turntable_deg"].as_f64().unwrap_or(0.0);
                 cx.say(format!(
                     "{step}: {} frames already in the session ({deg:.2}°)",
                     files.len()
                 ));
-                (files, deg)
+                let shot_on = ObjectCamera::of_step(&meta);
+                // A resumed capture that had fallen back stays on the fallback.
+                if shot_on == ObjectCamera::Fallback {
+                    camera = Some(ObjectCamera::Fallback);
+                }
+                (files, deg, shot_on)
             }
             None => {
-                let deg = if n_views > 1 {
-                    let at = turn_to(cx, i as f64 * turn_step)?;
-                    if let Some(t) = &cx.devices.turntable {
-                        note_device(session, t.status().identity.clone());
-                        if i == 0 {
-                            cx.say(format!(
-                                "turntable: {}",
-                                t.status().identity.unwrap_or_default()
-                            ));
-                        }
-                    }
-                    cx.say(format!(
-                        "view {} of {}: turntable at {at:.2}°",
-                        i + 1,
-                        n_views
-                    ));
-                    at
-                } else {
+                if camera.is_none() {
+                    camera = Some(object::choose(cx)?);
+                }
+                let deg = if n_views == 1 {
                     0.0
+                } else if cx.devices.turntable.is_some() {
+                    turn_on_turntable(cx, session, i, n_views, i as f64 * turn_step)?
+                } else {
+                    turn_by_hand(cx, i, n_views, turn_step)?
                 };
-                let p = phases.start(&format!("{step}: DSLR bracket"), shutters.len() as u64);
+                let frames = match camera {
+                    Some(ObjectCamera::Fallback) => rig.brackets.fallback_shutters.len(),
+                    _ => shutters.len(),
+                };
+                let p = phases.start(&format!("{step}: object bracket"), frames as u64);
                 if let (Some(sim), Some(b)) = (&cx.devices.sim, &bench) {
                     // The simulated turntable only reports angles; the object turns here.
                     sim.show_object(&turned_bench(b, deg))?;
@@ -442,15 +441,26 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
                             Some(Joined(Some(std::thread::spawn(move || b.relight_truth()))));
                     }
                 }
-                session.begin_step(&step, json!({ "turntable_deg": deg }))?;
-                let files = dslr_bracket(cx, session, &step, &shutters)?;
+                let using = camera.as_mut().expect("chosen above");
+                let files = object::shoot_view(cx, session, &step, deg, &shutters, using)?;
                 session.finish_step(&step)?;
                 phases.end(p);
-                (files, deg)
+                (files, deg, *using)
             }
         };
+        if shot_on == ObjectCamera::Fallback {
+            let (_, noise) = object::fallback_frames(&files)?;
+            fallback_use.views += 1;
+            fallback_use.noise = fallback_use.noise.or(noise);
+            fallback_use.frames = object::fallback_frame_count(&files).unwrap_or(0);
+            fallback_use.identity = cx
+                .devices
+                .fallback
+                .as_ref()
+                .and_then(|f| f.status().identity);
+        }
         let p = phases.start(&format!("{step}: HDR merge"), 1);
-        let (photo, white) = merge_dslr(cx, &files)?;
+        let (photo, white) = object::merge_view(cx, shot_on, &files)?;
         // Every view takes the same bracket, so the lowest level is every view's.
         clip_level = [clip_level, white].into_iter().flatten().reduce(f32::min);
         save_exr(session, &format!("photo-{step}.exr"), &photo, white)?;
@@ -464,6 +474,10 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     }
     session.set_state(State::Captured, None)?;
     cx.cancel.check()?;
+    let fallback = (fallback_use.views > 0).then(|| fallback_use.describe(n_views));
+    if let Some(text) = &fallback {
+        cx.warn(text.clone());
+    }
 
     session.set_state(State::Estimating, None)?;
     let options = EstimateOptions {
@@ -560,7 +574,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         .as_ref()
         .map(|b| Bivariate::reduce(&b.material, basis.header.grid));
     let m = &session.manifest;
-    let report = ReportContext {
+    let mut report = ReportContext {
         title: format!("session {} ({})", m.id, m.material),
         session: Some(m.id.clone()),
         photo: Some(&views[0].3),
@@ -568,6 +582,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         yaw: first_yaw.unwrap_or(yaw),
         relight_error: relight,
         truth: true_brdf.as_ref(),
+        fallback: fallback.clone(),
         record: vec![
             ("session".into(), m.id.clone()),
             ("material".into(), m.material.clone()),
@@ -577,6 +592,9 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
             ("software".into(), m.software.clone()),
         ],
     };
+    if let Some(text) = &fallback {
+        report.record.push(("object camera".into(), text.clone()));
+    }
     write_result(session, &basis, &est, lights, &report)?;
     phases.end(p);
     cx.say(format!(
@@ -619,6 +637,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
             fit_error: fit.is_finite().then_some(fit),
             fit_verdict: fit_verdict(fit),
             relight_error: relight,
+            fallback,
         },
         truth,
         pixels: est.selection.pixels.len(),
@@ -737,6 +756,56 @@ fn turned_bench(bench: &VirtualBench, deg: f64) -> VirtualBench {
 
 /// Turns the turntable to `target` degrees by the shortest way; returns where it reports
 /// it is.
+/// Turns the turntable for view `i` (from 0) of `n`, to `target` degrees; where it stopped.
+fn turn_on_turntable(
+    cx: &Context,
+    session: &mut Session,
+    i: usize,
+    n: usize,
+    target: f64,
+) -> anyhow::Result<f64> {
+    let at = turn_to(cx, target)?;
+    if let Some(t) = &cx.devices.turntable {
+        note_device(session, t.status().identity.clone());
+        if i == 0 {
+            cx.say(format!(
+                "turntable: {}",
+                t.status().identity.unwrap_or_default()
+            ));
+        }
+    }
+    cx.say(format!("view {} of {n}: turntable at {at:.2}°", i + 1));
+    Ok(at)
+}
+
+/// View `i` (from 0) of `n` on a rig with no turntable: the first is the object as placed;
+/// before each of the others the operator turns it by hand `step` degrees further and says
+/// so. The angle is the one asked: nothing measures it.
+fn turn_by_hand(cx: &Context, i: usize, n: usize, step: f64) -> anyhow::Result<f64> {
+    let target = i as f64 * step;
+    if i == 0 {
+        cx.say(format!(
+            "view 1 of {n}: the object as placed (0°); the rig has no turntable, so it is turned by hand between views"
+        ));
+        return Ok(0.0);
+    }
+    let text = format!(
+        "view {} of {n}: turn the object by hand to {target:.1}° ({step:.1}° further than the last view, the same way), then continue",
+        i + 1,
+    );
+    cx.progress.event(Event::WaitingForOperator {
+        text: text.clone(),
+        view: i + 1,
+        degrees: target,
+    });
+    cx.operator.wait(&text, &cx.cancel)?;
+    cx.say(format!(
+        "view {} of {n}: turned by hand to {target:.1}°",
+        i + 1
+    ));
+    Ok(target)
+}
+
 fn turn_to(cx: &Context, target: f64) -> anyhow::Result<f64> {
     let table = cx.devices.turntable.as_ref().context("no turntable")?;
     table.call(move |t| {
@@ -781,84 +850,12 @@ fn save_exr(session: &Session, name: &str, r: &Raster, white: Option<f32>) -> an
     Ok(())
 }
 
-fn note_device(session: &mut Session, identity: Option<String>) {
+pub(super) fn note_device(session: &mut Session, identity: Option<String>) {
     if let Some(id) = identity {
         if !session.manifest.devices.contains(&id) {
             session.manifest.devices.push(id);
         }
     }
-}
-
-/// Shoots the DSLR bracket on the DSLR's worker. Each file goes into the session as soon
-/// as it is downloaded, so that a failure later in the bracket loses nothing already taken.
-fn dslr_bracket(
-    cx: &Context,
-    session: &mut Session,
-    step: &str,
-    shutters: &[f64],
-) -> anyhow::Result<RawFiles> {
-    let b = cx.rig.brackets.clone();
-    let (tx, rx) = mpsc::channel::<(String, Vec<u8>, f64)>();
-    let (progress, cancel) = (cx.progress.clone(), cx.cancel.clone());
-    let total = shutters.len() as u64;
-    let shutters = shutters.to_vec();
-    let download = format!("{step}: download");
-    let job = cx.devices.dslr.submit(move |cam| {
-        let applied = cam.set_exposure(&Exposure {
-            shutter_s: None,
-            f_number: Some(b.dslr_f_number),
-            iso: Some(b.dslr_iso),
-        })?;
-        progress.event(Event::Message {
-            text: format!(
-                "DSLR: {} ({}), f/{} ISO {}",
-                cam.describe(),
-                cam.info.serial_number,
-                applied.f_number.unwrap_or(0.0),
-                applied.iso.unwrap_or(0)
-            ),
-        });
-        let opts = CaptureOptions::default();
-        for &s in &shutters {
-            cancel.check()?;
-            let speed = cam.set_shutter(s)?;
-            let mut last = u64::MAX;
-            let shot = cam.capture(&opts, &mut |_, done, total| {
-                // One event per tenth: enough for a bar, few enough for a stream.
-                let tenth = (done * 10).checked_div(total).unwrap_or(0);
-                if tenth != last {
-                    last = tenth;
-                    progress.event(Event::Progress {
-                        phase: download.clone(),
-                        done,
-                        total,
-                    });
-                }
-            })?;
-            if tx.send((shot.info.filename, shot.data, speed)).is_err() {
-                bail!("the capture stopped taking files");
-            }
-        }
-        Ok(())
-    });
-    let mut files = Vec::with_capacity(total as usize);
-    let phase = format!("{step}: DSLR bracket");
-    for (name, data, speed) in rx {
-        session.add_raw(step, &name, &data)?;
-        cx.say(format!(
-            "  {name}: {} bytes (camera applied {speed} s)",
-            data.len()
-        ));
-        files.push((name, data));
-        cx.progress.event(Event::Progress {
-            phase: phase.clone(),
-            done: files.len() as u64,
-            total,
-        });
-    }
-    job.wait()?;
-    note_device(session, cx.devices.dslr.status().identity);
-    Ok(files)
 }
 
 /// Shoots the panorama bracket on the THETA's worker; the frames go into the session as the
@@ -940,32 +937,6 @@ pub fn check_exposure(progress: &dyn Progress, f: &Frame) {
         // The merge reports a missing EXIF exposure as an error, naming the file.
         Err(e) => tracing::debug!("{e}"),
     }
-}
-
-/// Decodes a DSLR bracket and merges it into radiance, from each file's EXIF. Also returns
-/// the level at and above which the merge had only clipped frames.
-fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<(Raster, Option<f32>)> {
-    let frames = files
-        .iter()
-        .map(|(name, bytes)| {
-            // RAW files are stored as sent (raw/ keeps them for a later decoder); the merge
-            // takes decoded linear frames, so a RAW decoder plugs in here by file type.
-            let ext = name.rsplit('.').next().unwrap_or("").to_ascii_lowercase();
-            if matches!(ext.as_str(), "nef" | "nrw" | "dng" | "cr2" | "cr3" | "arw") {
-                bail!("{name}: RAW decoding is not built yet; the file is kept in the session. Set the camera to JPEG (fine) to estimate");
-            }
-            let f = decode_jpeg(bytes, name)?;
-            cx.say(format!(
-                "  {name}: EXIF {:.4} s f/{} ISO {}",
-                f.exposure.shutter_s, f.exposure.f_number, f.exposure.iso
-            ));
-            Ok(f)
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    Ok((
-        merge_hdr(&frames, SENSOR_GAIN)?,
-        merged_white_level(&frames, SENSOR_GAIN),
-    ))
 }
 
 /// How far the measured map is from the bench's own (total light, per channel).

@@ -6,8 +6,10 @@
 //! - [`open`]: devices from their selectors (`usb:04b0:0429`, `osc:http://...`, `serial:...`).
 //! - [`simulated`]: the simulated rig, whose devices speak the real protocols on loopback.
 //! - [`flow`]: the capture itself, as resumable steps.
+//! - [`object`]: the object camera: the DSLR, or the V4L2 fallback.
 
 pub mod flow;
+pub mod object;
 pub mod open;
 pub mod simulated;
 pub mod worker;
@@ -192,6 +194,13 @@ pub enum Event {
     },
     /// A line for the operator.
     Message { text: String },
+    /// The capture waits for the operator: turn the object by hand to `degrees` for view
+    /// `view` (from 1), then say so (the CLI's Enter, the API's `continue`).
+    WaitingForOperator {
+        text: String,
+        view: usize,
+        degrees: f64,
+    },
     /// Something the operator should look at; the capture goes on.
     Warning { text: String },
     /// The end: the session's final state, with the result or the error.
@@ -219,6 +228,10 @@ pub struct Summary {
     pub fit_verdict: String,
     /// A simulated capture's relit error against the truth, under light it was not fitted to.
     pub relight_error: Option<f64>,
+    /// When the V4L2 fallback camera shot any view: which, and what averaging left of its
+    /// noise.
+    #[serde(default)]
+    pub fallback: Option<String>,
 }
 
 impl Summary {
@@ -234,6 +247,7 @@ impl Summary {
             fit_error: fit,
             fit_verdict: crate::core::estimate::fit_verdict(fit.unwrap_or(f64::NAN)),
             relight_error: v["relight_error"].as_f64(),
+            fallback: v["fallback"].as_str().map(str::to_string),
         })
     }
 
@@ -267,6 +281,61 @@ impl Cancel {
     }
     pub fn check(&self) -> anyhow::Result<()> {
         anyhow::ensure!(!self.is_cancelled(), "cancelled");
+        Ok(())
+    }
+}
+
+/// The operator's part in a capture: turning the object by hand between views, on a rig with
+/// no turntable. The CLI asks on its terminal; the daemon waits for `POST .../continue`.
+pub trait Operator: Send + Sync {
+    /// Returns once the operator says `request` is done; an error if the capture is
+    /// cancelled meanwhile or no operator can answer.
+    fn wait(&self, request: &str, cancel: &Cancel) -> anyhow::Result<()>;
+}
+
+/// A go-ahead given from elsewhere (the daemon's API) to a capture waiting on this thread.
+#[derive(Clone, Default)]
+pub struct GoAhead(Arc<(std::sync::Mutex<GoState>, std::sync::Condvar)>);
+
+#[derive(Default)]
+struct GoState {
+    waiting: bool,
+    given: bool,
+}
+
+impl GoAhead {
+    /// Gives the go-ahead to the capture waiting for it: false if none waits.
+    pub fn give(&self) -> bool {
+        let (state, ready) = &*self.0;
+        let mut s = state.lock().expect("go-ahead");
+        if !s.waiting {
+            return false;
+        }
+        s.given = true;
+        ready.notify_all();
+        true
+    }
+}
+
+impl Operator for GoAhead {
+    fn wait(&self, _request: &str, cancel: &Cancel) -> anyhow::Result<()> {
+        let (state, ready) = &*self.0;
+        let mut s = state.lock().expect("go-ahead");
+        s.waiting = true;
+        s.given = false;
+        while !s.given {
+            if cancel.is_cancelled() {
+                s.waiting = false;
+                return cancel.check();
+            }
+            // Woken by `give`; the timeout is for noticing a cancel.
+            s = ready
+                .wait_timeout(s, Duration::from_millis(100))
+                .expect("go-ahead")
+                .0;
+        }
+        s.waiting = false;
+        s.given = false;
         Ok(())
     }
 }
@@ -310,9 +379,24 @@ impl Device for RigController {
     }
 }
 
-/// The rig's devices, each on its worker.
+/// The V4L2 fallback camera (or the simulated one), on its worker.
+pub struct VideoCamera(pub Box<dyn brdfd_v4l::FrameSource>);
+
+impl Device for VideoCamera {
+    fn identity(&self) -> String {
+        self.0.describe()
+    }
+    fn keep_alive(&mut self) -> anyhow::Result<()> {
+        self.0.formats()?;
+        Ok(())
+    }
+}
+
+/// The rig's devices, each on its worker. The object camera is the DSLR, or the V4L2
+/// fallback camera when the rig has no DSLR or it does not answer.
 pub struct Devices {
-    pub dslr: Worker<Camera>,
+    pub dslr: Option<Worker<Camera>>,
+    pub fallback: Option<Worker<VideoCamera>>,
     pub theta: Worker<Theta>,
     pub turntable: Option<Worker<RigController>>,
     /// The simulators behind the workers when the rig is simulated (they stop when this is
@@ -325,32 +409,43 @@ impl Devices {
     /// A simulated rig starts its simulators first, on loopback.
     pub fn start(rig: &Rig, keep_alive: Duration) -> anyhow::Result<Devices> {
         let (selectors, sim) = if rig.simulated {
-            let sim = simulated::SimulatedRig::start().context("starting the simulated rig")?;
+            let sim = simulated::SimulatedRig::start(
+                rig.simulation.clone().unwrap_or_default(),
+                rig.devices.fallback_camera.is_some(),
+            )
+            .context("starting the simulated rig")?;
             (sim.selectors(), Some(sim))
         } else {
             (rig.devices.clone(), None)
         };
-        let named = |role: &str, s: &Option<Selector>| {
-            s.clone().with_context(|| {
-                format!("the rig names no {role}; add `{role} = \"...\"` under [devices] (`brdfd devices` lists what is connected)")
-            })
-        };
-        let dslr = named("dslr", &selectors.dslr)?;
-        let theta = named("theta", &selectors.theta)?;
+        if selectors.dslr.is_none() && selectors.fallback_camera.is_none() {
+            anyhow::bail!("the rig names no camera for the object; add `dslr = \"...\"` (or `fallback_camera = \"v4l:...\"`) under [devices] (`brdfd devices` lists what is connected)");
+        }
+        let theta = selectors.theta.clone().context(
+            "the rig names no theta; add `theta = \"...\"` under [devices] (`brdfd devices` lists what is connected)",
+        )?;
         let timeouts = if rig.simulated {
             open::loopback_timeouts()
         } else {
             brdfd_theta::HttpTimeouts::default()
         };
-        let dslr_worker = {
-            let s = dslr.clone();
+        let dslr_worker = selectors.dslr.clone().map(|s| {
+            let name = s.to_string();
             Worker::spawn(
                 "dslr",
-                &dslr.to_string(),
+                &name,
                 Box::new(move || open::ptp_camera(&s)),
                 keep_alive,
             )
-        };
+        });
+        let fallback = selectors.fallback_camera.clone().map(|s| {
+            let name = s.to_string();
+            let opener: worker::Opener<VideoCamera> = match &sim {
+                Some(sim) => sim.fallback_opener(),
+                None => Box::new(move || open::video_camera(&s)),
+            };
+            Worker::spawn("fallback_camera", &name, opener, keep_alive)
+        });
         let theta_worker = {
             let s = theta.clone();
             Worker::spawn(
@@ -375,6 +470,7 @@ impl Devices {
         };
         Ok(Devices {
             dslr: dslr_worker,
+            fallback,
             theta: theta_worker,
             turntable,
             sim,
@@ -382,7 +478,9 @@ impl Devices {
     }
 
     pub fn status(&self) -> Vec<DeviceStatus> {
-        let mut v = vec![self.dslr.status(), self.theta.status()];
+        let mut v: Vec<DeviceStatus> = self.dslr.iter().map(Worker::status).collect();
+        v.extend(self.fallback.iter().map(Worker::status));
+        v.push(self.theta.status());
         if let Some(t) = &self.turntable {
             v.push(t.status());
         }

@@ -57,6 +57,16 @@ pub fn theta(
     }
 }
 
+/// Opens the V4L2 camera a selector names (`v4l:/dev/videoN`).
+pub fn video_camera(port: &Selector) -> anyhow::Result<super::VideoCamera> {
+    match port {
+        Selector::V4l(path) => Ok(super::VideoCamera(Box::new(
+            brdfd_v4l::device::V4lCamera::open(path)?,
+        ))),
+        other => bail!("{other} is not a V4L2 camera; use v4l:/dev/videoN"),
+    }
+}
+
 /// Opens a turntable or trigger box that speaks the brdfd rig protocol.
 pub fn turntable(path: &str) -> anyhow::Result<RigController> {
     Ok(RigController::open(path, RigTimeouts::default())?)

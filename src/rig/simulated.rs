@@ -14,17 +14,30 @@ use brdfd_sim::{Stage, Timed};
 use crate::bench::camera::BenchCamera;
 use crate::bench::panorama::BenchPanorama;
 use crate::bench::VirtualBench;
-use crate::config::RigDevices;
+use crate::config::{RigDevices, SimulatedPresence, Simulation};
+use crate::rig::worker::Opener;
+use crate::rig::VideoCamera;
 use crate::selector::Selector;
+use brdfd_sim::v4l::SimV4l;
 
 /// Time the simulated THETA takes per frame. A real THETA V takes about a second; the
 /// simulation keeps a delay so that the client's polling runs as it would, but a short one.
 pub const SIM_THETA_SHOT_TIME: Duration = Duration::from_millis(20);
 
+/// The simulated rig's fallback camera: `fallback_camera = "v4l:simulated"`.
+pub const SIMULATED_WEBCAM: &str = "simulated";
+
 /// Largest panorama the simulated THETA serves (a real THETA V writes 5376 × 2688).
 const SIM_THETA_WIDTH: usize = 1024;
 
 pub struct SimulatedRig {
+    /// Where the DSLR answers: the PTP/IP server's address, or one where nothing listens
+    /// (`[simulation] dslr = "absent"`).
+    dslr_addr: std::net::SocketAddr,
+    /// Whether the rig has the simulated V4L2 webcam.
+    fallback: bool,
+    /// Whether the rig has its simulated turntable (`[simulation] turntable`).
+    turntable_present: bool,
     dslr_scene: Arc<Stage>,
     dslr_time: Arc<Timed>,
     dslr: SharedResponder,
@@ -32,7 +45,8 @@ pub struct SimulatedRig {
     theta_time: Arc<Timed>,
     /// Seconds spent rendering scenes: the simulated world's time, not brdfd's.
     render_nanos: std::sync::atomic::AtomicU64,
-    ptpip: Server,
+    /// Serves until dropped.
+    _ptpip: Server,
     osc: OscServer,
     turntable: SerialPeer,
     /// Our own handle on the pseudo-terminal keeps it open while no client has it.
@@ -40,12 +54,22 @@ pub struct SimulatedRig {
 }
 
 impl SimulatedRig {
-    /// Starts the three simulators on loopback, with nothing in front of the cameras.
-    pub fn start() -> anyhow::Result<SimulatedRig> {
+    /// Starts the simulators on loopback, with nothing in front of the cameras: the DSLR
+    /// as `simulation` says, and the webcam if `fallback`.
+    pub fn start(simulation: Simulation, fallback: bool) -> anyhow::Result<SimulatedRig> {
         let dslr_scene = Arc::new(Stage::new((256, 256)));
         let dslr_time = Arc::new(Timed::new(dslr_scene.clone()));
         let dslr = Responder::new(Profile::NikonD5100, dslr_time.clone()).shared();
+        dslr.lock().unwrap().faults.power_off_after_captures = simulation.dslr_powers_off_after;
         let ptpip = Server::start("127.0.0.1:0", dslr.clone())?;
+        let dslr_addr = match simulation.dslr {
+            SimulatedPresence::Present => ptpip.addr,
+            // A port that was free a moment ago: connecting is refused, as with a camera
+            // that is off.
+            SimulatedPresence::Absent => {
+                std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?
+            }
+        };
         let theta_scene = Arc::new(Stage::new((
             SIM_THETA_WIDTH as u32,
             SIM_THETA_WIDTH as u32 / 2,
@@ -61,13 +85,16 @@ impl SimulatedRig {
         )?;
         let (turntable, end) = SerialPeer::start(Default::default())?;
         Ok(SimulatedRig {
+            dslr_addr,
+            fallback,
+            turntable_present: simulation.turntable == SimulatedPresence::Present,
             dslr_scene,
             dslr_time,
             dslr,
             theta_scene,
             theta_time,
             render_nanos: Default::default(),
-            ptpip,
+            _ptpip: ptpip,
             osc,
             turntable,
             _turntable_end: end,
@@ -77,11 +104,26 @@ impl SimulatedRig {
     /// Where the rig's workers find the simulators.
     pub fn selectors(&self) -> RigDevices {
         RigDevices {
-            dslr: Some(Selector::PtpIp(self.ptpip.addr.to_string())),
+            dslr: Some(Selector::PtpIp(self.dslr_addr.to_string())),
             theta: Some(Selector::Osc(self.osc.url())),
-            fallback_camera: None,
-            turntable: Some(Selector::Serial(self.turntable.path.clone())),
+            fallback_camera: self
+                .fallback
+                .then(|| Selector::V4l(SIMULATED_WEBCAM.into())),
+            turntable: self
+                .turntable_present
+                .then(|| Selector::Serial(self.turntable.path.clone())),
         }
+    }
+
+    /// Opens the simulated webcam: a V4L2 camera beside the DSLR, seeing what it sees.
+    pub fn fallback_opener(&self) -> Opener<VideoCamera> {
+        let scene: Arc<dyn brdfd_sim::ImageSource> = self.dslr_time.clone();
+        Box::new(move || {
+            Ok(VideoCamera(Box::new(SimV4l::new(
+                scene.clone(),
+                "simulated webcam",
+            ))))
+        })
     }
 
     /// Puts the bench's light in front of the THETA.

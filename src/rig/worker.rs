@@ -30,7 +30,7 @@ type Deliver = Box<dyn FnOnce() + Send>;
 /// A device's state as the daemon reports it.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct DeviceStatus {
-    /// The rig's role for the device: "dslr", "theta", "turntable".
+    /// The rig's role for the device: "dslr", "fallback_camera", "theta", "turntable".
     pub role: String,
     /// The selector it was opened from (`usb:04b0:0429`, `osc:http://...`).
     pub selector: String,

@@ -164,11 +164,15 @@ fn serve(port: &mut TTYPort, config: &PeerConfig, state: &Mutex<PeerState>) {
             } else {
                 answer(&cmd, config, state, faults.slip_deg)
             };
-            // A device's own log line, which the host must skip.
-            let _ = port.write_all(format!("# {cmd}\r\n{reply}\r\n").as_bytes());
+            // A device's own log line, which the host must skip. A stray line goes out in
+            // the same write as the answer, as a doubled line does: written apart, it could
+            // come after the host's next command, where no protocol without sequence numbers
+            // can tell it from that command's answer.
+            let mut out = format!("# {cmd}\r\n{reply}\r\n");
             if let Some(line) = &faults.stray_next {
-                let _ = port.write_all(format!("{line}\r\n").as_bytes());
+                out.push_str(&format!("{line}\r\n"));
             }
+            let _ = port.write_all(out.as_bytes());
         }
     }
 }

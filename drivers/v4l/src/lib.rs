@@ -151,14 +151,29 @@ pub fn capture(
     settings: &Settings,
     count: usize,
 ) -> Result<(Applied, Vec<Rgb8Frame>)> {
+    start(src)?;
+    grab(src, settings, count)
+}
+
+/// Starts streaming in the format [`choose_format`] picks.
+pub fn start(src: &mut dyn FrameSource) -> Result<(PixelFormat, u32, u32)> {
     let offered = src.formats()?;
     let (f, w, h) = choose_format(&offered).ok_or_else(|| V4lError::Unsupported {
         path: src.describe(),
         reason: "offers neither YUYV nor MJPG".into(),
     })?;
-    let (f, w, h) = src.start(f, w, h)?;
+    src.start(f, w, h)
+}
+
+/// On a streaming source: applies the settings, lets them settle, and grabs `count` decoded
+/// frames. A bracket calls it once per exposure.
+pub fn grab(
+    src: &mut dyn FrameSource,
+    settings: &Settings,
+    count: usize,
+) -> Result<(Applied, Vec<Rgb8Frame>)> {
     let applied = src.apply(settings)?;
-    tracing::info!(source = %src.describe(), ?f, w, h, ?applied, "V4L2 capture");
+    tracing::info!(source = %src.describe(), ?applied, "V4L2 capture");
     for _ in 0..SETTLE_FRAMES {
         src.next_frame(FRAME_TIMEOUT)?;
     }

@@ -144,6 +144,8 @@ function follow(id) {
   following = { id, source };
   source.onmessage = (message) => {
     const e = JSON.parse(message.data);
+    // Any later event means the capture went on: the object was turned.
+    $("continue").hidden = e.type !== "waiting_for_operator";
     switch (e.type) {
       case "phase_started": {
         const p = phaseRow(phases, e.phase);
@@ -163,7 +165,7 @@ function follow(id) {
         p.div.classList.add("done");
         // A bracket's per-frame download bar has no end of its own: it goes with the
         // bracket's, as on the command line.
-        const download = e.phase.replace(/: DSLR bracket$/, ": download");
+        const download = e.phase.replace(/: object bracket$/, ": download");
         if (download !== e.phase && phases.has(download)) {
           phases.get(download).div.remove();
           phases.delete(download);
@@ -172,6 +174,7 @@ function follow(id) {
       }
       case "message":
       case "warning":
+      case "waiting_for_operator":
         $("messages").append(el("li", e.text, { class: e.type }));
         break;
       case "finished":
@@ -197,6 +200,7 @@ function follow(id) {
 
 function finished(e) {
   $("cancel").hidden = true;
+  $("continue").hidden = true;
   $("start").disabled = false;
   const out = $("outcome");
   out.replaceChildren();
@@ -239,6 +243,12 @@ async function cancel() {
   if (following) await post(`/sessions/${encodeURIComponent(following.id)}/cancel`);
 }
 
+// Says the object has been turned by hand, as the capture asked.
+async function proceed() {
+  $("continue").hidden = true;
+  if (following) await post(`/sessions/${encodeURIComponent(following.id)}/continue`);
+}
+
 async function refreshAll() {
   try {
     await Promise.all([refreshHealth(), refreshDevices(), refreshSessions()]);
@@ -250,6 +260,7 @@ async function refreshAll() {
 async function main() {
   $("capture").addEventListener("submit", (e) => start(e).catch(showError));
   $("cancel").addEventListener("click", () => cancel().catch(showError));
+  $("continue").addEventListener("click", () => proceed().catch(showError));
   try {
     const health = await refreshHealth();
     $("app").hidden = false;

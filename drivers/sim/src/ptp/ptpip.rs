@@ -71,6 +71,10 @@ fn accept_loop(listener: TcpListener, responder: SharedResponder, stop: Arc<Atom
         let _ = s.set_nonblocking(false);
         let _ = s.set_nodelay(true);
         let _ = s.set_read_timeout(Some(Duration::from_secs(5)));
+        if responder.lock().unwrap().powered_off {
+            // Nothing listens on a camera that is off: the connection is closed at once.
+            continue;
+        }
         let Ok(first) = read_packet(&mut s) else {
             continue;
         };
@@ -162,8 +166,13 @@ fn serve_commands(
             thread::sleep(d);
         }
         let mut out = Vec::new();
-        if r.fault == Some(WireFault::Silence) {
-            continue;
+        match r.fault {
+            Some(WireFault::Silence) => continue,
+            Some(WireFault::Hangup) => {
+                let _ = s.shutdown(std::net::Shutdown::Both);
+                return;
+            }
+            _ => {}
         }
         if let Some(data) = &r.data {
             out.extend(data_phase(m.tid, data));

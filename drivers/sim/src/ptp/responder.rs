@@ -34,6 +34,9 @@ pub struct Faults {
     pub halt_in_download: Option<usize>,
     /// Never answer OpenSession until the link is reset (a wedged camera).
     pub wedged: bool,
+    /// Power off when asked to capture after this many captures (a flat battery): the link
+    /// drops, and the camera answers nothing more.
+    pub power_off_after_captures: Option<u32>,
 }
 
 impl Responder {
@@ -56,6 +59,8 @@ pub enum WireFault {
     HaltBulkIn(usize),
     /// Say nothing at all.
     Silence,
+    /// Drop the link at once (the camera powered off).
+    Hangup,
 }
 
 pub struct Reply {
@@ -94,6 +99,8 @@ pub struct Responder {
     /// Time the camera has spent busy with exposures so far: the device's own time.
     busy_total: std::time::Duration,
     pub faults: Faults,
+    /// Off ([`Faults::power_off_after_captures`]): nothing is answered any more.
+    pub powered_off: bool,
     /// Operations seen, for tests that check what a client did.
     pub log: Vec<u16>,
 }
@@ -119,6 +126,7 @@ impl Responder {
             device_ready_busy: 0,
             busy_total: std::time::Duration::ZERO,
             faults: Faults::default(),
+            powered_off: false,
             log: Vec::new(),
         }
     }
@@ -163,6 +171,24 @@ impl Responder {
             delay: self.faults.stall.take(),
             fault: None,
         };
+        let capture = matches!(
+            m.code,
+            op::INITIATE_CAPTURE
+                | op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM
+                | op::NIKON_INITIATE_CAPTURE_REC_IN_MEDIA
+        );
+        if capture
+            && self
+                .faults
+                .power_off_after_captures
+                .is_some_and(|n| self.shots >= n)
+        {
+            self.powered_off = true;
+        }
+        if self.powered_off {
+            reply.fault = Some(WireFault::Hangup);
+            return reply;
+        }
         if self.faults.wedged && m.code == op::OPEN_SESSION {
             reply.fault = Some(WireFault::Silence);
             return reply;

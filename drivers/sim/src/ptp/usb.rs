@@ -154,8 +154,13 @@ fn send_reply(ep: &impl Endpoints, r: Reply, code: u16) -> bool {
         thread::sleep(d);
     }
     let tid = r.response.tid;
-    if r.fault == Some(WireFault::Silence) {
-        return true;
+    match r.fault {
+        Some(WireFault::Silence) => return true,
+        Some(WireFault::Hangup) => {
+            ep.fail_bulk_in(PipeError::Gone);
+            return true;
+        }
+        _ => {}
     }
     if let Some(data) = &r.data {
         let mut c = container::encode_header(Kind::Data, code, tid, data.len());

@@ -1,0 +1,386 @@
+//! The object camera: the DSLR, or the V4L2 fallback camera when the rig has no DSLR, the DSLR
+//! does not answer, or it fails during a bracket. One view is shot whole on one camera; once
+//! the capture has fallen back it stays on the fallback, so that its views share units.
+//!
+//! The DSLR's files are stored as the camera sent them and merged from their EXIF. The
+//! fallback's frames are averaged in linear light per exposure (video frames are many and
+//! noisy), and each average is stored as an EXR that records its exposure and noise.
+
+use std::sync::mpsc;
+
+use anyhow::{bail, Context as _};
+use brdfd_ptp::{CaptureOptions, Exposure};
+use serde_json::json;
+
+use super::flow::{Context, RawFiles};
+use super::Event;
+use crate::core::envmap::{exr_bytes, read_exr_rgb_bytes, ExrAttribute};
+use crate::core::raster::Raster;
+use crate::radiometry::{
+    average_frames, averaging_noise, decode_jpeg, merge_hdr, merged_white_level, Frame,
+};
+use crate::session::Session;
+
+/// EXR attributes of a fallback exposure: the exposure time the camera applied, seconds; the
+/// frames averaged; and their noise (the median relative standard error of the average).
+const EXPOSURE_ATTRIBUTE: &str = "brdfdExposureSeconds";
+const FRAMES_ATTRIBUTE: &str = "brdfdFramesAveraged";
+const NOISE_ATTRIBUTE: &str = "brdfdRelativeNoise";
+
+/// Which camera shot a view; stored in the step's `camera` field.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ObjectCamera {
+    Dslr,
+    Fallback,
+}
+
+impl ObjectCamera {
+    fn name(self) -> &'static str {
+        match self {
+            ObjectCamera::Dslr => "dslr",
+            ObjectCamera::Fallback => "fallback",
+        }
+    }
+
+    /// The camera a stored step names (steps from before the fallback name none: the DSLR).
+    pub fn of_step(meta: &serde_json::Value) -> ObjectCamera {
+        match meta["camera"].as_str() {
+            Some("fallback") => ObjectCamera::Fallback,
+            _ => ObjectCamera::Dslr,
+        }
+    }
+}
+
+/// What the fallback cost, for the summary and the report.
+#[derive(Debug, Clone, Default)]
+pub struct FallbackUse {
+    pub views: usize,
+    pub identity: Option<String>,
+    pub frames: usize,
+    /// Median relative noise of the averaged frames, over the bracket.
+    pub noise: Option<f32>,
+}
+
+impl FallbackUse {
+    pub fn describe(&self, of_views: usize) -> String {
+        let noise = match self.noise {
+            Some(n) => format!(
+                "; noise of the averaged frames {:.2}% (one frame alone: {:.2}%)",
+                n * 100.0,
+                n * 100.0 * (self.frames.max(1) as f32).sqrt()
+            ),
+            None => String::new(),
+        };
+        format!(
+            "the V4L2 fallback camera ({}) shot {} of {of_views} view{}, {} frames averaged per exposure{noise}",
+            self.identity.as_deref().unwrap_or("unknown"),
+            self.views,
+            if of_views == 1 { "" } else { "s" },
+            self.frames,
+        )
+    }
+}
+
+/// The camera the capture starts on: the DSLR if the rig has one and it answers, else the
+/// fallback. Neither is an error that says what was tried.
+pub fn choose(cx: &Context) -> anyhow::Result<ObjectCamera> {
+    let devices = cx.devices;
+    let Some(dslr) = &devices.dslr else {
+        cx.say("object camera: the V4L2 fallback (the rig has no DSLR)");
+        return Ok(ObjectCamera::Fallback);
+    };
+    match dslr.call(|_| Ok(())) {
+        Ok(()) => Ok(ObjectCamera::Dslr),
+        Err(e) => match &devices.fallback {
+            Some(f) => {
+                cx.warn(format!(
+                    "the DSLR does not answer ({e:#}); the capture uses the fallback camera {}",
+                    f.status().selector
+                ));
+                Ok(ObjectCamera::Fallback)
+            }
+            None => Err(e.context(
+                "the DSLR does not answer, and the rig names no fallback_camera to use instead",
+            )),
+        },
+    }
+}
+
+/// Shoots one view on `camera`. A DSLR that fails during the bracket is replaced by the
+/// fallback, if the rig has one: the view is shot again, whole, and `camera` stays the
+/// fallback for the views after it.
+pub fn shoot_view(
+    cx: &Context,
+    session: &mut Session,
+    step: &str,
+    deg: f64,
+    shutters: &[f64],
+    camera: &mut ObjectCamera,
+) -> anyhow::Result<RawFiles> {
+    if *camera == ObjectCamera::Dslr {
+        session.begin_step(step, json!({ "turntable_deg": deg, "camera": "dslr" }))?;
+        match dslr_bracket(cx, session, step, shutters) {
+            Ok(files) => return Ok(files),
+            Err(e) if cx.devices.fallback.is_some() && !cx.cancel.is_cancelled() => {
+                cx.warn(format!(
+                    "the DSLR failed during {step} ({e:#}); {step} is shot again on the fallback camera, and so are the views after it"
+                ));
+                *camera = ObjectCamera::Fallback;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    session.begin_step(
+        step,
+        json!({ "turntable_deg": deg, "camera": camera.name() }),
+    )?;
+    fallback_bracket(cx, session, step)
+}
+
+/// Shoots the DSLR bracket on the DSLR's worker. Each file goes into the session as soon
+/// as it is downloaded, so that a failure later in the bracket loses nothing already taken.
+fn dslr_bracket(
+    cx: &Context,
+    session: &mut Session,
+    step: &str,
+    shutters: &[f64],
+) -> anyhow::Result<RawFiles> {
+    let dslr = cx.devices.dslr.as_ref().context("the rig has no DSLR")?;
+    let b = cx.rig.brackets.clone();
+    let (tx, rx) = mpsc::channel::<(String, Vec<u8>, f64)>();
+    let (progress, cancel) = (cx.progress.clone(), cx.cancel.clone());
+    let total = shutters.len() as u64;
+    let shutters = shutters.to_vec();
+    let download = format!("{step}: download");
+    let job = dslr.submit(move |cam| {
+        let applied = cam.set_exposure(&Exposure {
+            shutter_s: None,
+            f_number: Some(b.dslr_f_number),
+            iso: Some(b.dslr_iso),
+        })?;
+        progress.event(Event::Message {
+            text: format!(
+                "DSLR: {} ({}), f/{} ISO {}",
+                cam.describe(),
+                cam.info.serial_number,
+                applied.f_number.unwrap_or(0.0),
+                applied.iso.unwrap_or(0)
+            ),
+        });
+        let opts = CaptureOptions::default();
+        for &s in &shutters {
+            cancel.check()?;
+            let speed = cam.set_shutter(s)?;
+            let mut last = u64::MAX;
+            let shot = cam.capture(&opts, &mut |_, done, total| {
+                // One event per tenth: enough for a bar, few enough for a stream.
+                let tenth = (done * 10).checked_div(total).unwrap_or(0);
+                if tenth != last {
+                    last = tenth;
+                    progress.event(Event::Progress {
+                        phase: download.clone(),
+                        done,
+                        total,
+                    });
+                }
+            })?;
+            if tx.send((shot.info.filename, shot.data, speed)).is_err() {
+                bail!("the capture stopped taking files");
+            }
+        }
+        Ok(())
+    });
+    let mut files = Vec::with_capacity(total as usize);
+    let phase = format!("{step}: object bracket");
+    for (name, data, speed) in rx {
+        session.add_raw(step, &name, &data)?;
+        cx.say(format!(
+            "  {name}: {} bytes (camera applied {speed} s)",
+            data.len()
+        ));
+        files.push((name, data));
+        cx.progress.event(Event::Progress {
+            phase: phase.clone(),
+            done: files.len() as u64,
+            total,
+        });
+    }
+    job.wait()?;
+    super::flow::note_device(session, dslr.status().identity);
+    Ok(files)
+}
+
+/// One exposure of the fallback's bracket, as grabbed: the time asked and applied, and the
+/// decoded frames.
+type Grabbed = (f64, f64, Vec<brdfd_v4l::Rgb8Frame>);
+
+/// Shoots the fallback's bracket on its worker: per exposure, the frames are averaged in
+/// linear light and the average stored in the session (an EXR with its exposure).
+fn fallback_bracket(cx: &Context, session: &mut Session, step: &str) -> anyhow::Result<RawFiles> {
+    let camera = cx
+        .devices
+        .fallback
+        .as_ref()
+        .context("the rig names no fallback_camera")?;
+    let b = cx.rig.brackets.clone();
+    let shutters = b.fallback_shutters.clone();
+    let total = shutters.len() as u64;
+    let (tx, rx) = mpsc::channel::<Grabbed>();
+    let (progress, cancel) = (cx.progress.clone(), cx.cancel.clone());
+    let job = camera.submit(move |cam| {
+        let src = cam.0.as_mut();
+        let (format, w, h) = brdfd_v4l::start(src)?;
+        progress.event(Event::Message {
+            text: format!(
+                "fallback camera: {}, {format:?} {w}×{h}, {} frames per exposure",
+                src.describe(),
+                b.fallback_frames
+            ),
+        });
+        for &t in &shutters {
+            cancel.check()?;
+            let settings = brdfd_v4l::Settings {
+                exposure_s: Some(t),
+                gain: b.fallback_gain,
+                white_balance_k: Some(b.fallback_white_balance_k),
+            };
+            let (applied, frames) = brdfd_v4l::grab(src, &settings, b.fallback_frames)?;
+            // A camera that reports no exposure is taken at its word: the time asked.
+            let applied_s = applied.exposure_s.unwrap_or(t);
+            if tx.send((t, applied_s, frames)).is_err() {
+                bail!("the capture stopped taking frames");
+            }
+        }
+        Ok(())
+    });
+    let phase = format!("{step}: object bracket");
+    let mut files = Vec::with_capacity(total as usize);
+    for (asked, applied, frames) in rx {
+        let exposure = crate::radiometry::Exposure {
+            shutter_s: applied,
+            f_number: 1.0,
+            iso: 100.0,
+        };
+        let name = format!("fallback-{}.exr", files.len() + 1);
+        let average = average_frames(&frames, exposure, &name)?;
+        let noise = averaging_noise(&frames);
+        let v = &average.values;
+        let mut attributes = vec![
+            (EXPOSURE_ATTRIBUTE, ExrAttribute::F32(applied as f32)),
+            (FRAMES_ATTRIBUTE, ExrAttribute::F32(frames.len() as f32)),
+        ];
+        if let Some(n) = noise {
+            attributes.push((NOISE_ATTRIBUTE, ExrAttribute::F32(n)));
+        }
+        let bytes = exr_bytes(v.width, v.height, &v.pixels, &attributes)?;
+        session.add_raw(step, &name, &bytes)?;
+        cx.say(format!(
+            "  {name}: {} frames averaged at {applied} s (asked {asked} s){}",
+            frames.len(),
+            noise.map_or(String::new(), |n| format!(", noise {:.2}%", n * 100.0))
+        ));
+        files.push((name, bytes));
+        cx.progress.event(Event::Progress {
+            phase: phase.clone(),
+            done: files.len() as u64,
+            total,
+        });
+    }
+    job.wait()?;
+    super::flow::note_device(session, camera.status().identity);
+    Ok(files)
+}
+
+/// A view's bracket merged into radiance in the DSLR's units, and the level at and above
+/// which the merge had only clipped frames.
+pub fn merge_view(
+    cx: &Context,
+    camera: ObjectCamera,
+    files: &RawFiles,
+) -> anyhow::Result<(Raster, Option<f32>)> {
+    match camera {
+        ObjectCamera::Dslr => merge_dslr(cx, files),
+        ObjectCamera::Fallback => {
+            let (frames, _) = fallback_frames(files)?;
+            // Values per second of exposure, then the THETA's calibrations put them in the
+            // DSLR's units: the fallback's per THETA radiance, the DSLR's per THETA radiance.
+            let c = &cx.rig.calibration;
+            let to_fallback = c
+                .theta_to_fallback
+                .context("calibration.theta_to_fallback is needed to use the fallback camera")?;
+            let scale = (c.theta_to_dslr / to_fallback) as f32;
+            let mut photo = merge_hdr(&frames, 1.0)?;
+            for p in &mut photo.pixels {
+                *p = p.map(|v| v * scale);
+            }
+            Ok((photo, merged_white_level(&frames, 1.0).map(|w| w * scale)))
+        }
+    }
+}
+
+/// A fallback bracket's stored averages, and the median of their recorded noise.
+pub fn fallback_frames(files: &RawFiles) -> anyhow::Result<(Vec<Frame>, Option<f32>)> {
+    let mut noise = Vec::new();
+    let frames = files
+        .iter()
+        .map(|(name, bytes)| {
+            let (rgb, attributes) = read_exr_rgb_bytes(bytes, name)?;
+            let shutter_s = attributes
+                .get(EXPOSURE_ATTRIBUTE)
+                .copied()
+                .filter(|t| t.is_finite() && *t > 0.0)
+                .with_context(|| {
+                    format!("{name}: no exposure time ({EXPOSURE_ATTRIBUTE}) in its header")
+                })?;
+            noise.extend(attributes.get(NOISE_ATTRIBUTE).copied());
+            Ok(Frame {
+                values: Raster {
+                    width: rgb.width,
+                    height: rgb.height,
+                    pixels: rgb.pixels,
+                },
+                exposure: crate::radiometry::Exposure {
+                    shutter_s: shutter_s as f64,
+                    f_number: 1.0,
+                    iso: 100.0,
+                },
+            })
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    noise.sort_by(f32::total_cmp);
+    Ok((frames, noise.get(noise.len() / 2).copied()))
+}
+
+/// The frames averaged per exposure in a stored fallback bracket (its first file's).
+pub fn fallback_frame_count(files: &RawFiles) -> Option<usize> {
+    let (name, bytes) = files.first()?;
+    let (_, attributes) = read_exr_rgb_bytes(bytes, name).ok()?;
+    attributes.get(FRAMES_ATTRIBUTE).map(|n| *n as usize)
+}
+
+/// Decodes a DSLR bracket and merges it into radiance, from each file's EXIF. Also returns
+/// the level at and above which the merge had only clipped frames.
+fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<(Raster, Option<f32>)> {
+    use crate::bench::camera::SENSOR_GAIN;
+    let frames = files
+        .iter()
+        .map(|(name, bytes)| {
+            // RAW files are stored as sent (raw/ keeps them for a later decoder); the merge
+            // takes decoded linear frames, so a RAW decoder plugs in here by file type.
+            let ext = name.rsplit('.').next().unwrap_or("").to_ascii_lowercase();
+            if matches!(ext.as_str(), "nef" | "nrw" | "dng" | "cr2" | "cr3" | "arw") {
+                bail!("{name}: RAW decoding is not built yet; the file is kept in the session. Set the camera to JPEG (fine) to estimate");
+            }
+            let f = decode_jpeg(bytes, name)?;
+            cx.say(format!(
+                "  {name}: EXIF {:.4} s f/{} ISO {}",
+                f.exposure.shutter_s, f.exposure.f_number, f.exposure.iso
+            ));
+            Ok(f)
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok((
+        merge_hdr(&frames, SENSOR_GAIN)?,
+        merged_white_level(&frames, SENSOR_GAIN),
+    ))
+}
