@@ -124,8 +124,8 @@ pub struct Brackets {
     /// Frames averaged per exposure: averaging N frames lowers the noise by √N.
     #[serde(default = "default_fallback_frames")]
     pub fallback_frames: usize,
-    /// The fallback camera's gain, in its own units; left as it is if absent. The
-    /// calibration's `theta_to_fallback` holds for this gain only.
+    /// The fallback camera's gain, in its own units (auto gain is switched off); a rig with a
+    /// fallback camera needs it. The calibration's `theta_to_fallback` holds for it only.
     #[serde(default)]
     pub fallback_gain: Option<i64>,
     /// The fallback camera's white balance, kelvin (auto white balance is switched off).
@@ -285,6 +285,15 @@ fn check_fallback(file: &str, r: &Rig) -> Result<(), ConfigError> {
             file,
             "brackets.fallback_shutters",
             "needs at least one exposure",
+        ));
+    }
+    // Left alone, a webcam's auto gain changes between the bracket's exposures, and the
+    // calibration holds for one gain.
+    if has_fallback && b.fallback_gain.is_none() {
+        return Err(invalid(
+            file,
+            "brackets.fallback_gain",
+            "a rig with a fallback_camera needs a fixed gain, in the camera's own units (`v4l2-ctl -d /dev/videoN --list-ctrls` shows its range); theta_to_fallback is measured at it",
         ));
     }
     match r.calibration.theta_to_fallback {

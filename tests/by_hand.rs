@@ -5,10 +5,11 @@
 
 mod common;
 
-use std::io::Write;
+use std::io::{BufRead, BufReader, Read, Write};
 use std::process::Stdio;
+use std::time::{Duration, Instant};
 
-use common::{command, out, Daemon};
+use common::{command, Daemon};
 
 /// The shipped simulated rig without its turntable, its object camera at 64².
 fn rig() -> String {
@@ -20,80 +21,138 @@ fn rig() -> String {
     )
 }
 
-/// `brdfd capture` of two views with `answer` on its standard input (None: closed).
-fn capture(dir: &std::path::Path, answer: Option<&str>) -> (bool, String) {
-    std::fs::write(dir.join("rig.toml"), rig()).unwrap();
+/// Runs `brdfd` in `dir` with `args`, pressing Enter each time it asks for a turn, at most
+/// `presses` times; then standard input is closed. Its exit and everything it printed.
+fn answering(dir: &std::path::Path, args: &[&str], presses: usize) -> (bool, String) {
     let mut child = command()
-        .args([
-            "capture",
-            "--rig",
-            "rig.toml",
-            "--material",
-            "gold",
-            "--size",
-            "64",
-            "--views",
-            "2",
-            "--turn",
-            "45",
-            "--state-dir",
-            "state",
-        ])
+        .args(args)
         .current_dir(dir)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let mut stdin = child.stdin.take().unwrap();
-    if let Some(a) = answer {
-        stdin.write_all(a.as_bytes()).unwrap();
-    } else {
-        drop(stdin);
-        let o = child.wait_with_output().unwrap();
-        return (o.status.success(), out(&o));
+    let mut stdin = Some(child.stdin.take().unwrap());
+    let mut stdout = child.stdout.take().unwrap();
+    let printed = std::thread::spawn(move || {
+        let mut s = String::new();
+        let _ = stdout.read_to_string(&mut s);
+        s
+    });
+    // The prompt goes to standard error: Enter is pressed only once it has been asked, so a
+    // capture that did not wait would not have been answered.
+    let mut said = String::new();
+    let mut pressed = 0;
+    if presses == 0 {
+        stdin.take();
     }
-    let o = child.wait_with_output().unwrap();
-    (o.status.success(), out(&o))
+    for line in BufReader::new(child.stderr.take().unwrap()).lines() {
+        let line = line.unwrap();
+        if line.contains("press Enter once it is turned") {
+            if let Some(s) = stdin.as_mut() {
+                s.write_all(b"\n").unwrap();
+                pressed += 1;
+                if pressed == presses {
+                    stdin.take();
+                }
+            }
+        }
+        said.push_str(&line);
+        said.push('\n');
+    }
+    let status = child.wait().unwrap();
+    (status.success(), printed.join().unwrap() + &said)
+}
+
+fn capture_args() -> Vec<&'static str> {
+    vec![
+        "capture",
+        "--rig",
+        "rig.toml",
+        "--material",
+        "gold",
+        "--size",
+        "64",
+        "--views",
+        "3",
+        "--turn",
+        "45",
+        "--state-dir",
+        "state",
+    ]
 }
 
 #[test]
 fn the_cli_asks_for_each_turn_and_goes_on_after_enter() {
     let dir = tempfile::tempdir().unwrap();
-    let (ok, text) = capture(dir.path(), Some("\n"));
+    std::fs::write(dir.path().join("rig.toml"), rig()).unwrap();
+    let (ok, text) = answering(dir.path(), &capture_args(), 2);
     assert!(ok, "{text}");
     assert!(
         text.contains("the rig has no turntable, so it is turned by hand"),
         "{text}"
     );
-    assert!(
-        text.contains("view 2 of 2: turn the object by hand to 45.0°")
-            && text.contains("press Enter once it is turned"),
-        "{text}"
-    );
-    assert!(text.contains("turned by hand to 45.0°"), "{text}");
-    // Both views went into the estimate.
+    for (view, deg) in [(2, "45.0"), (3, "90.0")] {
+        assert!(
+            text.contains(&format!(
+                "view {view} of 3: turn the object by hand to {deg}°"
+            )) && text.contains(&format!("view {view} of 3: turned by hand to {deg}°")),
+            "{text}"
+        );
+    }
+    // Every view went into the estimate.
     assert!(text.contains("re-renders the photos"), "{text}");
 }
 
+/// With no one at the terminal the capture stops after the first view; resumed with someone
+/// there, it goes on from the second.
 #[test]
-fn with_no_one_at_the_terminal_the_capture_stops_and_can_be_resumed() {
+fn with_no_one_at_the_terminal_the_capture_stops_and_resumes() {
     let dir = tempfile::tempdir().unwrap();
-    let (ok, text) = capture(dir.path(), None);
+    std::fs::write(dir.path().join("rig.toml"), rig()).unwrap();
+    let (ok, text) = answering(dir.path(), &capture_args(), 0);
     assert!(!ok, "{text}");
     assert!(text.contains("standard input is closed"), "{text}");
     assert!(text.contains("brdfd session resume"), "{text}");
+    let (ok, text) = answering(
+        dir.path(),
+        &["session", "resume", "latest", "--state-dir", "state"],
+        2,
+    );
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("view1: 5 frames already in the session"),
+        "{text}"
+    );
+    assert!(text.contains("turned by hand to 90.0°"), "{text}");
+}
+
+/// Waits until the daemon's capture `id` waits for `view`'s turn.
+fn wait_for_view(daemon: &Daemon, id: &str, view: u64) {
+    let start = Instant::now();
+    loop {
+        let (_, s) = daemon.get(&format!("/sessions/{id}"));
+        if s["waiting_for_view"] == view {
+            return;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "never waited for view {view}: {s}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn daemon(dir: &std::path::Path) -> Daemon {
+    std::fs::write(dir.join("rig.toml"), rig()).unwrap();
+    let rig_path = dir.join("rig.toml");
+    Daemon::start(&dir.join("state"), &["--rig", rig_path.to_str().unwrap()])
 }
 
 #[test]
-fn the_daemon_waits_for_continue() {
+fn the_daemon_waits_for_continue_for_the_view_it_asked() {
     let dir = tempfile::tempdir().unwrap();
-    std::fs::write(dir.path().join("rig.toml"), rig()).unwrap();
-    let rig_path = dir.path().join("rig.toml");
-    let daemon = Daemon::start(
-        &dir.path().join("state"),
-        &["--rig", rig_path.to_str().unwrap()],
-    );
+    let daemon = daemon(dir.path());
     // Nothing waits yet.
     let (status, body) = daemon.post("/sessions/nothing/continue", serde_json::json!({}));
     assert_eq!(status, 409, "{body}");
@@ -104,30 +163,16 @@ fn the_daemon_waits_for_continue() {
     );
     assert_eq!(status, 202, "{started}");
     let id = started["id"].as_str().unwrap().to_string();
-    // The capture asks, and waits until told.
-    let start = std::time::Instant::now();
-    loop {
-        let (_, s) = daemon.get(&format!("/sessions/{id}"));
-        let views = s["manifest"]["steps"].as_array().map_or(0, |steps| {
-            steps.iter().filter(|s| s["complete"] == true).count()
-        });
-        if views >= 2 {
-            break; // the panorama and view 1
-        }
-        assert!(
-            start.elapsed().as_secs() < 120,
-            "view 1 never finished: {s}"
-        );
-        std::thread::sleep(std::time::Duration::from_millis(100));
-    }
-    let (status, body) = loop {
-        let (status, body) =
-            daemon.post(&format!("/sessions/{id}/continue"), serde_json::json!({}));
-        if status == 202 || start.elapsed().as_secs() > 120 {
-            break (status, body);
-        }
-        std::thread::sleep(std::time::Duration::from_millis(100));
-    };
+    wait_for_view(&daemon, &id, 2);
+    // An answer for another view is refused; the right one is taken at once.
+    let path = format!("/sessions/{id}/continue");
+    let (status, body) = daemon.post(&path, serde_json::json!({"view": 3}));
+    assert_eq!(status, 409, "{body}");
+    assert!(
+        body["message"].as_str().unwrap().contains("view 3"),
+        "{body}"
+    );
+    let (status, body) = daemon.post(&path, serde_json::json!({"view": 2}));
     assert_eq!(status, 202, "{body}");
     assert_eq!(body["continuing"], true);
     let events = daemon.events(&id);
@@ -140,4 +185,46 @@ fn the_daemon_waits_for_continue() {
     let last = events.last().unwrap();
     assert_eq!(last["type"], "finished", "{last}");
     assert_eq!(last["state"], "done", "{last}");
+}
+
+#[test]
+fn a_capture_waiting_for_a_turn_can_be_cancelled() {
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = daemon(dir.path());
+    let (_, started) = daemon.post(
+        "/sessions",
+        serde_json::json!({"material": "gold", "views": 2}),
+    );
+    let id = started["id"].as_str().unwrap().to_string();
+    wait_for_view(&daemon, &id, 2);
+    let (status, body) = daemon.post(&format!("/sessions/{id}/cancel"), serde_json::json!({}));
+    assert_eq!(status, 202, "{body}");
+    let last = daemon.events(&id).last().cloned().unwrap();
+    assert_eq!(last["state"], "failed", "{last}");
+    assert!(
+        last["error"].as_str().unwrap().contains("cancelled"),
+        "{last}"
+    );
+}
+
+/// `brdfd session follow` asks at its terminal for the wait that is on, and answers it.
+#[test]
+fn session_follow_answers_the_wait_that_is_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = daemon(dir.path());
+    let (_, started) = daemon.post(
+        "/sessions",
+        serde_json::json!({"material": "gold", "views": 2, "turn": 45.0}),
+    );
+    let id = started["id"].as_str().unwrap().to_string();
+    wait_for_view(&daemon, &id, 2);
+    let addr = format!("--daemon={}", daemon.addr);
+    let (ok, text) = answering(
+        dir.path(),
+        &["session", "follow", &id, "--state-dir", "state", &addr],
+        1,
+    );
+    assert!(ok, "{text}");
+    assert!(text.contains("Ctrl-C stops following"), "{text}");
+    assert!(text.contains("turned by hand to 45.0°"), "{text}");
 }

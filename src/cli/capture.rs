@@ -289,14 +289,34 @@ struct Answering<'a> {
 
 impl Progress for Answering<'_> {
     fn event(&self, e: Event) {
-        let waiting = matches!(e, Event::WaitingForOperator { .. });
+        let view = match &e {
+            Event::WaitingForOperator { view, .. } => Some(*view),
+            _ => None,
+        };
         self.bars.event(e);
-        if waiting {
-            let told = Terminal::enter(None).and_then(|()| self.daemon.proceed(self.id));
-            if let Err(e) = told {
-                // The capture waits in the daemon; another client can still answer it.
-                eprintln!("  {e:#}");
+        let Some(view) = view else { return };
+        // The stream replays the capture's past: only a wait that is still on is asked.
+        let waiting = || -> anyhow::Result<bool> {
+            let s = self.daemon.json(&format!("/sessions/{}", self.id))?;
+            Ok(s["waiting_for_view"].as_u64() == Some(view as u64))
+        };
+        let told = waiting().and_then(|on| {
+            if !on {
+                return Ok(());
             }
+            let hint = "Ctrl-C stops following; the capture waits in the daemon";
+            if Terminal::enter(hint, &waiting)? {
+                self.daemon.proceed(self.id, view)
+            } else {
+                self.bars.event(Event::Message {
+                    text: format!("  view {view}'s turn was confirmed elsewhere"),
+                });
+                Ok(())
+            }
+        });
+        if let Err(e) = told {
+            // The capture waits in the daemon; another client can still answer it.
+            eprintln!("  {e:#}");
         }
     }
 }

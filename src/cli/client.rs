@@ -112,11 +112,11 @@ impl Daemon {
         Ok(())
     }
 
-    /// Tells a capture waiting for the object to be turned by hand that it is.
-    pub fn proceed(&self, id: &str) -> anyhow::Result<()> {
+    /// Tells a capture waiting for view `view` to be turned by hand that it is.
+    pub fn proceed(&self, id: &str, view: usize) -> anyhow::Result<()> {
         self.check(
             self.post(&format!("/sessions/{id}/continue"))
-                .json(&serde_json::json!({}))
+                .json(&serde_json::json!({ "view": view }))
                 .send()?,
         )?;
         Ok(())

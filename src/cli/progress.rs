@@ -113,27 +113,57 @@ impl Progress for Bars {
 /// on the terminal, answering with Enter.
 pub struct Terminal;
 
-impl Terminal {
-    /// Waits for Enter on standard input; stops waiting with the capture's `cancel` (if it
-    /// runs here).
-    pub fn enter(cancel: Option<&Cancel>) -> anyhow::Result<()> {
-        eprintln!("  press Enter once it is turned (Ctrl-C stops; the session can be resumed)");
+/// How often a wait for Enter checks whether it is still needed.
+const STILL_NEEDED_EVERY: Duration = Duration::from_millis(200);
+
+/// Standard input's lines, read by one thread for the whole run: a wait that ends without a
+/// line (cancelled, answered elsewhere) must not leave a reader behind that takes the next
+/// Enter. Each item is what `read_line` returned; the thread ends at end of input.
+fn stdin_lines() -> &'static Mutex<std::sync::mpsc::Receiver<std::io::Result<usize>>> {
+    static LINES: std::sync::OnceLock<Mutex<std::sync::mpsc::Receiver<std::io::Result<usize>>>> =
+        std::sync::OnceLock::new();
+    LINES.get_or_init(|| {
         let (tx, rx) = std::sync::mpsc::channel();
-        // A blocked read cannot be interrupted: it is left behind if the capture is cancelled.
-        std::thread::spawn(move || {
+        std::thread::spawn(move || loop {
             let mut line = String::new();
-            let _ = tx.send(std::io::stdin().read_line(&mut line));
+            let r = std::io::stdin().read_line(&mut line);
+            let end = !matches!(r, Ok(n) if n > 0);
+            if tx.send(r).is_err() || end {
+                return;
+            }
         });
+        Mutex::new(rx)
+    })
+}
+
+impl Terminal {
+    /// Waits for Enter, after saying `hint`, while `still_needed` says so: true once Enter is
+    /// pressed, false once the wait is no longer needed (answered elsewhere).
+    pub fn enter(
+        hint: &str,
+        still_needed: &dyn Fn() -> anyhow::Result<bool>,
+    ) -> anyhow::Result<bool> {
+        let closed = || {
+            anyhow::anyhow!("no one can say the object is turned: standard input is closed. A capture of several views on a rig with no turntable needs someone at the terminal (or a client that calls the API's `continue`)")
+        };
+        let lines = stdin_lines().lock().expect("stdin lines");
+        // Lines typed before the question do not answer it.
+        while let Ok(r) = lines.try_recv() {
+            if !matches!(r, Ok(n) if n > 0) {
+                return Err(closed());
+            }
+        }
+        eprintln!("  press Enter once it is turned ({hint})");
         loop {
-            match rx.recv_timeout(std::time::Duration::from_millis(100)) {
-                Ok(Ok(0)) | Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
-                    anyhow::bail!("no one can say the object is turned: standard input is closed. A capture of several views on a rig with no turntable needs someone at the terminal (or a client that calls the API's `continue`)")
-                }
-                Ok(Ok(_)) => return Ok(()),
+            match lines.recv_timeout(STILL_NEEDED_EVERY) {
+                Ok(Ok(n)) if n > 0 => return Ok(true),
                 Ok(Err(e)) => return Err(anyhow::Error::new(e).context("reading standard input")),
+                Ok(Ok(_)) | Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
+                    return Err(closed())
+                }
                 Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
-                    if let Some(c) = cancel {
-                        c.check()?;
+                    if !still_needed()? {
+                        return Ok(false);
                     }
                 }
             }
@@ -142,7 +172,11 @@ impl Terminal {
 }
 
 impl Operator for Terminal {
-    fn wait(&self, _request: &str, cancel: &Cancel) -> anyhow::Result<()> {
-        Terminal::enter(Some(cancel))
+    fn wait(&self, _view: usize, announce: &dyn Fn(), cancel: &Cancel) -> anyhow::Result<()> {
+        announce();
+        Terminal::enter("Ctrl-C stops; the session can be resumed", &|| {
+            cancel.check().map(|()| true)
+        })
+        .map(|_| ())
     }
 }

@@ -383,9 +383,10 @@ pub struct ExrRgb {
 /// error, not an abort.
 pub const MAX_EXR_PIXELS: usize = 16384 * 8192;
 
-/// How many times smaller than its pixels an OpenEXR file can be: deflate (ZIP), the
-/// strongest of its compressions, packs at most about 1032 to 1.
-const MAX_EXR_COMPRESSION: usize = 1100;
+/// How many times smaller than its pixels an OpenEXR file can be: deflate (ZIP) packs at most
+/// about 1032 to 1, and PXR24 deflates floats cut to 24 bits (so about 1376 to 1 of 32-bit
+/// data); with room to spare.
+const MAX_EXR_COMPRESSION: usize = 1500;
 
 /// Refuses an OpenEXR file whose headers declare more than [`MAX_EXR_PIXELS`] in a layer, or
 /// more pixel data than its `file_bytes` could hold compressed: a small file claiming a large
@@ -418,7 +419,7 @@ pub(crate) fn check_exr_size(
             return Err(CoreError::format(
                 what,
                 format!(
-                    "the header declares {} × {} pixels ({declared} bytes), more than a file of {file_bytes} bytes can hold: it is truncated",
+                    "the header declares {} × {} pixels ({declared} bytes), more than a file of {file_bytes} bytes can hold: it is truncated or corrupt",
                     size.width(),
                     size.height()
                 ),

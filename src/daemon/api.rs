@@ -9,7 +9,7 @@
 //! | `GET /api/v1/devices` | `[{"role", "selector", "state": "closed"/"open"/"lost", "identity", "last_error", "opened"}]` |
 //! | `GET /api/v1/sessions` | `[{"id", "state", "material", "created"}]`, oldest first |
 //! | `POST /api/v1/sessions` | body: a plan (`{"material": "gold", "pixels": "20", "views": 1, ...}`); 202 `{"id", "dir", "events"}`; 409 `busy`; 400 `bad_request` |
-//! | `GET /api/v1/sessions/{id}` | `{"id", "dir", "manifest"}`: where it is stored, and its manifest |
+//! | `GET /api/v1/sessions/{id}` | `{"id", "dir", "manifest", "waiting_for_view"}`: where it is stored, its manifest, and the view whose hand turn it waits for |
 //! | `GET /api/v1/sessions/{id}/events` | Server-Sent Events, one JSON [`Event`] each with its place as `id`, from the session's first (after `Last-Event-ID` if given); ends after `finished` |
 //! | `GET /api/v1/sessions/{id}/result` | `coefficients.json`; 409 `not_done` until the session is done |
 //! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `coefficients.json`, `preview.png`, `preview.json`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`; for a hybrid or analytic estimate also `material.gltf`, `material.mtlx` |
@@ -36,8 +36,8 @@ use utoipa::{Modify as _, OpenApi as _};
 use utoipa_axum::{router::OpenApiRouter, routes};
 
 use super::openapi::{
-    ApiDoc, Cancelling, Continuing, ErrorBody, FileBytes, Guards, Health, Materials, RigSummary,
-    SessionDetail, SessionItem, Started, StreamEvent,
+    ApiDoc, Cancelling, ContinueRequest, Continuing, ErrorBody, FileBytes, Guards, Health,
+    Materials, RigSummary, SessionDetail, SessionItem, Started, StreamEvent,
 };
 use super::{web, Daemon, StartError};
 use crate::rig::{Event, Plan};
@@ -324,26 +324,7 @@ const PLAN_READ_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10
     )
 )]
 async fn start(State(d): State<Shared>, body: axum::body::Body) -> ApiResult<Response> {
-    let body = tokio::time::timeout(
-        PLAN_READ_TIMEOUT,
-        axum::body::to_bytes(body, MAX_PLAN_BYTES),
-    )
-    .await
-    .map_err(|_| {
-        ApiError(
-            StatusCode::REQUEST_TIMEOUT,
-            "request_timeout",
-            format!(
-                "the plan did not arrive within {} s",
-                PLAN_READ_TIMEOUT.as_secs()
-            ),
-        )
-    })?
-    .map_err(|e| bad_request(format!("the plan (at most {MAX_PLAN_BYTES} bytes): {e}")))?;
-    // Parsed here rather than by the Json extractor, so that the error names the field in
-    // our own error shape.
-    let plan: Plan =
-        serde_json::from_slice(&body).map_err(|e| bad_request(format!("the plan: {e}")))?;
+    let plan: Plan = json_body(body, "the plan").await?;
     on_capture_thread(move || d.start_capture(plan)).await
 }
 
@@ -392,11 +373,44 @@ fn open(d: &Daemon, id: &str) -> ApiResult<Session> {
 )]
 async fn show(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Json<SessionDetail>> {
     let s = open(&d, &id)?;
+    let waiting_for_view = d.waiting_for(&id);
     Ok(Json(SessionDetail {
         id,
         dir: s.dir.display().to_string(),
         manifest: d.shown(s.manifest),
+        waiting_for_view,
     }))
+}
+
+/// A request's JSON body, read within [`PLAN_READ_TIMEOUT`] and [`MAX_PLAN_BYTES`] (an empty
+/// body is `{}`). Parsed here rather than by the Json extractor, so that the error names the
+/// field in our own error shape.
+async fn json_body<T: serde::de::DeserializeOwned>(
+    body: axum::body::Body,
+    what: &str,
+) -> ApiResult<T> {
+    let body = tokio::time::timeout(
+        PLAN_READ_TIMEOUT,
+        axum::body::to_bytes(body, MAX_PLAN_BYTES),
+    )
+    .await
+    .map_err(|_| {
+        ApiError(
+            StatusCode::REQUEST_TIMEOUT,
+            "request_timeout",
+            format!(
+                "{what} did not arrive within {} s",
+                PLAN_READ_TIMEOUT.as_secs()
+            ),
+        )
+    })?
+    .map_err(|e| bad_request(format!("{what} (at most {MAX_PLAN_BYTES} bytes): {e}")))?;
+    let body: &[u8] = if body.iter().all(u8::is_ascii_whitespace) {
+        b"{}"
+    } else {
+        &body
+    };
+    serde_json::from_slice(body).map_err(|e| bad_request(format!("{what}: {e}")))
 }
 
 /// Tells the running capture that the operator has turned the object by hand, as its
@@ -405,14 +419,20 @@ async fn show(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Json
     post,
     path = "/sessions/{id}/continue",
     params(("id" = String, Path, description = "the session's id")),
-    request_body(content = Object, description = "`{}`", content_type = "application/json"),
+    request_body(content = ContinueRequest, content_type = "application/json"),
     responses(
         (status = 202, body = Continuing),
+        (status = 400, description = "`bad_request`: the body is not `{}` or `{\"view\": N}`", body = ErrorBody),
         (status = 409, description = "`not_waiting`: the session is not waiting for the operator now", body = ErrorBody),
     )
 )]
-async fn continue_capture(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Response> {
-    if d.proceed(&id) {
+async fn continue_capture(
+    State(d): State<Shared>,
+    Path(id): Path<String>,
+    body: axum::body::Body,
+) -> ApiResult<Response> {
+    let request: ContinueRequest = json_body(body, "the request").await?;
+    if d.proceed(&id, request.view) {
         let body = Continuing {
             id,
             continuing: true,
@@ -422,7 +442,10 @@ async fn continue_capture(State(d): State<Shared>, Path(id): Path<String>) -> Ap
         Err(ApiError(
             StatusCode::CONFLICT,
             "not_waiting",
-            format!("session {id} is not waiting for the operator now"),
+            match request.view {
+                Some(v) => format!("session {id} is not waiting for view {v} to be turned now"),
+                None => format!("session {id} is not waiting for the operator now"),
+            },
         ))
     }
 }

@@ -431,14 +431,22 @@ impl Daemon {
         }
     }
 
-    /// Tells the running capture `id` that the operator has turned the object; false if it
-    /// is not running or not waiting for that.
-    pub fn proceed(&self, id: &str) -> bool {
+    /// Tells the running capture `id` that the operator has turned the object (for view
+    /// `view`, if given); false if it is not running, or not waiting for that turn.
+    pub fn proceed(&self, id: &str, view: Option<usize>) -> bool {
         let r = self.running.lock().expect("running");
         match r.as_ref() {
-            Some(r) if r.id == id && !r.over() => r.go_ahead.give(),
+            Some(r) if r.id == id && !r.over() => r.go_ahead.give(view),
             _ => false,
         }
+    }
+
+    /// The view whose hand turn the running capture `id` waits for, if it waits.
+    pub fn waiting_for(&self, id: &str) -> Option<usize> {
+        let r = self.running.lock().expect("running");
+        r.as_ref()
+            .filter(|r| r.id == id && !r.over())
+            .and_then(|r| r.go_ahead.waiting())
     }
 
     /// Cancels the running capture, if any, and waits for it to record its state.

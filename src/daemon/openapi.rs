@@ -4,7 +4,7 @@
 //! What the middleware adds to every answer (401, 421, 415) is added here to every operation
 //! by [`Guards`], the one place that mirrors it.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use utoipa::openapi::path::Operation;
 use utoipa::openapi::security::{
     ApiKey, ApiKeyValue, HttpAuthScheme, HttpBuilder, SecurityRequirement, SecurityScheme,
@@ -74,6 +74,9 @@ pub struct SessionDetail {
     pub dir: String,
     #[schema(value_type = Object)]
     pub manifest: crate::session::Manifest,
+    /// The view whose hand turn the running capture waits for (`POST .../continue`), if it
+    /// waits.
+    pub waiting_for_view: Option<usize>,
 }
 
 /// `POST /sessions/{id}/cancel`.
@@ -81,6 +84,16 @@ pub struct SessionDetail {
 pub struct Cancelling {
     pub id: String,
     pub cancelling: bool,
+}
+
+/// The body of `POST /sessions/{id}/continue`: `{}`, or the view whose turn is done (then
+/// only that view's wait is answered).
+#[derive(Deserialize, ToSchema, Default)]
+#[serde(deny_unknown_fields)]
+pub struct ContinueRequest {
+    #[serde(default)]
+    #[schema(minimum = 1)]
+    pub view: Option<usize>,
 }
 
 /// `POST /sessions/{id}/continue`.

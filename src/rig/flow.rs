@@ -394,7 +394,14 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     // Radiance at and above which a DSLR pixel was clipped in every frame of its bracket.
     let mut clip_level: Option<f32> = None;
     // The object camera for the views still to shoot; chosen when the first one is.
-    let mut camera: Option<ObjectCamera> = None;
+    // A capture that fell back stays on the fallback, resumed or not, even if the view it fell
+    // back in was not finished.
+    let mut camera: Option<ObjectCamera> = session
+        .manifest
+        .steps
+        .iter()
+        .any(|s| ObjectCamera::of_step(&s.meta) == ObjectCamera::Fallback)
+        .then_some(ObjectCamera::Fallback);
     let mut fallback_use = FallbackUse::default();
     for i in 0..n_views {
         cx.cancel.check()?;
@@ -406,12 +413,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
                     "{step}: {} frames already in the session ({deg:.2}°)",
                     files.len()
                 ));
-                let shot_on = ObjectCamera::of_step(&meta);
-                // A resumed capture that had fallen back stays on the fallback.
-                if shot_on == ObjectCamera::Fallback {
-                    camera = Some(ObjectCamera::Fallback);
-                }
-                (files, deg, shot_on)
+                (files, deg, ObjectCamera::of_step(&meta))
             }
             None => {
                 if camera.is_none() {
@@ -448,20 +450,19 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
                 (files, deg, *using)
             }
         };
-        if shot_on == ObjectCamera::Fallback {
-            let (_, noise) = object::fallback_frames(&files)?;
-            fallback_use.views += 1;
-            fallback_use.noise = fallback_use.noise.or(noise);
-            fallback_use.frames = object::fallback_frame_count(&files).unwrap_or(0);
-            fallback_use.identity = cx
+        let p = phases.start(&format!("{step}: HDR merge"), 1);
+        let merged = object::merge_view(cx, shot_on, &files)?;
+        if let Some((frames, noise)) = merged.fallback {
+            let identity = cx
                 .devices
                 .fallback
                 .as_ref()
                 .and_then(|f| f.status().identity);
+            fallback_use.add(frames, noise, identity);
         }
-        let p = phases.start(&format!("{step}: HDR merge"), 1);
-        let (photo, white) = object::merge_view(cx, shot_on, &files)?;
-        // Every view takes the same bracket, so the lowest level is every view's.
+        let (photo, white) = (merged.photo, merged.white);
+        // Below the lowest level, every view's pixels are measurements (views on different
+        // cameras have different levels: the lowest leaves out a few more, never a clipped one).
         clip_level = [clip_level, white].into_iter().flatten().reduce(f32::min);
         save_exr(session, &format!("photo-{step}.exr"), &photo, white)?;
         phases.end(p);
@@ -754,8 +755,6 @@ fn turned_bench(bench: &VirtualBench, deg: f64) -> VirtualBench {
     }
 }
 
-/// Turns the turntable to `target` degrees by the shortest way; returns where it reports
-/// it is.
 /// Turns the turntable for view `i` (from 0) of `n`, to `target` degrees; where it stopped.
 fn turn_on_turntable(
     cx: &Context,
@@ -793,12 +792,14 @@ fn turn_by_hand(cx: &Context, i: usize, n: usize, step: f64) -> anyhow::Result<f
         "view {} of {n}: turn the object by hand to {target:.1}° ({step:.1}° further than the last view, the same way), then continue",
         i + 1,
     );
-    cx.progress.event(Event::WaitingForOperator {
-        text: text.clone(),
-        view: i + 1,
-        degrees: target,
-    });
-    cx.operator.wait(&text, &cx.cancel)?;
+    let announce = || {
+        cx.progress.event(Event::WaitingForOperator {
+            text: text.clone(),
+            view: i + 1,
+            degrees: target,
+        })
+    };
+    cx.operator.wait(i + 1, &announce, &cx.cancel)?;
     cx.say(format!(
         "view {} of {n}: turned by hand to {target:.1}°",
         i + 1
@@ -806,6 +807,8 @@ fn turn_by_hand(cx: &Context, i: usize, n: usize, step: f64) -> anyhow::Result<f
     Ok(target)
 }
 
+/// Turns the turntable to `target` degrees by the shortest way; returns where it reports
+/// it is.
 fn turn_to(cx: &Context, target: f64) -> anyhow::Result<f64> {
     let table = cx.devices.turntable.as_ref().context("no turntable")?;
     table.call(move |t| {

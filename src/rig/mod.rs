@@ -288,9 +288,10 @@ impl Cancel {
 /// The operator's part in a capture: turning the object by hand between views, on a rig with
 /// no turntable. The CLI asks on its terminal; the daemon waits for `POST .../continue`.
 pub trait Operator: Send + Sync {
-    /// Returns once the operator says `request` is done; an error if the capture is
+    /// Asks for view `view`'s turn (`announce` sends the request out, once an answer can be
+    /// taken) and returns once the operator says it is done; an error if the capture is
     /// cancelled meanwhile or no operator can answer.
-    fn wait(&self, request: &str, cancel: &Cancel) -> anyhow::Result<()>;
+    fn wait(&self, view: usize, announce: &dyn Fn(), cancel: &Cancel) -> anyhow::Result<()>;
 }
 
 /// A go-ahead given from elsewhere (the daemon's API) to a capture waiting on this thread.
@@ -299,44 +300,58 @@ pub struct GoAhead(Arc<(std::sync::Mutex<GoState>, std::sync::Condvar)>);
 
 #[derive(Default)]
 struct GoState {
-    waiting: bool,
+    /// The view whose turn is awaited.
+    waiting: Option<usize>,
     given: bool,
 }
 
 impl GoAhead {
-    /// Gives the go-ahead to the capture waiting for it: false if none waits.
-    pub fn give(&self) -> bool {
+    /// Gives the go-ahead to the capture waiting for a turn (for view `view`, if given):
+    /// false if none waits, or it waits for another view.
+    pub fn give(&self, view: Option<usize>) -> bool {
         let (state, ready) = &*self.0;
         let mut s = state.lock().expect("go-ahead");
-        if !s.waiting {
-            return false;
+        match s.waiting {
+            Some(w) if view.is_none_or(|v| v == w) => {
+                s.given = true;
+                ready.notify_all();
+                true
+            }
+            _ => false,
         }
-        s.given = true;
-        ready.notify_all();
-        true
+    }
+
+    /// The view whose turn is awaited now, if any.
+    pub fn waiting(&self) -> Option<usize> {
+        self.0 .0.lock().expect("go-ahead").waiting
     }
 }
 
 impl Operator for GoAhead {
-    fn wait(&self, _request: &str, cancel: &Cancel) -> anyhow::Result<()> {
+    fn wait(&self, view: usize, announce: &dyn Fn(), cancel: &Cancel) -> anyhow::Result<()> {
         let (state, ready) = &*self.0;
+        *state.lock().expect("go-ahead") = GoState {
+            waiting: Some(view),
+            given: false,
+        };
+        // Announced once an answer is taken, and not under the lock (a client may answer at
+        // once).
+        announce();
         let mut s = state.lock().expect("go-ahead");
-        s.waiting = true;
-        s.given = false;
-        while !s.given {
-            if cancel.is_cancelled() {
-                s.waiting = false;
-                return cancel.check();
-            }
+        while !s.given && !cancel.is_cancelled() {
             // Woken by `give`; the timeout is for noticing a cancel.
             s = ready
                 .wait_timeout(s, Duration::from_millis(100))
                 .expect("go-ahead")
                 .0;
         }
-        s.waiting = false;
-        s.given = false;
-        Ok(())
+        let given = s.given;
+        *s = GoState::default();
+        if given {
+            Ok(())
+        } else {
+            cancel.check()
+        }
     }
 }
 

@@ -57,13 +57,23 @@ pub struct FallbackUse {
     pub views: usize,
     pub identity: Option<String>,
     pub frames: usize,
-    /// Median relative noise of the averaged frames, over the bracket.
-    pub noise: Option<f32>,
+    /// Each view's median relative noise of its averaged frames.
+    pub noise: Vec<f32>,
 }
 
 impl FallbackUse {
+    /// Adds a view the fallback shot: its frames averaged per exposure, and their noise.
+    pub fn add(&mut self, frames: usize, noise: Option<f32>, identity: Option<String>) {
+        self.views += 1;
+        self.frames = frames;
+        self.noise.extend(noise);
+        self.identity = identity.or(self.identity.take());
+    }
+
     pub fn describe(&self, of_views: usize) -> String {
-        let noise = match self.noise {
+        let mean = (!self.noise.is_empty())
+            .then(|| self.noise.iter().sum::<f32>() / self.noise.len() as f32);
+        let noise = match mean {
             Some(n) => format!(
                 "; noise of the averaged frames {:.2}% (one frame alone: {:.2}%)",
                 n * 100.0,
@@ -89,7 +99,9 @@ pub fn choose(cx: &Context) -> anyhow::Result<ObjectCamera> {
         cx.say("object camera: the V4L2 fallback (the rig has no DSLR)");
         return Ok(ObjectCamera::Fallback);
     };
-    match dslr.call(|_| Ok(())) {
+    // A request the camera must answer: an open handle alone says nothing of a camera that
+    // has gone quiet.
+    match dslr.call(super::Device::keep_alive) {
         Ok(()) => Ok(ObjectCamera::Dslr),
         Err(e) => match &devices.fallback {
             Some(f) => {
@@ -121,7 +133,13 @@ pub fn shoot_view(
         session.begin_step(step, json!({ "turntable_deg": deg, "camera": "dslr" }))?;
         match dslr_bracket(cx, session, step, shutters) {
             Ok(files) => return Ok(files),
-            Err(e) if cx.devices.fallback.is_some() && !cx.cancel.is_cancelled() => {
+            // The session's own failures (a full disk) are not the DSLR's: the fallback would
+            // fail the same way.
+            Err(e)
+                if cx.devices.fallback.is_some()
+                    && !cx.cancel.is_cancelled()
+                    && !e.chain().any(|c| c.is::<crate::session::SessionError>()) =>
+            {
                 cx.warn(format!(
                     "the DSLR failed during {step} ({e:#}); {step} is shot again on the fallback camera, and so are the views after it"
                 ));
@@ -245,8 +263,15 @@ fn fallback_bracket(cx: &Context, session: &mut Session, step: &str) -> anyhow::
                 white_balance_k: Some(b.fallback_white_balance_k),
             };
             let (applied, frames) = brdfd_v4l::grab(src, &settings, b.fallback_frames)?;
-            // A camera that reports no exposure is taken at its word: the time asked.
-            let applied_s = applied.exposure_s.unwrap_or(t);
+            // Without a manual exposure time the camera stays on auto exposure, and no
+            // frame's exposure is known: there is no bracket to merge.
+            let Some(applied_s) = applied.exposure_s else {
+                bail!(
+                    "the fallback camera {} has no manual exposure control ({}), so it cannot shoot a bracket",
+                    src.describe(),
+                    applied.notes.join(", ")
+                );
+            };
             if tx.send((t, applied_s, frames)).is_err() {
                 bail!("the capture stopped taking frames");
             }
@@ -291,17 +316,28 @@ fn fallback_bracket(cx: &Context, session: &mut Session, step: &str) -> anyhow::
     Ok(files)
 }
 
-/// A view's bracket merged into radiance in the DSLR's units, and the level at and above
-/// which the merge had only clipped frames.
-pub fn merge_view(
-    cx: &Context,
-    camera: ObjectCamera,
-    files: &RawFiles,
-) -> anyhow::Result<(Raster, Option<f32>)> {
+/// A view's bracket merged into radiance in the DSLR's units.
+pub struct Merged {
+    pub photo: Raster,
+    /// The level at and above which the merge had only clipped frames.
+    pub white: Option<f32>,
+    /// The fallback's frames averaged per exposure and their noise, if it shot the view.
+    pub fallback: Option<(usize, Option<f32>)>,
+}
+
+/// Merges a view's bracket, as the camera that shot it needs.
+pub fn merge_view(cx: &Context, camera: ObjectCamera, files: &RawFiles) -> anyhow::Result<Merged> {
     match camera {
-        ObjectCamera::Dslr => merge_dslr(cx, files),
+        ObjectCamera::Dslr => {
+            let (photo, white) = merge_dslr(cx, files)?;
+            Ok(Merged {
+                photo,
+                white,
+                fallback: None,
+            })
+        }
         ObjectCamera::Fallback => {
-            let (frames, _) = fallback_frames(files)?;
+            let bracket = FallbackBracket::read(files)?;
             // Values per second of exposure, then the THETA's calibrations put them in the
             // DSLR's units: the fallback's per THETA radiance, the DSLR's per THETA radiance.
             let c = &cx.rig.calibration;
@@ -309,53 +345,66 @@ pub fn merge_view(
                 .theta_to_fallback
                 .context("calibration.theta_to_fallback is needed to use the fallback camera")?;
             let scale = (c.theta_to_dslr / to_fallback) as f32;
-            let mut photo = merge_hdr(&frames, 1.0)?;
+            let mut photo = merge_hdr(&bracket.frames, 1.0)?;
             for p in &mut photo.pixels {
                 *p = p.map(|v| v * scale);
             }
-            Ok((photo, merged_white_level(&frames, 1.0).map(|w| w * scale)))
+            Ok(Merged {
+                photo,
+                white: merged_white_level(&bracket.frames, 1.0).map(|w| w * scale),
+                fallback: Some((bracket.averaged, bracket.noise)),
+            })
         }
     }
 }
 
-/// A fallback bracket's stored averages, and the median of their recorded noise.
-pub fn fallback_frames(files: &RawFiles) -> anyhow::Result<(Vec<Frame>, Option<f32>)> {
-    let mut noise = Vec::new();
-    let frames = files
-        .iter()
-        .map(|(name, bytes)| {
-            let (rgb, attributes) = read_exr_rgb_bytes(bytes, name)?;
-            let shutter_s = attributes
-                .get(EXPOSURE_ATTRIBUTE)
-                .copied()
-                .filter(|t| t.is_finite() && *t > 0.0)
-                .with_context(|| {
-                    format!("{name}: no exposure time ({EXPOSURE_ATTRIBUTE}) in its header")
-                })?;
-            noise.extend(attributes.get(NOISE_ATTRIBUTE).copied());
-            Ok(Frame {
-                values: Raster {
-                    width: rgb.width,
-                    height: rgb.height,
-                    pixels: rgb.pixels,
-                },
-                exposure: crate::radiometry::Exposure {
-                    shutter_s: shutter_s as f64,
-                    f_number: 1.0,
-                    iso: 100.0,
-                },
-            })
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    noise.sort_by(f32::total_cmp);
-    Ok((frames, noise.get(noise.len() / 2).copied()))
+/// A fallback bracket as stored: its averages, the frames each averaged, and the median of
+/// their recorded noise.
+struct FallbackBracket {
+    frames: Vec<Frame>,
+    averaged: usize,
+    noise: Option<f32>,
 }
 
-/// The frames averaged per exposure in a stored fallback bracket (its first file's).
-pub fn fallback_frame_count(files: &RawFiles) -> Option<usize> {
-    let (name, bytes) = files.first()?;
-    let (_, attributes) = read_exr_rgb_bytes(bytes, name).ok()?;
-    attributes.get(FRAMES_ATTRIBUTE).map(|n| *n as usize)
+impl FallbackBracket {
+    fn read(files: &RawFiles) -> anyhow::Result<FallbackBracket> {
+        let (mut noise, mut averaged) = (Vec::new(), 0);
+        let frames = files
+            .iter()
+            .map(|(name, bytes)| {
+                let (rgb, attributes) = read_exr_rgb_bytes(bytes, name)?;
+                let shutter_s = attributes
+                    .get(EXPOSURE_ATTRIBUTE)
+                    .copied()
+                    .filter(|t| t.is_finite() && *t > 0.0)
+                    .with_context(|| {
+                        format!("{name}: no exposure time ({EXPOSURE_ATTRIBUTE}) in its header")
+                    })?;
+                noise.extend(attributes.get(NOISE_ATTRIBUTE).copied());
+                averaged = attributes
+                    .get(FRAMES_ATTRIBUTE)
+                    .map_or(averaged, |n| *n as usize);
+                Ok(Frame {
+                    values: Raster {
+                        width: rgb.width,
+                        height: rgb.height,
+                        pixels: rgb.pixels,
+                    },
+                    exposure: crate::radiometry::Exposure {
+                        shutter_s: shutter_s as f64,
+                        f_number: 1.0,
+                        iso: 100.0,
+                    },
+                })
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        noise.sort_by(f32::total_cmp);
+        Ok(FallbackBracket {
+            frames,
+            averaged,
+            noise: noise.get(noise.len() / 2).copied(),
+        })
+    }
 }
 
 /// Decodes a DSLR bracket and merges it into radiance, from each file's EXIF. Also returns

@@ -31,9 +31,6 @@ pub const SIMULATED_WEBCAM: &str = "simulated";
 const SIM_THETA_WIDTH: usize = 1024;
 
 pub struct SimulatedRig {
-    /// Where the DSLR answers: the PTP/IP server's address, or one where nothing listens
-    /// (`[simulation] dslr = "absent"`).
-    dslr_addr: std::net::SocketAddr,
     /// Whether the rig has the simulated V4L2 webcam.
     fallback: bool,
     /// Whether the rig has its simulated turntable (`[simulation] turntable`).
@@ -45,8 +42,7 @@ pub struct SimulatedRig {
     theta_time: Arc<Timed>,
     /// Seconds spent rendering scenes: the simulated world's time, not brdfd's.
     render_nanos: std::sync::atomic::AtomicU64,
-    /// Serves until dropped.
-    _ptpip: Server,
+    ptpip: Server,
     osc: OscServer,
     turntable: SerialPeer,
     /// Our own handle on the pseudo-terminal keeps it open while no client has it.
@@ -62,14 +58,9 @@ impl SimulatedRig {
         let dslr = Responder::new(Profile::NikonD5100, dslr_time.clone()).shared();
         dslr.lock().unwrap().faults.power_off_after_captures = simulation.dslr_powers_off_after;
         let ptpip = Server::start("127.0.0.1:0", dslr.clone())?;
-        let dslr_addr = match simulation.dslr {
-            SimulatedPresence::Present => ptpip.addr,
-            // A port that was free a moment ago: connecting is refused, as with a camera
-            // that is off.
-            SimulatedPresence::Absent => {
-                std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?
-            }
-        };
+        // An absent DSLR is one that is off: the server closes every connection at once.
+        // (A port nobody listens on could be taken by another program meanwhile.)
+        dslr.lock().unwrap().powered_off = simulation.dslr == SimulatedPresence::Absent;
         let theta_scene = Arc::new(Stage::new((
             SIM_THETA_WIDTH as u32,
             SIM_THETA_WIDTH as u32 / 2,
@@ -85,7 +76,6 @@ impl SimulatedRig {
         )?;
         let (turntable, end) = SerialPeer::start(Default::default())?;
         Ok(SimulatedRig {
-            dslr_addr,
             fallback,
             turntable_present: simulation.turntable == SimulatedPresence::Present,
             dslr_scene,
@@ -94,7 +84,7 @@ impl SimulatedRig {
             theta_scene,
             theta_time,
             render_nanos: Default::default(),
-            _ptpip: ptpip,
+            ptpip,
             osc,
             turntable,
             _turntable_end: end,
@@ -104,7 +94,7 @@ impl SimulatedRig {
     /// Where the rig's workers find the simulators.
     pub fn selectors(&self) -> RigDevices {
         RigDevices {
-            dslr: Some(Selector::PtpIp(self.dslr_addr.to_string())),
+            dslr: Some(Selector::PtpIp(self.ptpip.addr.to_string())),
             theta: Some(Selector::Osc(self.osc.url())),
             fallback_camera: self
                 .fallback

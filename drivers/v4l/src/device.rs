@@ -29,7 +29,7 @@ pub mod cid {
 /// EXPOSURE_AUTO's value for manual exposure.
 const EXPOSURE_MANUAL: i64 = 1;
 /// mmap buffers: enough that the driver never waits for us at 30 fps.
-const BUFFERS: u32 = 4;
+const BUFFERS: u32 = crate::STREAM_BUFFERS as u32;
 
 pub struct V4lCamera {
     dev: Device,

@@ -131,6 +131,9 @@ pub trait FrameSource: Send {
 pub const FRAME_TIMEOUT: Duration = Duration::from_secs(3);
 /// Frames thrown away after a settings change: UVC cameras apply controls a few frames late.
 pub const SETTLE_FRAMES: usize = 3;
+/// Buffers a stream keeps queued: frames exposed before a settings change can wait in all of
+/// them, so a change on a running stream throws these away too ([`grab`]).
+pub const STREAM_BUFFERS: usize = 4;
 
 /// Picks the format to stream: YUYV (uncompressed) at the largest size offered, else MJPG at
 /// the largest size.
@@ -166,7 +169,8 @@ pub fn start(src: &mut dyn FrameSource) -> Result<(PixelFormat, u32, u32)> {
 }
 
 /// On a streaming source: applies the settings, lets them settle, and grabs `count` decoded
-/// frames. A bracket calls it once per exposure.
+/// frames. A bracket calls it once per exposure, on the running stream: the frames queued
+/// before the change are thrown away with the settling ones.
 pub fn grab(
     src: &mut dyn FrameSource,
     settings: &Settings,
@@ -174,7 +178,7 @@ pub fn grab(
 ) -> Result<(Applied, Vec<Rgb8Frame>)> {
     let applied = src.apply(settings)?;
     tracing::info!(source = %src.describe(), ?applied, "V4L2 capture");
-    for _ in 0..SETTLE_FRAMES {
+    for _ in 0..STREAM_BUFFERS + SETTLE_FRAMES {
         src.next_frame(FRAME_TIMEOUT)?;
     }
     let mut frames = Vec::with_capacity(count);

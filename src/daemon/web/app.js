@@ -146,6 +146,7 @@ function follow(id) {
     const e = JSON.parse(message.data);
     // Any later event means the capture went on: the object was turned.
     $("continue").hidden = e.type !== "waiting_for_operator";
+    if (e.type === "waiting_for_operator") $("continue").dataset.view = e.view;
     switch (e.type) {
       case "phase_started": {
         const p = phaseRow(phases, e.phase);
@@ -246,7 +247,8 @@ async function cancel() {
 // Says the object has been turned by hand, as the capture asked.
 async function proceed() {
   $("continue").hidden = true;
-  if (following) await post(`/sessions/${encodeURIComponent(following.id)}/continue`);
+  const view = Number($("continue").dataset.view);
+  if (following) await post(`/sessions/${encodeURIComponent(following.id)}/continue`, { view });
 }
 
 async function refreshAll() {
