@@ -393,6 +393,18 @@ fn brdfd_finds_and_captures_from_vivid_on_a_real_kernel() {
             "brdfd v4l capture --device v4l:/dev/video0 --frames 4 --exposure 0.01 --gain 50 --out /tmp/frame.exr",
         ),
         step("frame", "wc -c < /tmp/frame.exr"),
+        // A capture on a rig whose only object camera is vivid, as the fallback: the light
+        // from the simulated THETA on the VM's loopback.
+        format!(
+            "ifconfig lo 127.0.0.1 up\n\
+             brdfd sim theta --http 127.0.0.1:8080 --width 256 --shot-ms 20 > /tmp/theta.log 2>&1 &\n\
+             until grep -q 'THETA Web API on' /tmp/theta.log; do sleep 0.1; done\n\
+             cat > /tmp/rig.toml <<'RIG'\n{VIVID_RIG}RIG\n"
+        ),
+        step(
+            "fallback",
+            "brdfd capture --in-process --rig /tmp/rig.toml --material gold --state-dir /tmp/state",
+        ),
     ]
     .concat();
     let console = boot(&m, &["vivid"], &[], &script);
@@ -454,7 +466,61 @@ fn brdfd_finds_and_captures_from_vivid_on_a_real_kernel() {
         .find_map(|l| l.trim().parse().ok())
         .expect("the frame's size");
     assert!(bytes > 10_000, "frame.exr is {bytes} bytes");
+
+    // The capture takes vivid as its object camera, streams from it through the real ioctls,
+    // and stops with the clear error the fallback gives for a camera without a manual
+    // exposure time: it cannot shoot a bracket.
+    let fallback = section(&console, "fallback");
+    assert!(!fallback.contains("exit 0"), "{fallback}");
+    assert!(
+        fallback.contains("object camera: the V4L2 fallback (the rig has no DSLR)"),
+        "{fallback}"
+    );
+    assert!(
+        fallback.contains("fallback camera: vivid") && fallback.contains("Yuyv"),
+        "{fallback}"
+    );
+    assert!(
+        fallback.contains("has no manual exposure control")
+            && fallback.contains("cannot shoot a bracket"),
+        "{fallback}"
+    );
 }
+
+/// A bench rig in the VM: the THETA simulated on loopback, vivid as the only object camera.
+const VIVID_RIG: &str = r#"theta_yaw_deg = 0.0
+
+[devices]
+theta = "osc:http://127.0.0.1:8080"
+fallback_camera = "v4l:/dev/video0"
+
+[geometry.camera]
+type = "orthographic"
+width = 64
+height = 64
+extent = 2.0
+position = [0.0, 0.0, 10.0]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+
+[geometry.shape]
+type = "sphere"
+center = [0.0, 0.0, 0.0]
+radius = 1.0
+
+[brackets]
+dslr_shutters = [0.01]
+dslr_f_number = 8.0
+dslr_iso = 100
+theta_shutters = [0.004]
+fallback_shutters = [0.01, 0.04]
+fallback_frames = 2
+fallback_gain = 50
+
+[calibration]
+theta_to_dslr = 1.0
+theta_to_fallback = 1.0
+"#;
 
 /// The simulated Nikon D5100 as a real USB gadget (configfs and FunctionFS on `dummy_hcd`'s
 /// loopback controller), and brdfd on the same kernel as the host: `brdfd ptp info` and
