@@ -388,9 +388,14 @@ pub const MAX_EXR_PIXELS: usize = 16384 * 8192;
 /// data); with room to spare.
 const MAX_EXR_COMPRESSION: usize = 1500;
 
-/// Refuses an OpenEXR file whose headers declare more than [`MAX_EXR_PIXELS`] in a layer, or
-/// more pixel data than its `file_bytes` could hold compressed: a small file claiming a large
-/// image would otherwise cost the whole image's memory before its data runs out.
+/// The largest tile side accepted whatever the image's size: small images are often stored in
+/// tiles larger than themselves (64, 128 or 256 pixels a side).
+const MAX_SMALL_TILE: usize = 256;
+
+/// Refuses an OpenEXR file whose headers declare more than [`MAX_EXR_PIXELS`] in a layer,
+/// tiles larger than the layer, or more pixel data than its `file_bytes` could hold
+/// compressed: a small file claiming a large image (or tile) would otherwise cost the whole
+/// image's memory before its data runs out.
 pub(crate) fn check_exr_size(
     meta: &exr::meta::MetaData,
     what: &str,
@@ -407,6 +412,21 @@ pub(crate) fn check_exr_size(
                     size.height()
                 ),
             ));
+        }
+        // A tile is decoded whole, so its size is allocated too: larger than the image (or a
+        // common tile, for small images) it can only be a damaged header.
+        if let exr::meta::BlockDescription::Tiles(t) = &header.blocks {
+            let (tw, th) = (t.tile_size.width(), t.tile_size.height());
+            if tw > size.width().max(MAX_SMALL_TILE) || th > size.height().max(MAX_SMALL_TILE) {
+                return Err(CoreError::format(
+                    what,
+                    format!(
+                        "tiles of {tw} × {th} pixels in a {} × {} image: the header is damaged",
+                        size.width(),
+                        size.height()
+                    ),
+                ));
+            }
         }
         let sample_bytes: usize = header
             .channels
@@ -730,6 +750,22 @@ impl CellSums {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 32 × 32 image in tiles of 117 million × 64 pixels (found by fuzzing `image_files`:
+    /// 2 KB that cost 800 MB) is refused as damaged.
+    #[test]
+    fn a_tile_larger_than_its_image_is_refused() {
+        // The fuzz input's first byte picks the reader; the EXR follows.
+        let input = include_bytes!("../../fuzz/seeds/image_files/tile-of-117m-pixels.bin");
+        let e = read_exr_rgb_bytes(&input[1..], "tiles.exr")
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("tiles of 117506112 × 64 pixels in a 32 × 32 image"),
+            "{e}"
+        );
+    }
 
     /// A header that declares far more pixels than its file could hold, compressed, is
     /// refused before anything is allocated for them; the same image whole reads.
