@@ -4,7 +4,7 @@
 
 use std::io::Cursor;
 
-use crate::core::raster::{srgb_to_linear, Raster};
+use crate::core::raster::{srgb8_to_linear, Raster};
 
 #[derive(Debug, thiserror::Error)]
 pub enum RadiometryError {
@@ -81,7 +81,7 @@ pub fn decode_jpeg(bytes: &[u8], file: &str) -> Result<Frame, RadiometryError> {
             reason: format!("JPEG: {e}"),
         })?
         .to_rgb8();
-    let lut: Vec<f32> = (0..256).map(|v| srgb_to_linear(v as f32 / 255.0)).collect();
+    let lut = srgb8_to_linear();
     let pixels = img
         .pixels()
         .map(|p| {
@@ -113,7 +113,7 @@ pub fn average_frames(
         .first()
         .ok_or_else(|| RadiometryError::Merge(format!("{source}: no frames to average")))?;
     let (w, h) = (first.width as usize, first.height as usize);
-    let lut: Vec<f32> = (0..256).map(|v| srgb_to_linear(v as f32 / 255.0)).collect();
+    let lut = srgb8_to_linear();
     let mut sum = vec![[0.0f32; 3]; w * h];
     for f in frames {
         if (f.width as usize, f.height as usize) != (w, h) || f.data.len() != w * h * 3 {
@@ -148,7 +148,7 @@ pub fn averaging_noise(frames: &[brdfd_v4l::Rgb8Frame]) -> Option<f32> {
     if n < 2 || frames.iter().any(|f| f.data.len() != first.data.len()) {
         return None;
     }
-    let lut: Vec<f32> = (0..256).map(|v| srgb_to_linear(v as f32 / 255.0)).collect();
+    let lut = srgb8_to_linear();
     // Every 7th value: the median of a few ten thousand is as good as of all.
     let mut relative: Vec<f32> = (0..first.data.len())
         .step_by(7)

@@ -14,6 +14,11 @@ pub struct Raster {
     pub pixels: Vec<[f32; 3]>,
 }
 
+/// Every 8-bit sRGB code decoded to linear: the table decoders of 8-bit images look up.
+pub fn srgb8_to_linear() -> [f32; 256] {
+    std::array::from_fn(|v| srgb_to_linear(v as f32 / 255.0))
+}
+
 /// sRGB transfer function, decoding (IEC 61966-2-1).
 pub fn srgb_to_linear(v: f32) -> f32 {
     if v <= 0.04045 {
@@ -96,9 +101,7 @@ impl Raster {
             .map_err(|e| CoreError::io(path, e))?
             .decode()
             .map_err(|e| CoreError::format(&what, format!("not a readable image: {e}")))?;
-        let lut: Vec<f32> = (0..=255)
-            .map(|v| srgb_to_linear(v as f32 / 255.0))
-            .collect();
+        let lut = srgb8_to_linear();
         let rgb = img.into_rgb8();
         Ok((
             Raster {
