@@ -208,24 +208,52 @@ fn dslr_bracket(
         }
         Ok(())
     });
-    let mut files = Vec::with_capacity(total as usize);
-    let phase = format!("{step}: object bracket");
+    let mut files = Arriving::new(cx, step, total);
     for (name, data, speed) in rx {
-        session.add_raw(step, &name, &data)?;
-        cx.say(format!(
-            "  {name}: {} bytes (camera applied {speed} s)",
-            data.len()
-        ));
-        files.push((name, data));
-        cx.progress.event(Event::Progress {
-            phase: phase.clone(),
-            done: files.len() as u64,
-            total,
-        });
+        let said = format!("  {name}: {} bytes (camera applied {speed} s)", data.len());
+        files.keep(session, name, data, said)?;
     }
     job.wait()?;
     super::flow::note_device(session, dslr.status().identity);
-    Ok(files)
+    Ok(files.files)
+}
+
+/// A bracket's files as they arrive: each stored in the session at once, said, and counted
+/// on the step's bar.
+struct Arriving<'a> {
+    cx: &'a Context<'a>,
+    step: &'a str,
+    total: u64,
+    files: RawFiles,
+}
+
+impl<'a> Arriving<'a> {
+    fn new(cx: &'a Context<'a>, step: &'a str, total: u64) -> Self {
+        Arriving {
+            cx,
+            step,
+            total,
+            files: Vec::with_capacity(total as usize),
+        }
+    }
+
+    fn keep(
+        &mut self,
+        session: &mut Session,
+        name: String,
+        bytes: Vec<u8>,
+        said: String,
+    ) -> anyhow::Result<()> {
+        session.add_raw(self.step, &name, &bytes)?;
+        self.cx.say(said);
+        self.files.push((name, bytes));
+        self.cx.progress.event(Event::Progress {
+            phase: format!("{}: object bracket", self.step),
+            done: self.files.len() as u64,
+            total: self.total,
+        });
+        Ok(())
+    }
 }
 
 /// One exposure of the fallback's bracket, as grabbed: the time asked and applied, and the
@@ -278,15 +306,14 @@ fn fallback_bracket(cx: &Context, session: &mut Session, step: &str) -> anyhow::
         }
         Ok(())
     });
-    let phase = format!("{step}: object bracket");
-    let mut files = Vec::with_capacity(total as usize);
+    let mut files = Arriving::new(cx, step, total);
     for (asked, applied, frames) in rx {
         let exposure = crate::radiometry::Exposure {
             shutter_s: applied,
             f_number: 1.0,
             iso: 100.0,
         };
-        let name = format!("fallback-{}.exr", files.len() + 1);
+        let name = format!("fallback-{}.exr", files.files.len() + 1);
         let average = average_frames(&frames, exposure, &name)?;
         let noise = averaging_noise(&frames);
         let v = &average.values;
@@ -298,22 +325,16 @@ fn fallback_bracket(cx: &Context, session: &mut Session, step: &str) -> anyhow::
             attributes.push((NOISE_ATTRIBUTE, ExrAttribute::F32(n)));
         }
         let bytes = exr_bytes(v.width, v.height, &v.pixels, &attributes)?;
-        session.add_raw(step, &name, &bytes)?;
-        cx.say(format!(
+        let said = format!(
             "  {name}: {} frames averaged at {applied} s (asked {asked} s){}",
             frames.len(),
             noise.map_or(String::new(), |n| format!(", noise {:.2}%", n * 100.0))
-        ));
-        files.push((name, bytes));
-        cx.progress.event(Event::Progress {
-            phase: phase.clone(),
-            done: files.len() as u64,
-            total,
-        });
+        );
+        files.keep(session, name, bytes, said)?;
     }
     job.wait()?;
     super::flow::note_device(session, camera.status().identity);
-    Ok(files)
+    Ok(files.files)
 }
 
 /// A view's bracket merged into radiance in the DSLR's units.
