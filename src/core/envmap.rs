@@ -450,8 +450,11 @@ pub(crate) fn check_exr_size(
 }
 
 pub(crate) fn read_exr_rgb(path: &Path) -> Result<ExrRgb> {
-    let bytes = std::fs::read(path).map_err(|e| CoreError::io(path, e))?;
-    read_exr_rgb_bytes(&bytes, &path.display().to_string()).map(|(rgb, _)| rgb)
+    let file = std::fs::File::open(path).map_err(|e| CoreError::io(path, e))?;
+    let len = file.metadata().map_err(|e| CoreError::io(path, e))?.len();
+    // Streamed from the file: a panorama's bytes are not held beside its pixels.
+    let reader = std::io::BufReader::new(file);
+    read_exr_rgb_from(reader, len as usize, &path.display().to_string()).map(|(rgb, _)| rgb)
 }
 
 /// An RGB EXR from its bytes (`what` names it in errors), with its float attributes.
@@ -459,10 +462,23 @@ pub fn read_exr_rgb_bytes(
     bytes: &[u8],
     what: &str,
 ) -> Result<(ExrRgb, std::collections::BTreeMap<String, f32>)> {
+    read_exr_rgb_from(std::io::Cursor::new(bytes), bytes.len(), what)
+}
+
+/// [`read_exr_rgb_bytes`] from a reader of `len` bytes: the header is read and checked
+/// ([`check_exr_size`]) before the pixels.
+fn read_exr_rgb_from(
+    mut reader: impl std::io::Read + std::io::Seek,
+    len: usize,
+    what: &str,
+) -> Result<(ExrRgb, std::collections::BTreeMap<String, f32>)> {
     use exr::prelude::*;
-    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
+    let meta = exr::meta::MetaData::read_from_buffered(&mut reader, false)
         .map_err(|e| CoreError::format(what, format!("not a readable OpenEXR header: {e}")))?;
-    check_exr_size(&meta, what, bytes.len())?;
+    check_exr_size(&meta, what, len)?;
+    reader
+        .seek(std::io::SeekFrom::Start(0))
+        .map_err(|e| CoreError::format(what, format!("rereading the file: {e}")))?;
     let image = read()
         .no_deep_data()
         .largest_resolution_level()
@@ -482,7 +498,7 @@ pub fn read_exr_rgb_bytes(
         )
         .first_valid_layer()
         .all_attributes()
-        .from_buffered(std::io::Cursor::new(bytes))
+        .from_buffered(reader)
         .map_err(|e| CoreError::format(what, format!("not a readable OpenEXR RGB image: {e}")))?;
     let floats: std::collections::BTreeMap<String, f32> = image
         .layer_data
