@@ -111,6 +111,10 @@ pub struct RigDevices {
 pub struct Brackets {
     /// DSLR shutter speeds, seconds.
     pub dslr_shutters: Vec<f64>,
+    /// The files the DSLR is set to make per shot: `raw+jpeg` (the default), `raw` or
+    /// `jpeg`. The merge uses the RAW files when there are any, the JPEGs otherwise.
+    #[serde(default)]
+    pub dslr_files: DslrFiles,
     pub dslr_f_number: f64,
     pub dslr_iso: u32,
     /// THETA shutter speeds, seconds; the light probe (1/16000 s to 1 s) if empty.
@@ -131,6 +135,17 @@ pub struct Brackets {
     /// The fallback camera's white balance, kelvin (auto white balance is switched off).
     #[serde(default = "default_fallback_white_balance")]
     pub fallback_white_balance_k: i64,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+pub enum DslrFiles {
+    #[default]
+    #[serde(rename = "raw+jpeg")]
+    RawJpeg,
+    #[serde(rename = "raw")]
+    Raw,
+    #[serde(rename = "jpeg")]
+    Jpeg,
 }
 
 fn default_theta_iso() -> u32 {
@@ -164,6 +179,10 @@ pub struct Calibration {
     /// no aperture): a rig with a `fallback_camera` needs it.
     #[serde(default)]
     pub theta_to_fallback: Option<f64>,
+    /// Fixed white balance for the DSLR's RAW files (red, green, blue multipliers), for a
+    /// bench whose light does not change; without it each file's as-shot balance is used.
+    #[serde(default)]
+    pub raw_white_balance: Option<[f32; 3]>,
 }
 
 /// A simulated rig's devices, to rehearse failures at the bench: a DSLR that is not there,
@@ -180,6 +199,10 @@ pub struct Simulation {
     /// `present` (the default) or `absent`: views are then turned by hand.
     #[serde(default)]
     pub turntable: SimulatedPresence,
+    /// The RAW files the simulated DSLR writes: `nef` (the default; 14-bit, a D5100's),
+    /// `dng` (14-bit) or `dng12` (12-bit).
+    #[serde(default)]
+    pub dslr_raw: Option<crate::bench::raw_file::RawFormat>,
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
@@ -496,6 +519,15 @@ impl Rig {
                 "calibration.theta_to_dslr",
                 "must be a positive scale",
             ));
+        }
+        if let Some(wb) = r.calibration.raw_white_balance {
+            if !wb.iter().all(|m| m.is_finite() && *m > 0.0) {
+                return Err(invalid(
+                    file,
+                    "calibration.raw_white_balance",
+                    format!("{wb:?}: the three multipliers must be positive"),
+                ));
+            }
         }
         check_fallback(file, &r)?;
         if !r.theta_yaw_deg.is_finite() {

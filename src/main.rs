@@ -27,11 +27,14 @@ fn main() -> std::process::ExitCode {
         }
         _ => "warn",
     };
+    // rawler (the RAW decoder) warns on every file whose lens its database lacks, which says
+    // nothing about the measurement; its errors reach the user as brdfd's own.
+    let filter = tracing_subscriber::EnvFilter::try_from_env("BRDFD_LOG").unwrap_or_else(|_| {
+        tracing_subscriber::EnvFilter::new(default)
+            .add_directive("rawler=off".parse().expect("a valid directive"))
+    });
     tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_env("BRDFD_LOG")
-                .unwrap_or_else(|_| default.into()),
-        )
+        .with_env_filter(filter)
         .with_writer(std::io::stderr)
         // Colour only for a person at a terminal: a log file or journal gets plain text.
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))

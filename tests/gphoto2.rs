@@ -136,3 +136,67 @@ fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
         );
     }
 }
+
+/// gphoto2 set to NEF + Fine gets both files of a shot from the simulated D5100's SDRAM
+/// (the NEF, then the JPEG on the same handle), and brdfd decodes the NEF it saved.
+#[test]
+fn gphoto2_downloads_the_nef_and_the_jpeg_of_one_shot() {
+    if !gphoto2_present() {
+        return;
+    }
+    let mut child = common::isolated(&mut Command::new(env!("CARGO_BIN_EXE_brdfd")))
+        .args([
+            "sim",
+            "camera",
+            "--profile",
+            "nikon-d5100",
+            "--size",
+            "48",
+            "--ptpip",
+            "127.0.0.1:0",
+        ])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stdout.take().unwrap());
+    let (mut address, mut rendered) = (String::new(), String::new());
+    lines.read_line(&mut address).unwrap();
+    let _sim = Sim(child);
+    // gphoto2 gives up on a camera that is busy rendering its scene: wait until it is ready.
+    lines.read_line(&mut rendered).unwrap();
+    assert!(rendered.contains("camera: ready"), "{rendered}");
+    let home = tempfile::tempdir().unwrap();
+    let tcp_port = address.trim().rsplit(':').next().unwrap();
+    let port = format!("ptpip:127.0.0.1:{tcp_port}:{tcp_port}");
+    let pattern = home.path().join("%f.%C");
+    let cap = gphoto2(
+        home.path(),
+        &[
+            "--port",
+            &port,
+            "--set-config-index",
+            "/main/capturesettings/imagequality=6",
+            "--capture-image-and-download",
+            "--filename",
+            pattern.to_str().unwrap(),
+        ],
+    );
+    let log = String::from_utf8_lossy(&cap.stdout).into_owned();
+    let mut saved: Vec<_> = std::fs::read_dir(home.path())
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| !n.starts_with('.'))
+        .collect();
+    saved.sort();
+    // gphoto2 names a file of format "undefined" (as Nikon reports NEF) capt0000.nef.
+    assert_eq!(saved, ["DSC_0001.JPG", "capt0000.nef"], "{log}");
+    let nef = std::fs::read(home.path().join("capt0000.nef")).unwrap();
+    let frame = brdfd::radiometry::raw::decode_raw(
+        &nef,
+        "capt0000.nef",
+        brdfd::radiometry::raw::WhiteBalance::AsShot,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!((frame.values.width, frame.values.height), (48, 48));
+}

@@ -139,6 +139,7 @@ fn hdr_merge_of_lossless_8_bit_frames_recovers_grace() {
                     f_number: 2.0,
                     iso: e.iso as f64,
                 },
+                white_balance: [1.0; 3],
             }
         })
         .collect();

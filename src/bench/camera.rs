@@ -6,6 +6,8 @@ use std::sync::OnceLock;
 
 use brdfd_sim::{ImageSource, Shot};
 
+use super::raw_file::{self, exif_ifd, RawFormat, ShotInfo};
+use super::tiff::{self, ByteOrder, Ifd, Value};
 use super::VirtualBench;
 use crate::core::raster::{linear_to_srgb, Raster};
 
@@ -18,6 +20,7 @@ pub struct BenchCamera {
     bench: VirtualBench,
     make: String,
     model: String,
+    raw: RawFormat,
     radiance: OnceLock<Result<Raster, String>>,
 }
 
@@ -27,8 +30,15 @@ impl BenchCamera {
             bench,
             make: make.into(),
             model: model.into(),
+            raw: RawFormat::Nef,
             radiance: OnceLock::new(),
         }
+    }
+
+    /// The RAW files it writes when the camera is set to RAW (NEF unless told).
+    pub fn with_raw(mut self, raw: RawFormat) -> Self {
+        self.raw = raw;
+        self
     }
 
     /// Renders the scene now, so that the first InitiateCapture answers as fast as a real
@@ -52,6 +62,28 @@ impl ImageSource for BenchCamera {
         let k = (shot.exposure_factor() * SENSOR_GAIN) as f32;
         let jpeg = expose_to_jpeg(r.width, r.height, &r.pixels, k)?;
         Ok(insert_exif(&jpeg, &self.make, &self.model, shot))
+    }
+
+    fn raw(&self, shot: &Shot) -> Result<Option<(&'static str, Vec<u8>)>, String> {
+        let r = self.radiance()?;
+        let k = (shot.exposure_factor() * SENSOR_GAIN) as f32;
+        let info = ShotInfo {
+            make: &self.make,
+            model: &self.model,
+            shutter_s: shot.shutter_s,
+            f_number: shot.f_number,
+            iso: shot.iso,
+        };
+        // Each shot's noise is its own, and the same for the same shot.
+        let seed = shot.sequence as u64;
+        Ok(Some(match self.raw {
+            RawFormat::Nef => ("NEF", raw_file::nef(r, k, &raw_file::D5100, &info, seed)),
+            RawFormat::Dng => ("DNG", raw_file::dng(r, k, &raw_file::D5100, &info, seed)),
+            RawFormat::Dng12 => {
+                let sensor = raw_file::D5100.at_12_bits();
+                ("DNG", raw_file::dng(r, k, &sensor, &info, seed))
+            }
+        }))
     }
 
     fn dimensions(&self) -> (u32, u32) {
@@ -105,58 +137,16 @@ pub fn insert_app1(jpeg: &[u8], header: &[u8], payload: &[u8]) -> Vec<u8> {
 
 /// A little-endian TIFF structure: IFD0 (Make, Model, Exif pointer), then the Exif IFD.
 fn exif_tiff(make: &str, model: &str, shot: &Shot) -> Vec<u8> {
-    // Exposure time as 1/n or n/1 seconds, as cameras write it.
-    let exposure = if shot.shutter_s >= 1.0 {
-        ((shot.shutter_s * 10.0).round() as u32, 10)
-    } else {
-        (10_000, (10_000.0 / shot.shutter_s).round() as u32)
+    let info = ShotInfo {
+        make,
+        model,
+        shutter_s: shot.shutter_s,
+        f_number: shot.f_number,
+        iso: shot.iso,
     };
-    let fnum = ((shot.f_number * 100.0).round() as u32, 100);
-    let ascii = |s: &str| {
-        let mut v = s.as_bytes().to_vec();
-        v.push(0);
-        v
-    };
-    let (make, model) = (ascii(make), ascii(model));
-    const IFD0: u32 = 8;
-    let ifd0_len = 2 + 3 * 12 + 4;
-    let exif_ifd = IFD0 + ifd0_len;
-    let exif_len = 2 + 3 * 12 + 4;
-    let mut extra = exif_ifd + exif_len;
-    let mut tail = Vec::new();
-    let mut place = |bytes: &[u8], tail: &mut Vec<u8>| {
-        let at = extra;
-        tail.extend_from_slice(bytes);
-        if bytes.len() % 2 == 1 {
-            tail.push(0);
-        }
-        extra = exif_ifd + exif_len + tail.len() as u32;
-        at
-    };
-    let make_at = place(&make, &mut tail);
-    let model_at = place(&model, &mut tail);
-    let rational = |(n, d): (u32, u32)| [n.to_le_bytes(), d.to_le_bytes()].concat();
-    let exp_at = place(&rational(exposure), &mut tail);
-    let fnum_at = place(&rational(fnum), &mut tail);
-
-    let mut t = b"II*\0".to_vec();
-    t.extend_from_slice(&IFD0.to_le_bytes());
-    let entry = |t: &mut Vec<u8>, tag: u16, ty: u16, count: u32, value: u32| {
-        t.extend_from_slice(&tag.to_le_bytes());
-        t.extend_from_slice(&ty.to_le_bytes());
-        t.extend_from_slice(&count.to_le_bytes());
-        t.extend_from_slice(&value.to_le_bytes());
-    };
-    t.extend_from_slice(&3u16.to_le_bytes());
-    entry(&mut t, 0x010F, 2, make.len() as u32, make_at);
-    entry(&mut t, 0x0110, 2, model.len() as u32, model_at);
-    entry(&mut t, 0x8769, 4, 1, exif_ifd);
-    t.extend_from_slice(&0u32.to_le_bytes());
-    t.extend_from_slice(&3u16.to_le_bytes());
-    entry(&mut t, 0x829A, 5, 1, exp_at);
-    entry(&mut t, 0x829D, 5, 1, fnum_at);
-    entry(&mut t, 0x8827, 3, 1, shot.iso.min(65535));
-    t.extend_from_slice(&0u32.to_le_bytes());
-    t.extend_from_slice(&tail);
-    t
+    let mut ifd0 = Ifd::new();
+    ifd0.set(0x010F, Value::Ascii(make.into()))
+        .set(0x0110, Value::Ascii(model.into()))
+        .set(0x8769, Value::Ifds(vec![exif_ifd(&info, [])]));
+    tiff::write(ByteOrder::Little, &ifd0)
 }

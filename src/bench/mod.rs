@@ -9,6 +9,8 @@
 pub mod cache;
 pub mod camera;
 pub mod panorama;
+pub mod raw_file;
+pub mod tiff;
 
 use crate::core::bivariate::Bivariate;
 use crate::core::envmap::{EnvMap, LightSet};

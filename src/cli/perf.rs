@@ -31,6 +31,10 @@ pub struct BenchArgs {
     /// Image size of the simulated camera, with --capture.
     #[arg(long, default_value_t = 256)]
     pub size: usize,
+    /// Only the RAW benchmark: decoding a 16 MP NEF (a D5100's sensor), and merging a
+    /// bracket of five.
+    #[arg(long)]
+    pub raw: bool,
 }
 
 fn median_secs(runs: usize, mut f: impl FnMut()) -> f64 {
@@ -64,6 +68,9 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
     }
     if a.capture {
         return capture_bench(a.runs, a.size);
+    }
+    if a.raw {
+        return raw_bench(a.runs);
     }
     let basis = Basis::embedded();
     let model = basis.model();
@@ -307,5 +314,61 @@ fn capture_bench(runs: usize, size: usize) -> anyhow::Result<()> {
         "brdfd's own: whole process less the devices' time",
         median(own)
     );
+    Ok(())
+}
+
+/// RAW decoding and merging at a D5100's full size: NEFs as the simulated camera writes them
+/// (uncompressed 14-bit, 4992 × 3280 with a 4928 × 3264 crop) of a smooth scene with
+/// highlights, one per exposure of the rig's default bracket.
+fn raw_bench(runs: usize) -> anyhow::Result<()> {
+    use brdfd::bench::camera::SENSOR_GAIN;
+    use brdfd::bench::raw_file::{nef, ShotInfo, D5100};
+    use brdfd::core::raster::Raster;
+    use brdfd::radiometry::raw::{decode_raw, WhiteBalance};
+    use brdfd::radiometry::{merge_hdr, Frame};
+
+    let (w, h) = (4928, 3264);
+    let mut scene = Raster::black(w, h);
+    for (i, p) in scene.pixels.iter_mut().enumerate() {
+        let (x, y) = ((i % w) as f32 / w as f32, (i / w) as f32 / h as f32);
+        let v = 0.02 + 2.0 * (x * y).powi(3);
+        *p = [v, 0.8 * v, 0.5 * v];
+    }
+    let shutters = [0.001, 0.004, 0.0166, 0.0666, 0.25];
+    let files: Vec<Vec<u8>> = shutters
+        .iter()
+        .enumerate()
+        .map(|(i, &t)| {
+            let shot = ShotInfo {
+                make: "NIKON CORPORATION",
+                model: "NIKON D5100",
+                shutter_s: t,
+                f_number: 8.0,
+                iso: 100,
+            };
+            let k = (t / 64.0 * SENSOR_GAIN) as f32;
+            nef(&scene, k, &D5100, &shot, i as u64)
+        })
+        .collect();
+    println!(
+        "\nRAW: NEF of a D5100 (4992 × 3280 sensor, 14-bit uncompressed, {:.1} MB):",
+        files[0].len() as f64 / 1e6
+    );
+    let decode = |bytes: &[u8]| {
+        decode_raw(bytes, "bench.NEF", WhiteBalance::AsShot).expect("the simulated NEF decodes")
+    };
+    let one = median_secs(runs, || {
+        std::hint::black_box(decode(&files[2]));
+    });
+    println!("  decode one (black and white level, crop, demosaic, clip marks): {one:.3} s");
+    let frames: Vec<Frame> = files.iter().map(|f| decode(f)).collect();
+    let merge = median_secs(runs, || {
+        std::hint::black_box(merge_hdr(&frames, SENSOR_GAIN).expect("merges"));
+    });
+    let both = median_secs(runs.min(3), || {
+        let frames: Vec<Frame> = files.iter().map(|f| decode(f)).collect();
+        std::hint::black_box(merge_hdr(&frames, SENSOR_GAIN).expect("merges"));
+    });
+    println!("  merge of 5 decoded frames: {merge:.3} s; decode 5 and merge: {both:.3} s");
     Ok(())
 }

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use brdfd::selector::Selector;
-use brdfd_ptp::{Camera, CaptureOptions, Exposure, Target};
+use brdfd_ptp::{Camera, CaptureOptions, Exposure, ImageFormat, Target};
 
 #[derive(clap::Subcommand)]
 pub enum PtpCommand {
@@ -41,6 +41,9 @@ pub struct CaptureArgs {
     /// Save to the card and keep the file there (Nikon: the default keeps it in RAM only).
     #[arg(long)]
     pub card: bool,
+    /// The files each shot makes: jpeg, raw, or raw+jpeg; as the camera is set if not given.
+    #[arg(long, value_parser = ["jpeg", "raw", "raw+jpeg"])]
+    pub files: Option<String>,
     /// Folder for the files.
     #[arg(long, default_value = ".")]
     pub out: PathBuf,
@@ -78,6 +81,14 @@ pub fn run(cmd: PtpCommand) -> anyhow::Result<()> {
                 shown(applied.f_number.map(|f| format!("f/{f}"))),
                 shown(applied.iso.map(|i| i.to_string()))
             );
+            if let Some(files) = &a.files {
+                let want = match files.as_str() {
+                    "raw" => ImageFormat::Raw,
+                    "raw+jpeg" => ImageFormat::RawJpeg,
+                    _ => ImageFormat::Jpeg,
+                };
+                println!("files: {:?}", cam.set_format(want)?);
+            }
             let opts = CaptureOptions {
                 target: if a.card { Target::Card } else { Target::Sdram },
                 delete_after: false,
@@ -92,10 +103,11 @@ pub fn run(cmd: PtpCommand) -> anyhow::Result<()> {
                 if let Some(s) = s {
                     println!("shutter {s} s: camera applied {} s", cam.set_shutter(s)?);
                 }
-                let shot = cam.capture(&opts, &mut |_, _, _| {})?;
-                eprintln!("  downloaded {} bytes", shot.data.len());
-                let path = super::write_new(&a.out, &shot.info.filename, &shot.data)?;
-                println!("{}", path.display());
+                for file in cam.capture_all(&opts, &mut |_, _, _| {})? {
+                    eprintln!("  downloaded {} bytes", file.data.len());
+                    let path = super::write_new(&a.out, &file.info.filename, &file.data)?;
+                    println!("{}", path.display());
+                }
             }
             cam.close()?;
         }

@@ -10,6 +10,7 @@ use anyhow::{anyhow, bail, Context};
 use brdfd::bench::cache::RenderCache;
 use brdfd::bench::camera::BenchCamera;
 use brdfd::bench::panorama::BenchPanorama;
+use brdfd::bench::raw_file::RawFormat;
 use brdfd::bench::VirtualBench;
 use brdfd_sim::ptp::{ptpip::Server, Profile, Responder};
 use brdfd_sim::theta::{OscServer, ThetaConfig};
@@ -51,6 +52,10 @@ pub struct CameraArgs {
     /// (stalls) the bulk-in endpoint after this many bytes and abandons the transfer.
     #[arg(long, value_name = "BYTES", requires = "functionfs")]
     pub halt_in_download: Option<usize>,
+    /// The RAW files it writes when set to RAW or RAW + JPEG (image quality NEF+Fine, say):
+    /// nef (14-bit, uncompressed), dng (14-bit) or dng12 (12-bit).
+    #[arg(long, value_enum, default_value = "nef")]
+    pub raw: RawFormat,
 }
 
 #[derive(clap::Args)]
@@ -148,11 +153,15 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
                 (None, _) => {
                     let bench = VirtualBench::embedded(&a.material, a.size)?
                         .with_cache(RenderCache::user());
-                    rendering = Some(Arc::new(BenchCamera::new(
-                        bench,
-                        "brdfd",
-                        &format!("simulated {}", a.profile),
-                    )));
+                    // The D5100 names itself as the real one does: RAW readers find the
+                    // sensor's layout and levels by make and model.
+                    let (make, model): (String, String) = match profile {
+                        Profile::NikonD5100 => ("NIKON CORPORATION".into(), "NIKON D5100".into()),
+                        _ => ("brdfd".into(), format!("simulated {}", a.profile)),
+                    };
+                    rendering = Some(Arc::new(
+                        BenchCamera::new(bench, &make, &model).with_raw(a.raw),
+                    ));
                     rendering.clone().unwrap()
                 }
             };

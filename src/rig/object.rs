@@ -9,13 +9,15 @@
 use std::sync::mpsc;
 
 use anyhow::{bail, Context as _};
-use brdfd_ptp::{CaptureOptions, Exposure};
+use brdfd_ptp::{CaptureOptions, Exposure, ImageFormat};
 use serde_json::json;
 
 use super::flow::{Context, RawFiles};
 use super::Event;
+use crate::config::DslrFiles;
 use crate::core::envmap::{exr_bytes, read_exr_rgb_bytes, ExrAttribute};
 use crate::core::raster::Raster;
+use crate::radiometry::raw::{decode_raw, is_raw_name, WhiteBalance};
 use crate::radiometry::{
     average_frames, averaging_noise, decode_jpeg, merge_hdr, merged_white_level, Frame,
 };
@@ -165,7 +167,7 @@ fn dslr_bracket(
 ) -> anyhow::Result<RawFiles> {
     let dslr = cx.devices.dslr.as_ref().context("the rig has no DSLR")?;
     let b = cx.rig.brackets.clone();
-    let (tx, rx) = mpsc::channel::<(String, Vec<u8>, f64)>();
+    let (tx, rx) = mpsc::channel::<(String, Vec<u8>, f64, bool)>();
     let (progress, cancel) = (cx.progress.clone(), cx.cancel.clone());
     let total = shutters.len() as u64;
     let shutters = shutters.to_vec();
@@ -185,12 +187,13 @@ fn dslr_bracket(
                 applied.iso.unwrap_or(0)
             ),
         });
+        set_files(cam, b.dslr_files, progress.as_ref())?;
         let opts = CaptureOptions::default();
         for &s in &shutters {
             cancel.check()?;
             let speed = cam.set_shutter(s)?;
             let mut last = u64::MAX;
-            let shot = cam.capture(&opts, &mut |_, done, total| {
+            let files = cam.capture_all(&opts, &mut |_, done, total| {
                 // One event per tenth: enough for a bar, few enough for a stream.
                 let tenth = (done * 10).checked_div(total).unwrap_or(0);
                 if tenth != last {
@@ -202,28 +205,69 @@ fn dslr_bracket(
                     });
                 }
             })?;
-            if tx.send((shot.info.filename, shot.data, speed)).is_err() {
-                bail!("the capture stopped taking files");
+            let last = files.len() - 1;
+            for (i, f) in files.into_iter().enumerate() {
+                if tx
+                    .send((f.info.filename, f.data, speed, i == last))
+                    .is_err()
+                {
+                    bail!("the capture stopped taking files");
+                }
             }
         }
         Ok(())
     });
     let mut files = Arriving::new(cx, step, total);
-    for (name, data, speed) in rx {
+    for (name, data, speed, shot_done) in rx {
         let said = format!("  {name}: {} bytes (camera applied {speed} s)", data.len());
-        files.keep(session, name, data, said)?;
+        files.keep(session, name, data, said, shot_done)?;
     }
     job.wait()?;
     super::flow::note_device(session, dslr.status().identity);
     Ok(files.files)
 }
 
+/// Sets the DSLR to make the files the rig asks for. A camera that offers no RAW shoots
+/// JPEG, and says so: the merge then assumes its tone curve is sRGB.
+fn set_files(
+    cam: &mut brdfd_ptp::Camera,
+    want: DslrFiles,
+    progress: &dyn super::Progress,
+) -> anyhow::Result<()> {
+    let format = match want {
+        DslrFiles::RawJpeg => ImageFormat::RawJpeg,
+        DslrFiles::Raw => ImageFormat::Raw,
+        DslrFiles::Jpeg => ImageFormat::Jpeg,
+    };
+    match cam.set_format(format) {
+        Ok(_) => Ok(()),
+        Err(brdfd_ptp::PtpError::Unsupported(what)) if format != ImageFormat::Jpeg => {
+            progress.event(Event::Message {
+                text: format!(
+                    "DSLR: {what} is not offered; shooting JPEG, whose tone curve the merge takes as sRGB"
+                ),
+            });
+            cam.set_format(ImageFormat::Jpeg)
+                .map(|_| ())
+                .or_else(|e| match e {
+                    // A camera without the property shoots what it is set to.
+                    brdfd_ptp::PtpError::Response { .. } => Ok(()),
+                    e => Err(e.into()),
+                })
+        }
+        // A camera without a compression property shoots what it is set to on its body.
+        Err(brdfd_ptp::PtpError::Response { .. }) => Ok(()),
+        Err(e) => Err(e.into()),
+    }
+}
+
 /// A bracket's files as they arrive: each stored in the session at once, said, and counted
-/// on the step's bar.
+/// on the step's bar (by shot: a RAW + JPEG shot is two files).
 struct Arriving<'a> {
     cx: &'a Context<'a>,
     step: &'a str,
     total: u64,
+    shots: u64,
     files: RawFiles,
 }
 
@@ -233,25 +277,31 @@ impl<'a> Arriving<'a> {
             cx,
             step,
             total,
+            shots: 0,
             files: Vec::with_capacity(total as usize),
         }
     }
 
+    /// Keeps one file; `shot_done` when it is its shot's last.
     fn keep(
         &mut self,
         session: &mut Session,
         name: String,
         bytes: Vec<u8>,
         said: String,
+        shot_done: bool,
     ) -> anyhow::Result<()> {
         session.add_raw(self.step, &name, &bytes)?;
         self.cx.say(said);
         self.files.push((name, bytes));
-        self.cx.progress.event(Event::Progress {
-            phase: format!("{}: object bracket", self.step),
-            done: self.files.len() as u64,
-            total: self.total,
-        });
+        if shot_done {
+            self.shots += 1;
+            self.cx.progress.event(Event::Progress {
+                phase: format!("{}: object bracket", self.step),
+                done: self.shots,
+                total: self.total,
+            });
+        }
         Ok(())
     }
 }
@@ -330,7 +380,7 @@ fn fallback_bracket(cx: &Context, session: &mut Session, step: &str) -> anyhow::
             frames.len(),
             noise.map_or(String::new(), |n| format!(", noise {:.2}%", n * 100.0))
         );
-        files.keep(session, name, bytes, said)?;
+        files.keep(session, name, bytes, said, true)?;
     }
     job.wait()?;
     super::flow::note_device(session, camera.status().identity);
@@ -416,6 +466,7 @@ impl FallbackBracket {
                         f_number: 1.0,
                         iso: 100.0,
                     },
+                    white_balance: [1.0; 3],
                 })
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
@@ -428,22 +479,35 @@ impl FallbackBracket {
     }
 }
 
-/// Decodes a DSLR bracket and merges it into radiance, from each file's EXIF. Also returns
-/// the level at and above which the merge had only clipped frames.
+/// Decodes a DSLR bracket and merges it into radiance, from each file's own exposure. Also
+/// returns the level at and above which the merge had only clipped frames.
+///
+/// RAW files are preferred: they are linear. If the bracket has none, or they cannot be
+/// decoded and there are JPEGs beside them, the JPEGs are merged, their tone curve taken as
+/// sRGB (a camera's own curve differs, which the estimate then absorbs).
 fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<(Raster, Option<f32>)> {
     use crate::bench::camera::SENSOR_GAIN;
-    let frames = files
+    let (raw, jpeg): (Vec<_>, Vec<_>) = files.iter().partition(|(name, _)| is_raw_name(name));
+    if !raw.is_empty() {
+        match decode_raw_bracket(cx, &raw) {
+            Ok(frames) => {
+                return Ok((
+                    merge_hdr(&frames, SENSOR_GAIN)?,
+                    merged_white_level(&frames, SENSOR_GAIN),
+                ))
+            }
+            Err(e) if !jpeg.is_empty() => cx.warn(format!(
+                "the RAW files cannot be merged ({e:#}); merging the JPEG files instead, their tone curve taken as sRGB"
+            )),
+            Err(e) => return Err(e),
+        }
+    }
+    let frames = jpeg
         .iter()
         .map(|(name, bytes)| {
-            // RAW files are stored as sent (raw/ keeps them for a later decoder); the merge
-            // takes decoded linear frames, so a RAW decoder plugs in here by file type.
-            let ext = name.rsplit('.').next().unwrap_or("").to_ascii_lowercase();
-            if matches!(ext.as_str(), "nef" | "nrw" | "dng" | "cr2" | "cr3" | "arw") {
-                bail!("{name}: RAW decoding is not built yet; the file is kept in the session. Set the camera to JPEG (fine) to estimate");
-            }
             let f = decode_jpeg(bytes, name)?;
             cx.say(format!(
-                "  {name}: EXIF {:.4} s f/{} ISO {}",
+                "  {name}: JPEG, EXIF {:.4} s f/{} ISO {}",
                 f.exposure.shutter_s, f.exposure.f_number, f.exposure.iso
             ));
             Ok(f)
@@ -453,4 +517,25 @@ fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<(Raster, Option<
         merge_hdr(&frames, SENSOR_GAIN)?,
         merged_white_level(&frames, SENSOR_GAIN),
     ))
+}
+
+/// The RAW files of a bracket decoded, with the rig's fixed white balance if it has one.
+fn decode_raw_bracket(cx: &Context, files: &[&(String, Vec<u8>)]) -> anyhow::Result<Vec<Frame>> {
+    let wb = match cx.rig.calibration.raw_white_balance {
+        Some(m) => WhiteBalance::Fixed(m),
+        None => WhiteBalance::AsShot,
+    };
+    files
+        .iter()
+        .map(|(name, bytes)| {
+            let f = decode_raw(bytes, name, wb)?;
+            let [r, _, b] = f.white_balance;
+            cx.say(format!(
+                "  {name}: RAW {}×{}, EXIF {:.4} s f/{} ISO {}, white balance red ×{r:.3} blue ×{b:.3}",
+                f.values.width, f.values.height,
+                f.exposure.shutter_s, f.exposure.f_number, f.exposure.iso
+            ));
+            Ok(f)
+        })
+        .collect()
 }

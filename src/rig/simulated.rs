@@ -13,6 +13,7 @@ use brdfd_sim::{Stage, Timed};
 
 use crate::bench::camera::BenchCamera;
 use crate::bench::panorama::BenchPanorama;
+use crate::bench::raw_file::RawFormat;
 use crate::bench::VirtualBench;
 use crate::config::{RigDevices, SimulatedPresence, Simulation};
 use crate::rig::worker::Opener;
@@ -35,6 +36,8 @@ pub struct SimulatedRig {
     fallback: bool,
     /// Whether the rig has its simulated turntable (`[simulation] turntable`).
     turntable_present: bool,
+    /// The RAW files the DSLR writes (`[simulation] dslr_raw`).
+    raw: RawFormat,
     dslr_scene: Arc<Stage>,
     dslr_time: Arc<Timed>,
     dslr: SharedResponder,
@@ -78,6 +81,7 @@ impl SimulatedRig {
         Ok(SimulatedRig {
             fallback,
             turntable_present: simulation.turntable == SimulatedPresence::Present,
+            raw: simulation.dslr_raw.unwrap_or(RawFormat::Nef),
             dslr_scene,
             dslr_time,
             dslr,
@@ -131,7 +135,8 @@ impl SimulatedRig {
     /// rendered at once, as a real scene simply exists.
     pub fn show_object(&self, bench: &VirtualBench) -> anyhow::Result<()> {
         let t = Instant::now();
-        let camera = BenchCamera::new(bench.clone(), "NIKON CORPORATION", "NIKON D5100");
+        let camera =
+            BenchCamera::new(bench.clone(), "NIKON CORPORATION", "NIKON D5100").with_raw(self.raw);
         camera
             .prepare()
             .map_err(|e| anyhow::anyhow!("rendering the simulated scene: {e}"))?;

@@ -64,13 +64,25 @@ impl Camera {
                 || self.info.supports(op::NIKON_INITIATE_CAPTURE_REC_IN_MEDIA))
     }
 
-    /// Triggers one exposure and downloads it.
+    /// Triggers one exposure and downloads its first file: for cameras set to make one file
+    /// per shot (the THETA, a JPEG-only DSLR). [`Camera::capture_all`] keeps every file.
     pub fn capture(
         &mut self,
         opts: &CaptureOptions,
         progress: CaptureProgress,
     ) -> Result<Captured> {
-        let handle = if self.is_nikon() {
+        let mut files = self.capture_all(opts, progress)?;
+        Ok(files.swap_remove(0))
+    }
+
+    /// Triggers one exposure and downloads every file it makes (a RAW + JPEG shot makes
+    /// two), in the order the camera announces them. Never empty.
+    pub fn capture_all(
+        &mut self,
+        opts: &CaptureOptions,
+        progress: CaptureProgress,
+    ) -> Result<Vec<Captured>> {
+        let handles = if self.is_nikon() {
             self.trigger_nikon(opts.target, progress)?
         } else if self.info.supports(op::INITIATE_CAPTURE) {
             self.trigger_generic(progress)?
@@ -79,7 +91,26 @@ impl Camera {
                 "remote capture (InitiateCapture)".into(),
             ));
         };
-        let info = self.object_info(handle)?;
+        let mut files = Vec::new();
+        for handle in handles {
+            if handle == NIKON_SDRAM_HANDLE {
+                self.fetch_sdram(&mut files, progress)?;
+            } else {
+                let info = self.object_info(handle)?;
+                files.push(self.fetch(handle, info, opts, progress)?);
+            }
+        }
+        Ok(files)
+    }
+
+    /// Downloads one object whose ObjectInfo is known, deleting it after if asked.
+    fn fetch(
+        &mut self,
+        handle: u32,
+        info: ObjectInfo,
+        opts: &CaptureOptions,
+        progress: CaptureProgress,
+    ) -> Result<Captured> {
         progress("download", 0, info.compressed_size as u64);
         let data = self.download(handle, info.compressed_size as u64, &mut |d, t| {
             progress("download", d, t)
@@ -98,8 +129,43 @@ impl Camera {
         Ok(Captured { handle, info, data })
     }
 
-    /// InitiateCapture, then ObjectAdded and CaptureComplete in either order.
-    fn trigger_generic(&mut self, progress: CaptureProgress) -> Result<u32> {
+    /// Nikon's SDRAM holds a shot's files one at a time on one handle: a RAW + JPEG shot
+    /// hands out the JPEG once the NEF has been read (or deleted). So after each download
+    /// the handle is asked again, until it is free.
+    fn fetch_sdram(&mut self, files: &mut Vec<Captured>, progress: CaptureProgress) -> Result<()> {
+        // More files than any shot makes means the camera keeps handing out the same ones.
+        const MOST_FILES_PER_SHOT: usize = 4;
+        let opts = CaptureOptions::default();
+        loop {
+            let info = match self.object_info(NIKON_SDRAM_HANDLE) {
+                Ok(info) => info,
+                Err(PtpError::Response {
+                    code: rc::INVALID_OBJECT_HANDLE,
+                    ..
+                }) if !files.is_empty() => return Ok(()),
+                Err(e) => return Err(e),
+            };
+            if files.iter().any(|f| f.info.filename == info.filename) {
+                // Still the file just read: this camera frees it when it is deleted.
+                self.delete_object(NIKON_SDRAM_HANDLE)?;
+                match self.object_info(NIKON_SDRAM_HANDLE) {
+                    Ok(next) if files.iter().all(|f| f.info.filename != next.filename) => {}
+                    _ => return Ok(()),
+                }
+                continue;
+            }
+            if files.len() >= MOST_FILES_PER_SHOT {
+                return Err(PtpError::Protocol(format!(
+                    "the camera offered more than {MOST_FILES_PER_SHOT} files for one shot (the last: {})",
+                    info.filename
+                )));
+            }
+            files.push(self.fetch(NIKON_SDRAM_HANDLE, info, &opts, progress)?);
+        }
+    }
+
+    /// InitiateCapture, then an ObjectAdded per file and CaptureComplete, in any order.
+    fn trigger_generic(&mut self, progress: CaptureProgress) -> Result<Vec<u32>> {
         progress("exposure", 0, 0);
         self.call_with(
             op::INITIATE_CAPTURE,
@@ -109,12 +175,12 @@ impl Camera {
             &mut |_, _| {},
         )?;
         let start = Instant::now();
-        let (mut added, mut complete) = (None, false);
-        while added.is_none() || !complete {
+        let (mut added, mut complete) = (Vec::new(), false);
+        while added.is_empty() || !complete {
             let left = self.timeouts.capture.saturating_sub(start.elapsed());
             if left.is_zero() {
                 return Err(PtpError::Timeout {
-                    what: if added.is_none() {
+                    what: if added.is_empty() {
                         "capture"
                     } else {
                         "capture complete"
@@ -123,9 +189,10 @@ impl Camera {
                 });
             }
             match self.next_event(left.min(Duration::from_millis(500)))? {
-                Some(e) if e.code == event::OBJECT_ADDED => {
-                    added.get_or_insert(e.param(0));
+                Some(e) if e.code == event::OBJECT_ADDED && !added.contains(&e.param(0)) => {
+                    added.push(e.param(0));
                 }
+                Some(e) if e.code == event::OBJECT_ADDED => {}
                 Some(e) if e.code == event::CAPTURE_COMPLETE => complete = true,
                 Some(e) if e.code == event::STORE_FULL => {
                     return Err(PtpError::Protocol("the camera's card is full".into()))
@@ -134,13 +201,15 @@ impl Camera {
                 None => {}
             }
         }
-        Ok(added.unwrap())
+        Ok(added)
     }
 
     /// Nikon: InitiateCaptureRecInSdram or RecInMedia, GetEvent polling until the object
     /// appears, then DeviceReady polling through busy replies. This order is what a real
-    /// D5500 shows in `shared/data/ptp/nikon-d5500-capture.pcapng`.
-    fn trigger_nikon(&mut self, target: Target, progress: CaptureProgress) -> Result<u32> {
+    /// D5500 shows in `shared/data/ptp/nikon-d5500-capture.pcapng`. To the card, every
+    /// ObjectAdded seen until the camera is ready again is a file of the shot; in SDRAM the
+    /// files come one after another on one handle ([`Camera::fetch_sdram`]).
+    fn trigger_nikon(&mut self, target: Target, progress: CaptureProgress) -> Result<Vec<u32>> {
         progress("exposure", 0, 0);
         let (code, params): (u16, &[u32]) = match target {
             Target::Sdram => (op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM, &[0xFFFF_FFFF]),
@@ -148,37 +217,45 @@ impl Camera {
         };
         self.call_with(code, params, None, self.timeouts.capture, &mut |_, _| {})?;
         let start = Instant::now();
-        let mut handle = None;
-        while handle.is_none() {
+        let mut handles = Vec::new();
+        while handles.is_empty() {
             if start.elapsed() > self.timeouts.capture {
                 return Err(PtpError::Timeout {
                     what: "capture",
                     after: self.timeouts.capture,
                 });
             }
-            let events = decode_nikon_events(&self.data_in(op::NIKON_GET_EVENT, &[])?)?;
-            for (code, param) in events {
-                match code {
-                    event::NIKON_OBJECT_ADDED_IN_SDRAM => {
-                        handle = Some(if param == 0 {
-                            NIKON_SDRAM_HANDLE
-                        } else {
-                            param
-                        })
-                    }
-                    event::OBJECT_ADDED if target == Target::Card => handle = Some(param),
-                    event::STORE_FULL => {
-                        return Err(PtpError::Protocol("the camera's card is full".into()))
-                    }
-                    _ => {}
-                }
-            }
-            if handle.is_none() {
+            self.nikon_added(target, &mut handles)?;
+            if handles.is_empty() {
                 std::thread::sleep(self.timeouts.poll);
             }
         }
         self.wait_device_ready(start)?;
-        Ok(handle.unwrap())
+        if target == Target::Card {
+            self.nikon_added(target, &mut handles)?;
+        }
+        Ok(handles)
+    }
+
+    /// One GetEvent poll: adds the handles of new objects to `handles`.
+    fn nikon_added(&mut self, target: Target, handles: &mut Vec<u32>) -> Result<()> {
+        let events = decode_nikon_events(&self.data_in(op::NIKON_GET_EVENT, &[])?)?;
+        for (code, param) in events {
+            let handle = match code {
+                // A parameter of 0 means the SDRAM handle.
+                event::NIKON_OBJECT_ADDED_IN_SDRAM if param == 0 => NIKON_SDRAM_HANDLE,
+                event::NIKON_OBJECT_ADDED_IN_SDRAM => param,
+                event::OBJECT_ADDED if target == Target::Card => param,
+                event::STORE_FULL => {
+                    return Err(PtpError::Protocol("the camera's card is full".into()))
+                }
+                _ => continue,
+            };
+            if !handles.contains(&handle) {
+                handles.push(handle);
+            }
+        }
+        Ok(())
     }
 
     fn wait_device_ready(&mut self, start: Instant) -> Result<()> {
@@ -284,7 +361,7 @@ impl Camera {
         shutters_s: &[f64],
         opts: &CaptureOptions,
         progress: CaptureProgress,
-    ) -> Result<Vec<(f64, Captured)>> {
+    ) -> Result<Vec<(f64, Vec<Captured>)>> {
         let mut out = Vec::with_capacity(shutters_s.len());
         for (i, &s) in shutters_s.iter().enumerate() {
             let applied = self.set_shutter(s)?;
@@ -293,8 +370,8 @@ impl Camera {
                 i + 1,
                 shutters_s.len()
             );
-            let shot = self.capture(opts, &mut |phase, d, t| progress(phase, d, t))?;
-            out.push((applied, shot));
+            let files = self.capture_all(opts, &mut |phase, d, t| progress(phase, d, t))?;
+            out.push((applied, files));
         }
         Ok(out)
     }

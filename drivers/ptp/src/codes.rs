@@ -114,6 +114,8 @@ pub mod format {
     pub const ASSOCIATION: u16 = 0x3001;
     pub const EXIF_JPEG: u16 = 0x3801;
     pub const TIFF: u16 = 0x380D;
+    /// Adobe's Digital Negative (PTP 1.1).
+    pub const DNG: u16 = 0x3811;
     /// Nikon NEF files are reported as "undefined" by most bodies.
     pub const RAW: u16 = 0xB101;
 }

@@ -30,6 +30,12 @@ impl Shot {
 pub trait ImageSource: Send + Sync {
     /// The file the camera would write for this shot (a JPEG with EXIF, usually).
     fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String>;
+    /// The RAW file of this shot and its extension ("NEF", "DNG"), for a camera set to RAW
+    /// or RAW + JPEG. `None`: this source makes no RAW files, and the camera writes its
+    /// JPEG alone.
+    fn raw(&self, _shot: &Shot) -> Result<Option<(&'static str, Vec<u8>)>, String> {
+        Ok(None)
+    }
     /// Pixel size, for ObjectInfo.
     fn dimensions(&self) -> (u32, u32);
     /// Whether a shot can be taken now; a camera whose source is not ready answers a capture
@@ -96,6 +102,15 @@ impl ImageSource for Timed {
         );
         r
     }
+    fn raw(&self, shot: &Shot) -> Result<Option<(&'static str, Vec<u8>)>, String> {
+        let t = std::time::Instant::now();
+        let r = self.inner.raw(shot);
+        self.nanos.fetch_add(
+            t.elapsed().as_nanos() as u64,
+            std::sync::atomic::Ordering::Relaxed,
+        );
+        r
+    }
     fn dimensions(&self) -> (u32, u32) {
         self.inner.dimensions()
     }
@@ -133,6 +148,12 @@ impl ImageSource for Stage {
             None => Err(
                 "the simulated bench is empty: no scene was placed in front of the camera".into(),
             ),
+        }
+    }
+    fn raw(&self, shot: &Shot) -> Result<Option<(&'static str, Vec<u8>)>, String> {
+        match self.current() {
+            Some(s) => s.raw(shot),
+            None => Ok(None),
         }
     }
     fn dimensions(&self) -> (u32, u32) {

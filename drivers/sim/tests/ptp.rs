@@ -124,10 +124,61 @@ fn nikon_bracket_over_ptpip() {
         .unwrap();
     let applied: Vec<f64> = shots.iter().map(|s| s.0).collect();
     assert_eq!(applied, [0.004, 0.0166, 0.0666]);
-    for (i, (_, s)) in shots.iter().enumerate() {
-        assert_eq!(s.data, expected(50_000, i as u32 + 1));
+    for (i, (_, files)) in shots.iter().enumerate() {
+        assert_eq!(files.len(), 1, "a JPEG camera makes one file per shot");
+        assert_eq!(files[0].data, expected(50_000, i as u32 + 1));
     }
     cam.close().unwrap();
+}
+
+/// A source with RAW files: a JPEG and a "NEF" of their own sizes.
+struct RawAndJpeg;
+
+impl ImageSource for RawAndJpeg {
+    fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String> {
+        SizedPayload { bytes: 3_000 }.photo(shot)
+    }
+    fn raw(&self, shot: &Shot) -> Result<Option<(&'static str, Vec<u8>)>, String> {
+        Ok(Some(("NEF", vec![shot.sequence as u8; 200_000])))
+    }
+    fn dimensions(&self) -> (u32, u32) {
+        (8, 8)
+    }
+}
+
+#[test]
+fn a_raw_and_jpeg_shot_downloads_both_files_from_sdram_and_from_the_card() {
+    use brdfd_ptp::{ImageFormat, Target};
+    for target in [Target::Sdram, Target::Card] {
+        let r = Responder::new(Profile::NikonD5100, Arc::new(RawAndJpeg)).shared();
+        let server = Server::start("127.0.0.1:0", r.clone()).unwrap();
+        let mut cam = ptpip_camera(&server);
+        assert_eq!(
+            cam.set_format(ImageFormat::RawJpeg).unwrap(),
+            ImageFormat::RawJpeg
+        );
+        let opts = CaptureOptions {
+            target,
+            delete_after: false,
+        };
+        for shot in 1..=2u32 {
+            let files = cam.capture_all(&opts, &mut |_, _, _| {}).unwrap();
+            let names: Vec<_> = files.iter().map(|f| f.info.filename.as_str()).collect();
+            let want = [format!("DSC_{shot:04}.NEF"), format!("DSC_{shot:04}.JPG")];
+            assert_eq!(
+                names, want,
+                "{target:?}: the NEF first, as a Nikon hands them out"
+            );
+            assert_eq!(files[0].data, vec![shot as u8; 200_000], "{target:?}");
+            assert_eq!(files[1].data.len(), 3_000, "{target:?}");
+        }
+        // RAW alone: one file.
+        assert_eq!(cam.set_format(ImageFormat::Raw).unwrap(), ImageFormat::Raw);
+        let files = cam.capture_all(&opts, &mut |_, _, _| {}).unwrap();
+        assert_eq!(files.len(), 1, "{target:?}");
+        assert!(files[0].info.filename.ends_with(".NEF"), "{target:?}");
+        cam.close().unwrap();
+    }
 }
 
 #[test]

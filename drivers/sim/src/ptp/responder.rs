@@ -88,6 +88,9 @@ pub struct Responder {
     session: Option<u32>,
     props: BTreeMap<u16, DevicePropDesc>,
     objects: BTreeMap<u32, Object>,
+    /// Nikon SDRAM: the shot's other files (the JPEG of a RAW + JPEG shot), each handed out
+    /// on the SDRAM handle once the one before has been read or deleted.
+    sdram_queue: std::collections::VecDeque<Object>,
     next_handle: u32,
     shots: u32,
     /// Nikon: events waiting for GetEvent, held back until the exposure is over; DeviceReady
@@ -118,6 +121,7 @@ impl Responder {
                 .map(|d| (d.code, d))
                 .collect(),
             objects: BTreeMap::new(),
+            sdram_queue: Default::default(),
             next_handle: 1,
             shots: 0,
             nikon_events: Vec::new(),
@@ -279,14 +283,21 @@ impl Responder {
                 } else if let Some(n) = self.faults.halt_in_download.take() {
                     reply.fault = Some(WireFault::HaltBulkIn(n));
                 }
-                if p(0) == SDRAM_HANDLE && m.code == op::GET_OBJECT && reply.fault.is_none() {
-                    // Nikon frees the SDRAM image once it has been read.
-                    self.objects.remove(&SDRAM_HANDLE);
+                let read_to_end = start + len == o.data.len();
+                if p(0) == SDRAM_HANDLE && read_to_end && reply.fault.is_none() {
+                    // Nikon frees the SDRAM image once it has been read, and hands out the
+                    // shot's next file on the same handle.
+                    self.next_sdram_file();
                 }
             }
             op::DELETE_OBJECT => {
-                if self.objects.remove(&p(0)).is_none() {
+                if !self.objects.contains_key(&p(0)) {
                     return rc::INVALID_OBJECT_HANDLE;
+                }
+                if p(0) == SDRAM_HANDLE {
+                    self.next_sdram_file();
+                } else {
+                    self.objects.remove(&p(0));
                 }
             }
             op::GET_DEVICE_PROP_DESC => match self.props.get(&(p(0) as u16)) {
@@ -305,13 +316,15 @@ impl Responder {
                     // A sleeping THETA takes no pictures until a client wakes it.
                     return rc::DEVICE_BUSY;
                 }
-                let h = match self.shoot(false) {
+                let handles = match self.shoot(false) {
                     Ok(h) => h,
                     Err(c) => return c,
                 };
-                reply
-                    .events
-                    .push(Message::new(event::OBJECT_ADDED, m.tid, &[h]));
+                for h in handles {
+                    reply
+                        .events
+                        .push(Message::new(event::OBJECT_ADDED, m.tid, &[h]));
+                }
                 reply
                     .events
                     .push(Message::new(event::CAPTURE_COMPLETE, m.tid, &[]));
@@ -320,7 +333,7 @@ impl Responder {
                 if self.is_nikon() =>
             {
                 let sdram = m.code == op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM;
-                let h = match self.shoot(sdram) {
+                let handles = match self.shoot(sdram) {
                     Ok(h) => h,
                     Err(c) => return c,
                 };
@@ -332,11 +345,13 @@ impl Responder {
                 self.busy_total += busy;
                 if sdram {
                     self.nikon_events
-                        .push((event::NIKON_OBJECT_ADDED_IN_SDRAM, h));
+                        .push((event::NIKON_OBJECT_ADDED_IN_SDRAM, SDRAM_HANDLE));
                     self.nikon_events
                         .push((event::NIKON_CAPTURE_COMPLETE_REC_IN_SDRAM, 0));
                 } else {
-                    self.nikon_events.push((event::OBJECT_ADDED, h));
+                    for h in handles {
+                        self.nikon_events.push((event::OBJECT_ADDED, h));
+                    }
                     self.nikon_events.push((event::CAPTURE_COMPLETE, 0));
                 }
             }
@@ -416,42 +431,85 @@ impl Responder {
         }
     }
 
-    fn shoot(&mut self, sdram: bool) -> Result<u32, u16> {
+    /// Takes a picture: the files the compression setting asks for (RAW, JPEG, or both,
+    /// RAW first as a Nikon writes them), each an object. Returns their handles; in SDRAM
+    /// the first is on the SDRAM handle and the others wait their turn.
+    fn shoot(&mut self, sdram: bool) -> Result<Vec<u32>, u16> {
         if !self.source.ready() {
             // Still making its first picture (a simulator rendering its scene): a real camera
             // that cannot shoot yet answers DeviceBusy, and clients retry.
             return Err(rc::DEVICE_BUSY);
         }
         let shot = self.shot_settings();
-        let data = self.source.photo(&shot).map_err(|e| {
+        let failed = |e: String| {
             tracing::error!("simulated camera: image source failed: {e}");
             rc::GENERAL_ERROR
-        })?;
+        };
+        let raw = match shot.raw {
+            true => self.source.raw(&shot).map_err(failed)?,
+            false => None,
+        };
+        // Compression setting 4 is RAW alone; a source without RAW files gives its JPEG.
+        let jpeg = raw.is_none() || self.int_prop(prop::COMPRESSION_SETTING, 2) != 4;
+        let mut files = Vec::new();
+        if let Some((ext, data)) = raw {
+            let format = if ext.eq_ignore_ascii_case("DNG") {
+                format::DNG
+            } else {
+                format::UNDEFINED
+            };
+            files.push((format, ext, data));
+        }
+        if jpeg {
+            files.push((
+                format::EXIF_JPEG,
+                "JPG",
+                self.source.photo(&shot).map_err(failed)?,
+            ));
+        }
         self.shots += 1;
         let (w, h) = self.source.dimensions();
-        let handle = if sdram {
-            SDRAM_HANDLE
-        } else {
-            self.next_handle += 1;
-            0x2B00_0000 + self.next_handle
+        self.sdram_queue.clear();
+        let mut handles = Vec::new();
+        for (format, ext, data) in files {
+            let info = ObjectInfo {
+                storage_id: if sdram { 0 } else { STORAGE_ID },
+                format,
+                compressed_size: data.len().min(u32::MAX as usize) as u32,
+                thumb_format: format::EXIF_JPEG,
+                width: w,
+                height: h,
+                bit_depth: if format == format::EXIF_JPEG { 24 } else { 16 },
+                filename: match self.profile {
+                    Profile::ThetaV => format!("R{:07}.{ext}", 10_000 + self.shots),
+                    _ => format!("DSC_{:04}.{ext}", self.shots % 10_000),
+                },
+                capture_date: format!("20261122T1200{:02}", self.shots % 60),
+                ..Default::default()
+            };
+            let object = Object { info, data };
+            if sdram {
+                self.sdram_queue.push_back(object);
+            } else {
+                self.next_handle += 1;
+                let handle = 0x2B00_0000 + self.next_handle;
+                self.objects.insert(handle, object);
+                handles.push(handle);
+            }
+        }
+        if sdram {
+            self.next_sdram_file();
+            handles.push(SDRAM_HANDLE);
+        }
+        Ok(handles)
+    }
+
+    /// Nikon SDRAM: the shot's next file takes the SDRAM handle, or the handle is freed.
+    fn next_sdram_file(&mut self) {
+        match self.sdram_queue.pop_front() {
+            Some(o) => self.objects.insert(SDRAM_HANDLE, o),
+            None => self.objects.remove(&SDRAM_HANDLE),
         };
-        let info = ObjectInfo {
-            storage_id: if sdram { 0 } else { STORAGE_ID },
-            format: format::EXIF_JPEG,
-            compressed_size: data.len().min(u32::MAX as usize) as u32,
-            thumb_format: format::EXIF_JPEG,
-            width: w,
-            height: h,
-            bit_depth: 24,
-            filename: match self.profile {
-                Profile::ThetaV => format!("R{:07}.JPG", 10_000 + self.shots),
-                _ => format!("DSC_{:04}.JPG", self.shots % 10_000),
-            },
-            capture_date: format!("20261122T1200{:02}", self.shots % 60),
-            ..Default::default()
-        };
-        self.objects.insert(handle, Object { info, data });
-        Ok(handle)
     }
 
     fn set_prop(&mut self, code: u16, data: &[u8], reply: &mut Reply) -> u16 {

@@ -1,8 +1,12 @@
 //! Radiometry between the cameras and the estimation core: camera files to linear values,
-//! exposure from EXIF, and the HDR merge of an exposure bracket. RAW files will decode into
-//! the same [`Frame`] (linear values plus exposure) when RAW support lands.
+//! exposure from EXIF, and the HDR merge of an exposure bracket. JPEG is decoded here (its
+//! tone curve assumed sRGB), RAW files in [`raw`]; both give a [`Frame`].
+
+pub mod raw;
 
 use std::io::Cursor;
+
+use rayon::prelude::*;
 
 use crate::core::raster::{srgb8_to_linear, Raster};
 
@@ -36,8 +40,13 @@ impl Exposure {
 
 /// One decoded exposure: values in [0, 1], linear, and how it was exposed.
 pub struct Frame {
+    /// 1 is where the camera clips (a RAW sensor's white level, a JPEG's 255).
     pub values: Raster,
     pub exposure: Exposure,
+    /// Multipliers (red, green, blue) that white-balance `values`: a RAW file's, kept apart
+    /// so that clipping is judged on what the sensor recorded. 1 for files the camera
+    /// balanced itself (JPEG, video).
+    pub white_balance: [f32; 3],
 }
 
 /// Reads ExposureTime, FNumber and ISO from a file's EXIF.
@@ -99,6 +108,7 @@ pub fn decode_jpeg(bytes: &[u8], file: &str) -> Result<Frame, RadiometryError> {
             pixels,
         },
         exposure,
+        white_balance: [1.0; 3],
     })
 }
 
@@ -136,6 +146,7 @@ pub fn average_frames(
             pixels: sum.into_iter().map(|p| p.map(|v| v / n)).collect(),
         },
         exposure,
+        white_balance: [1.0; 3],
     })
 }
 
@@ -178,6 +189,26 @@ pub fn averaging_noise(frames: &[brdfd_v4l::Rgb8Frame]) -> Option<f32> {
 pub const SATURATED: f32 = 0.95;
 pub const DARK: f32 = 0.01;
 
+/// The merged radiance at and above which [`merge_hdr`] had only clipped frames: a value
+/// there is the shortest exposure's lower bound, not a measurement. Every usable frame gives
+/// less (its value is under [`SATURATED`] and its scale at most the shortest exposure's).
+///
+/// With white balance, each channel clips at its own level; this is the lowest of them.
+pub fn merged_white_level(frames: &[Frame], gain: f64) -> Option<f32> {
+    frames
+        .iter()
+        .map(|f| {
+            let balance = f
+                .white_balance
+                .iter()
+                .copied()
+                .fold(f32::INFINITY, f32::min);
+            f.exposure.factor() * gain / balance as f64
+        })
+        .min_by(f64::total_cmp)
+        .map(|factor| (SATURATED as f64 / factor) as f32)
+}
+
 /// Merges a bracket into radiance: each frame's values divided by its exposure factor and
 /// `gain`, averaged with a hat weight that is zero at saturation and near black. A pixel no
 /// frame exposed well takes the nearest frame's estimate (the darkest frame for highlights,
@@ -192,17 +223,6 @@ pub const DARK: f32 = 0.01;
 /// measured worse (blue +6% on grace's bright band, against +3% per channel). Measured on
 /// the THETA round trip of grace (tests/theta.rs), this is what keeps small bright sources
 /// from coming out several per cent dark.
-/// The merged radiance at and above which [`merge_hdr`] had only clipped frames: a value
-/// there is the shortest exposure's lower bound, not a measurement. Every usable frame gives
-/// less (its value is under [`SATURATED`] and its scale at most the shortest exposure's).
-pub fn merged_white_level(frames: &[Frame], gain: f64) -> Option<f32> {
-    frames
-        .iter()
-        .map(|f| f.exposure.factor() * gain)
-        .min_by(f64::total_cmp)
-        .map(|factor| (SATURATED as f64 / factor) as f32)
-}
-
 pub fn merge_hdr(frames: &[Frame], gain: f64) -> Result<Raster, RadiometryError> {
     let first = frames
         .first()
@@ -217,25 +237,32 @@ pub fn merge_hdr(frames: &[Frame], gain: f64) -> Result<Raster, RadiometryError>
             f.values.width, f.values.height
         )));
     }
-    let scale: Vec<f32> = frames
+    // Per frame and channel: what turns a value into radiance.
+    let scale: Vec<[f32; 3]> = frames
         .iter()
-        .map(|f| (1.0 / (f.exposure.factor() * gain)) as f32)
+        .map(|f| {
+            f.white_balance
+                .map(|b| (b as f64 / (f.exposure.factor() * gain)) as f32)
+        })
         .collect();
     // Frames from the shortest exposure (largest scale) to the longest.
     let mut order: Vec<usize> = (0..frames.len()).collect();
-    order.sort_by(|&a, &b| scale[b].total_cmp(&scale[a]));
+    order.sort_by(|&a, &b| {
+        let f = |k: usize| 1.0 / frames[k].exposure.factor();
+        f(b).total_cmp(&f(a))
+    });
     let (darkest, brightest) = (order[0], order[order.len() - 1]);
     let mut out = Raster::black(w, h);
-    for i in 0..w * h {
+    out.pixels.par_iter_mut().enumerate().for_each(|(i, px)| {
         for c in 0..3 {
             let reference = order
                 .iter()
-                .map(|&k| (frames[k].values.pixels[i][c], scale[k]))
+                .map(|&k| (frames[k].values.pixels[i][c], scale[k][c]))
                 .find(|&(v, _)| v > DARK)
                 .map(|(v, s)| v * s);
             let (mut sum, mut wsum) = (0.0f32, 0.0f32);
             for (f, s) in frames.iter().zip(&scale) {
-                let v = f.values.pixels[i][c];
+                let (v, s) = (f.values.pixels[i][c], s[c]);
                 let would_clip = reference.is_some_and(|r| r / s >= SATURATED);
                 if v > DARK && v < SATURATED && !would_clip {
                     let wt = 1.0 - (2.0 * v - 1.0).abs();
@@ -243,15 +270,15 @@ pub fn merge_hdr(frames: &[Frame], gain: f64) -> Result<Raster, RadiometryError>
                     wsum += wt;
                 }
             }
-            out.pixels[i][c] = if wsum > 0.0 {
+            px[c] = if wsum > 0.0 {
                 sum / wsum
             } else {
                 let bright = frames[darkest].values.pixels[i][c] >= SATURATED;
                 let k = if bright { darkest } else { brightest };
-                frames[k].values.pixels[i][c] * scale[k]
+                frames[k].values.pixels[i][c] * scale[k][c]
             };
         }
-    }
+    });
     Ok(out)
 }
 
@@ -269,6 +296,7 @@ mod tests {
                 f_number: 1.0,
                 iso: 100.0,
             },
+            white_balance: [1.0; 3],
         }
     }
 

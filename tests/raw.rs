@@ -1,0 +1,221 @@
+//! RAW radiometry: the simulated DSLR's NEF and DNG files decoded back to the light the
+//! bench rendered, a RAW bracket's merge against a JPEG bracket's, and damaged files.
+
+use std::path::{Path, PathBuf};
+
+use brdfd::bench::camera::{BenchCamera, SENSOR_GAIN};
+use brdfd::bench::raw_file::{self, RawFormat, ShotInfo, D5100};
+use brdfd::bench::VirtualBench;
+use brdfd::core::raster::Raster;
+use brdfd::radiometry::raw::{decode_raw, WhiteBalance};
+use brdfd::radiometry::{decode_jpeg, merge_hdr, Frame};
+use brdfd_sim::{ImageSource, Shot};
+
+fn shared_data() -> Option<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
+    if dir.is_dir() {
+        Some(dir)
+    } else {
+        eprintln!("SKIPPED: ../shared/data is missing (CI has it)");
+        None
+    }
+}
+
+/// A scene of known radiance: a ramp across, a colour per third down, one very bright
+/// column that clips.
+fn scene(w: usize, h: usize) -> Raster {
+    let mut r = Raster::black(w, h);
+    for y in 0..h {
+        for x in 0..w {
+            let ramp = 0.05 + 0.9 * x as f32 / (w - 1) as f32;
+            let tint = [[1.0, 0.6, 0.3], [0.4, 1.0, 0.5], [0.5, 0.6, 1.0]][3 * y / h];
+            r.pixels[y * w + x] = if x == w / 2 {
+                [5.0; 3]
+            } else {
+                tint.map(|t| t * ramp)
+            };
+        }
+    }
+    r
+}
+
+fn info(shutter_s: f64) -> ShotInfo<'static> {
+    ShotInfo {
+        make: "NIKON CORPORATION",
+        model: "NIKON D5100",
+        shutter_s,
+        f_number: 8.0,
+        iso: 100,
+    }
+}
+
+/// Median relative error of the white-balanced values against `truth · k`, over pixels the
+/// sensor did not clip, and how many were clipped.
+fn compare(frame: &Frame, truth: &Raster, k: f32) -> (f64, usize) {
+    let (mut errors, mut clipped) = (Vec::new(), 0);
+    for (v, t) in frame.values.pixels.iter().zip(&truth.pixels) {
+        for c in 0..3 {
+            if v[c] >= 1.0 {
+                clipped += 1;
+            } else {
+                let want = t[c] * k;
+                errors.push(((v[c] * frame.white_balance[c] - want) / want).abs() as f64);
+            }
+        }
+    }
+    errors.sort_by(f64::total_cmp);
+    (errors[errors.len() / 2], clipped)
+}
+
+#[test]
+fn nef_and_dng_from_the_simulated_sensor_decode_to_the_scene() {
+    let truth = scene(96, 60);
+    let k = 0.8;
+    for (name, bytes) in [
+        ("a.NEF", raw_file::nef(&truth, k, &D5100, &info(0.004), 1)),
+        ("a.DNG", raw_file::dng(&truth, k, &D5100, &info(0.004), 1)),
+        (
+            "a12.DNG",
+            raw_file::dng(&truth, k, &D5100.at_12_bits(), &info(0.004), 1),
+        ),
+    ] {
+        let f = decode_raw(&bytes, name, WhiteBalance::AsShot).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(
+            (f.values.width, f.values.height),
+            (96, 60),
+            "{name}: the crop is the rendered image"
+        );
+        assert_eq!(f.exposure.shutter_s, 0.004, "{name}");
+        assert_eq!(
+            (f.exposure.f_number, f.exposure.iso),
+            (8.0, 100.0),
+            "{name}"
+        );
+        let wb = D5100.white_balance();
+        for c in 0..3 {
+            assert!(
+                (f.white_balance[c] - wb[c]).abs() < 0.01 * wb[c],
+                "{name}: white balance {:?}, the sensor's {wb:?}",
+                f.white_balance
+            );
+        }
+        let (median, clipped) = compare(&f, &truth, k);
+        // The sensor's noise and the demosaic's averaging across the ramp; a few tenths of
+        // a per cent.
+        assert!(median < 0.01, "{name}: median error {median}");
+        // The bright column and its neighbours (the demosaic reaches one pixel across).
+        assert!(
+            (3 * 60..=9 * 60).contains(&clipped),
+            "{name}: {clipped} clipped"
+        );
+    }
+}
+
+#[test]
+fn a_fixed_white_balance_replaces_the_files() {
+    let truth = scene(32, 24);
+    let bytes = raw_file::nef(&truth, 0.5, &D5100, &info(0.01), 2);
+    let f = decode_raw(&bytes, "b.NEF", WhiteBalance::Fixed([2.0, 1.0, 1.5])).unwrap();
+    assert_eq!(f.white_balance, [2.0, 1.0, 1.5]);
+}
+
+#[test]
+fn damaged_raw_files_are_named_and_do_not_panic() {
+    let bytes = raw_file::nef(&scene(64, 32), 0.5, &D5100, &info(0.01), 3);
+    for cut in [0, 8, 200, bytes.len() / 2, bytes.len() - 10] {
+        let e = match decode_raw(&bytes[..cut], "DSC_0001.NEF", WhiteBalance::AsShot) {
+            Ok(_) => panic!("a NEF cut to {cut} bytes decoded"),
+            Err(e) => e.to_string(),
+        };
+        println!("cut to {cut} bytes: {e}");
+        assert!(e.starts_with("DSC_0001.NEF: "), "{cut}: {e}");
+    }
+    // A file that is no RAW at all.
+    let e = decode_raw(b"not a raw file", "x.dng", WhiteBalance::AsShot)
+        .err()
+        .expect("refused");
+    assert!(e.to_string().starts_with("x.dng: RAW: "), "{e}");
+}
+
+#[test]
+fn a_real_nef_without_its_raw_data_is_refused_clearly() {
+    let Some(data) = shared_data() else { return };
+    // Exiftool's test file: a real D70 NEF's structure with the raw strips removed.
+    let bytes = std::fs::read(data.join("nef/Nikon_D70_metadata_only.nef")).unwrap();
+    let e = decode_raw(&bytes, "Nikon.nef", WhiteBalance::AsShot)
+        .err()
+        .expect("refused");
+    println!("{e}");
+    assert!(e.to_string().starts_with("Nikon.nef: "), "{e}");
+}
+
+/// The simulated D5100's bracket of the gold sphere: every shutter speed as NEF and as
+/// JPEG, each merged, against the radiance the bench rendered.
+#[test]
+fn a_raw_bracket_merges_to_the_bench_truth_within_one_per_cent() {
+    let bench = VirtualBench::embedded("gold", 128).unwrap();
+    let truth = bench.photo().unwrap();
+    let camera = BenchCamera::new(bench, "NIKON CORPORATION", "NIKON D5100");
+    let shutters = [1.0 / 1000.0, 1.0 / 250.0, 1.0 / 60.0, 1.0 / 15.0, 1.0 / 4.0];
+    let (mut raw, mut jpeg) = (Vec::new(), Vec::new());
+    for (i, &s) in shutters.iter().enumerate() {
+        let shot = Shot {
+            shutter_s: s,
+            f_number: 8.0,
+            iso: 100,
+            raw: true,
+            sequence: i as u32 + 1,
+        };
+        let (_, nef) = camera.raw(&shot).unwrap().unwrap();
+        raw.push(decode_raw(&nef, "DSC.NEF", WhiteBalance::AsShot).unwrap());
+        jpeg.push(decode_jpeg(&camera.photo(&shot).unwrap(), "DSC.JPG").unwrap());
+    }
+    let error = |frames: &[Frame]| {
+        let merged = merge_hdr(frames, SENSOR_GAIN).unwrap();
+        // Pixels the bracket resolves: the object, not black, not beyond the shortest
+        // exposure's white.
+        let top = (0.9 / (shutters[0] / 64.0 * SENSOR_GAIN)) as f32;
+        let mut e: Vec<f64> = merged
+            .pixels
+            .iter()
+            .zip(&truth.pixels)
+            .flat_map(|(m, t)| (0..3).map(move |c| (m[c], t[c])))
+            .filter(|&(_, t)| t > 1e-3 && t < top)
+            .map(|(m, t)| ((m - t) / t).abs() as f64)
+            .collect();
+        e.sort_by(f64::total_cmp);
+        (e[e.len() / 2], e.len())
+    };
+    let ((raw_error, n), (jpeg_error, _)) = (error(&raw), error(&jpeg));
+    println!(
+        "median relative error of the merged radiance over {n} values: RAW {:.3}%, JPEG {:.3}%",
+        raw_error * 100.0,
+        jpeg_error * 100.0
+    );
+    assert!(raw_error < 0.01, "RAW: {raw_error}");
+    assert!(raw_error < jpeg_error, "RAW {raw_error}, JPEG {jpeg_error}");
+}
+
+#[test]
+fn the_simulated_camera_writes_the_raw_format_it_is_set_to() {
+    let bench = VirtualBench::embedded("gold", 32).unwrap();
+    let shot = Shot {
+        shutter_s: 0.01,
+        f_number: 8.0,
+        iso: 200,
+        raw: true,
+        sequence: 1,
+    };
+    for (format, ext) in [
+        (RawFormat::Nef, "NEF"),
+        (RawFormat::Dng, "DNG"),
+        (RawFormat::Dng12, "DNG"),
+    ] {
+        let cam =
+            BenchCamera::new(bench.clone(), "NIKON CORPORATION", "NIKON D5100").with_raw(format);
+        let (got, bytes) = cam.raw(&shot).unwrap().unwrap();
+        assert_eq!(got, ext);
+        let f = decode_raw(&bytes, got, WhiteBalance::AsShot).unwrap();
+        assert_eq!((f.values.width, f.exposure.iso), (32, 200.0), "{format:?}");
+    }
+}
