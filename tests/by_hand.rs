@@ -121,7 +121,7 @@ fn with_no_one_at_the_terminal_the_capture_stops_and_resumes() {
     );
     assert!(ok, "{text}");
     assert!(
-        text.contains("view1: 5 frames already in the session"),
+        text.contains("view1: 5 files already in the session"),
         "{text}"
     );
     assert!(text.contains("turned by hand to 90.0°"), "{text}");

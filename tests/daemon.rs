@@ -312,7 +312,7 @@ fn a_daemon_killed_mid_capture_is_restarted_and_the_session_resumed() {
     assert!(o.status.success(), "{text}");
     assert!(text.contains("running in the daemon"), "{text}");
     assert!(
-        text.contains("view1: 5 frames already in the session"),
+        text.contains("view1: 5 files already in the session"),
         "{text}"
     );
 

@@ -3,6 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
+mod common;
+
 use brdfd::bench::camera::{BenchCamera, SENSOR_GAIN};
 use brdfd::bench::raw_file::{self, RawFormat, ShotInfo, D5100};
 use brdfd::bench::VirtualBench;
@@ -218,4 +220,81 @@ fn the_simulated_camera_writes_the_raw_format_it_is_set_to() {
         let f = decode_raw(&bytes, got, WhiteBalance::AsShot).unwrap();
         assert_eq!((f.values.width, f.exposure.iso), (32, 200.0), "{format:?}");
     }
+}
+
+const SIMULATED_RIG: &str = include_str!("../config/rigs/simulated.toml");
+
+/// `brdfd capture` of gold at 64² on the simulated rig with its DSLR set to `files` and
+/// `simulation` as its `[simulation]`: the output, and the names of the files stored for
+/// view 1.
+fn capture(files: &str, simulation: &str) -> (String, Vec<String>) {
+    let dir = tempfile::tempdir().unwrap();
+    assert!(SIMULATED_RIG.contains("dslr_files = \"jpeg\""));
+    let rig = format!(
+        "{}\n[simulation]\n{simulation}\n",
+        SIMULATED_RIG
+            .replace("width = 256", "width = 64")
+            .replace("height = 256", "height = 64")
+            .replace(
+                "dslr_files = \"jpeg\"",
+                &format!("dslr_files = \"{files}\"")
+            )
+    );
+    std::fs::write(dir.path().join("rig.toml"), rig).unwrap();
+    let args = [
+        "capture",
+        "--rig",
+        "rig.toml",
+        "--material",
+        "gold",
+        "--size",
+        "64",
+        "--state-dir",
+        "state",
+    ];
+    let o = common::brdfd(&args, dir.path());
+    let text = common::out(&o);
+    assert!(o.status.success(), "{text}");
+    let session = std::fs::read_dir(dir.path().join("state/sessions"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let mut names: Vec<String> = std::fs::read_dir(session.join("raw"))
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with("view1"))
+        .collect();
+    names.sort();
+    (text, names)
+}
+
+#[test]
+fn a_capture_keeps_both_files_of_each_shot_and_merges_the_raw_ones() {
+    for (raw, ext) in [("nef", "NEF"), ("dng12", "DNG")] {
+        let (text, names) = capture("raw+jpeg", &format!("dslr_raw = \"{raw}\""));
+        assert_eq!(names.len(), 10, "{raw}: five shots of two files: {names:?}");
+        assert_eq!(
+            names.iter().filter(|n| n.ends_with(ext)).count(),
+            5,
+            "{names:?}"
+        );
+        assert!(
+            text.contains(&format!(
+                "DSC_0001.{ext}: RAW 64×64, EXIF 0.0010 s f/8 ISO 100"
+            )),
+            "{text}"
+        );
+        assert!(
+            !text.contains(": JPEG, EXIF"),
+            "{raw}: the JPEGs were merged\n{text}"
+        );
+    }
+    // Told to shoot JPEG (as the shipped simulated rig is), the camera makes one file per
+    // shot, and the JPEGs are merged.
+    let (text, names) = capture("jpeg", "");
+    assert_eq!(names.len(), 5, "{names:?}");
+    assert!(text.contains("DSC_0001.JPG: JPEG, EXIF 0.0010 s"), "{text}");
 }

@@ -410,7 +410,7 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
             Some((files, meta)) => {
                 let deg = meta["turntable_deg"].as_f64().unwrap_or(0.0);
                 cx.say(format!(
-                    "{step}: {} frames already in the session ({deg:.2}°)",
+                    "{step}: {} files already in the session ({deg:.2}°)",
                     files.len()
                 ));
                 (files, deg, ObjectCamera::of_step(&meta))
@@ -450,6 +450,10 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
                 (files, deg, *using)
             }
         };
+        let (geometry, view_yaw) = turned(&scene, yaw, deg);
+        first_yaw.get_or_insert(view_yaw);
+        let (w, h) = geometry.camera.size();
+        let mut pixels = geometry.pixels(w, h)?;
         let p = phases.start(&format!("{step}: HDR merge"), 1);
         let merged = object::merge_view(cx, shot_on, &files)?;
         if let Some((frames, noise)) = merged.fallback {
@@ -460,16 +464,15 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
                 .and_then(|f| f.status().identity);
             fallback_use.add(frames, noise, identity);
         }
+        if merged.demosaiced {
+            pixels.drop_outline();
+        }
         let (photo, white) = (merged.photo, merged.white);
         // Below the lowest level, every view's pixels are measurements (views on different
         // cameras have different levels: the lowest leaves out a few more, never a clipped one).
         clip_level = [clip_level, white].into_iter().flatten().reduce(f32::min);
         save_exr(session, &format!("photo-{step}.exr"), &photo, white)?;
         phases.end(p);
-        let (geometry, view_yaw) = turned(&scene, yaw, deg);
-        first_yaw.get_or_insert(view_yaw);
-        let (w, h) = geometry.camera.size();
-        let pixels = geometry.pixels(w, h)?;
         let (lights, chosen_lights) = env.estimate_lights(DEFAULT_LIGHTS, CHOSEN_LIGHTS, view_yaw);
         views.push((pixels, lights, chosen_lights, photo));
     }

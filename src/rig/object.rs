@@ -394,17 +394,20 @@ pub struct Merged {
     pub white: Option<f32>,
     /// The fallback's frames averaged per exposure and their noise, if it shot the view.
     pub fallback: Option<(usize, Option<f32>)>,
+    /// Merged from RAW files, whose demosaic mixes the background into the object's outline.
+    pub demosaiced: bool,
 }
 
 /// Merges a view's bracket, as the camera that shot it needs.
 pub fn merge_view(cx: &Context, camera: ObjectCamera, files: &RawFiles) -> anyhow::Result<Merged> {
     match camera {
         ObjectCamera::Dslr => {
-            let (photo, white) = merge_dslr(cx, files)?;
+            let (photo, white, demosaiced) = merge_dslr(cx, files)?;
             Ok(Merged {
                 photo,
                 white,
                 fallback: None,
+                demosaiced,
             })
         }
         ObjectCamera::Fallback => {
@@ -424,6 +427,7 @@ pub fn merge_view(cx: &Context, camera: ObjectCamera, files: &RawFiles) -> anyho
                 photo,
                 white: merged_white_level(&bracket.frames, 1.0).map(|w| w * scale),
                 fallback: Some((bracket.averaged, bracket.noise)),
+                demosaiced: false,
             })
         }
     }
@@ -480,12 +484,13 @@ impl FallbackBracket {
 }
 
 /// Decodes a DSLR bracket and merges it into radiance, from each file's own exposure. Also
-/// returns the level at and above which the merge had only clipped frames.
+/// returns the level at and above which the merge had only clipped frames, and whether the
+/// merge was of RAW files.
 ///
 /// RAW files are preferred: they are linear. If the bracket has none, or they cannot be
 /// decoded and there are JPEGs beside them, the JPEGs are merged, their tone curve taken as
 /// sRGB (a camera's own curve differs, which the estimate then absorbs).
-fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<(Raster, Option<f32>)> {
+fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<(Raster, Option<f32>, bool)> {
     use crate::bench::camera::SENSOR_GAIN;
     let (raw, jpeg): (Vec<_>, Vec<_>) = files.iter().partition(|(name, _)| is_raw_name(name));
     if !raw.is_empty() {
@@ -494,6 +499,7 @@ fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<(Raster, Option<
                 return Ok((
                     merge_hdr(&frames, SENSOR_GAIN)?,
                     merged_white_level(&frames, SENSOR_GAIN),
+                    true,
                 ))
             }
             Err(e) if !jpeg.is_empty() => cx.warn(format!(
@@ -516,6 +522,7 @@ fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<(Raster, Option<
     Ok((
         merge_hdr(&frames, SENSOR_GAIN)?,
         merged_white_level(&frames, SENSOR_GAIN),
+        false,
     ))
 }
 
