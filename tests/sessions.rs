@@ -104,7 +104,7 @@ fn a_capture_killed_mid_session_resumes_without_losing_or_repeating_anything() {
         "{text}"
     );
     assert!(
-        text.contains("view1: 5 frames already in the session"),
+        text.contains("view1: 5 files already in the session"),
         "{text}"
     );
     assert!(text.contains("view 4 of 4: turntable at 90.00°"), "{text}");
@@ -279,7 +279,7 @@ fn a_full_disk_fails_the_session_clearly_and_it_resumes_once_there_is_room() {
         "{resume}"
     );
     assert!(
-        resume.contains("view1: 5 frames already in the session"),
+        resume.contains("view1: 5 files already in the session"),
         "{resume}"
     );
     let after = read("show-after.log");
