@@ -116,9 +116,28 @@ fn nef_and_dng_from_the_simulated_sensor_decode_to_the_scene() {
 #[test]
 fn a_fixed_white_balance_replaces_the_files() {
     let truth = scene(32, 24);
-    let bytes = raw_file::nef(&truth, 0.5, &D5100, &info(0.01), 2);
-    let f = decode_raw(&bytes, "b.NEF", WhiteBalance::Fixed([2.0, 1.0, 1.5])).unwrap();
-    assert_eq!(f.white_balance, [2.0, 1.0, 1.5]);
+    let k = 0.5;
+    let bytes = raw_file::nef(&truth, k, &D5100, &info(0.01), 2);
+    // Multipliers of 1 leave the sensor's own response: its filters' sensitivity.
+    let f = decode_raw(&bytes, "b.NEF", WhiteBalance::Fixed([1.0; 3])).unwrap();
+    assert_eq!(f.white_balance, [1.0; 3]);
+    for c in 0..3 {
+        let mut ratios: Vec<f32> = f
+            .values
+            .pixels
+            .iter()
+            .zip(&truth.pixels)
+            .filter(|(v, _)| v[c] < 1.0)
+            .map(|(v, t)| v[c] / (t[c] * k))
+            .collect();
+        ratios.sort_by(f32::total_cmp);
+        let median = ratios[ratios.len() / 2];
+        let want = D5100.sensitivity[c];
+        assert!(
+            (median / want - 1.0).abs() < 0.02,
+            "channel {c}: {median}, the sensor's {want}"
+        );
+    }
 }
 
 #[test]

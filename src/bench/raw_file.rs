@@ -242,7 +242,7 @@ pub fn nef(radiance: &Raster, k: f32, sensor: &Sensor, shot: &ShotInfo, seed: u6
         )
         .set(
             0x003D,
-            Value::Short(vec![sensor.black << (14 - sensor.bits); 4]),
+            Value::Short(vec![sensor.black << 14u32.saturating_sub(sensor.bits); 4]),
         )
         .set(0x0093, Value::Short(vec![2])); // NEFCompression: uncompressed
                                              // Nikon's type-3 maker note: a signature, then a TIFF whose offsets count from its own

@@ -610,6 +610,7 @@ impl SceneGeometry {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
 
     #[test]
     fn dropping_the_outline_keeps_pixels_whose_neighbours_are_all_on_the_object() {
@@ -648,8 +649,6 @@ mod tests {
         g.drop_outline();
         assert_eq!(g.pixels.len(), n);
     }
-
-    use super::*;
 
     #[test]
     fn sphere_normals_face_the_orthographic_camera() {

@@ -7,9 +7,11 @@
 //!    4992 × 3280 sensor), so the image has the size the camera's own JPEG has;
 //! 3. demosaiced bilinearly: each colour a pixel lacks is the mean of that colour's samples
 //!    in its 3 × 3 neighbourhood;
-//! 4. clipped samples marked: a channel computed from any sample at or above the white level
-//!    is set to 1, which the merge ([`super::merge_hdr`]) never uses, rather than a mean of
-//!    clipped and unclipped samples that would look like a measurement.
+//! 4. clipped samples marked: a channel computed from any sample at or above
+//!    [`super::SATURATED`] of the range (a real sensor can saturate a little under its
+//!    nominal white level) is set to 1, which the merge ([`super::merge_hdr`]) does not count
+//!    as a measurement, rather than a mean of clipped and unclipped samples that would look
+//!    like one.
 //!
 //! White balance is not applied to the values (clipping is a property of the sensor's
 //! values) but carried in [`Frame::white_balance`]: the file's as-shot multipliers, or the
@@ -187,10 +189,11 @@ fn develop(image: &RawImage, file: &str) -> Result<Raster, RadiometryError> {
                 for (col, v) in out.iter_mut().enumerate() {
                     let c = pattern.at(row, col);
                     let (s, b, wl) = (sample(row * w + col), levels.black(row, col, 0), whites[c]);
-                    *v = if s >= wl {
+                    let value = (s - b) / (wl - b);
+                    *v = if value >= super::SATURATED {
                         f32::NAN
                     } else {
-                        ((s - b) / (wl - b)).max(0.0)
+                        value.max(0.0)
                     };
                 }
             });

@@ -205,10 +205,10 @@ fn dslr_bracket(
                     });
                 }
             })?;
-            let last = files.len() - 1;
+            let shot_files = files.len();
             for (i, f) in files.into_iter().enumerate() {
                 if tx
-                    .send((f.info.filename, f.data, speed, i == last))
+                    .send((f.info.filename, f.data, speed, i + 1 == shot_files))
                     .is_err()
                 {
                     bail!("the capture stopped taking files");
@@ -227,38 +227,38 @@ fn dslr_bracket(
     Ok(files.files)
 }
 
-/// Sets the DSLR to make the files the rig asks for. A camera that offers no RAW shoots
-/// JPEG, and says so: the merge then assumes its tone curve is sRGB.
+/// Sets the DSLR to make the files the rig asks for. A camera that cannot be set so keeps
+/// shooting as set on its body, and the merge takes what comes: RAW files if any, JPEGs
+/// otherwise. Either way the operator is told.
 fn set_files(
     cam: &mut brdfd_ptp::Camera,
     want: DslrFiles,
     progress: &dyn super::Progress,
 ) -> anyhow::Result<()> {
+    use brdfd_ptp::{codes::rc, PtpError};
     let format = match want {
         DslrFiles::RawJpeg => ImageFormat::RawJpeg,
         DslrFiles::Raw => ImageFormat::Raw,
         DslrFiles::Jpeg => ImageFormat::Jpeg,
     };
+    let say = |text: String| progress.event(Event::Message { text });
     match cam.set_format(format) {
-        Ok(_) => Ok(()),
-        Err(brdfd_ptp::PtpError::Unsupported(what)) if format != ImageFormat::Jpeg => {
-            progress.event(Event::Message {
-                text: format!(
-                    "DSLR: {what} is not offered; shooting JPEG, whose tone curve the merge takes as sRGB"
-                ),
-            });
-            cam.set_format(ImageFormat::Jpeg)
-                .map(|_| ())
-                .or_else(|e| match e {
-                    // A camera without the property shoots what it is set to.
-                    brdfd_ptp::PtpError::Response { .. } => Ok(()),
-                    e => Err(e.into()),
-                })
-        }
-        // A camera without a compression property shoots what it is set to on its body.
-        Err(brdfd_ptp::PtpError::Response { .. }) => Ok(()),
-        Err(e) => Err(e.into()),
+        Ok(applied) if applied == format => {}
+        Ok(applied) => say(format!(
+            "DSLR: asked for {format:?} files, the camera applied {applied:?}"
+        )),
+        Err(PtpError::Unsupported(what)) => say(format!(
+            "DSLR: {what} is not offered; it shoots as set on its body (the merge uses its RAW files if any, else its JPEGs, their tone curve taken as sRGB)"
+        )),
+        Err(PtpError::Response {
+            code: rc::DEVICE_PROP_NOT_SUPPORTED,
+            ..
+        }) => say(
+            "DSLR: it has no image-quality property; it shoots as set on its body".to_string(),
+        ),
+        Err(e) => return Err(e.into()),
     }
+    Ok(())
 }
 
 /// A bracket's files as they arrive: each stored in the session at once, said, and counted
@@ -493,7 +493,16 @@ impl FallbackBracket {
 fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<(Raster, Option<f32>, bool)> {
     use crate::bench::camera::SENSOR_GAIN;
     let (raw, jpeg): (Vec<_>, Vec<_>) = files.iter().partition(|(name, _)| is_raw_name(name));
-    if !raw.is_empty() {
+    // A RAW file missing from some shots would merge fewer exposures than were shot.
+    let whole = jpeg.is_empty() || raw.len() == jpeg.len();
+    if !raw.is_empty() && !whole {
+        cx.warn(format!(
+            "the bracket has {} RAW files for {} JPEGs; merging the JPEGs, their tone curve taken as sRGB",
+            raw.len(),
+            jpeg.len()
+        ));
+    }
+    if !raw.is_empty() && whole {
         match decode_raw_bracket(cx, &raw) {
             Ok(frames) => {
                 return Ok((

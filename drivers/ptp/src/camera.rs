@@ -53,6 +53,9 @@ pub struct Camera {
     pub info: DeviceInfo,
     /// Events read while waiting for something else.
     pub(crate) events: VecDeque<Message>,
+    /// Files per shot, if brdfd set the camera's image format ([`Camera::set_format`]): two
+    /// for RAW + JPEG.
+    pub(crate) files_per_shot: Option<usize>,
 }
 
 impl Camera {
@@ -65,6 +68,7 @@ impl Camera {
             timeouts,
             info: DeviceInfo::default(),
             events: VecDeque::new(),
+            files_per_shot: None,
         };
         cam.open_session()?;
         cam.info = DeviceInfo::decode(&cam.data_in(op::GET_DEVICE_INFO, &[])?)?;

@@ -4,7 +4,7 @@
 use std::time::{Duration, Instant};
 
 use crate::camera::Camera;
-use crate::codes::{event, op, prop, rc, vendor};
+use crate::codes::{event, format, op, prop, rc, vendor};
 use crate::dataset::{decode_nikon_events, ObjectInfo, Value};
 use crate::error::{PtpError, Result};
 
@@ -76,13 +76,15 @@ impl Camera {
     }
 
     /// Triggers one exposure and downloads every file it makes (a RAW + JPEG shot makes
-    /// two), in the order the camera announces them. Never empty.
+    /// two), in the order the camera announces them. Folders the camera announces (a new
+    /// 101NIKON) are not files. Never empty.
     pub fn capture_all(
         &mut self,
         opts: &CaptureOptions,
         progress: CaptureProgress,
     ) -> Result<Vec<Captured>> {
-        let handles = if self.is_nikon() {
+        let nikon = self.is_nikon();
+        let handles = if nikon {
             self.trigger_nikon(opts.target, progress)?
         } else if self.info.supports(op::INITIATE_CAPTURE) {
             self.trigger_generic(progress)?
@@ -93,14 +95,35 @@ impl Camera {
         };
         let mut files = Vec::new();
         for handle in handles {
-            if handle == NIKON_SDRAM_HANDLE {
-                self.fetch_sdram(&mut files, progress)?;
-            } else {
-                let info = self.object_info(handle)?;
-                files.push(self.fetch(handle, info, opts, progress)?);
-            }
+            self.fetch_new(handle, opts, progress, &mut files)?;
+        }
+        if nikon && opts.target == Target::Sdram {
+            self.fetch_rest_of_sdram_shot(opts, progress, &mut files)?;
+        }
+        if files.is_empty() {
+            return Err(PtpError::Protocol(
+                "the camera announced no file for the shot (only folders)".into(),
+            ));
         }
         Ok(files)
+    }
+
+    /// Downloads the object at `handle` into `files` unless it is a folder or a file
+    /// already there. Returns whether it did.
+    fn fetch_new(
+        &mut self,
+        handle: u32,
+        opts: &CaptureOptions,
+        progress: CaptureProgress,
+        files: &mut Vec<Captured>,
+    ) -> Result<bool> {
+        let info = self.object_info(handle)?;
+        let seen = files.iter().any(|f| f.info.filename == info.filename);
+        if info.format == format::ASSOCIATION || seen {
+            return Ok(false);
+        }
+        files.push(self.fetch(handle, info, opts, progress)?);
+        Ok(true)
     }
 
     /// Downloads one object whose ObjectInfo is known, deleting it after if asked.
@@ -129,39 +152,61 @@ impl Camera {
         Ok(Captured { handle, info, data })
     }
 
-    /// Nikon's SDRAM holds a shot's files one at a time on one handle: a RAW + JPEG shot
-    /// hands out the JPEG once the NEF has been read (or deleted). So after each download
-    /// the handle is asked again, until it is free.
-    fn fetch_sdram(&mut self, files: &mut Vec<Captured>, progress: CaptureProgress) -> Result<()> {
-        // More files than any shot makes means the camera keeps handing out the same ones.
-        const MOST_FILES_PER_SHOT: usize = 4;
-        let opts = CaptureOptions::default();
-        loop {
-            let info = match self.object_info(NIKON_SDRAM_HANDLE) {
-                Ok(info) => info,
+    /// A Nikon shooting RAW + JPEG to SDRAM holds the shot's files one at a time: the next
+    /// comes once the one before has been read (or deleted), on the same handle or announced
+    /// by another ObjectAddedInSdram. So, when brdfd set the camera to two files per shot,
+    /// the handle is asked again and events are polled until both are in. A camera left as it
+    /// was set on its body is taken to make one file, as the recording of a real D5500
+    /// (JPEG, one file, nothing asked after the download) shows.
+    fn fetch_rest_of_sdram_shot(
+        &mut self,
+        opts: &CaptureOptions,
+        progress: CaptureProgress,
+        files: &mut Vec<Captured>,
+    ) -> Result<()> {
+        let want = self.files_per_shot.unwrap_or(1);
+        let start = Instant::now();
+        while let Some(last) = files.last().map(|f| f.handle) {
+            if files.len() >= want {
+                return Ok(());
+            }
+            match self.object_info(last) {
+                Ok(info) if files.iter().any(|f| f.info.filename == info.filename) => {
+                    // Still the file just read: this camera frees it when it is deleted. If
+                    // it refuses, the next file may still be announced by an event.
+                    if let Err(e) = self.delete_object(last) {
+                        tracing::debug!("deleting {} from SDRAM: {e}", info.filename);
+                    }
+                }
+                Ok(_) => {
+                    self.fetch_new(last, opts, progress, files)?;
+                    continue;
+                }
                 Err(PtpError::Response {
                     code: rc::INVALID_OBJECT_HANDLE,
                     ..
-                }) if !files.is_empty() => return Ok(()),
+                }) => {}
                 Err(e) => return Err(e),
-            };
-            if files.iter().any(|f| f.info.filename == info.filename) {
-                // Still the file just read: this camera frees it when it is deleted.
-                self.delete_object(NIKON_SDRAM_HANDLE)?;
-                match self.object_info(NIKON_SDRAM_HANDLE) {
-                    Ok(next) if files.iter().all(|f| f.info.filename != next.filename) => {}
-                    _ => return Ok(()),
+            }
+            let mut announced = Vec::new();
+            self.nikon_added(Target::Sdram, &mut announced)?;
+            let mut got = false;
+            for h in announced {
+                got |= self.fetch_new(h, opts, progress, files)?;
+            }
+            if !got {
+                if start.elapsed() > self.timeouts.capture {
+                    tracing::warn!(
+                        "the camera was set to make {want} files per shot and gave {} within {:?}",
+                        files.len(),
+                        self.timeouts.capture
+                    );
+                    return Ok(());
                 }
-                continue;
+                std::thread::sleep(self.timeouts.poll);
             }
-            if files.len() >= MOST_FILES_PER_SHOT {
-                return Err(PtpError::Protocol(format!(
-                    "the camera offered more than {MOST_FILES_PER_SHOT} files for one shot (the last: {})",
-                    info.filename
-                )));
-            }
-            files.push(self.fetch(NIKON_SDRAM_HANDLE, info, &opts, progress)?);
         }
+        Ok(())
     }
 
     /// InitiateCapture, then an ObjectAdded per file and CaptureComplete, in any order.
@@ -339,11 +384,17 @@ impl Camera {
             .set_prop(&desc, &Value::Int(want))?
             .as_i64()
             .unwrap_or(-1);
-        Ok(match got {
+        let applied = match got {
             0..=3 => ImageFormat::Jpeg,
             4 => ImageFormat::Raw,
             _ => ImageFormat::RawJpeg,
-        })
+        };
+        self.files_per_shot = Some(if applied == ImageFormat::RawJpeg {
+            2
+        } else {
+            1
+        });
+        Ok(applied)
     }
 
     /// Exposure: sets what is given, returns what the camera applied.

@@ -92,24 +92,24 @@ impl Timed {
     }
 }
 
-impl ImageSource for Timed {
-    fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String> {
+impl Timed {
+    fn timed<T>(&self, f: impl FnOnce() -> T) -> T {
         let t = std::time::Instant::now();
-        let r = self.inner.photo(shot);
+        let r = f();
         self.nanos.fetch_add(
             t.elapsed().as_nanos() as u64,
             std::sync::atomic::Ordering::Relaxed,
         );
         r
     }
+}
+
+impl ImageSource for Timed {
+    fn photo(&self, shot: &Shot) -> Result<Vec<u8>, String> {
+        self.timed(|| self.inner.photo(shot))
+    }
     fn raw(&self, shot: &Shot) -> Result<Option<(&'static str, Vec<u8>)>, String> {
-        let t = std::time::Instant::now();
-        let r = self.inner.raw(shot);
-        self.nanos.fetch_add(
-            t.elapsed().as_nanos() as u64,
-            std::sync::atomic::Ordering::Relaxed,
-        );
-        r
+        self.timed(|| self.inner.raw(shot))
     }
     fn dimensions(&self) -> (u32, u32) {
         self.inner.dimensions()
