@@ -1,8 +1,6 @@
 //! RAW radiometry: the simulated DSLR's NEF and DNG files decoded back to the light the
 //! bench rendered, a RAW bracket's merge against a JPEG bracket's, and damaged files.
 
-use std::path::{Path, PathBuf};
-
 mod common;
 
 use brdfd::bench::camera::{BenchCamera, SENSOR_GAIN};
@@ -12,16 +10,7 @@ use brdfd::core::raster::Raster;
 use brdfd::radiometry::raw::{decode_raw, WhiteBalance};
 use brdfd::radiometry::{decode_jpeg, merge_hdr, Frame};
 use brdfd_sim::{ImageSource, Shot};
-
-fn shared_data() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!("SKIPPED: ../shared/data is missing (CI has it)");
-        None
-    }
-}
+use common::shared_data;
 
 /// A scene of known radiance: a ramp across, a colour per third down, one very bright
 /// column that clips.

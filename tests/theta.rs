@@ -2,12 +2,12 @@
 //! photographed (the HDR round trip), the real THETA S photo as an environment map, and the
 //! `brdfd theta` and `brdfd sim theta` commands against each other over HTTP.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 mod common;
 
-use common::{brdfd, text, Simulator};
+use common::{brdfd, shared_data, text, Simulator};
 use std::time::Duration;
 
 use brdfd::bench::panorama::{BenchPanorama, THETA_SENSOR_GAIN};
@@ -15,16 +15,6 @@ use brdfd::core::envmap::EnvMap;
 use brdfd::panorama::{load_jpeg, merge_bracket, read_gpano, MergedPanorama};
 use brdfd_sim::theta::{OscServer, ThetaConfig};
 use brdfd_theta::{BracketPlan, Exposure, HttpTimeouts, Theta};
-
-fn shared_data() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!("SKIPPED: ../shared/data is missing (CI has it)");
-        None
-    }
-}
 
 /// Shoots `plan` of `map` on the simulated THETA V over HTTP and merges the frames.
 fn round_trip(map: &EnvMap, plan: &BracketPlan) -> (MergedPanorama, EnvMap) {

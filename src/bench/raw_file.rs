@@ -73,6 +73,15 @@ impl Sensor {
         }
     }
 
+    /// The whole sensor's size around an image of `radiance`'s size (its recommended crop).
+    pub fn size_around(&self, radiance: &Raster) -> (usize, usize) {
+        let [left, top, right, bottom] = self.margins;
+        (
+            radiance.width + left + right,
+            radiance.height + top + bottom,
+        )
+    }
+
     /// The white balance the camera records: the inverse of the filters' sensitivity.
     pub fn white_balance(&self) -> [f32; 3] {
         self.sensitivity.map(|s| 1.0 / s)
@@ -82,11 +91,8 @@ impl Sensor {
     /// RGGB mosaic over the whole sensor, margins included. `iso` scales the noise: a higher
     /// ISO amplifies fewer electrons. `seed` makes each shot's noise its own.
     pub fn expose(&self, radiance: &Raster, k: f32, iso: u32, seed: u64) -> Vec<u16> {
-        let [left, top, right, bottom] = self.margins;
-        let (w, h) = (
-            radiance.width + left + right,
-            radiance.height + top + bottom,
-        );
+        let [left, top, ..] = self.margins;
+        let (w, h) = self.size_around(radiance);
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
         let unit = Normal::new(0.0f32, 1.0).expect("unit normal");
         let range = (self.white - self.black) as f32;
@@ -224,11 +230,7 @@ fn raw_ifd(width: usize, height: usize, bits: u16, data: &[u16], order: ByteOrde
 /// data in a sub-IFD, the exposure in EXIF, and the white balance (WB_RBLevels), black
 /// level and compression in Nikon's maker note.
 pub fn nef(radiance: &Raster, k: f32, sensor: &Sensor, shot: &ShotInfo, seed: u64) -> Vec<u8> {
-    let [left, top, right, bottom] = sensor.margins;
-    let (w, h) = (
-        radiance.width + left + right,
-        radiance.height + top + bottom,
-    );
+    let (w, h) = sensor.size_around(radiance);
     let data = sensor.expose(radiance, k, shot.iso, seed);
     let wb = sensor.white_balance();
     let rational = |v: f32| ((v * 256.0).round() as u32, 256);
@@ -258,11 +260,8 @@ pub fn nef(radiance: &Raster, k: f32, sensor: &Sensor, shot: &ShotInfo, seed: u6
 /// the crop, the as-shot white balance and a colour matrix (XYZ to camera: the sRGB
 /// primaries through the filters' sensitivity).
 pub fn dng(radiance: &Raster, k: f32, sensor: &Sensor, shot: &ShotInfo, seed: u64) -> Vec<u8> {
-    let [left, top, right, bottom] = sensor.margins;
-    let (w, h) = (
-        radiance.width + left + right,
-        radiance.height + top + bottom,
-    );
+    let (w, h) = sensor.size_around(radiance);
+    let [left, top, ..] = sensor.margins;
     let data = sensor.expose(radiance, k, shot.iso, seed);
     let mut raw = raw_ifd(w, h, 16, &data, ByteOrder::Little);
     let milli = |v: f32| ((v * 10_000.0).round() as u32, 10_000);

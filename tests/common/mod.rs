@@ -352,3 +352,15 @@ pub fn check_report(path: &Path, figures: usize) -> String {
     assert_eq!(html.matches("<figure>").count(), figures, "figures");
     html
 }
+
+/// The reference data folder beside the repository (`../shared/data`), or `None`, said, for
+/// the tests that need it to skip where it is missing (CI has it).
+pub fn shared_data() -> Option<std::path::PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
+    if dir.is_dir() {
+        Some(dir)
+    } else {
+        eprintln!("SKIPPED: ../shared/data is missing (CI has it)");
+        None
+    }
+}
