@@ -42,32 +42,39 @@ fn gphoto2(home: &std::path::Path, args: &[&str]) -> std::process::Output {
         .unwrap()
 }
 
+/// `brdfd sim camera --profile PROFILE` on a free loopback port: the process (stopped when
+/// dropped), the rest of its output, and its PTP/IP address.
+fn start_sim(profile: &str) -> (Sim, BufReader<std::process::ChildStdout>, String) {
+    let mut child = common::isolated(&mut Command::new(env!("CARGO_BIN_EXE_brdfd")))
+        .args([
+            "sim",
+            "camera",
+            "--profile",
+            profile,
+            "--size",
+            "48",
+            "--ptpip",
+            "127.0.0.1:0",
+        ])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stdout.take().unwrap());
+    let mut first = String::new();
+    lines.read_line(&mut first).unwrap();
+    let sim = Sim(child);
+    assert!(first.contains("PTP/IP on"), "{first}");
+    let addr = first.trim().rsplit(' ').next().unwrap().to_string();
+    (sim, lines, addr)
+}
+
 #[test]
 fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
     if !gphoto2_present() {
         return;
     }
     for profile in ["generic", "nikon-d5100"] {
-        let mut child = common::isolated(&mut Command::new(env!("CARGO_BIN_EXE_brdfd")))
-            .args([
-                "sim",
-                "camera",
-                "--profile",
-                profile,
-                "--size",
-                "48",
-                "--ptpip",
-                "127.0.0.1:0",
-            ])
-            .stdout(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let mut lines = BufReader::new(child.stdout.take().unwrap());
-        let mut ready = String::new();
-        lines.read_line(&mut ready).unwrap();
-        let _sim = Sim(child);
-        let addr = ready.trim().rsplit(' ').next().unwrap().to_string();
-        assert!(ready.contains("PTP/IP on"), "{ready}");
+        let (_sim, mut lines, addr) = start_sim(profile);
 
         let home = tempfile::tempdir().unwrap();
         // HOST:CMDPORT:EVENTPORT; with one port given, gphoto2 takes port + 1 for events.
@@ -144,29 +151,13 @@ fn gphoto2_downloads_the_nef_and_the_jpeg_of_one_shot() {
     if !gphoto2_present() {
         return;
     }
-    let mut child = common::isolated(&mut Command::new(env!("CARGO_BIN_EXE_brdfd")))
-        .args([
-            "sim",
-            "camera",
-            "--profile",
-            "nikon-d5100",
-            "--size",
-            "48",
-            "--ptpip",
-            "127.0.0.1:0",
-        ])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(child.stdout.take().unwrap());
-    let (mut address, mut rendered) = (String::new(), String::new());
-    lines.read_line(&mut address).unwrap();
-    let _sim = Sim(child);
+    let (_sim, mut lines, address) = start_sim("nikon-d5100");
     // gphoto2 gives up on a camera that is busy rendering its scene: wait until it is ready.
+    let mut rendered = String::new();
     lines.read_line(&mut rendered).unwrap();
     assert!(rendered.contains("camera: ready"), "{rendered}");
     let home = tempfile::tempdir().unwrap();
-    let tcp_port = address.trim().rsplit(':').next().unwrap();
+    let tcp_port = address.rsplit(':').next().unwrap();
     let port = format!("ptpip:127.0.0.1:{tcp_port}:{tcp_port}");
     let pattern = home.path().join("%f.%C");
     let cap = gphoto2(
