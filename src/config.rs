@@ -40,7 +40,7 @@ pub enum ConfigError {
     },
 }
 
-fn invalid(file: &str, field: impl Into<String>, reason: impl Into<String>) -> ConfigError {
+pub fn invalid(file: &str, field: impl Into<String>, reason: impl Into<String>) -> ConfigError {
     ConfigError::Invalid {
         file: file.into(),
         field: field.into(),
@@ -100,9 +100,14 @@ pub struct RigDevices {
     /// V4L2 camera, which sees what the simulated DSLR sees.
     #[serde(default)]
     pub fallback_camera: Option<Selector>,
-    /// A rig-protocol turntable or trigger box, or a release cable.
+    /// A turntable that speaks the brdfd rig protocol.
     #[serde(default)]
     pub turntable: Option<Selector>,
+    /// What fires the DSLR, when the camera is not fired over PTP: a rig-protocol trigger
+    /// box (which may be the turntable's device), or a remote-release cable on a serial
+    /// adapter's modem line.
+    #[serde(default)]
+    pub shutter: Option<Selector>,
 }
 
 /// Exposure plans.
@@ -167,42 +172,194 @@ fn default_fallback_white_balance() -> i64 {
 /// Frames a fallback bracket averages per exposure at most.
 pub const MAX_FALLBACK_FRAMES: usize = 256;
 
-/// How the two cameras' radiance units relate.
-#[derive(Debug, Clone, Deserialize)]
+/// Each camera's response, so that every camera's values become radiance in one unit: a
+/// camera's gain is its linear value per unit of exposure per unit of radiance, per colour
+/// channel. The exposure is t·ISO/100/N² for the DSLR and the THETA (as their EXIF records
+/// it), and the exposure time in seconds for the fallback camera, at its fixed gain (V4L2
+/// reports no aperture).
+///
+/// The THETA's gain sets the unit: nothing on a bench measures radiance absolutely, so
+/// `brdfd calibrate radiometry` keeps the THETA's gain as it is in the rig (1 if it is not
+/// there yet) and measures the others against it, from a target of known albedo that both
+/// cameras see. The estimate depends only on their ratios.
+#[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Calibration {
-    /// DSLR radiance per THETA radiance for the same light (from photographing a grey card
-    /// with both). 1 for the simulated rig, whose sensors are modelled.
-    pub theta_to_dslr: f64,
-    /// The fallback camera's radiance per THETA radiance, at the fallback's gain. The
-    /// fallback's radiance is its averaged linear value per second of exposure (V4L2 reports
-    /// no aperture): a rig with a `fallback_camera` needs it.
+    /// The THETA's gain: the bench's unit of radiance.
     #[serde(default)]
-    pub theta_to_fallback: Option<f64>,
+    pub theta: Option<CameraGain>,
+    /// The DSLR's gain for its RAW files (camera RGB after black level, white level and
+    /// white balance, in [0, 1]).
+    #[serde(default)]
+    pub dslr_raw: Option<CameraGain>,
+    /// The DSLR's gain for its JPEG files (decoded as sRGB). A camera's JPEG rendering places
+    /// its values differently from its RAW files, so the two are measured apart.
+    #[serde(default)]
+    pub dslr_jpeg: Option<CameraGain>,
+    /// The V4L2 fallback camera's gain, per second of exposure, at `brackets.fallback_gain`.
+    #[serde(default)]
+    pub fallback: Option<CameraGain>,
     /// Fixed white balance for the DSLR's RAW files (red, green, blue multipliers), for a
     /// bench whose light does not change; without it each file's as-shot balance is used.
     #[serde(default)]
     pub raw_white_balance: Option<[f32; 3]>,
+    /// Replaced by the gains: read only to say how to move a measured ratio over.
+    #[serde(default)]
+    pub theta_to_dslr: Option<f64>,
+    /// Replaced by the gains, as `theta_to_dslr`.
+    #[serde(default)]
+    pub theta_to_fallback: Option<f64>,
 }
 
-/// A simulated rig's devices, to rehearse failures at the bench: a DSLR that is not there,
-/// or one whose battery runs out mid-capture.
-#[derive(Debug, Clone, Default, Deserialize)]
+/// One camera's gain as measured, with how much the measurement spread.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
+pub struct CameraGain {
+    /// Linear value per unit of exposure per unit of radiance: red, green, blue (or one
+    /// number for all three).
+    pub gain: Gain,
+    /// The measurement's spread, relative to the gain (1σ over the target's pixels).
+    #[serde(default)]
+    pub spread: Option<Gain>,
+    /// How and when it was measured, in words.
+    #[serde(default)]
+    pub measured: Option<String>,
+}
+
+/// A value per colour channel; a rig file may give one number for all three.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gain(pub [f64; 3]);
+
+impl<'de> Deserialize<'de> for Gain {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Gain, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            One(f64),
+            Three([f64; 3]),
+        }
+        Ok(match Raw::deserialize(d)? {
+            Raw::One(g) => Gain([g; 3]),
+            Raw::Three(g) => Gain(g),
+        })
+    }
+}
+
+/// The gains of a rig's calibration, by the field that holds them (for errors).
+pub const GAIN_FIELDS: [&str; 4] = [
+    "calibration.theta",
+    "calibration.dslr_raw",
+    "calibration.dslr_jpeg",
+    "calibration.fallback",
+];
+
+impl Calibration {
+    fn gains(&self) -> [(&'static str, Option<&CameraGain>); 4] {
+        [
+            (GAIN_FIELDS[0], self.theta.as_ref()),
+            (GAIN_FIELDS[1], self.dslr_raw.as_ref()),
+            (GAIN_FIELDS[2], self.dslr_jpeg.as_ref()),
+            (GAIN_FIELDS[3], self.fallback.as_ref()),
+        ]
+    }
+
+    /// Gains must be positive numbers.
+    fn check(&self, file: &str) -> Result<(), ConfigError> {
+        for (field, gain) in self.gains() {
+            let Some(g) = gain else { continue };
+            if !g.gain.0.iter().all(|v| v.is_finite() && *v > 0.0) {
+                return Err(invalid(
+                    file,
+                    format!("{field}.gain"),
+                    format!("{:?}: a gain is a positive number per channel", g.gain.0),
+                ));
+            }
+            if let Some(s) = &g.spread {
+                if !s.0.iter().all(|v| v.is_finite() && *v >= 0.0) {
+                    return Err(invalid(
+                        file,
+                        format!("{field}.spread"),
+                        "a spread is a number at or above 0 per channel",
+                    ));
+                }
+            }
+        }
+        if let Some(wb) = self.raw_white_balance {
+            if !wb.iter().all(|m| m.is_finite() && *m > 0.0) {
+                return Err(invalid(
+                    file,
+                    "calibration.raw_white_balance",
+                    format!("{wb:?}: the three multipliers must be positive"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The ratios of before the gains are refused, with what to write instead. (They are
+    /// read, so that `brdfd calibrate radiometry` can read the rig and replace them.)
+    pub fn refuse_ratios(&self, file: &str) -> Result<(), ConfigError> {
+        if let Some(k) = self.theta_to_dslr {
+            // What the merges did with the ratio: the THETA's values over 100 per unit of
+            // exposure, times the ratio; the DSLR's over 1000.
+            let theta = 100.0 / k;
+            let fallback = self
+                .theta_to_fallback
+                .map(|f| format!(", [calibration.fallback] gain = {}", f / k))
+                .unwrap_or_default();
+            return Err(invalid(
+                file,
+                "calibration.theta_to_dslr",
+                format!(
+                    "the calibration is now each camera's gain: measure them with `brdfd calibrate radiometry --rig {file}`, or keep the ratio measured before by writing [calibration.theta] gain = {theta}, [calibration.dslr_raw] gain = 1000, [calibration.dslr_jpeg] gain = 1000{fallback}, in place of theta_to_dslr and theta_to_fallback"
+                ),
+            ));
+        }
+        if self.theta_to_fallback.is_some() {
+            return Err(invalid(
+                file,
+                "calibration.theta_to_fallback",
+                format!("the calibration is now each camera's gain: measure them with `brdfd calibrate radiometry --rig {file}`"),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A simulated rig's devices, to rehearse failures at the bench (a DSLR that is not there,
+/// or one whose battery runs out mid-capture) and to run each way a bench can be built.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct Simulation {
     /// `present` (the default) or `absent` (nothing answers at its address).
-    #[serde(default)]
     pub dslr: SimulatedPresence,
     /// The simulated DSLR powers off when asked for the frame after this many.
-    #[serde(default)]
     pub dslr_powers_off_after: Option<u32>,
     /// `present` (the default) or `absent`: views are then turned by hand.
-    #[serde(default)]
     pub turntable: SimulatedPresence,
     /// The RAW files the simulated DSLR writes: `nef` (the default; 14-bit, a D5100's),
     /// `dng` (14-bit) or `dng12` (12-bit).
-    #[serde(default)]
     pub dslr_raw: Option<crate::bench::raw_file::RawFormat>,
+    /// How the simulated THETA is reached: `http` (the default: the THETA Web API on
+    /// loopback) or `usb` (PTP over an in-memory USB pipe, with USB's framing).
+    pub theta: SimulatedLink,
+    /// `absent` (the default) or `present`: a trigger box fires the DSLR through its shutter
+    /// line, as at a bench whose camera is not fired over PTP. It is the simulated
+    /// turntable's box when the turntable is present, a box of its own otherwise.
+    pub shutter: SimulatedPresence,
+}
+
+impl Default for Simulation {
+    fn default() -> Self {
+        Simulation {
+            dslr: SimulatedPresence::Present,
+            dslr_powers_off_after: None,
+            turntable: SimulatedPresence::Present,
+            dslr_raw: None,
+            theta: SimulatedLink::Http,
+            shutter: SimulatedPresence::Absent,
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
@@ -211,6 +368,14 @@ pub enum SimulatedPresence {
     #[default]
     Present,
     Absent,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SimulatedLink {
+    #[default]
+    Http,
+    Usb,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -236,12 +401,17 @@ pub struct Rig {
     #[serde(default)]
     pub theta_yaw_deg: f64,
     pub brackets: Brackets,
+    /// Each camera's gain; `brdfd calibrate radiometry` measures and writes them.
+    #[serde(default)]
     pub calibration: Calibration,
     #[serde(default)]
     pub turntable: Option<TurntablePlan>,
     /// Simulated rigs only: devices that are missing or fail.
     #[serde(default)]
     pub simulation: Option<Simulation>,
+    /// The file the rig was read from, for errors that name it.
+    #[serde(skip)]
+    pub file: String,
 }
 
 /// Pixels to estimate from: a count, or "all".
@@ -269,9 +439,9 @@ impl<'de> Deserialize<'de> for PixelCount {
     }
 }
 
-/// A fallback camera needs its calibration and a bracket.
-fn check_fallback(file: &str, r: &Rig) -> Result<(), ConfigError> {
-    let b = &r.brackets;
+/// The fallback bracket's values. Whether the rig needs them is the capture's question
+/// ([`crate::rig::plan`]).
+fn check_fallback_bracket(file: &str, b: &Brackets) -> Result<(), ConfigError> {
     check_exposures(file, "brackets.fallback_shutters", &b.fallback_shutters)?;
     if !(1..=MAX_FALLBACK_FRAMES).contains(&b.fallback_frames) {
         return Err(invalid(
@@ -280,58 +450,7 @@ fn check_fallback(file: &str, r: &Rig) -> Result<(), ConfigError> {
             format!("must be 1 to {MAX_FALLBACK_FRAMES}"),
         ));
     }
-    if r.simulation.is_some() && !r.simulated {
-        return Err(invalid(
-            file,
-            "simulation",
-            "is for simulated rigs (`simulated = true`)",
-        ));
-    }
-    let has_fallback = r.devices.fallback_camera.is_some();
-    let simulated_webcam = Selector::V4l(crate::rig::simulated::SIMULATED_WEBCAM.into());
-    if r.simulated
-        && r.devices
-            .fallback_camera
-            .as_ref()
-            .is_some_and(|s| *s != simulated_webcam)
-    {
-        return Err(invalid(
-            file,
-            "devices.fallback_camera",
-            format!(
-                "a simulated rig's fallback camera is the simulated webcam, `{simulated_webcam}`"
-            ),
-        ));
-    }
-    if has_fallback && b.fallback_shutters.is_empty() {
-        return Err(invalid(
-            file,
-            "brackets.fallback_shutters",
-            "needs at least one exposure",
-        ));
-    }
-    // Left alone, a webcam's auto gain changes between the bracket's exposures, and the
-    // calibration holds for one gain.
-    if has_fallback && b.fallback_gain.is_none() {
-        return Err(invalid(
-            file,
-            "brackets.fallback_gain",
-            "a rig with a fallback_camera needs a fixed gain, in the camera's own units (`v4l2-ctl -d /dev/videoN --list-ctrls` shows its range); theta_to_fallback is measured at it",
-        ));
-    }
-    match r.calibration.theta_to_fallback {
-        Some(k) if !(k.is_finite() && k > 0.0) => Err(invalid(
-            file,
-            "calibration.theta_to_fallback",
-            "must be a positive scale",
-        )),
-        None if has_fallback => Err(invalid(
-            file,
-            "calibration.theta_to_fallback",
-            "a rig with a fallback_camera needs it: the fallback camera's radiance per THETA radiance (photograph a grey card with both)",
-        )),
-        _ => Ok(()),
-    }
+    Ok(())
 }
 
 /// `materials/<name>.toml`.
@@ -494,8 +613,12 @@ impl DaemonConfig {
 }
 
 impl Rig {
+    /// Reads a rig file and checks its values. Whether the capture can run the rig (its
+    /// devices in their roles, its calibration) is [`crate::rig::plan::check`]'s question:
+    /// `brdfd calibrate radiometry` reads a rig that is not calibrated yet.
     pub fn parse(file: &str, text: &str) -> Result<Rig, ConfigError> {
-        let r: Rig = parse(file, text)?;
+        let mut r: Rig = parse(file, text)?;
+        r.file = file.to_string();
         let b = &r.brackets;
         if b.dslr_shutters.is_empty() {
             return Err(invalid(
@@ -513,23 +636,15 @@ impl Rig {
                 format!("f/{} is not an aperture", b.dslr_f_number),
             ));
         }
-        if !(r.calibration.theta_to_dslr.is_finite() && r.calibration.theta_to_dslr > 0.0) {
+        check_fallback_bracket(file, b)?;
+        r.calibration.check(file)?;
+        if r.simulation.is_some() && !r.simulated {
             return Err(invalid(
                 file,
-                "calibration.theta_to_dslr",
-                "must be a positive scale",
+                "simulation",
+                "is for simulated rigs (`simulated = true`)",
             ));
         }
-        if let Some(wb) = r.calibration.raw_white_balance {
-            if !wb.iter().all(|m| m.is_finite() && *m > 0.0) {
-                return Err(invalid(
-                    file,
-                    "calibration.raw_white_balance",
-                    format!("{wb:?}: the three multipliers must be positive"),
-                ));
-            }
-        }
-        check_fallback(file, &r)?;
         if !r.theta_yaw_deg.is_finite() {
             return Err(invalid(
                 file,
@@ -552,69 +667,6 @@ impl Rig {
                 ));
             }
             // Without a turntable device, the views are turned by hand.
-        }
-        if !r.simulated && r.devices.dslr.is_none() && r.devices.fallback_camera.is_none() {
-            return Err(invalid(
-                file,
-                "devices",
-                "needs a `dslr` or a `fallback_camera` to see the object",
-            ));
-        }
-        if !r.simulated && r.devices.theta.is_none() {
-            return Err(invalid(
-                file,
-                "devices.theta",
-                "needs a THETA to measure the light",
-            ));
-        }
-        // What each role can be: the kinds of device the capture can run it with, said in
-        // the error.
-        for (field, sel, ok, kinds) in [
-            (
-                "devices.dslr",
-                &r.devices.dslr,
-                matches!(
-                    r.devices.dslr,
-                    None | Some(Selector::Usb { .. } | Selector::PtpIp(_))
-                ),
-                "a PTP camera: usb, usb:VVVV[:PPPP] or ptpip:HOST[:PORT]",
-            ),
-            (
-                "devices.theta",
-                &r.devices.theta,
-                matches!(
-                    r.devices.theta,
-                    None | Some(Selector::Osc(_) | Selector::Usb { .. })
-                ),
-                // A THETA's V4L2 (UVC) mode streams live video: it cannot shoot the
-                // bracket the light needs.
-                "a THETA the capture can bracket: osc:http://HOST or usb[:05ca:PPPP] (not its V4L2 live view)",
-            ),
-            (
-                "devices.fallback_camera",
-                &r.devices.fallback_camera,
-                matches!(r.devices.fallback_camera, None | Some(Selector::V4l(_))),
-                "a V4L2 camera: v4l:/dev/videoN",
-            ),
-            (
-                "devices.turntable",
-                &r.devices.turntable,
-                matches!(r.devices.turntable, None | Some(Selector::Serial(_))),
-                // The capture triggers the DSLR over PTP, so a release cable has nothing to
-                // do in it (`brdfd serial fire` drives one on its own).
-                "a turntable that speaks the brdfd rig protocol: serial:/dev/ttyUSB0 (a release cable, cable:..., neither turns the object nor is needed to trigger the DSLR, which the capture triggers over PTP)",
-            ),
-        ] {
-            if !ok {
-                return Err(invalid(
-                    file,
-                    field,
-                    format!(
-                        "{} cannot be used here: it must be {kinds}",
-                        sel.as_ref().map(|s| s.to_string()).unwrap_or_default()
-                    ),
-                ));
-            }
         }
         Ok(r)
     }

@@ -152,17 +152,19 @@ pub struct MergedPanorama {
 }
 
 /// Merges a bracket of panorama JPEGs (name, bytes) into a linear map. `gain` is the camera's
-/// sensor gain (pixel value per radiance unit per unit exposure factor); it sets the units.
-/// Warns when the shortest frame still clips, since that light is underestimated.
+/// gain per channel (linear value per unit of radiance per unit of exposure factor, from the
+/// rig's calibration); it sets the units. Warns when the shortest frame still clips, since
+/// that light is underestimated.
 pub fn merge_bracket(
     files: &[(String, Vec<u8>)],
-    gain: f64,
+    gain: [f64; 3],
 ) -> Result<MergedPanorama, RadiometryError> {
-    let frames = files
+    let mut frames = files
         .iter()
         .map(|(name, bytes)| decode_frame(bytes, name))
         .collect::<Result<Vec<_>, _>>()?;
-    let merged = merge_hdr(&frames, gain)?;
+    crate::radiometry::with_gain(&mut frames, gain);
+    let merged = merge_hdr(&frames, 1.0)?;
     let source = match files {
         [(one, _)] => one.clone(),
         _ => format!("{}-frame bracket from {}", files.len(), files[0].0),
@@ -208,7 +210,7 @@ pub fn load_jpeg(path: &std::path::Path) -> Result<EnvMap, RadiometryError> {
         file: name.clone(),
         reason: e.to_string(),
     })?;
-    Ok(merge_bracket(&[(name, bytes)], 1.0)?.map)
+    Ok(merge_bracket(&[(name, bytes)], [1.0; 3])?.map)
 }
 
 /// Any environment map file: Radiance `.hdr` and OpenEXR through the core, JPEG panoramas

@@ -58,7 +58,11 @@ fn io(path: &Path, e: std::io::Error) -> SessionError {
 /// Writes `bytes` to `path` atomically: temporary file beside it, fsync, rename, fsync of the
 /// folder.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = path.parent().unwrap_or(Path::new("."));
+    // A bare file name's parent is "", which names no folder to sync.
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())

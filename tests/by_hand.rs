@@ -5,11 +5,9 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader, Read, Write};
-use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use common::{command, Daemon};
+use common::{answering, Daemon};
 
 /// The shipped simulated rig without its turntable, its object camera at 64².
 fn rig() -> String {
@@ -19,49 +17,6 @@ fn rig() -> String {
             .replace("width = 256", "width = 64")
             .replace("height = 256", "height = 64")
     )
-}
-
-/// Runs `brdfd` in `dir` with `args`, pressing Enter each time it asks for a turn, at most
-/// `presses` times; then standard input is closed. Its exit and everything it printed.
-fn answering(dir: &std::path::Path, args: &[&str], presses: usize) -> (bool, String) {
-    let mut child = command()
-        .args(args)
-        .current_dir(dir)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut stdin = Some(child.stdin.take().unwrap());
-    let mut stdout = child.stdout.take().unwrap();
-    let printed = std::thread::spawn(move || {
-        let mut s = String::new();
-        let _ = stdout.read_to_string(&mut s);
-        s
-    });
-    // The prompt goes to standard error: Enter is pressed only once it has been asked, so a
-    // capture that did not wait would not have been answered.
-    let mut said = String::new();
-    let mut pressed = 0;
-    if presses == 0 {
-        stdin.take();
-    }
-    for line in BufReader::new(child.stderr.take().unwrap()).lines() {
-        let line = line.unwrap();
-        if line.contains("press Enter once it is turned") {
-            if let Some(s) = stdin.as_mut() {
-                s.write_all(b"\n").unwrap();
-                pressed += 1;
-                if pressed == presses {
-                    stdin.take();
-                }
-            }
-        }
-        said.push_str(&line);
-        said.push('\n');
-    }
-    let status = child.wait().unwrap();
-    (status.success(), printed.join().unwrap() + &said)
 }
 
 fn capture_args() -> Vec<&'static str> {

@@ -84,7 +84,9 @@ fn every_shipped_rig_material_and_daemon_file_loads() {
 #[test]
 fn rig_files_with_impossible_numbers_are_refused() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let bench = std::fs::read_to_string(root.join("config/rigs/bench.toml")).unwrap();
+    // Calibrated, as `brdfd calibrate radiometry` leaves it: the shipped template is not.
+    let bench = std::fs::read_to_string(root.join("config/rigs/bench.toml")).unwrap()
+        + "\n[calibration.theta]\ngain = 1.0\n[calibration.dslr_raw]\ngain = 10.0\n[calibration.dslr_jpeg]\ngain = 10.0\n[calibration.fallback]\ngain = 0.6\n";
     let dir = tempfile::tempdir().unwrap();
     for (from, to, says) in [
         ("fx = 7000.0", "fx = nan", "camera.fx"),
@@ -112,14 +114,31 @@ fn rig_files_with_impossible_numbers_are_refused() {
             "field `devices.turntable`: cable:dtr:/dev/ttyUSB0 cannot be used here",
         ),
         (
+            "turntable = \"serial:/dev/ttyUSB0\"",
+            "turntable = \"serial:/dev/ttyUSB0\"\nshutter = \"v4l:/dev/video1\"",
+            "field `devices.shutter`: v4l:/dev/video1 cannot be used here: it must be a trigger box",
+        ),
+        (
             "fallback_camera = \"v4l:/dev/video0\"",
             "fallback_camera = \"usb\"",
             "field `devices.fallback_camera`: usb cannot be used here: it must be a V4L2 camera",
         ),
+        // Every camera that may shoot needs its gain.
         (
-            "theta_to_fallback = 1.0",
+            "[calibration.fallback]\ngain = 0.6\n",
             "",
-            "calibration.theta_to_fallback",
+            "field `calibration.fallback.gain`: not measured",
+        ),
+        (
+            "[calibration.dslr_jpeg]\ngain = 10.0\n",
+            "",
+            "field `calibration.dslr_jpeg.gain`: not measured",
+        ),
+        // The ratio of before the gains says how to move it over.
+        (
+            "[calibration]\n",
+            "[calibration]\ntheta_to_dslr = 2.0\n",
+            "[calibration.theta] gain = 50",
         ),
     ] {
         assert!(bench.contains(from), "{from}");

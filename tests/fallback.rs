@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{brdfd, out};
+use common::{brdfd, out, relit};
 
 const SIMULATED_RIG: &str = include_str!("../config/rigs/simulated.toml");
 
@@ -46,15 +46,6 @@ fn capture(rig: &str, extra: &[&str]) -> (bool, String, Option<serde_json::Value
         })
         .map(|t| serde_json::from_str(&t).unwrap());
     (o.status.success(), text, coefficients)
-}
-
-/// The relit error the capture printed.
-fn relit(text: &str) -> f64 {
-    text.split("the estimate is ")
-        .nth(1)
-        .and_then(|s| s.split_whitespace().next())
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| panic!("no relit error in\n{text}"))
 }
 
 #[test]
@@ -125,10 +116,13 @@ fn config_check_names_what_a_fallback_needs() {
     };
     let (ok, text) = check(
         "uncalibrated.toml",
-        SIMULATED_RIG.replace("theta_to_fallback = 62.5", ""),
+        SIMULATED_RIG.replace("[calibration.fallback]\ngain = 62.5\n", ""),
     );
     assert!(!ok, "{text}");
-    assert!(text.contains("calibration.theta_to_fallback"), "{text}");
+    assert!(
+        text.contains("calibration.fallback.gain") && text.contains("brdfd calibrate radiometry"),
+        "{text}"
+    );
     let (ok, text) = check(
         "real-webcam.toml",
         SIMULATED_RIG.replace("v4l:simulated", "v4l:/dev/video0"),

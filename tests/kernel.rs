@@ -517,9 +517,11 @@ fallback_shutters = [0.01, 0.04]
 fallback_frames = 2
 fallback_gain = 50
 
-[calibration]
-theta_to_dslr = 1.0
-theta_to_fallback = 1.0
+[calibration.theta]
+gain = 100.0
+
+[calibration.fallback]
+gain = 1.0
 "#;
 
 /// The simulated Nikon D5100 as a real USB gadget (configfs and FunctionFS on `dummy_hcd`'s

@@ -36,7 +36,7 @@ fn round_trip(map: &EnvMap, plan: &BracketPlan) -> (MergedPanorama, EnvMap) {
     theta.prepare().unwrap();
     let frames = theta.capture(plan, &mut |_, _| {}).unwrap();
     let files: Vec<_> = frames.into_iter().map(|f| (f.name, f.data)).collect();
-    let merged = merge_bracket(&files, THETA_SENSOR_GAIN).unwrap();
+    let merged = merge_bracket(&files, [THETA_SENSOR_GAIN; 3]).unwrap();
     (merged, source.scene().clone())
 }
 

@@ -11,6 +11,7 @@ use std::sync::Arc;
 use anyhow::{bail, Context as _};
 use brdfd::config::{DaemonConfig, Rig};
 use brdfd::rig::flow::{self, Context};
+use brdfd::rig::settings::CaptureSettings;
 use brdfd::rig::{Cancel, Devices, Event, Plan, Progress, KEEP_ALIVE};
 use brdfd::session::{PhaseTime, Session, State};
 
@@ -184,11 +185,13 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         (None, false) => None,
     };
     let daemon = a.daemon.find(&config)?;
-    // In this process the material is checked before a session exists; a daemon checks it
-    // itself, against its own scene files (the plan's are this machine's).
-    if daemon.is_none() && rig.as_ref().is_some_and(|(r, _)| r.simulated) {
-        plan.check_simulated_material()?;
-    }
+    // In this process the settings are resolved and checked before a session exists; a
+    // daemon resolves them itself, against its own rig and scene files (the plan's are this
+    // machine's).
+    let settings = match (&daemon, &rig) {
+        (None, Some((r, _))) => Some(CaptureSettings::resolve(&plan, r)?),
+        _ => None,
+    };
     if let Some(d) = daemon {
         let health = d.json("/health")?;
         let simulated = health["rig"]["simulated"].as_bool().unwrap_or(false);
@@ -211,23 +214,23 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         };
         return follow(&d, &id, a.out.as_deref());
     }
-    let Some((rig, rig_text)) = rig else {
+    let (Some((rig, rig_text)), Some(settings)) = (rig, settings) else {
         bail!("no rig: give --rig FILE for a hardware rig (config/rigs/bench.toml is a template), or --simulate for the simulated one");
     };
     let state = brdfd::session::state_dir(a.state_dir.as_deref(), config.state_dir.as_deref())?;
-    let mut session = plan.new_session(&state, &rig_text)?;
+    let mut session = settings.new_session(&state, &rig_text)?;
     println!(
         "session {} in {}",
         session.manifest.id,
         session.dir.display()
     );
-    in_process(&mut session, &plan, &rig, a.out.as_deref())
+    in_process(&mut session, &settings, &rig, a.out.as_deref())
 }
 
 /// Runs the flow here, on devices opened for this capture.
 fn in_process(
     session: &mut Session,
-    plan: &Plan,
+    settings: &CaptureSettings,
     rig: &Rig,
     out: Option<&Path>,
 ) -> anyhow::Result<()> {
@@ -242,7 +245,7 @@ fn in_process(
         cancel: cancel.clone(),
         operator: Arc::new(Terminal),
     };
-    if let Err(e) = flow::execute(session, plan, &cx) {
+    if let Err(e) = flow::execute(session, settings, &cx) {
         // Stopped by Ctrl-C, not by a failure of its own (which is reported as it is).
         if cancel.is_cancelled() && e.chain().any(|c| c.to_string() == "cancelled") {
             let id = &session.manifest.id;
@@ -386,11 +389,12 @@ pub fn resume(state: &Path, id: &str, daemon: &DaemonArgs) -> anyhow::Result<()>
         &format!("the rig stored in session {id}"),
         &session.manifest.rig,
     )?;
+    let settings = CaptureSettings::resolve(&plan, &rig)?;
     println!(
         "resuming session {} (was {:?})",
         session.manifest.id, session.manifest.state
     );
-    in_process(&mut session, &plan, &rig, None)
+    in_process(&mut session, &settings, &rig, None)
 }
 
 fn print_phases(phases: &[PhaseTime]) {

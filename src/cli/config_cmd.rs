@@ -10,10 +10,12 @@ use std::path::{Path, PathBuf};
 use anyhow::bail;
 use brdfd::config::{ConfigError, DaemonConfig, MaterialPreset, Rig};
 use brdfd::core::geometry::SceneGeometry;
+use brdfd::rig::calibrate::Target;
 
 #[derive(clap::Subcommand)]
 pub enum ConfigCommand {
-    /// Check files: daemon settings (`brdfd.toml`), rigs, material presets and geometry. The
+    /// Check files: daemon settings (`brdfd.toml`), rigs, material presets, geometry and
+    /// calibration targets. The
     /// kind comes from --kind, else the file's folder or name, else its content.
     Check {
         files: Vec<PathBuf>,
@@ -28,6 +30,8 @@ pub enum Kind {
     Rig,
     Material,
     Geometry,
+    /// A calibration target (`brdfd calibrate radiometry --target`).
+    Target,
     Daemon,
 }
 
@@ -45,6 +49,7 @@ impl Kind {
             Some("rigs") => Some(Kind::Rig),
             Some("materials") => Some(Kind::Material),
             Some("geometry") => Some(Kind::Geometry),
+            Some("targets") => Some(Kind::Target),
             _ if path.file_name().is_some_and(|n| n == "brdfd.toml") => Some(Kind::Daemon),
             _ => None,
         }
@@ -60,6 +65,8 @@ impl Kind {
             Some(Kind::Material)
         } else if has("camera") {
             Some(Kind::Geometry)
+        } else if has("albedo") {
+            Some(Kind::Target)
         } else if has("api") || has("state_dir") || has("token") {
             Some(Kind::Daemon)
         } else {
@@ -70,24 +77,57 @@ impl Kind {
     /// A one-line description of a valid file, or its first error.
     fn check(self, file: &str, text: &str) -> Result<String, ConfigError> {
         match self {
-            Kind::Rig => Rig::parse(file, text).map(|r| {
-                format!(
-                    "rig{}: dslr {}, theta {}, turntable {}",
-                    if r.simulated { " (simulated)" } else { "" },
-                    r.devices.dslr.map_or("-".into(), |s| s.to_string()),
-                    r.devices.theta.map_or("-".into(), |s| s.to_string()),
-                    r.devices.turntable.map_or("-".into(), |s| s.to_string())
-                )
+            Kind::Rig => Rig::parse(file, text).and_then(|r| {
+                // Accepted only if the capture can run it: its devices in their roles, and
+                // every camera's gain.
+                let roles = brdfd::rig::plan::check(&r)?;
+                Ok(describe_rig(&r, &roles))
             }),
             Kind::Material => MaterialPreset::parse(file, text)
                 .map(|m| format!("material preset, simulated as {}", m.simulate_as)),
             Kind::Geometry => {
                 brdfd::config::parse::<SceneGeometry>(file, text).map(|_| "geometry".to_string())
             }
+            Kind::Target => brdfd::config::parse::<Target>(file, text).and_then(|t| {
+                t.check(file)?;
+                Ok(format!("calibration target, albedo {:?}", t.albedo.0))
+            }),
             Kind::Daemon => DaemonConfig::parse(file, text)
                 .map(|d| format!("daemon settings, API on {}", d.api)),
         }
     }
+}
+
+/// A valid rig in a line: what plays each role.
+fn describe_rig(r: &Rig, roles: &brdfd::rig::plan::Roles) -> String {
+    let named = |s: &Option<brdfd::selector::Selector>, simulated: bool| match s {
+        Some(s) => s.to_string(),
+        None if simulated => "simulated".into(),
+        None => "-".into(),
+    };
+    let d = &r.devices;
+    let sim = r.simulated;
+    let turning = if roles.turntable {
+        format!("turntable {}", named(&d.turntable, sim))
+    } else {
+        "turned by hand".into()
+    };
+    let shutter = if roles.shutter {
+        format!(", shutter {}", named(&d.shutter, sim))
+    } else {
+        String::new()
+    };
+    format!(
+        "rig{}: dslr {}, fallback camera {}, theta {}, {turning}{shutter}",
+        if sim { " (simulated)" } else { "" },
+        if roles.dslr {
+            named(&d.dslr, sim)
+        } else {
+            "-".into()
+        },
+        named(&d.fallback_camera, false),
+        named(&d.theta, sim),
+    )
 }
 
 /// The file's description if it is valid, else every error found in it.
@@ -166,7 +206,7 @@ pub fn run(cmd: ConfigCommand) -> anyhow::Result<()> {
             failed += 1;
             println!(
                 "ERR {file}: cannot tell what kind of file this is (no [devices], simulate_as, \
-                 [camera] or api in it): give --kind rig|material|geometry|daemon"
+                 [camera], albedo or api in it): give --kind rig|material|geometry|target|daemon"
             );
             continue;
         };
@@ -191,6 +231,8 @@ mod tests {
     use super::*;
 
     const RIG: &str = include_str!("../../config/rigs/bench.toml");
+    /// The bench rig with every camera's gain, as `calibrate radiometry` would write them.
+    const GAINS: &str = "\n[calibration.theta]\ngain = 1.0\n[calibration.dslr_raw]\ngain = 10.0\n[calibration.dslr_jpeg]\ngain = 10.0\n[calibration.fallback]\ngain = 0.6\n";
 
     #[test]
     fn a_copied_file_is_known_by_its_content() {
@@ -208,7 +250,8 @@ mod tests {
 
     #[test]
     fn every_error_is_reported_with_its_line() {
-        let broken = RIG
+        let calibrated = format!("{RIG}{GAINS}");
+        let broken = calibrated
             .replace("dslr_iso = 100", "dslr_iso = \"a hundred\"")
             .replace("theta_iso = 100", "theta_iso = 100\nflash = true");
         let errors = check_file(Kind::Rig, "my-rig.toml", &broken).unwrap_err();
@@ -226,7 +269,13 @@ mod tests {
             "{errors:?}"
         );
         assert!(errors[1].to_string().contains("flash"), "{}", errors[1]);
-        assert!(check_file(Kind::Rig, "bench.toml", RIG).is_ok());
+        assert!(check_file(Kind::Rig, "bench.toml", &calibrated).is_ok());
+        // The shipped template is not calibrated: it says what to run.
+        let errors = check_file(Kind::Rig, "bench.toml", RIG).unwrap_err();
+        assert!(
+            errors[0].to_string().contains("brdfd calibrate radiometry"),
+            "{errors:?}"
+        );
         // An unknown table: setting its header aside would move its keys into the table
         // above and report errors the file does not have, so the list ends there.
         let header = RIG.replace("[brackets]", "[flash]\nbright = 1\n\n[brackets]");

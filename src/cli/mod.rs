@@ -2,6 +2,7 @@
 //! this module turns raw arguments into the library's typed options.
 
 mod basis_cmd;
+mod calibrate_cmd;
 mod capture;
 mod client;
 mod config_cmd;
@@ -52,6 +53,11 @@ pub enum Command {
     Eval(EvalArgs),
     /// Capture a material at the bench and estimate its BRDF (in the daemon if one runs).
     Capture(capture::CaptureArgs),
+    /// Calibrate the rig: each camera's gain from a grey card.
+    Calibrate {
+        #[command(subcommand)]
+        command: calibrate_cmd::CalibrateCommand,
+    },
     /// Run the daemon: own the rig's devices and serve the HTTP API on loopback.
     Serve(serve::ServeArgs),
     /// Measure the speed of the estimation core and the PTP link (medians of repeated runs).
@@ -238,6 +244,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         Command::Capture(a) => capture::run(a),
+        Command::Calibrate { command } => calibrate_cmd::run(command),
         Command::Serve(a) => serve::run(a),
         Command::Bench(a) => perf::run(a),
         Command::Ptp { command } => ptp_cmd::run(command),

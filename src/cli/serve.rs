@@ -81,6 +81,10 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
             include_str!("../../config/rigs/simulated.toml").to_string(),
         ),
     };
+    // The daemon keeps the devices open whatever the calibration; captures wait for it.
+    if let Err(e) = brdfd::rig::plan::check(&rig) {
+        eprintln!("warning: captures will be refused until the rig can be run: {e}");
+    }
     let state = brdfd::session::state_dir(a.state_dir.as_deref(), config.state_dir.as_deref())?;
     // Absolute, so that the paths the API gives out mean the same to every client.
     let state = std::path::absolute(&state).unwrap_or(state);

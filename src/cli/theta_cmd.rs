@@ -77,9 +77,9 @@ pub fn shoot_panorama(theta: &mut Theta, plan: &BracketPlan) -> anyhow::Result<V
         Event::Warning { text } => eprintln!("  warning: {text}"),
         _ => {}
     };
-    let frames = brdfd::rig::flow::shoot_panorama(theta, plan, &lines)?;
+    let frames = brdfd::rig::light::shoot_panorama(theta, plan, &lines)?;
     for f in &frames {
-        brdfd::rig::flow::check_exposure(&lines, f);
+        brdfd::rig::light::check_exposure(&lines, f);
     }
     Ok(frames)
 }
@@ -89,7 +89,7 @@ pub fn shoot_panorama(theta: &mut Theta, plan: &BracketPlan) -> anyhow::Result<V
 pub fn capture_panorama(
     theta: &mut Theta,
     plan: &BracketPlan,
-    gain: f64,
+    gain: [f64; 3],
 ) -> anyhow::Result<(EnvMap, Vec<Frame>)> {
     let frames = shoot_panorama(theta, plan)?;
     let files: Vec<(String, Vec<u8>)> = frames
@@ -144,7 +144,7 @@ pub fn run(cmd: ThetaCommand) -> anyhow::Result<()> {
             let plan = plan_from(&a.shutter, a.iso);
             // A real camera's gain is unknown until calibrated: the map is in relative
             // units (pixel value per unit exposure factor).
-            let (map, frames) = capture_panorama(&mut theta, &plan, 1.0)?;
+            let (map, frames) = capture_panorama(&mut theta, &plan, [1.0; 3])?;
             for f in &frames {
                 let path = super::write_new(&a.out, &f.name, &f.data)?;
                 println!(

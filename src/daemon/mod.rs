@@ -20,6 +20,7 @@ use tokio::sync::broadcast;
 
 use crate::config::Rig;
 use crate::rig::flow::{self, Context};
+use crate::rig::settings::CaptureSettings;
 use crate::rig::{Cancel, Devices, Event, GoAhead, Plan};
 use crate::session::{Session, State};
 
@@ -296,17 +297,14 @@ impl Daemon {
         // The scene files by name first: every later step reads the files they resolve to,
         // never a path the client sent.
         let plan = self.scene_files(plan).map_err(StartError::Invalid)?;
-        if self.rig.simulated {
-            plan.check_simulated_material()
-                .map_err(StartError::Invalid)?;
-        }
+        let settings = CaptureSettings::resolve(&plan, &self.rig).map_err(StartError::Invalid)?;
         // One lock from the busy check to the launch: two plans sent at once must not both
         // pass the check and leave a session behind for the one that loses.
         let mut running = self.lock_idle()?;
-        let session = plan
+        let session = settings
             .new_session(&self.state_dir, &self.rig_text)
             .map_err(StartError::Invalid)?;
-        self.launch(&mut running, session, plan)
+        self.launch(&mut running, session, settings)
     }
 
     /// The plan with its scene files (`env`, `nbrdf`) looked up by name in the state
@@ -331,9 +329,10 @@ impl Daemon {
         let mut s =
             Session::open(&self.state_dir, id).map_err(|e| StartError::Invalid(e.into()))?;
         let plan = resumable(&mut s).map_err(StartError::Invalid)?;
+        let settings = CaptureSettings::resolve(&plan, &self.rig).map_err(StartError::Invalid)?;
         // Checked again under the lock: another capture may have started meanwhile.
         let mut running = self.lock_idle()?;
-        self.launch(&mut running, s, plan)
+        self.launch(&mut running, s, settings)
     }
 
     fn check_idle(&self) -> Result<(), StartError> {
@@ -358,7 +357,7 @@ impl Daemon {
         &self,
         running: &mut Option<Running>,
         session: Session,
-        plan: Plan,
+        settings: CaptureSettings,
     ) -> Result<Session, StartError> {
         let id = session.manifest.id.clone();
         let log = EventLog::new();
@@ -392,7 +391,7 @@ impl Daemon {
                     operator,
                 };
                 let id = session.manifest.id.clone();
-                match flow::execute(&mut session, &plan, &cx) {
+                match flow::execute(&mut session, &settings, &cx) {
                     Ok(_) => tracing::info!(session = %id, "capture done"),
                     Err(e) => {
                         tracing::warn!(session = %id, "capture failed: {e:#}");

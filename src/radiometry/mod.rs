@@ -185,6 +185,17 @@ pub fn averaging_noise(frames: &[brdfd_v4l::Rgb8Frame]) -> Option<f32> {
     Some(*relative.select_nth_unstable_by(mid, f32::total_cmp).1)
 }
 
+/// Puts a camera's gain (its value per unit of exposure per unit of radiance, per channel)
+/// into each frame's channel multipliers, so that [`merge_hdr`] with a gain of 1 gives
+/// radiance in the bench's unit. Clipping is still judged on the values as recorded.
+pub fn with_gain(frames: &mut [Frame], gain: [f64; 3]) {
+    for f in frames {
+        for (b, g) in f.white_balance.iter_mut().zip(gain) {
+            *b = (*b as f64 / g) as f32;
+        }
+    }
+}
+
 /// Values above this are treated as saturated, below `DARK` as noise.
 pub const SATURATED: f32 = 0.95;
 pub const DARK: f32 = 0.01;

@@ -1,30 +1,32 @@
 //! The capture flow: panorama bracket, the object camera's bracket per turntable view, HDR
 //! merges, estimate, results, as one session on disk.
 //!
-//! The flow is a list of steps (the panorama, then each view); each step's files are stored
-//! in the session as they arrive, and a step is skipped when the session already has it
-//! complete. That is what a resume relies on. Device calls run on the devices' workers; the
-//! flow itself runs on the caller's thread and is the only writer of the session.
+//! The flow works from settings resolved before the session existed
+//! ([`super::settings::CaptureSettings`]), and asks its devices for roles, not types
+//! ([`super::roles`]). It is a list of steps (the panorama, then each view), one function
+//! each; each step's files are stored in the session as they arrive, and a step is skipped
+//! when the session already has it complete. That is what a resume relies on. Device calls
+//! run on the devices' workers; the flow itself runs on the caller's thread and is the only
+//! writer of the session.
 
 use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{bail, Context as _};
-use brdfd_theta::{BracketPlan, Frame, Theta};
 use serde_json::json;
 
-use super::object::{self, FallbackUse, ObjectCamera};
+use super::light::{light_bracket, report_panorama};
+use super::object::{self, CameraRole, FallbackUse};
+use super::settings::CaptureSettings;
+use super::turning::{turn, turned, turned_bench};
 use super::{Cancel, Devices, Event, Operator, Plan, Progress};
-use crate::bench::panorama::THETA_SENSOR_GAIN;
 use crate::bench::{VirtualBench, HELD_OUT_YAW_DEG};
-use crate::config::{MaterialPreset, PixelCount, Rig};
+use crate::config::{MaterialPreset, Rig};
 use crate::core::basis::Basis;
 use crate::core::bivariate::Bivariate;
-use crate::core::envmap::{write_exr, EnvMap, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
-use crate::core::estimate::{
-    estimate_views, fit_verdict, unused_basis_settings, Estimate, EstimateOptions, Model, View,
-};
-use crate::core::geometry::SceneGeometry;
+use crate::core::envmap::{write_exr, EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
+use crate::core::estimate::{estimate_views, fit_verdict, Estimate, EstimateOptions, Model, View};
+use crate::core::geometry::{PixelGeometry, SceneGeometry};
 use crate::core::merl::MerlBrdf;
 use crate::core::nbrdf::NbrdfSet;
 use crate::core::raster::Raster;
@@ -35,6 +37,25 @@ use crate::session::{PhaseTime, Session, State};
 
 /// Camera files by name, exactly as the camera sent them.
 pub type RawFiles = Vec<(String, Vec<u8>)>;
+
+/// Where a bracket's files go as they arrive, each at once, so that a failure later in the
+/// bracket loses none already taken: a session's step, or a calibration's folder.
+pub trait Keep {
+    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()>;
+}
+
+/// A session's step under way, as a [`Keep`].
+pub struct Step<'a> {
+    pub session: &'a mut Session,
+    pub name: &'a str,
+}
+
+impl Keep for Step<'_> {
+    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
+        self.session.add_raw(self.name, name, bytes)?;
+        Ok(())
+    }
+}
 
 /// How a capture ended.
 #[derive(Debug, Clone)]
@@ -94,7 +115,11 @@ impl Context<'_> {
 
 /// Runs the flow on a session. A failure is recorded in the manifest, and the session stays
 /// resumable; either way the last event is `Finished`.
-pub fn execute(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outcome> {
+pub fn execute(
+    session: &mut Session,
+    settings: &CaptureSettings,
+    cx: &Context,
+) -> anyhow::Result<Outcome> {
     // (result, why it failed, and whether the manifest could not record it), with the failure
     // recorded while the session is still claimed.
     let mut unrecorded = None;
@@ -102,7 +127,7 @@ pub fn execute(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Resu
         // Refused before anything is written when another process runs this session. The
         // claim ends before `Finished` is sent: a client that saw it may resume at once.
         let _lock = session.claim()?;
-        let result = run(session, plan, cx);
+        let result = run(session, settings, cx);
         let reason = result.as_ref().err().map(|e| {
             let reason = if cx.cancel.is_cancelled() {
                 "cancelled; what was captured is kept".to_string()
@@ -247,9 +272,7 @@ impl<'a> Phases<'a> {
     }
 }
 
-fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outcome> {
-    let rig = cx.rig;
-    let preset = MaterialPreset::embedded(&plan.material).map_err(anyhow::Error::msg)?;
+fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Result<Outcome> {
     let mut phases = Phases {
         cx,
         done: Vec::new(),
@@ -257,90 +280,116 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
     let p = phases.start("load the basis", 1);
     let basis = Basis::embedded();
     phases.end(p);
-    if let Some(p) = &preset {
-        if p.k != basis.header.k {
-            bail!(
-                "the {} preset is tuned for K = {}, the basis has K = {}",
-                plan.material,
-                p.k,
-                basis.header.k
-            );
-        }
-        // The preset's pixel count only matters to the basis model.
-        let model = match plan.model.unwrap_or(p.model) {
-            Model::Analytic => "analytic model".to_string(),
-            Model::Hybrid => "hybrid model".to_string(),
-            Model::Basis => match p.pixels {
-                PixelCount::All => "basis model, every pixel".to_string(),
-                PixelCount::Count(n) => format!("basis model, {n} pixels"),
-            },
-        };
-        cx.say(format!(
-            "material preset {}: {}, {model}{}",
-            plan.material,
-            if rig.simulated {
-                format!("simulated as {}", p.simulate_as)
-            } else {
-                "on the bench".into()
-            },
-            if p.notes.is_empty() {
-                String::new()
-            } else {
-                format!(" ({})", p.notes)
-            }
-        ));
+    if let Some(line) = s.preset_line(cx.rig.simulated) {
+        cx.say(line);
     }
-    // The object and its camera come from the rig file; the simulated camera is sized as
-    // asked.
-    let mut scene = rig.geometry.clone();
-    if rig.simulated {
-        scene.camera = rig.geometry.camera.resized(plan.size, plan.size);
+    for w in &s.warnings {
+        cx.warn(w.clone());
     }
-    let yaw = rig.theta_yaw_deg.to_radians();
-    // A simulated rig needs a sample on its bench. Tabulating the material is the
-    // simulator's work: a real bench has the object.
-    let bench = match &cx.devices.sim {
-        Some(sim) => {
-            let p = phases.start("simulated bench: place the sample", 1);
-            let b = simulated_bench(plan, preset.as_ref(), &scene, yaw, &basis)?;
-            sim.show_light(&b);
-            phases.end_as_device(p);
-            cx.say(format!(
-                "simulated rig: {} on a sphere; DSLR: simulated Nikon D5100 on {}, {}×{}",
-                b.material_name,
-                cx.devices
-                    .dslr
-                    .as_ref()
-                    .map_or("none".into(), |d| d.status().selector),
-                plan.size,
-                plan.size
-            ));
-            Some(b)
-        }
-        None => None,
-    };
-    let mut relight_truth: Option<Joined<crate::core::Result<Raster>>> = None;
-    let shutters = if !plan.bracket.is_empty() {
-        plan.bracket.clone()
-    } else if let Some(s) = preset.as_ref().and_then(|p| p.dslr_shutters.clone()) {
-        s
-    } else {
-        rig.brackets.dslr_shutters.clone()
-    };
-    let pixel_count = match (&plan.pixels, &preset) {
-        (Some(p), _) => parse_pixels(p)?,
-        (None, Some(p)) => match p.pixels {
-            PixelCount::All => None,
-            PixelCount::Count(n) => Some(n),
-        },
-        (None, None) => Some(20),
-    };
-    let (n_views, turn_step) = plan.turntable(rig);
+    let mut sim = place_sample(cx, s, &basis, &mut phases)?;
     if matches!(session.manifest.state, State::Created | State::Failed) {
         session.set_state(State::Capturing, None)?;
     }
+    let env = measure_light(cx, session, s, sim.as_ref(), &mut phases)?;
+    let captured = shoot_views(cx, session, s, &env, sim.as_mut(), &mut phases)?;
+    session.set_state(State::Captured, None)?;
+    cx.cancel.check()?;
+    if let Some(text) = &captured.fallback {
+        cx.warn(text.clone());
+    }
+    session.set_state(State::Estimating, None)?;
+    let est = estimate(cx, s, &basis, &captured, &mut phases)?;
+    let truth = match &sim {
+        Some(sim) => compare_with_truth(cx, &basis, &est, sim, &mut phases),
+        None => None,
+    };
+    let relight = match &mut sim {
+        Some(sim) => Some(relight_against_truth(&est, sim, &mut phases)?),
+        None => None,
+    };
+    let p = phases.start("write results", 1);
+    write_exr(
+        &session.dir.join("derived/panorama.exr"),
+        env.width,
+        env.height,
+        &env.pixels,
+    )?;
+    // The simulator knows the material: the report overlays it on the estimate's slices.
+    let true_brdf = sim
+        .as_ref()
+        .map(|sim| Bivariate::reduce(&sim.bench.material, basis.header.grid));
+    let report = report_context(session, &env, &captured, true_brdf.as_ref(), relight);
+    write_result(session, &basis, &est, &captured.views[0].lights, &report)?;
+    phases.end(p);
+    say_result(cx, &est, captured.views.len(), relight);
+    session.manifest.phases = phases.done;
+    session.set_state(State::Done, None)?;
+    let fit = est.fit_error;
+    Ok(Outcome {
+        names: est.names.clone(),
+        coefficients: est.solution.coefficients.clone(),
+        summary: super::Summary {
+            model: est.model.name().to_string(),
+            columns: est.names.clone(),
+            coefficients: super::Summary::numbers(&est.solution.coefficients),
+            fit_error: fit.is_finite().then_some(fit),
+            fit_verdict: fit_verdict(fit),
+            relight_error: relight,
+            fallback: captured.fallback,
+        },
+        truth,
+        pixels: est.selection.pixels.len(),
+        condition: est.selection.condition,
+        fit_error: est.fit_error,
+    })
+}
 
-    // The panorama.
+/// What only a simulated rig has: the sample on its bench, and the truth its estimate is
+/// relit against, rendered in the background once the first view is in front of the camera.
+struct Simulated {
+    bench: VirtualBench,
+    relight_truth: Option<Joined<crate::core::Result<Raster>>>,
+}
+
+/// A simulated rig needs a sample on its bench. Tabulating the material is the simulator's
+/// work: a real bench has the object.
+fn place_sample(
+    cx: &Context,
+    s: &CaptureSettings,
+    basis: &Basis,
+    phases: &mut Phases,
+) -> anyhow::Result<Option<Simulated>> {
+    let Some(rig) = &cx.devices.sim else {
+        return Ok(None);
+    };
+    let p = phases.start("simulated bench: place the sample", 1);
+    let bench = simulated_bench(&s.plan, s.preset.as_ref(), &s.scene, s.yaw, basis)?;
+    rig.show_light(&bench);
+    phases.end_as_device(p);
+    let (w, h) = s.scene.camera.size();
+    cx.say(format!(
+        "simulated rig: {} on a sphere; DSLR: simulated Nikon D5100 on {}, {w}×{h}",
+        bench.material_name,
+        cx.devices
+            .dslr
+            .as_ref()
+            .map_or("none".into(), |d| d.status().selector),
+    ));
+    Ok(Some(Simulated {
+        bench,
+        relight_truth: None,
+    }))
+}
+
+/// The panorama step, then its merge: the light around the object as an environment map in
+/// the bench's unit, through the THETA's gain.
+fn measure_light(
+    cx: &Context,
+    session: &mut Session,
+    s: &CaptureSettings,
+    sim: Option<&Simulated>,
+    phases: &mut Phases,
+) -> anyhow::Result<EnvMap> {
     let pano_files = match stored(session, "panorama")? {
         Some((files, _)) => {
             cx.say(format!(
@@ -350,18 +399,29 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
             files
         }
         None => {
-            let plan = theta_plan(rig);
-            let p = phases.start("panorama bracket", plan.shots.len() as u64);
+            let p = phases.start("panorama bracket", s.light.shots.len() as u64);
             session.begin_step("panorama", json!({}))?;
-            let files = theta_bracket(cx, session, plan)?;
+            let mut step = Step {
+                session,
+                name: "panorama",
+            };
+            let files = light_bracket(cx, &mut step, s.light.clone())?;
+            note_device(session, cx.devices.light_probe.status().identity);
             session.finish_step("panorama")?;
             phases.end(p);
             files
         }
     };
     cx.cancel.check()?;
+    let gain = cx
+        .rig
+        .calibration
+        .theta
+        .as_ref()
+        .map(|g| g.gain.0)
+        .context("calibration.theta.gain is not in the rig's calibration: `brdfd calibrate radiometry` measures it")?;
     let p = phases.start("panorama HDR merge", 1);
-    let merged = merge_bracket(&pano_files, THETA_SENSOR_GAIN)?;
+    let merged = merge_bracket(&pano_files, gain)?;
     phases.end(p);
     if merged.clipped_pixels > 0 {
         cx.warn(format!(
@@ -370,40 +430,62 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
             merged.clipped_share * 100.0
         ));
     }
-    if let Some(b) = &bench {
-        cx.say(report_panorama(&merged.map, b));
+    if let Some(sim) = sim {
+        cx.say(report_panorama(&merged.map, &sim.bench));
     }
-    // The THETA's radiance in the DSLR's units, from the rig's calibration.
-    let scale = rig.calibration.theta_to_dslr as f32;
-    let env = EnvMap::from_pixels(
+    Ok(EnvMap::from_pixels(
         merged.map.width,
         merged.map.height,
-        merged
-            .map
-            .pixels
-            .iter()
-            .map(|p| p.map(|v| v * scale))
-            .collect(),
-        "THETA panorama, calibrated to the DSLR",
-    )?;
+        merged.map.pixels,
+        "THETA panorama, in the bench's radiance",
+    )?)
+}
 
-    // One object-camera bracket per turntable view.
-    let mut views = Vec::with_capacity(n_views);
-    // The map's turn for the first view: the preview and the report show its lights.
-    let mut first_yaw = None;
-    // Radiance at and above which a DSLR pixel was clipped in every frame of its bracket.
-    let mut clip_level: Option<f32> = None;
-    // The object camera for the views still to shoot; chosen when the first one is.
-    // A capture that fell back stays on the fallback, resumed or not, even if the view it fell
+/// One view as the estimate takes it.
+struct CapturedView {
+    geometry: PixelGeometry,
+    lights: LightSet,
+    chosen_lights: Option<LightSet>,
+    photo: Raster,
+}
+
+/// The object camera's views, with what the estimate and the report need of them.
+struct Captured {
+    views: Vec<CapturedView>,
+    /// Radiance at and above which an object pixel was clipped in every frame of its bracket.
+    clip_level: Option<f32>,
+    /// The map's turn for the first view: the preview and the report show its lights.
+    first_yaw: f64,
+    /// When the fallback shot any view: what it cost, in words.
+    fallback: Option<String>,
+}
+
+/// One object-camera bracket per view, each stored as it arrives and merged.
+fn shoot_views(
+    cx: &Context,
+    session: &mut Session,
+    s: &CaptureSettings,
+    env: &EnvMap,
+    mut sim: Option<&mut Simulated>,
+    phases: &mut Phases,
+) -> anyhow::Result<Captured> {
+    let mut captured = Captured {
+        views: Vec::with_capacity(s.views),
+        clip_level: None,
+        first_yaw: s.yaw,
+        fallback: None,
+    };
+    // The object camera for the views still to shoot; chosen when the first one is. A
+    // capture that fell back stays on the fallback, resumed or not, even if the view it fell
     // back in was not finished.
-    let mut camera: Option<ObjectCamera> = session
+    let mut camera: Option<CameraRole> = session
         .manifest
         .steps
         .iter()
-        .any(|s| ObjectCamera::of_step(&s.meta) == ObjectCamera::Fallback)
-        .then_some(ObjectCamera::Fallback);
+        .any(|st| CameraRole::of_step(&st.meta) == CameraRole::Fallback)
+        .then_some(CameraRole::Fallback);
     let mut fallback_use = FallbackUse::default();
-    for i in 0..n_views {
+    for i in 0..s.views {
         cx.cancel.check()?;
         let step = format!("view{}", i + 1);
         let (files, deg, shot_on) = match stored(session, &step)? {
@@ -413,45 +495,41 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
                     "{step}: {} files already in the session ({deg:.2}°)",
                     files.len()
                 ));
-                (files, deg, ObjectCamera::of_step(&meta))
+                (files, deg, CameraRole::of_step(&meta))
             }
             None => {
-                if camera.is_none() {
-                    camera = Some(object::choose(cx)?);
-                }
-                let deg = if n_views == 1 {
-                    0.0
-                } else if cx.devices.turntable.is_some() {
-                    turn_on_turntable(cx, session, i, n_views, i as f64 * turn_step)?
-                } else {
-                    turn_by_hand(cx, i, n_views, turn_step)?
+                let using = match camera {
+                    Some(c) => c,
+                    None => *camera.insert(object::choose(cx)?),
                 };
-                let frames = match camera {
-                    Some(ObjectCamera::Fallback) => rig.brackets.fallback_shutters.len(),
-                    _ => shutters.len(),
+                let deg = turn(cx, session, s, i)?;
+                let frames = match using {
+                    CameraRole::Fallback => s.fallback.exposures_s.len(),
+                    CameraRole::Dslr => s.dslr.exposures_s.len(),
                 };
                 let p = phases.start(&format!("{step}: object bracket"), frames as u64);
-                if let (Some(sim), Some(b)) = (&cx.devices.sim, &bench) {
-                    // The simulated turntable only reports angles; the object turns here.
-                    sim.show_object(&turned_bench(b, deg))?;
-                    // The truth the estimate is relit against needs no estimate: it renders
-                    // while the camera's modelled exposures wait and the estimate runs. (Not
-                    // before the scene's own render: two renders at once only slow each other.)
-                    if relight_truth.is_none() {
-                        let b = b.clone();
-                        relight_truth =
-                            Some(Joined(Some(std::thread::spawn(move || b.relight_truth()))));
-                    }
+                if let (Some(rig), Some(sim)) = (&cx.devices.sim, sim.as_deref_mut()) {
+                    show_view(rig, sim, deg)?;
                 }
-                let using = camera.as_mut().expect("chosen above");
-                let files = object::shoot_view(cx, session, &step, deg, &shutters, using)?;
+                let mut using = using;
+                let files = object::shoot_view(
+                    cx,
+                    session,
+                    &step,
+                    deg,
+                    (&s.dslr, &s.fallback),
+                    &mut using,
+                )?;
+                camera = Some(using);
                 session.finish_step(&step)?;
                 phases.end(p);
-                (files, deg, *using)
+                (files, deg, using)
             }
         };
-        let (geometry, view_yaw) = turned(&scene, yaw, deg);
-        first_yaw.get_or_insert(view_yaw);
+        let (geometry, view_yaw) = turned(&s.scene, s.yaw, deg);
+        if i == 0 {
+            captured.first_yaw = view_yaw;
+        }
         let (w, h) = geometry.camera.size();
         let mut pixels = geometry.pixels(w, h)?;
         let p = phases.start(&format!("{step}: HDR merge"), 1);
@@ -467,145 +545,169 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
         if merged.demosaiced {
             pixels.drop_outline();
         }
-        let (photo, white) = (merged.photo, merged.white);
         // Below the lowest level, every view's pixels are measurements (views on different
         // cameras have different levels: the lowest leaves out a few more, never a clipped one).
-        clip_level = [clip_level, white].into_iter().flatten().reduce(f32::min);
-        save_exr(session, &format!("photo-{step}.exr"), &photo, white)?;
+        captured.clip_level = [captured.clip_level, merged.white]
+            .into_iter()
+            .flatten()
+            .reduce(f32::min);
+        save_exr(
+            session,
+            &format!("photo-{step}.exr"),
+            &merged.photo,
+            merged.white,
+        )?;
         phases.end(p);
         let (lights, chosen_lights) = env.estimate_lights(DEFAULT_LIGHTS, CHOSEN_LIGHTS, view_yaw);
-        views.push((pixels, lights, chosen_lights, photo));
-    }
-    session.set_state(State::Captured, None)?;
-    cx.cancel.check()?;
-    let fallback = (fallback_use.views > 0).then(|| fallback_use.describe(n_views));
-    if let Some(text) = &fallback {
-        cx.warn(text.clone());
-    }
-
-    session.set_state(State::Estimating, None)?;
-    let options = EstimateOptions {
-        model: plan
-            .model
-            .or(preset.as_ref().map(|p| p.model))
-            .unwrap_or_default(),
-        pixel_count,
-        solver: plan
-            .solve
-            .or(preset.as_ref().map(|p| p.solve))
-            .unwrap_or_default(),
-        colour: plan
-            .colour
-            .or(preset.as_ref().map(|p| p.colour))
-            .unwrap_or_default(),
-        white: clip_level,
-        ..EstimateOptions::default()
-    };
-    if let Some(warning) = unused_basis_settings(
-        options.model,
-        &[
-            ("pixels", plan.pixels.is_some()),
-            ("solve", plan.solve.is_some()),
-            ("colour", plan.colour.is_some()),
-        ],
-    ) {
-        cx.warn(warning);
-    }
-    let as_views: Vec<View> = views
-        .iter()
-        .map(|(geometry, lights, chosen_lights, photo)| View {
-            geometry,
+        captured.views.push(CapturedView {
+            geometry: pixels,
             lights,
-            chosen_lights: chosen_lights.as_ref(),
-            photo,
+            chosen_lights,
+            photo: merged.photo,
+        });
+    }
+    captured.fallback = (fallback_use.views > 0).then(|| fallback_use.describe(s.views));
+    Ok(captured)
+}
+
+/// Puts the sample, turned to `deg`, in front of the simulated camera (the simulated
+/// turntable only reports angles: the object turns here).
+fn show_view(
+    rig: &super::simulated::SimulatedRig,
+    sim: &mut Simulated,
+    deg: f64,
+) -> anyhow::Result<()> {
+    rig.show_object(&turned_bench(&sim.bench, deg))?;
+    // The truth the estimate is relit against needs no estimate: it renders while the
+    // camera's modelled exposures wait and the estimate runs. (Not before the scene's own
+    // render: two renders at once only slow each other.)
+    if sim.relight_truth.is_none() {
+        let b = sim.bench.clone();
+        sim.relight_truth = Some(Joined(Some(std::thread::spawn(move || b.relight_truth()))));
+    }
+    Ok(())
+}
+
+/// The estimate of every view together, with the clip level of their merges.
+fn estimate(
+    cx: &Context,
+    s: &CaptureSettings,
+    basis: &Basis,
+    captured: &Captured,
+    phases: &mut Phases,
+) -> anyhow::Result<Estimate> {
+    let options = EstimateOptions {
+        white: captured.clip_level,
+        ..s.estimate.clone()
+    };
+    let views: Vec<View> = captured
+        .views
+        .iter()
+        .map(|v| View {
+            geometry: &v.geometry,
+            lights: &v.lights,
+            chosen_lights: v.chosen_lights.as_ref(),
+            photo: &v.photo,
         })
         .collect();
     let p = phases.start("estimate", 1);
-    let est = estimate_views(&basis, &as_views, &options)?;
+    let est = estimate_views(basis, &views, &options)?;
     phases.end(p);
     cx.say(crate::results::coefficient_lines(
         "coefficients",
         &est.names,
         &est.solution.coefficients,
     ));
-    let (_, lights, _, _) = &views[0];
-    let truth = match &bench {
-        // The projection is the basis's best answer; an analytic fit has no such reference.
-        Some(b) if est.model == Model::Basis => {
-            // The simulator knows the answer; comparing with it is the simulator's business,
-            // so its time is the devices'.
-            let p = phases.start("compare with the ground truth (simulator)", 1);
-            let reduced = Bivariate::reduce(&b.material, basis.header.grid);
-            let truth = match est.colour {
-                Colour::Joint => basis.project(&reduced),
-                Colour::PerChannel => basis.project_channels(&reduced),
-            };
-            phases.end_as_device(p);
-            cx.say(crate::results::coefficient_lines(
-                "ground truth projected on the basis",
-                &est.names,
-                &truth,
-            ));
-            Some(truth)
-        }
-        _ => None,
+    Ok(est)
+}
+
+/// The basis model's estimate beside the simulated material's own projection onto the basis,
+/// its best answer (an analytic fit has no such reference). Comparing with it is the
+/// simulator's business, so its time is the devices'.
+fn compare_with_truth(
+    cx: &Context,
+    basis: &Basis,
+    est: &Estimate,
+    sim: &Simulated,
+    phases: &mut Phases,
+) -> Option<Vec<f64>> {
+    if est.model != Model::Basis {
+        return None;
+    }
+    let p = phases.start("compare with the ground truth (simulator)", 1);
+    let reduced = Bivariate::reduce(&sim.bench.material, basis.header.grid);
+    let truth = match est.colour {
+        Colour::Joint => basis.project(&reduced),
+        Colour::PerChannel => basis.project_channels(&reduced),
     };
-    let relight = match &bench {
-        Some(b) => {
-            let p = phases.start("relight against the ground truth (simulator)", 1);
-            let truth = match relight_truth {
-                Some(mut render) => render
-                    .join()
-                    .ok_or_else(|| anyhow::anyhow!("rendering the relight truth panicked"))??,
-                // Every view was already on disk (a resumed session): render it now.
-                None => b.relight_truth()?,
-            };
-            let error = b.relight_error_with(&truth, &est.brdf)?;
-            phases.end_as_device(p);
-            Some(error)
-        }
-        None => None,
+    phases.end_as_device(p);
+    cx.say(crate::results::coefficient_lines(
+        "ground truth projected on the basis",
+        &est.names,
+        &truth,
+    ));
+    Some(truth)
+}
+
+/// How far the estimate is from the simulated material under light it was not fitted to.
+fn relight_against_truth(
+    est: &Estimate,
+    sim: &mut Simulated,
+    phases: &mut Phases,
+) -> anyhow::Result<f64> {
+    let p = phases.start("relight against the ground truth (simulator)", 1);
+    let truth = match sim.relight_truth.take() {
+        Some(mut render) => render
+            .join()
+            .ok_or_else(|| anyhow::anyhow!("rendering the relight truth panicked"))??,
+        // Every view was already on disk (a resumed session): render it now.
+        None => sim.bench.relight_truth()?,
     };
-    let p = phases.start("write results", 1);
-    write_exr(
-        &session.dir.join("derived/panorama.exr"),
-        env.width,
-        env.height,
-        &env.pixels,
-    )?;
-    // The simulator knows the material: the report overlays it on the estimate's slices.
-    let true_brdf = bench
-        .as_ref()
-        .map(|b| Bivariate::reduce(&b.material, basis.header.grid));
+    let error = sim.bench.relight_error_with(&truth, &est.brdf)?;
+    phases.end_as_device(p);
+    Ok(error)
+}
+
+/// What the report says of the session beside the estimate.
+fn report_context<'a>(
+    session: &Session,
+    env: &'a EnvMap,
+    captured: &'a Captured,
+    truth: Option<&'a Bivariate>,
+    relight: Option<f64>,
+) -> ReportContext<'a> {
     let m = &session.manifest;
     let mut report = ReportContext {
         title: format!("session {} ({})", m.id, m.material),
         session: Some(m.id.clone()),
-        photo: Some(&views[0].3),
-        env: Some(&env),
-        yaw: first_yaw.unwrap_or(yaw),
+        photo: Some(&captured.views[0].photo),
+        env: Some(env),
+        yaw: captured.first_yaw,
         relight_error: relight,
-        truth: true_brdf.as_ref(),
-        fallback: fallback.clone(),
+        truth,
+        fallback: captured.fallback.clone(),
         record: vec![
             ("session".into(), m.id.clone()),
             ("material".into(), m.material.clone()),
             ("created".into(), m.created.clone()),
-            ("views".into(), views.len().to_string()),
+            ("views".into(), captured.views.len().to_string()),
             ("devices".into(), m.devices.join("; ")),
             ("software".into(), m.software.clone()),
         ],
     };
-    if let Some(text) = &fallback {
+    if let Some(text) = &captured.fallback {
         report.record.push(("object camera".into(), text.clone()));
     }
-    write_result(session, &basis, &est, lights, &report)?;
-    phases.end(p);
+    report
+}
+
+/// The estimate in a few lines for the operator.
+fn say_result(cx: &Context, est: &Estimate, views: usize, relight: Option<f64>) {
     cx.say(format!(
         "{}, condition number {}; the estimate re-renders the photo{} to a relative RMSE of {:.4} over {} pixels ({})",
         est.method_text(),
         est.selection.condition_text(),
-        if views.len() > 1 { "s" } else { "" },
+        if views > 1 { "s" } else { "" },
         est.fit_error,
         est.candidates,
         fit_verdict(est.fit_error),
@@ -628,26 +730,6 @@ fn run(session: &mut Session, plan: &Plan, cx: &Context) -> anyhow::Result<Outco
             est.clipped
         ));
     }
-    session.manifest.phases = phases.done;
-    session.set_state(State::Done, None)?;
-    let fit = est.fit_error;
-    Ok(Outcome {
-        names: est.names.clone(),
-        coefficients: est.solution.coefficients.clone(),
-        summary: super::Summary {
-            model: est.model.name().to_string(),
-            columns: est.names.clone(),
-            coefficients: super::Summary::numbers(&est.solution.coefficients),
-            fit_error: fit.is_finite().then_some(fit),
-            fit_verdict: fit_verdict(fit),
-            relight_error: relight,
-            fallback,
-        },
-        truth,
-        pixels: est.selection.pixels.len(),
-        condition: est.selection.condition,
-        fit_error: est.fit_error,
-    })
 }
 
 /// Results go to a fresh folder that replaces `result/` in one rename.
@@ -665,24 +747,6 @@ fn write_result(
     let _ = std::fs::remove_dir_all(&result);
     std::fs::rename(&fresh, &result).context("moving the results into place")?;
     Ok(())
-}
-
-/// The rig's THETA bracket: its own shutter list, or the light probe.
-fn theta_plan(rig: &Rig) -> BracketPlan {
-    if rig.brackets.theta_shutters.is_empty() {
-        return BracketPlan::light_probe();
-    }
-    BracketPlan {
-        shots: rig
-            .brackets
-            .theta_shutters
-            .iter()
-            .map(|&shutter_s| brdfd_theta::Exposure {
-                shutter_s,
-                iso: rig.brackets.theta_iso,
-            })
-            .collect(),
-    }
 }
 
 /// A thread the flow started, joined when dropped: a capture that ends early (an error, a
@@ -740,91 +804,6 @@ fn simulated_bench(
     Ok(bench)
 }
 
-/// The scene as the camera sees it with the turntable at `deg`: in the object's frame, the
-/// camera and the light turned by −θ (Camera::turned_about_y).
-fn turned(scene: &SceneGeometry, yaw: f64, deg: f64) -> (SceneGeometry, f64) {
-    let theta = deg.to_radians();
-    let mut g = scene.clone();
-    g.camera = scene.camera.turned_about_y(-theta);
-    (g, yaw - theta)
-}
-
-fn turned_bench(bench: &VirtualBench, deg: f64) -> VirtualBench {
-    let (geometry, yaw) = turned(&bench.geometry, bench.yaw, deg);
-    VirtualBench {
-        geometry,
-        yaw,
-        ..bench.clone()
-    }
-}
-
-/// Turns the turntable for view `i` (from 0) of `n`, to `target` degrees; where it stopped.
-fn turn_on_turntable(
-    cx: &Context,
-    session: &mut Session,
-    i: usize,
-    n: usize,
-    target: f64,
-) -> anyhow::Result<f64> {
-    let at = turn_to(cx, target)?;
-    if let Some(t) = &cx.devices.turntable {
-        note_device(session, t.status().identity.clone());
-        if i == 0 {
-            cx.say(format!(
-                "turntable: {}",
-                t.status().identity.unwrap_or_default()
-            ));
-        }
-    }
-    cx.say(format!("view {} of {n}: turntable at {at:.2}°", i + 1));
-    Ok(at)
-}
-
-/// View `i` (from 0) of `n` on a rig with no turntable: the first is the object as placed;
-/// before each of the others the operator turns it by hand `step` degrees further and says
-/// so. The angle is the one asked: nothing measures it.
-fn turn_by_hand(cx: &Context, i: usize, n: usize, step: f64) -> anyhow::Result<f64> {
-    let target = i as f64 * step;
-    if i == 0 {
-        cx.say(format!(
-            "view 1 of {n}: the object as placed (0°); the rig has no turntable, so it is turned by hand between views"
-        ));
-        return Ok(0.0);
-    }
-    let text = format!(
-        "view {} of {n}: turn the object by hand to {target:.1}° ({step:.1}° further than the last view, the same way), then continue",
-        i + 1,
-    );
-    let announce = || {
-        cx.progress.event(Event::WaitingForOperator {
-            text: text.clone(),
-            view: i + 1,
-            degrees: target,
-        })
-    };
-    cx.operator.wait(i + 1, &announce, &cx.cancel)?;
-    cx.say(format!(
-        "view {} of {n}: turned by hand to {target:.1}°",
-        i + 1
-    ));
-    Ok(target)
-}
-
-/// Turns the turntable to `target` degrees by the shortest way; returns where it reports
-/// it is.
-fn turn_to(cx: &Context, target: f64) -> anyhow::Result<f64> {
-    let table = cx.devices.turntable.as_ref().context("no turntable")?;
-    table.call(move |t| {
-        let here = t.position()?;
-        let turn = (target - here + 180.0).rem_euclid(360.0) - 180.0;
-        Ok(if turn.abs() > 1e-9 {
-            t.rotate(turn)?
-        } else {
-            here
-        })
-    })
-}
-
 /// A step's files from the session (checksums verified), under the names the camera gave
 /// them, if the step is complete.
 pub fn stored(
@@ -862,100 +841,4 @@ pub(super) fn note_device(session: &mut Session, identity: Option<String>) {
             session.manifest.devices.push(id);
         }
     }
-}
-
-/// Shoots the panorama bracket on the THETA's worker; the frames go into the session as the
-/// camera sent them.
-fn theta_bracket(
-    cx: &Context,
-    session: &mut Session,
-    plan: BracketPlan,
-) -> anyhow::Result<RawFiles> {
-    let progress = cx.progress.clone();
-    let frames = cx.devices.theta.call(move |theta| {
-        progress.event(Event::Message {
-            text: format!("panorama: {}", theta.describe()),
-        });
-        shoot_panorama(theta, &plan, progress.as_ref())
-    })?;
-    note_device(session, cx.devices.theta.status().identity);
-    let mut files = Vec::with_capacity(frames.len());
-    for f in frames {
-        check_exposure(cx.progress.as_ref(), &f);
-        session.add_raw("panorama", &f.name, &f.data)?;
-        files.push((f.name, f.data));
-    }
-    Ok(files)
-}
-
-/// Prepares the THETA for light measurement and shoots the plan: the frames as the camera
-/// sent them. Progress goes to the "panorama bracket" phase.
-pub fn shoot_panorama(
-    theta: &mut Theta,
-    plan: &BracketPlan,
-    progress: &dyn Progress,
-) -> anyhow::Result<Vec<Frame>> {
-    for line in theta.prepare().context("preparing the THETA")? {
-        tracing::info!("THETA: {line}");
-    }
-    let total = plan.shots.len() as u64;
-    let mut last = String::new();
-    let frames = theta
-        .capture(plan, &mut |phase, fraction| {
-            if phase != last {
-                progress.event(Event::Message {
-                    text: format!("  panorama: {phase}"),
-                });
-                last = phase.to_string();
-            }
-            progress.event(Event::Progress {
-                phase: "panorama bracket".into(),
-                done: (fraction.clamp(0.0, 1.0) * total as f64).round() as u64,
-                total,
-            });
-        })
-        .context("shooting the panorama bracket")?;
-    Ok(frames)
-}
-
-/// How far a frame's EXIF exposure may be from what was asked before it is reported:
-/// cameras round speeds (1/3200 s is stored as 0.0003125 or 1/3200), but a different stop
-/// means the camera did not take the setting.
-const EXPOSURE_MISMATCH: f64 = 0.05;
-
-/// The merge uses each frame's EXIF; a frame whose EXIF disagrees with the request means the
-/// camera overrode the setting (auto exposure left on, a model limit), which the operator
-/// should know.
-pub fn check_exposure(progress: &dyn Progress, f: &Frame) {
-    match crate::radiometry::exif_exposure(&f.data, &f.name) {
-        Ok(e) => {
-            let shutter_off = (e.shutter_s / f.asked.shutter_s - 1.0).abs();
-            let iso_off = (e.iso / f.asked.iso as f64 - 1.0).abs();
-            if shutter_off > EXPOSURE_MISMATCH || iso_off > EXPOSURE_MISMATCH {
-                progress.event(Event::Warning {
-                    text: format!(
-                        "{}: EXIF says {} s ISO {}, but {} s ISO {} was asked; the merge uses the EXIF values",
-                        f.name, e.shutter_s, e.iso, f.asked.shutter_s, f.asked.iso
-                    ),
-                });
-            }
-        }
-        // The merge reports a missing EXIF exposure as an error, naming the file.
-        Err(e) => tracing::debug!("{e}"),
-    }
-}
-
-/// How far the measured map is from the bench's own (total light, per channel).
-fn report_panorama(map: &EnvMap, bench: &VirtualBench) -> String {
-    // Total light is independent of the map's resolution (the downsample preserves Σ L·Δω),
-    // so the bench's own map is the reference as it is.
-    let (measured, truth) = (map.lights(0.0).power(), bench.env.lights(0.0).power());
-    format!(
-        "  panorama merged to {}×{}; total light vs the bench's map: {:+.2}% {:+.2}% {:+.2}% (R G B)",
-        map.width,
-        map.height,
-        (measured[0] / truth[0] - 1.0) * 100.0,
-        (measured[1] / truth[1] - 1.0) * 100.0,
-        (measured[2] / truth[2] - 1.0) * 100.0,
-    )
 }

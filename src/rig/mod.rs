@@ -2,16 +2,32 @@
 //! material on the bench into a session on disk. The CLI runs the flow in-process; the daemon
 //! (`brdfd serve`) runs the same flow on devices it keeps open between captures.
 //!
+//! - [`roles`]: what the capture asks of its devices: an object camera, a light probe, a
+//!   turntable, a shutter, each a trait with optional abilities.
+//! - [`plan`]: whether the capture can run a rig file (`config check` asks the same).
+//! - [`calibrate`]: each camera's gain from a target of known albedo.
+//! - [`devices`]: the rig's devices in their roles, and the role traits for PTP, THETA, V4L2
+//!   and serial devices.
 //! - [`worker`]: one thread per device, with keep-alive and re-opening.
 //! - [`open`]: devices from their selectors (`usb:04b0:0429`, `osc:http://...`, `serial:...`).
 //! - [`simulated`]: the simulated rig, whose devices speak the real protocols on loopback.
+//! - [`settings`]: a capture's settings, resolved from the plan, the preset and the rig
+//!   before a session exists.
 //! - [`flow`]: the capture itself, as resumable steps.
-//! - [`object`]: the object camera: the DSLR, or the V4L2 fallback.
+//! - [`light`]: the light probe's bracket; [`object`]: the object camera's views, shot on
+//!   the DSLR or the V4L2 fallback and merged; [`turning`]: the object turned between views.
 
+pub mod calibrate;
+pub mod devices;
 pub mod flow;
+pub mod light;
 pub mod object;
 pub mod open;
+pub mod plan;
+pub mod roles;
+pub mod settings;
 pub mod simulated;
+pub mod turning;
 pub mod worker;
 
 use std::path::PathBuf;
@@ -19,16 +35,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::Context;
-use brdfd_ptp::Camera;
-use brdfd_serial::RigController;
-use brdfd_theta::Theta;
 use serde::{Deserialize, Serialize};
 
-use crate::config::Rig;
 use crate::core::estimate::Model;
 use crate::core::solve::{ColourChoice, Solver};
-use crate::selector::Selector;
+pub use devices::Devices;
 pub use worker::{Device, DeviceStatus, Worker};
 
 /// What a capture was asked to do. Stored in the session's manifest, so that a resume
@@ -83,32 +94,6 @@ fn default_size() -> usize {
 }
 
 impl Plan {
-    /// Views and the step between them: the plan's, else the rig's turntable plan, else one
-    /// view.
-    pub fn turntable(&self, rig: &Rig) -> (usize, f64) {
-        let t = rig.turntable.as_ref();
-        (
-            self.views.or(t.map(|t| t.views)).unwrap_or(1),
-            self.turn.or(t.map(|t| t.step_deg)).unwrap_or(30.0),
-        )
-    }
-
-    /// A new session for this plan under `state`, recording the rig and the preset as used.
-    pub fn new_session(
-        &self,
-        state: &std::path::Path,
-        rig_text: &str,
-    ) -> anyhow::Result<crate::session::Session> {
-        self.validate()?;
-        Ok(crate::session::Session::create(
-            state,
-            &self.material,
-            rig_text,
-            crate::config::preset_text(&self.material),
-            serde_json::to_value(self)?,
-        )?)
-    }
-
     /// On a simulated rig, the material must be one the simulator can render: a shipped
     /// preset, an alias or embedded test material, or one of the plan's NBRDF file. Checked
     /// before a session exists, so that a typo leaves nothing behind.
@@ -359,146 +344,3 @@ impl Operator for GoAhead {
 /// otherwise; a Nikon's USB session survives idling, but a cheap request tells us early when
 /// a cable was pulled.
 pub const KEEP_ALIVE: Duration = Duration::from_secs(20);
-
-impl Device for Camera {
-    fn identity(&self) -> String {
-        format!("{} (serial {})", self.describe(), self.info.serial_number)
-    }
-    fn keep_alive(&mut self) -> anyhow::Result<()> {
-        self.storage_ids()?;
-        Ok(())
-    }
-}
-
-impl Device for Theta {
-    fn identity(&self) -> String {
-        self.describe()
-    }
-    fn keep_alive(&mut self) -> anyhow::Result<()> {
-        Ok(Theta::keep_alive(self)?)
-    }
-}
-
-impl Device for RigController {
-    fn identity(&self) -> String {
-        format!(
-            "{} {} on serial:{}",
-            self.identity.name,
-            self.identity.version,
-            self.port_name()
-        )
-    }
-    fn keep_alive(&mut self) -> anyhow::Result<()> {
-        self.position()?;
-        Ok(())
-    }
-}
-
-/// The V4L2 fallback camera (or the simulated one), on its worker.
-pub struct VideoCamera(pub Box<dyn brdfd_v4l::FrameSource>);
-
-impl Device for VideoCamera {
-    fn identity(&self) -> String {
-        self.0.describe()
-    }
-    fn keep_alive(&mut self) -> anyhow::Result<()> {
-        self.0.formats()?;
-        Ok(())
-    }
-}
-
-/// The rig's devices, each on its worker. The object camera is the DSLR, or the V4L2
-/// fallback camera when the rig has no DSLR or it does not answer.
-pub struct Devices {
-    pub dslr: Option<Worker<Camera>>,
-    pub fallback: Option<Worker<VideoCamera>>,
-    pub theta: Worker<Theta>,
-    pub turntable: Option<Worker<RigController>>,
-    /// The simulators behind the workers when the rig is simulated (they stop when this is
-    /// dropped, after the workers).
-    pub sim: Option<simulated::SimulatedRig>,
-}
-
-impl Devices {
-    /// Starts a worker per device the rig names; each opens its device in the background.
-    /// A simulated rig starts its simulators first, on loopback.
-    pub fn start(rig: &Rig, keep_alive: Duration) -> anyhow::Result<Devices> {
-        let (selectors, sim) = if rig.simulated {
-            let sim = simulated::SimulatedRig::start(
-                rig.simulation.clone().unwrap_or_default(),
-                rig.devices.fallback_camera.is_some(),
-            )
-            .context("starting the simulated rig")?;
-            (sim.selectors(), Some(sim))
-        } else {
-            (rig.devices.clone(), None)
-        };
-        if selectors.dslr.is_none() && selectors.fallback_camera.is_none() {
-            anyhow::bail!("the rig names no camera for the object; add `dslr = \"...\"` (or `fallback_camera = \"v4l:...\"`) under [devices] (`brdfd devices` lists what is connected)");
-        }
-        let theta = selectors.theta.clone().context(
-            "the rig names no theta; add `theta = \"...\"` under [devices] (`brdfd devices` lists what is connected)",
-        )?;
-        let timeouts = if rig.simulated {
-            open::loopback_timeouts()
-        } else {
-            brdfd_theta::HttpTimeouts::default()
-        };
-        let dslr_worker = selectors.dslr.clone().map(|s| {
-            let name = s.to_string();
-            Worker::spawn(
-                "dslr",
-                &name,
-                Box::new(move || open::ptp_camera(&s)),
-                keep_alive,
-            )
-        });
-        let fallback = selectors.fallback_camera.clone().map(|s| {
-            let name = s.to_string();
-            let opener: worker::Opener<VideoCamera> = match &sim {
-                Some(sim) => sim.fallback_opener(),
-                None => Box::new(move || open::video_camera(&s)),
-            };
-            Worker::spawn("fallback_camera", &name, opener, keep_alive)
-        });
-        let theta_worker = {
-            let s = theta.clone();
-            Worker::spawn(
-                "theta",
-                &theta.to_string(),
-                Box::new(move || open::theta(&s, None, timeouts)),
-                keep_alive,
-            )
-        };
-        let turntable = match selectors.turntable {
-            Some(Selector::Serial(path)) => {
-                let name = format!("serial:{path}");
-                Some(Worker::spawn(
-                    "turntable",
-                    &name,
-                    Box::new(move || open::turntable(&path)),
-                    keep_alive,
-                ))
-            }
-            // A shutter cable has no turntable; views then need turning by hand (not yet).
-            _ => None,
-        };
-        Ok(Devices {
-            dslr: dslr_worker,
-            fallback,
-            theta: theta_worker,
-            turntable,
-            sim,
-        })
-    }
-
-    pub fn status(&self) -> Vec<DeviceStatus> {
-        let mut v: Vec<DeviceStatus> = self.dslr.iter().map(Worker::status).collect();
-        v.extend(self.fallback.iter().map(Worker::status));
-        v.push(self.theta.status());
-        if let Some(t) = &self.turntable {
-            v.push(t.status());
-        }
-        v
-    }
-}

@@ -1,6 +1,8 @@
-//! The object camera: the DSLR, or the V4L2 fallback camera when the rig has no DSLR, the DSLR
-//! does not answer, or it fails during a bracket. One view is shot whole on one camera; once
-//! the capture has fallen back it stays on the fallback, so that its views share units.
+//! The object camera's views: shot on the DSLR, or on the V4L2 fallback camera when the rig has
+//! no DSLR, the DSLR does not answer, or it fails during a bracket; then merged into radiance
+//! in the bench's unit, through the camera's gain from the rig's calibration. One view is shot
+//! whole on one camera; once the capture has fallen back it stays on the fallback, so that
+//! its views share units.
 //!
 //! The DSLR's files are stored as the camera sent them and merged from their EXIF. The
 //! fallback's frames are averaged in linear light per exposure (video frames are many and
@@ -9,17 +11,18 @@
 use std::sync::mpsc;
 
 use anyhow::{bail, Context as _};
-use brdfd_ptp::{CaptureOptions, Exposure, ImageFormat};
 use serde_json::json;
 
-use super::flow::{Context, RawFiles};
+use super::flow::{note_device, Context, Keep, RawFiles, Step};
+use super::roles::{ObjectCamera, Output, Role};
+use super::settings::Bracket;
 use super::Event;
-use crate::config::DslrFiles;
+use crate::config::{Calibration, CameraGain};
 use crate::core::envmap::{exr_bytes, read_exr_rgb_bytes, ExrAttribute};
 use crate::core::raster::Raster;
 use crate::radiometry::raw::{decode_raw, is_raw_name, WhiteBalance};
 use crate::radiometry::{
-    average_frames, averaging_noise, decode_jpeg, merge_hdr, merged_white_level, Frame,
+    average_frames, averaging_noise, decode_jpeg, merge_hdr, merged_white_level, with_gain, Frame,
 };
 use crate::session::Session;
 
@@ -29,26 +32,31 @@ const EXPOSURE_ATTRIBUTE: &str = "brdfdExposureSeconds";
 const FRAMES_ATTRIBUTE: &str = "brdfdFramesAveraged";
 const NOISE_ATTRIBUTE: &str = "brdfdRelativeNoise";
 
-/// Which camera shot a view; stored in the step's `camera` field.
+/// How long the rig's shutter holds the DSLR's release. The camera exposes for the time it
+/// was set to (never bulb), so the press only has to be one the camera sees: remote sockets
+/// need some tens of milliseconds.
+pub const SHUTTER_PRESS: std::time::Duration = std::time::Duration::from_millis(200);
+
+/// Which of the rig's object cameras shot a view; stored in the step's `camera` field.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ObjectCamera {
+pub enum CameraRole {
     Dslr,
     Fallback,
 }
 
-impl ObjectCamera {
+impl CameraRole {
     fn name(self) -> &'static str {
         match self {
-            ObjectCamera::Dslr => "dslr",
-            ObjectCamera::Fallback => "fallback",
+            CameraRole::Dslr => "dslr",
+            CameraRole::Fallback => "fallback",
         }
     }
 
     /// The camera a stored step names (steps from before the fallback name none: the DSLR).
-    pub fn of_step(meta: &serde_json::Value) -> ObjectCamera {
+    pub fn of_step(meta: &serde_json::Value) -> CameraRole {
         match meta["camera"].as_str() {
-            Some("fallback") => ObjectCamera::Fallback,
-            _ => ObjectCamera::Dslr,
+            Some("fallback") => CameraRole::Fallback,
+            _ => CameraRole::Dslr,
         }
     }
 }
@@ -95,23 +103,21 @@ impl FallbackUse {
 
 /// The camera the capture starts on: the DSLR if the rig has one and it answers, else the
 /// fallback. Neither is an error that says what was tried.
-pub fn choose(cx: &Context) -> anyhow::Result<ObjectCamera> {
+pub fn choose(cx: &Context) -> anyhow::Result<CameraRole> {
     let devices = cx.devices;
     let Some(dslr) = &devices.dslr else {
         cx.say("object camera: the V4L2 fallback (the rig has no DSLR)");
-        return Ok(ObjectCamera::Fallback);
+        return Ok(CameraRole::Fallback);
     };
-    // A request the camera must answer: an open handle alone says nothing of a camera that
-    // has gone quiet.
-    match dslr.call(super::Device::keep_alive) {
-        Ok(()) => Ok(ObjectCamera::Dslr),
+    match dslr.ping() {
+        Ok(()) => Ok(CameraRole::Dslr),
         Err(e) => match &devices.fallback {
             Some(f) => {
                 cx.warn(format!(
                     "the DSLR does not answer ({e:#}); the capture uses the fallback camera {}",
                     f.status().selector
                 ));
-                Ok(ObjectCamera::Fallback)
+                Ok(CameraRole::Fallback)
             }
             None => Err(e.context(
                 "the DSLR does not answer, and the rig names no fallback_camera to use instead",
@@ -128,13 +134,22 @@ pub fn shoot_view(
     session: &mut Session,
     step: &str,
     deg: f64,
-    shutters: &[f64],
-    camera: &mut ObjectCamera,
+    brackets: (&Bracket, &Bracket),
+    camera: &mut CameraRole,
 ) -> anyhow::Result<RawFiles> {
-    if *camera == ObjectCamera::Dslr {
+    let (dslr_bracket, fallback_bracket) = brackets;
+    if *camera == CameraRole::Dslr {
         session.begin_step(step, json!({ "turntable_deg": deg, "camera": "dslr" }))?;
-        match dslr_bracket(cx, session, step, shutters) {
-            Ok(files) => return Ok(files),
+        let dslr = cx.devices.dslr.as_ref().context("the rig has no DSLR")?;
+        let mut keep = Step {
+            session,
+            name: step,
+        };
+        match bracket(cx, &mut keep, step, dslr, dslr_bracket, true) {
+            Ok(files) => {
+                note_device(session, dslr.status().identity);
+                return Ok(files);
+            }
             // The session's own failures (a full disk) are not the DSLR's: the fallback would
             // fail the same way.
             Err(e)
@@ -145,7 +160,15 @@ pub fn shoot_view(
                 cx.warn(format!(
                     "the DSLR failed during {step} ({e:#}); {step} is shot again on the fallback camera, and so are the views after it"
                 ));
-                *camera = ObjectCamera::Fallback;
+                *camera = CameraRole::Fallback;
+            }
+            Err(e)
+                if !cx.cancel.is_cancelled()
+                    && !e.chain().any(|c| c.is::<crate::session::SessionError>()) =>
+            {
+                return Err(e.context(format!(
+                    "the DSLR failed during {step}, and the rig names no fallback_camera to shoot it on instead"
+                )))
             }
             Err(e) => return Err(e),
         }
@@ -154,46 +177,69 @@ pub fn shoot_view(
         step,
         json!({ "turntable_deg": deg, "camera": camera.name() }),
     )?;
-    fallback_bracket(cx, session, step)
+    let fallback = cx
+        .devices
+        .fallback
+        .as_ref()
+        .context("the rig names no fallback_camera")?;
+    let mut keep = Step {
+        session,
+        name: step,
+    };
+    let files = bracket(cx, &mut keep, step, fallback, fallback_bracket, false)?;
+    note_device(session, fallback.status().identity);
+    Ok(files)
 }
 
-/// Shoots the DSLR bracket on the DSLR's worker. Each file goes into the session as soon
-/// as it is downloaded, so that a failure later in the bracket loses nothing already taken.
-fn dslr_bracket(
+/// One exposure as it came from the camera's worker.
+enum Arrived {
+    File {
+        name: String,
+        bytes: Vec<u8>,
+        applied_s: f64,
+        last_of_shot: bool,
+    },
+    Frames {
+        asked_s: f64,
+        applied_s: f64,
+        frames: Vec<brdfd_v4l::Rgb8Frame>,
+    },
+}
+
+/// Shoots a bracket on an object camera's worker, labelled `step` in its progress. Each file
+/// is kept as soon as it is in. The DSLR (`fires`) is fired by the rig's shutter when the rig
+/// has one.
+pub fn bracket(
     cx: &Context,
-    session: &mut Session,
+    keep: &mut dyn Keep,
     step: &str,
-    shutters: &[f64],
+    camera: &Role<dyn ObjectCamera>,
+    bracket: &Bracket,
+    fires: bool,
 ) -> anyhow::Result<RawFiles> {
-    let dslr = cx.devices.dslr.as_ref().context("the rig has no DSLR")?;
-    let b = cx.rig.brackets.clone();
-    let (tx, rx) = mpsc::channel::<(String, Vec<u8>, f64, bool)>();
+    let (tx, rx) = mpsc::channel::<Arrived>();
     let (progress, cancel) = (cx.progress.clone(), cx.cancel.clone());
-    let total = shutters.len() as u64;
-    let shutters = shutters.to_vec();
+    let shutter = cx.devices.shutter.clone().filter(|_| fires);
+    let exposures = bracket.exposures_s.clone();
+    let settings = bracket.camera.clone();
+    let total = exposures.len() as u64;
     let download = format!("{step}: download");
-    let job = dslr.submit(move |cam| {
-        let applied = cam.set_exposure(&Exposure {
-            shutter_s: None,
-            f_number: Some(b.dslr_f_number),
-            iso: Some(b.dslr_iso),
-        })?;
-        progress.event(Event::Message {
-            text: format!(
-                "DSLR: {} ({}), f/{} ISO {}",
-                cam.describe(),
-                cam.info.serial_number,
-                applied.f_number.unwrap_or(0.0),
-                applied.iso.unwrap_or(0)
-            ),
-        });
-        set_files(cam, b.dslr_files, progress.as_ref())?;
-        let opts = CaptureOptions::default();
-        for &s in &shutters {
+    let job = camera.submit(move |cam| {
+        for line in cam.prepare(&settings)? {
+            progress.event(Event::Message { text: line });
+        }
+        if let Some(s) = &shutter {
+            progress.event(Event::Message {
+                text: format!(
+                    "DSLR: fired by the shutter {}",
+                    s.status().identity.unwrap_or(s.status().selector)
+                ),
+            });
+        }
+        for &t in &exposures {
             cancel.check()?;
-            let speed = cam.set_shutter(s)?;
             let mut last = u64::MAX;
-            let files = cam.capture_all(&opts, &mut |_, done, total| {
+            let mut bytes = |done: u64, total: u64| {
                 // One event per tenth: enough for a bar, few enough for a stream.
                 let tenth = (done * 10).checked_div(total).unwrap_or(0);
                 if tenth != last {
@@ -204,61 +250,104 @@ fn dslr_bracket(
                         total,
                     });
                 }
-            })?;
-            let shot_files = files.len();
-            for (i, f) in files.into_iter().enumerate() {
-                if tx
-                    .send((f.info.filename, f.data, speed, i + 1 == shot_files))
-                    .is_err()
-                {
-                    bail!("the capture stopped taking files");
+            };
+            let exposed = match &shutter {
+                Some(s) => {
+                    let mut fire = || s.call(|s| s.fire(SHUTTER_PRESS));
+                    cam.expose_fired_by(t, &mut fire, &mut bytes)
+                        .unwrap_or_else(|| {
+                            Err(anyhow::anyhow!(
+                                "the object camera cannot be fired by the rig's shutter"
+                            ))
+                        })?
                 }
+                None => cam.expose(t, &mut bytes)?,
+            };
+            let sent = match exposed.output {
+                Output::Files(files) => {
+                    let n = files.len();
+                    files.into_iter().enumerate().all(|(i, (name, bytes))| {
+                        tx.send(Arrived::File {
+                            name,
+                            bytes,
+                            applied_s: exposed.applied_s,
+                            last_of_shot: i + 1 == n,
+                        })
+                        .is_ok()
+                    })
+                }
+                Output::Frames(frames) => tx
+                    .send(Arrived::Frames {
+                        asked_s: t,
+                        applied_s: exposed.applied_s,
+                        frames,
+                    })
+                    .is_ok(),
+            };
+            if !sent {
+                bail!("the capture stopped taking files");
             }
         }
         Ok(())
     });
     let mut files = Arriving::new(cx, step, total);
-    for (name, data, speed, shot_done) in rx {
-        let said = format!("  {name}: {} bytes (camera applied {speed} s)", data.len());
-        files.keep(session, name, data, said, shot_done)?;
+    for arrived in rx {
+        match arrived {
+            Arrived::File {
+                name,
+                bytes,
+                applied_s,
+                last_of_shot,
+            } => {
+                let said = format!(
+                    "  {name}: {} bytes (camera applied {applied_s} s)",
+                    bytes.len()
+                );
+                files.keep(keep, name, bytes, said, last_of_shot)?;
+            }
+            Arrived::Frames {
+                asked_s,
+                applied_s,
+                frames,
+            } => {
+                let name = format!("fallback-{}.exr", files.files.len() + 1);
+                let (bytes, noise) = averaged_exr(&frames, applied_s, &name)?;
+                let said = format!(
+                    "  {name}: {} frames averaged at {applied_s} s (asked {asked_s} s){}",
+                    frames.len(),
+                    noise.map_or(String::new(), |n| format!(", noise {:.2}%", n * 100.0))
+                );
+                files.keep(keep, name, bytes, said, true)?;
+            }
+        }
     }
     job.wait()?;
-    super::flow::note_device(session, dslr.status().identity);
     Ok(files.files)
 }
 
-/// Sets the DSLR to make the files the rig asks for. A camera that cannot be set so keeps
-/// shooting as set on its body, and the merge takes what comes: RAW files if any, JPEGs
-/// otherwise. Either way the operator is told.
-fn set_files(
-    cam: &mut brdfd_ptp::Camera,
-    want: DslrFiles,
-    progress: &dyn super::Progress,
-) -> anyhow::Result<()> {
-    use brdfd_ptp::{codes::rc, PtpError};
-    let format = match want {
-        DslrFiles::RawJpeg => ImageFormat::RawJpeg,
-        DslrFiles::Raw => ImageFormat::Raw,
-        DslrFiles::Jpeg => ImageFormat::Jpeg,
+/// One exposure's frames averaged in linear light, as the EXR the session stores: with its
+/// exposure time, the frames averaged and their noise in its header.
+fn averaged_exr(
+    frames: &[brdfd_v4l::Rgb8Frame],
+    applied_s: f64,
+    name: &str,
+) -> anyhow::Result<(Vec<u8>, Option<f32>)> {
+    let exposure = crate::radiometry::Exposure {
+        shutter_s: applied_s,
+        f_number: 1.0,
+        iso: 100.0,
     };
-    let say = |text: String| progress.event(Event::Message { text });
-    match cam.set_format(format) {
-        Ok(applied) if applied == format => {}
-        Ok(applied) => say(format!(
-            "DSLR: asked for {format:?} files, the camera applied {applied:?}"
-        )),
-        Err(PtpError::Unsupported(what)) => say(format!(
-            "DSLR: {what} is not offered; it shoots as set on its body (the merge uses its RAW files if any, else its JPEGs, their tone curve taken as sRGB)"
-        )),
-        Err(PtpError::Response {
-            code: rc::DEVICE_PROP_NOT_SUPPORTED,
-            ..
-        }) => say(
-            "DSLR: it has no image-quality property; it shoots as set on its body".to_string(),
-        ),
-        Err(e) => return Err(e.into()),
+    let average = average_frames(frames, exposure, name)?;
+    let noise = averaging_noise(frames);
+    let v = &average.values;
+    let mut attributes = vec![
+        (EXPOSURE_ATTRIBUTE, ExrAttribute::F32(applied_s as f32)),
+        (FRAMES_ATTRIBUTE, ExrAttribute::F32(frames.len() as f32)),
+    ];
+    if let Some(n) = noise {
+        attributes.push((NOISE_ATTRIBUTE, ExrAttribute::F32(n)));
     }
-    Ok(())
+    Ok((exr_bytes(v.width, v.height, &v.pixels, &attributes)?, noise))
 }
 
 /// A bracket's files as they arrive: each stored in the session at once, said, and counted
@@ -285,13 +374,13 @@ impl<'a> Arriving<'a> {
     /// Keeps one file; `shot_done` when it is its shot's last.
     fn keep(
         &mut self,
-        session: &mut Session,
+        to: &mut dyn Keep,
         name: String,
         bytes: Vec<u8>,
         said: String,
         shot_done: bool,
     ) -> anyhow::Result<()> {
-        session.add_raw(self.step, &name, &bytes)?;
+        to.keep(&name, &bytes)?;
         self.cx.say(said);
         self.files.push((name, bytes));
         if shot_done {
@@ -306,88 +395,7 @@ impl<'a> Arriving<'a> {
     }
 }
 
-/// One exposure of the fallback's bracket, as grabbed: the time asked and applied, and the
-/// decoded frames.
-type Grabbed = (f64, f64, Vec<brdfd_v4l::Rgb8Frame>);
-
-/// Shoots the fallback's bracket on its worker: per exposure, the frames are averaged in
-/// linear light and the average stored in the session (an EXR with its exposure).
-fn fallback_bracket(cx: &Context, session: &mut Session, step: &str) -> anyhow::Result<RawFiles> {
-    let camera = cx
-        .devices
-        .fallback
-        .as_ref()
-        .context("the rig names no fallback_camera")?;
-    let b = cx.rig.brackets.clone();
-    let shutters = b.fallback_shutters.clone();
-    let total = shutters.len() as u64;
-    let (tx, rx) = mpsc::channel::<Grabbed>();
-    let (progress, cancel) = (cx.progress.clone(), cx.cancel.clone());
-    let job = camera.submit(move |cam| {
-        let src = cam.0.as_mut();
-        let (format, w, h) = brdfd_v4l::start(src)?;
-        progress.event(Event::Message {
-            text: format!(
-                "fallback camera: {}, {format:?} {w}×{h}, {} frames per exposure",
-                src.describe(),
-                b.fallback_frames
-            ),
-        });
-        for &t in &shutters {
-            cancel.check()?;
-            let settings = brdfd_v4l::Settings {
-                exposure_s: Some(t),
-                gain: b.fallback_gain,
-                white_balance_k: Some(b.fallback_white_balance_k),
-            };
-            let (applied, frames) = brdfd_v4l::grab(src, &settings, b.fallback_frames)?;
-            // Without a manual exposure time the camera stays on auto exposure, and no
-            // frame's exposure is known: there is no bracket to merge.
-            let Some(applied_s) = applied.exposure_s else {
-                bail!(
-                    "the fallback camera {} has no manual exposure control ({}), so it cannot shoot a bracket",
-                    src.describe(),
-                    applied.notes.join(", ")
-                );
-            };
-            if tx.send((t, applied_s, frames)).is_err() {
-                bail!("the capture stopped taking frames");
-            }
-        }
-        Ok(())
-    });
-    let mut files = Arriving::new(cx, step, total);
-    for (asked, applied, frames) in rx {
-        let exposure = crate::radiometry::Exposure {
-            shutter_s: applied,
-            f_number: 1.0,
-            iso: 100.0,
-        };
-        let name = format!("fallback-{}.exr", files.files.len() + 1);
-        let average = average_frames(&frames, exposure, &name)?;
-        let noise = averaging_noise(&frames);
-        let v = &average.values;
-        let mut attributes = vec![
-            (EXPOSURE_ATTRIBUTE, ExrAttribute::F32(applied as f32)),
-            (FRAMES_ATTRIBUTE, ExrAttribute::F32(frames.len() as f32)),
-        ];
-        if let Some(n) = noise {
-            attributes.push((NOISE_ATTRIBUTE, ExrAttribute::F32(n)));
-        }
-        let bytes = exr_bytes(v.width, v.height, &v.pixels, &attributes)?;
-        let said = format!(
-            "  {name}: {} frames averaged at {applied} s (asked {asked} s){}",
-            frames.len(),
-            noise.map_or(String::new(), |n| format!(", noise {:.2}%", n * 100.0))
-        );
-        files.keep(session, name, bytes, said, true)?;
-    }
-    job.wait()?;
-    super::flow::note_device(session, camera.status().identity);
-    Ok(files.files)
-}
-
-/// A view's bracket merged into radiance in the DSLR's units.
+/// A view's bracket merged into radiance in the bench's unit.
 pub struct Merged {
     pub photo: Raster,
     /// The level at and above which the merge had only clipped frames.
@@ -398,11 +406,39 @@ pub struct Merged {
     pub demosaiced: bool,
 }
 
+/// A camera's gain from the rig's calibration, or the field to measure.
+fn gain(g: &Option<CameraGain>, field: &str) -> anyhow::Result<[f64; 3]> {
+    g.as_ref().map(|g| g.gain.0).with_context(|| {
+        format!("{field}.gain is not in the rig's calibration: `brdfd calibrate radiometry` measures it")
+    })
+}
+
+/// Merges frames through a camera's gain: radiance in the bench's unit, and the level at and
+/// above which only clipped frames were there.
+fn merge_with_gain(
+    mut frames: Vec<Frame>,
+    gain: [f64; 3],
+) -> anyhow::Result<(Raster, Option<f32>)> {
+    with_gain(&mut frames, gain);
+    Ok((merge_hdr(&frames, 1.0)?, merged_white_level(&frames, 1.0)))
+}
+
 /// Merges a view's bracket, as the camera that shot it needs.
-pub fn merge_view(cx: &Context, camera: ObjectCamera, files: &RawFiles) -> anyhow::Result<Merged> {
+pub fn merge_view(cx: &Context, camera: CameraRole, files: &RawFiles) -> anyhow::Result<Merged> {
+    let c = &cx.rig.calibration;
     match camera {
-        ObjectCamera::Dslr => {
-            let (photo, white, demosaiced) = merge_dslr(cx, files)?;
+        CameraRole::Dslr => {
+            let frames = dslr_frames(cx, files)?;
+            let ((photo, white), demosaiced) = match frames {
+                DslrFrames::Raw(f) => (
+                    merge_with_gain(f, gain(&c.dslr_raw, "calibration.dslr_raw")?)?,
+                    true,
+                ),
+                DslrFrames::Jpeg(f) => (
+                    merge_with_gain(f, gain(&c.dslr_jpeg, "calibration.dslr_jpeg")?)?,
+                    false,
+                ),
+            };
             Ok(Merged {
                 photo,
                 white,
@@ -410,22 +446,13 @@ pub fn merge_view(cx: &Context, camera: ObjectCamera, files: &RawFiles) -> anyho
                 demosaiced,
             })
         }
-        ObjectCamera::Fallback => {
+        CameraRole::Fallback => {
             let bracket = FallbackBracket::read(files)?;
-            // Values per second of exposure, then the THETA's calibrations put them in the
-            // DSLR's units: the fallback's per THETA radiance, the DSLR's per THETA radiance.
-            let c = &cx.rig.calibration;
-            let to_fallback = c
-                .theta_to_fallback
-                .context("calibration.theta_to_fallback is needed to use the fallback camera")?;
-            let scale = (c.theta_to_dslr / to_fallback) as f32;
-            let mut photo = merge_hdr(&bracket.frames, 1.0)?;
-            for p in &mut photo.pixels {
-                *p = p.map(|v| v * scale);
-            }
+            let (photo, white) =
+                merge_with_gain(bracket.frames, gain(&c.fallback, "calibration.fallback")?)?;
             Ok(Merged {
                 photo,
-                white: merged_white_level(&bracket.frames, 1.0).map(|w| w * scale),
+                white,
                 fallback: Some((bracket.averaged, bracket.noise)),
                 demosaiced: false,
             })
@@ -433,16 +460,16 @@ pub fn merge_view(cx: &Context, camera: ObjectCamera, files: &RawFiles) -> anyho
     }
 }
 
-/// A fallback bracket as stored: its averages, the frames each averaged, and the median of
-/// their recorded noise.
-struct FallbackBracket {
-    frames: Vec<Frame>,
-    averaged: usize,
-    noise: Option<f32>,
+/// A fallback bracket as stored: its averages (values per second of exposure), the frames
+/// each averaged, and the median of their recorded noise.
+pub struct FallbackBracket {
+    pub frames: Vec<Frame>,
+    pub averaged: usize,
+    pub noise: Option<f32>,
 }
 
 impl FallbackBracket {
-    fn read(files: &RawFiles) -> anyhow::Result<FallbackBracket> {
+    pub fn read(files: &RawFiles) -> anyhow::Result<FallbackBracket> {
         let (mut noise, mut averaged) = (Vec::new(), 0);
         let frames = files
             .iter()
@@ -483,15 +510,18 @@ impl FallbackBracket {
     }
 }
 
-/// Decodes a DSLR bracket and merges it into radiance, from each file's own exposure. Also
-/// returns the level at and above which the merge had only clipped frames, and whether the
-/// merge was of RAW files.
+/// A DSLR bracket decoded: its RAW files if it can be merged from them, else its JPEGs.
+pub enum DslrFrames {
+    Raw(Vec<Frame>),
+    Jpeg(Vec<Frame>),
+}
+
+/// Decodes a DSLR bracket, each frame with its own exposure.
 ///
 /// RAW files are preferred: they are linear. If the bracket has none, or they cannot be
-/// decoded and there are JPEGs beside them, the JPEGs are merged, their tone curve taken as
+/// decoded and there are JPEGs beside them, the JPEGs are used, their tone curve taken as
 /// sRGB (a camera's own curve differs, which the estimate then absorbs).
-fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<(Raster, Option<f32>, bool)> {
-    use crate::bench::camera::SENSOR_GAIN;
+pub fn dslr_frames(cx: &Context, files: &RawFiles) -> anyhow::Result<DslrFrames> {
     let (raw, jpeg): (Vec<_>, Vec<_>) = files.iter().partition(|(name, _)| is_raw_name(name));
     // A RAW file missing from some shots would merge fewer exposures than were shot.
     let whole = jpeg.is_empty() || raw.len() == jpeg.len();
@@ -504,21 +534,22 @@ fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<(Raster, Option<
     }
     if !raw.is_empty() && whole {
         match decode_raw_bracket(cx, &raw) {
-            Ok(frames) => {
-                return Ok((
-                    merge_hdr(&frames, SENSOR_GAIN)?,
-                    merged_white_level(&frames, SENSOR_GAIN),
-                    true,
-                ))
-            }
+            Ok(frames) => return Ok(DslrFrames::Raw(frames)),
             Err(e) if !jpeg.is_empty() => cx.warn(format!(
                 "the RAW files cannot be merged ({e:#}); merging the JPEG files instead, their tone curve taken as sRGB"
             )),
             Err(e) => return Err(e),
         }
     }
-    let frames = jpeg
-        .iter()
+    decode_jpeg_bracket(cx, &jpeg).map(DslrFrames::Jpeg)
+}
+
+/// The JPEG files of a bracket decoded, each said with its EXIF exposure.
+pub fn decode_jpeg_bracket(
+    cx: &Context,
+    jpeg: &[&(String, Vec<u8>)],
+) -> anyhow::Result<Vec<Frame>> {
+    jpeg.iter()
         .map(|(name, bytes)| {
             let f = decode_jpeg(bytes, name)?;
             cx.say(format!(
@@ -527,20 +558,15 @@ fn merge_dslr(cx: &Context, files: &RawFiles) -> anyhow::Result<(Raster, Option<
             ));
             Ok(f)
         })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    Ok((
-        merge_hdr(&frames, SENSOR_GAIN)?,
-        merged_white_level(&frames, SENSOR_GAIN),
-        false,
-    ))
+        .collect()
 }
 
 /// The RAW files of a bracket decoded, with the rig's fixed white balance if it has one.
-fn decode_raw_bracket(cx: &Context, files: &[&(String, Vec<u8>)]) -> anyhow::Result<Vec<Frame>> {
-    let wb = match cx.rig.calibration.raw_white_balance {
-        Some(m) => WhiteBalance::Fixed(m),
-        None => WhiteBalance::AsShot,
-    };
+pub fn decode_raw_bracket(
+    cx: &Context,
+    files: &[&(String, Vec<u8>)],
+) -> anyhow::Result<Vec<Frame>> {
+    let wb = raw_white_balance(&cx.rig.calibration);
     files
         .iter()
         .map(|(name, bytes)| {
@@ -554,4 +580,11 @@ fn decode_raw_bracket(cx: &Context, files: &[&(String, Vec<u8>)]) -> anyhow::Res
             Ok(f)
         })
         .collect()
+}
+
+fn raw_white_balance(c: &Calibration) -> WhiteBalance {
+    match c.raw_white_balance {
+        Some(m) => WhiteBalance::Fixed(m),
+        None => WhiteBalance::AsShot,
+    }
 }

@@ -8,9 +8,10 @@ use brdfd_ptp::transport::ptpip::{Initiator, PtpIpTransport, DEFAULT_PORT};
 use brdfd_ptp::transport::usb::{open_usb, UsbTransport};
 use brdfd_ptp::transport::Transport;
 use brdfd_ptp::{Camera, Timeouts};
-use brdfd_serial::{RigController, RigTimeouts};
+use brdfd_serial::{ControlLine, RigController, RigTimeouts, ShutterCable};
 use brdfd_theta::{Credentials, HttpTimeouts, Theta};
 
+use super::devices::video::VideoCamera;
 use crate::selector::Selector;
 
 /// Opens the PTP camera a selector names (`usb`, `usb:VVVV[:PPPP]`, `ptpip:HOST[:PORT]`).
@@ -58,13 +59,23 @@ pub fn theta(
 }
 
 /// Opens the V4L2 camera a selector names (`v4l:/dev/videoN`).
-pub fn video_camera(port: &Selector) -> anyhow::Result<super::VideoCamera> {
+pub fn video_camera(port: &Selector) -> anyhow::Result<VideoCamera> {
     match port {
-        Selector::V4l(path) => Ok(super::VideoCamera(Box::new(
+        Selector::V4l(path) => Ok(VideoCamera::new(Box::new(
             brdfd_v4l::device::V4lCamera::open(path)?,
         ))),
         other => bail!("{other} is not a V4L2 camera; use v4l:/dev/videoN"),
     }
+}
+
+/// Opens a release cable on a serial adapter's DTR or RTS line, released.
+pub fn cable(rts: bool, path: &str) -> anyhow::Result<ShutterCable> {
+    let line = if rts {
+        ControlLine::Rts
+    } else {
+        ControlLine::Dtr
+    };
+    Ok(ShutterCable::new(brdfd_serial::open(path)?, line, false)?)
 }
 
 /// Opens a turntable or trigger box that speaks the brdfd rig protocol.

@@ -1,23 +1,29 @@
-//! The simulated rig: a Nikon D5100 over PTP/IP, a RICOH THETA V over the THETA Web API and a
-//! turntable on a pseudo-terminal, all on loopback and all speaking the real protocols. The
-//! rig's workers reach them through ordinary selectors, exactly as they reach hardware; only
-//! the scene in front of the cameras is set from here (the operator placing the sample).
+//! The simulated rig: a Nikon D5100 over PTP/IP, a RICOH THETA V over the THETA Web API (or
+//! PTP over an in-memory USB pipe), a turntable with a shutter line on a pseudo-terminal, and
+//! a V4L2 webcam, all speaking the real protocols. The rig's workers open them through the
+//! same code as hardware; only the scene in front of the cameras is set from here (the
+//! operator placing the sample), and the trigger box's shutter line is wired to the DSLR's
+//! remote socket when `[simulation] shutter` says so.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use brdfd_ptp::transport::usb::UsbTransport;
+use brdfd_ptp::{Camera, Timeouts};
 use brdfd_sim::ptp::{ptpip::Server, Profile, Responder, SharedResponder};
-use brdfd_sim::serial::SerialPeer;
+use brdfd_sim::serial::{PeerConfig, SerialPeer, Wire};
 use brdfd_sim::theta::{OscServer, ThetaConfig};
 use brdfd_sim::{Stage, Timed};
+use brdfd_theta::Theta;
 
+use super::devices::{video::VideoCamera, Planned};
+use super::plan;
+use super::roles::RigDevice;
 use crate::bench::camera::BenchCamera;
 use crate::bench::panorama::BenchPanorama;
 use crate::bench::raw_file::RawFormat;
 use crate::bench::VirtualBench;
-use crate::config::{RigDevices, SimulatedPresence, Simulation};
-use crate::rig::worker::Opener;
-use crate::rig::VideoCamera;
+use crate::config::{Rig, SimulatedLink, SimulatedPresence};
 use crate::selector::Selector;
 use brdfd_sim::v4l::SimV4l;
 
@@ -31,11 +37,16 @@ pub const SIMULATED_WEBCAM: &str = "simulated";
 /// Largest panorama the simulated THETA serves (a real THETA V writes 5376 × 2688).
 const SIM_THETA_WIDTH: usize = 1024;
 
+/// How the simulated THETA is reached.
+enum ThetaLink {
+    Http(OscServer),
+    /// The THETA V's USB profile behind an in-memory pipe, plugged in at each open.
+    Usb(SharedResponder),
+}
+
 pub struct SimulatedRig {
     /// Whether the rig has the simulated V4L2 webcam.
     fallback: bool,
-    /// Whether the rig has its simulated turntable (`[simulation] turntable`).
-    turntable_present: bool,
     /// The RAW files the DSLR writes (`[simulation] dslr_raw`).
     raw: RawFormat,
     dslr_scene: Arc<Stage>,
@@ -46,41 +57,75 @@ pub struct SimulatedRig {
     /// Seconds spent rendering scenes: the simulated world's time, not brdfd's.
     render_nanos: std::sync::atomic::AtomicU64,
     ptpip: Server,
-    osc: OscServer,
-    turntable: SerialPeer,
+    theta: ThetaLink,
+    /// The box on the pseudo-terminal, and the roles it plays (turntable, shutter), if any.
+    serial: Option<(SerialPeer, Vec<&'static str>)>,
     /// Our own handle on the pseudo-terminal keeps it open while no client has it.
-    _turntable_end: serialport::TTYPort,
+    _serial_end: Option<serialport::TTYPort>,
 }
 
 impl SimulatedRig {
-    /// Starts the simulators on loopback, with nothing in front of the cameras: the DSLR
-    /// as `simulation` says, and the webcam if `fallback`.
-    pub fn start(simulation: Simulation, fallback: bool) -> anyhow::Result<SimulatedRig> {
+    /// Starts the simulators the rig's `[simulation]` table names, with nothing in front of
+    /// the cameras.
+    pub fn start(rig: &Rig) -> anyhow::Result<SimulatedRig> {
+        let simulation = rig.simulation.clone().unwrap_or_default();
         let dslr_scene = Arc::new(Stage::new((256, 256)));
         let dslr_time = Arc::new(Timed::new(dslr_scene.clone()));
         let dslr = Responder::new(Profile::NikonD5100, dslr_time.clone()).shared();
-        dslr.lock().unwrap().faults.power_off_after_captures = simulation.dslr_powers_off_after;
+        lock(&dslr).faults.power_off_after_captures = simulation.dslr_powers_off_after;
         let ptpip = Server::start("127.0.0.1:0", dslr.clone())?;
         // An absent DSLR is one that is off: the server closes every connection at once.
         // (A port nobody listens on could be taken by another program meanwhile.)
-        dslr.lock().unwrap().powered_off = simulation.dslr == SimulatedPresence::Absent;
+        lock(&dslr).powered_off = simulation.dslr == SimulatedPresence::Absent;
         let theta_scene = Arc::new(Stage::new((
             SIM_THETA_WIDTH as u32,
             SIM_THETA_WIDTH as u32 / 2,
         )));
         let theta_time = Arc::new(Timed::new(theta_scene.clone()));
-        let osc = OscServer::start(
-            "127.0.0.1:0",
-            theta_time.clone(),
-            ThetaConfig {
-                shot_time: SIM_THETA_SHOT_TIME,
-                ..ThetaConfig::default()
-            },
-        )?;
-        let (turntable, end) = SerialPeer::start(Default::default())?;
+        let theta = match simulation.theta {
+            SimulatedLink::Http => ThetaLink::Http(OscServer::start(
+                "127.0.0.1:0",
+                theta_time.clone(),
+                ThetaConfig {
+                    shot_time: SIM_THETA_SHOT_TIME,
+                    ..ThetaConfig::default()
+                },
+            )?),
+            SimulatedLink::Usb => {
+                ThetaLink::Usb(Responder::new(Profile::ThetaV, theta_time.clone()).shared())
+            }
+        };
+        let mut roles = Vec::new();
+        if simulation.turntable == SimulatedPresence::Present {
+            roles.push(plan::TURNTABLE);
+        }
+        if simulation.shutter == SimulatedPresence::Present {
+            roles.push(plan::SHUTTER);
+        }
+        let (serial, end) = if roles.is_empty() {
+            (None, None)
+        } else {
+            let shutter_wired_to = roles.contains(&plan::SHUTTER).then(|| {
+                let camera = dslr.clone();
+                Wire(Arc::new(move |_ms| {
+                    lock(&camera).press_release();
+                }))
+            });
+            let (peer, end) = SerialPeer::start(PeerConfig {
+                name: if roles.contains(&plan::TURNTABLE) {
+                    "brdfd-sim-turntable".into()
+                } else {
+                    "brdfd-sim-trigger".into()
+                },
+                can_rotate: roles.contains(&plan::TURNTABLE),
+                can_fire: true,
+                shutter_wired_to,
+                ..PeerConfig::default()
+            })?;
+            (Some((peer, roles)), Some(end))
+        };
         Ok(SimulatedRig {
-            fallback,
-            turntable_present: simulation.turntable == SimulatedPresence::Present,
+            fallback: rig.devices.fallback_camera.is_some(),
             raw: simulation.dslr_raw.unwrap_or(RawFormat::Nef),
             dslr_scene,
             dslr_time,
@@ -89,35 +134,54 @@ impl SimulatedRig {
             theta_time,
             render_nanos: Default::default(),
             ptpip,
-            osc,
-            turntable,
-            _turntable_end: end,
+            theta,
+            serial,
+            _serial_end: end,
         })
     }
 
-    /// Where the rig's workers find the simulators.
-    pub fn selectors(&self) -> RigDevices {
-        RigDevices {
-            dslr: Some(Selector::PtpIp(self.ptpip.addr.to_string())),
-            theta: Some(Selector::Osc(self.osc.url())),
-            fallback_camera: self
-                .fallback
-                .then(|| Selector::V4l(SIMULATED_WEBCAM.into())),
-            turntable: self
-                .turntable_present
-                .then(|| Selector::Serial(self.turntable.path.clone())),
+    /// The simulators as the rig's devices: each opened by the code that opens hardware,
+    /// through the selector a bench would give it.
+    pub fn devices(&self) -> Vec<Planned> {
+        let dslr = Selector::PtpIp(self.ptpip.addr.to_string());
+        let mut v = vec![Planned::from_selector(plan::DSLR, dslr, true)];
+        v.push(match &self.theta {
+            ThetaLink::Http(osc) => {
+                Planned::from_selector(plan::THETA, Selector::Osc(osc.url()), true)
+            }
+            ThetaLink::Usb(responder) => {
+                let responder = responder.clone();
+                Planned {
+                    fields: vec![plan::THETA],
+                    selector: "usb:05ca:0368 (simulated, in-memory)".into(),
+                    open: Box::new(move || {
+                        let pipe = brdfd_sim::ptp::usb::plug(responder.clone());
+                        let camera =
+                            Camera::open(Box::new(UsbTransport::new(pipe)), Timeouts::default())?;
+                        Ok(Box::new(Theta::from_ptp(camera)?) as Box<dyn RigDevice>)
+                    }),
+                }
+            }
+        });
+        if self.fallback {
+            let scene: Arc<dyn brdfd_sim::ImageSource> = self.dslr_time.clone();
+            v.push(Planned {
+                fields: vec![plan::FALLBACK],
+                selector: format!("v4l:{SIMULATED_WEBCAM}"),
+                open: Box::new(move || {
+                    Ok(Box::new(VideoCamera::new(Box::new(SimV4l::new(
+                        scene.clone(),
+                        "simulated webcam",
+                    )))) as Box<dyn RigDevice>)
+                }),
+            });
         }
-    }
-
-    /// Opens the simulated webcam: a V4L2 camera beside the DSLR, seeing what it sees.
-    pub fn fallback_opener(&self) -> Opener<VideoCamera> {
-        let scene: Arc<dyn brdfd_sim::ImageSource> = self.dslr_time.clone();
-        Box::new(move || {
-            Ok(VideoCamera(Box::new(SimV4l::new(
-                scene.clone(),
-                "simulated webcam",
-            ))))
-        })
+        if let Some((peer, roles)) = &self.serial {
+            let mut p = Planned::from_selector(roles[0], Selector::Serial(peer.path.clone()), true);
+            p.fields = roles.clone();
+            v.push(p);
+        }
+        v
     }
 
     /// Puts the bench's light in front of the THETA.
@@ -157,10 +221,20 @@ impl SimulatedRig {
     /// shot time per frame.
     pub fn device_seconds(&self) -> f64 {
         let dslr_busy = self.dslr.lock().map_or(0.0, |r| r.busy_seconds());
+        let theta_shots = match &self.theta {
+            ThetaLink::Http(osc) => SIM_THETA_SHOT_TIME.as_secs_f64() * osc.shots() as f64,
+            ThetaLink::Usb(r) => r.lock().map_or(0.0, |r| r.busy_seconds()),
+        };
         self.render_nanos.load(std::sync::atomic::Ordering::Relaxed) as f64 * 1e-9
             + self.dslr_time.seconds()
             + dslr_busy
             + self.theta_time.seconds()
-            + SIM_THETA_SHOT_TIME.as_secs_f64() * self.osc.shots() as f64
+            + theta_shots
     }
+}
+
+/// The simulated camera's state, even if a thread panicked holding it (its state is plain
+/// data, valid between operations).
+fn lock(r: &SharedResponder) -> std::sync::MutexGuard<'_, Responder> {
+    r.lock().unwrap_or_else(|p| p.into_inner())
 }

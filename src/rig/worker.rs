@@ -30,7 +30,8 @@ type Deliver = Box<dyn FnOnce() + Send>;
 /// A device's state as the daemon reports it.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct DeviceStatus {
-    /// The rig's role for the device: "dslr", "fallback_camera", "theta", "turntable".
+    /// The rig fields whose roles the device plays: "dslr", "fallback_camera", "theta",
+    /// "turntable", "shutter", or "turntable, shutter" for a box that is both.
     pub role: String,
     /// The selector it was opened from (`usb:04b0:0429`, `osc:http://...`).
     pub selector: String,

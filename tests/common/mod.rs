@@ -3,7 +3,7 @@
 // Each test file uses some of these, and Rust builds this module into each one.
 #![allow(dead_code)]
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 
@@ -363,4 +363,56 @@ pub fn shared_data() -> Option<std::path::PathBuf> {
         eprintln!("SKIPPED: ../shared/data is missing (CI has it)");
         None
     }
+}
+
+/// Runs `brdfd` in `dir` with `args`, pressing Enter each time it asks for a turn, at most
+/// `presses` times; then standard input is closed. Its exit and everything it printed.
+pub fn answering(dir: &std::path::Path, args: &[&str], presses: usize) -> (bool, String) {
+    let mut child = command()
+        .args(args)
+        .current_dir(dir)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = Some(child.stdin.take().unwrap());
+    let mut stdout = child.stdout.take().unwrap();
+    let printed = std::thread::spawn(move || {
+        let mut s = String::new();
+        let _ = stdout.read_to_string(&mut s);
+        s
+    });
+    // The prompt goes to standard error: Enter is pressed only once it has been asked, so a
+    // capture that did not wait would not have been answered.
+    let mut said = String::new();
+    let mut pressed = 0;
+    if presses == 0 {
+        stdin.take();
+    }
+    for line in BufReader::new(child.stderr.take().unwrap()).lines() {
+        let line = line.unwrap();
+        if line.contains("press Enter once it is turned") {
+            if let Some(s) = stdin.as_mut() {
+                s.write_all(b"\n").unwrap();
+                pressed += 1;
+                if pressed == presses {
+                    stdin.take();
+                }
+            }
+        }
+        said.push_str(&line);
+        said.push('\n');
+    }
+    let status = child.wait().unwrap();
+    (status.success(), printed.join().unwrap() + &said)
+}
+
+/// The relit error the capture printed.
+pub fn relit(text: &str) -> f64 {
+    text.split("the estimate is ")
+        .nth(1)
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no relit error in\n{text}"))
 }

@@ -10,6 +10,12 @@ use crate::error::{PtpError, Result};
 
 /// Nikon's handle for the image held in SDRAM when no card write was asked for.
 pub const NIKON_SDRAM_HANDLE: u32 = 0xFFFF_0001;
+/// How long the card's listing must stay the same before a shot fired from outside is taken
+/// to be whole, when brdfd did not set how many files a shot makes. A RAW + JPEG body lists
+/// its second file within a few hundred milliseconds of the first.
+pub const FIRED_SHOT_SETTLE: Duration = Duration::from_secs(2);
+/// How often the card is listed while waiting for a shot fired from outside.
+const FIRED_SHOT_POLL: Duration = Duration::from_millis(50);
 /// Exposure time units of property 0x500D: 1/10000 s. This value means bulb.
 const EXPOSURE_TIME_BULB: i64 = 0xFFFF_FFFF;
 
@@ -106,6 +112,99 @@ impl Camera {
             ));
         }
         Ok(files)
+    }
+
+    /// Fires the camera from outside (a trigger box or a release cable on its remote
+    /// socket, through `fire`) and downloads every file the shot makes.
+    ///
+    /// A shot the camera did not initiate goes to its card, and the card's listing is what
+    /// every PTP camera keeps: the shot's files are the objects listed after `fire` and not
+    /// before. (Some bodies also send ObjectAdded for it, others do not; the events are
+    /// read and set aside so that they are not taken for a later shot's.) The shot is whole
+    /// when it has as many files as the camera was set to make, or, when brdfd did not set
+    /// it, once the listing has not grown for [`FIRED_SHOT_SETTLE`].
+    pub fn capture_fired(
+        &mut self,
+        fire: &mut dyn FnMut() -> Result<()>,
+        opts: &CaptureOptions,
+        progress: CaptureProgress,
+    ) -> Result<Vec<Captured>> {
+        let before = self.card_objects()?;
+        self.set_events_aside()?;
+        progress("exposure", 0, 0);
+        fire()?;
+        let start = Instant::now();
+        let mut shot: Vec<u32> = Vec::new();
+        let mut grew = start;
+        let mut seen = before;
+        loop {
+            for h in self.card_objects()? {
+                if seen.contains(&h) {
+                    continue;
+                }
+                seen.push(h);
+                // A folder made for the shot (a new 101NIKON) is not one of its files.
+                if self.object_info(h)?.format != format::ASSOCIATION {
+                    shot.push(h);
+                    grew = Instant::now();
+                }
+            }
+            let whole = match self.files_per_shot {
+                Some(n) => shot.len() >= n,
+                None => !shot.is_empty() && grew.elapsed() >= FIRED_SHOT_SETTLE,
+            };
+            if whole {
+                break;
+            }
+            if start.elapsed() > self.timeouts.capture {
+                if shot.is_empty() {
+                    return Err(PtpError::Timeout {
+                        what: "capture",
+                        after: self.timeouts.capture,
+                    });
+                }
+                tracing::warn!(
+                    "the camera was set to make {:?} files per shot and listed {} within {:?}",
+                    self.files_per_shot,
+                    shot.len(),
+                    self.timeouts.capture
+                );
+                break;
+            }
+            std::thread::sleep(FIRED_SHOT_POLL);
+        }
+        if self.is_nikon() {
+            self.wait_device_ready(start)?;
+        }
+        let mut files = Vec::new();
+        for h in shot {
+            self.fetch_new(h, opts, progress, &mut files)?;
+        }
+        self.set_events_aside()?;
+        Ok(files)
+    }
+
+    /// Every object on the camera's cards.
+    fn card_objects(&mut self) -> Result<Vec<u32>> {
+        let mut all = Vec::new();
+        for id in self.storage_ids()? {
+            all.extend(self.object_handles(id)?);
+        }
+        Ok(all)
+    }
+
+    /// Reads the events waiting (Nikon's GetEvent queue, or the event channel), so that an
+    /// ObjectAdded of a shot fired from outside is not taken for the next shot's.
+    fn set_events_aside(&mut self) -> Result<()> {
+        if self.is_nikon() {
+            let mut ignored = Vec::new();
+            return self.nikon_added(Target::Sdram, &mut ignored);
+        }
+        // Not zero: libusb reads a zero timeout as no timeout.
+        while let Some(e) = self.next_event(Duration::from_millis(1))? {
+            tracing::debug!("event {:#06x} set aside", e.code);
+        }
+        Ok(())
     }
 
     /// Downloads the object at `handle` into `files` unless it is a folder or a file

@@ -61,6 +61,21 @@ impl ShutterCable {
         Ok(())
     }
 
+    /// Holds the line released: what a keep-alive does, since a cable has nothing to answer.
+    /// An adapter that was unplugged fails it.
+    pub fn release(&mut self) -> Result<()> {
+        self.set(false)
+    }
+
+    /// The port it is on.
+    pub fn port_name(&self) -> &str {
+        &self.name
+    }
+
+    pub fn line(&self) -> ControlLine {
+        self.line
+    }
+
     fn set(&mut self, pressed: bool) -> Result<()> {
         let level = pressed != self.active_low;
         let r = match self.line {

@@ -169,6 +169,16 @@ impl RigController {
         self.parse_position("HOME", &answer)
     }
 
+    /// Asks `ID?` again: the question every device answers, whatever it can do. The answer
+    /// must be the one the device gave when it was opened.
+    pub fn identify(&mut self) -> Result<()> {
+        let id = self.command("ID?", self.timeouts.answer)?;
+        if id != self.id_answer {
+            return Err(self.protocol("ID?", &format!("OK {id}")));
+        }
+        Ok(())
+    }
+
     pub fn position(&mut self) -> Result<f64> {
         self.require(self.identity.can_rotate, "turntable (POS?)")?;
         let answer = self.command("POS?", self.timeouts.answer)?;

@@ -21,6 +21,19 @@ pub struct PeerConfig {
     pub can_rotate: bool,
     /// Rotation speed, degrees per second.
     pub speed_deg_s: f64,
+    /// What the shutter line is wired to: called with the pulse's length as the line goes
+    /// active (a camera's remote socket shoots on the press).
+    pub shutter_wired_to: Option<Wire>,
+}
+
+/// The far end of the shutter line.
+#[derive(Clone)]
+pub struct Wire(pub Arc<dyn Fn(u32) + Send + Sync>);
+
+impl std::fmt::Debug for Wire {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Wire(..)")
+    }
 }
 
 impl Default for PeerConfig {
@@ -30,6 +43,7 @@ impl Default for PeerConfig {
             can_fire: true,
             can_rotate: true,
             speed_deg_s: 360.0,
+            shutter_wired_to: None,
         }
     }
 }
@@ -195,6 +209,9 @@ fn answer(cmd: &str, config: &PeerConfig, state: &Mutex<PeerState>, slip: Option
         }
         ("FIRE", Some(ms)) if config.can_fire => match ms.parse::<u32>() {
             Ok(ms @ 1..=60_000) => {
+                if let Some(Wire(pressed)) = &config.shutter_wired_to {
+                    pressed(ms);
+                }
                 std::thread::sleep(Duration::from_millis(ms as u64));
                 lock().fires.push(ms);
                 "OK".into()

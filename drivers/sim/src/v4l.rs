@@ -18,7 +18,7 @@ const WHITE_BALANCE_K: (i64, i64) = (2800, 6500);
 /// Auto exposure's choice, in seconds.
 const AUTO_EXPOSURE_S: f64 = 1.0 / 60.0;
 /// The simulated lens.
-const F_NUMBER: f64 = 2.0;
+pub const F_NUMBER: f64 = 2.0;
 
 /// Faults, each used up as it fires.
 #[derive(Debug, Clone, Default)]

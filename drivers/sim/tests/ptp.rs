@@ -181,6 +181,85 @@ fn a_raw_and_jpeg_shot_downloads_both_files_from_sdram_and_from_the_card() {
     }
 }
 
+/// A shot fired from outside the camera (a trigger box on its remote socket) is found on the
+/// card, every file of it, on a Nikon (which also queues ObjectAdded for GetEvent: set aside,
+/// not taken for the next shot's) and on a generic camera (which says nothing).
+#[test]
+fn a_shot_fired_from_outside_is_found_on_the_card() {
+    use brdfd_ptp::ImageFormat;
+    for profile in [Profile::NikonD5100, Profile::Generic] {
+        let r = Responder::new(profile, Arc::new(RawAndJpeg)).shared();
+        let mut cam = usb_camera(&r);
+        let opts = CaptureOptions {
+            target: Target::Card,
+            delete_after: false,
+        };
+        let press = |r: &SharedResponder| {
+            let r = r.clone();
+            move || {
+                assert!(r.lock().unwrap().press_release(), "the camera shot");
+                Ok(())
+            }
+        };
+        if profile == Profile::NikonD5100 {
+            assert_eq!(
+                cam.set_format(ImageFormat::RawJpeg).unwrap(),
+                ImageFormat::RawJpeg
+            );
+            for shot in 1..=2u32 {
+                let files = cam
+                    .capture_fired(&mut press(&r), &opts, &mut |_, _, _| {})
+                    .unwrap();
+                let names: Vec<_> = files.iter().map(|f| f.info.filename.as_str()).collect();
+                assert_eq!(
+                    names,
+                    [format!("DSC_{shot:04}.NEF"), format!("DSC_{shot:04}.JPG")],
+                    "{profile:?}"
+                );
+            }
+            // The InitiateCapture path after it is not misled by the events set aside.
+            let files = cam.capture_all(&opts, &mut |_, _, _| {}).unwrap();
+            assert_eq!(files[0].info.filename, "DSC_0003.NEF");
+        } else {
+            // brdfd did not set the file count: the shot is what the card lists once it has
+            // settled.
+            let files = cam
+                .capture_fired(&mut press(&r), &opts, &mut |_, _, _| {})
+                .unwrap();
+            assert_eq!(files.len(), 1, "{profile:?}");
+            assert_eq!(files[0].data.len(), 3_000);
+        }
+        // A press the camera does not answer (it is off) is a timeout that names the capture.
+        r.lock().unwrap().faults.power_off_after_captures = Some(0);
+        let e = cam
+            .capture_fired(
+                &mut || {
+                    r.lock().unwrap().press_release();
+                    Ok(())
+                },
+                &opts,
+                &mut |_, _, _| {},
+            )
+            .unwrap_err();
+        assert!(
+            matches!(e, PtpError::Disconnected { .. } | PtpError::Timeout { .. }),
+            "{profile:?}: {e}"
+        );
+        // The shutter's own failure is the error, whatever the camera does.
+        r.lock().unwrap().powered_off = false;
+        r.lock().unwrap().faults.power_off_after_captures = None;
+        let mut cam = usb_camera(&r);
+        let e = cam
+            .capture_fired(
+                &mut || Err(PtpError::Protocol("the shutter: no answer".into())),
+                &opts,
+                &mut |_, _, _| {},
+            )
+            .unwrap_err();
+        assert!(e.to_string().contains("the shutter: no answer"), "{e}");
+    }
+}
+
 #[test]
 fn generic_capture_over_ptpip_reads_events_from_the_event_connection() {
     let r = responder(Profile::Generic, 10_000_000);

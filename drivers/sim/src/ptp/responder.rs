@@ -384,6 +384,37 @@ impl Responder {
         rc::OK
     }
 
+    /// The release pressed from outside (a trigger box or a cable on the remote socket): the
+    /// camera shoots with its current settings and stores the files on its card, where a
+    /// client finds them listed; a Nikon also queues ObjectAdded for GetEvent. Returns
+    /// whether it shot: an off camera, a sleeping THETA or one still rendering its scene does
+    /// not.
+    pub fn press_release(&mut self) -> bool {
+        if self
+            .faults
+            .power_off_after_captures
+            .is_some_and(|n| self.shots >= n)
+        {
+            self.powered_off = true;
+        }
+        if self.powered_off || self.int_prop(prop::RICOH_SLEEP, 0) == 1 {
+            return false;
+        }
+        let Ok(handles) = self.shoot(false) else {
+            return false;
+        };
+        let busy = std::time::Duration::from_secs_f64(self.shot_settings().shutter_s.max(0.0))
+            + NIKON_PROCESSING;
+        self.busy_until = Some(std::time::Instant::now() + busy);
+        self.busy_total += busy;
+        if self.is_nikon() {
+            for h in handles {
+                self.nikon_events.push((event::OBJECT_ADDED, h));
+            }
+        }
+        true
+    }
+
     fn is_nikon(&self) -> bool {
         self.profile == Profile::NikonD5100
     }

@@ -1,0 +1,440 @@
+//! Radiometric calibration: each camera's gain, from a target of known albedo (a grey card,
+//! or a reflectance standard) put where the object goes.
+//!
+//! The light probe measures the light around the target, and the object cameras photograph
+//! it, each with the rig's own bracket and merged as a capture merges it, but with unit gain.
+//! A Lambertian target of albedo ρ with normal n shows the radiance ρ/π · Σ L·max(0, n·ω)·Δω
+//! of the measured light; a camera's value over that, per pixel and channel, is its gain over
+//! the light probe's. The median over the target's pixels is the measurement, and the robust
+//! spread (1.4826 × the median absolute deviation, relative) says how much to trust it.
+//!
+//! Nothing measures radiance absolutely at a bench, so the light probe's gain is the unit:
+//! it is kept as the rig has it (1 if it has none), and the others are measured against it.
+//! Not here: writing the gains into the rig file (`brdfd calibrate radiometry` does that).
+
+use std::f64::consts::PI;
+
+use anyhow::{bail, Context as _};
+use serde::Deserialize;
+
+use super::flow::{Context, Keep, RawFiles};
+use super::light::light_bracket;
+use super::object::{self, dslr_frames, DslrFrames, FallbackBracket};
+use super::plan;
+use super::settings::{light_plan, Bracket};
+use crate::bench::VirtualBench;
+use crate::config::{invalid, ConfigError, Gain};
+use crate::core::envmap::{LightSet, DEFAULT_LIGHTS};
+use crate::core::geometry::{PixelGeometry, SceneGeometry, Shape};
+use crate::core::merl::MerlBrdf;
+use crate::core::raster::Raster;
+use crate::panorama::merge_bracket;
+use crate::radiometry::{merge_hdr, merged_white_level, Frame};
+
+/// The albedo of a photographer's grey card (18% reflectance), the target assumed when
+/// none is given.
+pub const GREY_CARD_ALBEDO: f64 = 0.18;
+
+/// Target pixels whose predicted radiance is below this share of the median are left out:
+/// a card's edge turned from the light, where noise and the map's resolution dominate.
+const DIM_SHARE: f64 = 0.05;
+
+/// A calibration target: its albedo, and its shape where the object goes.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Target {
+    /// Diffuse albedo, per channel or one number: 0.18 for a grey card.
+    #[serde(default = "grey_card")]
+    pub albedo: Gain,
+    /// The target's shape (as a geometry file's `[shape]`); the rig's own object if absent
+    /// (a grey sphere in the simulated rig).
+    #[serde(default)]
+    pub shape: Option<Shape>,
+}
+
+fn grey_card() -> Gain {
+    Gain([GREY_CARD_ALBEDO; 3])
+}
+
+impl Default for Target {
+    fn default() -> Self {
+        Target {
+            albedo: grey_card(),
+            shape: None,
+        }
+    }
+}
+
+impl Target {
+    /// A target file: `albedo` and a `[shape]` table.
+    pub fn read(path: &std::path::Path) -> anyhow::Result<Target> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).with_context(|| format!("reading {file}"))?;
+        let t: Target = crate::config::parse(&file, &text)?;
+        t.check(&file)?;
+        Ok(t)
+    }
+
+    /// The albedo is one, and the shape one the rasteriser can draw.
+    pub fn check(&self, file: &str) -> Result<(), ConfigError> {
+        if !self
+            .albedo
+            .0
+            .iter()
+            .all(|a| a.is_finite() && *a > 0.0 && *a <= 1.0)
+        {
+            return Err(invalid(
+                file,
+                "albedo",
+                format!("{:?} is not an albedo (above 0, at most 1)", self.albedo.0),
+            ));
+        }
+        if let Some(shape) = &self.shape {
+            // The shape's numbers, checked as a geometry file's are (the camera is the rig's).
+            SceneGeometry {
+                camera: crate::core::geometry::Camera::eval_orthographic(8),
+                shape: Some(shape.clone()),
+                normal_map: None,
+            }
+            .check()
+            .map_err(|e| invalid(file, "shape", e))?;
+        }
+        Ok(())
+    }
+}
+
+/// One camera's gain as measured.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Measured {
+    /// The calibration table it goes in (`calibration.dslr_raw`).
+    pub field: &'static str,
+    /// What it is, in words ("the DSLR's RAW files").
+    pub what: &'static str,
+    /// Linear value per unit of exposure per unit of the bench's radiance, per channel.
+    pub gain: [f64; 3],
+    /// Relative spread over the target's pixels (1σ, robust), per channel.
+    pub spread: [f64; 3],
+    /// Target pixels measured.
+    pub pixels: usize,
+}
+
+/// A calibration's result.
+#[derive(Debug, Clone)]
+pub struct Radiometry {
+    /// The light probe's gain, kept: the bench's unit.
+    pub theta: [f64; 3],
+    /// Whether the rig had it (else it is 1, and sets the unit from now on).
+    pub theta_given: bool,
+    pub cameras: Vec<Measured>,
+    pub albedo: [f64; 3],
+    /// Cameras that could not be measured, and why.
+    pub skipped: Vec<String>,
+}
+
+impl Radiometry {
+    /// A camera's gain over the light probe's: what `theta_to_dslr` meant before the gains.
+    pub fn over_theta(&self, m: &Measured) -> [f64; 3] {
+        [0, 1, 2].map(|c| m.gain[c] / self.theta[c])
+    }
+}
+
+/// Shoots the target with every camera of the rig and measures their gains. Each camera
+/// file is kept as it arrives.
+pub fn radiometry(
+    cx: &Context,
+    keep: &mut dyn Keep,
+    target: &Target,
+) -> anyhow::Result<Radiometry> {
+    let rig = cx.rig;
+    let roles = plan::devices(rig)?;
+    let scene = SceneGeometry {
+        shape: target.shape.clone().or(rig.geometry.shape.clone()),
+        normal_map: target
+            .shape
+            .as_ref()
+            .map_or(rig.geometry.normal_map.clone(), |_| None),
+        camera: rig.geometry.camera.clone(),
+    };
+    let yaw = rig.theta_yaw_deg.to_radians();
+    if let Some(sim) = &cx.devices.sim {
+        let bench = grey_bench(&scene, yaw, target.albedo.0);
+        sim.show_light(&bench);
+        sim.show_object(&bench)?;
+        cx.say(format!(
+            "simulated rig: a Lambertian target of albedo {:?} on the rig's {}",
+            target.albedo.0,
+            if target.shape.is_some() {
+                "target shape"
+            } else {
+                "object"
+            }
+        ));
+    }
+    let theta_given = rig.calibration.theta.is_some();
+    let theta = rig
+        .calibration
+        .theta
+        .as_ref()
+        .map_or([1.0; 3], |g| g.gain.0);
+    // The light, in the light probe's values per unit of exposure.
+    let light = light_bracket(cx, &mut Prefixed(keep, "theta"), light_plan(rig))?;
+    let map = merge_bracket(&light, [1.0; 3])?;
+    if map.clipped_pixels > 0 {
+        cx.warn(format!(
+            "{} panorama pixels clip even in the shortest frame ({:.1}% of the light): the irradiance, and so every gain, is a little high; shorten the THETA's shortest exposure",
+            map.clipped_pixels,
+            map.clipped_share * 100.0
+        ));
+    }
+    let lights = map.map.compressed(DEFAULT_LIGHTS, yaw);
+    let (w, h) = scene.camera.size();
+    let pixels = scene.pixels(w, h)?;
+    let predicted = lambertian(&pixels, &lights, target.albedo.0);
+
+    let mut cameras = Vec::new();
+    let mut skipped = Vec::new();
+    let b = &rig.brackets;
+    if roles.dslr {
+        let role = cx.devices.dslr.as_ref().context("the rig has no DSLR")?;
+        let bracket = Bracket::dslr(rig, b.dslr_shutters.clone());
+        match role.ping().and_then(|()| {
+            object::bracket(
+                cx,
+                &mut Prefixed(keep, "dslr"),
+                "calibration: DSLR",
+                role,
+                &bracket,
+                true,
+            )
+        }) {
+            Ok(files) => cameras.extend(dslr_gains(cx, &files, &pixels, &predicted, theta)?),
+            Err(e) => {
+                cx.warn(format!("the DSLR is not measured: {e:#}"));
+                skipped.push(format!("the DSLR ({e:#})"));
+            }
+        }
+    }
+    if roles.fallback {
+        let role = cx
+            .devices
+            .fallback
+            .as_ref()
+            .context("the rig has no fallback camera")?;
+        let bracket = Bracket::fallback(rig);
+        let files = object::bracket(
+            cx,
+            &mut Prefixed(keep, "fallback"),
+            "calibration: fallback camera",
+            role,
+            &bracket,
+            false,
+        )?;
+        let frames = FallbackBracket::read(&files)?.frames;
+        cameras.push(measure(
+            "calibration.fallback",
+            "the fallback camera",
+            &frames,
+            &pixels,
+            &predicted,
+            theta,
+        )?);
+    }
+    if cameras.is_empty() {
+        bail!(
+            "no camera of the rig could photograph the target: {}",
+            skipped.join("; ")
+        );
+    }
+    Ok(Radiometry {
+        theta,
+        theta_given,
+        cameras,
+        albedo: target.albedo.0,
+        skipped,
+    })
+}
+
+/// The DSLR's gains: its RAW files' and its JPEGs', as many as the bracket has.
+fn dslr_gains(
+    cx: &Context,
+    files: &RawFiles,
+    pixels: &PixelGeometry,
+    predicted: &[[f64; 3]],
+    theta: [f64; 3],
+) -> anyhow::Result<Vec<Measured>> {
+    let (raw, jpeg): (RawFiles, RawFiles) = files
+        .iter()
+        .cloned()
+        .partition(|(name, _)| crate::radiometry::raw::is_raw_name(name));
+    let mut out = Vec::new();
+    if !raw.is_empty() {
+        if let DslrFrames::Raw(frames) = dslr_frames(cx, &raw)? {
+            // The demosaic mixes the background into the target's outline.
+            let mut inner = pixels.clone();
+            inner.drop_outline();
+            let predicted = predicted_for(pixels, &inner, predicted);
+            out.push(measure(
+                "calibration.dslr_raw",
+                "the DSLR's RAW files",
+                &frames,
+                &inner,
+                &predicted,
+                theta,
+            )?);
+        }
+    }
+    if !jpeg.is_empty() {
+        if let DslrFrames::Jpeg(frames) = dslr_frames(cx, &jpeg)? {
+            out.push(measure(
+                "calibration.dslr_jpeg",
+                "the DSLR's JPEG files",
+                &frames,
+                pixels,
+                predicted,
+                theta,
+            )?);
+        }
+    }
+    Ok(out)
+}
+
+/// The predictions of `all`'s pixels that `some` keeps.
+fn predicted_for(
+    all: &PixelGeometry,
+    some: &PixelGeometry,
+    predicted: &[[f64; 3]],
+) -> Vec<[f64; 3]> {
+    let index: std::collections::HashMap<(u32, u32), usize> = all
+        .pixels
+        .iter()
+        .enumerate()
+        .map(|(i, p)| ((p.x, p.y), i))
+        .collect();
+    some.pixels
+        .iter()
+        .map(|p| predicted[index[&(p.x, p.y)]])
+        .collect()
+}
+
+/// The radiance a Lambertian target of `albedo` shows at each pixel under `lights`, in the
+/// lights' unit: ρ/π · Σ L·max(0, n·ω)·Δω.
+pub fn lambertian(pixels: &PixelGeometry, lights: &LightSet, albedo: [f64; 3]) -> Vec<[f64; 3]> {
+    use rayon::prelude::*;
+    pixels
+        .pixels
+        .par_iter()
+        .map(|p| {
+            let n = p.normal.map(|v| v as f64);
+            let mut e = [0.0f64; 3];
+            for ((d, l), dw) in lights
+                .directions
+                .iter()
+                .zip(&lights.radiance)
+                .zip(&lights.solid_angle)
+            {
+                let cos = n[0] * d[0] as f64 + n[1] * d[1] as f64 + n[2] * d[2] as f64;
+                if cos > 0.0 {
+                    for c in 0..3 {
+                        e[c] += l[c] as f64 * cos * *dw as f64;
+                    }
+                }
+            }
+            [0, 1, 2].map(|c| albedo[c] / PI * e[c])
+        })
+        .collect()
+}
+
+/// A camera's gain from its frames of the target: the median over the target's pixels of its
+/// merged value over the predicted radiance, times the light probe's gain.
+fn measure(
+    field: &'static str,
+    what: &'static str,
+    frames: &[Frame],
+    pixels: &PixelGeometry,
+    predicted: &[[f64; 3]],
+    theta: [f64; 3],
+) -> anyhow::Result<Measured> {
+    let merged = merge_hdr(frames, 1.0)?;
+    let white = merged_white_level(frames, 1.0).unwrap_or(f32::INFINITY);
+    check_size(&merged, pixels, what)?;
+    let mut floor = [0.0; 3];
+    for c in 0..3 {
+        let mut v: Vec<f64> = predicted.iter().map(|p| p[c]).collect();
+        floor[c] = median(&mut v).unwrap_or(0.0) * DIM_SHARE;
+    }
+    let mut ratios: [Vec<f64>; 3] = Default::default();
+    for (p, pred) in pixels.pixels.iter().zip(predicted) {
+        let v = merged.pixels[p.y as usize * merged.width + p.x as usize];
+        // A clipped channel is a lower bound, not a measurement.
+        if v.iter().any(|&x| !(x.is_finite() && x < white)) {
+            continue;
+        }
+        if (0..3).any(|c| pred[c] <= floor[c]) {
+            continue;
+        }
+        for c in 0..3 {
+            ratios[c].push(v[c] as f64 / pred[c]);
+        }
+    }
+    let pixels_used = ratios[0].len();
+    let mut gain = [0.0; 3];
+    let mut spread = [0.0; 3];
+    for c in 0..3 {
+        let Some(m) = median(&mut ratios[c]) else {
+            bail!("{what}: no pixel of the target is lit and unclipped in the bracket; check that the target fills the object's place and the exposures reach it");
+        };
+        let mut deviation: Vec<f64> = ratios[c].iter().map(|r| (r - m).abs()).collect();
+        let mad = median(&mut deviation).unwrap_or(0.0);
+        gain[c] = m * theta[c];
+        spread[c] = 1.4826 * mad / m;
+    }
+    Ok(Measured {
+        field,
+        what,
+        gain,
+        spread,
+        pixels: pixels_used,
+    })
+}
+
+fn check_size(photo: &Raster, pixels: &PixelGeometry, what: &str) -> anyhow::Result<()> {
+    if (photo.width, photo.height) != (pixels.width, pixels.height) {
+        bail!(
+            "{what}: the photos are {}×{}, the rig's camera is {}×{}: set [geometry.camera] width and height to the camera's",
+            photo.width,
+            photo.height,
+            pixels.width,
+            pixels.height
+        );
+    }
+    Ok(())
+}
+
+fn median(v: &mut [f64]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    let mid = v.len() / 2;
+    Some(*v.select_nth_unstable_by(mid, f64::total_cmp).1)
+}
+
+/// The simulated bench with a Lambertian target of `albedo` on `scene`, under its studio map.
+fn grey_bench(scene: &SceneGeometry, yaw: f64, albedo: [f64; 3]) -> VirtualBench {
+    VirtualBench {
+        material_name: format!("a Lambertian target of albedo {albedo:?}"),
+        material: MerlBrdf::from_cells(|_, _, _| albedo.map(|a| a / PI)),
+        env: crate::bench::studio_envmap(512),
+        yaw,
+        geometry: scene.clone(),
+        cache: crate::bench::cache::RenderCache::user(),
+    }
+}
+
+/// A [`Keep`] that names each file after the camera that made it.
+struct Prefixed<'a>(&'a mut dyn Keep, &'static str);
+
+impl Keep for Prefixed<'_> {
+    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
+        self.0.keep(&format!("{}-{name}", self.1), bytes)
+    }
+}

@@ -1,0 +1,155 @@
+//! The rig's devices, each on its worker, and the roles they fill: the object camera (the
+//! DSLR), the fallback object camera, the light probe, the turntable and the shutter. A
+//! device that plays two roles (a box that turns and fires) is one worker behind both.
+//!
+//! The role traits are implemented here for each kind of device: [`ptp`] (a DSLR), [`theta`]
+//! (a THETA on HTTP or USB), [`video`] (a V4L2 camera) and [`serial`] (a rig-protocol box, a
+//! release cable).
+
+pub mod ptp;
+pub mod serial;
+pub mod theta;
+pub mod video;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::Context as _;
+
+use super::plan;
+use super::roles::{
+    self, DeviceWorker, LightProbe, ObjectCamera, RigDevice, Role, Shutter, Turntable,
+};
+use super::simulated::SimulatedRig;
+use super::worker::{DeviceStatus, Opener, Worker};
+use crate::config::Rig;
+use crate::selector::Selector;
+
+/// A device to start: the rig fields whose roles it plays, the selector it is shown by, and
+/// how it is opened (again after it is lost).
+pub struct Planned {
+    pub fields: Vec<&'static str>,
+    pub selector: String,
+    pub open: Opener<Box<dyn RigDevice>>,
+}
+
+impl Planned {
+    /// The device a selector names, opened as `field`'s role needs it. `loopback`: a
+    /// simulator on this machine, whose THETA is polled faster than a real one.
+    pub fn from_selector(field: &'static str, s: Selector, loopback: bool) -> Planned {
+        let selector = s.to_string();
+        let open: Opener<Box<dyn RigDevice>> =
+            Box::new(move || -> anyhow::Result<Box<dyn RigDevice>> {
+                Ok(match (field, &s) {
+                    (plan::THETA, _) => {
+                        let timeouts = if loopback {
+                            super::open::loopback_timeouts()
+                        } else {
+                            brdfd_theta::HttpTimeouts::default()
+                        };
+                        Box::new(super::open::theta(&s, None, timeouts)?)
+                    }
+                    (_, Selector::Usb { .. } | Selector::PtpIp(_)) => {
+                        Box::new(super::open::ptp_camera(&s)?)
+                    }
+                    (_, Selector::V4l(_)) => Box::new(super::open::video_camera(&s)?),
+                    (_, Selector::Serial(path)) => Box::new(super::open::turntable(path)?),
+                    (_, Selector::Cable { rts, path }) => Box::new(super::open::cable(*rts, path)?),
+                    (_, Selector::Osc(_)) => anyhow::bail!("{s} is a THETA, not a {field}"),
+                })
+            });
+        Planned {
+            fields: vec![field],
+            selector,
+            open,
+        }
+    }
+}
+
+/// The rig's devices in their roles. The object camera is the DSLR, or the V4L2 fallback
+/// camera when the rig has no DSLR or it does not answer.
+pub struct Devices {
+    pub dslr: Option<Role<dyn ObjectCamera>>,
+    pub fallback: Option<Role<dyn ObjectCamera>>,
+    pub light_probe: Role<dyn LightProbe>,
+    pub turntable: Option<Role<dyn Turntable>>,
+    pub shutter: Option<Role<dyn Shutter>>,
+    /// Every device once, in the rig's order, for the device list.
+    workers: Vec<Arc<DeviceWorker>>,
+    /// The simulators behind the workers when the rig is simulated (they stop when this is
+    /// dropped, after the workers).
+    pub sim: Option<SimulatedRig>,
+}
+
+impl Devices {
+    /// Starts a worker per device the rig names; each opens its device in the background.
+    /// A simulated rig starts its simulators first, on loopback. The rig's devices are
+    /// checked first ([`plan::devices`]), so a rig that `config check` refuses never starts.
+    pub fn start(rig: &Rig, keep_alive: Duration) -> anyhow::Result<Devices> {
+        plan::devices(rig)?;
+        let (planned, sim) = if rig.simulated {
+            let sim = SimulatedRig::start(rig).context("starting the simulated rig")?;
+            (sim.devices(), Some(sim))
+        } else {
+            (hardware(rig), None)
+        };
+        let (mut dslr, mut fallback, mut light_probe, mut turntable, mut shutter) =
+            (None, None, None, None, None);
+        let mut workers = Vec::new();
+        for p in planned {
+            let role = p
+                .fields
+                .iter()
+                .map(|f| f.trim_start_matches("devices."))
+                .collect::<Vec<_>>()
+                .join(", ");
+            let w = Arc::new(Worker::spawn(&role, &p.selector, p.open, keep_alive));
+            for field in &p.fields {
+                match *field {
+                    plan::DSLR => dslr = Some(roles::object_camera(&w)),
+                    plan::FALLBACK => fallback = Some(roles::object_camera(&w)),
+                    plan::THETA => light_probe = Some(roles::light_probe(&w)),
+                    plan::TURNTABLE => turntable = Some(roles::turntable(&w)),
+                    _ => shutter = Some(roles::shutter(&w)),
+                }
+            }
+            workers.push(w);
+        }
+        Ok(Devices {
+            dslr,
+            fallback,
+            light_probe: light_probe.context(
+                "the rig names no theta; add `theta = \"...\"` under [devices] (`brdfd devices` lists what is connected)",
+            )?,
+            turntable,
+            shutter,
+            workers,
+            sim,
+        })
+    }
+
+    pub fn status(&self) -> Vec<DeviceStatus> {
+        self.workers.iter().map(|w| w.status()).collect()
+    }
+}
+
+/// A hardware rig's devices from its selectors. A box named as both turntable and shutter is
+/// one device.
+fn hardware(rig: &Rig) -> Vec<Planned> {
+    let d = &rig.devices;
+    let mut planned: Vec<Planned> = Vec::new();
+    for (field, selector) in [
+        (plan::DSLR, &d.dslr),
+        (plan::FALLBACK, &d.fallback_camera),
+        (plan::THETA, &d.theta),
+        (plan::TURNTABLE, &d.turntable),
+        (plan::SHUTTER, &d.shutter),
+    ] {
+        let Some(s) = selector else { continue };
+        match planned.iter_mut().find(|p| p.selector == s.to_string()) {
+            Some(shared) => shared.fields.push(field),
+            None => planned.push(Planned::from_selector(field, s.clone(), false)),
+        }
+    }
+    planned
+}

@@ -1,0 +1,82 @@
+//! Serial devices in their roles: a box that speaks the brdfd rig protocol is a turntable if
+//! its `ID?` lists ROT and a shutter if it lists FIRE (one device, both roles, when it lists
+//! both); a release cable on a modem line is a shutter.
+
+use std::time::Duration;
+
+use brdfd_serial::{RigController, ShutterCable};
+
+use crate::rig::roles::{RigDevice, Shutter, Turntable};
+use crate::rig::Device;
+
+impl Device for RigController {
+    fn identity(&self) -> String {
+        format!(
+            "{} {} on serial:{}",
+            self.identity.name,
+            self.identity.version,
+            self.port_name()
+        )
+    }
+    fn keep_alive(&mut self) -> anyhow::Result<()> {
+        // A box that does not turn has no position to report: its ID? is the cheap question.
+        if self.identity.can_rotate {
+            self.position()?;
+        } else {
+            self.identify()?;
+        }
+        Ok(())
+    }
+}
+
+impl RigDevice for RigController {
+    fn turntable(&mut self) -> Option<&mut (dyn Turntable + 'static)> {
+        self.identity.can_rotate.then_some(self as _)
+    }
+    fn shutter(&mut self) -> Option<&mut (dyn Shutter + 'static)> {
+        self.identity.can_fire.then_some(self as _)
+    }
+    fn cannot(&self, role: &str) -> String {
+        let what = if role == "shutter" { "FIRE" } else { "ROT" };
+        format!(
+            "{} cannot be the rig's {role}: its ID? does not list {what}",
+            Device::identity(self)
+        )
+    }
+}
+
+impl Turntable for RigController {
+    fn position(&mut self) -> anyhow::Result<f64> {
+        Ok(RigController::position(self)?)
+    }
+    fn rotate(&mut self, degrees: f64) -> anyhow::Result<f64> {
+        Ok(RigController::rotate(self, degrees)?)
+    }
+}
+
+impl Shutter for RigController {
+    fn fire(&mut self, hold: Duration) -> anyhow::Result<()> {
+        Ok(RigController::fire(self, hold.as_millis().max(1) as u32)?)
+    }
+}
+
+impl Device for ShutterCable {
+    fn identity(&self) -> String {
+        format!("release cable on {:?} of {}", self.line(), self.port_name())
+    }
+    fn keep_alive(&mut self) -> anyhow::Result<()> {
+        Ok(self.release()?)
+    }
+}
+
+impl RigDevice for ShutterCable {
+    fn shutter(&mut self) -> Option<&mut (dyn Shutter + 'static)> {
+        Some(self)
+    }
+}
+
+impl Shutter for ShutterCable {
+    fn fire(&mut self, hold: Duration) -> anyhow::Result<()> {
+        Ok(ShutterCable::fire(self, hold.as_millis().max(1) as u32)?)
+    }
+}

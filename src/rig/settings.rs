@@ -1,0 +1,323 @@
+//! A capture's settings, resolved once: the plan over the material preset over the rig over
+//! the defaults, each value checked, before a session exists (the shape of ripgrep's
+//! `HiArgs::from_low_args`). A plan the capture could not finish (a rig it cannot run, a
+//! preset tuned for another basis, a material the simulator cannot render) is refused here,
+//! and leaves nothing behind; the flow then works from the one resolved value.
+//!
+//! It does not touch a device or the disk.
+
+use std::path::Path;
+
+use anyhow::bail;
+use brdfd_theta::BracketPlan;
+
+use super::flow::parse_pixels;
+use super::plan::{self, Roles};
+use super::roles::CameraSettings;
+use super::Plan;
+use crate::config::{MaterialPreset, PixelCount, Rig};
+use crate::core::basis::DEFAULT_K;
+use crate::core::estimate::{unused_basis_settings, EstimateOptions, Model};
+use crate::core::geometry::SceneGeometry;
+use crate::session::Session;
+
+/// Pixels the basis model estimates from when neither the plan nor a preset says: the paper's
+/// 20, which its experiment found as good as every pixel.
+pub const DEFAULT_PIXELS: usize = 20;
+/// Degrees between views when neither the plan nor the rig's `[turntable]` says.
+pub const DEFAULT_TURN_DEG: f64 = 30.0;
+
+/// An object camera's bracket: the exposure times, and what the camera holds through them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bracket {
+    pub exposures_s: Vec<f64>,
+    pub camera: CameraSettings,
+}
+
+impl Bracket {
+    /// The DSLR's bracket at `exposures_s`, with the rig's aperture, ISO and files.
+    pub fn dslr(rig: &Rig, exposures_s: Vec<f64>) -> Bracket {
+        let b = &rig.brackets;
+        Bracket {
+            exposures_s,
+            camera: CameraSettings {
+                f_number: Some(b.dslr_f_number),
+                iso: Some(b.dslr_iso),
+                files: Some(b.dslr_files),
+                frames: 1,
+                ..CameraSettings::default()
+            },
+        }
+    }
+
+    /// The fallback camera's bracket, as the rig has it.
+    pub fn fallback(rig: &Rig) -> Bracket {
+        let b = &rig.brackets;
+        Bracket {
+            exposures_s: b.fallback_shutters.clone(),
+            camera: CameraSettings {
+                gain: b.fallback_gain,
+                white_balance_k: Some(b.fallback_white_balance_k),
+                frames: b.fallback_frames,
+                ..CameraSettings::default()
+            },
+        }
+    }
+}
+
+/// How the object turns between views.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Turning {
+    /// One view: nothing turns.
+    None,
+    Turntable,
+    /// No turntable: the operator turns it, and says so ([`super::Operator`]).
+    ByHand,
+}
+
+/// Everything a capture works from, resolved.
+#[derive(Debug, Clone)]
+pub struct CaptureSettings {
+    /// The plan as it was asked: what the manifest stores, so that a resume resolves the
+    /// same settings again.
+    pub plan: Plan,
+    pub preset: Option<MaterialPreset>,
+    /// The rig's devices in their roles.
+    pub roles: Roles,
+    /// The DSLR's bracket: the plan's shutter speeds, else the preset's, else the rig's.
+    pub dslr: Bracket,
+    /// The V4L2 fallback camera's: the rig's.
+    pub fallback: Bracket,
+    /// The THETA's: the rig's shutter speeds, else the light probe.
+    pub light: BracketPlan,
+    pub views: usize,
+    /// Degrees between views.
+    pub turn_step: f64,
+    pub turning: Turning,
+    /// The object camera and the object; a simulated camera sized as the plan asks.
+    pub scene: SceneGeometry,
+    /// The panorama's yaw in the world, radians.
+    pub yaw: f64,
+    /// The estimate's model and solve (its white level comes from the merges).
+    pub estimate: EstimateOptions,
+    /// Settings given that the estimate will not use, said before the capture starts.
+    pub warnings: Vec<String>,
+}
+
+impl CaptureSettings {
+    /// Resolves and checks the plan against the rig.
+    pub fn resolve(plan: &Plan, rig: &Rig) -> anyhow::Result<CaptureSettings> {
+        plan.validate()?;
+        let roles = plan::check(rig)?;
+        let preset = MaterialPreset::embedded(&plan.material).map_err(anyhow::Error::msg)?;
+        if let Some(p) = &preset {
+            if p.k != DEFAULT_K {
+                bail!(
+                    "the {} preset is tuned for K = {}, the basis has K = {DEFAULT_K}",
+                    plan.material,
+                    p.k
+                );
+            }
+        }
+        if rig.simulated {
+            plan.check_simulated_material()?;
+        }
+        let p = preset.as_ref();
+        let b = &rig.brackets;
+        let dslr_shutters = if !plan.bracket.is_empty() {
+            plan.bracket.clone()
+        } else if let Some(s) = p.and_then(|p| p.dslr_shutters.clone()) {
+            s
+        } else {
+            b.dslr_shutters.clone()
+        };
+        let pixel_count = match (&plan.pixels, p) {
+            (Some(n), _) => parse_pixels(n)?,
+            (None, Some(p)) => match p.pixels {
+                PixelCount::All => None,
+                PixelCount::Count(n) => Some(n),
+            },
+            (None, None) => Some(DEFAULT_PIXELS),
+        };
+        let estimate = EstimateOptions {
+            model: plan.model.or(p.map(|p| p.model)).unwrap_or_default(),
+            pixel_count,
+            solver: plan.solve.or(p.map(|p| p.solve)).unwrap_or_default(),
+            colour: plan.colour.or(p.map(|p| p.colour)).unwrap_or_default(),
+            ..EstimateOptions::default()
+        };
+        let warnings = unused_basis_settings(
+            estimate.model,
+            &[
+                ("pixels", plan.pixels.is_some()),
+                ("solve", plan.solve.is_some()),
+                ("colour", plan.colour.is_some()),
+            ],
+        )
+        .into_iter()
+        .collect();
+        let table = rig.turntable.as_ref();
+        let views = plan.views.or(table.map(|t| t.views)).unwrap_or(1);
+        let turn_step = plan
+            .turn
+            .or(table.map(|t| t.step_deg))
+            .unwrap_or(DEFAULT_TURN_DEG);
+        let turning = match (views, roles.turntable) {
+            (1, _) => Turning::None,
+            (_, true) => Turning::Turntable,
+            (_, false) => Turning::ByHand,
+        };
+        let mut scene = rig.geometry.clone();
+        if rig.simulated {
+            scene.camera = rig.geometry.camera.resized(plan.size, plan.size);
+        }
+        Ok(CaptureSettings {
+            plan: plan.clone(),
+            dslr: Bracket::dslr(rig, dslr_shutters),
+            fallback: Bracket::fallback(rig),
+            light: light_plan(rig),
+            preset,
+            roles,
+            views,
+            turn_step,
+            turning,
+            scene,
+            yaw: rig.theta_yaw_deg.to_radians(),
+            estimate,
+            warnings,
+        })
+    }
+
+    /// A new session for these settings under `state`, recording the rig and the preset as
+    /// used, and the plan, which a resume resolves again.
+    pub fn new_session(&self, state: &Path, rig_text: &str) -> anyhow::Result<Session> {
+        Ok(Session::create(
+            state,
+            &self.plan.material,
+            rig_text,
+            crate::config::preset_text(&self.plan.material),
+            serde_json::to_value(&self.plan)?,
+        )?)
+    }
+
+    /// The preset in a line for the operator, if the material is one.
+    pub fn preset_line(&self, simulated: bool) -> Option<String> {
+        let p = self.preset.as_ref()?;
+        // The preset's pixel count only matters to the basis model.
+        let model = match self.estimate.model {
+            Model::Analytic => "analytic model".to_string(),
+            Model::Hybrid => "hybrid model".to_string(),
+            Model::Basis => match p.pixels {
+                PixelCount::All => "basis model, every pixel".to_string(),
+                PixelCount::Count(n) => format!("basis model, {n} pixels"),
+            },
+        };
+        Some(format!(
+            "material preset {}: {}, {model}{}",
+            self.plan.material,
+            if simulated {
+                format!("simulated as {}", p.simulate_as)
+            } else {
+                "on the bench".into()
+            },
+            if p.notes.is_empty() {
+                String::new()
+            } else {
+                format!(" ({})", p.notes)
+            }
+        ))
+    }
+}
+
+/// The rig's THETA bracket: its own shutter list, or the light probe.
+pub fn light_plan(rig: &Rig) -> BracketPlan {
+    if rig.brackets.theta_shutters.is_empty() {
+        return BracketPlan::light_probe();
+    }
+    BracketPlan {
+        shots: rig
+            .brackets
+            .theta_shutters
+            .iter()
+            .map(|&shutter_s| brdfd_theta::Exposure {
+                shutter_s,
+                iso: rig.brackets.theta_iso,
+            })
+            .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plan(material: &str) -> Plan {
+        serde_json::from_value(serde_json::json!({ "material": material })).unwrap()
+    }
+
+    #[test]
+    fn the_plan_wins_over_the_preset_which_wins_over_the_rig() {
+        let rig = Rig::simulated();
+        let gold = CaptureSettings::resolve(&plan("gold"), &rig).unwrap();
+        let preset = MaterialPreset::embedded("gold").unwrap().unwrap();
+        // The preset's exposures where it has them, else the rig's.
+        let preset_or_rig = preset
+            .dslr_shutters
+            .clone()
+            .unwrap_or(rig.brackets.dslr_shutters.clone());
+        assert_eq!(gold.dslr.exposures_s, preset_or_rig);
+        let mut asked = plan("gold");
+        asked.bracket = vec![0.01, 0.1];
+        asked.views = Some(2);
+        let s = CaptureSettings::resolve(&asked, &rig).unwrap();
+        assert_eq!(s.dslr.exposures_s, [0.01, 0.1]);
+        assert_eq!((s.views, s.turning), (2, Turning::Turntable));
+        // Neither: the defaults.
+        let none = CaptureSettings::resolve(&plan("nickel"), &rig).unwrap();
+        assert_eq!(none.estimate.pixel_count, Some(DEFAULT_PIXELS));
+        assert_eq!((none.views, none.turn_step), (1, DEFAULT_TURN_DEG));
+        assert_eq!(none.scene.camera.size(), (256, 256));
+    }
+
+    #[test]
+    fn views_without_a_turntable_are_turned_by_hand() {
+        let rig = Rig::parse(
+            "rig.toml",
+            &format!(
+                "{}\n[simulation]\nturntable = \"absent\"\n",
+                include_str!("../../config/rigs/simulated.toml")
+            ),
+        )
+        .unwrap();
+        let mut p = plan("gold");
+        p.views = Some(3);
+        assert_eq!(
+            CaptureSettings::resolve(&p, &rig).unwrap().turning,
+            Turning::ByHand
+        );
+    }
+
+    #[test]
+    fn what_the_capture_could_not_finish_is_refused_before_a_session_exists() {
+        let rig = Rig::simulated();
+        let e = CaptureSettings::resolve(&plan("unobtainium"), &rig).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("the simulator has no material"),
+            "{e:#}"
+        );
+        let mut p = plan("gold");
+        p.pixels = Some("0".into());
+        assert!(CaptureSettings::resolve(&p, &rig).is_err());
+        let uncalibrated = Rig::parse(
+            "rig.toml",
+            &include_str!("../../config/rigs/simulated.toml")
+                .replace("[calibration.theta]", "[calibration.unused]"),
+        );
+        assert!(uncalibrated.is_err());
+    }
+
+    #[test]
+    fn the_embedded_basis_has_the_k_presets_are_checked_against() {
+        assert_eq!(crate::core::basis::Basis::embedded().header.k, DEFAULT_K);
+    }
+}
