@@ -134,7 +134,7 @@ pub struct Brackets {
     #[serde(default = "default_fallback_frames")]
     pub fallback_frames: usize,
     /// The fallback camera's gain, in its own units (auto gain is switched off); a rig with a
-    /// fallback camera needs it. The calibration's `theta_to_fallback` holds for it only.
+    /// fallback camera needs it. The calibration's `[calibration.fallback]` holds for it only.
     #[serde(default)]
     pub fallback_gain: Option<i64>,
     /// The fallback camera's white balance, kelvin (auto white balance is switched off).
@@ -299,32 +299,93 @@ impl Calibration {
     /// The ratios of before the gains are refused, with what to write instead. (They are
     /// read, so that `brdfd calibrate radiometry` can read the rig and replace them.)
     pub fn refuse_ratios(&self, file: &str) -> Result<(), ConfigError> {
-        if let Some(k) = self.theta_to_dslr {
-            // What the merges did with the ratio: the THETA's values over 100 per unit of
-            // exposure, times the ratio; the DSLR's over 1000.
-            let theta = 100.0 / k;
-            let fallback = self
-                .theta_to_fallback
-                .map(|f| format!(", [calibration.fallback] gain = {}", f / k))
-                .unwrap_or_default();
-            return Err(invalid(
-                file,
-                "calibration.theta_to_dslr",
-                format!(
-                    "the calibration is now each camera's gain: measure them with `brdfd calibrate radiometry --rig {file}`, or keep the ratio measured before by writing [calibration.theta] gain = {theta}, [calibration.dslr_raw] gain = 1000, [calibration.dslr_jpeg] gain = 1000{fallback}, in place of theta_to_dslr and theta_to_fallback"
-                ),
-            ));
+        let Some(field) = self.ratio_field() else {
+            return Ok(());
+        };
+        let keep = match self.ratio_gains() {
+            Some(g) => format!(
+                ", or keep the ratio measured before by writing {} in place of theta_to_dslr and theta_to_fallback",
+                g.iter()
+                    .map(|(table, gain)| format!("[{table}] gain = {gain}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+            None => String::new(),
+        };
+        Err(invalid(
+            file,
+            field,
+            format!("the calibration is now each camera's gain: measure them with `brdfd calibrate radiometry --rig {file}`{keep}"),
+        ))
+    }
+
+    /// The ratios of before the gains, as the gains that make the merges what they were: what
+    /// a session captured before them is resumed with. `None` if there are none to adopt.
+    pub fn adopt_ratios(&mut self) -> Option<String> {
+        self.ratio_field()?;
+        let gains = self.ratio_gains()?;
+        let g = |table: &str| {
+            gains
+                .iter()
+                .find(|(t, _)| *t == table)
+                .map(|(_, v)| CameraGain {
+                    gain: Gain([*v; 3]),
+                    spread: None,
+                    measured: Some("from theta_to_dslr and theta_to_fallback".into()),
+                })
+        };
+        self.theta = g("calibration.theta");
+        self.dslr_raw = g("calibration.dslr_raw");
+        self.dslr_jpeg = g("calibration.dslr_jpeg");
+        self.fallback = g("calibration.fallback");
+        self.theta_to_dslr = None;
+        self.theta_to_fallback = None;
+        Some(format!(
+            "the rig stored in the session calibrates by theta_to_dslr, as before each camera had its gain; it is resumed with the gains that merge as it did: {}",
+            gains
+                .iter()
+                .map(|(t, v)| format!("{t} {v}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))
+    }
+
+    fn ratio_field(&self) -> Option<&'static str> {
+        if self.theta_to_dslr.is_some() {
+            Some("calibration.theta_to_dslr")
+        } else if self.theta_to_fallback.is_some() {
+            Some("calibration.theta_to_fallback")
+        } else {
+            None
         }
-        if self.theta_to_fallback.is_some() {
-            return Err(invalid(
-                file,
-                "calibration.theta_to_fallback",
-                format!("the calibration is now each camera's gain: measure them with `brdfd calibrate radiometry --rig {file}`"),
-            ));
+    }
+
+    /// What the merges did with the ratios: the THETA's values over [`RATIO_THETA_GAIN`] per
+    /// unit of exposure, times `theta_to_dslr`; the DSLR's over [`RATIO_DSLR_GAIN`]; the
+    /// fallback's per second, times `theta_to_dslr / theta_to_fallback`. `None` where a ratio
+    /// is not a positive number.
+    fn ratio_gains(&self) -> Option<Vec<(&'static str, f64)>> {
+        let ok = |k: f64| k.is_finite() && k > 0.0;
+        let k = self.theta_to_dslr.filter(|k| ok(*k))?;
+        let mut v = vec![
+            ("calibration.theta", RATIO_THETA_GAIN / k),
+            ("calibration.dslr_raw", RATIO_DSLR_GAIN),
+            ("calibration.dslr_jpeg", RATIO_DSLR_GAIN),
+        ];
+        if let Some(f) = self.theta_to_fallback {
+            if !ok(f) {
+                return None;
+            }
+            v.push(("calibration.fallback", f / k));
         }
-        Ok(())
+        Some(v)
     }
 }
+
+/// The sensor gains the merges divided by before each camera had its own (the simulated
+/// THETA's and DSLR's): what a rig's `theta_to_dslr` was measured against.
+const RATIO_THETA_GAIN: f64 = 100.0;
+const RATIO_DSLR_GAIN: f64 = 1000.0;
 
 /// A simulated rig's devices, to rehearse failures at the bench (a DSLR that is not there,
 /// or one whose battery runs out mid-capture) and to run each way a bench can be built.
@@ -673,7 +734,14 @@ impl Rig {
 
     pub fn read(path: &Path) -> Result<Rig, ConfigError> {
         let (file, text) = read(path)?;
-        Rig::parse(&file, &text)
+        let mut rig = Rig::parse(&file, &text)?;
+        // A mesh or normal map named relative to the rig file is beside it.
+        let dir = std::path::absolute(path)
+            .ok()
+            .and_then(|p| p.parent().map(Path::to_path_buf))
+            .unwrap_or_default();
+        rig.geometry.resolve_files(&dir);
+        Ok(rig)
     }
 
     /// The shipped simulated rig, which `capture --simulate` uses.

@@ -113,7 +113,7 @@ fn calibration_recovers_the_simulated_sensors_gains_and_the_capture_runs_with_th
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
-    for kind in ["theta-", "dslr-", "fallback-", "calibration.json"] {
+    for kind in ["theta-", "dslr-", "webcam-", "calibration.json"] {
         assert!(
             shots.iter().any(|s| s.starts_with(kind)),
             "{kind}: {shots:?}"
@@ -187,7 +187,7 @@ fn the_target_albedo_is_the_calibration_reference() {
     );
     assert!(!o.status.success());
     assert!(
-        out(&o).contains("an albedo is above 0 and at most 1"),
+        out(&o).contains("[1.5, 1.5, 1.5] is not an albedo (above 0, at most 1)"),
         "{}",
         out(&o)
     );
@@ -262,4 +262,66 @@ fn the_shipped_simulated_rig_holds_the_gains_its_calibration_measures() {
             );
         }
     }
+}
+
+/// A session captured before the gains is resumed as it was captured: its stored rig's
+/// ratios are taken as the gains that merge as they did.
+#[test]
+fn a_session_from_before_the_gains_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let small = include_str!("../config/rigs/simulated.toml")
+        .replace("width = 256", "width = 32")
+        .replace("height = 256", "height = 32")
+        .replace("fallback_camera = \"v4l:simulated\"\n", "");
+    // The DSLR does not answer: the capture stops after the panorama, resumable.
+    std::fs::write(
+        dir.path().join("rig.toml"),
+        format!("{small}\n[simulation]\ndslr = \"absent\"\n"),
+    )
+    .unwrap();
+    let o = brdfd(
+        &[
+            "capture",
+            "--rig",
+            "rig.toml",
+            "--material",
+            "gold",
+            "--size",
+            "32",
+            "--state-dir",
+            "state",
+        ],
+        dir.path(),
+    );
+    assert!(!o.status.success(), "{}", out(&o));
+    let session = std::fs::read_dir(dir.path().join("state/sessions"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    // Its stored rig as brdfd before the gains wrote it, with the DSLR back.
+    let manifest_path = session.join("manifest.json");
+    let mut manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&manifest_path).unwrap()).unwrap();
+    let old = small[..small.find("# Each camera's gain").unwrap()].to_string()
+        + "[calibration]\ntheta_to_dslr = 1.0\n";
+    manifest["rig"] = serde_json::Value::String(old);
+    std::fs::write(&manifest_path, manifest.to_string()).unwrap();
+    let id = session.file_name().unwrap().to_str().unwrap().to_string();
+    let o = brdfd(
+        &["session", "resume", &id, "--state-dir", "state"],
+        dir.path(),
+    );
+    let text = out(&o);
+    assert!(o.status.success(), "{text}");
+    assert!(
+        text.contains("it is resumed with the gains that merge as it did: calibration.theta 100"),
+        "{text}"
+    );
+    assert!(
+        text.contains("panorama: 8 frames already in the session"),
+        "{text}"
+    );
+    assert!(relit(&text) < 0.2, "{text}");
 }

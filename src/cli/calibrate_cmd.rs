@@ -63,7 +63,12 @@ pub fn run(cmd: CalibrateCommand) -> anyhow::Result<()> {
     };
     let mut target = match &a.target {
         Some(p) => Target::read(p)?,
-        None => Target::default(),
+        None => {
+            if !rig.simulated {
+                eprintln!("  warning: no --target: the rig's own object is taken as the target; a flat grey card needs its target file (config/targets/ has an example)");
+            }
+            Target::default()
+        }
     };
     match a.albedo[..] {
         [] => {}
@@ -71,17 +76,12 @@ pub fn run(cmd: CalibrateCommand) -> anyhow::Result<()> {
         [r, g, b] => target.albedo.0 = [r, g, b],
         _ => bail!("--albedo takes one number or three (red,green,blue)"),
     }
-    if !target
-        .albedo
-        .0
-        .iter()
-        .all(|v| v.is_finite() && *v > 0.0 && *v <= 1.0)
-    {
-        bail!(
-            "--albedo {:?}: an albedo is above 0 and at most 1",
-            target.albedo.0
-        );
-    }
+    target.check("--albedo")?;
+    // Opened first: a file the gains cannot go into is said before anything is shot.
+    let rig_file = match &path {
+        Some(p) if !a.dry_run => Some(RigFile::open(p)?),
+        _ => None,
+    };
     let out = match &a.out {
         Some(o) => o.clone(),
         None => {
@@ -126,16 +126,22 @@ pub fn run(cmd: CalibrateCommand) -> anyhow::Result<()> {
         out.join("calibration.json"),
         serde_json::to_string_pretty(&json(&result, &note))?,
     )?;
-    match path {
-        Some(p) if !a.dry_run => {
-            write_gains(&p, &result, &note)?;
+    if !result.skipped.is_empty() {
+        bail!(
+            "not every camera of the rig was measured ({}); the rig file is left as it is: make them answer and calibrate again",
+            result.skipped.join("; ")
+        );
+    }
+    match rig_file {
+        Some(f) => {
+            let backup = f.write(&result, &note)?;
             println!(
-                "wrote the gains into {} (the file before is {}.bak)",
-                p.display(),
-                p.display()
+                "wrote the gains into {} (the file before is {})",
+                a.rig.as_deref().unwrap_or(Path::new("")).display(),
+                backup.display()
             );
         }
-        _ => println!("the rig file is left as it is"),
+        None => println!("the rig file is left as it is"),
     }
     Ok(())
 }
@@ -212,51 +218,107 @@ fn json(r: &Radiometry, note: &str) -> serde_json::Value {
     })
 }
 
-/// Writes the gains into the rig file, keeping its comments and layout (the file before is
-/// kept as FILE.bak), and checks that the capture can run the rig as written.
-fn write_gains(path: &Path, r: &Radiometry, note: &str) -> anyhow::Result<()> {
-    let text = std::fs::read_to_string(path)?;
-    let mut doc: DocumentMut = text
-        .parse()
-        .with_context(|| format!("{} is not TOML", path.display()))?;
-    let calibration = doc
-        .entry("calibration")
-        .or_insert(Item::Table(Table::new()))
-        .as_table_mut()
-        .with_context(|| format!("{}: `calibration` is not a table", path.display()))?;
-    // The ratios of before the gains: what they measured is in the gains now.
-    calibration.remove("theta_to_dslr");
-    calibration.remove("theta_to_fallback");
-    let array = |v: [f64; 3], digits: i32| {
-        let mut a = Array::new();
-        for x in v {
-            a.push(significant(x, digits));
+/// The rig file, opened for its gains before anything is measured: a file the gains cannot be
+/// written into is said before the cameras shoot.
+struct RigFile {
+    path: PathBuf,
+    doc: DocumentMut,
+}
+
+impl RigFile {
+    fn open(path: &Path) -> anyhow::Result<RigFile> {
+        let text = std::fs::read_to_string(path)?;
+        let mut doc: DocumentMut = text
+            .parse()
+            .with_context(|| format!("{} is not TOML", path.display()))?;
+        // `calibration = { ... }` on one line becomes a table of its own, which can hold
+        // the cameras' tables.
+        if let Some(inline) = doc.get("calibration").and_then(Item::as_inline_table) {
+            let table = inline.clone().into_table();
+            doc["calibration"] = Item::Table(table);
         }
-        value(a)
-    };
-    if !r.theta_given {
-        let mut t = Table::new();
-        t["gain"] = array(r.theta, GAIN_DIGITS);
-        t["measured"] =
-            value("the bench's unit of radiance: the other gains are measured against it");
-        calibration["theta"] = Item::Table(t);
+        if !doc.get("calibration").is_none_or(Item::is_table) {
+            bail!(
+                "{}: `calibration` is not a table; make it one ([calibration]) to calibrate",
+                path.display()
+            );
+        }
+        Ok(RigFile {
+            path: path.to_path_buf(),
+            doc,
+        })
     }
-    for m in &r.cameras {
-        let key = m.field.trim_start_matches("calibration.");
-        let mut t = Table::new();
-        t["gain"] = array(m.gain, GAIN_DIGITS);
-        t["spread"] = array(m.spread, SPREAD_DIGITS);
-        t["measured"] = value(format!("{note}, over {} pixels", m.pixels));
-        calibration[key] = Item::Table(t);
+
+    /// Writes the gains, keeping the file's comments and layout (a table that was there keeps
+    /// its place and its comments, only its values change). The file before is kept beside
+    /// it as FILE.bak (FILE.bak.1 and on, if that is taken). The rig as written must parse.
+    fn write(mut self, r: &Radiometry, note: &str) -> anyhow::Result<PathBuf> {
+        let calibration = self
+            .doc
+            .entry("calibration")
+            .or_insert(Item::Table(Table::new()))
+            .as_table_mut()
+            .context("`calibration` is not a table")?;
+        // The ratios of before the gains: what they measured is in the gains now.
+        calibration.remove("theta_to_dslr");
+        calibration.remove("theta_to_fallback");
+        let measured: Vec<&str> = r.cameras.iter().map(|m| table_key(m.field)).collect();
+        if !r.theta_given {
+            // A new unit: a camera's gain measured against another is of no use now.
+            for (field, _) in brdfd::config::GAIN_FIELDS.iter().map(|f| (*f, ())) {
+                let key = table_key(field);
+                if key != "theta" && !measured.contains(&key) {
+                    calibration.remove(key);
+                }
+            }
+            let t = table(calibration, "theta");
+            t["gain"] = array(r.theta, GAIN_DIGITS);
+            t["measured"] =
+                value("the bench's unit of radiance: the other gains are measured against it");
+        }
+        for m in &r.cameras {
+            let t = table(calibration, table_key(m.field));
+            t["gain"] = array(m.gain, GAIN_DIGITS);
+            t["spread"] = array(m.spread, SPREAD_DIGITS);
+            t["measured"] = value(format!("{note}, over {} pixels", m.pixels));
+        }
+        let written = self.doc.to_string();
+        let file = self.path.display().to_string();
+        let rig = Rig::parse(&file, &written).context("the rig as written")?;
+        let backup = (0..)
+            .map(|i| match i {
+                0 => PathBuf::from(format!("{file}.bak")),
+                i => PathBuf::from(format!("{file}.bak.{i}")),
+            })
+            .find(|p| !p.exists())
+            .context("no name for the backup")?;
+        std::fs::copy(&self.path, &backup)
+            .with_context(|| format!("keeping {}", backup.display()))?;
+        brdfd::session::write_atomic(&self.path, written.as_bytes())?;
+        if let Err(e) = brdfd::rig::plan::check(&rig) {
+            eprintln!("  warning: the rig is not ready to capture yet: {e}");
+        }
+        Ok(backup)
     }
-    let written = doc.to_string();
-    let file = path.display().to_string();
-    let rig = Rig::parse(&file, &written).context("the rig as written")?;
-    std::fs::copy(path, PathBuf::from(format!("{file}.bak")))
-        .with_context(|| format!("keeping {file}.bak"))?;
-    brdfd::session::write_atomic(path, written.as_bytes())?;
-    if let Err(e) = brdfd::rig::plan::check(&rig) {
-        eprintln!("  warning: the rig is not ready to capture yet: {e}");
+}
+
+/// `dslr_raw` of `calibration.dslr_raw`.
+fn table_key(field: &str) -> &str {
+    field.trim_start_matches("calibration.")
+}
+
+/// The sub-table `key` of `calibration`, made if it is not there.
+fn table<'a>(calibration: &'a mut Table, key: &str) -> &'a mut Table {
+    if !calibration.get(key).is_some_and(Item::is_table) {
+        calibration[key] = Item::Table(Table::new());
     }
-    Ok(())
+    calibration[key].as_table_mut().expect("made a table above")
+}
+
+fn array(v: [f64; 3], digits: i32) -> Item {
+    let mut a = Array::new();
+    for x in v {
+        a.push(significant(x, digits));
+    }
+    value(a)
 }

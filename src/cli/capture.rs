@@ -385,10 +385,14 @@ pub fn resume(state: &Path, id: &str, daemon: &DaemonArgs) -> anyhow::Result<()>
     }
     let mut session = Session::open(state, id)?;
     let plan = brdfd::daemon::resumable(&mut session)?;
-    let rig = Rig::parse(
+    let mut rig = Rig::parse(
         &format!("the rig stored in session {id}"),
         &session.manifest.rig,
     )?;
+    // Captured before each camera had its gain: resumed as it was captured.
+    if let Some(note) = rig.calibration.adopt_ratios() {
+        println!("{note}");
+    }
     let settings = CaptureSettings::resolve(&plan, &rig)?;
     println!(
         "resuming session {} (was {:?})",

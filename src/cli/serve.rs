@@ -83,7 +83,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
     };
     // The daemon keeps the devices open whatever the calibration; captures wait for it.
     if let Err(e) = brdfd::rig::plan::check(&rig) {
-        eprintln!("warning: captures will be refused until the rig can be run: {e}");
+        eprintln!("warning: captures will be refused until the rig can be run: {e} (the daemon reads its rig when it starts: stop it to calibrate, since it holds the devices, then start it again)");
     }
     let state = brdfd::session::state_dir(a.state_dir.as_deref(), config.state_dir.as_deref())?;
     // Absolute, so that the paths the API gives out mean the same to every client.

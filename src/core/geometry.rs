@@ -1,6 +1,7 @@
 //! Per-pixel geometry: which pixels see the object, and each one's world normal and view
-//! vector (toward the camera). Comes from a camera model plus a built-in shape, or from a
-//! normal-map EXR. Meshes are not handled here yet.
+//! vector (toward the camera). Comes from a camera model plus a built-in shape, a triangle
+//! mesh ([`super::mesh`], cast through its hierarchy, [`super::bvh`]), or a normal-map EXR.
+//! Light the object itself blocks is not modelled here.
 //!
 //! Camera frame (OpenGL): the camera looks along its −Z, +Y is up in the image, +X right;
 //! image rows run downward. A pose is given as position, look-at point and up vector in the
@@ -10,8 +11,12 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use rayon::prelude::*;
+
 use super::brdf::{add, cross, dot, normalize, scale, sub, tangent_frame, Vec3};
+use super::bvh::Bvh;
 use super::error::{CoreError, Result};
+use super::mesh::{Mesh, Placement, Units};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -215,6 +220,18 @@ pub enum Shape {
         period: f64,
         tilt_deg: f64,
     },
+    /// A triangle mesh from a file (OBJ, STL or PLY; a path relative to the file that names
+    /// it), in `units`, placed in the world: rotated about its own origin by `rotation_deg`
+    /// (about X, then Y, then Z), then moved to `position` (metres).
+    Mesh {
+        file: PathBuf,
+        #[serde(default)]
+        units: Units,
+        #[serde(default)]
+        rotation_deg: Vec3,
+        #[serde(default)]
+        position: Vec3,
+    },
 }
 
 impl Shape {
@@ -274,6 +291,28 @@ impl Shape {
                 *period,
                 tilt_deg.to_radians(),
             ),
+            // Cast through its hierarchy, built once per image ([`PixelGeometry::of_mesh`]).
+            Shape::Mesh { .. } => None,
+        }
+    }
+
+    /// The mesh a `Shape::Mesh` names, read and placed in the world.
+    pub fn mesh(&self) -> Result<Option<Mesh>> {
+        match self {
+            Shape::Mesh {
+                file,
+                units,
+                rotation_deg,
+                position,
+            } => Ok(Some(Mesh::read(
+                file,
+                &Placement {
+                    units: *units,
+                    rotation_deg: *rotation_deg,
+                    position: *position,
+                },
+            )?)),
+            _ => Ok(None),
         }
     }
 }
@@ -368,6 +407,36 @@ pub struct PixelGeometry {
 /// silhouette pixels mix object and background.
 pub const GRAZING_LIMIT_DEG: f64 = 85.0;
 
+/// A mesh pixel whose 4-neighbour's surface point is farther than this many footprints
+/// (allowing for the slope) is across a depth discontinuity, and mixes two surfaces: it is
+/// dropped. A smooth surface's neighbours are one footprint apart, up to the slope's change
+/// between them; a groove's wall seen past its rim is many.
+pub const DEPTH_JUMP: f64 = 3.0;
+
+/// A mesh this many times wider than the camera's view, or this many times narrower, was most
+/// likely read in the wrong units (a part in millimetres read as metres is 1000× too big).
+const UNIT_MISTAKE: f64 = 100.0;
+
+/// A warning for a mesh whose size is far from what the camera frames, with the size found.
+pub fn scale_warning(camera: &Camera, mesh: &Mesh) -> Option<String> {
+    let (lo, hi) = mesh.bounds();
+    // The box's longest side: what a ruler across the part would say.
+    let size = (0..3).map(|i| hi[i] - lo[i]).fold(0.0, f64::max);
+    let pose = camera.pose();
+    let view = match camera {
+        Camera::Orthographic { extent, .. } => *extent,
+        Camera::Pinhole { fx, width, .. } => {
+            let to = sub(pose.look_at, pose.position);
+            dot(to, to).sqrt() * *width as f64 / fx
+        }
+    };
+    (size > view * UNIT_MISTAKE || size * UNIT_MISTAKE < view).then(|| {
+        format!(
+            "the mesh is {size:.4} m across and the camera's view {view:.4} m wide: are its units right (`units = \"mm\"` for a file in millimetres)?"
+        )
+    })
+}
+
 impl PixelGeometry {
     /// Leaves out the object's outline: pixels with a neighbour (of the eight, within the
     /// frame) that is not an object pixel. A RAW file's demosaic fills each pixel's missing
@@ -393,6 +462,9 @@ impl PixelGeometry {
 
     /// Casts one ray per pixel centre.
     pub fn rasterize(camera: &Camera, shape: &Shape) -> Result<PixelGeometry> {
+        if let Some(mesh) = shape.mesh()? {
+            return PixelGeometry::of_mesh(camera, &mesh);
+        }
         let axes = camera.pose().axes()?;
         let (width, height) = camera.size();
         let min_cos = GRAZING_LIMIT_DEG.to_radians().cos();
@@ -410,6 +482,96 @@ impl PixelGeometry {
                             view: v.map(|c| c as f32),
                         });
                     }
+                }
+            }
+        }
+        Ok(PixelGeometry {
+            width,
+            height,
+            pixels,
+        })
+    }
+
+    /// A mesh as the camera sees it: one ray per pixel centre through the mesh's hierarchy, the
+    /// normal interpolated where the mesh has normals (flat otherwise) and turned toward the
+    /// camera. A pixel is kept only where its footprint lies on one smooth piece of surface:
+    /// not on the silhouette (a 4-neighbour misses the mesh), not across a depth
+    /// discontinuity (a 4-neighbour's point is farther than [`DEPTH_JUMP`] footprints, allowing
+    /// for the slope), not at a grazing angle.
+    pub fn of_mesh(camera: &Camera, mesh: &Mesh) -> Result<PixelGeometry> {
+        let axes = camera.pose().axes()?;
+        let (width, height) = camera.size();
+        if let Some(w) = scale_warning(camera, mesh) {
+            tracing::warn!("{w}");
+        }
+        let bvh = Bvh::build(mesh);
+        let min_cos = GRAZING_LIMIT_DEG.to_radians().cos();
+        // Per pixel: the hit point, the normal, the view vector, and the footprint's size.
+        type Sample = (Vec3, Vec3, Vec3, f64);
+        let samples: Vec<Option<Sample>> = (0..width * height)
+            .into_par_iter()
+            .map(|i| {
+                let ray = camera.ray(i % width, i / width, &axes);
+                let hit = bvh.closest(ray.origin, ray.dir, 0.0, f64::INFINITY)?;
+                let v = scale(ray.dir, -1.0);
+                let [a, b, c] = mesh.corners(hit.triangle);
+                let face = normalize(cross(sub(b, a), sub(c, a)));
+                let mut n = mesh.normal_at(hit.triangle, hit.u, hit.v);
+                // The side the camera sees: a sheet has two, and a file's winding may be
+                // inside out.
+                if dot(face, v) < 0.0 {
+                    n = scale(n, -1.0);
+                }
+                let footprint = match camera {
+                    Camera::Orthographic { extent, width, .. } => extent / *width as f64,
+                    Camera::Pinhole { fx, .. } => hit.t / fx,
+                };
+                Some((add(ray.origin, scale(ray.dir, hit.t)), n, v, footprint))
+            })
+            .collect();
+        if samples.iter().all(Option::is_none) {
+            let (lo, hi) = mesh.bounds();
+            return Err(CoreError::Invalid(format!(
+                "the mesh is outside the camera's view: it spans {lo:.3?} to {hi:.3?} (metres), and no pixel's ray meets it; check its position and units, and the camera's pose"
+            )));
+        }
+        let at = |x: i64, y: i64| -> Option<&Sample> {
+            if !(0..width as i64).contains(&x) || !(0..height as i64).contains(&y) {
+                return None;
+            }
+            samples[y as usize * width + x as usize].as_ref()
+        };
+        let mut pixels = Vec::new();
+        for y in 0..height as i64 {
+            for x in 0..width as i64 {
+                let Some(&(p, n, v, footprint)) = at(x, y) else {
+                    continue;
+                };
+                let cos = dot(n, v);
+                if cos <= min_cos {
+                    continue;
+                }
+                // Neighbouring points of one surface are about a footprint apart, more where
+                // it slopes away from the camera.
+                let spacing = footprint / cos;
+                // Beyond the frame's edge nothing is known, as for the analytic shapes.
+                let in_frame = |x: i64, y: i64| {
+                    (0..width as i64).contains(&x) && (0..height as i64).contains(&y)
+                };
+                let smooth = [(1, 0), (-1, 0), (0, 1), (0, -1)].iter().all(|(dx, dy)| {
+                    !in_frame(x + dx, y + dy)
+                        || at(x + dx, y + dy).is_some_and(|q| {
+                            let d = sub(q.0, p);
+                            dot(d, d).sqrt() <= DEPTH_JUMP * spacing
+                        })
+                });
+                if smooth {
+                    pixels.push(GeomPixel {
+                        x: x as u32,
+                        y: y as u32,
+                        normal: n.map(|c| c as f32),
+                        view: v.map(|c| c as f32),
+                    });
                 }
             }
         }
@@ -494,12 +656,23 @@ impl SceneGeometry {
             toml::from_str(&text).map_err(|e| CoreError::format(path.display(), e.to_string()))?;
         g.check()
             .map_err(|e| CoreError::format(path.display(), e))?;
-        if let Some(nm) = &g.normal_map {
+        g.resolve_files(path.parent().unwrap_or(Path::new(".")));
+        Ok(g)
+    }
+
+    /// Files named relative to the file that names them (a normal map, a mesh) are found
+    /// beside it: `dir` is that file's folder.
+    pub fn resolve_files(&mut self, dir: &Path) {
+        if let Some(nm) = &self.normal_map {
             if nm.is_relative() {
-                g.normal_map = Some(path.parent().unwrap_or(Path::new(".")).join(nm));
+                self.normal_map = Some(dir.join(nm));
             }
         }
-        Ok(g)
+        if let Some(Shape::Mesh { file, .. }) = &mut self.shape {
+            if file.is_relative() {
+                *file = dir.join(&*file);
+            }
+        }
     }
 
     /// Checks every number a file can get wrong, so that a typo is an error naming the field
@@ -578,6 +751,14 @@ impl SceneGeometry {
                 positive("shape.half_size", *half_size)?;
                 finite("shape.amplitude, tilt_deg", &[*amplitude, *tilt_deg])?;
                 positive("shape.period", *period)?;
+            }
+            Some(Shape::Mesh {
+                rotation_deg,
+                position,
+                ..
+            }) => {
+                finite("shape.rotation_deg", rotation_deg)?;
+                finite("shape.position", position)?;
             }
             None => {}
         }

@@ -193,51 +193,53 @@ pub fn radiometry(
 
     let mut cameras = Vec::new();
     let mut skipped = Vec::new();
-    let b = &rig.brackets;
-    if roles.dslr {
-        let role = cx.devices.dslr.as_ref().context("the rig has no DSLR")?;
-        let bracket = Bracket::dslr(rig, b.dslr_shutters.clone());
-        match role.ping().and_then(|()| {
-            object::bracket(
-                cx,
-                &mut Prefixed(keep, "dslr"),
-                "calibration: DSLR",
-                role,
-                &bracket,
-                true,
-            )
-        }) {
-            Ok(files) => cameras.extend(dslr_gains(cx, &files, &pixels, &predicted, theta)?),
-            Err(e) => {
-                cx.warn(format!("the DSLR is not measured: {e:#}"));
-                skipped.push(format!("the DSLR ({e:#})"));
-            }
+    // Each camera on its own: one that fails is said, and the others are still measured.
+    let mut each = |what: &str, measured: anyhow::Result<Vec<Measured>>| match measured {
+        Ok(m) => cameras.extend(m),
+        Err(e) => {
+            cx.warn(format!("{what} is not measured: {e:#}"));
+            skipped.push(format!("{what}: {e:#}"));
         }
+    };
+    if let (true, Some(role)) = (roles.dslr, &cx.devices.dslr) {
+        let bracket = Bracket::dslr(rig, rig.brackets.dslr_shutters.clone());
+        let measured = role
+            .ping()
+            .and_then(|()| {
+                object::bracket(
+                    cx,
+                    &mut Prefixed(keep, "dslr"),
+                    "calibration: DSLR",
+                    role,
+                    &bracket,
+                    true,
+                )
+            })
+            .and_then(|files| dslr_gains(cx, &files, &pixels, &predicted, theta));
+        each("the DSLR", measured);
     }
-    if roles.fallback {
-        let role = cx
-            .devices
-            .fallback
-            .as_ref()
-            .context("the rig has no fallback camera")?;
+    if let (true, Some(role)) = (roles.fallback, &cx.devices.fallback) {
         let bracket = Bracket::fallback(rig);
-        let files = object::bracket(
+        let measured = object::bracket(
             cx,
-            &mut Prefixed(keep, "fallback"),
+            &mut Prefixed(keep, "webcam"),
             "calibration: fallback camera",
             role,
             &bracket,
             false,
-        )?;
-        let frames = FallbackBracket::read(&files)?.frames;
-        cameras.push(measure(
-            "calibration.fallback",
-            "the fallback camera",
-            &frames,
-            &pixels,
-            &predicted,
-            theta,
-        )?);
+        )
+        .and_then(|files| {
+            let frames = FallbackBracket::read(&files)?.frames;
+            Ok(vec![measure(
+                "calibration.fallback",
+                "the fallback camera",
+                &frames,
+                &pixels,
+                &predicted,
+                theta,
+            )?])
+        });
+        each("the fallback camera", measured);
     }
     if cameras.is_empty() {
         bail!(

@@ -286,6 +286,7 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
     for w in &s.warnings {
         cx.warn(w.clone());
     }
+    check_turntable(cx, s)?;
     let mut sim = place_sample(cx, s, &basis, &mut phases)?;
     if matches!(session.manifest.state, State::Created | State::Failed) {
         session.set_state(State::Capturing, None)?;
@@ -342,6 +343,18 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
         condition: est.selection.condition,
         fit_error: est.fit_error,
     })
+}
+
+/// A turntable that cannot turn is found before anything is shot: its device opened, and its
+/// role asked of it (a box whose `ID?` lists FIRE alone is no turntable).
+fn check_turntable(cx: &Context, s: &CaptureSettings) -> anyhow::Result<()> {
+    match (&cx.devices.turntable, s.turning) {
+        (Some(t), super::settings::Turning::Turntable) => {
+            t.call(|t| t.position()).context("the rig's turntable")?;
+            Ok(())
+        }
+        _ => Ok(()),
+    }
 }
 
 /// What only a simulated rig has: the sample on its bench, and the truth its estimate is

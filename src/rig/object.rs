@@ -110,7 +110,15 @@ pub fn choose(cx: &Context) -> anyhow::Result<CameraRole> {
         return Ok(CameraRole::Fallback);
     };
     match dslr.ping() {
-        Ok(()) => Ok(CameraRole::Dslr),
+        // A shutter that cannot fire is found before the first shot, and is its own fault:
+        // the DSLR answers, so the capture does not hand over to the fallback.
+        Ok(()) => match &devices.shutter {
+            Some(s) => s
+                .call(|_| Ok(()))
+                .context(ShutterFailed(s.status().selector))
+                .map(|()| CameraRole::Dslr),
+            None => Ok(CameraRole::Dslr),
+        },
         Err(e) => match &devices.fallback {
             Some(f) => {
                 cx.warn(format!(
@@ -150,27 +158,18 @@ pub fn shoot_view(
                 note_device(session, dslr.status().identity);
                 return Ok(files);
             }
-            // The session's own failures (a full disk) are not the DSLR's: the fallback would
-            // fail the same way.
-            Err(e)
-                if cx.devices.fallback.is_some()
-                    && !cx.cancel.is_cancelled()
-                    && !e.chain().any(|c| c.is::<crate::session::SessionError>()) =>
-            {
+            Err(e) if !the_dslrs_fault(cx, &e) => return Err(e),
+            Err(e) if cx.devices.fallback.is_some() => {
                 cx.warn(format!(
                     "the DSLR failed during {step} ({e:#}); {step} is shot again on the fallback camera, and so are the views after it"
                 ));
                 *camera = CameraRole::Fallback;
             }
-            Err(e)
-                if !cx.cancel.is_cancelled()
-                    && !e.chain().any(|c| c.is::<crate::session::SessionError>()) =>
-            {
+            Err(e) => {
                 return Err(e.context(format!(
                     "the DSLR failed during {step}, and the rig names no fallback_camera to shoot it on instead"
                 )))
             }
-            Err(e) => return Err(e),
         }
     }
     session.begin_step(
@@ -190,6 +189,21 @@ pub fn shoot_view(
     note_device(session, fallback.status().identity);
     Ok(files)
 }
+
+/// Whether a bracket's failure is the DSLR's, which the fallback camera can make good: not a
+/// cancel, not the session's own (a full disk: the fallback would fail the same way), not the
+/// rig's shutter (the DSLR is there and would shoot if fired).
+fn the_dslrs_fault(cx: &Context, e: &anyhow::Error) -> bool {
+    !cx.cancel.is_cancelled()
+        && !e
+            .chain()
+            .any(|c| c.is::<crate::session::SessionError>() || c.is::<ShutterFailed>())
+}
+
+/// The rig's shutter did not fire the DSLR.
+#[derive(Debug, thiserror::Error)]
+#[error("the rig's shutter {0} did not fire the DSLR")]
+pub struct ShutterFailed(String);
 
 /// One exposure as it came from the camera's worker.
 enum Arrived {
@@ -253,13 +267,25 @@ pub fn bracket(
             };
             let exposed = match &shutter {
                 Some(s) => {
-                    let mut fire = || s.call(|s| s.fire(SHUTTER_PRESS));
-                    cam.expose_fired_by(t, &mut fire, &mut bytes)
-                        .unwrap_or_else(|| {
-                            Err(anyhow::anyhow!(
-                                "the object camera cannot be fired by the rig's shutter"
-                            ))
-                        })?
+                    // The shutter's own failure, kept whole: the camera's driver sees only
+                    // that the press failed.
+                    let mut failed = None;
+                    let mut fire = || {
+                        s.call(|s| s.fire(SHUTTER_PRESS)).map_err(|e| {
+                            let said = anyhow::anyhow!("{e:#}");
+                            failed = Some(e);
+                            said
+                        })
+                    };
+                    let exposed = cam.expose_fired_by(t, &mut fire, &mut bytes);
+                    if let Some(e) = failed {
+                        return Err(e.context(ShutterFailed(s.status().selector)));
+                    }
+                    exposed.unwrap_or_else(|| {
+                        Err(anyhow::anyhow!(
+                            "the object camera cannot be fired by the rig's shutter"
+                        ))
+                    })?
                 }
                 None => cam.expose(t, &mut bytes)?,
             };

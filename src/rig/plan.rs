@@ -7,7 +7,9 @@
 //! It does not open anything: a device that is named right but unplugged is the capture's
 //! business (the fallback camera, a clear error).
 
-use crate::config::{invalid, ConfigError, DslrFiles, Rig, SimulatedPresence, GAIN_FIELDS};
+use crate::config::{
+    invalid, ConfigError, DslrFiles, Rig, RigDevices, SimulatedPresence, GAIN_FIELDS,
+};
 use crate::selector::Selector;
 
 /// The roles of the capture, by the rig field that names their device.
@@ -77,7 +79,7 @@ fn kinds(field: &str) -> (fn(&Selector) -> bool, &'static str) {
         // light needs.
         THETA => (
             |s| matches!(s, Selector::Osc(_) | Selector::Usb { .. } | Selector::PtpIp(_)),
-            "a THETA the capture can bracket: osc:http://HOST or usb[:05ca:PPPP] (not its V4L2 live view)",
+            "a THETA the capture can bracket: osc:http://HOST, usb[:05ca:PPPP] or ptpip:HOST (not its V4L2 live view)",
         ),
         FALLBACK => (
             |s| matches!(s, Selector::V4l(_)),
@@ -94,15 +96,27 @@ fn kinds(field: &str) -> (fn(&Selector) -> bool, &'static str) {
     }
 }
 
-fn hardware(rig: &Rig) -> Result<Roles, ConfigError> {
-    let (file, d) = (rig.file.as_str(), &rig.devices);
-    for (field, selector) in [
+/// The rig's `[devices]` fields and what each names, in the order devices are started.
+pub fn named(d: &RigDevices) -> [(&'static str, &Option<Selector>); 5] {
+    [
         (DSLR, &d.dslr),
-        (THETA, &d.theta),
         (FALLBACK, &d.fallback_camera),
+        (THETA, &d.theta),
         (TURNTABLE, &d.turntable),
         (SHUTTER, &d.shutter),
-    ] {
+    ]
+}
+
+/// Whether two fields naming the same selector are one device in two roles: only a
+/// rig-protocol box that turns and fires. (Two cameras both named `usb` are two cameras:
+/// plain `usb` for the THETA means the first RICOH camera.)
+pub fn shared(a: &str, b: &str, s: &Selector) -> bool {
+    matches!(s, Selector::Serial(_)) && [a, b].contains(&TURNTABLE) && [a, b].contains(&SHUTTER)
+}
+
+fn hardware(rig: &Rig) -> Result<Roles, ConfigError> {
+    let (file, d) = (rig.file.as_str(), &rig.devices);
+    for (field, selector) in named(d) {
         let Some(s) = selector else { continue };
         let (fits, what) = kinds(field);
         if !fits(s) {
@@ -203,10 +217,18 @@ fn calibration(rig: &Rig, roles: &Roles) -> Result<(), ConfigError> {
             DslrFiles::Jpeg => (false, true),
         };
         if raw {
-            needed.push((dslr_raw, c.dslr_raw.is_some(), "the DSLR's RAW files"));
+            needed.push((
+                dslr_raw,
+                c.dslr_raw.is_some(),
+                "each of the DSLR's RAW files",
+            ));
         }
         if jpeg {
-            needed.push((dslr_jpeg, c.dslr_jpeg.is_some(), "the DSLR's JPEG files"));
+            needed.push((
+                dslr_jpeg,
+                c.dslr_jpeg.is_some(),
+                "each of the DSLR's JPEG files",
+            ));
         }
     }
     if roles.fallback {
@@ -217,7 +239,7 @@ fn calibration(rig: &Rig, roles: &Roles) -> Result<(), ConfigError> {
             rig.file.as_str(),
             format!("{field}.gain"),
             format!(
-                "not measured: {what} need a gain to put their values in the bench's radiance; `brdfd calibrate radiometry --rig {}` measures every camera's from a grey card and writes them here",
+                "not measured: {what} needs a gain to put its values in the bench's radiance; `brdfd calibrate radiometry --rig {}` measures every camera's from a grey card and writes them here",
                 rig.file
             ),
         )),

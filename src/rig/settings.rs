@@ -308,12 +308,18 @@ mod tests {
         let mut p = plan("gold");
         p.pixels = Some("0".into());
         assert!(CaptureSettings::resolve(&p, &rig).is_err());
+        // A rig whose webcam has no gain parses, and is refused here, naming the gain.
         let uncalibrated = Rig::parse(
             "rig.toml",
             &include_str!("../../config/rigs/simulated.toml")
-                .replace("[calibration.theta]", "[calibration.unused]"),
+                .replace("[calibration.fallback]\ngain = 62.5\n", ""),
+        )
+        .unwrap();
+        let e = CaptureSettings::resolve(&plan("gold"), &uncalibrated).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("calibration.fallback.gain"),
+            "{e:#}"
         );
-        assert!(uncalibrated.is_err());
     }
 
     #[test]

@@ -136,13 +136,13 @@ impl Camera {
         let start = Instant::now();
         let mut shot: Vec<u32> = Vec::new();
         let mut grew = start;
-        let mut seen = before;
+        // A card holds thousands of files: each is looked up, not searched for.
+        let mut seen: std::collections::HashSet<u32> = before.into_iter().collect();
         loop {
             for h in self.card_objects()? {
-                if seen.contains(&h) {
+                if !seen.insert(h) {
                     continue;
                 }
-                seen.push(h);
                 // A folder made for the shot (a new 101NIKON) is not one of its files.
                 if self.object_info(h)?.format != format::ASSOCIATION {
                     shot.push(h);
@@ -158,10 +158,10 @@ impl Camera {
             }
             if start.elapsed() > self.timeouts.capture {
                 if shot.is_empty() {
-                    return Err(PtpError::Timeout {
-                        what: "capture",
-                        after: self.timeouts.capture,
-                    });
+                    return Err(PtpError::Protocol(format!(
+                        "no new file on the camera's card within {:?} of the shutter firing: check that a card is in, and that the release is plugged into the camera's remote socket",
+                        self.timeouts.capture
+                    )));
                 }
                 tracing::warn!(
                     "the camera was set to make {:?} files per shot and listed {} within {:?}",

@@ -134,22 +134,50 @@ impl Devices {
 }
 
 /// A hardware rig's devices from its selectors. A box named as both turntable and shutter is
-/// one device.
+/// one device; every other field is a device of its own.
 fn hardware(rig: &Rig) -> Vec<Planned> {
-    let d = &rig.devices;
     let mut planned: Vec<Planned> = Vec::new();
-    for (field, selector) in [
-        (plan::DSLR, &d.dslr),
-        (plan::FALLBACK, &d.fallback_camera),
-        (plan::THETA, &d.theta),
-        (plan::TURNTABLE, &d.turntable),
-        (plan::SHUTTER, &d.shutter),
-    ] {
+    for (field, selector) in plan::named(&rig.devices) {
         let Some(s) = selector else { continue };
-        match planned.iter_mut().find(|p| p.selector == s.to_string()) {
+        let one = planned
+            .iter_mut()
+            .find(|p| p.selector == s.to_string() && plan::shared(p.fields[0], field, s));
+        match one {
             Some(shared) => shared.fields.push(field),
             None => planned.push(Planned::from_selector(field, s.clone(), false)),
         }
     }
     planned
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn planned(devices: &str) -> Vec<Vec<&'static str>> {
+        let bench = include_str!("../../../config/rigs/bench.toml");
+        let start = bench.find("[devices]").unwrap();
+        let end = bench.find("# The object camera and the object").unwrap();
+        let text = format!("{}[devices]\n{devices}\n{}", &bench[..start], &bench[end..]);
+        let rig = Rig::parse("rig.toml", &text).unwrap();
+        hardware(&rig).into_iter().map(|p| p.fields).collect()
+    }
+
+    #[test]
+    fn only_a_box_that_turns_and_fires_is_one_device_in_two_roles() {
+        // Two cameras both given as plain `usb` are two cameras (the THETA's `usb` means the
+        // first RICOH camera).
+        assert_eq!(
+            planned("dslr = \"usb\"\ntheta = \"usb\"\n"),
+            [vec![plan::DSLR], vec![plan::THETA]]
+        );
+        assert_eq!(
+            planned("dslr = \"usb\"\ntheta = \"osc:http://192.168.1.1\"\nturntable = \"serial:/dev/ttyUSB0\"\nshutter = \"serial:/dev/ttyUSB0\"\n"),
+            [
+                vec![plan::DSLR],
+                vec![plan::THETA],
+                vec![plan::TURNTABLE, plan::SHUTTER]
+            ]
+        );
+    }
 }

@@ -59,7 +59,7 @@ impl ObjectCamera for Camera {
         Some((|| {
             let applied_s = self.set_shutter(seconds)?;
             // A shot fired from outside is stored on the card, where it is listed; the card
-            // keeps its copy until the session has one.
+            // keeps its copy (brdfd deletes nothing from it).
             let opts = CaptureOptions {
                 target: brdfd_ptp::Target::Card,
                 delete_after: false,

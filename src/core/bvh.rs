@@ -1,0 +1,286 @@
+//! Rays against a triangle mesh: a bounding-volume hierarchy (binary, split at the median of
+//! the longest axis of the triangles' centres, a few triangles per leaf) with closest-hit and
+//! any-hit queries. Möller–Trumbore for the triangles, the slab test for the boxes.
+//!
+//! Not here: what the hits mean (per-pixel geometry in [`super::geometry`]).
+
+use super::brdf::{cross, dot, sub, Vec3};
+use super::mesh::Mesh;
+
+/// Triangles per leaf at most: a few triangle tests cost less than another level of boxes.
+const LEAF_SIZE: usize = 4;
+
+/// A ray's hit: its distance, the triangle, and the barycentric coordinates (u, v) of the
+/// hit on it (the weights of its second and third corners).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    pub t: f64,
+    pub triangle: usize,
+    pub u: f64,
+    pub v: f64,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    lo: Vec3,
+    hi: Vec3,
+    /// A leaf's first entry in `order`, or an inner node's first child (the second follows).
+    first: u32,
+    /// Triangles in a leaf; 0 for an inner node.
+    count: u32,
+}
+
+/// A mesh's triangles, arranged for ray queries.
+pub struct Bvh {
+    nodes: Vec<Node>,
+    /// Triangle indices, leaf by leaf.
+    order: Vec<u32>,
+    /// Per triangle: a corner and the two edges from it.
+    tris: Vec<[Vec3; 3]>,
+}
+
+impl Bvh {
+    pub fn build(mesh: &Mesh) -> Bvh {
+        let tris: Vec<[Vec3; 3]> = (0..mesh.triangles.len())
+            .map(|t| {
+                let [a, b, c] = mesh.corners(t);
+                [a, sub(b, a), sub(c, a)]
+            })
+            .collect();
+        let centres: Vec<Vec3> = (0..tris.len())
+            .map(|t| {
+                let [a, b, c] = mesh.corners(t);
+                [0, 1, 2].map(|i| (a[i] + b[i] + c[i]) / 3.0)
+            })
+            .collect();
+        let mut bvh = Bvh {
+            nodes: Vec::with_capacity(2 * tris.len() / LEAF_SIZE + 1),
+            order: (0..tris.len() as u32).collect(),
+            tris,
+        };
+        bvh.nodes.push(Node {
+            lo: [0.0; 3],
+            hi: [0.0; 3],
+            first: 0,
+            count: 0,
+        });
+        bvh.split(0, 0, bvh.order.len(), mesh, &centres);
+        bvh
+    }
+
+    /// Fills node `at` with entries `start..end` of `order`, splitting it while it holds more
+    /// than a leaf's worth.
+    fn split(&mut self, at: usize, start: usize, end: usize, mesh: &Mesh, centres: &[Vec3]) {
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        let (mut clo, mut chi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for &t in &self.order[start..end] {
+            for p in mesh.corners(t as usize) {
+                for i in 0..3 {
+                    lo[i] = lo[i].min(p[i]);
+                    hi[i] = hi[i].max(p[i]);
+                }
+            }
+            let c = centres[t as usize];
+            for i in 0..3 {
+                clo[i] = clo[i].min(c[i]);
+                chi[i] = chi[i].max(c[i]);
+            }
+        }
+        self.nodes[at].lo = lo;
+        self.nodes[at].hi = hi;
+        let n = end - start;
+        let axis = (0..3)
+            .max_by(|&a, &b| (chi[a] - clo[a]).total_cmp(&(chi[b] - clo[b])))
+            .unwrap_or(0);
+        if n <= LEAF_SIZE || chi[axis] - clo[axis] <= 0.0 {
+            self.nodes[at].first = start as u32;
+            self.nodes[at].count = n as u32;
+            return;
+        }
+        let mid = start + n / 2;
+        self.order[start..end].select_nth_unstable_by(n / 2, |&a, &b| {
+            centres[a as usize][axis].total_cmp(&centres[b as usize][axis])
+        });
+        let left = self.nodes.len();
+        let empty = Node {
+            lo: [0.0; 3],
+            hi: [0.0; 3],
+            first: 0,
+            count: 0,
+        };
+        self.nodes.push(empty);
+        self.nodes.push(empty);
+        self.nodes[at].first = left as u32;
+        self.nodes[at].count = 0;
+        self.split(left, start, mid, mesh, centres);
+        self.split(left + 1, mid, end, mesh, centres);
+    }
+
+    /// The nearest hit within `(t_min, t_max)` of the ray from `origin` along `dir`.
+    pub fn closest(&self, origin: Vec3, dir: Vec3, t_min: f64, t_max: f64) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        let mut far = t_max;
+        self.walk(origin, dir, t_min, &mut far, &mut |t, hit| {
+            best = Some(Hit { triangle: t, ..hit });
+            false
+        });
+        best
+    }
+
+    /// Whether anything lies on the ray within `(t_min, t_max)`: the first hit ends the search.
+    pub fn occluded(&self, origin: Vec3, dir: Vec3, t_min: f64, t_max: f64) -> bool {
+        let mut far = t_max;
+        let mut hit = false;
+        self.walk(origin, dir, t_min, &mut far, &mut |_, _| {
+            hit = true;
+            true
+        });
+        hit
+    }
+
+    /// Visits the triangles the ray may hit, nearest box first; `found` gets each hit nearer
+    /// than `far` (which shrinks to it) and says whether to stop.
+    fn walk(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        t_min: f64,
+        far: &mut f64,
+        found: &mut dyn FnMut(usize, Hit) -> bool,
+    ) {
+        let inv = dir.map(|d| 1.0 / d);
+        let mut stack: Vec<u32> = Vec::with_capacity(64);
+        stack.push(0);
+        while let Some(i) = stack.pop() {
+            let node = &self.nodes[i as usize];
+            if !slab(node, origin, inv, t_min, *far) {
+                continue;
+            }
+            if node.count == 0 {
+                let (a, b) = (node.first, node.first + 1);
+                // The nearer child is searched first, so that `far` shrinks early.
+                let da = entry(&self.nodes[a as usize], origin, inv);
+                let db = entry(&self.nodes[b as usize], origin, inv);
+                if da <= db {
+                    stack.push(b);
+                    stack.push(a);
+                } else {
+                    stack.push(a);
+                    stack.push(b);
+                }
+                continue;
+            }
+            let leaf = &self.order[node.first as usize..(node.first + node.count) as usize];
+            for &t in leaf {
+                if let Some(hit) = triangle(&self.tris[t as usize], origin, dir, t_min, *far) {
+                    *far = hit.t;
+                    if found(t as usize, hit) {
+                        return;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Whether the ray meets the box within `(t_min, t_max)`.
+fn slab(n: &Node, o: Vec3, inv: Vec3, t_min: f64, t_max: f64) -> bool {
+    let (mut near, mut far) = (t_min, t_max);
+    for i in 0..3 {
+        let (a, b) = ((n.lo[i] - o[i]) * inv[i], (n.hi[i] - o[i]) * inv[i]);
+        let (a, b) = if a <= b { (a, b) } else { (b, a) };
+        // NaN (a ray along a face of the box) keeps the bounds as they are.
+        near = if a > near { a } else { near };
+        far = if b < far { b } else { far };
+        if near > far {
+            return false;
+        }
+    }
+    true
+}
+
+/// Where the ray enters the box (for ordering), or infinity if it misses.
+fn entry(n: &Node, o: Vec3, inv: Vec3) -> f64 {
+    let (mut near, mut far) = (f64::NEG_INFINITY, f64::INFINITY);
+    for i in 0..3 {
+        let (a, b) = ((n.lo[i] - o[i]) * inv[i], (n.hi[i] - o[i]) * inv[i]);
+        near = near.max(a.min(b));
+        far = far.min(a.max(b));
+    }
+    if near <= far && far >= 0.0 {
+        near
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// Möller–Trumbore: the hit of the ray on the triangle (corner, two edges), either side.
+fn triangle(tri: &[Vec3; 3], o: Vec3, d: Vec3, t_min: f64, t_max: f64) -> Option<Hit> {
+    let [a, e1, e2] = *tri;
+    let p = cross(d, e2);
+    let det = dot(e1, p);
+    if det.abs() < 1e-300 {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = sub(o, a);
+    let u = dot(s, p) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return None;
+    }
+    let q = cross(s, e1);
+    let v = dot(d, q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return None;
+    }
+    let t = dot(e2, q) * inv;
+    (t > t_min && t < t_max).then_some(Hit {
+        t,
+        triangle: 0,
+        u,
+        v,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::mesh::uv_sphere;
+
+    #[test]
+    fn rays_hit_a_sphere_mesh_where_the_sphere_is() {
+        let s = uv_sphere([0.0; 3], 1.0, 32, 64);
+        let bvh = Bvh::build(&s);
+        // Straight at the centre from +Z: the hit is near distance 4 (radius 1, from 5).
+        let hit = bvh
+            .closest([0.0, 0.0, 5.0], [0.0, 0.0, -1.0], 0.0, f64::INFINITY)
+            .unwrap();
+        assert!((hit.t - 4.0).abs() < 2e-3, "{hit:?}");
+        // Every closest hit equals the nearest of all triangles, tested one by one.
+        let mut rng = 1u64;
+        let mut next = || {
+            rng = rng
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (rng >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        for _ in 0..200 {
+            let o = [next() * 3.0, next() * 3.0, 3.0];
+            let d = crate::core::brdf::normalize([next() * 0.5, next() * 0.5, -1.0]);
+            let brute = (0..s.triangles.len())
+                .filter_map(|t| {
+                    let [a, b, c] = s.corners(t);
+                    triangle(&[a, sub(b, a), sub(c, a)], o, d, 0.0, f64::INFINITY)
+                        .map(|h| Hit { triangle: t, ..h })
+                })
+                .min_by(|a, b| a.t.total_cmp(&b.t));
+            let got = bvh.closest(o, d, 0.0, f64::INFINITY);
+            assert_eq!(
+                got.map(|h| h.triangle),
+                brute.map(|h| h.triangle),
+                "{o:?} {d:?}"
+            );
+            assert_eq!(bvh.occluded(o, d, 0.0, f64::INFINITY), brute.is_some());
+        }
+    }
+}
