@@ -86,7 +86,25 @@ impl Kind {
             Kind::Material => MaterialPreset::parse(file, text)
                 .map(|m| format!("material preset, simulated as {}", m.simulate_as)),
             Kind::Geometry => {
-                brdfd::config::parse::<SceneGeometry>(file, text).map(|_| "geometry".to_string())
+                brdfd::config::parse::<SceneGeometry>(file, text).and_then(|mut g| {
+                    // A mesh is read and checked as the capture reads it, beside the file.
+                    let dir = Path::new(file).parent().unwrap_or(Path::new("."));
+                    g.resolve_files(dir);
+                    let mesh = g
+                        .shape
+                        .as_ref()
+                        .map(|s| s.mesh())
+                        .transpose()
+                        .map_err(|e| ConfigError::Invalid {
+                            file: file.into(),
+                            field: "shape.file".into(),
+                            reason: e.to_string(),
+                        })?;
+                    Ok(match mesh.flatten() {
+                        Some(m) => format!("geometry, a mesh of {} triangles", m.triangles.len()),
+                        None => "geometry".to_string(),
+                    })
+                })
             }
             Kind::Target => brdfd::config::parse::<Target>(file, text).and_then(|t| {
                 t.check(file)?;
