@@ -395,6 +395,17 @@ pub struct GeomPixel {
     pub view: [f32; 3],
 }
 
+impl GeomPixel {
+    fn new(x: usize, y: usize, normal: Vec3, view: Vec3) -> GeomPixel {
+        GeomPixel {
+            x: x as u32,
+            y: y as u32,
+            normal: normal.map(|c| c as f32),
+            view: view.map(|c| c as f32),
+        }
+    }
+}
+
 /// The object pixels of an image; pixels not listed are outside the mask.
 #[derive(Clone, Debug)]
 pub struct PixelGeometry {
@@ -475,12 +486,7 @@ impl PixelGeometry {
                 if let Some((_, n)) = shape.intersect(&ray) {
                     let v = scale(ray.dir, -1.0);
                     if dot(n, v) > min_cos {
-                        pixels.push(GeomPixel {
-                            x: x as u32,
-                            y: y as u32,
-                            normal: n.map(|c| c as f32),
-                            view: v.map(|c| c as f32),
-                        });
+                        pixels.push(GeomPixel::new(x, y, n, v));
                     }
                 }
             }
@@ -566,12 +572,7 @@ impl PixelGeometry {
                         })
                 });
                 if smooth {
-                    pixels.push(GeomPixel {
-                        x: x as u32,
-                        y: y as u32,
-                        normal: n.map(|c| c as f32),
-                        view: v.map(|c| c as f32),
-                    });
+                    pixels.push(GeomPixel::new(x as usize, y as usize, n, v));
                 }
             }
         }
@@ -608,12 +609,7 @@ impl PixelGeometry {
             let v = scale(camera.ray(x, y, &axes).dir, -1.0);
             let n = normalize(n);
             if dot(n, v) > min_cos {
-                pixels.push(GeomPixel {
-                    x: x as u32,
-                    y: y as u32,
-                    normal: n.map(|c| c as f32),
-                    view: v.map(|c| c as f32),
-                });
+                pixels.push(GeomPixel::new(x, y, n, v));
             }
         }
         Ok(PixelGeometry {
