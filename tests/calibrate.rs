@@ -39,6 +39,24 @@ fn calibrate(dir: &std::path::Path, extra: &[&str]) -> std::process::Output {
     brdfd(&args, dir)
 }
 
+/// `brdfd capture` of gold with `dir/rig.toml` at `size`², sessions in `dir/state`.
+fn capture_gold(dir: &std::path::Path, size: &str) -> std::process::Output {
+    brdfd(
+        &[
+            "capture",
+            "--rig",
+            "rig.toml",
+            "--material",
+            "gold",
+            "--size",
+            size,
+            "--state-dir",
+            "state",
+        ],
+        dir,
+    )
+}
+
 /// The calibration's record in `dir/shots`.
 fn record(dir: &std::path::Path) -> serde_json::Value {
     let text = std::fs::read_to_string(dir.join("shots/calibration.json")).unwrap();
@@ -126,20 +144,7 @@ fn calibration_recovers_the_simulated_sensors_gains_and_the_capture_runs_with_th
     // unsteady on gold, calibrated or not; docs/method.md.)
     let o = brdfd(&["config", "check", "rig.toml"], dir.path());
     assert!(o.status.success(), "{}", out(&o));
-    let o = brdfd(
-        &[
-            "capture",
-            "--rig",
-            "rig.toml",
-            "--material",
-            "gold",
-            "--size",
-            "128",
-            "--state-dir",
-            "state",
-        ],
-        dir.path(),
-    );
+    let o = capture_gold(dir.path(), "128");
     let text = out(&o);
     assert!(o.status.success(), "{text}");
     assert!(relit(&text) < 0.1, "{text}");
@@ -279,20 +284,7 @@ fn a_session_from_before_the_gains_resumes() {
         format!("{small}\n[simulation]\ndslr = \"absent\"\n"),
     )
     .unwrap();
-    let o = brdfd(
-        &[
-            "capture",
-            "--rig",
-            "rig.toml",
-            "--material",
-            "gold",
-            "--size",
-            "32",
-            "--state-dir",
-            "state",
-        ],
-        dir.path(),
-    );
+    let o = capture_gold(dir.path(), "32");
     assert!(!o.status.success(), "{}", out(&o));
     let session = std::fs::read_dir(dir.path().join("state/sessions"))
         .unwrap()
