@@ -735,7 +735,7 @@ pub fn search_pixels(views: &[ViewPixels]) -> (Vec<Vec<GeomPixel>>, Vec<[f64; 3]
         .map(|v| {
             search_subset(v.pixels.len(), views.len())
                 .into_iter()
-                .map(|i| v.pixels[i])
+                .map(|i| v.pixels[i].clone())
                 .collect()
         })
         .collect();

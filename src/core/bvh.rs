@@ -4,7 +4,7 @@
 //!
 //! Not here: what the hits mean (per-pixel geometry in [`super::geometry`]).
 
-use super::brdf::{cross, dot, sub, Vec3};
+use super::brdf::{add, cross, dot, sub, Vec3};
 use super::mesh::Mesh;
 
 /// Triangles per leaf at most: a few triangle tests cost less than another level of boxes.
@@ -114,6 +114,26 @@ impl Bvh {
         self.nodes[at].count = 0;
         self.split(left, start, mid, mesh, centres);
         self.split(left + 1, mid, end, mesh, centres);
+    }
+
+    /// The tree's boxes (low corner, high corner, first, count, as in [`Node`]) and each
+    /// triangle's corners in the order the leaves index: the layout
+    /// [`super::visibility`] walks with packets of rays.
+    pub(super) fn layout(&self) -> (Vec<(Vec3, Vec3, u32, u32)>, Vec<[Vec3; 3]>) {
+        let nodes = self
+            .nodes
+            .iter()
+            .map(|n| (n.lo, n.hi, n.first, n.count))
+            .collect();
+        let tris = self
+            .order
+            .iter()
+            .map(|&t| {
+                let [a, e1, e2] = self.tris[t as usize];
+                [a, add(a, e1), add(a, e2)]
+            })
+            .collect();
+        (nodes, tris)
     }
 
     /// The nearest hit within `(t_min, t_max)` of the ray from `origin` along `dir`.

@@ -261,12 +261,12 @@ pub fn candidate_pixels(
                 .iter()
                 .all(|v| v.is_finite() && *v >= 0.0)
         })
-        .copied()
+        .cloned()
         .collect();
     let unclipped = |p: &GeomPixel| {
         white.is_none_or(|w| photo.get(p.x as usize, p.y as usize).iter().all(|v| *v < w))
     };
-    let usable: Vec<_> = measured.iter().filter(|p| unclipped(p)).copied().collect();
+    let usable: Vec<_> = measured.iter().filter(|p| unclipped(p)).cloned().collect();
     let clipped = measured.len() - usable.len();
     if usable.is_empty() {
         return Err(CoreError::Invalid(if clipped > 0 {
@@ -277,7 +277,7 @@ pub fn candidate_pixels(
     }
     let picked: Vec<_> = spread(usable.len(), max_candidates)
         .into_iter()
-        .map(|i| usable[i])
+        .map(|i| usable[i].clone())
         .collect();
     let observed = picked
         .iter()
@@ -346,7 +346,7 @@ pub fn chosen_rows<'l>(
         }
     }
     for (lights, members) in groups {
-        let pixels: Vec<GeomPixel> = members.iter().map(|&i| rows.pixels[i]).collect();
+        let pixels: Vec<GeomPixel> = members.iter().map(|&i| rows.pixels[i].clone()).collect();
         let fine = basis.rendering_matrix(&pixels, lights);
         for (j, &i) in members.iter().enumerate() {
             rows.replace_pixel(i, &fine, j);

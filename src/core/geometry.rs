@@ -17,6 +17,7 @@ use super::brdf::{add, cross, dot, normalize, scale, sub, tangent_frame, Vec3};
 use super::bvh::Bvh;
 use super::error::{CoreError, Result};
 use super::mesh::{Mesh, Placement, Units};
+use super::visibility::{Occluder, Point, Shadow};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -386,13 +387,16 @@ fn corrugated_hit(
     None
 }
 
-/// One object pixel: image position, world normal and unit view vector (toward the camera).
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// One object pixel: image position, world normal and unit view vector (toward the camera),
+/// and, on a mesh, the object that may hide some of its lights.
+#[derive(Clone, Debug, PartialEq)]
 pub struct GeomPixel {
     pub x: u32,
     pub y: u32,
     pub normal: [f32; 3],
     pub view: [f32; 3],
+    /// `None` for the analytic shapes and normal maps, which are taken as convex.
+    pub shadow: Option<Shadow>,
 }
 
 impl GeomPixel {
@@ -402,6 +406,7 @@ impl GeomPixel {
             y: y as u32,
             normal: normal.map(|c| c as f32),
             view: view.map(|c| c as f32),
+            shadow: None,
         }
     }
 }
@@ -412,6 +417,18 @@ pub struct PixelGeometry {
     pub width: usize,
     pub height: usize,
     pub pixels: Vec<GeomPixel>,
+}
+
+impl PixelGeometry {
+    /// The same pixels as if the object hid none of its own lights: what brdfd assumed before
+    /// meshes cast shadows, kept to measure how much the occlusion matters.
+    pub fn without_occlusion(&self) -> PixelGeometry {
+        let mut g = self.clone();
+        for px in &mut g.pixels {
+            px.shadow = None;
+        }
+        g
+    }
 }
 
 /// Pixels whose normal is within this many degrees of perpendicular to the view are dropped:
@@ -512,8 +529,11 @@ impl PixelGeometry {
         }
         let bvh = Bvh::build(mesh);
         let min_cos = GRAZING_LIMIT_DEG.to_radians().cos();
-        // Per pixel: the hit point, the normal, the view vector, and the footprint's size.
-        type Sample = (Vec3, Vec3, Vec3, f64);
+        // Per pixel: the hit point, the normal, the view vector, the footprint's size, and how
+        // far off the surface its shadow rays start.
+        type Sample = (Vec3, Vec3, Vec3, f64, f64);
+        let (lo, hi) = mesh.bounds();
+        let diagonal = dot(sub(hi, lo), sub(hi, lo)).sqrt();
         let samples: Vec<Option<Sample>> = (0..width * height)
             .into_par_iter()
             .map(|i| {
@@ -521,18 +541,36 @@ impl PixelGeometry {
                 let hit = bvh.closest(ray.origin, ray.dir, 0.0, f64::INFINITY)?;
                 let v = scale(ray.dir, -1.0);
                 let [a, b, c] = mesh.corners(hit.triangle);
-                let face = normalize(cross(sub(b, a), sub(c, a)));
-                let mut n = mesh.normal_at(hit.triangle, hit.u, hit.v);
-                // The side the camera sees: a sheet has two, and a file's winding may be
-                // inside out.
+                // The side the camera sees: a sheet has two, a file's winding may be inside
+                // out, and its normals may disagree with its winding.
+                let mut face = normalize(cross(sub(b, a), sub(c, a)));
                 if dot(face, v) < 0.0 {
+                    face = scale(face, -1.0);
+                }
+                let mut n = mesh.normal_at(hit.triangle, hit.u, hit.v);
+                if dot(n, face) < 0.0 {
                     n = scale(n, -1.0);
                 }
                 let footprint = match camera {
                     Camera::Orthographic { extent, width, .. } => extent / *width as f64,
                     Camera::Pinhole { fx, .. } => hit.t / fx,
                 };
-                Some((add(ray.origin, scale(ray.dir, hit.t)), n, v, footprint))
+                // Shadow rays start above the faces around the point: an interpolated normal
+                // tilts from its face, and the neighbouring faces' corners may stand that much
+                // above its tangent plane without hiding anything a flat face would not.
+                let tilt = (1.0 - dot(n, face).min(1.0).powi(2)).max(0.0).sqrt();
+                let edge = [sub(b, a), sub(c, b), sub(a, c)]
+                    .iter()
+                    .map(|e| dot(*e, *e).sqrt())
+                    .fold(0.0, f64::max);
+                let lift = 2.0 * edge * tilt + 1e-5 * diagonal;
+                Some((
+                    add(ray.origin, scale(ray.dir, hit.t)),
+                    n,
+                    v,
+                    footprint,
+                    lift,
+                ))
             })
             .collect();
         if samples.iter().all(Option::is_none) {
@@ -548,9 +586,10 @@ impl PixelGeometry {
             samples[y as usize * width + x as usize].as_ref()
         };
         let mut pixels = Vec::new();
+        let mut points = Vec::new();
         for y in 0..height as i64 {
             for x in 0..width as i64 {
-                let Some(&(p, n, v, footprint)) = at(x, y) else {
+                let Some(&(p, n, v, footprint, lift)) = at(x, y) else {
                     continue;
                 };
                 let cos = dot(n, v);
@@ -573,8 +612,19 @@ impl PixelGeometry {
                 });
                 if smooth {
                     pixels.push(GeomPixel::new(x as usize, y as usize, n, v));
+                    points.push(Point {
+                        origin: add(p, scale(n, lift)).map(|c| c as f32),
+                        normal: n.map(|c| c as f32),
+                    });
                 }
             }
+        }
+        let occluder = std::sync::Arc::new(Occluder::new(&bvh, points));
+        for (id, px) in pixels.iter_mut().enumerate() {
+            px.shadow = Some(Shadow {
+                occluder: occluder.clone(),
+                id: id as u32,
+            });
         }
         Ok(PixelGeometry {
             width,

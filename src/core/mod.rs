@@ -5,7 +5,7 @@
 //! [`render`] builds A from [`geometry`] and [`envmap`] lights → [`select`] picks pixels →
 //! [`solve`] gives the coefficients; [`analytic`] and [`hybrid`] are the other models. [`estimate`] runs the chain;
 //! `crate::evaluation` measures it from outside. A real part's shape is a [`mesh`], cast per
-//! pixel through a [`bvh`].
+//! pixel through a [`bvh`]; what it hides of its own lights is [`visibility`].
 
 pub mod analytic;
 pub mod basis;
@@ -26,5 +26,6 @@ pub mod render;
 pub mod select;
 pub mod solve;
 pub mod uncertainty;
+pub mod visibility;
 
 pub use error::{CoreError, Result};

@@ -7,7 +7,10 @@
 //! Speed: the inner loop visits every (pixel, light) pair, so it avoids `acos`. It computes
 //! u = |a − b|² = 4 sin²(θ/2), which stays accurate in f32 for tiny angles (where cos θ rounds
 //! to 1), and maps u to its bin through a table with an exact edge check ([`BinLut`]).
-//! Occlusion by the object itself is not modelled: exact for convex shapes (sphere, plane).
+//!
+//! Every renderer here runs one loop over a pixel's lights, [`each_light`]: it skips the
+//! lights below the pixel's horizon and, on a mesh, those its own object hides
+//! ([`super::visibility`]). The analytic shapes are taken as convex.
 
 use rayon::prelude::*;
 
@@ -19,6 +22,7 @@ use super::envmap::LightSet;
 use super::geometry::{GeomPixel, PixelGeometry};
 use super::merl::{self, MerlBrdf};
 use super::raster::Raster;
+use super::visibility::{is_seen, Seen};
 
 /// Pixels per rayon task: large enough to amortise scheduling, small enough to balance 2 cores.
 const PIXELS_PER_TASK: usize = 256;
@@ -210,6 +214,8 @@ struct PackedLight {
     dir: [f32; 3],
     power: [f32; 3],
     base: usize,
+    /// The light's place in its set, for the visibility rows.
+    index: u32,
 }
 
 /// Lights with power, each pointing at its footprint's table (`stride` values per level),
@@ -221,11 +227,13 @@ fn pack(lights: &LightSet, footprints: &Footprints, stride: usize) -> Vec<Packed
         .zip(&lights.radiance)
         .zip(&lights.solid_angle)
         .zip(&footprints.level)
-        .filter(|(((_, l), w), _)| l.iter().any(|c| *c > 0.0) && **w > 0.0)
-        .map(|(((d, l), w), level)| PackedLight {
+        .enumerate()
+        .filter(|(_, (((_, l), w), _))| l.iter().any(|c| *c > 0.0) && **w > 0.0)
+        .map(|(i, (((d, l), w), level))| PackedLight {
             dir: *d,
             power: l.map(|c| c * w),
             base: *level as usize * stride,
+            index: i as u32,
         })
         .collect();
     // By footprint, then by direction (azimuth within bands of elevation), so that the lights
@@ -268,27 +276,105 @@ struct Pair {
     bd: usize,
 }
 
-/// The half vector and (θh, θd) bins of a pixel (normal n, view v) and a light; `None` when
-/// the light is below the pixel's horizon or opposite the view.
-#[inline(always)]
-fn pair(n: [f32; 3], v: [f32; 3], l: &PackedLight, h_lut: &BinLut, d_lut: &BinLut) -> Option<Pair> {
-    let cos = dot3(n, l.dir);
-    if cos <= 0.0 {
-        return None;
+/// The bin tables of θh and θd.
+struct Luts {
+    h: BinLut,
+    d: BinLut,
+}
+
+impl Luts {
+    fn new(binning: ThetaHBinning) -> Luts {
+        Luts {
+            h: BinLut::theta_h(binning),
+            d: BinLut::theta_d(),
+        }
     }
-    let hs = [l.dir[0] + v[0], l.dir[1] + v[1], l.dir[2] + v[2]];
+}
+
+/// A light as the pixel loop meets it: a [`PackedLight`], or one with its half vector
+/// worked out beforehand for a view every pixel shares ([`ViewLight`]).
+trait Lit {
+    fn packed(&self) -> &PackedLight;
+    /// The pair of this light and a pixel (normal n, view v); `None` when the light is below
+    /// the pixel's horizon or opposite the view.
+    fn pair(&self, n: [f32; 3], v: [f32; 3], luts: &Luts) -> Option<Pair>;
+}
+
+impl Lit for PackedLight {
+    #[inline(always)]
+    fn packed(&self) -> &PackedLight {
+        self
+    }
+
+    #[inline(always)]
+    fn pair(&self, n: [f32; 3], v: [f32; 3], luts: &Luts) -> Option<Pair> {
+        let cos = dot3(n, self.dir);
+        if cos <= 0.0 {
+            return None;
+        }
+        let h = half_vector(self.dir, v)?;
+        Some(Pair {
+            cos,
+            h,
+            bh: luts.h.bin(dist2(n, h)),
+            bd: luts.d.bin(dist2(self.dir, h)),
+        })
+    }
+}
+
+impl Lit for ViewLight {
+    #[inline(always)]
+    fn packed(&self) -> &PackedLight {
+        &self.light
+    }
+
+    #[inline(always)]
+    fn pair(&self, n: [f32; 3], _: [f32; 3], luts: &Luts) -> Option<Pair> {
+        let cos = dot3(n, self.light.dir);
+        if cos <= 0.0 {
+            return None;
+        }
+        Some(Pair {
+            cos,
+            h: self.h,
+            bh: luts.h.bin(dist2(n, self.h)),
+            bd: self.bd as usize,
+        })
+    }
+}
+
+#[inline(always)]
+fn half_vector(l: [f32; 3], v: [f32; 3]) -> Option<[f32; 3]> {
+    let hs = [l[0] + v[0], l[1] + v[1], l[2] + v[2]];
     let len2 = dot3(hs, hs);
     if len2 < 1e-12 {
         return None;
     }
     let inv = 1.0 / len2.sqrt();
-    let h = [hs[0] * inv, hs[1] * inv, hs[2] * inv];
-    Some(Pair {
-        cos,
-        h,
-        bh: h_lut.bin(dist2(n, h)),
-        bd: d_lut.bin(dist2(l.dir, h)),
-    })
+    Some([hs[0] * inv, hs[1] * inv, hs[2] * inv])
+}
+
+/// The loop every renderer runs over one pixel's lights: `f` gets each light that is above
+/// the pixel's horizon and, where `seen` is given (a bit per light of the set), not hidden by
+/// the pixel's own object, with the pair's geometry.
+#[inline(always)]
+fn each_light<L: Lit>(
+    px: &GeomPixel,
+    lights: &[L],
+    seen: Option<&[u64]>,
+    luts: &Luts,
+    mut f: impl FnMut(&PackedLight, Pair),
+) {
+    let (n, v) = (px.normal, px.view);
+    for l in lights {
+        let light = l.packed();
+        if seen.is_some_and(|row| !is_seen(row, light.index)) {
+            continue;
+        }
+        if let Some(pair) = l.pair(n, v, luts) {
+            f(light, pair);
+        }
+    }
 }
 
 /// Calls `$obj.$f::<M>(args)` with the column count `m` as a constant: a constant count lets
@@ -304,7 +390,7 @@ macro_rules! by_columns {
         }
     };
     (@call $obj:ident, $f:ident, $n:literal, ($($arg:expr),*)) => {
-        $obj.$f::<$n>($($arg),*)
+        $obj.$f::<$n, _>($($arg),*)
     };
 }
 
@@ -313,8 +399,7 @@ macro_rules! by_columns {
 struct ColumnTable {
     m: usize,
     data: Vec<f32>,
-    h_lut: BinLut,
-    d_lut: BinLut,
+    luts: Luts,
 }
 
 impl ColumnTable {
@@ -341,8 +426,7 @@ impl ColumnTable {
         ColumnTable {
             m,
             data,
-            h_lut: BinLut::theta_h(binning),
-            d_lut: BinLut::theta_d(),
+            luts: Luts::new(binning),
         }
     }
 
@@ -351,40 +435,28 @@ impl ColumnTable {
     }
 
     /// Σⱼ over lights of column values × L·Δω·cos, for one pixel: out[c·m + col].
-    fn pixel(&self, px: &GeomPixel, lights: &[PackedLight], out: &mut [f32]) {
+    fn pixel<L: Lit>(&self, px: &GeomPixel, lights: &[L], seen: Option<&[u64]>, out: &mut [f32]) {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { self.pixel_avx2(px, lights, out) };
+            return unsafe { self.pixel_avx2(px, lights, seen, out) };
         }
-        by_columns!(self.m, self.pixel_m(px, lights, out))
+        by_columns!(self.m, self.pixel_m(px, lights, seen, out))
     }
 
-    /// [`ColumnTable::pixel`] compiled for AVX2 (see [`ColumnTable::pixel_shared_avx2`]).
+    /// [`ColumnTable::pixel`] compiled for AVX2: the columns' accumulation runs eight lanes
+    /// wide instead of SSE's four. Without FMA the sums round exactly as the SSE build's do,
+    /// so both give the same matrix bit for bit.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn pixel_avx2(&self, px: &GeomPixel, lights: &[PackedLight], out: &mut [f32]) {
-        by_columns!(self.m, self.pixel_m(px, lights, out))
-    }
-
-    /// As [`ColumnTable::pixel`], for a view shared by every pixel (lights prepared by
-    /// [`ColumnTable::shared_view`]).
-    fn pixel_shared(&self, px: &GeomPixel, lights: &[ViewLight], out: &mut [f32]) {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { self.pixel_shared_avx2(px, lights, out) };
-        }
-        by_columns!(self.m, self.pixel_shared_m(px, lights, out))
-    }
-
-    /// [`ColumnTable::pixel_shared`] compiled for AVX2: the columns' accumulation runs eight
-    /// lanes wide instead of SSE's four. Without FMA the sums round exactly as the SSE build's
-    /// do, so both give the same matrix bit for bit.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn pixel_shared_avx2(&self, px: &GeomPixel, lights: &[ViewLight], out: &mut [f32]) {
-        by_columns!(self.m, self.pixel_shared_m(px, lights, out))
+    unsafe fn pixel_avx2<L: Lit>(
+        &self,
+        px: &GeomPixel,
+        lights: &[L],
+        seen: Option<&[u64]>,
+        out: &mut [f32],
+    ) {
+        by_columns!(self.m, self.pixel_m(px, lights, seen, out))
     }
 
     #[inline(always)]
@@ -400,17 +472,24 @@ impl ColumnTable {
     }
 
     #[inline(always)]
-    fn pixel_m<const M: usize>(&self, px: &GeomPixel, lights: &[PackedLight], out: &mut [f32]) {
+    fn pixel_m<const M: usize, L: Lit>(
+        &self,
+        px: &GeomPixel,
+        lights: &[L],
+        seen: Option<&[u64]>,
+        out: &mut [f32],
+    ) {
         let mut acc = [[0f32; M]; 3];
-        let n = px.normal;
-        let v = px.view;
-        for l in lights {
-            let Some(Pair { cos, bh, bd, .. }) = pair(n, v, l, &self.h_lut, &self.d_lut) else {
-                continue;
-            };
-            let w = [l.power[0] * cos, l.power[1] * cos, l.power[2] * cos];
-            self.accumulate::<M>(&mut acc, l.base + (bh * N_THETA_D + bd) * 3 * M, w);
-        }
+        each_light(
+            px,
+            lights,
+            seen,
+            &self.luts,
+            |l, Pair { cos, bh, bd, .. }| {
+                let w = [l.power[0] * cos, l.power[1] * cos, l.power[2] * cos];
+                self.accumulate::<M>(&mut acc, l.base + (bh * N_THETA_D + bd) * 3 * M, w);
+            },
+        );
         for c in 0..3 {
             out[c * M..(c + 1) * M].copy_from_slice(&acc[c]);
         }
@@ -423,58 +502,21 @@ impl ColumnTable {
         lights
             .iter()
             .filter_map(|l| {
-                let hs = [l.dir[0] + view[0], l.dir[1] + view[1], l.dir[2] + view[2]];
-                let len2 = dot3(hs, hs);
-                if len2 < 1e-12 {
-                    return None;
-                }
-                let inv = 1.0 / len2.sqrt();
-                let h = [hs[0] * inv, hs[1] * inv, hs[2] * inv];
+                let h = half_vector(l.dir, view)?;
                 Some(ViewLight {
-                    dir: l.dir,
-                    power: l.power,
-                    base: l.base,
+                    light: *l,
                     h,
-                    bd: self.d_lut.bin(dist2(l.dir, h)) as u32,
+                    bd: self.luts.d.bin(dist2(l.dir, h)) as u32,
                 })
             })
             .collect()
-    }
-
-    #[inline(always)]
-    fn pixel_shared_m<const M: usize>(
-        &self,
-        px: &GeomPixel,
-        lights: &[ViewLight],
-        out: &mut [f32],
-    ) {
-        let mut acc = [[0f32; M]; 3];
-        let n = px.normal;
-        for l in lights {
-            let cos = dot3(n, l.dir);
-            if cos <= 0.0 {
-                continue;
-            }
-            let bh = self.h_lut.bin(dist2(n, l.h));
-            let w = [l.power[0] * cos, l.power[1] * cos, l.power[2] * cos];
-            self.accumulate::<M>(
-                &mut acc,
-                l.base + (bh * N_THETA_D + l.bd as usize) * 3 * M,
-                w,
-            );
-        }
-        for c in 0..3 {
-            out[c * M..(c + 1) * M].copy_from_slice(&acc[c]);
-        }
     }
 }
 
 /// A light with its half vector and θd bin for a view shared by all pixels.
 #[derive(Clone, Copy)]
 struct ViewLight {
-    dir: [f32; 3],
-    power: [f32; 3],
-    base: usize,
+    light: PackedLight,
     h: [f32; 3],
     bd: u32,
 }
@@ -529,13 +571,14 @@ impl RenderingMatrix {
             .first()
             .filter(|first| pixels.iter().all(|p| p.view == first.view))
             .map(|first| table.shared_view(first.view, &packed));
+        let seen = Seen::new(pixels, lights);
         raw.par_chunks_mut(PIXELS_PER_TASK * 3 * m)
             .zip(pixels.par_chunks(PIXELS_PER_TASK))
             .for_each(|(out, px)| {
                 for (o, p) in out.chunks_mut(3 * m).zip(px) {
                     match &shared {
-                        Some(lights) => table.pixel_shared(p, lights, o),
-                        None => table.pixel(p, &packed, o),
+                        Some(lights) => table.pixel(p, lights, seen.row(p), o),
+                        None => table.pixel(p, &packed, seen.row(p), o),
                     }
                 }
             });
@@ -564,7 +607,7 @@ impl RenderingMatrix {
         let k = self.columns;
         RenderingMatrix {
             columns: k,
-            pixels: keep.iter().map(|&p| self.pixels[p]).collect(),
+            pixels: keep.iter().map(|&p| self.pixels[p].clone()).collect(),
             rows: keep
                 .iter()
                 .flat_map(|&p| &self.rows[3 * p * k..3 * (p + 1) * k])
@@ -715,17 +758,12 @@ pub fn render_merl(geom: &PixelGeometry, lights: &LightSet, brdf: &MerlBrdf) -> 
                 }
             });
     }
-    let h_lut = BinLut::theta_h(ThetaHBinning::Sqrt);
-    let d_lut = BinLut::theta_d();
+    let luts = Luts::new(ThetaHBinning::Sqrt);
     let packed = pack(lights, &footprints, cells);
-    let shade = |px: &GeomPixel| -> [f32; 3] {
+    let shade = |px: &GeomPixel, seen: Option<&[u64]>| -> [f32; 3] {
         let n = px.normal;
-        let v = px.view;
         let mut acc = [0f64; 3];
-        for l in &packed {
-            let Some(Pair { cos, h, bh, bd }) = pair(n, v, l, &h_lut, &d_lut) else {
-                continue;
-            };
+        each_light(px, &packed, seen, &luts, |l, Pair { cos, h, bh, bd }| {
             // e2 = n × h / |n × h|, e1 = e2 × h; at θh ≈ 0 any frame serves (isotropy).
             let mut e2 = [
                 n[1] * h[2] - n[2] * h[1],
@@ -753,10 +791,10 @@ pub fn render_merl(geom: &PixelGeometry, lights: &LightSet, brdf: &MerlBrdf) -> 
             for c in 0..3 {
                 acc[c] += (f[c] * l.power[c] * cos) as f64;
             }
-        }
+        });
         acc.map(|x| x as f32)
     };
-    shade_pixels(geom, shade)
+    shade_pixels(geom, lights, shade)
 }
 
 /// atan2(y, x) taken modulo π, in [0, π]: the φd of reciprocity. A polynomial arctangent
@@ -795,7 +833,8 @@ pub fn render_full(geom: &PixelGeometry, lights: &LightSet, brdf: &dyn Isotropic
     use super::brdf::tangent_frame;
     // Point lights: this renderer is the independent check, so it takes no footprint.
     let packed = pack(lights, &Footprints::of(lights), 0);
-    let shade = |px: &GeomPixel| -> [f32; 3] {
+    let luts = Luts::new(ThetaHBinning::Sqrt);
+    let shade = |px: &GeomPixel, seen: Option<&[u64]>| -> [f32; 3] {
         let n = px.normal.map(|c| c as f64);
         let (t, b) = tangent_frame(n);
         let local = |d: [f32; 3]| {
@@ -808,30 +847,58 @@ pub fn render_full(geom: &PixelGeometry, lights: &LightSet, brdf: &dyn Isotropic
         };
         let wo = local(px.view);
         let mut acc = [0f64; 3];
-        for l in &packed {
+        // The loop's pair is not used: this renderer evaluates the BRDF in f64 itself.
+        each_light(px, &packed, seen, &luts, |l, _| {
             let wi = local(l.dir);
             if wi[2] <= 0.0 {
-                continue;
+                return;
             }
             let f = brdf.eval_dirs(wi, wo);
             for c in 0..3 {
                 acc[c] += f[c] * l.power[c] as f64 * wi[2];
             }
-        }
+        });
         acc.map(|x| x as f32)
     };
-    shade_pixels(geom, shade)
+    shade_pixels(geom, lights, shade)
 }
 
+/// The fraction of the light reaching each pixel's tangent plane that its own object lets
+/// through: Σ L·cos·Δω over the lights it sees, over the same sum for every light above its
+/// horizon (all channels). 1 on a convex shape; the preview and report show it.
+pub fn visible_fraction(geom: &PixelGeometry, lights: &LightSet) -> Raster {
+    let packed = pack(lights, &Footprints::of(lights), 0);
+    let luts = Luts::new(ThetaHBinning::Sqrt);
+    shade_pixels(geom, lights, |px, seen| {
+        let irradiance = |seen: Option<&[u64]>| {
+            let mut sum = 0f64;
+            each_light(px, &packed, seen, &luts, |l, p| {
+                sum += (l.power.iter().sum::<f32>() * p.cos) as f64;
+            });
+            sum
+        };
+        let all = irradiance(None);
+        let f = if all > 0.0 {
+            (irradiance(seen) / all) as f32
+        } else {
+            1.0
+        };
+        [f; 3]
+    })
+}
+
+/// Each pixel's `shade`, given the lights its object lets it see, into an image.
 fn shade_pixels(
     geom: &PixelGeometry,
-    shade: impl Fn(&GeomPixel) -> [f32; 3] + Sync + Send,
+    lights: &LightSet,
+    shade: impl Fn(&GeomPixel, Option<&[u64]>) -> [f32; 3] + Sync + Send,
 ) -> Raster {
+    let seen = Seen::new(&geom.pixels, lights);
     let values: Vec<[f32; 3]> = geom
         .pixels
         .par_iter()
         .with_min_len(PIXELS_PER_TASK / 4)
-        .map(&shade)
+        .map(|px| shade(px, seen.row(px)))
         .collect();
     let mut img = Raster::black(geom.width, geom.height);
     for (px, v) in geom.pixels.iter().zip(values) {
@@ -904,11 +971,11 @@ mod tests {
             let shared = table.shared_view(geometry.pixels[0].view, &packed);
             let (mut fast, mut portable) = (vec![0f32; 3 * m], vec![0f32; 3 * m]);
             for px in &geometry.pixels {
-                table.pixel(px, &packed, &mut fast);
-                by_columns!(m, table.pixel_m(px, &packed, &mut portable));
+                table.pixel(px, &packed, None, &mut fast);
+                by_columns!(m, table.pixel_m(px, &packed, None, &mut portable));
                 assert_eq!(fast, portable, "general loop, {m} columns");
-                table.pixel_shared(px, &shared, &mut fast);
-                by_columns!(m, table.pixel_shared_m(px, &shared, &mut portable));
+                table.pixel(px, &shared, None, &mut fast);
+                by_columns!(m, table.pixel_m(px, &shared, None, &mut portable));
                 assert_eq!(fast, portable, "shared-view loop, {m} columns");
             }
         }

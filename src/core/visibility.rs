@@ -1,0 +1,742 @@
+//! Which lights a point of a mesh sees past the mesh itself: self-occlusion.
+//!
+//! A light at infinity counts for a surface point only if the ray from the point towards it
+//! leaves the object. 50,000 pixels under 4,096 lights are 2·10⁸ rays, too many to cast one
+//! by one, so the lights go in clusters of up to [`CLUSTER`] neighbouring directions, each
+//! bounded by a cone. One walk of the BVH per pixel and cluster visits only the boxes that
+//! are inside the cone and above the pixel's tangent plane (nothing below it can be met by a
+//! ray that leaves the surface). In open space the walk ends at the top boxes. Facing a wall,
+//! it reaches the wall's triangles, and each triangle is tested against all of the cluster's
+//! remaining rays at once: a ray from o meets triangle abc exactly when its direction lies in
+//! the trihedral cone from o through a, b and c, which is three signs of dot products.
+//!
+//! Answers are kept per light set (by a fingerprint of its directions) and per pixel: the
+//! estimate builds many matrices over the same pixels and lights, and each asks again.
+
+use std::collections::hash_map::DefaultHasher;
+use std::hash::{Hash, Hasher};
+use std::sync::{Arc, Mutex, OnceLock};
+
+use super::brdf::Vec3;
+use super::bvh::Bvh;
+use super::envmap::LightSet;
+use super::geometry::GeomPixel;
+
+/// Lights per cluster, at most: one bit each in a u64. Wider cones cull fewer boxes, narrower
+/// ones cost more walks; 32 is the faster of the two on the bench's concave part.
+const CLUSTER: usize = 32;
+
+/// A surface point whose visibility is asked: where the rays start (just off the surface,
+/// along the normal) and the normal.
+#[derive(Clone, Copy, Debug)]
+pub struct Point {
+    pub origin: [f32; 3],
+    pub normal: [f32; 3],
+}
+
+/// One box of the BVH, in 32 bytes: two to a cache line.
+#[derive(Clone, Copy)]
+struct BoxNode {
+    lo: [f32; 3],
+    hi: [f32; 3],
+    /// A leaf's first triangle, or an inner node's first child (the second follows).
+    first: u32,
+    /// A leaf's triangle count, or [`INNER`] with the axis from an inner node's first
+    /// child's centre to its second's (bits 0–1, and bit 2 if the second is the lower):
+    /// the walk takes the child the rays meet first without reading either.
+    meta: u32,
+}
+
+/// The instruction sets the packet tests are written for.
+const PORTABLE: u8 = 0;
+const AVX2: u8 = 1;
+const AVX512: u8 = 2;
+
+/// The flag of an inner node in [`BoxNode::meta`].
+const INNER: u32 = 1 << 31;
+
+/// A mesh as the object that may hide its own points' lights, and those points.
+pub struct Occluder {
+    nodes: Vec<BoxNode>,
+    tris: Vec<[[f32; 3]; 3]>,
+    points: Vec<Point>,
+    tables: Mutex<Vec<(u64, Arc<Table>)>>,
+}
+
+/// A pixel's place in its object's [`Occluder`]: the pixel is `points[id]` there.
+#[derive(Clone)]
+pub struct Shadow {
+    pub occluder: Arc<Occluder>,
+    pub id: u32,
+}
+
+impl PartialEq for Shadow {
+    fn eq(&self, other: &Shadow) -> bool {
+        Arc::ptr_eq(&self.occluder, &other.occluder) && self.id == other.id
+    }
+}
+
+impl std::fmt::Debug for Shadow {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Shadow(point {})", self.id)
+    }
+}
+
+/// Neighbouring light directions, [`CLUSTER`] at a time.
+struct Clusters {
+    packets: Vec<Packet>,
+}
+
+/// Up to [`CLUSTER`] light directions, laid out across (one array per axis) so that one
+/// box or triangle is tested against all of them in a few vector instructions; unused
+/// places hold a copy of the first direction and are never active.
+#[derive(Clone)]
+struct Packet {
+    len: usize,
+    dir: [[f32; CLUSTER]; 3],
+    inv: [[f32; CLUSTER]; 3],
+    /// Each direction's index in the light set.
+    index: [u32; CLUSTER],
+    /// Whether the directions' mean points up each axis.
+    heading: [bool; 3],
+}
+
+/// The visibility of one light set, per point, worked out as points are asked for.
+pub struct Table {
+    clusters: Clusters,
+    words: usize,
+    rows: Vec<OnceLock<Box<[u64]>>>,
+}
+
+impl Occluder {
+    /// The occluder of `bvh`'s mesh for `points`.
+    pub fn new(bvh: &Bvh, points: Vec<Point>) -> Occluder {
+        let (nodes, tris) = bvh.layout();
+        let f = |v: Vec3| v.map(|c| c as f32);
+        let centre = |i: usize| {
+            let (lo, hi, _, _) = nodes[i];
+            [0, 1, 2].map(|k| (lo[k] + hi[k]) / 2.0)
+        };
+        let nodes = nodes
+            .iter()
+            .map(|&(lo, hi, first, count)| {
+                let meta = if count == 0 {
+                    let (a, b) = (centre(first as usize), centre(first as usize + 1));
+                    (0..3)
+                        .max_by(|&i, &j| (b[i] - a[i]).abs().total_cmp(&(b[j] - a[j]).abs()))
+                        .map_or(INNER, |i| {
+                            INNER | i as u32 | if b[i] < a[i] { 4 } else { 0 }
+                        })
+                } else {
+                    count
+                };
+                BoxNode {
+                    lo: f(lo),
+                    hi: f(hi),
+                    first,
+                    meta,
+                }
+            })
+            .collect();
+        Occluder {
+            nodes,
+            tris: tris.into_iter().map(|t| t.map(f)).collect(),
+            points,
+            tables: Mutex::new(Vec::new()),
+        }
+    }
+
+    pub fn points(&self) -> &[Point] {
+        &self.points
+    }
+
+    /// The table of `lights`, made (empty) on first use.
+    pub fn table(&self, lights: &LightSet) -> Arc<Table> {
+        let key = fingerprint(lights);
+        let mut tables = self.tables.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, t)) = tables.iter().find(|(k, _)| *k == key) {
+            return t.clone();
+        }
+        let table = Arc::new(Table {
+            clusters: Clusters::of(lights),
+            words: lights.len().div_ceil(64),
+            rows: (0..self.points.len()).map(|_| OnceLock::new()).collect(),
+        });
+        tables.push((key, table.clone()));
+        table
+    }
+
+    /// Bit i of the answer is set when light i of the table's set is above point `id`'s
+    /// horizon and its ray leaves the object.
+    fn seen(&self, id: usize, clusters: &Clusters, words: usize) -> Box<[u64]> {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU has AVX-512F, checked just above.
+                return unsafe { self.seen_avx512(id, clusters, words) };
+            }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU has AVX2, checked just above.
+                return unsafe { self.seen_avx2(id, clusters, words) };
+            }
+        }
+        self.seen_with::<PORTABLE>(id, clusters, words)
+    }
+
+    /// [`Occluder::seen`] with the packet tests in AVX2 ([`avx2`]): a packet's 32 rays in
+    /// four 8-lane steps, each ending in one move-mask. They add and multiply in the portable
+    /// tests' order, without fused multiply-adds, so every build gives the same answer.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn seen_avx2(&self, id: usize, clusters: &Clusters, words: usize) -> Box<[u64]> {
+        self.seen_with::<AVX2>(id, clusters, words)
+    }
+
+    /// [`Occluder::seen`] with the packet tests in AVX-512 ([`avx512`]): two 16-lane steps.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn seen_avx512(&self, id: usize, clusters: &Clusters, words: usize) -> Box<[u64]> {
+        self.seen_with::<AVX512>(id, clusters, words)
+    }
+
+    #[inline(always)]
+    fn seen_with<const SIMD: u8>(
+        &self,
+        id: usize,
+        clusters: &Clusters,
+        words: usize,
+    ) -> Box<[u64]> {
+        let Point { origin, normal } = self.points[id];
+        let mut out = vec![0u64; words].into_boxed_slice();
+        let frontier = self.frontier(origin, normal);
+        let mut stack = Vec::with_capacity(frontier.len() + 64);
+        for packet in &clusters.packets {
+            let up = packet.mask(|j| {
+                normal[0] * packet.dir[0][j]
+                    + normal[1] * packet.dir[1][j]
+                    + normal[2] * packet.dir[2][j]
+                    > 0.0
+            });
+            if up == 0 {
+                continue;
+            }
+            stack.clear();
+            stack.extend(frontier.iter().map(|&at| (at, up)));
+            let mut open = up & !self.blocked::<SIMD>(origin, normal, packet, up, &mut stack);
+            while open != 0 {
+                let i = packet.index[open.trailing_zeros() as usize] as usize;
+                out[i >> 6] |= 1 << (i & 63);
+                open &= open - 1;
+            }
+        }
+        out
+    }
+
+    /// Where every walk from `o` starts: the boxes above the tangent plane that do not hold
+    /// `o`, and the leaves that do, nearest last. Each walk would otherwise first go down the
+    /// same boxes about `o`, which every ray passes through.
+    fn frontier(&self, o: [f32; 3], n: [f32; 3]) -> Vec<u32> {
+        let mut frontier = Vec::new();
+        let mut stack = vec![0u32];
+        while let Some(at) = stack.pop() {
+            let node = &self.nodes[at as usize];
+            if !node.above(o, n) {
+                continue;
+            }
+            let holds_o = (0..3).all(|i| node.lo[i] <= o[i] && o[i] <= node.hi[i]);
+            if holds_o && node.meta & INNER != 0 {
+                stack.extend([node.first, node.first + 1]);
+            } else {
+                frontier.push(at);
+            }
+        }
+        frontier
+    }
+
+    /// Which of the `active` rays of `packet` from `o` meet a triangle, walking from the
+    /// boxes on `stack` (each with the rays that may meet it). Each box on the way is tested
+    /// against every ray still open, so that the walk follows the rays, not a cone around
+    /// them.
+    #[inline(always)]
+    fn blocked<const SIMD: u8>(
+        &self,
+        o: [f32; 3],
+        n: [f32; 3],
+        packet: &Packet,
+        active: u64,
+        stack: &mut Vec<(u32, u64)>,
+    ) -> u64 {
+        let mut open = active;
+        while let Some((at, mask)) = stack.pop() {
+            let node = &self.nodes[at as usize];
+            let mask = mask & open;
+            if mask == 0 || !node.above(o, n) {
+                continue;
+            }
+            let mask = packet.through::<SIMD>(node, o, mask);
+            if mask == 0 {
+                continue;
+            }
+            if node.meta & INNER != 0 {
+                // The child the rays meet first goes on top, to be walked first: its hits
+                // end the walk sooner.
+                let (a, b) = (node.first, node.first + 1);
+                let ahead = packet.heading[(node.meta & 3) as usize] ^ (node.meta & 4 != 0);
+                let (later, sooner) = if ahead { (b, a) } else { (a, b) };
+                stack.extend([(later, mask), (sooner, mask)]);
+                continue;
+            }
+            let leaf = &self.tris[node.first as usize..(node.first + node.meta) as usize];
+            for tri in leaf {
+                let hits = packet.hits::<SIMD>(tri, o, n, mask & open);
+                open &= !hits;
+                if open == 0 {
+                    return active;
+                }
+            }
+        }
+        active & !open
+    }
+}
+
+impl BoxNode {
+    /// Whether the box reaches above the tangent plane at `o`: a ray that leaves the
+    /// surface meets nothing below it.
+    #[inline(always)]
+    fn above(&self, o: [f32; 3], n: [f32; 3]) -> bool {
+        let mut height = 0.0;
+        for i in 0..3 {
+            let far = if n[i] > 0.0 { self.hi[i] } else { self.lo[i] };
+            height += n[i] * (far - o[i]);
+        }
+        height > 0.0
+    }
+}
+
+impl Packet {
+    /// The bits of the places `f` holds for, among the packet's directions.
+    #[inline(always)]
+    fn mask(&self, f: impl Fn(usize) -> bool) -> u64 {
+        let mut m = 0u64;
+        for j in 0..CLUSTER {
+            m |= (f(j) as u64) << j;
+        }
+        m & (u64::MAX >> (64 - self.len))
+    }
+
+    /// The rays of `mask` from `o` that pass through the box (the slab test, ray by ray).
+    #[inline(always)]
+    fn through<const SIMD: u8>(&self, node: &BoxNode, o: [f32; 3], mask: u64) -> u64 {
+        let lo = sub(node.lo, o);
+        let hi = sub(node.hi, o);
+        #[cfg(target_arch = "x86_64")]
+        match SIMD {
+            // SAFETY: only `seen_avx2` and `seen_avx512` ask for these, on CPUs that have them.
+            AVX2 => return unsafe { avx2::through(self, lo, hi, mask) },
+            AVX512 => return unsafe { avx512::through(self, lo, hi, mask) },
+            _ => {}
+        }
+        let mut near = [0f32; CLUSTER];
+        let mut far = [f32::INFINITY; CLUSTER];
+        for i in 0..3 {
+            for j in 0..CLUSTER {
+                let (a, b) = (lo[i] * self.inv[i][j], hi[i] * self.inv[i][j]);
+                near[j] = near[j].max(a.min(b));
+                far[j] = far[j].min(a.max(b));
+            }
+        }
+        self.mask(|j| near[j] <= far[j]) & mask
+    }
+
+    /// The rays of `mask` from `o` that pass through the triangle: those whose direction
+    /// lies in the trihedral cone from `o` through its corners.
+    #[inline(always)]
+    fn hits<const SIMD: u8>(
+        &self,
+        tri: &[[f32; 3]; 3],
+        o: [f32; 3],
+        n: [f32; 3],
+        mask: u64,
+    ) -> u64 {
+        let (a, b, c) = (sub(tri[0], o), sub(tri[1], o), sub(tri[2], o));
+        // Wholly below the tangent plane: no ray that leaves the surface gets there.
+        if dot(n, a) <= 0.0 && dot(n, b) <= 0.0 && dot(n, c) <= 0.0 {
+            return 0;
+        }
+        let (mut bc, mut ca, mut ab) = (cross(b, c), cross(c, a), cross(a, b));
+        let det = dot(a, bc);
+        if det == 0.0 {
+            // `o` is in the triangle's plane: rays graze it edge on.
+            return 0;
+        }
+        if det < 0.0 {
+            (bc, ca, ab) = (neg(bc), neg(ca), neg(ab));
+        }
+        #[cfg(target_arch = "x86_64")]
+        match SIMD {
+            // SAFETY: only `seen_avx2` and `seen_avx512` ask for these, on CPUs that have them.
+            AVX2 => return unsafe { avx2::inside(self, [bc, ca, ab], mask) },
+            AVX512 => return unsafe { avx512::inside(self, [bc, ca, ab], mask) },
+            _ => {}
+        }
+        let d = &self.dir;
+        let side = |e: [f32; 3], j: usize| e[0] * d[0][j] + e[1] * d[1][j] + e[2] * d[2][j];
+        // On an edge counts as through, so that no ray slips between two triangles.
+        self.mask(|j| side(bc, j) >= 0.0 && side(ca, j) >= 0.0 && side(ab, j) >= 0.0) & mask
+    }
+}
+
+impl Clusters {
+    /// The lights in order along a Z-curve over the octahedral map of directions, cut into
+    /// runs of [`CLUSTER`]: each run is a small patch of the sphere.
+    fn of(lights: &LightSet) -> Clusters {
+        let mut order: Vec<(u64, u32)> = lights
+            .directions
+            .iter()
+            .enumerate()
+            .map(|(i, d)| (morton(octahedral(*d)), i as u32))
+            .collect();
+        order.sort_unstable();
+        let packets = order
+            .chunks(CLUSTER)
+            .map(|run| {
+                let mut p = Packet {
+                    len: run.len(),
+                    dir: [[0.0; CLUSTER]; 3],
+                    inv: [[0.0; CLUSTER]; 3],
+                    index: [run[0].1; CLUSTER],
+                    heading: [false; 3],
+                };
+                let mut mean = [0f32; 3];
+                for j in 0..CLUSTER {
+                    let (_, i) = run[j.min(run.len() - 1)];
+                    let d = lights.directions[i as usize];
+                    p.index[j] = i;
+                    mean = [0, 1, 2].map(|k| mean[k] + d[k]);
+                    for k in 0..3 {
+                        p.dir[k][j] = d[k];
+                        // Finite, so that a box face through the origin gives 0, never
+                        // 0 × ∞: the slab test then needs no case for NaN.
+                        p.inv[k][j] = (1.0 / d[k]).clamp(-1e30, 1e30);
+                    }
+                }
+                p.heading = mean.map(|c| c > 0.0);
+                p
+            })
+            .collect();
+        Clusters { packets }
+    }
+}
+
+impl Table {
+    /// The lights point `id` of `occluder` sees, one bit per light of the set.
+    pub fn row(&self, occluder: &Occluder, id: u32) -> &[u64] {
+        self.rows[id as usize]
+            .get_or_init(|| occluder.seen(id as usize, &self.clusters, self.words))
+    }
+}
+
+/// The visibility of each pixel's lights, for one light set: the tables of the pixels'
+/// occluders (usually one), looked up once per build.
+pub struct Seen {
+    tables: Vec<(Arc<Occluder>, Arc<Table>)>,
+}
+
+impl Seen {
+    pub fn new(pixels: &[GeomPixel], lights: &LightSet) -> Seen {
+        let mut tables: Vec<(Arc<Occluder>, Arc<Table>)> = Vec::new();
+        for s in pixels.iter().filter_map(|p| p.shadow.as_ref()) {
+            if !tables.iter().any(|(o, _)| Arc::ptr_eq(o, &s.occluder)) {
+                tables.push((s.occluder.clone(), s.occluder.table(lights)));
+            }
+        }
+        Seen { tables }
+    }
+
+    /// The pixel's visible lights (a bit per light), or `None` when nothing hides its lights.
+    pub fn row(&self, px: &GeomPixel) -> Option<&[u64]> {
+        let s = px.shadow.as_ref()?;
+        let (o, t) = self
+            .tables
+            .iter()
+            .find(|(o, _)| Arc::ptr_eq(o, &s.occluder))?;
+        Some(t.row(o, s.id))
+    }
+}
+
+/// Whether bit `i` of a visibility row is set.
+#[inline(always)]
+pub fn is_seen(row: &[u64], i: u32) -> bool {
+    row[(i >> 6) as usize] >> (i & 63) & 1 == 1
+}
+
+fn fingerprint(lights: &LightSet) -> u64 {
+    let mut h = DefaultHasher::new();
+    lights.len().hash(&mut h);
+    for d in &lights.directions {
+        d.map(f32::to_bits).hash(&mut h);
+    }
+    h.finish()
+}
+
+/// The octahedral map of a unit direction onto [0, 1)²: equal areas of the sphere land on
+/// nearly equal areas of the square, and neighbours stay neighbours.
+fn octahedral(d: [f32; 3]) -> (u32, u32) {
+    let l1 = d[0].abs() + d[1].abs() + d[2].abs();
+    let (mut x, mut y) = (d[0] / l1, d[1] / l1);
+    if d[2] < 0.0 {
+        (x, y) = ((1.0 - y.abs()) * x.signum(), (1.0 - x.abs()) * y.signum());
+    }
+    let q = |v: f32| (((v + 1.0) / 2.0).clamp(0.0, 1.0) * 65_535.0) as u32;
+    (q(x), q(y))
+}
+
+fn morton((x, y): (u32, u32)) -> u64 {
+    let spread = |v: u32| {
+        let mut v = v as u64 & 0xffff;
+        v = (v | (v << 8)) & 0x00ff_00ff;
+        v = (v | (v << 4)) & 0x0f0f_0f0f;
+        v = (v | (v << 2)) & 0x3333_3333;
+        (v | (v << 1)) & 0x5555_5555
+    };
+    spread(x) | (spread(y) << 1)
+}
+
+#[inline(always)]
+fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[inline(always)]
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+#[inline(always)]
+fn neg(a: [f32; 3]) -> [f32; 3] {
+    [-a[0], -a[1], -a[2]]
+}
+
+#[inline(always)]
+fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// The packet tests in AVX2 intrinsics, eight rays to a vector.
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use super::{Packet, CLUSTER};
+    use std::arch::x86_64::*;
+
+    /// [`Packet::through`]: the rays that pass through the box `lo`..`hi` (relative to the
+    /// rays' origin).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn through(p: &Packet, lo: [f32; 3], hi: [f32; 3], mask: u64) -> u64 {
+        let mut m = 0u64;
+        for g in 0..CLUSTER / 8 {
+            if (mask >> (8 * g)) & 0xff == 0 {
+                continue;
+            }
+            let mut near = _mm256_setzero_ps();
+            let mut far = _mm256_set1_ps(f32::INFINITY);
+            for i in 0..3 {
+                let inv = _mm256_loadu_ps(p.inv[i][8 * g..].as_ptr());
+                let a = _mm256_mul_ps(_mm256_set1_ps(lo[i]), inv);
+                let b = _mm256_mul_ps(_mm256_set1_ps(hi[i]), inv);
+                near = _mm256_max_ps(near, _mm256_min_ps(a, b));
+                far = _mm256_min_ps(far, _mm256_max_ps(a, b));
+            }
+            let ok = _mm256_cmp_ps::<_CMP_LE_OQ>(near, far);
+            m |= (_mm256_movemask_ps(ok) as u32 as u64) << (8 * g);
+        }
+        m & mask
+    }
+
+    /// [`Packet::hits`]' last step: the rays on the inner side of all three planes
+    /// `e` (through the origin).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn inside(p: &Packet, e: [[f32; 3]; 3], mask: u64) -> u64 {
+        let mut m = 0u64;
+        let zero = _mm256_setzero_ps();
+        for g in 0..CLUSTER / 8 {
+            if (mask >> (8 * g)) & 0xff == 0 {
+                continue;
+            }
+            let d = [0, 1, 2].map(|k| _mm256_loadu_ps(p.dir[k][8 * g..].as_ptr()));
+            let mut all = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
+            for plane in e {
+                // (x·dx + y·dy) + z·dz, as the portable test sums.
+                let s = _mm256_add_ps(
+                    _mm256_add_ps(
+                        _mm256_mul_ps(_mm256_set1_ps(plane[0]), d[0]),
+                        _mm256_mul_ps(_mm256_set1_ps(plane[1]), d[1]),
+                    ),
+                    _mm256_mul_ps(_mm256_set1_ps(plane[2]), d[2]),
+                );
+                all = _mm256_and_ps(all, _mm256_cmp_ps::<_CMP_GE_OQ>(s, zero));
+            }
+            m |= (_mm256_movemask_ps(all) as u32 as u64) << (8 * g);
+        }
+        m & mask
+    }
+}
+
+/// The packet tests in AVX-512 intrinsics, sixteen rays to a vector, as [`avx2`]'s.
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use super::{Packet, CLUSTER};
+    use std::arch::x86_64::*;
+
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn through(p: &Packet, lo: [f32; 3], hi: [f32; 3], mask: u64) -> u64 {
+        let mut m = 0u64;
+        for g in 0..CLUSTER / 16 {
+            let lanes = ((mask >> (16 * g)) & 0xffff) as u16;
+            if lanes == 0 {
+                continue;
+            }
+            let mut near = _mm512_setzero_ps();
+            let mut far = _mm512_set1_ps(f32::INFINITY);
+            for i in 0..3 {
+                let inv = _mm512_loadu_ps(p.inv[i][16 * g..].as_ptr());
+                let a = _mm512_mul_ps(_mm512_set1_ps(lo[i]), inv);
+                let b = _mm512_mul_ps(_mm512_set1_ps(hi[i]), inv);
+                near = _mm512_max_ps(near, _mm512_min_ps(a, b));
+                far = _mm512_min_ps(far, _mm512_max_ps(a, b));
+            }
+            let ok = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(lanes, near, far);
+            m |= (ok as u64) << (16 * g);
+        }
+        m
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn inside(p: &Packet, e: [[f32; 3]; 3], mask: u64) -> u64 {
+        let mut m = 0u64;
+        let zero = _mm512_setzero_ps();
+        for g in 0..CLUSTER / 16 {
+            let mut lanes = ((mask >> (16 * g)) & 0xffff) as u16;
+            if lanes == 0 {
+                continue;
+            }
+            let d = [0, 1, 2].map(|k| _mm512_loadu_ps(p.dir[k][16 * g..].as_ptr()));
+            for plane in e {
+                let s = _mm512_add_ps(
+                    _mm512_add_ps(
+                        _mm512_mul_ps(_mm512_set1_ps(plane[0]), d[0]),
+                        _mm512_mul_ps(_mm512_set1_ps(plane[1]), d[1]),
+                    ),
+                    _mm512_mul_ps(_mm512_set1_ps(plane[2]), d[2]),
+                );
+                lanes = _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(lanes, s, zero);
+            }
+            m |= (lanes as u64) << (16 * g);
+        }
+        m
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::brdf::normalize;
+    use crate::core::mesh::{bowl, grooved_plate};
+
+    fn lights(n: usize) -> LightSet {
+        // A Fibonacci sphere: even, and no two directions on one grid line.
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        let directions: Vec<[f32; 3]> = (0..n)
+            .map(|i| {
+                let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+                let r = (1.0 - z * z).sqrt();
+                let a = golden * i as f64;
+                [r * a.cos(), r * a.sin(), z].map(|c| c as f32)
+            })
+            .collect();
+        LightSet {
+            radiance: vec![[1.0; 3]; n],
+            solid_angle: vec![(4.0 * std::f64::consts::PI / n as f64) as f32; n],
+            spread: Vec::new(),
+            directions,
+        }
+    }
+
+    /// The cone walk gives, light for light, what a ray cast one by one gives.
+    #[test]
+    fn the_cone_walk_agrees_with_rays_cast_one_by_one() {
+        let cases = [grooved_plate(1.0, 1.0, 3, 0.25, 24, 12), bowl(0.5, 12, 24)];
+        let set = lights(2000);
+        for mesh in cases {
+            let bvh = Bvh::build(&mesh);
+            let mut rng = 7u64;
+            let mut next = || {
+                rng = rng
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (rng >> 11) as f64 / (1u64 << 53) as f64
+            };
+            // Points on random triangles, with their faces' normals turned up.
+            let points: Vec<(Vec3, Vec3)> = (0..60)
+                .map(|_| {
+                    let t = (next() * mesh.triangles.len() as f64) as usize;
+                    let [a, b, c] = mesh.corners(t);
+                    let (mut u, mut v) = (next(), next());
+                    if u + v > 1.0 {
+                        (u, v) = (1.0 - u, 1.0 - v);
+                    }
+                    let p = [0, 1, 2].map(|i| a[i] + u * (b[i] - a[i]) + v * (c[i] - a[i]));
+                    let e1 = [0, 1, 2].map(|i| b[i] - a[i]);
+                    let e2 = [0, 1, 2].map(|i| c[i] - a[i]);
+                    let mut n = normalize(crate::core::brdf::cross(e1, e2));
+                    if n[2] < 0.0 {
+                        n = n.map(|c| -c);
+                    }
+                    (p.map(|c| c), n)
+                })
+                .collect();
+            let lift = 1e-6;
+            let occluder = Occluder::new(
+                &bvh,
+                points
+                    .iter()
+                    .map(|(p, n)| Point {
+                        origin: [0, 1, 2].map(|i| (p[i] + lift * n[i]) as f32),
+                        normal: n.map(|c| c as f32),
+                    })
+                    .collect(),
+            );
+            let table = occluder.table(&set);
+            let (mut disagree, mut hidden, mut asked) = (0, 0, 0);
+            for (id, (p, n)) in points.iter().enumerate() {
+                let row = table.row(&occluder, id as u32);
+                let o = [0, 1, 2].map(|i| p[i] + lift * n[i]);
+                for (i, d) in set.directions.iter().enumerate() {
+                    let d = d.map(|c| c as f64);
+                    let up = crate::core::brdf::dot(d, *n) > 0.0;
+                    let expect = up && !bvh.occluded(o, d, 1e-9, f64::INFINITY);
+                    asked += up as usize;
+                    hidden += (up && !expect) as usize;
+                    disagree += (is_seen(row, i as u32) != expect) as usize;
+                }
+            }
+            eprintln!("{disagree} of {asked} rays above the horizon disagree; {hidden} hidden");
+            // Rays along a triangle's edge may fall either way in f32 and f64.
+            assert!(
+                disagree * 10_000 <= asked,
+                "{disagree} of {asked} rays disagree"
+            );
+            assert!(
+                hidden * 20 > asked,
+                "the case hides too little: {hidden} of {asked}"
+            );
+        }
+    }
+}
