@@ -17,9 +17,10 @@ use crate::core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
 use crate::core::envmap::{uv_of, EnvMap, LightSet};
 use crate::core::error::{CoreError, Result};
 use crate::core::estimate::{fit_verdict, Estimate};
+use crate::core::geometry::PixelGeometry;
 use crate::core::merl;
 use crate::core::raster::Raster;
-use crate::core::render::SpherePicture;
+use crate::core::render::{visible_fraction, SpherePicture};
 
 /// What a report shows besides the estimate itself; every part is optional.
 #[derive(Default)]
@@ -43,6 +44,44 @@ pub struct Context<'a> {
     pub fallback: Option<String>,
     /// The session's record: what, when, which devices.
     pub record: Vec<(String, String)>,
+    /// On a mesh, what of its light the object hides from itself in the first view.
+    pub visibility: Option<&'a Visibility>,
+}
+
+/// The fraction of the light reaching each object pixel that the object itself lets through
+/// ([`crate::core::render::visible_fraction`]), and its mean over the object.
+pub struct Visibility {
+    pub fraction: Raster,
+    pub mean: f64,
+}
+
+impl Visibility {
+    /// `None` for a shape that hides nothing from itself (the analytic ones, normal maps).
+    pub fn of(geometry: &PixelGeometry, lights: &LightSet) -> Option<Visibility> {
+        if geometry.pixels.iter().all(|p| p.shadow.is_none()) {
+            return None;
+        }
+        let fraction = visible_fraction(geometry, lights);
+        let sum: f64 = geometry
+            .pixels
+            .iter()
+            .map(|p| fraction.get(p.x as usize, p.y as usize)[0] as f64)
+            .sum();
+        Some(Visibility {
+            mean: sum / geometry.pixels.len().max(1) as f64,
+            fraction,
+        })
+    }
+
+    /// The fraction as grey levels: 255 for all the light, 128 for half. Not sRGB-encoded,
+    /// which would show a half as three quarters and flatten the differences that matter.
+    pub fn picture(&self) -> RgbImage {
+        let f = &self.fraction;
+        RgbImage::from_fn(f.width as u32, f.height as u32, |x, y| {
+            let v = f.get(x as usize, y as usize)[0].clamp(0.0, 1.0);
+            Rgb([(v * 255.0).round() as u8; 3])
+        })
+    }
 }
 
 /// θd of the BRDF slices, in degrees: near the retro direction, a middle angle, near grazing.
@@ -119,6 +158,18 @@ fn page(
             );
         }
         None => h.push_str("<p>No photo was given to this report.</p>\n"),
+    }
+
+    if let Some(v) = cx.visibility {
+        let _ = writeln!(
+            h,
+            "<figure>{}<figcaption>The light the object's own shape lets each pixel of the \
+             first view see: white where it sees all the light above its surface, black where \
+             the part hides it all (and off the object). On average {:.0}% of it; the estimate \
+             counts only the lights each pixel sees (visibility.png).</figcaption></figure>",
+            img_tag(&v.picture(), "visible fraction of the light")?,
+            100.0 * v.mean,
+        );
     }
 
     h.push_str("<h2>The estimate</h2>\n<div class=\"row\">\n");

@@ -336,6 +336,12 @@ pub fn write_results(
     if let (Some(photo), Some(path)) = (cx.photo, &files.compare_png) {
         crate::compare::write(path, photo, &estimate.rerender)?;
     }
+    if let Some(v) = cx.visibility {
+        let path = dir.join("visibility.png");
+        v.picture()
+            .save(&path)
+            .map_err(|e| CoreError::format(path.display(), format!("could not write PNG: {e}")))?;
+    }
     // The MERL table (35 MB) is written while the preview renders.
     std::thread::scope(|s| {
         let merl = s.spawn(|| brdf.to_merl().write(&files.merl));

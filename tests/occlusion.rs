@@ -1,6 +1,8 @@
 //! Issue 22, item 2: a mesh hides part of the sky from its own concave places. Checked
 //! against closed forms under a uniform sky, through every renderer.
 
+mod common;
+
 use brdfd::bench::studio_envmap;
 use brdfd::core::basis::Basis;
 use brdfd::core::bivariate::{Bivariate, Grid};
@@ -345,4 +347,61 @@ fn the_relight_error_on_a_concave_part_with_and_without_occlusion() {
         on < floor * 1.1 + 0.01,
         "with occlusion {on}, the open part's {floor}"
     );
+}
+
+/// Item 3: the simulated capture works on a mesh. The shipped rig with the grooved block
+/// captures gold, estimates it, and its results show what the part hides from itself.
+#[test]
+fn a_simulated_capture_of_the_grooved_block_shows_what_it_hides() {
+    use std::path::Path;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = std::env::temp_dir().join(format!("brdfd-occlusion-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let rig = root.join("config/rigs/simulated-grooved-block.toml");
+    let run = common::brdfd(
+        &[
+            "capture",
+            "--rig",
+            rig.to_str().unwrap(),
+            "--material",
+            "gold",
+            "--size",
+            "160",
+            "--state-dir",
+            "state",
+        ],
+        &dir,
+    );
+    let said = common::out(&run);
+    assert!(run.status.success(), "{said}");
+    let sessions: Vec<_> = std::fs::read_dir(dir.join("state/sessions"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(sessions.len(), 1);
+    let result = sessions[0].join("result");
+    let picture = image::open(result.join("visibility.png"))
+        .unwrap()
+        .to_luma8();
+    // Some pixels see all their light (the block's top), the grooves' walls less.
+    let levels: Vec<u8> = picture
+        .pixels()
+        .map(|p| p.0[0])
+        .filter(|v| *v > 0)
+        .collect();
+    let (least, most) = (levels.iter().min().unwrap(), levels.iter().max().unwrap());
+    assert!(*most >= 250 && *least < 200, "{least}..{most}");
+    let html = std::fs::read_to_string(result.join("report.html")).unwrap();
+    let mean: f64 = html
+        .split("On average ")
+        .nth(1)
+        .and_then(|s| s.split('%').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no visible fraction in the report"));
+    eprintln!(
+        "grooved block, simulated capture at 160²: relit error {}; visible fraction on average {mean}%, {least}..{most} of 255",
+        common::relit(&said)
+    );
+    assert!((50.0..99.0).contains(&mean), "{mean}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -18,7 +18,7 @@ use brdfd::core::raster::Raster;
 use brdfd::core::render::{render_bivariate, render_merl};
 use brdfd::core::select::SwapParams;
 use brdfd::core::solve::{ColourChoice, Solver};
-use brdfd::report::Context as ReportContext;
+use brdfd::report::{Context as ReportContext, Visibility};
 use brdfd::results::write_results;
 
 use super::GeometryArgs;
@@ -238,6 +238,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         },
         &lights,
         &ReportContext {
+            visibility: Visibility::of(&geometry, &lights).as_ref(),
             title: format!("{} under {}", a.photo.display(), a.env.display()),
             photo: Some(&photo),
             env: Some(&env),

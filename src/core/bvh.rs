@@ -30,6 +30,9 @@ struct Node {
     count: u32,
 }
 
+/// A node's box, first entry and count, as [`Bvh::layout`] gives them.
+pub(super) type NodeBox = (Vec3, Vec3, u32, u32);
+
 /// A mesh's triangles, arranged for ray queries.
 pub struct Bvh {
     nodes: Vec<Node>,
@@ -119,7 +122,7 @@ impl Bvh {
     /// The tree's boxes (low corner, high corner, first, count, as in [`Node`]) and each
     /// triangle's corners in the order the leaves index: the layout
     /// [`super::visibility`] walks with packets of rays.
-    pub(super) fn layout(&self) -> (Vec<(Vec3, Vec3, u32, u32)>, Vec<[Vec3; 3]>) {
+    pub(super) fn layout(&self) -> (Vec<NodeBox>, Vec<[Vec3; 3]>) {
         let nodes = self
             .nodes
             .iter()

@@ -398,6 +398,98 @@ pub fn uv_sphere(center: Vec3, radius: f64, rings: usize, segments: usize) -> Me
     }
 }
 
+/// A plate `width` × `length` (X × Y, metres), top face up (+Z) at z = 0, with `grooves`
+/// V-grooves along Y of depth `depth`, one in the middle half of each of `grooves` equal
+/// bands: a heightfield of `nx` × `ny` cells (`nx` a multiple of 4 × `grooves`, so that the
+/// grooves' rims and bottoms are vertices), two triangles each. The concave test part of
+/// the occlusion tests and of `brdfd bench`, with flat faces (no vertex normals).
+pub fn grooved_plate(
+    width: f64,
+    length: f64,
+    grooves: usize,
+    depth: f64,
+    nx: usize,
+    ny: usize,
+) -> Mesh {
+    assert!(grooves > 0 && nx.is_multiple_of(4 * grooves) && ny > 0);
+    let band = width / grooves as f64;
+    let height = |x: f64| {
+        // Distance from the nearest groove's centre line, in quarter bands.
+        let from = (((x + width / 2.0) / band).fract() - 0.5).abs() * 4.0;
+        if from < 1.0 {
+            -depth * (1.0 - from)
+        } else {
+            0.0
+        }
+    };
+    let mut positions = Vec::with_capacity((nx + 1) * (ny + 1));
+    for j in 0..=ny {
+        let y = -length / 2.0 + length * j as f64 / ny as f64;
+        for i in 0..=nx {
+            let x = -width / 2.0 + width * i as f64 / nx as f64;
+            positions.push([x, y, height(x)]);
+        }
+    }
+    let at = |i: usize, j: usize| (j * (nx + 1) + i) as u32;
+    let mut triangles = Vec::with_capacity(2 * nx * ny);
+    for j in 0..ny {
+        for i in 0..nx {
+            // Counter-clockwise seen from +Z: the faces point up.
+            triangles.push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
+            triangles.push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
+        }
+    }
+    Mesh {
+        positions,
+        triangles,
+        corner_normals: None,
+    }
+}
+
+/// A hemispherical bowl: the half of a sphere of `radius` about the origin below z = 0,
+/// open upward, in `rings` × `segments` quads, with the sphere's exact normals (inward).
+pub fn bowl(radius: f64, rings: usize, segments: usize) -> Mesh {
+    let mut positions = Vec::new();
+    let mut normals = Vec::new();
+    for i in 0..=rings {
+        // From the rim (polar angle π/2 from the bottom) down to the bottom.
+        let theta = std::f64::consts::FRAC_PI_2 * (1.0 - i as f64 / rings as f64);
+        for j in 0..segments {
+            let phi = 2.0 * std::f64::consts::PI * j as f64 / segments as f64;
+            let p = [
+                theta.sin() * phi.cos(),
+                theta.sin() * phi.sin(),
+                -theta.cos(),
+            ];
+            normals.push(p.map(|c| -c));
+            positions.push(p.map(|c| radius * c));
+        }
+    }
+    let at = |i: usize, j: usize| (i * segments + j % segments) as u32;
+    let mut triangles = Vec::new();
+    for i in 0..rings {
+        for j in 0..segments {
+            let (a, b, c, d) = (at(i, j), at(i, j + 1), at(i + 1, j), at(i + 1, j + 1));
+            triangles.push([a, c, b]);
+            // The last ring is the bottom point, repeated: one triangle per segment there.
+            if i + 1 < rings {
+                triangles.push([b, c, d]);
+            }
+        }
+    }
+    let corner_normals = Some(
+        triangles
+            .iter()
+            .map(|t: &[u32; 3]| t.map(|k| normals[k as usize]))
+            .collect(),
+    );
+    Mesh {
+        positions,
+        triangles,
+        corner_normals,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -474,97 +566,5 @@ mod tests {
                 "triangle {t} faces in"
             );
         }
-    }
-}
-
-/// A plate `width` × `length` (X × Y, metres), top face up (+Z) at z = 0, with `grooves`
-/// V-grooves along Y of depth `depth`, one in the middle half of each of `grooves` equal
-/// bands: a heightfield of `nx` × `ny` cells (`nx` a multiple of 4 × `grooves`, so that the
-/// grooves' rims and bottoms are vertices), two triangles each. The concave test part of
-/// the occlusion tests and of `brdfd bench`, with flat faces (no vertex normals).
-pub fn grooved_plate(
-    width: f64,
-    length: f64,
-    grooves: usize,
-    depth: f64,
-    nx: usize,
-    ny: usize,
-) -> Mesh {
-    assert!(grooves > 0 && nx % (4 * grooves) == 0 && ny > 0);
-    let band = width / grooves as f64;
-    let height = |x: f64| {
-        // Distance from the nearest groove's centre line, in quarter bands.
-        let from = (((x + width / 2.0) / band).fract() - 0.5).abs() * 4.0;
-        if from < 1.0 {
-            -depth * (1.0 - from)
-        } else {
-            0.0
-        }
-    };
-    let mut positions = Vec::with_capacity((nx + 1) * (ny + 1));
-    for j in 0..=ny {
-        let y = -length / 2.0 + length * j as f64 / ny as f64;
-        for i in 0..=nx {
-            let x = -width / 2.0 + width * i as f64 / nx as f64;
-            positions.push([x, y, height(x)]);
-        }
-    }
-    let at = |i: usize, j: usize| (j * (nx + 1) + i) as u32;
-    let mut triangles = Vec::with_capacity(2 * nx * ny);
-    for j in 0..ny {
-        for i in 0..nx {
-            // Counter-clockwise seen from +Z: the faces point up.
-            triangles.push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
-            triangles.push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
-        }
-    }
-    Mesh {
-        positions,
-        triangles,
-        corner_normals: None,
-    }
-}
-
-/// A hemispherical bowl: the half of a sphere of `radius` about the origin below z = 0,
-/// open upward, in `rings` × `segments` quads, with the sphere's exact normals (inward).
-pub fn bowl(radius: f64, rings: usize, segments: usize) -> Mesh {
-    let mut positions = Vec::new();
-    let mut normals = Vec::new();
-    for i in 0..=rings {
-        // From the rim (polar angle π/2 from the bottom) down to the bottom.
-        let theta = std::f64::consts::FRAC_PI_2 * (1.0 - i as f64 / rings as f64);
-        for j in 0..segments {
-            let phi = 2.0 * std::f64::consts::PI * j as f64 / segments as f64;
-            let p = [
-                theta.sin() * phi.cos(),
-                theta.sin() * phi.sin(),
-                -theta.cos(),
-            ];
-            normals.push(p.map(|c| -c));
-            positions.push(p.map(|c| radius * c));
-        }
-    }
-    let at = |i: usize, j: usize| (i * segments + j % segments) as u32;
-    let mut triangles = Vec::new();
-    for i in 0..rings {
-        for j in 0..segments {
-            let (a, b, c, d) = (at(i, j), at(i, j + 1), at(i + 1, j), at(i + 1, j + 1));
-            triangles.push([a, c, b]);
-            // The last ring is the bottom point, repeated: one triangle per segment there.
-            if i + 1 < rings {
-                triangles.push([b, c, d]);
-            }
-        }
-    }
-    let corner_normals = Some(
-        triangles
-            .iter()
-            .map(|t: &[u32; 3]| t.map(|k| normals[k as usize]))
-            .collect(),
-    );
-    Mesh {
-        positions,
-        triangles,
-        corner_normals,
     }
 }

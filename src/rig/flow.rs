@@ -32,7 +32,7 @@ use crate::core::nbrdf::NbrdfSet;
 use crate::core::raster::Raster;
 use crate::core::solve::Colour;
 use crate::panorama::merge_bracket;
-use crate::report::Context as ReportContext;
+use crate::report::{Context as ReportContext, Visibility};
 use crate::session::{PhaseTime, Session, State};
 
 /// Camera files by name, exactly as the camera sent them.
@@ -319,7 +319,11 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
     let true_brdf = sim
         .as_ref()
         .map(|sim| Bivariate::reduce(&sim.bench.material, basis.header.grid));
-    let report = report_context(session, &env, &captured, true_brdf.as_ref(), relight);
+    let first = &captured.views[0];
+    // Under the candidates' lights, whose visibility the estimate has worked out already.
+    let visibility = Visibility::of(&first.geometry, &first.lights);
+    let mut report = report_context(session, &env, &captured, true_brdf.as_ref(), relight);
+    report.visibility = visibility.as_ref();
     write_result(session, &basis, &est, &captured.views[0].lights, &report)?;
     phases.end(p);
     say_result(cx, &est, captured.views.len(), relight);
@@ -699,6 +703,7 @@ fn report_context<'a>(
         relight_error: relight,
         truth,
         fallback: captured.fallback.clone(),
+        visibility: None,
         record: vec![
             ("session".into(), m.id.clone()),
             ("material".into(), m.material.clone()),
