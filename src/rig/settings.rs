@@ -18,8 +18,35 @@ use super::Plan;
 use crate::config::{MaterialPreset, PixelCount, Rig};
 use crate::core::basis::DEFAULT_K;
 use crate::core::estimate::{unused_basis_settings, EstimateOptions, Model};
-use crate::core::geometry::SceneGeometry;
+use crate::core::geometry::{SceneGeometry, Shape};
 use crate::session::Session;
+
+/// The rig's text as a session keeps it: its mesh and normal map named by the paths this
+/// capture found them at (beside the rig file), so that a resume finds them from any folder.
+/// The rest of the text, comments too, is kept as it was.
+fn with_files_found(rig_text: &str, scene: &SceneGeometry) -> String {
+    let Ok(mut doc) = rig_text.parse::<toml_edit::DocumentMut>() else {
+        return rig_text.to_string();
+    };
+    let Some(geometry) = doc.get_mut("geometry").and_then(|g| g.as_table_like_mut()) else {
+        return rig_text.to_string();
+    };
+    let absolute = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    if let (Some(item), Some(path)) = (geometry.get_mut("normal_map"), &scene.normal_map) {
+        *item = toml_edit::value(absolute(path).display().to_string());
+    }
+    if let (Some(shape), Some(Shape::Mesh { file, .. })) = (
+        geometry
+            .get_mut("shape")
+            .and_then(|s| s.as_table_like_mut()),
+        &scene.shape,
+    ) {
+        if let Some(item) = shape.get_mut("file") {
+            *item = toml_edit::value(absolute(file).display().to_string());
+        }
+    }
+    doc.to_string()
+}
 
 /// Pixels the basis model estimates from when neither the plan nor a preset says: the paper's
 /// 20, which its experiment found as good as every pixel.
@@ -194,7 +221,7 @@ impl CaptureSettings {
         Ok(Session::create(
             state,
             &self.plan.material,
-            rig_text,
+            &with_files_found(rig_text, &self.scene),
             crate::config::preset_text(&self.plan.material),
             serde_json::to_value(&self.plan)?,
         )?)
@@ -253,6 +280,26 @@ mod tests {
 
     fn plan(material: &str) -> Plan {
         serde_json::from_value(serde_json::json!({ "material": material })).unwrap()
+    }
+
+    /// A session's rig names its mesh by the path the capture found it at, so that a resume
+    /// from another folder reads the same file; the rest of the text stays as it was.
+    #[test]
+    fn a_session_keeps_the_mesh_path_the_capture_found() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let file = root.join("config/rigs/simulated-grooved-block.toml");
+        let text = std::fs::read_to_string(&file).unwrap();
+        let rig = Rig::read(&file).unwrap();
+        let settings = CaptureSettings::resolve(&plan("gold"), &rig).unwrap();
+        let kept = with_files_found(&text, &settings.scene);
+        let again = Rig::parse("kept", &kept).unwrap();
+        let Some(Shape::Mesh { file: mesh, .. }) = &again.geometry.shape else {
+            panic!("no mesh in {kept}");
+        };
+        assert!(mesh.is_absolute(), "{}", mesh.display());
+        assert!(mesh.is_file(), "{}", mesh.display());
+        assert!(kept.starts_with("# The simulated rig"), "comments kept");
+        assert_eq!(again.geometry.camera, rig.geometry.camera);
     }
 
     #[test]
