@@ -211,12 +211,7 @@ impl Occluder {
         let frontier = self.frontier(origin, normal);
         let mut stack = Vec::with_capacity(frontier.len() + 64);
         for packet in &clusters.packets {
-            let up = packet.mask(|j| {
-                normal[0] * packet.dir[0][j]
-                    + normal[1] * packet.dir[1][j]
-                    + normal[2] * packet.dir[2][j]
-                    > 0.0
-            });
+            let up = packet.facing::<SIMD>(normal);
             if up == 0 {
                 continue;
             }
@@ -346,6 +341,22 @@ impl Packet {
             }
         }
         self.mask(|j| near[j] <= far[j]) & mask
+    }
+
+    /// The rays on the side of the plane through the origin that `n` points to (on the
+    /// plane counts: its light has no cosine to give).
+    #[inline(always)]
+    fn facing<const SIMD: u8>(&self, n: [f32; 3]) -> u64 {
+        let all = u64::MAX >> (64 - self.len);
+        #[cfg(target_arch = "x86_64")]
+        match SIMD {
+            // SAFETY: only `seen_avx2` and `seen_avx512` ask for these, on CPUs that have them.
+            AVX2 => return unsafe { avx2::inside(self, [n; 3], all) },
+            AVX512 => return unsafe { avx512::inside(self, [n; 3], all) },
+            _ => {}
+        }
+        let d = &self.dir;
+        self.mask(|j| n[0] * d[0][j] + n[1] * d[1][j] + n[2] * d[2][j] >= 0.0) & all
     }
 
     /// The rays of `mask` from `o` that pass through the triangle: those whose direction
@@ -717,7 +728,10 @@ mod tests {
                 }
             }
         }
-        assert!(seen * 10 < up * 9, "the points see {seen} of {up}: too little is hidden");
+        assert!(
+            seen * 10 < up * 9,
+            "the points see {seen} of {up}: too little is hidden"
+        );
     }
 
     /// The packet walk gives, light for light, what a ray cast one by one gives.
