@@ -17,7 +17,7 @@ use crate::core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
 use crate::core::envmap::{uv_of, EnvMap, LightSet};
 use crate::core::error::{CoreError, Result};
 use crate::core::estimate::{fit_verdict, Estimate};
-use crate::core::geometry::PixelGeometry;
+use crate::core::geometry::{GeomPixel, PixelGeometry};
 use crate::core::merl;
 use crate::core::raster::Raster;
 use crate::core::render::{visible_fraction, SpherePicture};
@@ -55,12 +55,37 @@ pub struct Visibility {
     pub mean: f64,
 }
 
+/// Pixels across [`Visibility`]'s picture at most: a camera's 16 MP would take minutes to
+/// work out and swell the report.
+const VISIBILITY_SIZE: usize = 512;
+
 impl Visibility {
     /// `None` for a shape that hides nothing from itself (the analytic ones, normal maps).
+    /// Worked out on every n-th pixel of every n-th row, so that the picture is at most
+    /// [`VISIBILITY_SIZE`] across.
     pub fn of(geometry: &PixelGeometry, lights: &LightSet) -> Option<Visibility> {
         if geometry.pixels.iter().all(|p| p.shadow.is_none()) {
             return None;
         }
+        let n = geometry
+            .width
+            .max(geometry.height)
+            .div_ceil(VISIBILITY_SIZE);
+        let geometry = PixelGeometry {
+            width: geometry.width.div_ceil(n),
+            height: geometry.height.div_ceil(n),
+            pixels: geometry
+                .pixels
+                .iter()
+                .filter(|p| p.x as usize % n == 0 && p.y as usize % n == 0)
+                .map(|p| GeomPixel {
+                    x: p.x / n as u32,
+                    y: p.y / n as u32,
+                    ..p.clone()
+                })
+                .collect(),
+        };
+        let geometry = &geometry;
         let fraction = visible_fraction(geometry, lights);
         let sum: f64 = geometry
             .pixels

@@ -555,22 +555,17 @@ impl PixelGeometry {
                     Camera::Orthographic { extent, width, .. } => extent / *width as f64,
                     Camera::Pinhole { fx, .. } => hit.t / fx,
                 };
-                // Shadow rays start above the faces around the point: an interpolated normal
-                // tilts from its face, and the neighbouring faces' corners may stand that much
-                // above its tangent plane without hiding anything a flat face would not.
-                let tilt = (1.0 - dot(n, face).min(1.0).powi(2)).max(0.0).sqrt();
-                let edge = [sub(b, a), sub(c, b), sub(a, c)]
+                // Shadow rays start above the faces around the point. An interpolated normal
+                // tilts from its face, so the face's corners (and its neighbours', about as
+                // much) stand above the normal's tangent plane: as high as that, twice over,
+                // so that a faceted convex surface does not hide its own light.
+                let p = add(ray.origin, scale(ray.dir, hit.t));
+                let above = [a, b, c]
                     .iter()
-                    .map(|e| dot(*e, *e).sqrt())
+                    .map(|q| dot(n, sub(*q, p)))
                     .fold(0.0, f64::max);
-                let lift = 2.0 * edge * tilt + 1e-5 * diagonal;
-                Some((
-                    add(ray.origin, scale(ray.dir, hit.t)),
-                    n,
-                    v,
-                    footprint,
-                    lift,
-                ))
+                let lift = 2.0 * above + 1e-5 * diagonal;
+                Some((p, n, v, footprint, lift))
             })
             .collect();
         if samples.iter().all(Option::is_none) {

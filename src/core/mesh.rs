@@ -353,6 +353,21 @@ fn read_ply(reader: &mut impl std::io::BufRead, what: &str) -> Result<Mesh> {
     })
 }
 
+/// A mesh whose corner normals are its vertices' `normals`.
+fn with_vertex_normals(positions: Vec<Vec3>, triangles: Vec<[u32; 3]>, normals: &[Vec3]) -> Mesh {
+    let corner_normals = Some(
+        triangles
+            .iter()
+            .map(|t| t.map(|k| normals[k as usize]))
+            .collect(),
+    );
+    Mesh {
+        positions,
+        triangles,
+        corner_normals,
+    }
+}
+
 /// A UV sphere of `rings` × `segments` quads, with its exact normals at the vertices: the
 /// analytic sphere as a mesh, for tests and the virtual bench.
 pub fn uv_sphere(center: Vec3, radius: f64, rings: usize, segments: usize) -> Mesh {
@@ -385,17 +400,7 @@ pub fn uv_sphere(center: Vec3, radius: f64, rings: usize, segments: usize) -> Me
             }
         }
     }
-    let corner_normals = Some(
-        triangles
-            .iter()
-            .map(|t: &[u32; 3]| t.map(|k| normals[k as usize]))
-            .collect(),
-    );
-    Mesh {
-        positions,
-        triangles,
-        corner_normals,
-    }
+    with_vertex_normals(positions, triangles, &normals)
 }
 
 /// A plate `width` × `length` (X × Y, metres), top face up (+Z) at z = 0, with `grooves`
@@ -477,17 +482,7 @@ pub fn bowl(radius: f64, rings: usize, segments: usize) -> Mesh {
             }
         }
     }
-    let corner_normals = Some(
-        triangles
-            .iter()
-            .map(|t: &[u32; 3]| t.map(|k| normals[k as usize]))
-            .collect(),
-    );
-    Mesh {
-        positions,
-        triangles,
-        corner_normals,
-    }
+    with_vertex_normals(positions, triangles, &normals)
 }
 
 #[cfg(test)]

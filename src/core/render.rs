@@ -863,6 +863,28 @@ pub fn render_full(geom: &PixelGeometry, lights: &LightSet, brdf: &dyn Isotropic
     shade_pixels(geom, lights, shade)
 }
 
+/// The irradiance Σ L·cos·Δω per channel at each pixel from the lights it sees, in the
+/// pixels' order: what a white Lambertian surface returns, times π.
+pub fn irradiance(geom: &PixelGeometry, lights: &LightSet) -> Vec<[f64; 3]> {
+    let packed = pack(lights, &Footprints::of(lights), 0);
+    let luts = Luts::new(ThetaHBinning::Sqrt);
+    let seen = Seen::new(&geom.pixels, lights);
+    geom.pixels
+        .par_iter()
+        .with_min_len(PIXELS_PER_TASK / 4)
+        .map(|px| {
+            let row = seen.fresh(px);
+            let mut e = [0f64; 3];
+            each_light(px, &packed, row.as_deref(), &luts, |l, p| {
+                for c in 0..3 {
+                    e[c] += (l.power[c] * p.cos) as f64;
+                }
+            });
+            e
+        })
+        .collect()
+}
+
 /// The fraction of the light reaching each pixel's tangent plane that its own object lets
 /// through: Σ L·cos·Δω over the lights it sees, over the same sum for every light above its
 /// horizon (all channels). 1 on a convex shape; the preview and report show it.
@@ -887,7 +909,9 @@ pub fn visible_fraction(geom: &PixelGeometry, lights: &LightSet) -> Raster {
     })
 }
 
-/// Each pixel's `shade`, given the lights its object lets it see, into an image.
+/// Each pixel's `shade`, given the lights its object lets it see, into an image. Each
+/// pixel's visibility is used once here, so it is worked out and dropped, not kept: a
+/// full-resolution render would otherwise hold a row per pixel.
 fn shade_pixels(
     geom: &PixelGeometry,
     lights: &LightSet,
@@ -898,7 +922,7 @@ fn shade_pixels(
         .pixels
         .par_iter()
         .with_min_len(PIXELS_PER_TASK / 4)
-        .map(|px| shade(px, seen.row(px)))
+        .map(|px| shade(px, seen.fresh(px).as_deref()))
         .collect();
     let mut img = Raster::black(geom.width, geom.height);
     for (px, v) in geom.pixels.iter().zip(values) {

@@ -52,6 +52,26 @@ const PORTABLE: u8 = 0;
 const AVX2: u8 = 1;
 const AVX512: u8 = 2;
 
+/// Proof that this CPU runs the instruction set `S`: made only where that was checked, it
+/// lets the safe functions that take one use `S`'s intrinsics.
+#[derive(Clone, Copy)]
+struct Isa<const S: u8>(());
+
+impl Isa<PORTABLE> {
+    fn portable() -> Isa<PORTABLE> {
+        Isa(())
+    }
+}
+
+impl<const S: u8> Isa<S> {
+    /// # Safety
+    /// The CPU must have the instruction set `S`.
+    #[cfg(target_arch = "x86_64")]
+    unsafe fn assumed() -> Isa<S> {
+        Isa(())
+    }
+}
+
 /// The flag of an inner node in [`BoxNode::meta`].
 const INNER: u32 = 1 << 31;
 
@@ -89,7 +109,7 @@ struct Clusters {
 
 /// Up to [`CLUSTER`] light directions, laid out across (one array per axis) so that one
 /// box or triangle is tested against all of them in a few vector instructions; unused
-/// places hold a copy of the first direction and are never active.
+/// places hold a copy of the last direction and are never active.
 #[derive(Clone)]
 struct Packet {
     len: usize,
@@ -167,7 +187,7 @@ impl Occluder {
     }
 
     /// Bit i of the answer is set when light i of the table's set is above point `id`'s
-    /// horizon and its ray leaves the object.
+    /// horizon (or on it) and its ray leaves the object.
     fn seen(&self, id: usize, clusters: &Clusters, words: usize) -> Box<[u64]> {
         #[cfg(target_arch = "x86_64")]
         {
@@ -180,7 +200,7 @@ impl Occluder {
                 return unsafe { self.seen_avx2(id, clusters, words) };
             }
         }
-        self.seen_with::<PORTABLE>(id, clusters, words)
+        self.seen_with(Isa::portable(), id, clusters, words)
     }
 
     /// [`Occluder::seen`] with the packet tests in AVX2 ([`avx2`]): a packet's 32 rays in
@@ -189,19 +209,20 @@ impl Occluder {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn seen_avx2(&self, id: usize, clusters: &Clusters, words: usize) -> Box<[u64]> {
-        self.seen_with::<AVX2>(id, clusters, words)
+        self.seen_with(Isa::<AVX2>::assumed(), id, clusters, words)
     }
 
     /// [`Occluder::seen`] with the packet tests in AVX-512 ([`avx512`]): two 16-lane steps.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
     unsafe fn seen_avx512(&self, id: usize, clusters: &Clusters, words: usize) -> Box<[u64]> {
-        self.seen_with::<AVX512>(id, clusters, words)
+        self.seen_with(Isa::<AVX512>::assumed(), id, clusters, words)
     }
 
     #[inline(always)]
     fn seen_with<const SIMD: u8>(
         &self,
+        isa: Isa<SIMD>,
         id: usize,
         clusters: &Clusters,
         words: usize,
@@ -211,13 +232,13 @@ impl Occluder {
         let frontier = self.frontier(origin, normal);
         let mut stack = Vec::with_capacity(frontier.len() + 64);
         for packet in &clusters.packets {
-            let up = packet.facing::<SIMD>(normal);
+            let up = packet.facing(isa, normal);
             if up == 0 {
                 continue;
             }
             stack.clear();
             stack.extend(frontier.iter().map(|&at| (at, up)));
-            let mut open = up & !self.blocked::<SIMD>(origin, normal, packet, up, &mut stack);
+            let mut open = up & !self.blocked(isa, origin, normal, packet, up, &mut stack);
             while open != 0 {
                 let i = packet.index[open.trailing_zeros() as usize] as usize;
                 out[i >> 6] |= 1 << (i & 63);
@@ -250,11 +271,11 @@ impl Occluder {
 
     /// Which of the `active` rays of `packet` from `o` meet a triangle, walking from the
     /// boxes on `stack` (each with the rays that may meet it). Each box on the way is tested
-    /// against every ray still open, so that the walk follows the rays, not a cone around
-    /// them.
+    /// against every ray still open, so that the walk follows the rays.
     #[inline(always)]
     fn blocked<const SIMD: u8>(
         &self,
+        isa: Isa<SIMD>,
         o: [f32; 3],
         n: [f32; 3],
         packet: &Packet,
@@ -268,7 +289,7 @@ impl Occluder {
             if mask == 0 || !node.above(o, n) {
                 continue;
             }
-            let mask = packet.through::<SIMD>(node, o, mask);
+            let mask = packet.through(isa, node, o, mask);
             if mask == 0 {
                 continue;
             }
@@ -283,7 +304,7 @@ impl Occluder {
             }
             let leaf = &self.tris[node.first as usize..(node.first + node.meta) as usize];
             for tri in leaf {
-                let hits = packet.hits::<SIMD>(tri, o, n, mask & open);
+                let hits = packet.hits(isa, tri, o, n, mask & open);
                 open &= !hits;
                 if open == 0 {
                     return active;
@@ -321,12 +342,12 @@ impl Packet {
 
     /// The rays of `mask` from `o` that pass through the box (the slab test, ray by ray).
     #[inline(always)]
-    fn through<const SIMD: u8>(&self, node: &BoxNode, o: [f32; 3], mask: u64) -> u64 {
+    fn through<const SIMD: u8>(&self, _: Isa<SIMD>, node: &BoxNode, o: [f32; 3], mask: u64) -> u64 {
         let lo = sub(node.lo, o);
         let hi = sub(node.hi, o);
         #[cfg(target_arch = "x86_64")]
         match SIMD {
-            // SAFETY: only `seen_avx2` and `seen_avx512` ask for these, on CPUs that have them.
+            // SAFETY: an `Isa<SIMD>` exists only where the CPU has SIMD.
             AVX2 => return unsafe { avx2::through(self, lo, hi, mask) },
             AVX512 => return unsafe { avx512::through(self, lo, hi, mask) },
             _ => {}
@@ -346,11 +367,11 @@ impl Packet {
     /// The rays on the side of the plane through the origin that `n` points to (on the
     /// plane counts: its light has no cosine to give).
     #[inline(always)]
-    fn facing<const SIMD: u8>(&self, n: [f32; 3]) -> u64 {
+    fn facing<const SIMD: u8>(&self, _: Isa<SIMD>, n: [f32; 3]) -> u64 {
         let all = u64::MAX >> (64 - self.len);
         #[cfg(target_arch = "x86_64")]
         match SIMD {
-            // SAFETY: only `seen_avx2` and `seen_avx512` ask for these, on CPUs that have them.
+            // SAFETY: an `Isa<SIMD>` exists only where the CPU has SIMD.
             AVX2 => return unsafe { avx2::inside(self, [n; 3], all) },
             AVX512 => return unsafe { avx512::inside(self, [n; 3], all) },
             _ => {}
@@ -364,6 +385,7 @@ impl Packet {
     #[inline(always)]
     fn hits<const SIMD: u8>(
         &self,
+        _: Isa<SIMD>,
         tri: &[[f32; 3]; 3],
         o: [f32; 3],
         n: [f32; 3],
@@ -385,7 +407,7 @@ impl Packet {
         }
         #[cfg(target_arch = "x86_64")]
         match SIMD {
-            // SAFETY: only `seen_avx2` and `seen_avx512` ask for these, on CPUs that have them.
+            // SAFETY: an `Isa<SIMD>` exists only where the CPU has SIMD.
             AVX2 => return unsafe { avx2::inside(self, [bc, ca, ab], mask) },
             AVX512 => return unsafe { avx512::inside(self, [bc, ca, ab], mask) },
             _ => {}
@@ -401,10 +423,13 @@ impl Clusters {
     /// The lights in order along a Z-curve over the octahedral map of directions, cut into
     /// runs of [`CLUSTER`]: each run is a small patch of the sphere.
     fn of(lights: &LightSet) -> Clusters {
+        // A direction that is not a number is seen by no point: the vector builds' box tests
+        // and the portable one's would treat it differently.
         let mut order: Vec<(u64, u32)> = lights
             .directions
             .iter()
             .enumerate()
+            .filter(|(_, d)| d.iter().all(|c| c.is_finite()))
             .map(|(i, d)| (morton(octahedral(*d)), i as u32))
             .collect();
         order.sort_unstable();
@@ -464,14 +489,30 @@ impl Seen {
         Seen { tables }
     }
 
-    /// The pixel's visible lights (a bit per light), or `None` when nothing hides its lights.
+    /// The pixel's visible lights (a bit per light), or `None` when nothing hides its lights;
+    /// kept for the next build that asks.
     pub fn row(&self, px: &GeomPixel) -> Option<&[u64]> {
         let s = px.shadow.as_ref()?;
-        let (o, t) = self
-            .tables
-            .iter()
-            .find(|(o, _)| Arc::ptr_eq(o, &s.occluder))?;
+        let (o, t) = self.table_of(s)?;
         Some(t.row(o, s.id))
+    }
+
+    /// As [`Seen::row`], worked out afresh (or taken from a kept one) and not kept: for a
+    /// renderer that asks once per pixel.
+    pub fn fresh(&self, px: &GeomPixel) -> Option<Box<[u64]>> {
+        let s = px.shadow.as_ref()?;
+        let (o, t) = self.table_of(s)?;
+        Some(match t.rows[s.id as usize].get() {
+            Some(kept) => kept.clone(),
+            None => o.seen(s.id as usize, &t.clusters, t.words),
+        })
+    }
+
+    fn table_of(&self, s: &Shadow) -> Option<(&Arc<Occluder>, &Arc<Table>)> {
+        self.tables
+            .iter()
+            .find(|(o, _)| Arc::ptr_eq(o, &s.occluder))
+            .map(|(o, t)| (o, t))
     }
 }
 
@@ -712,7 +753,7 @@ mod tests {
         let words = set.len().div_ceil(64);
         let (mut seen, mut up) = (0, 0);
         for id in 0..occluder.points.len() {
-            let portable = occluder.seen_with::<PORTABLE>(id, &clusters, words);
+            let portable = occluder.seen_with(Isa::portable(), id, &clusters, words);
             seen += portable.iter().map(|w| w.count_ones()).sum::<u32>();
             let n = occluder.points[id].normal;
             up += set.directions.iter().filter(|d| dot(n, **d) > 0.0).count() as u32;

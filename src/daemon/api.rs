@@ -522,6 +522,8 @@ pub enum ResultFile {
     PreviewExr,
     #[serde(rename = "compare.png")]
     Compare,
+    #[serde(rename = "visibility.png")]
+    Visibility,
     #[serde(rename = "coefficients.json")]
     Coefficients,
     #[serde(rename = "brdf-bivariate.exr")]
@@ -537,12 +539,13 @@ pub enum ResultFile {
 }
 
 impl ResultFile {
-    pub const ALL: [ResultFile; 11] = [
+    pub const ALL: [ResultFile; 12] = [
         ResultFile::Report,
         ResultFile::PreviewPng,
         ResultFile::PreviewScale,
         ResultFile::PreviewExr,
         ResultFile::Compare,
+        ResultFile::Visibility,
         ResultFile::Coefficients,
         ResultFile::Bivariate,
         ResultFile::Sigma,
@@ -562,6 +565,7 @@ impl ResultFile {
             ResultFile::PreviewScale => "preview.json",
             ResultFile::PreviewExr => "preview.exr",
             ResultFile::Compare => "compare.png",
+            ResultFile::Visibility => "visibility.png",
             ResultFile::Coefficients => "coefficients.json",
             ResultFile::Bivariate => "brdf-bivariate.exr",
             ResultFile::Sigma => "brdf-sigma.exr",
@@ -573,7 +577,7 @@ impl ResultFile {
 
     fn media_type(self) -> &'static str {
         match self {
-            ResultFile::PreviewPng | ResultFile::Compare => "image/png",
+            ResultFile::PreviewPng | ResultFile::Compare | ResultFile::Visibility => "image/png",
             ResultFile::PreviewExr | ResultFile::Bivariate | ResultFile::Sigma => "image/x-exr",
             ResultFile::Merl => "application/octet-stream",
             ResultFile::Coefficients | ResultFile::PreviewScale => "application/json",

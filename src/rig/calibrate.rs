@@ -319,30 +319,12 @@ fn predicted_for(
 }
 
 /// The radiance a Lambertian target of `albedo` shows at each pixel under `lights`, in the
-/// lights' unit: ρ/π · Σ L·max(0, n·ω)·Δω.
+/// lights' unit: ρ/π · Σ L·max(0, n·ω)·Δω over the lights the pixel sees (a mesh target's
+/// own shape hides some, as the renderers count it).
 pub fn lambertian(pixels: &PixelGeometry, lights: &LightSet, albedo: [f64; 3]) -> Vec<[f64; 3]> {
-    use rayon::prelude::*;
-    pixels
-        .pixels
-        .par_iter()
-        .map(|p| {
-            let n = p.normal.map(|v| v as f64);
-            let mut e = [0.0f64; 3];
-            for ((d, l), dw) in lights
-                .directions
-                .iter()
-                .zip(&lights.radiance)
-                .zip(&lights.solid_angle)
-            {
-                let cos = n[0] * d[0] as f64 + n[1] * d[1] as f64 + n[2] * d[2] as f64;
-                if cos > 0.0 {
-                    for c in 0..3 {
-                        e[c] += l[c] as f64 * cos * *dw as f64;
-                    }
-                }
-            }
-            [0, 1, 2].map(|c| albedo[c] / PI * e[c])
-        })
+    crate::core::render::irradiance(pixels, lights)
+        .into_iter()
+        .map(|e| [0, 1, 2].map(|c| albedo[c] / PI * e[c]))
         .collect()
 }
 
