@@ -77,7 +77,7 @@ impl Visibility {
             pixels: geometry
                 .pixels
                 .iter()
-                .filter(|p| p.x as usize % n == 0 && p.y as usize % n == 0)
+                .filter(|p| (p.x as usize).is_multiple_of(n) && (p.y as usize).is_multiple_of(n))
                 .map(|p| GeomPixel {
                     x: p.x / n as u32,
                     y: p.y / n as u32,
