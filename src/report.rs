@@ -62,7 +62,7 @@ const VISIBILITY_SIZE: usize = 512;
 impl Visibility {
     /// `None` for a shape that hides nothing from itself (the analytic ones, normal maps).
     /// Worked out on every n-th pixel of every n-th row, so that the picture is at most
-    /// [`VISIBILITY_SIZE`] across.
+    /// `VISIBILITY_SIZE` (512) across.
     pub fn of(geometry: &PixelGeometry, lights: &LightSet) -> Option<Visibility> {
         if geometry.pixels.iter().all(|p| p.shadow.is_none()) {
             return None;

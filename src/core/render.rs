@@ -8,7 +8,7 @@
 //! u = |a − b|² = 4 sin²(θ/2), which stays accurate in f32 for tiny angles (where cos θ rounds
 //! to 1), and maps u to its bin through a table with an exact edge check ([`BinLut`]).
 //!
-//! Every renderer here runs one loop over a pixel's lights, [`each_light`]: it skips the
+//! Every renderer here runs one loop over a pixel's lights, `each_light`: it skips the
 //! lights below the pixel's horizon and, on a mesh, those its own object hides
 //! ([`super::visibility`]). The analytic shapes are taken as convex.
 

@@ -2,7 +2,7 @@
 //!
 //! A light at infinity counts for a surface point only if the ray from the point towards it
 //! leaves the object. 50,000 pixels under 4,096 lights are 2·10⁸ rays, so they are not cast
-//! one by one: the lights go in packets of [`CLUSTER`] neighbouring directions, and one walk
+//! one by one: the lights go in packets of `CLUSTER` neighbouring directions, and one walk
 //! of the BVH per pixel and packet carries a bit per ray still open. A box is entered only if
 //! it reaches above the pixel's tangent plane (nothing below it can be met by a ray that leaves
 //! the surface) and some open ray passes through it, tested ray by ray in one vector pass. Each
