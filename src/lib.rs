@@ -9,6 +9,7 @@
 //! - [`bench`](mod@bench): the virtual bench: renders what a camera on a simulated rig would see.
 //! - [`radiometry`]: camera files to linear radiance (EXIF exposure, HDR merge).
 //! - [`panorama`]: 360° camera files to environment maps (GPano projection, bracket merge).
+//! - [`pose`]: the object camera's pose and focal length from a photo of a printed board.
 //! - [`config`]: the daemon, rig and material files, validated.
 //! - [`session`]: sessions on disk (manifest state machine, raw files with sha256, atomic
 //!   writes).
@@ -32,6 +33,7 @@ pub mod daemon;
 pub mod evaluation;
 pub mod export;
 pub mod panorama;
+pub mod pose;
 pub mod radiometry;
 pub mod report;
 pub mod results;

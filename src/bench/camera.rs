@@ -9,6 +9,7 @@ use brdfd_sim::{ImageSource, Shot};
 use super::raw_file::{self, exif_ifd, RawFormat, ShotInfo};
 use super::tiff::{self, ByteOrder, Ifd, Value};
 use super::VirtualBench;
+use crate::core::geometry::Camera;
 use crate::core::raster::{linear_to_srgb, Raster};
 
 /// Sensor response of the simulated cameras: a pixel value of 1.0 (white) at radiance 1 needs
@@ -16,8 +17,17 @@ use crate::core::raster::{linear_to_srgb, Raster};
 /// scale between the two simulated cameras is 1 because both use it.
 pub const SENSOR_GAIN: f64 = 1000.0;
 
+/// Width of the simulated DSLR's sensor (a D5100's APS-C), millimetres: with the camera's
+/// focal length in pixels, it gives the EXIF focal length a real camera writes.
+pub const SENSOR_WIDTH_MM: f64 = 23.6;
+
 pub struct BenchCamera {
-    bench: VirtualBench,
+    /// The scene, rendered at the first shot; `None` when the radiance was given.
+    bench: Option<VirtualBench>,
+    size: (usize, usize),
+    /// The lens's focal length (mm) and the sensor's pixels per centimetre, for EXIF;
+    /// none for an orthographic camera.
+    lens: Option<(f64, f64)>,
     make: String,
     model: String,
     raw: RawFormat,
@@ -26,8 +36,33 @@ pub struct BenchCamera {
 
 impl BenchCamera {
     pub fn new(bench: VirtualBench, make: &str, model: &str) -> Self {
+        let camera = bench.geometry.camera.clone();
+        let mut c = Self::empty(&camera, make, model);
+        c.bench = Some(bench);
+        c
+    }
+
+    /// A camera whose scene is this radiance, as `camera` sees it (a photo rendered
+    /// elsewhere: the pose board).
+    pub fn of_radiance(radiance: Raster, camera: &Camera, make: &str, model: &str) -> Self {
+        let c = Self::empty(camera, make, model);
+        let _ = c.radiance.set(Ok(radiance));
+        c
+    }
+
+    fn empty(camera: &Camera, make: &str, model: &str) -> Self {
+        let size = camera.size();
+        let lens = match camera {
+            Camera::Pinhole { fx, .. } => Some((
+                fx * SENSOR_WIDTH_MM / size.0 as f64,
+                size.0 as f64 / (SENSOR_WIDTH_MM / 10.0),
+            )),
+            Camera::Orthographic { .. } => None,
+        };
         BenchCamera {
-            bench,
+            bench: None,
+            size,
+            lens,
             make: make.into(),
             model: model.into(),
             raw: RawFormat::Nef,
@@ -50,7 +85,10 @@ impl BenchCamera {
     /// Rendered once: every exposure of a bracket sees the same scene.
     fn radiance(&self) -> Result<&Raster, String> {
         self.radiance
-            .get_or_init(|| self.bench.photo().map_err(|e| e.to_string()))
+            .get_or_init(|| match &self.bench {
+                Some(bench) => bench.photo().map_err(|e| e.to_string()),
+                None => Err("the simulated camera has no scene".into()),
+            })
             .as_ref()
             .map_err(Clone::clone)
     }
@@ -61,7 +99,11 @@ impl ImageSource for BenchCamera {
         let r = self.radiance()?;
         let k = (shot.exposure_factor() * SENSOR_GAIN) as f32;
         let jpeg = expose_to_jpeg(r.width, r.height, &r.pixels, k)?;
-        Ok(insert_exif(&jpeg, &self.make, &self.model, shot))
+        Ok(insert_app1(
+            &jpeg,
+            b"Exif\0\0",
+            &exif_tiff(&self.make, &self.model, shot, self.lens),
+        ))
     }
 
     fn raw(&self, shot: &Shot) -> Result<Option<(&'static str, Vec<u8>)>, String> {
@@ -87,8 +129,7 @@ impl ImageSource for BenchCamera {
     }
 
     fn dimensions(&self) -> (u32, u32) {
-        let (w, h) = self.bench.geometry.camera.size();
-        (w as u32, h as u32)
+        (self.size.0 as u32, self.size.1 as u32)
     }
 
     fn ready(&self) -> bool {
@@ -119,7 +160,7 @@ pub fn expose_to_jpeg(
 
 /// Puts an APP1 Exif segment (Make, Model, ExposureTime, FNumber, ISO) after the SOI marker.
 pub fn insert_exif(jpeg: &[u8], make: &str, model: &str, shot: &Shot) -> Vec<u8> {
-    insert_app1(jpeg, b"Exif\0\0", &exif_tiff(make, model, shot))
+    insert_app1(jpeg, b"Exif\0\0", &exif_tiff(make, model, shot, None))
 }
 
 /// Puts an APP1 segment (`header` then `payload`) right after the SOI marker, ahead of any
@@ -136,7 +177,8 @@ pub fn insert_app1(jpeg: &[u8], header: &[u8], payload: &[u8]) -> Vec<u8> {
 }
 
 /// A little-endian TIFF structure: IFD0 (Make, Model, Exif pointer), then the Exif IFD.
-fn exif_tiff(make: &str, model: &str, shot: &Shot) -> Vec<u8> {
+/// With a lens, also FocalLength and the focal plane's resolution (pixels per centimetre).
+fn exif_tiff(make: &str, model: &str, shot: &Shot, lens: Option<(f64, f64)>) -> Vec<u8> {
     let info = ShotInfo {
         make,
         model,
@@ -147,6 +189,21 @@ fn exif_tiff(make: &str, model: &str, shot: &Shot) -> Vec<u8> {
     let mut ifd0 = Ifd::new();
     ifd0.set(0x010F, Value::Ascii(make.into()))
         .set(0x0110, Value::Ascii(model.into()))
-        .set(0x8769, Value::Ifds(vec![exif_ifd(&info, [])]));
+        .set(0x8769, Value::Ifds(vec![exif_ifd(&info, lens_tags(lens))]));
     tiff::write(ByteOrder::Little, &ifd0)
+}
+
+/// FocalLength (mm, to 0.01), FocalPlaneXResolution and YResolution (per centimetre, to
+/// 0.001) and their unit, as a DSLR writes them.
+fn lens_tags(lens: Option<(f64, f64)>) -> Vec<(u16, Value)> {
+    let Some((focal_mm, px_per_cm)) = lens else {
+        return Vec::new();
+    };
+    let per_cm = ((px_per_cm * 1000.0).round() as u32, 1000);
+    vec![
+        (0x920A, Value::Rational(vec![((focal_mm * 100.0).round() as u32, 100)])),
+        (0xA20E, Value::Rational(vec![per_cm])),
+        (0xA20F, Value::Rational(vec![per_cm])),
+        (0xA210, Value::Short(vec![3])),
+    ]
 }

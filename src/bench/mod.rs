@@ -6,6 +6,7 @@
 //! evaluation test materials (derived data, see `test_materials.json` for provenance) and a
 //! procedural studio environment written for this project.
 
+pub mod board_photo;
 pub mod cache;
 pub mod camera;
 pub mod panorama;

@@ -34,7 +34,7 @@ fn up_y() -> Vec3 {
 
 impl Pose {
     /// Camera axes in the world: (right, up, forward).
-    fn axes(&self) -> Result<(Vec3, Vec3, Vec3)> {
+    pub(crate) fn axes(&self) -> Result<(Vec3, Vec3, Vec3)> {
         let fwd = normalize(sub(self.look_at, self.position));
         let right = cross(fwd, self.up);
         if dot(right, right) < 1e-12 || dot(fwd, fwd) < 0.5 {
@@ -156,6 +156,17 @@ impl Camera {
     }
 
     fn ray(&self, x: usize, y: usize, axes: &(Vec3, Vec3, Vec3)) -> Ray {
+        self.ray_at(x as f64 + 0.5, y as f64 + 0.5, axes)
+    }
+
+    /// The ray through the image point (u, v), in pixels from the image's top-left corner
+    /// (pixel (x, y) covers [x, x+1) × [y, y+1)): its origin and unit direction.
+    pub fn ray_through(&self, u: f64, v: f64) -> Result<(Vec3, Vec3)> {
+        let r = self.ray_at(u, v, &self.pose().axes()?);
+        Ok((r.origin, r.dir))
+    }
+
+    fn ray_at(&self, u: f64, v: f64, axes: &(Vec3, Vec3, Vec3)) -> Ray {
         let (right, up, fwd) = *axes;
         match self {
             Camera::Orthographic {
@@ -165,8 +176,8 @@ impl Camera {
                 pose,
             } => {
                 let px = extent / *width as f64;
-                let sx = (x as f64 + 0.5 - *width as f64 / 2.0) * px;
-                let sy = (*height as f64 / 2.0 - y as f64 - 0.5) * px;
+                let sx = (u - *width as f64 / 2.0) * px;
+                let sy = (*height as f64 / 2.0 - v) * px;
                 Ray {
                     origin: add(pose.position, add(scale(right, sx), scale(up, sy))),
                     dir: fwd,
@@ -180,8 +191,8 @@ impl Camera {
                 pose,
                 ..
             } => {
-                let a = (x as f64 + 0.5 - cx) / fx;
-                let b = -(y as f64 + 0.5 - cy) / fy;
+                let a = (u - cx) / fx;
+                let b = -(v - cy) / fy;
                 Ray {
                     origin: pose.position,
                     dir: normalize(add(fwd, add(scale(right, a), scale(up, b)))),

@@ -202,7 +202,7 @@ impl Mesh {
 }
 
 /// Rotation matrix for rotations about X, then Y, then Z (degrees): R = Rz·Ry·Rx.
-fn rotation(deg: Vec3) -> [[f64; 3]; 3] {
+pub fn rotation(deg: Vec3) -> [[f64; 3]; 3] {
     let [(sx, cx), (sy, cy), (sz, cz)] = deg.map(|d| d.to_radians().sin_cos());
     [
         [cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx],

@@ -81,6 +81,46 @@ pub fn exif_exposure(bytes: &[u8], file: &str) -> Result<Exposure, RadiometryErr
     })
 }
 
+/// A lens's focal length as a file's EXIF gives it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ExifFocal {
+    pub mm: f64,
+    /// The sensor's pixels per millimetre (FocalPlaneXResolution), where the file says.
+    pub px_per_mm: Option<f64>,
+}
+
+/// FocalLength, and FocalPlaneXResolution in pixels per millimetre, from a file's EXIF; `None`
+/// if it has no focal length.
+pub fn exif_focal(bytes: &[u8]) -> Option<ExifFocal> {
+    let exif = exif::Reader::new()
+        .read_from_container(&mut Cursor::new(bytes))
+        .ok()?;
+    let rational = |tag: exif::Tag| match exif.get_field(tag, exif::In::PRIMARY).map(|f| &f.value) {
+        Some(exif::Value::Rational(v)) if !v.is_empty() && v[0].denom != 0 => {
+            Some(v[0].to_f64()).filter(|x| x.is_finite() && *x > 0.0)
+        }
+        _ => None,
+    };
+    let mm = rational(exif::Tag::FocalLength)?;
+    // FocalPlaneResolutionUnit: 2 inches (the default), 3 centimetres; 4 and 5 (mm, µm) are
+    // written by some cameras though not in the standard.
+    let unit_mm = match exif
+        .get_field(exif::Tag::FocalPlaneResolutionUnit, exif::In::PRIMARY)
+        .and_then(|f| f.value.get_uint(0))
+        .unwrap_or(2)
+    {
+        3 => Some(10.0),
+        4 => Some(1.0),
+        5 => Some(1e-3),
+        2 => Some(25.4),
+        _ => None,
+    };
+    let px_per_mm = rational(exif::Tag::FocalPlaneXResolution)
+        .zip(unit_mm)
+        .map(|(r, unit)| r / unit);
+    Some(ExifFocal { mm, px_per_mm })
+}
+
 /// An sRGB JPEG (as cameras write them) to linear values, with its EXIF exposure.
 pub fn decode_jpeg(bytes: &[u8], file: &str) -> Result<Frame, RadiometryError> {
     let exposure = exif_exposure(bytes, file)?;

@@ -1,0 +1,210 @@
+//! The camera's pose from a photo of the printed board: photos rendered by the virtual bench
+//! at known poses (a 4 × 4 supersampled card, blurred, with sensor noise, through the
+//! simulated camera's 8-bit JPEG with EXIF), then found again by `brdfd::pose::calibrate`.
+
+use brdfd::bench::board_photo::{self, Spoil};
+use brdfd::bench::camera::BenchCamera;
+use brdfd::bench::{studio_envmap, VirtualBench};
+use brdfd::core::geometry::{Camera, Pose};
+use brdfd::core::raster::Raster;
+use brdfd::pose::board::Board;
+use brdfd::pose::{angle_between_deg, calibrate, pinhole, Focal};
+use brdfd_sim::{ImageSource, Shot};
+
+const WIDTH: usize = 1600;
+const HEIGHT: usize = 1064;
+const FX: f64 = 1850.0;
+
+fn camera(position: [f64; 3], look_at: [f64; 3], up: [f64; 3]) -> Camera {
+    Camera::Pinhole {
+        width: WIDTH,
+        height: HEIGHT,
+        fx: FX,
+        fy: FX,
+        cx: WIDTH as f64 / 2.0 + 3.0,
+        cy: HEIGHT as f64 / 2.0 - 2.0,
+        pose: Pose {
+            position,
+            look_at,
+            up,
+        },
+    }
+}
+
+/// The JPEG the simulated D5100 writes of `radiance`, exposed to put its brightest percent
+/// just under white.
+fn jpeg(radiance: Raster, camera: &Camera) -> Vec<u8> {
+    let mut lum: Vec<f32> = radiance.pixels.iter().map(|p| p[1]).collect();
+    lum.sort_by(f32::total_cmp);
+    let bright = lum[lum.len() * 99 / 100] as f64;
+    let f_number = 8.0;
+    let shot = Shot {
+        shutter_s: 0.85 * f_number * f_number / (bright * brdfd::bench::camera::SENSOR_GAIN),
+        f_number,
+        iso: 100,
+        raw: false,
+        sequence: 1,
+    };
+    BenchCamera::of_radiance(radiance, camera, "NIKON CORPORATION", "NIKON D5100")
+        .photo(&shot)
+        .unwrap()
+}
+
+/// What the operator typed into the rig before calibrating: the camera about where it is,
+/// and a focal length 4% off.
+fn rough(truth: &Camera) -> Camera {
+    let Camera::Pinhole {
+        width,
+        height,
+        fx,
+        fy,
+        cx,
+        cy,
+        ..
+    } = truth.clone()
+    else {
+        unreachable!()
+    };
+    Camera::Pinhole {
+        width,
+        height,
+        fx: fx * 1.04,
+        fy: fy * 1.04,
+        cx,
+        cy,
+        pose: Pose {
+            position: [0.0, 0.1, 0.6],
+            look_at: [0.0; 3],
+            up: [0.0, 1.0, 0.0],
+        },
+    }
+}
+
+struct Errors {
+    rms_px: f64,
+    rotation_deg: f64,
+    translation_mm: f64,
+    focal: f64,
+}
+
+fn found(truth: &Camera, photo: &[u8], rig: &Camera) -> Errors {
+    let c = calibrate(rig, &Board::default(), photo, "board.jpg", Focal::Refine, None).unwrap();
+    let (kt, et) = pinhole(truth).unwrap();
+    let (kf, ef) = pinhole(&c.camera).unwrap();
+    Errors {
+        rms_px: c.fit.rms_px,
+        rotation_deg: angle_between_deg(&et.rotation, &ef.rotation),
+        translation_mm: (et.centre() - ef.centre()).norm() * 1000.0,
+        focal: kf.fx / kt.fx - 1.0,
+    }
+}
+
+#[test]
+fn board_photos_at_known_poses_give_the_pose_back() {
+    let env = studio_envmap(256);
+    let board = Board::default();
+    // Half a metre from the board: square-on, turned 30° and lower, rolled and from below.
+    let poses = [
+        camera([0.0, 0.04, 0.5], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
+        camera([0.25, 0.1, 0.42], [0.01, -0.01, 0.0], [0.0, 1.0, 0.0]),
+        camera([-0.22, -0.16, 0.4], [0.0, 0.01, 0.0], [0.12, 1.0, 0.0]),
+    ];
+    let mut worst = (0.0f64, 0.0f64, 0.0f64);
+    for (i, truth) in poses.iter().enumerate() {
+        let radiance = board_photo::render(
+            &board,
+            truth,
+            &env,
+            0.0,
+            Spoil {
+                seed: i as u64 + 1,
+                ..Spoil::default()
+            },
+        )
+        .unwrap();
+        let photo = jpeg(radiance, truth);
+        // From the EXIF focal length (the simulated camera writes it), and without it: the
+        // rig's focal length, 4% off, refined from the view where the view allows.
+        let with_exif = found(truth, &photo, &rough(truth));
+        let stripped = strip_exif(&photo);
+        let without = calibrate(
+            &rough(truth),
+            &board,
+            &stripped,
+            "board.jpg",
+            Focal::Refine,
+            None,
+        )
+        .unwrap();
+        let e = with_exif;
+        println!(
+            "pose {i}: {:.3} px RMS, rotation {:.4}°, position {:.3} mm, focal {:+.4}% (from EXIF); without EXIF: focal {}",
+            e.rms_px,
+            e.rotation_deg,
+            e.translation_mm,
+            e.focal * 100.0,
+            match &without.fit.focal {
+                Ok(s) => format!(
+                    "refined to {:+.3}% (σ {:.3}%)",
+                    (pinhole(&without.camera).unwrap().0.fx / FX - 1.0) * 100.0,
+                    s * 100.0
+                ),
+                Err(why) => why.clone(),
+            }
+        );
+        assert!(e.rms_px <= 0.5, "pose {i}: {} px RMS", e.rms_px);
+        assert!(e.rotation_deg <= 0.2, "pose {i}: {}°", e.rotation_deg);
+        assert!(e.translation_mm <= 1.0, "pose {i}: {} mm", e.translation_mm);
+        assert!(e.focal.abs() < 0.003, "pose {i}: focal {}", e.focal);
+        if i > 0 {
+            // A slanted view pins the focal length down by itself.
+            let fx = pinhole(&without.camera).unwrap().0.fx;
+            assert!(without.fit.focal.is_ok(), "pose {i}: {:?}", without.fit.focal);
+            assert!((fx / FX - 1.0).abs() < 0.01, "pose {i}: fx {fx}");
+        }
+        worst = (
+            worst.0.max(e.rms_px),
+            worst.1.max(e.rotation_deg),
+            worst.2.max(e.translation_mm),
+        );
+    }
+    println!(
+        "worst: {:.3} px RMS, {:.4}°, {:.3} mm",
+        worst.0, worst.1, worst.2
+    );
+}
+
+/// The JPEG without its EXIF segment: a file that says nothing of its lens.
+fn strip_exif(jpeg: &[u8]) -> Vec<u8> {
+    let img = image::load_from_memory(jpeg).unwrap();
+    let mut out = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)
+        .unwrap();
+    out
+}
+
+#[test]
+fn a_photo_without_the_board_says_so() {
+    let truth = camera([0.0, 0.04, 0.5], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+    let mut bench = VirtualBench::embedded("gold", 64).unwrap();
+    bench.geometry.camera = Camera::eval_orthographic(400);
+    let photo = jpeg(bench.photo().unwrap(), &truth.resized(400, 400));
+    let err = calibrate(
+        &truth.resized(400, 400),
+        &Board::default(),
+        &photo,
+        "sphere.jpg",
+        Focal::Refine,
+        None,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("no 9 × 6 ChArUco board"), "{err}");
+    assert!(err.contains("400×400"), "{err}");
+    // A photo of another shape than the rig's camera is refused before any search.
+    let err = calibrate(&truth, &Board::default(), &photo, "sphere.jpg", Focal::Fixed, None)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("another shape"), "{err}");
+}
+
