@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Deserializer};
 
 use crate::core::estimate::Model;
-use crate::core::geometry::SceneGeometry;
+use crate::core::geometry::{Camera, SceneGeometry};
 use crate::core::solve::{ColourChoice, Solver};
 use crate::selector::Selector;
 
@@ -408,6 +408,11 @@ pub struct Simulation {
     /// line, as at a bench whose camera is not fired over PTP. It is the simulated
     /// turntable's box when the turntable is present, a box of its own otherwise.
     pub shutter: SimulatedPresence,
+    /// The object camera as it truly stands on the simulated bench (a `[geometry.camera]`
+    /// table), where the rig's `[geometry.camera]` is what the operator believes: to
+    /// rehearse `brdfd calibrate pose`, which finds it from a photo of the board. The rig's
+    /// camera when absent.
+    pub camera: Option<crate::core::geometry::Camera>,
 }
 
 impl Default for Simulation {
@@ -419,6 +424,7 @@ impl Default for Simulation {
             dslr_raw: None,
             theta: SimulatedLink::Http,
             shutter: SimulatedPresence::Absent,
+            camera: None,
         }
     }
 }
@@ -716,6 +722,23 @@ impl Rig {
         r.geometry
             .check()
             .map_err(|e| invalid(file, "geometry", e))?;
+        if let Some(truth) = r.simulation.as_ref().and_then(|s| s.camera.as_ref()) {
+            let believed = SceneGeometry {
+                camera: truth.clone(),
+                ..r.geometry.clone()
+            };
+            believed
+                .check()
+                .map_err(|e| invalid(file, "simulation.camera", e))?;
+            let ((tw, th), (w, h)) = (truth.size(), r.geometry.camera.size());
+            if tw * h != th * w {
+                return Err(invalid(
+                    file,
+                    "simulation.camera",
+                    format!("is {tw}×{th}, and [geometry.camera] {w}×{h}: they are one camera, so of one shape"),
+                ));
+            }
+        }
         if let Some(t) = &r.turntable {
             if !(1..=crate::rig::MAX_VIEWS).contains(&t.views) || !t.step_deg.is_finite() {
                 return Err(invalid(
@@ -742,6 +765,19 @@ impl Rig {
             .unwrap_or_default();
         rig.geometry.resolve_files(&dir);
         Ok(rig)
+    }
+
+    /// The camera the simulated bench photographs through, for a scene whose camera is
+    /// `believed` (the rig's, at the capture's size): `[simulation] camera` at that size, or
+    /// `believed` itself.
+    pub fn bench_camera(&self, believed: &Camera) -> Camera {
+        match self.simulation.as_ref().and_then(|s| s.camera.as_ref()) {
+            Some(truth) => {
+                let (w, h) = believed.size();
+                truth.resized(w, h)
+            }
+            None => believed.clone(),
+        }
     }
 
     /// The shipped simulated rig, which `capture --simulate` uses.

@@ -32,6 +32,8 @@ fn main() -> std::process::ExitCode {
     let filter = tracing_subscriber::EnvFilter::try_from_env("BRDFD_LOG").unwrap_or_else(|_| {
         tracing_subscriber::EnvFilter::new(default)
             .add_directive("rawler=off".parse().expect("a valid directive"))
+            // The board detector logs each stage that finds nothing; brdfd says what it means.
+            .add_directive("calib_targets=off".parse().expect("a valid directive"))
     });
     tracing_subscriber::fmt()
         .with_env_filter(filter)

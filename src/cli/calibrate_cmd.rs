@@ -10,9 +10,10 @@ use brdfd::config::Rig;
 use brdfd::rig::calibrate::{self, Radiometry, Target};
 use brdfd::rig::flow::{Context, Keep};
 use brdfd::rig::{Devices, Progress, KEEP_ALIVE};
-use toml_edit::{value, Array, DocumentMut, Item, Table};
+use toml_edit::{value, Array, Item, Table};
 
 use super::progress::{Bars, Terminal};
+use super::rig_file::RigFile;
 
 #[derive(clap::Subcommand)]
 pub enum CalibrateCommand {
@@ -20,6 +21,11 @@ pub enum CalibrateCommand {
     /// object goes, and write them into the rig file. The THETA's gain is the bench's unit and
     /// is kept; the DSLR's (RAW and JPEG) and the fallback camera's are measured against it.
     Radiometry(RadiometryArgs),
+    /// Write a ChArUco board to print (SVG and PNG) and its board file, for `pose`.
+    Target(super::pose_cmd::TargetArgs),
+    /// Find the object camera's pose (and focal length) from a photo of the printed board
+    /// standing where the object goes, and write it into the rig file.
+    Pose(super::pose_cmd::PoseArgs),
 }
 
 #[derive(clap::Args)]
@@ -53,7 +59,11 @@ pub struct RadiometryArgs {
 }
 
 pub fn run(cmd: CalibrateCommand) -> anyhow::Result<()> {
-    let CalibrateCommand::Radiometry(a) = cmd;
+    let a = match cmd {
+        CalibrateCommand::Radiometry(a) => a,
+        CalibrateCommand::Target(a) => return super::pose_cmd::target(a),
+        CalibrateCommand::Pose(a) => return super::pose_cmd::pose(a),
+    };
     let (rig, path) = match (&a.rig, a.simulate) {
         (Some(p), _) => (Rig::read(p)?, Some(p.clone())),
         (None, true) => (Rig::simulated(), None),
@@ -79,7 +89,7 @@ pub fn run(cmd: CalibrateCommand) -> anyhow::Result<()> {
     target.check("--albedo")?;
     // Opened first: a file the gains cannot go into is said before anything is shot.
     let rig_file = match &path {
-        Some(p) if !a.dry_run => Some(RigFile::open(p)?),
+        Some(p) if !a.dry_run => Some(open_for_gains(p)?),
         _ => None,
     };
     let out = match &a.out {
@@ -134,7 +144,7 @@ pub fn run(cmd: CalibrateCommand) -> anyhow::Result<()> {
     }
     match rig_file {
         Some(f) => {
-            let backup = f.write(&result, &note)?;
+            let backup = write_gains(f, &result, &note)?;
             println!(
                 "wrote the gains into {} (the file before is {})",
                 a.rig.as_deref().unwrap_or(Path::new("")).display(),
@@ -220,86 +230,57 @@ fn json(r: &Radiometry, note: &str) -> serde_json::Value {
 
 /// The rig file, opened for its gains before anything is measured: a file the gains cannot be
 /// written into is said before the cameras shoot.
-struct RigFile {
-    path: PathBuf,
-    doc: DocumentMut,
+fn open_for_gains(path: &Path) -> anyhow::Result<RigFile> {
+    let mut file = RigFile::open(path)?;
+    let doc = &mut file.doc;
+    // `calibration = { ... }` on one line becomes a table of its own, which can hold the
+    // cameras' tables.
+    if let Some(inline) = doc.get("calibration").and_then(Item::as_inline_table) {
+        let table = inline.clone().into_table();
+        doc["calibration"] = Item::Table(table);
+    }
+    if !doc.get("calibration").is_none_or(Item::is_table) {
+        bail!(
+            "{}: `calibration` is not a table; make it one ([calibration]) to calibrate",
+            path.display()
+        );
+    }
+    Ok(file)
 }
 
-impl RigFile {
-    fn open(path: &Path) -> anyhow::Result<RigFile> {
-        let text = std::fs::read_to_string(path)?;
-        let mut doc: DocumentMut = text
-            .parse()
-            .with_context(|| format!("{} is not TOML", path.display()))?;
-        // `calibration = { ... }` on one line becomes a table of its own, which can hold
-        // the cameras' tables.
-        if let Some(inline) = doc.get("calibration").and_then(Item::as_inline_table) {
-            let table = inline.clone().into_table();
-            doc["calibration"] = Item::Table(table);
-        }
-        if !doc.get("calibration").is_none_or(Item::is_table) {
-            bail!(
-                "{}: `calibration` is not a table; make it one ([calibration]) to calibrate",
-                path.display()
-            );
-        }
-        Ok(RigFile {
-            path: path.to_path_buf(),
-            doc,
-        })
-    }
-
-    /// Writes the gains, keeping the file's comments and layout (a table that was there keeps
-    /// its place and its comments, only its values change). The file before is kept beside
-    /// it as FILE.bak (FILE.bak.1 and on, if that is taken). The rig as written must parse.
-    fn write(mut self, r: &Radiometry, note: &str) -> anyhow::Result<PathBuf> {
-        let calibration = self
-            .doc
-            .entry("calibration")
-            .or_insert(Item::Table(Table::new()))
-            .as_table_mut()
-            .context("`calibration` is not a table")?;
-        // The ratios of before the gains: what they measured is in the gains now.
-        calibration.remove("theta_to_dslr");
-        calibration.remove("theta_to_fallback");
-        let measured: Vec<&str> = r.cameras.iter().map(|m| table_key(m.field)).collect();
-        if !r.theta_given {
-            // A new unit: a camera's gain measured against another is of no use now.
-            for (field, _) in brdfd::config::GAIN_FIELDS.iter().map(|f| (*f, ())) {
-                let key = table_key(field);
-                if key != "theta" && !measured.contains(&key) {
-                    calibration.remove(key);
-                }
+/// Writes the gains, keeping the file's comments and layout (a table that was there keeps its
+/// place and its comments, only its values change); the file before is kept beside it.
+fn write_gains(mut file: RigFile, r: &Radiometry, note: &str) -> anyhow::Result<PathBuf> {
+    let calibration = file
+        .doc
+        .entry("calibration")
+        .or_insert(Item::Table(Table::new()))
+        .as_table_mut()
+        .context("`calibration` is not a table")?;
+    // The ratios of before the gains: what they measured is in the gains now.
+    calibration.remove("theta_to_dslr");
+    calibration.remove("theta_to_fallback");
+    let measured: Vec<&str> = r.cameras.iter().map(|m| table_key(m.field)).collect();
+    if !r.theta_given {
+        // A new unit: a camera's gain measured against another is of no use now.
+        for (field, _) in brdfd::config::GAIN_FIELDS.iter().map(|f| (*f, ())) {
+            let key = table_key(field);
+            if key != "theta" && !measured.contains(&key) {
+                calibration.remove(key);
             }
-            let t = table(calibration, "theta");
-            t["gain"] = array(r.theta, GAIN_DIGITS);
-            t["measured"] =
-                value("the bench's unit of radiance: the other gains are measured against it");
         }
-        for m in &r.cameras {
-            let t = table(calibration, table_key(m.field));
-            t["gain"] = array(m.gain, GAIN_DIGITS);
-            t["spread"] = array(m.spread, SPREAD_DIGITS);
-            t["measured"] = value(format!("{note}, over {} pixels", m.pixels));
-        }
-        let written = self.doc.to_string();
-        let file = self.path.display().to_string();
-        let rig = Rig::parse(&file, &written).context("the rig as written")?;
-        let backup = (0..)
-            .map(|i| match i {
-                0 => PathBuf::from(format!("{file}.bak")),
-                i => PathBuf::from(format!("{file}.bak.{i}")),
-            })
-            .find(|p| !p.exists())
-            .context("no name for the backup")?;
-        std::fs::copy(&self.path, &backup)
-            .with_context(|| format!("keeping {}", backup.display()))?;
-        brdfd::session::write_atomic(&self.path, written.as_bytes())?;
-        if let Err(e) = brdfd::rig::plan::check(&rig) {
-            eprintln!("  warning: the rig is not ready to capture yet: {e}");
-        }
-        Ok(backup)
+        let t = table(calibration, "theta");
+        t["gain"] = array(r.theta, GAIN_DIGITS);
+        t["measured"] =
+            value("the bench's unit of radiance: the other gains are measured against it");
     }
+    for m in &r.cameras {
+        let t = table(calibration, table_key(m.field));
+        t["gain"] = array(m.gain, GAIN_DIGITS);
+        t["spread"] = array(m.spread, SPREAD_DIGITS);
+        t["measured"] = value(format!("{note}, over {} pixels", m.pixels));
+    }
+    file.save()
 }
 
 /// `dslr_raw` of `calibration.dslr_raw`.

@@ -11,8 +11,10 @@ mod estimate_cmd;
 mod geometry_args;
 mod perf;
 mod perf_ptp;
+mod pose_cmd;
 mod progress;
 mod ptp_cmd;
+mod rig_file;
 mod serial_cmd;
 mod serve;
 mod session_cmd;
@@ -53,7 +55,8 @@ pub enum Command {
     Eval(EvalArgs),
     /// Capture a material at the bench and estimate its BRDF (in the daemon if one runs).
     Capture(capture::CaptureArgs),
-    /// Calibrate the rig: each camera's gain from a grey card.
+    /// Calibrate the rig: each camera's gain from a grey card, the object camera's pose from
+    /// a printed board.
     Calibrate {
         #[command(subcommand)]
         command: calibrate_cmd::CalibrateCommand,

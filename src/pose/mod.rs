@@ -169,7 +169,7 @@ pub fn solve(points: &[Correspondence], k: Intrinsics, focal: Focal) -> Result<P
     let start = plane.to_world(from_homography(&h, &k)?);
     let fixed = refine(points, k, start, false);
     let (fit, focal_result) = match focal {
-        Focal::Fixed => (fixed, Err("held at the rig's value".to_string())),
+        Focal::Fixed => (fixed, Err("held, as asked".to_string())),
         Focal::Refine => {
             let free = refine(points, k, fixed.extrinsics, true);
             match free.focal_sigma {
@@ -177,7 +177,7 @@ pub fn solve(points: &[Correspondence], k: Intrinsics, focal: Focal) -> Result<P
                 s => (
                     fixed,
                     Err(format!(
-                        "held at the rig's value: this view pins it down to {} only (the board needs to be seen at more of a slant)",
+                        "held: this view pins it down to {} only (the board needs to be seen at more of a slant)",
                         s.map_or("nothing".to_string(), |s| format!("{:.1}%", s * 100.0))
                     )),
                 ),
@@ -438,21 +438,20 @@ pub struct Calibrated {
     pub start_from: String,
 }
 
-/// Finds the board in `photo` (a JPEG or PNG file's bytes, from the rig's object camera) and
-/// solves for the camera's pose, starting from the focal length in the photo's EXIF (with
-/// `sensor_width_mm` where the file does not give the focal plane's resolution) or else the
-/// rig's, and refining it if `focal` asks and the view allows.
+/// Finds the board in `photo` (8-bit grey, from the rig's object camera) and solves for the
+/// camera's pose, starting from the focal length of the photo's EXIF (with `sensor_width_mm`
+/// where the file does not give the focal plane's resolution) or else the rig's, and refining
+/// it if `focal` asks and the view allows.
 pub fn calibrate(
     rig_camera: &Camera,
     board: &board::Board,
-    photo: &[u8],
+    photo: &image::GrayImage,
     photo_name: &str,
+    exif: Option<crate::radiometry::ExifFocal>,
     focal: Focal,
     sensor_width_mm: Option<f64>,
 ) -> anyhow::Result<Calibrated> {
-    let image = image::load_from_memory(photo)
-        .map_err(|e| anyhow::anyhow!("{photo_name}: not a photo brdfd reads (JPEG or PNG): {e}"))?;
-    let (pw, ph) = (image.width(), image.height());
+    let (pw, ph) = (photo.width(), photo.height());
     let (w, h) = rig_camera.size();
     if ((pw as f64 / w as f64) - (ph as f64 / h as f64)).abs() > 0.01 * (pw as f64 / w as f64) {
         anyhow::bail!(
@@ -466,7 +465,7 @@ pub fn calibrate(
         );
     };
     let mut start_from = "the rig's fx".to_string();
-    if let Some(exif) = crate::radiometry::exif_focal(photo) {
+    if let Some(exif) = exif {
         let per_mm = exif
             .px_per_mm
             .or(sensor_width_mm.map(|s| pw as f64 / s));
@@ -485,7 +484,7 @@ pub fn calibrate(
         }
     }
     let start_fx = k.fx;
-    let corners = board.detect(&image.to_luma8())?;
+    let corners = board.detect(photo)?;
     let fit = solve(&corners, k, focal)
         .map_err(|e| anyhow::anyhow!("{photo_name}: the board's corners give no pose: {e}"))?;
     let centre = Vector3::from(board.world([board.size_mm().0 / 2.0, board.size_mm().1 / 2.0]));

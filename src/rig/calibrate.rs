@@ -157,7 +157,11 @@ pub fn radiometry(
     };
     let yaw = rig.theta_yaw_deg.to_radians();
     if let Some(sim) = &cx.devices.sim {
-        let bench = grey_bench(&scene, yaw, target.albedo.0);
+        let truth = SceneGeometry {
+            camera: rig.bench_camera(&scene.camera),
+            ..scene.clone()
+        };
+        let bench = grey_bench(&truth, yaw, target.albedo.0);
         sim.show_light(&bench);
         sim.show_object(&bench)?;
         cx.say(format!(

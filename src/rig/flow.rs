@@ -380,7 +380,11 @@ fn place_sample(
         return Ok(None);
     };
     let p = phases.start("simulated bench: place the sample", 1);
-    let bench = simulated_bench(&s.plan, s.preset.as_ref(), &s.scene, s.yaw, basis)?;
+    let scene = SceneGeometry {
+        camera: cx.rig.bench_camera(&s.scene.camera),
+        ..s.scene.clone()
+    };
+    let bench = simulated_bench(&s.plan, s.preset.as_ref(), &scene, s.yaw, basis)?;
     rig.show_light(&bench);
     phases.end_as_device(p);
     let (w, h) = s.scene.camera.size();

@@ -24,6 +24,7 @@ pub mod light;
 pub mod object;
 pub mod open;
 pub mod plan;
+pub mod pose;
 pub mod roles;
 pub mod settings;
 pub mod simulated;

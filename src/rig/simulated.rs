@@ -209,6 +209,19 @@ impl SimulatedRig {
         Ok(())
     }
 
+    /// Puts a scene rendered elsewhere in front of the DSLR (the pose board), as `camera`
+    /// sees it.
+    pub fn show_radiance(
+        &self,
+        radiance: crate::core::raster::Raster,
+        camera: &crate::core::geometry::Camera,
+    ) -> anyhow::Result<()> {
+        let camera = BenchCamera::of_radiance(radiance, camera, "NIKON CORPORATION", "NIKON D5100")
+            .with_raw(self.raw);
+        self.dslr_scene.show(Arc::new(camera));
+        Ok(())
+    }
+
     fn add_render(&self, since: Instant) {
         self.render_nanos.fetch_add(
             since.elapsed().as_nanos() as u64,
