@@ -10,7 +10,7 @@ use brdfd::bench::{studio_envmap, VirtualBench};
 use brdfd::core::geometry::{Camera, Pose};
 use brdfd::core::raster::Raster;
 use brdfd::pose::board::Board;
-use brdfd::pose::{angle_between_deg, calibrate, pinhole, Focal};
+use brdfd::pose::{angle_between_deg, calibrate, find, pinhole, Calibrated, Focal};
 use brdfd::rig::pose::BoardPhoto;
 use brdfd_sim::{ImageSource, Shot};
 
@@ -83,6 +83,13 @@ fn rough(truth: &Camera) -> Camera {
     }
 }
 
+/// The pose from one photo of the default board as placed.
+fn solve_photo(rig: &Camera, p: &BoardPhoto, focal: Focal) -> anyhow::Result<Calibrated> {
+    let board = Board::default();
+    let found = find(&board, &p.grey, &p.name, 0.0)?;
+    calibrate(rig, vec![found], [0.0; 3], p.exif, focal, None)
+}
+
 struct Errors {
     rms_px: f64,
     rotation_deg: f64,
@@ -92,7 +99,7 @@ struct Errors {
 
 fn found(truth: &Camera, photo: &[u8], rig: &Camera) -> Errors {
     let p = BoardPhoto::decode("board.jpg", photo).unwrap();
-    let c = calibrate(rig, &Board::default(), &p.grey, &p.name, p.exif, Focal::Refine, None).unwrap();
+    let c = solve_photo(rig, &p, Focal::Refine).unwrap();
     let (kt, et) = pinhole(truth).unwrap();
     let (kf, ef) = pinhole(&c.camera).unwrap();
     Errors {
@@ -131,9 +138,9 @@ fn board_photos_at_known_poses_give_the_pose_back() {
         // rig's focal length, 4% off, refined from the view where the view allows.
         let with_exif = found(truth, &photo, &rough(truth));
         // The photo without its EXIF: a file that says nothing of its lens.
-        let grey = BoardPhoto::decode("board.jpg", &photo).unwrap().grey;
-        let without =
-            calibrate(&rough(truth), &board, &grey, "board.png", None, Focal::Refine, None).unwrap();
+        let mut stripped = BoardPhoto::decode("board.jpg", &photo).unwrap();
+        stripped.exif = None;
+        let without = solve_photo(&rough(truth), &stripped, Focal::Refine).unwrap();
         let e = with_exif;
         println!(
             "pose {i}: {:.3} px RMS, rotation {:.4}°, position {:.3} mm, focal {:+.4}% (from EXIF); without EXIF: focal {}",
@@ -179,21 +186,19 @@ fn a_photo_without_the_board_says_so() {
     bench.geometry.camera = Camera::eval_orthographic(400);
     let photo = jpeg(bench.photo().unwrap(), &truth.resized(400, 400));
     let p = BoardPhoto::decode("sphere.jpg", &photo).unwrap();
-    let err = calibrate(
-        &truth.resized(400, 400),
-        &Board::default(),
-        &p.grey,
-        &p.name,
-        p.exif,
-        Focal::Refine,
-        None,
-    )
-    .unwrap_err()
-    .to_string();
+    let err = solve_photo(&truth.resized(400, 400), &p, Focal::Refine)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("no 9 × 6 ChArUco board"), "{err}");
     assert!(err.contains("400×400"), "{err}");
     // A photo of another shape than the rig's camera is refused before any search.
-    let err = calibrate(&truth, &Board::default(), &p.grey, &p.name, None, Focal::Fixed, None)
+    let mut board = BoardPhoto::decode("board.jpg", &jpeg(
+        board_photo::render(&Board::default(), &truth, &studio_envmap(64), 0.0, Spoil::default()).unwrap(),
+        &truth,
+    ))
+    .unwrap();
+    board.name = "board.jpg".into();
+    let err = solve_photo(&truth.resized(400, 400), &board, Focal::Fixed)
         .unwrap_err()
         .to_string();
     assert!(err.contains("another shape"), "{err}");
@@ -292,5 +297,60 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
     assert!(as_found.1 <= as_true.1 * 1.25 + 0.005, "{as_found:?} against {as_true:?}");
     // The pose matters: as typed, the estimate does not reproduce its own photo.
     assert!(as_typed.0 > 5.0 * as_true.0, "{as_typed:?} against {as_true:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A rig whose DSLR does not answer: the webcam photographs the board, its frames carry no
+/// EXIF, and the focal length (4% off as typed) comes from three views on the turntable.
+/// A photo with no board in it is an error that says so.
+#[test]
+fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
+    use std::path::Path;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = std::env::temp_dir().join(format!("brdfd-pose-webcam-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let shipped = std::fs::read_to_string(root.join("config/rigs/simulated-pose.toml")).unwrap();
+    let mesh = root.join("config/geometry/grooved-block.obj");
+    let rig = shipped
+        .replace("../geometry/grooved-block.obj", mesh.to_str().unwrap())
+        .replace("\n[simulation.camera]", "\n[simulation]\ndslr = \"absent\"\n\n[simulation.camera]");
+    std::fs::write(dir.join("rig.toml"), &rig).unwrap();
+    let run = common::brdfd(
+        &["calibrate", "pose", "--rig", "rig.toml", "--out", "photos", "--state-dir", "state"],
+        &dir,
+    );
+    let said = common::out(&run);
+    assert!(run.status.success(), "{said}");
+    assert!(said.contains("the rig's fx), refined"), "{said}");
+    assert_eq!(said.matches("40 corners in fallback frame").count(), 3, "{said}");
+    let found = brdfd::config::Rig::read(&dir.join("rig.toml")).unwrap();
+    let (kf, ef) = pinhole(&found.geometry.camera).unwrap();
+    let (kt, et) = pinhole(&found.simulation.clone().unwrap().camera.unwrap()).unwrap();
+    let (focal, rotation, moved_mm) = (
+        kf.fx / kt.fx - 1.0,
+        angle_between_deg(&ef.rotation, &et.rotation),
+        (ef.centre() - et.centre()).norm() * 1000.0,
+    );
+    eprintln!(
+        "webcam, three views, no EXIF: fx {:+.3}%, rotation {rotation:.4}°, position {moved_mm:.3} mm",
+        focal * 100.0
+    );
+    assert!(focal.abs() < 0.005, "{said}");
+    assert!(rotation <= 0.2 && moved_mm <= 2.5, "{said}");
+
+    image::GrayImage::from_pixel(640, 424, image::Luma([128]))
+        .save(dir.join("grey.png"))
+        .unwrap();
+    let run = common::brdfd(
+        &["calibrate", "pose", "--rig", "rig.toml", "--photo", "grey.png", "--dry-run"],
+        &dir,
+    );
+    let said = common::out(&run);
+    assert!(!run.status.success());
+    assert!(
+        said.contains("grey.png: no 9 × 6 ChArUco board (DICT_4X4_50) found in the 640×424 photo"),
+        "{said}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -105,6 +105,14 @@ pub struct PoseArgs {
     /// rig's object camera photographs it now.
     #[arg(long, num_args = 1..)]
     pub photo: Vec<PathBuf>,
+    /// Views of the board: photographed at 0°, then turned on the turntable by +--turn, −--turn,
+    /// ... (views at a slant pin the focal length down); else 3 on a rig with a turntable and
+    /// no --photo, 1 otherwise.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=9))]
+    pub views: Option<u32>,
+    /// Turntable degrees between views of the board.
+    #[arg(long, default_value_t = 30.0)]
+    pub turn: f64,
     /// Keep the rig's focal length; else it is refined where the view pins it down (a board
     /// seen at a slant), starting from the photo's EXIF focal length if it has one.
     #[arg(long)]
@@ -153,7 +161,13 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
     } else {
         Focal::Refine
     };
-    let photos = if a.photo.is_empty() {
+    let mut warn = |w: String| eprintln!("  warning: {w}");
+    let views = if a.photo.is_empty() {
+        let roles = brdfd::rig::plan::devices(&rig)?;
+        let n = a.views.unwrap_or(if roles.turntable { 3 } else { 1 }) as usize;
+        if !(a.turn.is_finite() && a.turn.abs() > 0.0 && a.turn.abs() < 80.0) {
+            bail!("--turn must be a number of degrees between 0 and 80, not {}", a.turn);
+        }
         let devices = Devices::start(&rig, KEEP_ALIVE)?;
         let out = out_dir(&a)?;
         println!("the board's photos go to {}", out.display());
@@ -164,20 +178,29 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             cancel: Default::default(),
             operator: Arc::new(Terminal),
         };
-        pose::shoot(&cx, &mut Folder(out), &board)?
+        let shot = pose::shoot(&cx, &mut Folder(out), &board, &pose::view_angles(n, a.turn))?;
+        pose::solve_views(&mut warn, &rig.geometry.camera, &board, &shot, focal, a.sensor_width_mm)?
     } else {
-        a.photo
+        if a.views.is_some_and(|v| v > 1) {
+            bail!("--views photographs the board on the turntable; with --photo, each photo is one view of the board as placed");
+        }
+        let photos = a
+            .photo
             .iter()
             .map(|p| {
                 let bytes =
                     std::fs::read(p).with_context(|| format!("reading {}", p.display()))?;
                 BoardPhoto::decode(&p.display().to_string(), &bytes)
             })
-            .collect::<anyhow::Result<_>>()?
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let view = [pose::BoardView {
+            turn_deg: 0.0,
+            photos,
+        }];
+        pose::solve_views(&mut warn, &rig.geometry.camera, &board, &view, focal, a.sensor_width_mm)?
     };
-    let (found, photo) =
-        pose::solve_best(&rig.geometry.camera, &board, &photos, focal, a.sensor_width_mm)?;
-    print_found(&rig.geometry.camera, &found, &photo, photos.len());
+    let found = views;
+    print_found(&rig.geometry.camera, &found);
     match rig_file {
         Some(f) => {
             let note = format!(
@@ -223,15 +246,23 @@ impl Keep for Folder {
     }
 }
 
-fn print_found(before: &Camera, c: &Calibrated, photo: &str, photos: usize) {
+fn print_found(before: &Camera, c: &Calibrated) {
     let f = &c.fit;
+    for v in &c.views {
+        println!(
+            "board: {} corners in {}{}",
+            v.corners.len(),
+            v.name,
+            if c.views.len() > 1 {
+                format!(" (turned {:.1}°)", v.turn_deg)
+            } else {
+                String::new()
+            }
+        );
+    }
     println!(
-        "board: {} corners in {photo} (the best of {photos} photos, {}×{})",
-        f.corners, c.photo_size.0, c.photo_size.1
-    );
-    println!(
-        "reprojection: {:.3} px RMS, {:.3} px at worst",
-        f.rms_px, f.worst_px
+        "reprojection: {:.3} px RMS, {:.3} px at worst, over {} corners in {}×{} photos",
+        f.rms_px, f.worst_px, f.corners, c.photo_size.0, c.photo_size.1
     );
     let (k, e) = pinhole(&c.camera).expect("a pinhole camera");
     let (k0, e0) = pinhole(before).expect("a pinhole camera");

@@ -156,15 +156,30 @@ const FOCAL_SIGMA_MAX: f64 = 0.005;
 /// The pose of a camera of intrinsics `k` that sees the planar board `points` (all on one
 /// plane in the world), and its focal length if `focal` asks and the view allows.
 pub fn solve(points: &[Correspondence], k: Intrinsics, focal: Focal) -> Result<PoseFit, String> {
-    if points.len() < MIN_CORNERS {
+    solve_views(&[points.to_vec()], k, focal)
+}
+
+/// One camera's pose from several views of the board, each on its own plane in the world (the
+/// board turned on the turntable between them): the first pose from the view with the most
+/// corners, refined over all of them. Views at different slants pin the focal length down
+/// where one seen square-on cannot.
+pub fn solve_views(
+    views: &[Vec<Correspondence>],
+    k: Intrinsics,
+    focal: Focal,
+) -> Result<PoseFit, String> {
+    let points: Vec<Correspondence> = views.iter().flatten().copied().collect();
+    let points = &points[..];
+    let largest = views.iter().max_by_key(|v| v.len()).map_or(&[][..], |v| &v[..]);
+    if largest.len() < MIN_CORNERS {
         return Err(format!(
             "{} board corners found, {MIN_CORNERS} needed at least",
-            points.len()
+            largest.len()
         ));
     }
-    let plane = Plane::through(points)?;
-    let local: Vec<[f64; 2]> = points.iter().map(|p| plane.local(p.world)).collect();
-    let pixels: Vec<[f64; 2]> = points.iter().map(|p| p.pixel).collect();
+    let plane = Plane::through(largest)?;
+    let local: Vec<[f64; 2]> = largest.iter().map(|p| plane.local(p.world)).collect();
+    let pixels: Vec<[f64; 2]> = largest.iter().map(|p| p.pixel).collect();
     let h = homography(&local, &pixels)?;
     let start = plane.to_world(from_homography(&h, &k)?);
     let fixed = refine(points, k, start, false);
@@ -177,7 +192,7 @@ pub fn solve(points: &[Correspondence], k: Intrinsics, focal: Focal) -> Result<P
                 s => (
                     fixed,
                     Err(format!(
-                        "held: this view pins it down to {} only (the board needs to be seen at more of a slant)",
+                        "held: the view pins it down to {} only (the board needs to be seen at more of a slant, or turned between views)",
                         s.map_or("nothing".to_string(), |s| format!("{:.1}%", s * 100.0))
                     )),
                 ),
@@ -425,38 +440,90 @@ fn refine(points: &[Correspondence], k: Intrinsics, start: Extrinsics, with_foca
     }
 }
 
-/// A rig camera with the pose (and focal length) a photo of the board gave it.
+/// The board's corners found in one photo, where they are in the world with the board turned
+/// `turn_deg` on the turntable.
+#[derive(Debug, Clone)]
+pub struct Found {
+    pub name: String,
+    pub size: (u32, u32),
+    pub turn_deg: f64,
+    pub corners: Vec<Correspondence>,
+}
+
+/// Finds the board in `photo` (8-bit grey, from the rig's object camera), the board turned
+/// `turn_deg` (right-handed about the turntable's axis, the world's +Y through the origin)
+/// from where its board file places it.
+pub fn find(
+    board: &board::Board,
+    photo: &image::GrayImage,
+    name: &str,
+    turn_deg: f64,
+) -> anyhow::Result<Found> {
+    let (s, c) = turn_deg.to_radians().sin_cos();
+    let corners = board
+        .detect(photo)
+        .map_err(|e| anyhow::anyhow!("{name}: {e:#}"))?
+        .into_iter()
+        .map(|p| {
+            let [x, y, z] = p.world;
+            Correspondence {
+                world: [c * x + s * z, y, -s * x + c * z],
+                ..p
+            }
+        })
+        .collect();
+    Ok(Found {
+        name: name.to_string(),
+        size: (photo.width(), photo.height()),
+        turn_deg,
+        corners,
+    })
+}
+
+/// A rig camera with the pose (and focal length) photos of the board gave it.
 #[derive(Debug, Clone)]
 pub struct Calibrated {
     /// The rig's camera, at its own size, with the pose and focal length found.
     pub camera: Camera,
-    /// The fit, in the photo's pixels.
+    /// The fit, in the photos' pixels.
     pub fit: PoseFit,
     pub photo_size: (u32, u32),
     /// The focal length the solve started from (pixels of the photo), and where it came from.
     pub start_fx: f64,
     pub start_from: String,
+    /// The views solved from.
+    pub views: Vec<Found>,
 }
 
-/// Finds the board in `photo` (8-bit grey, from the rig's object camera) and solves for the
-/// camera's pose, starting from the focal length of the photo's EXIF (with `sensor_width_mm`
-/// where the file does not give the focal plane's resolution) or else the rig's, and refining
-/// it if `focal` asks and the view allows.
+/// The camera's pose from the board's corners in one or more views (one camera that did not
+/// move; the board turned between them), starting from the focal length of the photos' EXIF
+/// (with `sensor_width_mm` where the file does not give the focal plane's resolution) or
+/// else the rig's, and refining it if `focal` asks and the views allow. `look_at` is written
+/// where the camera's axis passes the board's centre.
 pub fn calibrate(
     rig_camera: &Camera,
-    board: &board::Board,
-    photo: &image::GrayImage,
-    photo_name: &str,
+    views: Vec<Found>,
+    board_centre: Vec3,
     exif: Option<crate::radiometry::ExifFocal>,
     focal: Focal,
     sensor_width_mm: Option<f64>,
 ) -> anyhow::Result<Calibrated> {
-    let (pw, ph) = (photo.width(), photo.height());
+    let Some(first) = views.first() else {
+        anyhow::bail!("no photo of the board to solve from");
+    };
+    let (pw, ph) = first.size;
     let (w, h) = rig_camera.size();
-    if ((pw as f64 / w as f64) - (ph as f64 / h as f64)).abs() > 0.01 * (pw as f64 / w as f64) {
-        anyhow::bail!(
-            "{photo_name} is {pw}×{ph}, and the rig's camera is {w}×{h}: a photo of another shape is from another camera, or cropped"
-        );
+    for v in &views {
+        let (vw, vh) = v.size;
+        if (vw, vh) != (pw, ph) {
+            anyhow::bail!("{} is {vw}×{vh}, and {} {pw}×{ph}: the views are of one camera", v.name, first.name);
+        }
+        if ((vw as f64 / w as f64) - (vh as f64 / h as f64)).abs() > 0.01 * (vw as f64 / w as f64) {
+            anyhow::bail!(
+                "{} is {vw}×{vh}, and the rig's camera is {w}×{h}: a photo of another shape is from another camera, or cropped",
+                v.name
+            );
+        }
     }
     let at_photo = rig_camera.resized(pw as usize, ph as usize);
     let Some((mut k, _)) = pinhole(&at_photo) else {
@@ -484,10 +551,10 @@ pub fn calibrate(
         }
     }
     let start_fx = k.fx;
-    let corners = board.detect(photo)?;
-    let fit = solve(&corners, k, focal)
-        .map_err(|e| anyhow::anyhow!("{photo_name}: the board's corners give no pose: {e}"))?;
-    let centre = Vector3::from(board.world([board.size_mm().0 / 2.0, board.size_mm().1 / 2.0]));
+    let groups: Vec<Vec<Correspondence>> = views.iter().map(|v| v.corners.clone()).collect();
+    let fit = solve_views(&groups, k, focal)
+        .map_err(|e| anyhow::anyhow!("{}: the board's corners give no pose: {e}", first.name))?;
+    let centre = Vector3::from(board_centre);
     let distance = (fit.extrinsics.rotation * centre + fit.extrinsics.translation).z;
     let pose = fit.extrinsics.to_pose(distance.max(1e-3));
     let camera = match at_photo {
@@ -511,6 +578,7 @@ pub fn calibrate(
         photo_size: (pw, ph),
         start_fx,
         start_from,
+        views,
     })
 }
 

@@ -16,7 +16,9 @@ use crate::bench::board_photo::{self, Spoil};
 use crate::config::DslrFiles;
 use crate::core::raster::linear_to_srgb;
 use crate::pose::board::Board;
-use crate::pose::{calibrate, Calibrated, Focal};
+use super::turning::turn_to;
+use crate::core::geometry::Camera;
+use crate::pose::{calibrate, find, Calibrated, Focal, Found};
 use crate::radiometry::ExifFocal;
 
 /// A photo of the board to solve from: 8-bit grey, with the lens's EXIF where it has one.
@@ -40,33 +42,122 @@ impl BoardPhoto {
     }
 }
 
-/// Photographs the board with the rig's object camera: the DSLR's bracket (as JPEGs) if the
-/// rig has a DSLR, else the fallback camera's. Every file is kept as it arrives.
-pub fn shoot(cx: &Context, keep: &mut dyn Keep, board: &Board) -> anyhow::Result<Vec<BoardPhoto>> {
+/// The photos of one view of the board: the turntable's angle, and a bracket's frames.
+pub struct BoardView {
+    pub turn_deg: f64,
+    pub photos: Vec<BoardPhoto>,
+}
+
+/// The turntable's angles for `n` views `step` degrees apart: 0, +step, −step, +2·step, ...
+/// (the board seen square-on first, then at slants both ways).
+pub fn view_angles(n: usize, step: f64) -> Vec<f64> {
+    (0..n)
+        .map(|i| {
+            let k = i.div_ceil(2) as f64;
+            if i % 2 == 1 {
+                k * step
+            } else {
+                -k * step
+            }
+        })
+        .map(|a| if a == 0.0 { 0.0 } else { a })
+        .collect()
+}
+
+/// Photographs the board with the rig's object camera at each of `angles` (turntable
+/// degrees; the turntable is turned back to 0 after): the DSLR's bracket (as JPEGs) if the rig
+/// has a DSLR that answers, else the fallback camera's. Every file is kept as it arrives.
+pub fn shoot(
+    cx: &Context,
+    keep: &mut dyn Keep,
+    board: &Board,
+    angles: &[f64],
+) -> anyhow::Result<Vec<BoardView>> {
+    let turns = angles.iter().any(|a| *a != 0.0);
+    if turns && cx.devices.turntable.is_none() {
+        bail!("several views of the board need the rig's turntable, and it has none");
+    }
+    let mut views = Vec::new();
+    let mut dslr_answers = true;
+    for (i, &angle) in angles.iter().enumerate() {
+        // The turntable says where it is in [0, 360); a view 30° the other way is −30°.
+        let at = if turns {
+            (turn_to(cx, angle)? + 180.0).rem_euclid(360.0) - 180.0
+        } else {
+            0.0
+        };
+        if angles.len() > 1 {
+            cx.say(format!("board view {} of {}: turntable at {at:.2}°", i + 1, angles.len()));
+        }
+        let mut keep = Prefixed(keep, format!("view{}-", i + 1));
+        views.push(BoardView {
+            turn_deg: at,
+            photos: shoot_one(cx, &mut keep, board, at, &mut dslr_answers)?,
+        });
+    }
+    if turns {
+        turn_to(cx, 0.0)?;
+    }
+    Ok(views)
+}
+
+/// Names each file kept with a prefix (the view's).
+struct Prefixed<'a>(&'a mut dyn Keep, String);
+
+impl Keep for Prefixed<'_> {
+    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
+        self.0.keep(&format!("{}{name}", self.1), bytes)
+    }
+}
+
+/// One view's bracket, the board turned `turn_deg` on the turntable.
+fn shoot_one(
+    cx: &Context,
+    keep: &mut dyn Keep,
+    board: &Board,
+    turn_deg: f64,
+    dslr_answers: &mut bool,
+) -> anyhow::Result<Vec<BoardPhoto>> {
     let rig = cx.rig;
     let roles = plan::devices(rig)?;
     if let Some(sim) = &cx.devices.sim {
-        let camera = rig.bench_camera(&rig.geometry.camera);
+        // The board turned by θ is, in its own frame, the camera and the light turned by −θ.
+        let theta = turn_deg.to_radians();
+        let camera = rig.bench_camera(&rig.geometry.camera).turned_about_y(-theta);
         let env = crate::bench::studio_envmap(512);
         let radiance = board_photo::render(
             board,
             &camera,
             &env,
-            rig.theta_yaw_deg.to_radians(),
+            rig.theta_yaw_deg.to_radians() - theta,
             Spoil::default(),
         )?;
         sim.show_radiance(radiance, &camera)?;
         cx.say("simulated rig: the board stands where the object goes, under the studio light");
     }
-    if let (true, Some(role)) = (roles.dslr, &cx.devices.dslr) {
+    let mut dslr_failed = None;
+    if let (true, true, Some(role)) = (roles.dslr, *dslr_answers, &cx.devices.dslr) {
         let mut bracket = Bracket::dslr(rig, rig.brackets.dslr_shutters.clone());
         // The board is found in 8-bit files; a RAW file would add nothing but time.
         bracket.camera.files = Some(DslrFiles::Jpeg);
-        let files = object::bracket(cx, keep, "pose: DSLR", role, &bracket, true)?;
-        return files
-            .iter()
-            .map(|(name, bytes)| BoardPhoto::decode(name, bytes))
-            .collect();
+        let shot = role
+            .ping()
+            .and_then(|()| object::bracket(cx, keep, "pose: DSLR", role, &bracket, true));
+        match shot {
+            Ok(files) => {
+                return files
+                    .iter()
+                    .map(|(name, bytes)| BoardPhoto::decode(name, bytes))
+                    .collect()
+            }
+            // As in a capture, the fallback camera shoots when the DSLR does not answer.
+            Err(e) if roles.fallback => {
+                cx.warn(format!("the DSLR did not photograph the board ({e:#}); the fallback camera does"));
+                *dslr_answers = false;
+                dslr_failed = Some(e);
+            }
+            Err(e) => return Err(e),
+        }
     }
     if let (true, Some(role)) = (roles.fallback, &cx.devices.fallback) {
         let files = object::bracket(
@@ -77,9 +168,12 @@ pub fn shoot(cx: &Context, keep: &mut dyn Keep, board: &Board) -> anyhow::Result
             &Bracket::fallback(rig),
             false,
         )?;
-        return Ok(frames_as_photos(&files)?);
+        return frames_as_photos(&files);
     }
-    bail!("the rig has no object camera that answers, to photograph the board with")
+    match dslr_failed {
+        Some(e) => Err(e),
+        None => bail!("the rig has no object camera to photograph the board with"),
+    }
 }
 
 /// The fallback camera's frames as 8-bit sRGB grey.
@@ -97,7 +191,7 @@ fn frames_as_photos(files: &RawFiles) -> anyhow::Result<Vec<BoardPhoto>> {
                 image::Luma([(linear_to_srgb(lum.clamp(0.0, 1.0)) * 255.0).round() as u8])
             });
             BoardPhoto {
-                name: format!("fallback frame {} ({} s)", i + 1, f.exposure.shutter_s),
+                name: format!("fallback frame {} ({:.4} s)", i + 1, f.exposure.shutter_s),
                 grey,
                 exif: None,
             }
@@ -105,43 +199,51 @@ fn frames_as_photos(files: &RawFiles) -> anyhow::Result<Vec<BoardPhoto>> {
         .collect())
 }
 
-/// The pose from the photo that shows the most of the board (the lowest reprojection error
-/// among equals). The errors of photos where no board was found are said if none had one.
-pub fn solve_best(
-    rig_camera: &crate::core::geometry::Camera,
+/// The pose from each view's photo that shows the most of the board (the first among equals),
+/// all views solved together. A view where no photo shows the board is left out and said; if
+/// none shows it, the error says why for each photo.
+pub fn solve_views(
+    warn: &mut dyn FnMut(String),
+    rig_camera: &Camera,
     board: &Board,
-    photos: &[BoardPhoto],
+    views: &[BoardView],
     focal: Focal,
     sensor_width_mm: Option<f64>,
-) -> anyhow::Result<(Calibrated, String)> {
-    let mut best: Option<(Calibrated, String)> = None;
+) -> anyhow::Result<Calibrated> {
+    let mut chosen = Vec::new();
+    let mut exif = None;
     let mut failures = Vec::new();
-    for p in photos {
-        match calibrate(
-            rig_camera,
-            board,
-            &p.grey,
-            &p.name,
-            p.exif,
-            focal,
-            sensor_width_mm,
-        ) {
-            Ok(c) => {
-                let better = best.as_ref().is_none_or(|(b, _)| {
-                    (c.fit.corners, -c.fit.rms_px) > (b.fit.corners, -b.fit.rms_px)
-                });
-                if better {
-                    best = Some((c, p.name.clone()));
+    for view in views {
+        let mut best: Option<(Found, Option<ExifFocal>)> = None;
+        for p in &view.photos {
+            match find(board, &p.grey, &p.name, view.turn_deg) {
+                Ok(f) => {
+                    if best.as_ref().is_none_or(|(b, _)| f.corners.len() > b.corners.len()) {
+                        best = Some((f, p.exif));
+                    }
                 }
+                Err(e) => failures.push(format!("{e:#}")),
             }
-            Err(e) => failures.push(format!("{e:#}")),
+        }
+        match best {
+            Some((f, e)) => {
+                exif = exif.or(e);
+                chosen.push(f);
+            }
+            None if views.len() > 1 => warn(format!(
+                "no photo of the view at {:.1}° shows the board; it is left out",
+                view.turn_deg
+            )),
+            None => {}
         }
     }
-    best.ok_or_else(|| {
-        anyhow::anyhow!(
-            "the board was found in none of the {} photos: {}",
-            photos.len(),
+    if chosen.is_empty() {
+        let photos: usize = views.iter().map(|v| v.photos.len()).sum();
+        bail!(
+            "the board was found in none of the {photos} photos: {}",
             failures.join("; ")
-        )
-    })
+        );
+    }
+    let centre = board.world([board.size_mm().0 / 2.0, board.size_mm().1 / 2.0]);
+    calibrate(rig_camera, chosen, centre, exif, focal, sensor_width_mm)
 }
