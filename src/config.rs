@@ -548,6 +548,41 @@ pub struct MaterialPreset {
     pub colour: ColourChoice,
     #[serde(default)]
     pub notes: String,
+    /// The shipped object the simulated rig (`--simulate`) puts the material on, instead of
+    /// its sphere: `grooved-block`, the concave test part of `config/geometry/`, framed as
+    /// `config/rigs/simulated-grooved-block.toml` frames it. A rig file's own object is kept.
+    #[serde(default)]
+    pub simulate_on: Option<SimulatedObject>,
+}
+
+/// An object the simulated rig can hold, shipped with brdfd.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SimulatedObject {
+    GroovedBlock,
+}
+
+impl SimulatedObject {
+    /// Its camera and shape: those of `config/rigs/simulated-grooved-block.toml`, the mesh
+    /// compiled in.
+    pub fn scene(self) -> SceneGeometry {
+        let text = include_str!("../config/rigs/simulated-grooved-block.toml");
+        let mut rig = Rig::parse("config/rigs/simulated-grooved-block.toml", text)
+            .expect("the shipped rigs are checked by tests");
+        if let Some(crate::core::geometry::Shape::Mesh { file, .. }) = &mut rig.geometry.shape {
+            *file = PathBuf::from(format!(
+                "{}grooved-block.obj",
+                crate::core::mesh::BUILTIN_PREFIX
+            ));
+        }
+        rig.geometry
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            SimulatedObject::GroovedBlock => "the grooved block",
+        }
+    }
 }
 
 fn default_k() -> usize {
@@ -782,17 +817,27 @@ impl Rig {
 
     /// The shipped simulated rig, which `capture --simulate` uses.
     pub fn simulated() -> Rig {
-        Rig::parse(
-            "config/rigs/simulated.toml",
-            include_str!("../config/rigs/simulated.toml"),
-        )
-        .expect("the shipped simulated rig is checked by tests")
+        Rig::parse(SIMULATED_RIG, include_str!("../config/rigs/simulated.toml"))
+            .expect("the shipped simulated rig is checked by tests")
+    }
+
+    /// Whether this is the shipped simulated rig, whose sphere a preset's `simulate_on` may
+    /// replace.
+    pub fn is_shipped_simulated(&self) -> bool {
+        self.simulated && self.file == SIMULATED_RIG
     }
 }
 
+/// The name the shipped simulated rig is read under.
+const SIMULATED_RIG: &str = "config/rigs/simulated.toml";
+
 /// The material presets shipped in `config/materials/`, by name.
-const PRESETS: [(&str, &str); 4] = [
+const PRESETS: [(&str, &str); 5] = [
     ("gold", include_str!("../config/materials/gold.toml")),
+    (
+        "gold-part",
+        include_str!("../config/materials/gold-part.toml"),
+    ),
     ("chrome", include_str!("../config/materials/chrome.toml")),
     ("paint", include_str!("../config/materials/paint.toml")),
     ("fabric", include_str!("../config/materials/fabric.toml")),

@@ -401,6 +401,42 @@ fn a_simulated_capture_of_the_grooved_block_shows_what_it_hides() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The `gold-part` preset puts gold on the shipped grooved block on the simulated rig: the
+/// capture says so, and the result shows what the part hides.
+#[test]
+fn the_gold_part_preset_captures_gold_on_the_grooved_block() {
+    let dir = std::env::temp_dir().join(format!("brdfd-gold-part-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let run = common::brdfd(
+        &[
+            "capture",
+            "--simulate",
+            "--material",
+            "gold-part",
+            "--size",
+            "160",
+            "--state-dir",
+            "state",
+        ],
+        &dir,
+    );
+    let said = common::out(&run);
+    assert!(run.status.success(), "{said}");
+    assert!(
+        said.contains("on the mesh builtin:grooved-block.obj"),
+        "{said}"
+    );
+    let sessions: Vec<_> = std::fs::read_dir(dir.join("state/sessions"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert!(sessions[0].join("result/visibility.png").exists());
+    let relit = common::relit(&said);
+    eprintln!("gold-part on the simulated rig at 160²: relit error {relit}");
+    assert!(relit < 0.3, "{said}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Shadow rays start just off the surface: on the shipped corrugated sample (3,000 long thin
 /// triangles, curved across their short side, whose interpolated normals tilt up to several
 /// degrees from their faces) within a fifth of a millimetre of it, where its valleys are

@@ -164,7 +164,11 @@ fn board_photos_at_known_poses_give_the_pose_back() {
         if i > 0 {
             // A slanted view pins the focal length down by itself.
             let fx = pinhole(&without.camera).unwrap().0.fx;
-            assert!(without.fit.focal.is_ok(), "pose {i}: {:?}", without.fit.focal);
+            assert!(
+                without.fit.focal.is_ok(),
+                "pose {i}: {:?}",
+                without.fit.focal
+            );
             assert!((fx / FX - 1.0).abs() < 0.01, "pose {i}: fx {fx}");
         }
         worst = (
@@ -192,10 +196,20 @@ fn a_photo_without_the_board_says_so() {
     assert!(err.contains("no 9 × 6 ChArUco board"), "{err}");
     assert!(err.contains("400×400"), "{err}");
     // A photo of another shape than the rig's camera is refused before any search.
-    let mut board = BoardPhoto::decode("board.jpg", &jpeg(
-        board_photo::render(&Board::default(), &truth, &studio_envmap(64), 0.0, Spoil::default()).unwrap(),
-        &truth,
-    ))
+    let mut board = BoardPhoto::decode(
+        "board.jpg",
+        &jpeg(
+            board_photo::render(
+                &Board::default(),
+                &truth,
+                &studio_envmap(64),
+                0.0,
+                Spoil::default(),
+            )
+            .unwrap(),
+            &truth,
+        ),
+    )
     .unwrap();
     board.name = "board.jpg".into();
     let err = solve_photo(&truth.resized(400, 400), &board, Focal::Fixed)
@@ -203,7 +217,6 @@ fn a_photo_without_the_board_says_so() {
         .to_string();
     assert!(err.contains("another shape"), "{err}");
 }
-
 
 /// The figure after "of " in the capture's line on how well the estimate re-renders its photo.
 fn refit(said: &str) -> f64 {
@@ -234,8 +247,16 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
     assert!(run.status.success(), "{}", common::out(&run));
     let run = common::brdfd(
         &[
-            "calibrate", "pose", "--rig", "rig.toml", "--board", "board/board.toml", "--out",
-            "photos", "--state-dir", "state",
+            "calibrate",
+            "pose",
+            "--rig",
+            "rig.toml",
+            "--board",
+            "board/board.toml",
+            "--out",
+            "photos",
+            "--state-dir",
+            "state",
         ],
         &dir,
     );
@@ -277,8 +298,18 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
     let capture = |rig: &str| {
         let run = common::brdfd(
             &[
-                "capture", "--rig", rig, "--material", "gold", "--in-span", "--model", "basis",
-                "--pixels", "all", "--state-dir", "state",
+                "capture",
+                "--rig",
+                rig,
+                "--material",
+                "gold",
+                "--in-span",
+                "--model",
+                "basis",
+                "--pixels",
+                "all",
+                "--state-dir",
+                "state",
             ],
             &dir,
         );
@@ -293,10 +324,19 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
         "gold (in span), basis model, every pixel: re-render / relight error with the pose as typed {:.4} / {:.4}, as found {:.4} / {:.4}, true {:.4} / {:.4}",
         as_typed.0, as_typed.1, as_found.0, as_found.1, as_true.0, as_true.1
     );
-    assert!(as_found.0 <= as_true.0 * 1.25 + 0.005, "{as_found:?} against {as_true:?}");
-    assert!(as_found.1 <= as_true.1 * 1.25 + 0.005, "{as_found:?} against {as_true:?}");
+    assert!(
+        as_found.0 <= as_true.0 * 1.25 + 0.005,
+        "{as_found:?} against {as_true:?}"
+    );
+    assert!(
+        as_found.1 <= as_true.1 * 1.25 + 0.005,
+        "{as_found:?} against {as_true:?}"
+    );
     // The pose matters: as typed, the estimate does not reproduce its own photo.
-    assert!(as_typed.0 > 5.0 * as_true.0, "{as_typed:?} against {as_true:?}");
+    assert!(
+        as_typed.0 > 5.0 * as_true.0,
+        "{as_typed:?} against {as_true:?}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -314,16 +354,32 @@ fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
     let mesh = root.join("config/geometry/grooved-block.obj");
     let rig = shipped
         .replace("../geometry/grooved-block.obj", mesh.to_str().unwrap())
-        .replace("\n[simulation.camera]", "\n[simulation]\ndslr = \"absent\"\n\n[simulation.camera]");
+        .replace(
+            "\n[simulation.camera]",
+            "\n[simulation]\ndslr = \"absent\"\n\n[simulation.camera]",
+        );
     std::fs::write(dir.join("rig.toml"), &rig).unwrap();
     let run = common::brdfd(
-        &["calibrate", "pose", "--rig", "rig.toml", "--out", "photos", "--state-dir", "state"],
+        &[
+            "calibrate",
+            "pose",
+            "--rig",
+            "rig.toml",
+            "--out",
+            "photos",
+            "--state-dir",
+            "state",
+        ],
         &dir,
     );
     let said = common::out(&run);
     assert!(run.status.success(), "{said}");
     assert!(said.contains("the rig's fx), refined"), "{said}");
-    assert_eq!(said.matches("40 corners in fallback frame").count(), 3, "{said}");
+    assert_eq!(
+        said.matches("40 corners in fallback frame").count(),
+        3,
+        "{said}"
+    );
     let found = brdfd::config::Rig::read(&dir.join("rig.toml")).unwrap();
     let (kf, ef) = pinhole(&found.geometry.camera).unwrap();
     let (kt, et) = pinhole(&found.simulation.clone().unwrap().camera.unwrap()).unwrap();
@@ -343,7 +399,15 @@ fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
         .save(dir.join("grey.png"))
         .unwrap();
     let run = common::brdfd(
-        &["calibrate", "pose", "--rig", "rig.toml", "--photo", "grey.png", "--dry-run"],
+        &[
+            "calibrate",
+            "pose",
+            "--rig",
+            "rig.toml",
+            "--photo",
+            "grey.png",
+            "--dry-run",
+        ],
         &dir,
     );
     let said = common::out(&run);

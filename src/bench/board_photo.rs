@@ -72,38 +72,35 @@ pub fn render(
     let (w, h) = camera.size();
     camera.ray_through(0.5, 0.5)?;
     let mut pixels = vec![[0.0f32; 3]; w * h];
-    pixels
-        .par_chunks_mut(w)
-        .enumerate()
-        .for_each(|(y, row)| {
-            for (x, out) in row.iter_mut().enumerate() {
-                let mut sum = [0.0f32; 3];
-                for sy in 0..SUPERSAMPLE {
-                    for sx in 0..SUPERSAMPLE {
-                        let u = x as f64 + (sx as f64 + 0.5) / SUPERSAMPLE as f64;
-                        let v = y as f64 + (sy as f64 + 0.5) / SUPERSAMPLE as f64;
-                        let Ok((o, d)) = camera.ray_through(u, v) else {
-                            continue;
-                        };
-                        let facing = dot(d, normal);
-                        let t = dot(sub(centre, o), normal) / facing;
-                        let value = if facing < 0.0 && t > 0.0 {
-                            let rel = sub(add(o, scale(d, t)), origin);
-                            let (mx, my) = (dot(rel, across) * mm_per_m2, dot(rel, down) * mm_per_m2);
-                            pattern.at(mx, my).map(radiance_of)
-                        } else {
-                            None
-                        };
-                        let value = value.unwrap_or(paper.map(|p| p * BACKGROUND));
-                        for c in 0..3 {
-                            sum[c] += value[c];
-                        }
+    pixels.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, out) in row.iter_mut().enumerate() {
+            let mut sum = [0.0f32; 3];
+            for sy in 0..SUPERSAMPLE {
+                for sx in 0..SUPERSAMPLE {
+                    let u = x as f64 + (sx as f64 + 0.5) / SUPERSAMPLE as f64;
+                    let v = y as f64 + (sy as f64 + 0.5) / SUPERSAMPLE as f64;
+                    let Ok((o, d)) = camera.ray_through(u, v) else {
+                        continue;
+                    };
+                    let facing = dot(d, normal);
+                    let t = dot(sub(centre, o), normal) / facing;
+                    let value = if facing < 0.0 && t > 0.0 {
+                        let rel = sub(add(o, scale(d, t)), origin);
+                        let (mx, my) = (dot(rel, across) * mm_per_m2, dot(rel, down) * mm_per_m2);
+                        pattern.at(mx, my).map(radiance_of)
+                    } else {
+                        None
+                    };
+                    let value = value.unwrap_or(paper.map(|p| p * BACKGROUND));
+                    for c in 0..3 {
+                        sum[c] += value[c];
                     }
                 }
-                let n = (SUPERSAMPLE * SUPERSAMPLE) as f32;
-                *out = sum.map(|s| s / n);
             }
-        });
+            let n = (SUPERSAMPLE * SUPERSAMPLE) as f32;
+            *out = sum.map(|s| s / n);
+        }
+    });
     let mut raster = Raster {
         width: w,
         height: h,

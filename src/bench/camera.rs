@@ -201,7 +201,10 @@ fn lens_tags(lens: Option<(f64, f64)>) -> Vec<(u16, Value)> {
     };
     let per_cm = ((px_per_cm * 1000.0).round() as u32, 1000);
     vec![
-        (0x920A, Value::Rational(vec![((focal_mm * 100.0).round() as u32, 100)])),
+        (
+            0x920A,
+            Value::Rational(vec![((focal_mm * 100.0).round() as u32, 100)]),
+        ),
         (0xA20E, Value::Rational(vec![per_cm])),
         (0xA20F, Value::Rational(vec![per_cm])),
         (0xA210, Value::Short(vec![3])),

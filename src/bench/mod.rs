@@ -216,8 +216,13 @@ impl VirtualBench {
             .add_f64s(&[yaw])
             .add(&(PHOTO_LIGHTS as u64).to_le_bytes())
             .add(geometry_json.as_bytes());
-        if let Some(path) = &geometry.normal_map {
-            // The map's file is read by the render: its size and time stand for its content.
+        // The map's or the mesh's file is read by the render: its size and time stand for its
+        // content (a shipped mesh is the binary's own).
+        let mesh = match &geometry.shape {
+            Some(Shape::Mesh { file, .. }) if !crate::core::mesh::is_builtin(file) => Some(file),
+            _ => None,
+        };
+        for path in geometry.normal_map.iter().chain(mesh) {
             let m = std::fs::metadata(path).ok();
             key.add(format!("{:?}", m.map(|m| (m.len(), m.modified().ok()))).as_bytes());
         }

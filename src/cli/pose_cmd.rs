@@ -166,7 +166,10 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
         let roles = brdfd::rig::plan::devices(&rig)?;
         let n = a.views.unwrap_or(if roles.turntable { 3 } else { 1 }) as usize;
         if !(a.turn.is_finite() && a.turn.abs() > 0.0 && a.turn.abs() < 80.0) {
-            bail!("--turn must be a number of degrees between 0 and 80, not {}", a.turn);
+            bail!(
+                "--turn must be a number of degrees between 0 and 80, not {}",
+                a.turn
+            );
         }
         let devices = Devices::start(&rig, KEEP_ALIVE)?;
         let out = out_dir(&a)?;
@@ -179,7 +182,14 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             operator: Arc::new(Terminal),
         };
         let shot = pose::shoot(&cx, &mut Folder(out), &board, &pose::view_angles(n, a.turn))?;
-        pose::solve_views(&mut warn, &rig.geometry.camera, &board, &shot, focal, a.sensor_width_mm)?
+        pose::solve_views(
+            &mut warn,
+            &rig.geometry.camera,
+            &board,
+            &shot,
+            focal,
+            a.sensor_width_mm,
+        )?
     } else {
         if a.views.is_some_and(|v| v > 1) {
             bail!("--views photographs the board on the turntable; with --photo, each photo is one view of the board as placed");
@@ -188,8 +198,7 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             .photo
             .iter()
             .map(|p| {
-                let bytes =
-                    std::fs::read(p).with_context(|| format!("reading {}", p.display()))?;
+                let bytes = std::fs::read(p).with_context(|| format!("reading {}", p.display()))?;
                 BoardPhoto::decode(&p.display().to_string(), &bytes)
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
@@ -197,7 +206,14 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             turn_deg: 0.0,
             photos,
         }];
-        pose::solve_views(&mut warn, &rig.geometry.camera, &board, &view, focal, a.sensor_width_mm)?
+        pose::solve_views(
+            &mut warn,
+            &rig.geometry.camera,
+            &board,
+            &view,
+            focal,
+            a.sensor_width_mm,
+        )?
     };
     let found = views;
     print_found(&rig.geometry.camera, &found);
@@ -274,10 +290,7 @@ fn print_found(before: &Camera, c: &Calibrated) {
             c.start_from,
             sigma * 100.0
         ),
-        Err(why) => println!(
-            "focal length: fx {:.1} px ({}), {why}",
-            k.fx, c.start_from
-        ),
+        Err(why) => println!("focal length: fx {:.1} px ({}), {why}", k.fx, c.start_from),
     }
     let p = e.centre();
     let [lx, ly, lz] = match &c.camera {
@@ -299,10 +312,7 @@ fn print_found(before: &Camera, c: &Calibrated) {
 /// Writes the camera's pose and focal lengths into `[geometry.camera]`, with a comment that
 /// says where they came from; the rest of the file as it was.
 fn write_camera(mut file: RigFile, camera: &Camera, note: &str) -> anyhow::Result<PathBuf> {
-    let Camera::Pinhole {
-        fx, fy, pose, ..
-    } = camera
-    else {
+    let Camera::Pinhole { fx, fy, pose, .. } = camera else {
         bail!("a pose is written for a pinhole camera");
     };
     let path = file.path.display().to_string();

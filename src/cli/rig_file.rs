@@ -14,8 +14,8 @@ pub struct RigFile {
 
 impl RigFile {
     pub fn open(path: &Path) -> anyhow::Result<RigFile> {
-        let text = std::fs::read_to_string(path)
-            .with_context(|| format!("reading {}", path.display()))?;
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
         let doc: DocumentMut = text
             .parse()
             .with_context(|| format!("{} is not TOML", path.display()))?;

@@ -721,7 +721,7 @@ impl SceneGeometry {
             }
         }
         if let Some(Shape::Mesh { file, .. }) = &mut self.shape {
-            if file.is_relative() {
+            if file.is_relative() && !super::mesh::is_builtin(file) {
                 *file = dir.join(&*file);
             }
         }

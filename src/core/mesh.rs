@@ -59,8 +59,31 @@ pub struct Placement {
     pub position: Vec3,
 }
 
+/// The meshes shipped in `config/geometry/`, compiled in: a geometry names one as
+/// `builtin:NAME` (`builtin:grooved-block.obj`), so that an installed binary without the
+/// source tree has them.
+const BUILTIN: [(&str, &str); 2] = [
+    (
+        "grooved-block.obj",
+        include_str!("../../config/geometry/grooved-block.obj"),
+    ),
+    (
+        "corrugated-sample.obj",
+        include_str!("../../config/geometry/corrugated-sample.obj"),
+    ),
+];
+
+/// The prefix of a shipped mesh's name.
+pub const BUILTIN_PREFIX: &str = "builtin:";
+
+/// Whether a mesh's file is one of the shipped meshes (`builtin:NAME`), not a path.
+pub fn is_builtin(path: &Path) -> bool {
+    path.to_str().is_some_and(|p| p.starts_with(BUILTIN_PREFIX))
+}
+
 impl Mesh {
-    /// Reads a mesh file by its extension (`.obj`, `.stl`, `.ply`), checks it, and places it.
+    /// Reads a mesh file by its extension (`.obj`, `.stl`, `.ply`), or a shipped mesh
+    /// (`builtin:NAME`), checks it, and places it.
     pub fn read(path: &Path, placement: &Placement) -> Result<Mesh> {
         let what = path.display().to_string();
         let ext = path
@@ -68,6 +91,25 @@ impl Mesh {
             .and_then(|e| e.to_str())
             .map(str::to_ascii_lowercase)
             .unwrap_or_default();
+        if is_builtin(path) {
+            let name = &what[BUILTIN_PREFIX.len()..];
+            let Some((_, text)) = BUILTIN.iter().find(|(n, _)| *n == name) else {
+                let names: Vec<String> = BUILTIN
+                    .iter()
+                    .map(|(n, _)| format!("{BUILTIN_PREFIX}{n}"))
+                    .collect();
+                return Err(CoreError::format(
+                    &what,
+                    format!(
+                        "no mesh of that name is shipped (there are {})",
+                        names.join(", ")
+                    ),
+                ));
+            };
+            let mesh = read_obj(&mut std::io::Cursor::new(text.as_bytes()), &what)?;
+            mesh.check(&what)?;
+            return Ok(mesh.placed(placement));
+        }
         let file = std::fs::File::open(path).map_err(|e| CoreError::io(path, e))?;
         let mut reader = BufReader::new(file);
         let mesh = match ext.as_str() {
@@ -488,6 +530,29 @@ pub fn bowl(radius: f64, rings: usize, segments: usize) -> Mesh {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_shipped_meshes_are_compiled_in_as_their_files() {
+        let placement = Placement {
+            units: Units::Mm,
+            rotation_deg: [-25.0, 0.0, 0.0],
+            position: [0.0; 3],
+        };
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/geometry");
+        for (name, _) in BUILTIN {
+            let built_in = Mesh::read(Path::new(&format!("builtin:{name}")), &placement).unwrap();
+            assert_eq!(
+                built_in,
+                Mesh::read(&dir.join(name), &placement).unwrap(),
+                "{name}"
+            );
+        }
+        let err = Mesh::read(Path::new("builtin:teapot.obj"), &placement).unwrap_err();
+        assert!(
+            err.to_string().contains("builtin:grooved-block.obj"),
+            "{err}"
+        );
+    }
 
     fn tetrahedron() -> Mesh {
         Mesh {

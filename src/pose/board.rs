@@ -13,8 +13,8 @@ use anyhow::{anyhow, bail, Context as _};
 use calib_targets::aruco::builtins::builtin_dictionary;
 use calib_targets::charuco::CharucoParams;
 use calib_targets::printable::{
-    board_primitives, CharucoTargetSpec, Fill, PageOrientation, PageSize, PrintableTargetDocument,
-    Primitive, TargetSpec,
+    board_primitives, CharucoTargetSpec, Fill, PageOrientation, PageSize, Primitive,
+    PrintableTargetDocument, TargetSpec,
 };
 use serde::{Deserialize, Serialize};
 
@@ -120,7 +120,10 @@ impl Board {
             );
         }
         if !(self.square_mm.is_finite() && self.square_mm > 0.0) {
-            bail!("square_mm must be a positive number, not {}", self.square_mm);
+            bail!(
+                "square_mm must be a positive number, not {}",
+                self.square_mm
+            );
         }
         if !(self.marker > 0.0 && self.marker < 1.0) {
             bail!(
@@ -272,9 +275,18 @@ impl Board {
 /// board; this brings them to a few hundredths. The window stays inside the white margin
 /// around the markers: its half-width is 80% of the margin, from the spacing of the corners
 /// in the image.
-fn refine_corners(photo: &image::GrayImage, corners: &mut [Correspondence], square_m: f64, marker: f64) {
+fn refine_corners(
+    photo: &image::GrayImage,
+    corners: &mut [Correspondence],
+    square_m: f64,
+    marker: f64,
+) {
     let (w, h) = (photo.width() as i64, photo.height() as i64);
-    let value = |x: i64, y: i64| photo.get_pixel(x.clamp(0, w - 1) as u32, y.clamp(0, h - 1) as u32).0[0] as f64;
+    let value = |x: i64, y: i64| {
+        photo
+            .get_pixel(x.clamp(0, w - 1) as u32, y.clamp(0, h - 1) as u32)
+            .0[0] as f64
+    };
     let positions: Vec<([f64; 2], Vec3)> = corners.iter().map(|c| (c.pixel, c.world)).collect();
     for c in corners.iter_mut() {
         // Pixels per metre on the board here: from the nearest other corner.
@@ -283,7 +295,10 @@ fn refine_corners(photo: &image::GrayImage, corners: &mut [Correspondence], squa
             .filter(|(_, world)| *world != c.world)
             .map(|(px, world)| {
                 let d_px = (px[0] - c.pixel[0]).hypot(px[1] - c.pixel[1]);
-                let d_m = (0..3).map(|i| (world[i] - c.world[i]).powi(2)).sum::<f64>().sqrt();
+                let d_m = (0..3)
+                    .map(|i| (world[i] - c.world[i]).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
                 (d_m, d_px / d_m)
             })
             .min_by(|a, b| a.0.total_cmp(&b.0));

@@ -170,7 +170,10 @@ pub fn solve_views(
 ) -> Result<PoseFit, String> {
     let points: Vec<Correspondence> = views.iter().flatten().copied().collect();
     let points = &points[..];
-    let largest = views.iter().max_by_key(|v| v.len()).map_or(&[][..], |v| &v[..]);
+    let largest = views
+        .iter()
+        .max_by_key(|v| v.len())
+        .map_or(&[][..], |v| &v[..]);
     if largest.len() < MIN_CORNERS {
         return Err(format!(
             "{} board corners found, {MIN_CORNERS} needed at least",
@@ -322,7 +325,11 @@ fn normaliser(points: &[[f64; 2]]) -> Matrix3<f64> {
 /// The plane-to-camera pose a homography stands for, given the intrinsics (Zhang 2000, §2):
 /// K⁻¹H = λ[r₁ r₂ t], the rotation made orthonormal, the plane in front of the camera.
 fn from_homography(h: &Matrix3<f64>, k: &Intrinsics) -> Result<Extrinsics, String> {
-    let m = k.matrix().try_inverse().ok_or("the intrinsics are singular")? * h;
+    let m = k
+        .matrix()
+        .try_inverse()
+        .ok_or("the intrinsics are singular")?
+        * h;
     let (h1, h2, h3) = (m.column(0), m.column(1), m.column(2));
     let mut lambda = 2.0 / (h1.norm() + h2.norm());
     if (lambda * h3).z < 0.0 {
@@ -353,7 +360,12 @@ struct Refined {
 /// the left of the current one, the translation, and (with `with_focal`) the log of a scale
 /// on both focal lengths. The Jacobian is by central differences: 7 parameters and a few
 /// hundred residuals make that cheap, and it cannot disagree with the projection.
-fn refine(points: &[Correspondence], k: Intrinsics, start: Extrinsics, with_focal: bool) -> Refined {
+fn refine(
+    points: &[Correspondence],
+    k: Intrinsics,
+    start: Extrinsics,
+    with_focal: bool,
+) -> Refined {
     let np = if with_focal { 7 } else { 6 };
     let residuals = |e: &Extrinsics, k: &Intrinsics| -> Vec<f64> {
         let mut r = Vec::with_capacity(2 * points.len());
@@ -372,7 +384,11 @@ fn refine(points: &[Correspondence], k: Intrinsics, start: Extrinsics, with_foca
             rotation: turn * e.rotation,
             translation: e.translation + Vector3::new(d[3], d[4], d[5]),
         };
-        let k2 = if with_focal { k.scaled_focal(d[6].exp()) } else { *k };
+        let k2 = if with_focal {
+            k.scaled_focal(d[6].exp())
+        } else {
+            *k
+        };
         (moved, k2)
     };
     let cost = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
@@ -383,7 +399,15 @@ fn refine(points: &[Correspondence], k: Intrinsics, start: Extrinsics, with_foca
     for _ in 0..100 {
         // Steps scaled to the parameter: radians, metres at the board's distance, log focal.
         let distance = e.translation.norm().max(1e-6);
-        let steps = [1e-7, 1e-7, 1e-7, 1e-7 * distance, 1e-7 * distance, 1e-7 * distance, 1e-7];
+        let steps = [
+            1e-7,
+            1e-7,
+            1e-7,
+            1e-7 * distance,
+            1e-7 * distance,
+            1e-7 * distance,
+            1e-7,
+        ];
         let mut j = DMatrix::<f64>::zeros(r.len(), np);
         for c in 0..np {
             let mut d = vec![0.0; 7];
@@ -516,7 +540,11 @@ pub fn calibrate(
     for v in &views {
         let (vw, vh) = v.size;
         if (vw, vh) != (pw, ph) {
-            anyhow::bail!("{} is {vw}×{vh}, and {} {pw}×{ph}: the views are of one camera", v.name, first.name);
+            anyhow::bail!(
+                "{} is {vw}×{vh}, and {} {pw}×{ph}: the views are of one camera",
+                v.name,
+                first.name
+            );
         }
         if ((vw as f64 / w as f64) - (vh as f64 / h as f64)).abs() > 0.01 * (vw as f64 / w as f64) {
             anyhow::bail!(
@@ -533,9 +561,7 @@ pub fn calibrate(
     };
     let mut start_from = "the rig's fx".to_string();
     if let Some(exif) = exif {
-        let per_mm = exif
-            .px_per_mm
-            .or(sensor_width_mm.map(|s| pw as f64 / s));
+        let per_mm = exif.px_per_mm.or(sensor_width_mm.map(|s| pw as f64 / s));
         if let Some(per_mm) = per_mm {
             let fx = exif.mm * per_mm;
             k = Intrinsics {
@@ -559,7 +585,11 @@ pub fn calibrate(
     let pose = fit.extrinsics.to_pose(distance.max(1e-3));
     let camera = match at_photo {
         Camera::Pinhole {
-            width, height, cx, cy, ..
+            width,
+            height,
+            cx,
+            cy,
+            ..
         } => Camera::Pinhole {
             width,
             height,
@@ -609,7 +639,9 @@ mod tests {
     fn board(k: &Intrinsics, e: &Extrinsics, noise: f64) -> Vec<Correspondence> {
         let mut seed = 7u64;
         let mut rand = move || {
-            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
         };
         let mut v = Vec::new();
@@ -648,7 +680,11 @@ mod tests {
         assert!(fit.rms_px < 1e-6, "rms {}", fit.rms_px);
         assert!(angle_between_deg(&fit.extrinsics.rotation, &e.rotation) < 1e-6);
         assert!((fit.extrinsics.centre() - e.centre()).norm() < 1e-8);
-        assert!((fit.intrinsics.fx - k.fx).abs() < 1e-5, "{}", fit.intrinsics.fx);
+        assert!(
+            (fit.intrinsics.fx - k.fx).abs() < 1e-5,
+            "{}",
+            fit.intrinsics.fx
+        );
     }
 
     #[test]
@@ -685,8 +721,14 @@ mod tests {
     fn too_few_or_collinear_corners_are_refused() {
         let (k, e) = camera();
         let pts = board(&k, &e, 0.0);
-        assert!(solve(&pts[..5], k, Focal::Fixed).unwrap_err().contains("8 needed"));
-        let line: Vec<_> = pts.iter().filter(|p| p.world[1] == pts[0].world[1]).copied().collect();
+        assert!(solve(&pts[..5], k, Focal::Fixed)
+            .unwrap_err()
+            .contains("8 needed"));
+        let line: Vec<_> = pts
+            .iter()
+            .filter(|p| p.world[1] == pts[0].world[1])
+            .copied()
+            .collect();
         let mut line = line;
         line.extend(line.clone());
         assert!(solve(&line, k, Focal::Fixed).unwrap_err().contains("line"));

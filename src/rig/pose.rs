@@ -12,12 +12,12 @@ use super::flow::{Context, Keep, RawFiles};
 use super::object::{self, FallbackBracket};
 use super::plan;
 use super::settings::Bracket;
+use super::turning::turn_to;
 use crate::bench::board_photo::{self, Spoil};
 use crate::config::DslrFiles;
+use crate::core::geometry::Camera;
 use crate::core::raster::linear_to_srgb;
 use crate::pose::board::Board;
-use super::turning::turn_to;
-use crate::core::geometry::Camera;
 use crate::pose::{calibrate, find, Calibrated, Focal, Found};
 use crate::radiometry::ExifFocal;
 
@@ -87,7 +87,11 @@ pub fn shoot(
             0.0
         };
         if angles.len() > 1 {
-            cx.say(format!("board view {} of {}: turntable at {at:.2}°", i + 1, angles.len()));
+            cx.say(format!(
+                "board view {} of {}: turntable at {at:.2}°",
+                i + 1,
+                angles.len()
+            ));
         }
         let mut keep = Prefixed(keep, format!("view{}-", i + 1));
         views.push(BoardView {
@@ -123,7 +127,9 @@ fn shoot_one(
     if let Some(sim) = &cx.devices.sim {
         // The board turned by θ is, in its own frame, the camera and the light turned by −θ.
         let theta = turn_deg.to_radians();
-        let camera = rig.bench_camera(&rig.geometry.camera).turned_about_y(-theta);
+        let camera = rig
+            .bench_camera(&rig.geometry.camera)
+            .turned_about_y(-theta);
         let env = crate::bench::studio_envmap(512);
         let radiance = board_photo::render(
             board,
@@ -152,7 +158,9 @@ fn shoot_one(
             }
             // As in a capture, the fallback camera shoots when the DSLR does not answer.
             Err(e) if roles.fallback => {
-                cx.warn(format!("the DSLR did not photograph the board ({e:#}); the fallback camera does"));
+                cx.warn(format!(
+                    "the DSLR did not photograph the board ({e:#}); the fallback camera does"
+                ));
                 *dslr_answers = false;
                 dslr_failed = Some(e);
             }
@@ -218,7 +226,10 @@ pub fn solve_views(
         for p in &view.photos {
             match find(board, &p.grey, &p.name, view.turn_deg) {
                 Ok(f) => {
-                    if best.as_ref().is_none_or(|(b, _)| f.corners.len() > b.corners.len()) {
+                    if best
+                        .as_ref()
+                        .is_none_or(|(b, _)| f.corners.len() > b.corners.len())
+                    {
                         best = Some((f, p.exif));
                     }
                 }

@@ -41,7 +41,7 @@ fn with_files_found(rig_text: &str, scene: &SceneGeometry) -> String {
             .and_then(|s| s.as_table_like_mut()),
         &scene.shape,
     ) {
-        if let Some(item) = shape.get_mut("file") {
+        if let (Some(item), false) = (shape.get_mut("file"), crate::core::mesh::is_builtin(file)) {
             *item = toml_edit::value(absolute(file).display().to_string());
         }
     }
@@ -194,9 +194,12 @@ impl CaptureSettings {
             (_, true) => Turning::Turntable,
             (_, false) => Turning::ByHand,
         };
-        let mut scene = rig.geometry.clone();
+        let mut scene = match p.and_then(|p| p.simulate_on) {
+            Some(object) if rig.is_shipped_simulated() => object.scene(),
+            _ => rig.geometry.clone(),
+        };
         if rig.simulated {
-            scene.camera = rig.geometry.camera.resized(plan.size, plan.size);
+            scene.camera = scene.camera.resized(plan.size, plan.size);
         }
         Ok(CaptureSettings {
             plan: plan.clone(),
