@@ -479,6 +479,10 @@ pub struct Rig {
     /// The file the rig was read from, for errors that name it.
     #[serde(skip)]
     pub file: String,
+    /// Whether this is the shipped simulated rig (`--simulate`), whose sphere a preset's
+    /// `simulate_on` replaces.
+    #[serde(skip)]
+    pub shipped: bool,
 }
 
 /// Pixels to estimate from: a count, or "all".
@@ -817,14 +821,10 @@ impl Rig {
 
     /// The shipped simulated rig, which `capture --simulate` uses.
     pub fn simulated() -> Rig {
-        Rig::parse(SIMULATED_RIG, include_str!("../config/rigs/simulated.toml"))
-            .expect("the shipped simulated rig is checked by tests")
-    }
-
-    /// Whether this is the shipped simulated rig, whose sphere a preset's `simulate_on` may
-    /// replace.
-    pub fn is_shipped_simulated(&self) -> bool {
-        self.simulated && self.file == SIMULATED_RIG
+        let mut rig = Rig::parse(SIMULATED_RIG, include_str!("../config/rigs/simulated.toml"))
+            .expect("the shipped simulated rig is checked by tests");
+        rig.shipped = true;
+        rig
     }
 }
 

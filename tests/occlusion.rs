@@ -431,6 +431,9 @@ fn the_gold_part_preset_captures_gold_on_the_grooved_block() {
         .map(|e| e.unwrap().path())
         .collect();
     assert!(sessions[0].join("result/visibility.png").exists());
+    // The session records the object it was shot on, for a resume to estimate on it.
+    let manifest = std::fs::read_to_string(sessions[0].join("manifest.json")).unwrap();
+    assert!(manifest.contains("builtin:grooved-block.obj"), "{manifest}");
     let relit = common::relit(&said);
     eprintln!("gold-part on the simulated rig at 160²: relit error {relit}");
     assert!(relit < 0.3, "{said}");

@@ -195,7 +195,7 @@ fn a_photo_without_the_board_says_so() {
         .to_string();
     assert!(err.contains("no 9 × 6 ChArUco board"), "{err}");
     assert!(err.contains("400×400"), "{err}");
-    // A photo of another shape than the rig's camera is refused before any search.
+    // A photo of another shape than the rig's camera is refused.
     let mut board = BoardPhoto::decode(
         "board.jpg",
         &jpeg(
@@ -239,9 +239,7 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
     let dir = std::env::temp_dir().join(format!("brdfd-pose-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    let shipped = std::fs::read_to_string(root.join("config/rigs/simulated-pose.toml")).unwrap();
-    let mesh = root.join("config/geometry/grooved-block.obj");
-    let typed = shipped.replace("../geometry/grooved-block.obj", mesh.to_str().unwrap());
+    let typed = std::fs::read_to_string(root.join("config/rigs/simulated-pose.toml")).unwrap();
     std::fs::write(dir.join("rig.toml"), &typed).unwrap();
     let run = common::brdfd(&["calibrate", "target", "--out", "board"], &dir);
     assert!(run.status.success(), "{}", common::out(&run));
@@ -287,13 +285,15 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
     assert!((kf.fx / kt.fx - 1.0).abs() < 0.005, "fx {}", kf.fx);
 
     // The same capture with the pose as typed, as found, and the true one.
-    let true_rig = typed
-        .replace("fx = 2300.0\nfy = 2300.0", "fx = 2400.0\nfy = 2400.0")
-        .replace(
-            "position = [0.03, 0.22, 1.24]\nlook_at = [0.0, 0.01, 0.0]",
-            "position = [0.0, 0.25, 1.2]\nlook_at = [0.0, 0.0, 0.0]",
-        );
-    assert_ne!(true_rig, typed);
+    let (focal, pose) = (
+        "fx = 2300.0\nfy = 2300.0",
+        "position = [0.03, 0.22, 1.24]\nlook_at = [0.0, 0.01, 0.0]",
+    );
+    assert!(typed.contains(focal) && typed.contains(pose));
+    let true_rig = typed.replace(focal, "fx = 2400.0\nfy = 2400.0").replace(
+        pose,
+        "position = [0.0, 0.25, 1.2]\nlook_at = [0.0, 0.0, 0.0]",
+    );
     std::fs::write(dir.join("true.toml"), true_rig).unwrap();
     let capture = |rig: &str| {
         let run = common::brdfd(
@@ -351,13 +351,10 @@ fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     let shipped = std::fs::read_to_string(root.join("config/rigs/simulated-pose.toml")).unwrap();
-    let mesh = root.join("config/geometry/grooved-block.obj");
-    let rig = shipped
-        .replace("../geometry/grooved-block.obj", mesh.to_str().unwrap())
-        .replace(
-            "\n[simulation.camera]",
-            "\n[simulation]\ndslr = \"absent\"\n\n[simulation.camera]",
-        );
+    let rig = shipped.replace(
+        "\n[simulation.camera]",
+        "\n[simulation]\ndslr = \"absent\"\n\n[simulation.camera]",
+    );
     std::fs::write(dir.join("rig.toml"), &rig).unwrap();
     let run = common::brdfd(
         &[
@@ -376,7 +373,7 @@ fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
     assert!(run.status.success(), "{said}");
     assert!(said.contains("the rig's fx), refined"), "{said}");
     assert_eq!(
-        said.matches("40 corners in fallback frame").count(),
+        said.matches("40 corners in view").count(),
         3,
         "{said}"
     );

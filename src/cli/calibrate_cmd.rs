@@ -92,19 +92,7 @@ pub fn run(cmd: CalibrateCommand) -> anyhow::Result<()> {
         Some(p) if !a.dry_run => Some(open_for_gains(p)?),
         _ => None,
     };
-    let out = match &a.out {
-        Some(o) => o.clone(),
-        None => {
-            let state = brdfd::session::state_dir(a.state_dir.as_deref(), None)?;
-            let stamp = humantime::format_rfc3339_seconds(std::time::SystemTime::now())
-                .to_string()
-                .replace(':', "");
-            state
-                .join("calibrations")
-                .join(format!("{stamp}-radiometry"))
-        }
-    };
-    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let out = calibration_dir(a.out.as_deref(), a.state_dir.as_deref(), "radiometry")?;
     println!(
         "target: albedo {:?} ({}); its photos go to {}",
         target.albedo.0,
@@ -156,8 +144,29 @@ pub fn run(cmd: CalibrateCommand) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The target's photos, each under its own name in the calibration's folder.
-struct Folder(PathBuf);
+/// The folder a calibration's photos go to: `out`, else a new one under the state directory's
+/// `calibrations/`, named by the time and `what`. Made if it is not there.
+pub(super) fn calibration_dir(
+    out: Option<&Path>,
+    state_dir: Option<&Path>,
+    what: &str,
+) -> anyhow::Result<PathBuf> {
+    let out = match out {
+        Some(o) => o.to_path_buf(),
+        None => {
+            let state = brdfd::session::state_dir(state_dir, None)?;
+            let stamp = humantime::format_rfc3339_seconds(std::time::SystemTime::now())
+                .to_string()
+                .replace(':', "");
+            state.join("calibrations").join(format!("{stamp}-{what}"))
+        }
+    };
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    Ok(out)
+}
+
+/// A calibration's photos, each under its own name in the calibration's folder.
+pub(super) struct Folder(pub(super) PathBuf);
 
 impl Keep for Folder {
     fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {

@@ -9,11 +9,12 @@ use brdfd::config::Rig;
 use brdfd::core::geometry::Camera;
 use brdfd::pose::board::Board;
 use brdfd::pose::{angle_between_deg, pinhole, Calibrated, Focal};
-use brdfd::rig::flow::{Context, Keep};
+use brdfd::rig::flow::Context;
 use brdfd::rig::pose::{self, BoardPhoto};
 use brdfd::rig::{Devices, Progress, KEEP_ALIVE};
 use toml_edit::{value, Array, Item};
 
+use super::calibrate_cmd::{calibration_dir, Folder};
 use super::progress::{Bars, Terminal};
 use super::rig_file::RigFile;
 
@@ -61,6 +62,12 @@ pub fn target(a: TargetArgs) -> anyhow::Result<()> {
         );
     }
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    if file.exists() {
+        // --force: the board file before (its measured square) is kept.
+        let backup = a.out.join("board.toml.bak");
+        std::fs::copy(&file, &backup).with_context(|| format!("keeping {}", backup.display()))?;
+        println!("the board file before is {}", backup.display());
+    }
     for (name, bytes) in [
         ("board.svg", svg.as_bytes()),
         ("board.png", &png[..]),
@@ -124,6 +131,9 @@ pub struct PoseArgs {
     /// Print the pose only; leave the rig file as it is.
     #[arg(long)]
     pub dry_run: bool,
+    /// Write the pose even when the corners fit it poorly (over 1 px RMS or 3 px at worst).
+    #[arg(long)]
+    pub force: bool,
     /// Where the board's photos go; else a new folder under the state directory's
     /// `calibrations/`.
     #[arg(long)]
@@ -154,7 +164,7 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
     let rig_file = if a.dry_run {
         None
     } else {
-        Some(RigFile::open(&a.rig)?)
+        Some(open_for_pose(&a.rig)?)
     };
     let focal = if a.fix_focal {
         Focal::Fixed
@@ -162,7 +172,7 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
         Focal::Refine
     };
     let mut warn = |w: String| eprintln!("  warning: {w}");
-    let views = if a.photo.is_empty() {
+    let (found, out) = if a.photo.is_empty() {
         let roles = brdfd::rig::plan::devices(&rig)?;
         let n = a.views.unwrap_or(if roles.turntable { 3 } else { 1 }) as usize;
         if !(a.turn.is_finite() && a.turn.abs() > 0.0 && a.turn.abs() < 80.0) {
@@ -172,7 +182,7 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             );
         }
         let devices = Devices::start(&rig, KEEP_ALIVE)?;
-        let out = out_dir(&a)?;
+        let out = calibration_dir(a.out.as_deref(), a.state_dir.as_deref(), "pose")?;
         println!("the board's photos go to {}", out.display());
         let cx = Context {
             rig: &rig,
@@ -181,18 +191,20 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             cancel: Default::default(),
             operator: Arc::new(Terminal),
         };
-        let shot = pose::shoot(&cx, &mut Folder(out), &board, &pose::view_angles(n, a.turn))?;
-        pose::solve_views(
+        let angles = pose::view_angles(n, a.turn);
+        let views = pose::shoot(&cx, &mut Folder(out.clone()), &board, &angles)?;
+        let found = pose::solve(
             &mut warn,
             &rig.geometry.camera,
             &board,
-            &shot,
+            &views,
             focal,
             a.sensor_width_mm,
-        )?
+        )?;
+        (found, Some(out))
     } else {
         if a.views.is_some_and(|v| v > 1) {
-            bail!("--views photographs the board on the turntable; with --photo, each photo is one view of the board as placed");
+            bail!("--views turns the board on the turntable; --photo takes photos of the board as it stands, and solves from the one that shows the most of it");
         }
         let photos = a
             .photo
@@ -206,25 +218,45 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             turn_deg: 0.0,
             photos,
         }];
-        pose::solve_views(
+        let found = pose::solve(
             &mut warn,
             &rig.geometry.camera,
             &board,
             &view,
             focal,
             a.sensor_width_mm,
-        )?
+        )?;
+        let out = match &a.out {
+            Some(o) => Some(calibration_dir(Some(o), None, "pose")?),
+            None => None,
+        };
+        (found, out)
     };
-    let found = views;
     print_found(&rig.geometry.camera, &found);
+    let note = format!(
+        "by `brdfd calibrate pose` on {}: {:.3} px RMS over {} board corners",
+        humantime::format_rfc3339_seconds(std::time::SystemTime::now()),
+        found.fit.rms_px,
+        found.fit.corners
+    );
+    if let Some(out) = &out {
+        let file = out.join("pose.json");
+        let text = serde_json::to_string_pretty(&json(&found, &note))?;
+        brdfd::session::write_atomic(&file, text.as_bytes())?;
+        println!("the fit is in {}", file.display());
+    }
+    if found.fit.rms_px > MAX_RMS_PX || found.fit.worst_px > MAX_WORST_PX {
+        let why = format!(
+            "the board's corners do not fit one camera well ({:.2} px RMS, {:.2} px at worst; a good fit is under {MAX_RMS_PX} and {MAX_WORST_PX}): check the board's square_mm and [placement], that it is flat, and that it turned with the turntable",
+            found.fit.rms_px, found.fit.worst_px
+        );
+        if !a.force && rig_file.is_some() {
+            bail!("{why}; the rig file is left as it is (--force writes it anyway)");
+        }
+        eprintln!("  warning: {why}");
+    }
     match rig_file {
         Some(f) => {
-            let note = format!(
-                "by `brdfd calibrate pose` on {}: {:.3} px RMS over {} board corners",
-                humantime::format_rfc3339_seconds(std::time::SystemTime::now()),
-                found.fit.rms_px,
-                found.fit.corners
-            );
             let backup = write_camera(f, &found.camera, &note)?;
             println!(
                 "wrote the pose into {} (the file before is {})",
@@ -237,29 +269,60 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn out_dir(a: &PoseArgs) -> anyhow::Result<PathBuf> {
-    let out = match &a.out {
-        Some(o) => o.clone(),
-        None => {
-            let state = brdfd::session::state_dir(a.state_dir.as_deref(), None)?;
-            let stamp = humantime::format_rfc3339_seconds(std::time::SystemTime::now())
-                .to_string()
-                .replace(':', "");
-            state.join("calibrations").join(format!("{stamp}-pose"))
-        }
-    };
-    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    Ok(out)
+/// A fit worse than these is not written without --force: the board's corners are found to
+/// a tenth of a pixel, so a pixel means the model (the board's size or place, its flatness,
+/// the lens's distortion) is wrong.
+const MAX_RMS_PX: f64 = 1.0;
+const MAX_WORST_PX: f64 = 3.0;
+
+/// The rig file, opened for the pose before anything is shot: its `[geometry.camera]` must be
+/// there to be written.
+fn open_for_pose(path: &std::path::Path) -> anyhow::Result<RigFile> {
+    let file = RigFile::open(path)?;
+    let camera = file
+        .doc
+        .get("geometry")
+        .and_then(|g| g.get("camera"))
+        .and_then(Item::as_table_like);
+    if camera.is_none() {
+        bail!(
+            "{} has no [geometry.camera] table to write the pose into",
+            path.display()
+        );
+    }
+    Ok(file)
 }
 
-/// The board's photos, each under its own name in the calibration's folder.
-struct Folder(PathBuf);
-
-impl Keep for Folder {
-    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
-        super::write_new(&self.0, name, bytes)?;
-        Ok(())
-    }
+/// What `pose.json` holds: the fit, the camera written, and each view's corners.
+fn json(c: &Calibrated, note: &str) -> serde_json::Value {
+    let (k, _) = pinhole(&c.camera).expect("a pinhole camera");
+    let pose = match &c.camera {
+        Camera::Pinhole { pose, .. } | Camera::Orthographic { pose, .. } => pose,
+    };
+    serde_json::json!({
+        "measured": note,
+        "rms_px": c.fit.rms_px,
+        "worst_px": c.fit.worst_px,
+        "corners": c.fit.corners,
+        "photo_size": [c.photo_size.0, c.photo_size.1],
+        "focal": {
+            "start_fx_px": c.start_fx,
+            "start_from": c.start_from,
+            "refined_sigma": c.fit.focal.as_ref().ok(),
+            "held_because": c.fit.focal.as_ref().err(),
+        },
+        "camera": {
+            "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy,
+            "position": pose.position, "look_at": pose.look_at, "up": pose.up,
+        },
+        "views": c.views.iter().map(|v| serde_json::json!({
+            "photo": v.name,
+            "turn_deg": v.turn_deg,
+            "corners": v.corners.iter()
+                .map(|p| serde_json::json!({ "world": p.world, "pixel": p.pixel }))
+                .collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
+    })
 }
 
 fn print_found(before: &Camera, c: &Calibrated) {
@@ -316,12 +379,16 @@ fn write_camera(mut file: RigFile, camera: &Camera, note: &str) -> anyhow::Resul
         bail!("a pose is written for a pinhole camera");
     };
     let path = file.path.display().to_string();
-    let table = file
+    let item = file
         .doc
         .get_mut("geometry")
         .and_then(|g| g.get_mut("camera"))
-        .and_then(Item::as_table_like_mut)
         .with_context(|| format!("{path} has no [geometry.camera] table to write the pose into"))?;
+    // A comment above `fx` says where the numbers came from; an inline table holds none.
+    let is_table = item.is_table();
+    let table = item
+        .as_table_like_mut()
+        .with_context(|| format!("{path}: geometry.camera is not a table"))?;
     let triple = |v: [f64; 3]| {
         let mut a = Array::new();
         for x in v {
@@ -335,9 +402,9 @@ fn write_camera(mut file: RigFile, camera: &Camera, note: &str) -> anyhow::Resul
     table.insert("position", triple(pose.position));
     table.insert("look_at", triple(pose.look_at));
     table.insert("up", triple(pose.up));
-    if let Some(mut key) = table.key_mut("position") {
+    if let (true, Some(mut key)) = (is_table, table.key_mut("fx")) {
         key.leaf_decor_mut()
-            .set_prefix(format!("# The pose and focal length {note}.\n"));
+            .set_prefix(format!("# fx, fy, position, look_at and up {note}.\n"));
     }
     file.save()
 }

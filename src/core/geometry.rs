@@ -247,6 +247,21 @@ pub enum Shape {
 }
 
 impl Shape {
+    /// The shape in a few words, for the operator: "a sphere", "the mesh part.stl".
+    pub fn describe(&self) -> String {
+        match self {
+            Shape::Sphere { .. } => "a sphere".into(),
+            Shape::Plane { .. } => "a plane".into(),
+            Shape::Corrugated { .. } => "a corrugated sheet".into(),
+            Shape::Mesh { file, .. } => format!(
+                "the mesh {}",
+                file.file_name().map_or(file.display().to_string(), |f| f
+                    .to_string_lossy()
+                    .into_owned())
+            ),
+        }
+    }
+
     pub fn unit_sphere() -> Shape {
         Shape::Sphere {
             center: [0.0; 3],

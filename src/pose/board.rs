@@ -208,7 +208,7 @@ impl Board {
         let params = CharucoParams::for_board(spec);
         let found = calib_targets::detect::detect_charuco(photo, &params).map_err(|e| {
             anyhow!(
-                "no {} × {} ChArUco board ({}) found in the {}×{} photo ({e}): is the whole board in the frame, lit evenly and in focus?",
+                "no {} × {} ChArUco board ({}) found in the {}×{} photo ({e}): is the board in the frame, flat, lit evenly and in focus?",
                 self.cols,
                 self.rows,
                 self.dictionary,
@@ -289,20 +289,20 @@ fn refine_corners(
     };
     let positions: Vec<([f64; 2], Vec3)> = corners.iter().map(|c| (c.pixel, c.world)).collect();
     for c in corners.iter_mut() {
-        // Pixels per metre on the board here: from the nearest other corner.
+        // Pixels per metre on the board here, the least over the neighbours a square away:
+        // across a slant the margin shrinks in the foreshortened direction.
         let near = positions
             .iter()
-            .filter(|(_, world)| *world != c.world)
-            .map(|(px, world)| {
-                let d_px = (px[0] - c.pixel[0]).hypot(px[1] - c.pixel[1]);
+            .filter_map(|(px, world)| {
                 let d_m = (0..3)
                     .map(|i| (world[i] - c.world[i]).powi(2))
                     .sum::<f64>()
                     .sqrt();
-                (d_m, d_px / d_m)
+                let d_px = (px[0] - c.pixel[0]).hypot(px[1] - c.pixel[1]);
+                (d_m > 0.5 * square_m && d_m < 1.01 * square_m).then_some(d_px / d_m)
             })
-            .min_by(|a, b| a.0.total_cmp(&b.0));
-        let Some((_, px_per_m)) = near else { continue };
+            .min_by(f64::total_cmp);
+        let Some(px_per_m) = near else { continue };
         let margin_px = (1.0 - marker) / 2.0 * square_m * px_per_m;
         let radius = (0.8 * margin_px).floor() as i64;
         if radius < 2 {

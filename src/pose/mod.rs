@@ -244,7 +244,7 @@ impl Plane {
         order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
         let [most, second, flat] = order.map(|i| eig.eigenvalues[i]);
         if second <= 1e-9 * most || flat > 1e-9 * second {
-            return Err("the board's corners are not on one plane, or all on a line".into());
+            return Err("the board's corners are all on a line (only one row of the board in view?), or not on one plane".into());
         }
         let u = eig.eigenvectors.column(order[0]).into_owned();
         let v = eig.eigenvectors.column(order[1]).into_owned();
@@ -504,6 +504,22 @@ pub fn find(
     })
 }
 
+/// A photo from the rig's object camera has the camera's shape (at any size).
+pub fn check_photo_size(
+    rig_camera: &Camera,
+    (pw, ph): (u32, u32),
+    name: &str,
+) -> anyhow::Result<()> {
+    let (w, h) = rig_camera.size();
+    let (sx, sy) = (pw as f64 / w as f64, ph as f64 / h as f64);
+    if (sx - sy).abs() > 0.01 * sx {
+        anyhow::bail!(
+            "{name} is {pw}×{ph}, and the rig's camera is {w}×{h}: a photo of another shape is from another camera, cropped, or turned (portrait)"
+        );
+    }
+    Ok(())
+}
+
 /// A rig camera with the pose (and focal length) photos of the board gave it.
 #[derive(Debug, Clone)]
 pub struct Calibrated {
@@ -538,21 +554,17 @@ pub fn calibrate(
     let (pw, ph) = first.size;
     let (w, h) = rig_camera.size();
     for v in &views {
-        let (vw, vh) = v.size;
-        if (vw, vh) != (pw, ph) {
+        if v.size != (pw, ph) {
             anyhow::bail!(
-                "{} is {vw}×{vh}, and {} {pw}×{ph}: the views are of one camera",
+                "{} is {}×{}, and {} {pw}×{ph}: the views are of one camera",
                 v.name,
+                v.size.0,
+                v.size.1,
                 first.name
             );
         }
-        if ((vw as f64 / w as f64) - (vh as f64 / h as f64)).abs() > 0.01 * (vw as f64 / w as f64) {
-            anyhow::bail!(
-                "{} is {vw}×{vh}, and the rig's camera is {w}×{h}: a photo of another shape is from another camera, or cropped",
-                v.name
-            );
-        }
     }
+    check_photo_size(rig_camera, first.size, &first.name)?;
     let at_photo = rig_camera.resized(pw as usize, ph as usize);
     let Some((mut k, _)) = pinhole(&at_photo) else {
         anyhow::bail!(
@@ -560,26 +572,26 @@ pub fn calibrate(
         );
     };
     let mut start_from = "the rig's fx".to_string();
-    if let Some(exif) = exif {
-        let per_mm = exif.px_per_mm.or(sensor_width_mm.map(|s| pw as f64 / s));
-        if let Some(per_mm) = per_mm {
-            let fx = exif.mm * per_mm;
+    // With the focal length held, the rig's is kept; refined, it starts from the lens's.
+    if let (Focal::Refine, Some(exif)) = (focal, exif) {
+        if let Some((fx, how)) = exif.focal_px(pw, sensor_width_mm) {
             k = Intrinsics {
                 fx,
                 fy: fx * k.fy / k.fx,
                 ..k
             };
+            start_from = format!("EXIF: {} mm, {how}", exif.mm);
+        } else {
             start_from = format!(
-                "EXIF: {} mm, on a sensor {:.2} mm wide",
-                exif.mm,
-                pw as f64 / per_mm
+                "the rig's fx: the EXIF gives {} mm but not the sensor's size (--sensor-width-mm gives it)",
+                exif.mm
             );
         }
     }
     let start_fx = k.fx;
     let groups: Vec<Vec<Correspondence>> = views.iter().map(|v| v.corners.clone()).collect();
     let fit = solve_views(&groups, k, focal)
-        .map_err(|e| anyhow::anyhow!("{}: the board's corners give no pose: {e}", first.name))?;
+        .map_err(|e| anyhow::anyhow!("the board's corners give no pose: {e}"))?;
     let centre = Vector3::from(board_centre);
     let distance = (fit.extrinsics.rotation * centre + fit.extrinsics.translation).z;
     let pose = fit.extrinsics.to_pose(distance.max(1e-3));
@@ -664,11 +676,24 @@ mod tests {
         let back = Extrinsics::of_pose(&e.to_pose(0.5)).unwrap();
         assert!(angle_between_deg(&e.rotation, &back.rotation) < 1e-4);
         assert!((e.centre() - back.centre()).norm() < 1e-6);
-        // And a Camera made of it casts the rays the projection inverts.
-        let p = [0.02, -0.03, 0.0];
+        // A rig camera of these intrinsics and pose casts, through the pixel a point projects
+        // to, the ray through that point: the conventions (pixel centres at + 0.5, image rows
+        // down) are the rasteriser's.
+        let camera = Camera::Pinhole {
+            width: 1600,
+            height: 1067,
+            fx: k.fx,
+            fy: k.fy,
+            cx: k.cx,
+            cy: k.cy,
+            pose: e.to_pose(0.5),
+        };
+        let p = [0.02, -0.03, 0.01];
         let q = e.project(&k, p).unwrap();
-        let q2 = back.project(&k, p).unwrap();
-        assert!((q[0] - q2[0]).abs() < 1e-2 && (q[1] - q2[1]).abs() < 1e-2);
+        let (o, d) = camera.ray_through(q[0], q[1]).unwrap();
+        let to_p = Vector3::from(p) - Vector3::from(o);
+        let off_ray = (to_p - Vector3::from(d) * to_p.dot(&Vector3::from(d))).norm();
+        assert!(off_ray < 1e-6, "{off_ray}");
     }
 
     #[test]

@@ -87,6 +87,41 @@ pub struct ExifFocal {
     pub mm: f64,
     /// The sensor's pixels per millimetre (FocalPlaneXResolution), where the file says.
     pub px_per_mm: Option<f64>,
+    /// The focal length on 35 mm film (FocalLengthIn35mmFilm), which Nikon and most others
+    /// write where they write no focal plane resolution.
+    pub mm_35: Option<f64>,
+}
+
+impl ExifFocal {
+    /// The focal length in pixels of a photo `width` wide, and how it was found: from the
+    /// sensor's width if given (`sensor_width_mm`), else the focal plane's resolution, else
+    /// the 35 mm equivalent (taken over a frame 36 mm wide). `None` when none is known.
+    pub fn focal_px(&self, width: u32, sensor_width_mm: Option<f64>) -> Option<(f64, String)> {
+        let w = width as f64;
+        if let Some(s) = sensor_width_mm {
+            return Some((
+                self.mm * w / s,
+                format!("on a sensor {s} mm wide (--sensor-width-mm)"),
+            ));
+        }
+        if let Some(per_mm) = self.px_per_mm {
+            return Some((
+                self.mm * per_mm,
+                format!(
+                    "on a sensor {:.2} mm wide (its focal plane resolution)",
+                    w / per_mm
+                ),
+            ));
+        }
+        self.mm_35.map(|f35| {
+            (
+                f35 * w / 36.0,
+                format!(
+                    "{f35} mm on 35 mm film (give --sensor-width-mm for the sensor's own width)"
+                ),
+            )
+        })
+    }
 }
 
 /// FocalLength, and FocalPlaneXResolution in pixels per millimetre, from a file's EXIF; `None`
@@ -118,7 +153,16 @@ pub fn exif_focal(bytes: &[u8]) -> Option<ExifFocal> {
     let px_per_mm = rational(exif::Tag::FocalPlaneXResolution)
         .zip(unit_mm)
         .map(|(r, unit)| r / unit);
-    Some(ExifFocal { mm, px_per_mm })
+    let mm_35 = exif
+        .get_field(exif::Tag::FocalLengthIn35mmFilm, exif::In::PRIMARY)
+        .and_then(|f| f.value.get_uint(0))
+        .filter(|v| *v > 0)
+        .map(f64::from);
+    Some(ExifFocal {
+        mm,
+        px_per_mm,
+        mm_35,
+    })
 }
 
 /// An sRGB JPEG (as cameras write them) to linear values, with its EXIF exposure.

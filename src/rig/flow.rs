@@ -391,17 +391,10 @@ fn place_sample(
     cx.say(format!(
         "simulated rig: {} on {}; DSLR: simulated Nikon D5100 on {}, {w}×{h}",
         bench.material_name,
-        match &s.scene.shape {
-            Some(crate::core::geometry::Shape::Sphere { .. }) => "a sphere".to_string(),
-            Some(crate::core::geometry::Shape::Mesh { file, .. }) => format!(
-                "the mesh {}",
-                file.file_name().map_or(file.display().to_string(), |f| f
-                    .to_string_lossy()
-                    .into_owned())
-            ),
-            Some(_) => "the rig's object".to_string(),
-            None => "the normal map's object".to_string(),
-        },
+        s.scene
+            .shape
+            .as_ref()
+            .map_or("the normal map's object".to_string(), |s| s.describe()),
         cx.devices
             .dslr
             .as_ref()

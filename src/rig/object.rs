@@ -193,7 +193,7 @@ pub fn shoot_view(
 /// Whether a bracket's failure is the DSLR's, which the fallback camera can make good: not a
 /// cancel, not the session's own (a full disk: the fallback would fail the same way), not the
 /// rig's shutter (the DSLR is there and would shoot if fired).
-fn the_dslrs_fault(cx: &Context, e: &anyhow::Error) -> bool {
+pub(super) fn the_dslrs_fault(cx: &Context, e: &anyhow::Error) -> bool {
     !cx.cancel.is_cancelled()
         && !e
             .chain()

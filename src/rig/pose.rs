@@ -18,7 +18,7 @@ use crate::config::DslrFiles;
 use crate::core::geometry::Camera;
 use crate::core::raster::linear_to_srgb;
 use crate::pose::board::Board;
-use crate::pose::{calibrate, find, Calibrated, Focal, Found};
+use crate::pose::{calibrate, check_photo_size, find, Calibrated, Focal, Found};
 use crate::radiometry::ExifFocal;
 
 /// A photo of the board to solve from: 8-bit grey, with the lens's EXIF where it has one.
@@ -79,28 +79,45 @@ pub fn shoot(
     }
     let mut views = Vec::new();
     let mut dslr_answers = true;
-    for (i, &angle) in angles.iter().enumerate() {
-        // The turntable says where it is in [0, 360); a view 30° the other way is −30°.
-        let at = if turns {
-            (turn_to(cx, angle)? + 180.0).rem_euclid(360.0) - 180.0
-        } else {
-            0.0
-        };
-        if angles.len() > 1 {
-            cx.say(format!(
-                "board view {} of {}: turntable at {at:.2}°",
-                i + 1,
-                angles.len()
-            ));
+    let shot = (|| {
+        for (i, &angle) in angles.iter().enumerate() {
+            // The turntable says where it is in [0, 360); a view 30° the other way is −30°.
+            let at = if turns {
+                (turn_to(cx, angle)? + 180.0).rem_euclid(360.0) - 180.0
+            } else {
+                0.0
+            };
+            if angles.len() > 1 {
+                cx.say(format!(
+                    "board view {} of {}: turntable at {at:.2}°",
+                    i + 1,
+                    angles.len()
+                ));
+            }
+            let prefix = if angles.len() > 1 {
+                format!("view{}-", i + 1)
+            } else {
+                String::new()
+            };
+            let mut keep = Prefixed(keep, prefix.clone());
+            let mut photos = shoot_one(cx, &mut keep, board, at, i == 0, &mut dslr_answers)?;
+            for p in &mut photos {
+                p.name = format!("{prefix}{}", p.name);
+            }
+            views.push(BoardView {
+                turn_deg: at,
+                photos,
+            });
         }
-        let mut keep = Prefixed(keep, format!("view{}-", i + 1));
-        views.push(BoardView {
-            turn_deg: at,
-            photos: shoot_one(cx, &mut keep, board, at, &mut dslr_answers)?,
-        });
-    }
+        Ok::<_, anyhow::Error>(())
+    })();
     if turns {
-        turn_to(cx, 0.0)?;
+        // Back where the object goes, after an error too; the first error is the one said.
+        let back = turn_to(cx, 0.0);
+        shot?;
+        back?;
+    } else {
+        shot?;
     }
     Ok(views)
 }
@@ -120,6 +137,7 @@ fn shoot_one(
     keep: &mut dyn Keep,
     board: &Board,
     turn_deg: f64,
+    first_view: bool,
     dslr_answers: &mut bool,
 ) -> anyhow::Result<Vec<BoardPhoto>> {
     let rig = cx.rig;
@@ -150,19 +168,20 @@ fn shoot_one(
             .ping()
             .and_then(|()| object::bracket(cx, keep, "pose: DSLR", role, &bracket, true));
         match shot {
-            Ok(files) => {
-                return files
-                    .iter()
-                    .map(|(name, bytes)| BoardPhoto::decode(name, bytes))
-                    .collect()
-            }
-            // As in a capture, the fallback camera shoots when the DSLR does not answer.
-            Err(e) if roles.fallback => {
+            Ok(files) => return jpegs(cx, &files),
+            // As in a capture, the fallback camera shoots when the DSLR does not answer; but
+            // only from the first view, so that all views are of one camera.
+            Err(e) if roles.fallback && first_view && object::the_dslrs_fault(cx, &e) => {
                 cx.warn(format!(
                     "the DSLR did not photograph the board ({e:#}); the fallback camera does"
                 ));
                 *dslr_answers = false;
                 dslr_failed = Some(e);
+            }
+            Err(e) if !first_view => {
+                return Err(e.context(
+                    "the DSLR stopped answering between the board's views (they must all be of one camera): calibrate again",
+                ))
             }
             Err(e) => return Err(e),
         }
@@ -182,6 +201,29 @@ fn shoot_one(
         Some(e) => Err(e),
         None => bail!("the rig has no object camera to photograph the board with"),
     }
+}
+
+/// The DSLR's JPEGs as photos of the board. RAW files (a body that keeps its own image
+/// quality setting) are left out, with a note; a bracket of RAW files only is an error.
+fn jpegs(cx: &Context, files: &RawFiles) -> anyhow::Result<Vec<BoardPhoto>> {
+    let (raw, jpeg): (Vec<_>, Vec<_>) = files
+        .iter()
+        .partition(|(name, _)| crate::radiometry::raw::is_raw_name(name));
+    if jpeg.is_empty() && !raw.is_empty() {
+        bail!(
+            "the DSLR sent RAW files only ({}): set its image quality to JPEG or RAW + JPEG on the body",
+            raw.len()
+        );
+    }
+    if !raw.is_empty() {
+        cx.say(format!(
+            "{} RAW files are kept but not read: the board is found in the JPEGs",
+            raw.len()
+        ));
+    }
+    jpeg.iter()
+        .map(|(name, bytes)| BoardPhoto::decode(name, bytes))
+        .collect()
 }
 
 /// The fallback camera's frames as 8-bit sRGB grey.
@@ -207,10 +249,10 @@ fn frames_as_photos(files: &RawFiles) -> anyhow::Result<Vec<BoardPhoto>> {
         .collect())
 }
 
-/// The pose from each view's photo that shows the most of the board (the first among equals),
-/// all views solved together. A view where no photo shows the board is left out and said; if
+/// The pose from each view's photo that shows the most of the board (the one of most contrast
+/// among equals: the bracket's darkest frames are its noisiest), all views solved together. A view where no photo shows the board is left out and said; if
 /// none shows it, the error says why for each photo.
-pub fn solve_views(
+pub fn solve(
     warn: &mut dyn FnMut(String),
     rig_camera: &Camera,
     board: &Board,
@@ -222,22 +264,24 @@ pub fn solve_views(
     let mut exif = None;
     let mut failures = Vec::new();
     for view in views {
-        let mut best: Option<(Found, Option<ExifFocal>)> = None;
+        let mut best: Option<(Found, Option<ExifFocal>, u8)> = None;
         for p in &view.photos {
+            check_photo_size(rig_camera, (p.grey.width(), p.grey.height()), &p.name)?;
             match find(board, &p.grey, &p.name, view.turn_deg) {
                 Ok(f) => {
-                    if best
+                    let c = contrast(&p.grey);
+                    let better = best
                         .as_ref()
-                        .is_none_or(|(b, _)| f.corners.len() > b.corners.len())
-                    {
-                        best = Some((f, p.exif));
+                        .is_none_or(|(b, _, bc)| (f.corners.len(), c) > (b.corners.len(), *bc));
+                    if better {
+                        best = Some((f, p.exif, c));
                     }
                 }
                 Err(e) => failures.push(format!("{e:#}")),
             }
         }
         match best {
-            Some((f, e)) => {
+            Some((f, e, _)) => {
                 exif = exif.or(e);
                 chosen.push(f);
             }
@@ -257,4 +301,27 @@ pub fn solve_views(
     }
     let centre = board.world([board.size_mm().0 / 2.0, board.size_mm().1 / 2.0]);
     calibrate(rig_camera, chosen, centre, exif, focal, sensor_width_mm)
+}
+
+/// The spread of a photo's grey levels, unclipped: the 95th percentile less the 5th, or 0
+/// where more than 1% of the pixels are white.
+fn contrast(grey: &image::GrayImage) -> u8 {
+    let mut counts = [0usize; 256];
+    for p in grey.pixels() {
+        counts[p.0[0] as usize] += 1;
+    }
+    let n = grey.pixels().len();
+    if counts[255] * 100 > n {
+        return 0;
+    }
+    let level = |share: usize| {
+        let mut seen = 0;
+        (0..256)
+            .find(|&v| {
+                seen += counts[v];
+                seen * 100 >= share * n
+            })
+            .unwrap_or(255) as u8
+    };
+    level(95).saturating_sub(level(5))
 }

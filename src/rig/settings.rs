@@ -48,6 +48,15 @@ fn with_files_found(rig_text: &str, scene: &SceneGeometry) -> String {
     doc.to_string()
 }
 
+/// The rig's text with its `[geometry]` replaced by `scene` (the camera and the object a
+/// preset put on the simulated bench); the rest kept as it was.
+fn with_geometry(rig_text: &str, scene: &SceneGeometry) -> anyhow::Result<String> {
+    let mut doc: toml_edit::DocumentMut = rig_text.parse()?;
+    let geometry: toml_edit::DocumentMut = toml::to_string(scene)?.parse()?;
+    doc["geometry"] = toml_edit::Item::Table(geometry.as_table().clone());
+    Ok(doc.to_string())
+}
+
 /// Pixels the basis model estimates from when neither the plan nor a preset says: the paper's
 /// 20, which its experiment found as good as every pixel.
 pub const DEFAULT_PIXELS: usize = 20;
@@ -123,6 +132,9 @@ pub struct CaptureSettings {
     pub turning: Turning,
     /// The object camera and the object; a simulated camera sized as the plan asks.
     pub scene: SceneGeometry,
+    /// Whether the scene is the preset's `simulate_on` object, not the rig's own: the
+    /// session's rig then records it, so that a resume estimates on it.
+    pub object_from_preset: bool,
     /// The panorama's yaw in the world, radians.
     pub yaw: f64,
     /// The estimate's model and solve (its white level comes from the merges).
@@ -194,10 +206,8 @@ impl CaptureSettings {
             (_, true) => Turning::Turntable,
             (_, false) => Turning::ByHand,
         };
-        let mut scene = match p.and_then(|p| p.simulate_on) {
-            Some(object) if rig.is_shipped_simulated() => object.scene(),
-            _ => rig.geometry.clone(),
-        };
+        let object = p.and_then(|p| p.simulate_on).filter(|_| rig.shipped);
+        let mut scene = object.map_or(rig.geometry.clone(), |o| o.scene());
         if rig.simulated {
             scene.camera = scene.camera.resized(plan.size, plan.size);
         }
@@ -212,6 +222,7 @@ impl CaptureSettings {
             turn_step,
             turning,
             scene,
+            object_from_preset: object.is_some(),
             yaw: rig.theta_yaw_deg.to_radians(),
             estimate,
             warnings,
@@ -224,7 +235,14 @@ impl CaptureSettings {
         Ok(Session::create(
             state,
             &self.plan.material,
-            &with_files_found(rig_text, &self.scene),
+            &with_files_found(
+                &if self.object_from_preset {
+                    with_geometry(rig_text, &self.scene)?
+                } else {
+                    rig_text.to_string()
+                },
+                &self.scene,
+            ),
             crate::config::preset_text(&self.plan.material),
             serde_json::to_value(&self.plan)?,
         )?)

@@ -97,7 +97,6 @@ fn turn_by_hand(cx: &Context, i: usize, n: usize, step: f64) -> anyhow::Result<f
 
 /// Turns the turntable to `target` degrees by the shortest way; returns where it reports
 /// it is.
-/// Turns the rig's turntable to `target` degrees by the shorter way; where it stopped.
 pub fn turn_to(cx: &Context, target: f64) -> anyhow::Result<f64> {
     let table = cx.devices.turntable.as_ref().context("no turntable")?;
     table.call(move |t| {
