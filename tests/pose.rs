@@ -372,11 +372,7 @@ fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
     let said = common::out(&run);
     assert!(run.status.success(), "{said}");
     assert!(said.contains("the rig's fx), refined"), "{said}");
-    assert_eq!(
-        said.matches("40 corners in view").count(),
-        3,
-        "{said}"
-    );
+    assert_eq!(said.matches("40 corners in view").count(), 3, "{said}");
     let found = brdfd::config::Rig::read(&dir.join("rig.toml")).unwrap();
     let (kf, ef) = pinhole(&found.geometry.camera).unwrap();
     let (kt, et) = pinhole(&found.simulation.clone().unwrap().camera.unwrap()).unwrap();
