@@ -241,9 +241,8 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
     std::fs::create_dir_all(&dir).unwrap();
     let typed = std::fs::read_to_string(root.join("config/rigs/simulated-pose.toml")).unwrap();
     std::fs::write(dir.join("rig.toml"), &typed).unwrap();
-    let run = common::brdfd(&["calibrate", "target", "--out", "board"], &dir);
-    assert!(run.status.success(), "{}", common::out(&run));
-    let run = common::brdfd(
+    common::succeeds(&["calibrate", "target", "--out", "board"], &dir);
+    let said = common::succeeds(
         &[
             "calibrate",
             "pose",
@@ -258,8 +257,6 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
         ],
         &dir,
     );
-    let said = common::out(&run);
-    assert!(run.status.success(), "{said}");
     let rms: f64 = said
         .split("reprojection: ")
         .nth(1)
@@ -296,7 +293,7 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
     );
     std::fs::write(dir.join("true.toml"), true_rig).unwrap();
     let capture = |rig: &str| {
-        let run = common::brdfd(
+        let said = common::succeeds(
             &[
                 "capture",
                 "--rig",
@@ -313,8 +310,6 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
             ],
             &dir,
         );
-        let said = common::out(&run);
-        assert!(run.status.success(), "{said}");
         (refit(&said), common::relit(&said))
     };
     let as_typed = capture("rig.toml.bak");
@@ -356,7 +351,7 @@ fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
         "\n[simulation]\ndslr = \"absent\"\n\n[simulation.camera]",
     );
     std::fs::write(dir.join("rig.toml"), &rig).unwrap();
-    let run = common::brdfd(
+    let said = common::succeeds(
         &[
             "calibrate",
             "pose",
@@ -369,8 +364,6 @@ fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
         ],
         &dir,
     );
-    let said = common::out(&run);
-    assert!(run.status.success(), "{said}");
     assert!(said.contains("the rig's fx), refined"), "{said}");
     assert_eq!(said.matches("40 corners in view").count(), 3, "{said}");
     let found = brdfd::config::Rig::read(&dir.join("rig.toml")).unwrap();

@@ -40,6 +40,14 @@ pub fn brdfd(args: &[&str], dir: &Path) -> Output {
         .expect("brdfd runs")
 }
 
+/// Runs `brdfd ARGS` in `dir`, which must succeed: what it said, on both streams.
+pub fn succeeds(args: &[&str], dir: &Path) -> String {
+    let run = brdfd(args, dir);
+    let said = out(&run);
+    assert!(run.status.success(), "brdfd {}:\n{said}", args.join(" "));
+    said
+}
+
 /// Standard output and standard error.
 pub fn text(o: &Output) -> (String, String) {
     (
