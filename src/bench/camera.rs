@@ -20,14 +20,16 @@ pub const SENSOR_GAIN: f64 = 1000.0;
 /// Width of the simulated DSLR's sensor (a D5100's APS-C), millimetres: with the camera's
 /// focal length in pixels, it gives the EXIF focal length a real camera writes.
 pub const SENSOR_WIDTH_MM: f64 = 23.6;
+/// The crop Nikon's DX bodies write their 35 mm equivalent focal length with: nominal, where
+/// 36 mm over the D5100's 23.6 mm is 1.53.
+const DX_CROP: f64 = 1.5;
 
 pub struct BenchCamera {
     /// The scene, rendered at the first shot; `None` when the radiance was given.
     bench: Option<VirtualBench>,
     size: (usize, usize),
-    /// The lens's focal length (mm) and the sensor's pixels per centimetre, for EXIF;
-    /// none for an orthographic camera.
-    lens: Option<(f64, f64)>,
+    /// The lens's focal length (mm), for EXIF; none for an orthographic camera.
+    lens: Option<f64>,
     make: String,
     model: String,
     raw: RawFormat,
@@ -53,10 +55,7 @@ impl BenchCamera {
     fn empty(camera: &Camera, make: &str, model: &str) -> Self {
         let size = camera.size();
         let lens = match camera {
-            Camera::Pinhole { fx, .. } => Some((
-                fx * SENSOR_WIDTH_MM / size.0 as f64,
-                size.0 as f64 / (SENSOR_WIDTH_MM / 10.0),
-            )),
+            Camera::Pinhole { fx, .. } => Some(fx * SENSOR_WIDTH_MM / size.0 as f64),
             Camera::Orthographic { .. } => None,
         };
         BenchCamera {
@@ -177,8 +176,8 @@ pub fn insert_app1(jpeg: &[u8], header: &[u8], payload: &[u8]) -> Vec<u8> {
 }
 
 /// A little-endian TIFF structure: IFD0 (Make, Model, Exif pointer), then the Exif IFD.
-/// With a lens, also FocalLength and the focal plane's resolution (pixels per centimetre).
-fn exif_tiff(make: &str, model: &str, shot: &Shot, lens: Option<(f64, f64)>) -> Vec<u8> {
+/// With a lens, also its focal length.
+fn exif_tiff(make: &str, model: &str, shot: &Shot, lens: Option<f64>) -> Vec<u8> {
     let info = ShotInfo {
         make,
         model,
@@ -193,20 +192,20 @@ fn exif_tiff(make: &str, model: &str, shot: &Shot, lens: Option<(f64, f64)>) -> 
     tiff::write(ByteOrder::Little, &ifd0)
 }
 
-/// FocalLength (mm, to 0.01), FocalPlaneXResolution and YResolution (per centimetre, to
-/// 0.001) and their unit, as a DSLR writes them.
-fn lens_tags(lens: Option<(f64, f64)>) -> Vec<(u16, Value)> {
-    let Some((focal_mm, px_per_cm)) = lens else {
+/// FocalLength (mm, to 0.1) and FocalLengthIn35mmFilm (whole mm, the focal length times the
+/// DX format's nominal crop of 1.5), as a Nikon DSLR writes them: no focal plane resolution.
+fn lens_tags(focal_mm: Option<f64>) -> Vec<(u16, Value)> {
+    let Some(focal_mm) = focal_mm else {
         return Vec::new();
     };
-    let per_cm = ((px_per_cm * 1000.0).round() as u32, 1000);
     vec![
         (
             0x920A,
-            Value::Rational(vec![((focal_mm * 100.0).round() as u32, 100)]),
+            Value::Rational(vec![((focal_mm * 10.0).round() as u32, 10)]),
         ),
-        (0xA20E, Value::Rational(vec![per_cm])),
-        (0xA20F, Value::Rational(vec![per_cm])),
-        (0xA210, Value::Short(vec![3])),
+        (
+            0xA405,
+            Value::Short(vec![(focal_mm * DX_CROP).round() as u16]),
+        ),
     ]
 }

@@ -353,7 +353,12 @@ fn print_found(before: &Camera, c: &Calibrated) {
             c.start_from,
             sigma * 100.0
         ),
-        Err(why) => println!("focal length: fx {:.1} px ({}), {why}", k.fx, c.start_from),
+        Err(why) => {
+            println!("focal length: fx {:.1} px ({}), {why}", k.fx, c.start_from);
+            if c.start_from.starts_with("EXIF") {
+                eprintln!("  warning: the camera's distance is only as good as the EXIF's focal length: turn the board between views (--views 3 on a rig with a turntable), or give --sensor-width-mm");
+            }
+        }
     }
     let p = e.centre();
     let [lx, ly, lz] = match &c.camera {

@@ -117,7 +117,7 @@ impl ExifFocal {
             (
                 f35 * w / 36.0,
                 format!(
-                    "{f35} mm on 35 mm film (give --sensor-width-mm for the sensor's own width)"
+                    "{f35} mm on 35 mm film, a nominal figure good to a percent or two (--sensor-width-mm gives the sensor's own width)"
                 ),
             )
         })
