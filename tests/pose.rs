@@ -56,31 +56,28 @@ fn jpeg(radiance: Raster, camera: &Camera) -> Vec<u8> {
 /// What the operator typed into the rig before calibrating: the camera about where it is,
 /// and a focal length 4% off.
 fn rough(truth: &Camera) -> Camera {
-    let Camera::Pinhole {
-        width,
-        height,
-        fx,
-        fy,
-        cx,
-        cy,
-        ..
-    } = truth.clone()
-    else {
+    placed_roughly(truth, 1.04)
+}
+
+/// The rig's camera with the truth's intrinsics and a rough pose: a camera whose focal length
+/// is known (measured once, say), placed again.
+fn known_focal(truth: &Camera) -> Camera {
+    placed_roughly(truth, 1.0)
+}
+
+/// `truth` with its focal lengths scaled by `focal`, standing about where it is.
+fn placed_roughly(truth: &Camera, focal: f64) -> Camera {
+    let mut c = truth.clone();
+    let Camera::Pinhole { fx, fy, pose, .. } = &mut c else {
         unreachable!()
     };
-    Camera::Pinhole {
-        width,
-        height,
-        fx: fx * 1.04,
-        fy: fy * 1.04,
-        cx,
-        cy,
-        pose: Pose {
-            position: [0.0, 0.1, 0.6],
-            look_at: [0.0; 3],
-            up: [0.0, 1.0, 0.0],
-        },
-    }
+    (*fx, *fy) = (*fx * focal, *fy * focal);
+    *pose = Pose {
+        position: [0.0, 0.1, 0.6],
+        look_at: [0.0; 3],
+        up: [0.0, 1.0, 0.0],
+    };
+    c
 }
 
 /// The pose from one photo of the default board as placed.
@@ -105,35 +102,6 @@ fn errors(truth: &Camera, c: &Calibrated) -> Errors {
         rotation_deg: angle_between_deg(&et.rotation, &ef.rotation),
         translation_mm: (et.centre() - ef.centre()).norm() * 1000.0,
         focal: kf.fx / kt.fx - 1.0,
-    }
-}
-
-/// The rig's camera with the truth's intrinsics and a rough pose: a camera whose focal length
-/// is known (measured once, say), placed again.
-fn known_focal(truth: &Camera) -> Camera {
-    let Camera::Pinhole { pose, .. } = rough(truth) else {
-        unreachable!()
-    };
-    let Camera::Pinhole {
-        width,
-        height,
-        fx,
-        fy,
-        cx,
-        cy,
-        ..
-    } = truth.clone()
-    else {
-        unreachable!()
-    };
-    Camera::Pinhole {
-        width,
-        height,
-        fx,
-        fy,
-        cx,
-        cy,
-        pose,
     }
 }
 
