@@ -17,7 +17,7 @@ use std::f64::consts::PI;
 use anyhow::{bail, Context as _};
 use serde::Deserialize;
 
-use super::flow::{Context, Keep, RawFiles};
+use super::flow::{Context, Keep, Prefixed, RawFiles};
 use super::light::light_bracket;
 use super::object::{self, dslr_frames, DslrFrames, FallbackBracket};
 use super::plan;
@@ -181,7 +181,7 @@ pub fn radiometry(
         .as_ref()
         .map_or([1.0; 3], |g| g.gain.0);
     // The light, in the light probe's values per unit of exposure.
-    let light = light_bracket(cx, &mut Prefixed(keep, "theta"), light_plan(rig))?;
+    let light = light_bracket(cx, &mut Prefixed(keep, "theta-".into()), light_plan(rig))?;
     let map = merge_bracket(&light, [1.0; 3])?;
     if map.clipped_pixels > 0 {
         cx.warn(format!(
@@ -212,7 +212,7 @@ pub fn radiometry(
             .and_then(|()| {
                 object::bracket(
                     cx,
-                    &mut Prefixed(keep, "dslr"),
+                    &mut Prefixed(keep, "dslr-".into()),
                     "calibration: DSLR",
                     role,
                     &bracket,
@@ -226,7 +226,7 @@ pub fn radiometry(
         let bracket = Bracket::fallback(rig);
         let measured = object::bracket(
             cx,
-            &mut Prefixed(keep, "webcam"),
+            &mut Prefixed(keep, "webcam-".into()),
             "calibration: fallback camera",
             role,
             &bracket,
@@ -415,14 +415,5 @@ fn grey_bench(scene: &SceneGeometry, yaw: f64, albedo: [f64; 3]) -> VirtualBench
         yaw,
         geometry: scene.clone(),
         cache: crate::bench::cache::RenderCache::user(),
-    }
-}
-
-/// A [`Keep`] that names each file after the camera that made it.
-struct Prefixed<'a>(&'a mut dyn Keep, &'static str);
-
-impl Keep for Prefixed<'_> {
-    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
-        self.0.keep(&format!("{}-{name}", self.1), bytes)
     }
 }

@@ -44,6 +44,15 @@ pub trait Keep {
     fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()>;
 }
 
+/// Keeps each file under its name with a prefix (`theta-`, `view2-`).
+pub struct Prefixed<'a>(pub &'a mut dyn Keep, pub String);
+
+impl Keep for Prefixed<'_> {
+    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
+        self.0.keep(&format!("{}{name}", self.1), bytes)
+    }
+}
+
 /// A session's step under way, as a [`Keep`].
 pub struct Step<'a> {
     pub session: &'a mut Session,

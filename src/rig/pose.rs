@@ -8,7 +8,7 @@
 
 use anyhow::bail;
 
-use super::flow::{Context, Keep, RawFiles};
+use super::flow::{Context, Keep, Prefixed, RawFiles};
 use super::object::{self, FallbackBracket};
 use super::plan;
 use super::settings::Bracket;
@@ -120,15 +120,6 @@ pub fn shoot(
         shot?;
     }
     Ok(views)
-}
-
-/// Names each file kept with a prefix (the view's).
-struct Prefixed<'a>(&'a mut dyn Keep, String);
-
-impl Keep for Prefixed<'_> {
-    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
-        self.0.keep(&format!("{}{name}", self.1), bytes)
-    }
 }
 
 /// One view's bracket, the board turned `turn_deg` on the turntable.
