@@ -1,6 +1,6 @@
-//! Rays against a triangle mesh: a bounding-volume hierarchy (binary, split at the median of
-//! the longest axis of the triangles' centres, a few triangles per leaf) with closest-hit and
-//! any-hit queries. Möller–Trumbore for the triangles, the slab test for the boxes.
+//! Rays against a triangle mesh: a bounding-volume hierarchy (binary, each box cut where the
+//! surface area heuristic puts it, a few triangles per leaf) with closest-hit and any-hit
+//! queries. Möller–Trumbore for the triangles, the slab test for the boxes.
 //!
 //! Not here: what the hits mean (per-pixel geometry in [`super::geometry`]).
 
@@ -9,6 +9,9 @@ use super::mesh::Mesh;
 
 /// Triangles per leaf at most: a few triangle tests cost less than another level of boxes.
 const LEAF_SIZE: usize = 4;
+
+/// Planes tried per axis for a cut.
+const BINS: usize = 16;
 
 /// A ray's hit: its distance, the triangle, and the barycentric coordinates (u, v) of the
 /// hit on it (the weights of its second and third corners).
@@ -100,10 +103,7 @@ impl Bvh {
             self.nodes[at].count = n as u32;
             return;
         }
-        let mid = start + n / 2;
-        self.order[start..end].select_nth_unstable_by(n / 2, |&a, &b| {
-            centres[a as usize][axis].total_cmp(&centres[b as usize][axis])
-        });
+        let mid = self.partition(start, end, mesh, centres, clo, chi);
         let left = self.nodes.len();
         let empty = Node {
             lo: [0.0; 3],
@@ -117,6 +117,81 @@ impl Bvh {
         self.nodes[at].count = 0;
         self.split(left, start, mid, mesh, centres);
         self.split(left + 1, mid, end, mesh, centres);
+    }
+
+    /// Orders entries `start..end` of `order` into two runs and returns where the second
+    /// starts: the cut, on some axis, among [`BINS`] planes across the triangles' centres,
+    /// that leaves the least surface area of the two boxes times their triangles (a ray
+    /// meets a box about as often as its area). A box that follows the surface closely
+    /// is one the rays that leave the surface pass by.
+    fn partition(
+        &mut self,
+        start: usize,
+        end: usize,
+        mesh: &Mesh,
+        centres: &[Vec3],
+        clo: Vec3,
+        chi: Vec3,
+    ) -> usize {
+        let bin = |c: Vec3, axis: usize| {
+            let f = (c[axis] - clo[axis]) / (chi[axis] - clo[axis]);
+            ((f * BINS as f64) as usize).min(BINS - 1)
+        };
+        let mut best: Option<(f64, usize, usize)> = None;
+        for axis in 0..3 {
+            if chi[axis] - clo[axis] <= 0.0 {
+                continue;
+            }
+            let mut boxes = [([f64::INFINITY; 3], [f64::NEG_INFINITY; 3], 0usize); BINS];
+            for &t in &self.order[start..end] {
+                let b = &mut boxes[bin(centres[t as usize], axis)];
+                for p in mesh.corners(t as usize) {
+                    for i in 0..3 {
+                        b.0[i] = b.0[i].min(p[i]);
+                        b.1[i] = b.1[i].max(p[i]);
+                    }
+                }
+                b.2 += 1;
+            }
+            // Sweeps from the right, then from the left, adding bins to a box.
+            let grow = |acc: &mut (Vec3, Vec3, usize), b: &(Vec3, Vec3, usize)| {
+                for i in 0..3 {
+                    acc.0[i] = acc.0[i].min(b.0[i]);
+                    acc.1[i] = acc.1[i].max(b.1[i]);
+                }
+                acc.2 += b.2;
+            };
+            let mut right = vec![0.0; BINS];
+            let mut acc = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3], 0);
+            for k in (1..BINS).rev() {
+                grow(&mut acc, &boxes[k]);
+                right[k] = area(acc.0, acc.1) * acc.2 as f64;
+            }
+            let mut acc = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3], 0);
+            for k in 1..BINS {
+                grow(&mut acc, &boxes[k - 1]);
+                let n_right = end - start - acc.2;
+                if acc.2 == 0 || n_right == 0 {
+                    continue;
+                }
+                let cost = area(acc.0, acc.1) * acc.2 as f64 + right[k];
+                if best.is_none_or(|(c, _, _)| cost < c) {
+                    best = Some((cost, axis, k));
+                }
+            }
+        }
+        let Some((_, axis, k)) = best else {
+            // Every centre in one bin: halves, as they come.
+            return start + (end - start) / 2;
+        };
+        let mut mid = start;
+        for i in start..end {
+            if bin(centres[self.order[i] as usize], axis) < k {
+                self.order.swap(i, mid);
+                mid += 1;
+            }
+        }
+        mid
     }
 
     /// The tree's boxes (low corner, high corner, first, count, as in [`Node`]) and each
@@ -207,6 +282,12 @@ impl Bvh {
 }
 
 /// Whether the ray meets the box within `(t_min, t_max)`.
+/// Half the surface area of the box `lo`..`hi`.
+fn area(lo: Vec3, hi: Vec3) -> f64 {
+    let d = [0, 1, 2].map(|i| (hi[i] - lo[i]).max(0.0));
+    d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+}
+
 fn slab(n: &Node, o: Vec3, inv: Vec3, t_min: f64, t_max: f64) -> bool {
     let (mut near, mut far) = (t_min, t_max);
     for i in 0..3 {
