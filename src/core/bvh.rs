@@ -8,7 +8,8 @@ use super::brdf::{add, cross, dot, sub, Vec3};
 use super::mesh::Mesh;
 
 /// Triangles per leaf at most: a few triangle tests cost less than another level of boxes.
-const LEAF_SIZE: usize = 4;
+/// The visibility bench took 0.95 of the time with 8 as with 4, side by side.
+const LEAF_SIZE: usize = 8;
 
 /// Planes tried per axis for a cut.
 const BINS: usize = 16;
