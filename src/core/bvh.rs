@@ -162,7 +162,7 @@ impl Bvh {
                 }
                 acc.2 += b.2;
             };
-            let mut right = vec![0.0; BINS];
+            let mut right = [0.0; BINS];
             let mut acc = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3], 0);
             for k in (1..BINS).rev() {
                 grow(&mut acc, &boxes[k]);
