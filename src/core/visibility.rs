@@ -18,7 +18,7 @@ use std::collections::hash_map::DefaultHasher;
 use std::hash::{Hash, Hasher};
 use std::sync::{Arc, Mutex, OnceLock};
 
-use super::brdf::Vec3;
+use super::brdf::{cross as cross64, dot as dot64, sub as sub64, Vec3};
 use super::bvh::Bvh;
 use super::envmap::LightSet;
 use super::geometry::GeomPixel;
@@ -36,7 +36,7 @@ pub struct Point {
     pub normal: [f32; 3],
 }
 
-/// One box of the BVH and the slab its triangles lie in, in one cache line.
+/// One box of the BVH and the layer its triangles lie in, in one cache line.
 #[derive(Clone, Copy)]
 #[repr(C, align(64))]
 struct BoxNode {
@@ -48,13 +48,13 @@ struct BoxNode {
     /// child's centre to its second's (bits 0–1, and bit 2 if the second is the lower):
     /// the walk takes the child the rays meet first without reading either.
     meta: u32,
-    /// A unit vector near the normal of the box's triangles, and the least and greatest
-    /// `facing · v` over their corners v. A tilted wall's box stands far above the wall's
-    /// own tangent plane, and a ray grazing along the wall passes through box after box of
-    /// it; the slab is as thin as the wall, so that [`BoxNode::above`] passes over them.
-    facing: [f32; 3],
-    lower: f32,
-    upper: f32,
+    /// The layer the box's triangles lie in: a unit vector near their normal, and the least
+    /// and greatest `across · v` over their corners v (all 0 where the box has no layer). A
+    /// tilted wall's box stands far above the wall's own tangent plane, and a ray grazing
+    /// along the wall passes through box after box of it; the layer is as thin as the wall,
+    /// so that [`BoxNode::above`] passes over them.
+    across: [f32; 3],
+    layer: [f32; 2],
 }
 
 /// The instruction sets the packet tests are written for.
@@ -90,6 +90,9 @@ pub struct Occluder {
     nodes: Vec<BoxNode>,
     tris: Vec<[[f32; 3]; 3]>,
     points: Vec<Point>,
+    /// The middle of the mesh's box: the boxes and triangles are kept about it, so that f32
+    /// rounds them by the part's size, not by where it stands.
+    centre: [f64; 3],
     /// What the test of a box against a tangent plane may be off by in f32, with room to
     /// spare: a box is passed over only when it lies this far below the plane.
     slack: f32,
@@ -145,16 +148,19 @@ impl Occluder {
     /// The occluder of `bvh`'s mesh for `points`.
     pub fn new(bvh: &Bvh, points: Vec<Point>) -> Occluder {
         let (nodes, tris) = bvh.layout();
-        let f = |v: Vec3| v.map(|c| c as f32);
-        let centre = |i: usize| {
+        let centre = nodes.first().map_or([0.0; 3], |&(lo, hi, _, _)| {
+            [0, 1, 2].map(|i| (lo[i] + hi[i]) / 2.0)
+        });
+        let f = |v: Vec3| [0, 1, 2].map(|i| (v[i] - centre[i]) as f32);
+        let middle = |i: usize| {
             let (lo, hi, _, _) = nodes[i];
             [0, 1, 2].map(|k| (lo[k] + hi[k]) / 2.0)
         };
-        let nodes = nodes
+        let nodes: Vec<BoxNode> = nodes
             .iter()
             .map(|&(lo, hi, first, count)| {
                 let meta = if count == 0 {
-                    let (a, b) = (centre(first as usize), centre(first as usize + 1));
+                    let (a, b) = (middle(first as usize), middle(first as usize + 1));
                     (0..3)
                         .max_by(|&i, &j| (b[i] - a[i]).abs().total_cmp(&(b[j] - a[j]).abs()))
                         .map_or(INNER, |i| {
@@ -168,93 +174,58 @@ impl Occluder {
                     hi: f(hi),
                     first,
                     meta,
-                    facing: [0.0; 3],
-                    lower: 0.0,
-                    upper: 0.0,
+                    across: [0.0; 3],
+                    layer: [0.0; 2],
                 }
             })
             .collect();
-        let tris: Vec<[[f32; 3]; 3]> = tris.into_iter().map(|t| t.map(f)).collect();
+        // Half the box's greatest width, about its middle.
+        let reach = nodes.first().map_or(0.0, |root| {
+            (0..3)
+                .map(|i| root.hi[i].max(-root.lo[i]))
+                .fold(0f32, f32::max)
+        });
         let mut occluder = Occluder {
             nodes,
-            tris,
+            tris: tris.into_iter().map(|t| t.map(f)).collect(),
             points,
-            slack: 0.0,
+            centre,
+            // The bound on a box's height above a plane takes some 50 roundings of 2⁻²⁴ of
+            // `reach` at worst; this is 130 of them. It stays below the rays' lift off the
+            // surface (at least 10⁻⁵ of the mesh's diagonal, which is 2 `reach` or more), so
+            // a wall's own boxes are still passed over.
+            slack: 8e-6 * reach,
             tables: Mutex::new(Vec::new()),
         };
-        let root = &occluder.nodes[0];
-        let reach = (0..3)
-            .map(|i| root.lo[i].abs().max(root.hi[i].abs()))
-            .fold(0f32, f32::max);
-        // A handful of f32 roundings of coordinates up to `reach`, many times over; far
-        // below the lift of the rays' origins off the surface.
-        occluder.slack = 4e-6 * reach;
-        occluder.slab(0);
+        let held = occluder.held();
+        for (at, range) in held.into_iter().enumerate() {
+            let layer = layer_of(&occluder.tris[range]);
+            let node = &mut occluder.nodes[at];
+            (node.across, node.layer) = layer;
+        }
         occluder
     }
 
-    /// Sets the slabs of node `at` and those under it; returns the triangles it holds.
-    fn slab(&mut self, at: usize) -> std::ops::Range<usize> {
-        let node = self.nodes[at];
-        let held = if node.meta & INNER != 0 {
-            let (a, b) = (
-                self.slab(node.first as usize),
-                self.slab(node.first as usize + 1),
-            );
-            a.start..b.end
-        } else {
-            node.first as usize..(node.first + node.meta) as usize
-        };
-        let tris = &self.tris[held.clone()];
-        let normal = |t: &[[f32; 3]; 3]| {
-            let g = |v: [f32; 3]| v.map(|c| c as f64);
-            let (a, b, c) = (g(t[0]), g(t[1]), g(t[2]));
-            crate::core::brdf::cross(crate::core::brdf::sub(b, a), crate::core::brdf::sub(c, a))
-        };
-        // The triangles' normals weighted by area, turned to agree with the largest's: a
-        // file's winding may differ from face to face.
-        let largest = tris
-            .iter()
-            .map(normal)
-            .max_by(|a, b| {
-                crate::core::brdf::dot(*a, *a).total_cmp(&crate::core::brdf::dot(*b, *b))
-            })
-            .unwrap_or([0.0; 3]);
-        let mut sum = [0f64; 3];
-        for t in tris {
-            let n = normal(t);
-            let s = if crate::core::brdf::dot(n, largest) < 0.0 {
-                -1.0
+    /// The triangles under each box: a range, as the tree orders them.
+    fn held(&self) -> Vec<std::ops::Range<usize>> {
+        let mut held = vec![0..0; self.nodes.len()];
+        // A box's children come after it.
+        for at in (0..self.nodes.len()).rev() {
+            let node = self.nodes[at];
+            held[at] = if node.meta & INNER != 0 {
+                let (a, b) = (&held[node.first as usize], &held[node.first as usize + 1]);
+                debug_assert_eq!(a.end, b.start);
+                a.start..b.end
             } else {
-                1.0
+                node.first as usize..(node.first + node.meta) as usize
             };
-            sum = [0, 1, 2].map(|i| sum[i] + s * n[i]);
-        }
-        let length = crate::core::brdf::dot(sum, sum).sqrt();
-        if length > 0.0 && length.is_finite() {
-            // The slab is measured along the rounded vector, the one the walk uses.
-            let facing = sum.map(|c| (c / length) as f32);
-            let (mut lower, mut upper) = (f64::INFINITY, f64::NEG_INFINITY);
-            for v in tris.iter().flatten() {
-                let d: f64 = (0..3).map(|i| facing[i] as f64 * v[i] as f64).sum();
-                lower = lower.min(d);
-                upper = upper.max(d);
-            }
-            let node = &mut self.nodes[at];
-            // Rounded outwards, so that the slab holds every corner.
-            let (lower, upper) = ((lower as f32).next_down(), (upper as f32).next_up());
-            // A slab as thick as the box adds nothing to it, and the box alone gives the
-            // walk a tighter bound.
-            let deep: f32 = (0..3)
-                .map(|i| facing[i].abs() * (node.hi[i] - node.lo[i]))
-                .sum();
-            if upper - lower < deep / 2.0 {
-                node.facing = facing;
-                node.lower = lower;
-                node.upper = upper;
-            }
         }
         held
+    }
+
+    /// `o` in the frame the boxes and triangles are kept in.
+    fn local(&self, o: [f32; 3]) -> [f32; 3] {
+        [0, 1, 2].map(|i| (o[i] as f64 - self.centre[i]) as f32)
     }
 
     pub fn points(&self) -> &[Point] {
@@ -294,8 +265,8 @@ impl Occluder {
         self.seen_with(Isa::portable(), id, clusters, words)
     }
 
-    /// [`Occluder::seen`] with the packet tests in AVX2 ([`avx2`]): a packet's 32 rays in
-    /// four 8-lane steps, each ending in one move-mask. They add and multiply in the portable
+    /// [`Occluder::seen`] with the packet tests in AVX2 ([`avx2`]): a packet's 64 rays in
+    /// eight 8-lane steps, each ending in one move-mask. They add and multiply in the portable
     /// tests' order, without fused multiply-adds, so every build gives the same answer.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
@@ -303,7 +274,7 @@ impl Occluder {
         self.seen_with(Isa::<AVX2>::assumed(), id, clusters, words)
     }
 
-    /// [`Occluder::seen`] with the packet tests in AVX-512 ([`avx512`]): two 16-lane steps.
+    /// [`Occluder::seen`] with the packet tests in AVX-512 ([`avx512`]): four 16-lane steps.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
     unsafe fn seen_avx512(&self, id: usize, clusters: &Clusters, words: usize) -> Box<[u64]> {
@@ -319,6 +290,7 @@ impl Occluder {
         words: usize,
     ) -> Box<[u64]> {
         let Point { origin, normal } = self.points[id];
+        let origin = self.local(origin);
         let mut out = vec![0u64; words].into_boxed_slice();
         let frontier = self.frontier(origin, normal);
         let mut stack = Vec::with_capacity(frontier.len() + 64);
@@ -347,7 +319,7 @@ impl Occluder {
         let mut stack = vec![0u32];
         while let Some(at) = stack.pop() {
             let node = &self.nodes[at as usize];
-            if !node.above(n, dot(n, o), self.slack) {
+            if !node.above(o, n, dot(n, o), self.slack) {
                 continue;
             }
             let holds_o = (0..3).all(|i| node.lo[i] <= o[i] && o[i] <= node.hi[i]);
@@ -378,7 +350,7 @@ impl Occluder {
         while let Some((at, mask)) = stack.pop() {
             let node = &self.nodes[at as usize];
             let mask = mask & open;
-            if mask == 0 || !node.above(n, level, self.slack) {
+            if mask == 0 || !node.above(o, n, level, self.slack) {
                 continue;
             }
             let mask = packet.through(isa, node, o, mask);
@@ -391,12 +363,17 @@ impl Occluder {
                 let (a, b) = (node.first, node.first + 1);
                 let ahead = packet.heading[(node.meta & 3) as usize] ^ (node.meta & 4 != 0);
                 let (later, sooner) = if ahead { (b, a) } else { (a, b) };
+                // Fetched while the sooner child's walk begins: a box is a cache line, and
+                // the tree does not fit in L2.
                 #[cfg(target_arch = "x86_64")]
-                unsafe {
-                    use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-                    let p = self.nodes.as_ptr().add(a as usize) as *const i8;
-                    _mm_prefetch::<_MM_HINT_T0>(p);
-                    _mm_prefetch::<_MM_HINT_T0>(p.add(64));
+                for child in [a, b] {
+                    let p: *const BoxNode = &self.nodes[child as usize];
+                    // SAFETY: a prefetch only hints the cache; `p` points into `nodes`.
+                    unsafe {
+                        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                            p.cast(),
+                        )
+                    };
                 }
                 stack.extend([(later, mask), (sooner, mask)]);
                 continue;
@@ -415,16 +392,29 @@ impl Occluder {
 }
 
 impl BoxNode {
-    /// Whether the box's triangles may reach above the tangent plane `n · v = level`: a ray
-    /// that leaves the surface meets nothing below it. The bound on their height above the
-    /// plane is the furthest point of the box and the slab together, where `n` is split
-    /// into its part along the slab's `facing` (which the slab bounds) and the rest (which
-    /// the box bounds); with no slab, the box's corner furthest along `n`.
+    /// Whether the box's triangles may reach above the tangent plane at `o`, where `n · o`
+    /// is `level`: a ray that leaves the surface meets nothing below it. Two bounds on
+    /// their height above the plane: the box's corner furthest along `n` (exact in f32, as
+    /// the triangle test's own), and the furthest point of the box and the layer together,
+    /// where `n` is split into its part across the layer (which the layer bounds) and the
+    /// rest (which the box bounds).
     #[inline(always)]
-    fn above(&self, n: [f32; 3], level: f32, slack: f32) -> bool {
-        let along = dot(n, self.facing);
-        let rest = sub(n, [0, 1, 2].map(|i| along * self.facing[i]));
-        let side = if along >= 0.0 { self.upper } else { self.lower };
+    fn above(&self, o: [f32; 3], n: [f32; 3], level: f32, slack: f32) -> bool {
+        let mut height = 0.0;
+        for i in 0..3 {
+            let far = if n[i] > 0.0 { self.hi[i] } else { self.lo[i] };
+            height += n[i] * (far - o[i]);
+        }
+        if height <= 0.0 {
+            return false;
+        }
+        let along = dot(n, self.across);
+        let rest = sub(n, [0, 1, 2].map(|i| along * self.across[i]));
+        let side = if along >= 0.0 {
+            self.layer[1]
+        } else {
+            self.layer[0]
+        };
         let mut bound = along * side - level;
         for i in 0..3 {
             let far = if rest[i] > 0.0 {
@@ -434,8 +424,50 @@ impl BoxNode {
             };
             bound += rest[i] * far;
         }
-        bound >= -slack
+        // Not a number passes: the box is walked.
+        bound >= -slack || bound.is_nan()
     }
+}
+
+/// The layer triangles lie in: the triangles' normals weighted by area (turned to agree
+/// with the largest's, for a file's winding may differ from face to face), and the least
+/// and greatest height of their corners along it, rounded outwards. None (all 0) where the
+/// normals cancel.
+fn layer_of(tris: &[[[f32; 3]; 3]]) -> ([f32; 3], [f32; 2]) {
+    let wide = |v: [f32; 3]| v.map(|c| c as f64);
+    let normals: Vec<Vec3> = tris
+        .iter()
+        .map(|t| {
+            let (a, b, c) = (wide(t[0]), wide(t[1]), wide(t[2]));
+            cross64(sub64(b, a), sub64(c, a))
+        })
+        .collect();
+    let largest = normals
+        .iter()
+        .copied()
+        .max_by(|a, b| dot64(*a, *a).total_cmp(&dot64(*b, *b)))
+        .unwrap_or([0.0; 3]);
+    let mut sum = [0f64; 3];
+    for n in &normals {
+        let s = if dot64(*n, largest) < 0.0 { -1.0 } else { 1.0 };
+        sum = [0, 1, 2].map(|i| sum[i] + s * n[i]);
+    }
+    let length = dot64(sum, sum).sqrt();
+    if !(length > 0.0 && length.is_finite()) {
+        return ([0.0; 3], [0.0; 2]);
+    }
+    // Measured along the rounded vector, the one the walk uses.
+    let across = sum.map(|c| (c / length) as f32);
+    let (mut lower, mut upper) = (f64::INFINITY, f64::NEG_INFINITY);
+    for v in tris.iter().flatten() {
+        let d = dot64(wide(across), wide(*v));
+        lower = lower.min(d);
+        upper = upper.max(d);
+    }
+    (
+        across,
+        [(lower as f32).next_down(), (upper as f32).next_up()],
+    )
 }
 
 impl Packet {
@@ -890,16 +922,7 @@ mod tests {
     fn a_box_is_passed_over_only_below_the_tangent_plane() {
         let mesh = grooved_plate(0.1, 0.1, 4, 0.01, 64, 32);
         let occluder = Occluder::new(&Bvh::build(&mesh), Vec::new());
-        // Each box's triangles, from the leaves up.
-        let mut held = vec![0..0; occluder.nodes.len()];
-        for at in (0..occluder.nodes.len()).rev() {
-            let node = occluder.nodes[at];
-            held[at] = if node.meta & INNER != 0 {
-                held[node.first as usize].start..held[node.first as usize + 1].end
-            } else {
-                node.first as usize..(node.first + node.meta) as usize
-            };
-        }
+        let held = occluder.held();
         let mut rng = 11u64;
         let mut next = || {
             rng = rng
@@ -909,11 +932,11 @@ mod tests {
         };
         let (mut planes, mut passed_over) = (0, 0);
         for _ in 0..300 {
-            let o = [
+            let o = occluder.local([
                 next() * 0.1 - 0.05,
                 next() * 0.1 - 0.05,
                 next() * 0.012 - 0.011,
-            ];
+            ]);
             let n = normalize([0, 1, 2].map(|_| next() as f64 * 2.0 - 1.0)).map(|c| c as f32);
             let level = dot(n, o);
             for (at, node) in occluder.nodes.iter().enumerate() {
@@ -926,7 +949,7 @@ mod tests {
                             .sum::<f64>()
                     })
                     .fold(f64::NEG_INFINITY, f64::max);
-                let above = node.above(n, level, occluder.slack);
+                let above = node.above(o, n, level, occluder.slack);
                 assert!(above || height < 0.0, "box {at} stands {height} above");
                 planes += 1;
                 passed_over += !above as usize;
@@ -951,7 +974,8 @@ mod tests {
         if n[2] < 0.0 {
             n = n.map(|c| -c);
         }
-        let o = [0, 1, 2].map(|i| ((a[i] + b[i] + c[i]) / 3.0 + 1e-6 * n[i]) as f32);
+        let o =
+            occluder.local([0, 1, 2].map(|i| ((a[i] + b[i] + c[i]) / 3.0 + 1e-6 * n[i]) as f32));
         let n = n.map(|c| c as f32);
         let own = occluder
             .nodes
@@ -976,15 +1000,80 @@ mod tests {
                 height > 0.0
             })
             .count();
-        let slabs_above = own
+        let layers_above = own
             .iter()
-            .filter(|node| node.above(n, dot(n, o), occluder.slack));
+            .filter(|node| node.above(o, n, dot(n, o), occluder.slack));
         assert_eq!(
             boxes_above,
             own.len(),
             "the wall's boxes stand above its plane"
         );
-        assert_eq!(slabs_above.count(), 0, "the wall's slabs do not");
+        assert_eq!(layers_above.count(), 0, "the wall's layers do not");
+    }
+
+    /// The layers change which boxes the walk enters, never an answer: on the grooved plate
+    /// where it stands, and moved 3 m off, the walk with them gives bit for bit what the walk
+    /// with the boxes alone gives.
+    #[test]
+    fn the_layers_change_no_answer() {
+        let set = lights(1000);
+        let clusters = Clusters::of(&set);
+        let words = set.len().div_ceil(64);
+        for shift in [0.0, 3.0] {
+            let mut mesh = grooved_plate(1.0, 1.0, 3, 0.25, 24, 12);
+            for p in &mut mesh.positions {
+                p[0] += shift;
+            }
+            let bvh = Bvh::build(&mesh);
+            let points: Vec<Point> = (0..300)
+                .map(|i| {
+                    // On the walls and the tops, just off them.
+                    let t = (i * 7919) % mesh.triangles.len();
+                    let [a, b, c] = mesh.corners(t);
+                    let mut n = normalize(crate::core::brdf::cross(
+                        crate::core::brdf::sub(b, a),
+                        crate::core::brdf::sub(c, a),
+                    ));
+                    if n[2] < 0.0 {
+                        n = n.map(|c| -c);
+                    }
+                    let p = [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0 + 1e-5 * n[k]);
+                    Point {
+                        origin: p.map(|c| c as f32),
+                        normal: n.map(|c| c as f32),
+                    }
+                })
+                .collect();
+            let with = Occluder::new(&bvh, points.clone());
+            let mut without = Occluder::new(&bvh, points);
+            for node in &mut without.nodes {
+                (node.across, node.layer) = ([0.0; 3], [0.0; 2]);
+            }
+            let (mut entered, mut hidden) = (0, 0);
+            for id in 0..with.points.len() {
+                let a = with.seen(id, &clusters, words);
+                let b = without.seen(id, &clusters, words);
+                assert_eq!(a, b, "point {id}, plate moved {shift} m");
+                let n = with.points[id].normal;
+                let up = set.directions.iter().filter(|d| dot(n, **d) >= 0.0).count();
+                hidden += up - a.iter().map(|w| w.count_ones() as usize).sum::<usize>();
+                let o = with.local(with.points[id].origin);
+                let level = dot(n, o);
+                entered += with
+                    .nodes
+                    .iter()
+                    .zip(&without.nodes)
+                    .filter(|(l, b)| {
+                        l.above(o, n, level, with.slack) != b.above(o, n, level, with.slack)
+                    })
+                    .count();
+            }
+            assert!(hidden > 1000, "the case hides too little: {hidden}");
+            assert!(
+                entered > 1000,
+                "the layers pass over only {entered} more boxes"
+            );
+        }
     }
 
     /// The packet walk gives, light for light, what a ray cast one by one gives.
