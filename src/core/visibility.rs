@@ -862,6 +862,20 @@ mod tests {
         }
     }
 
+    /// Triangle `t`'s face normal, turned up.
+    fn up_normal(mesh: &crate::core::mesh::Mesh, t: usize) -> Vec3 {
+        let [a, b, c] = mesh.corners(t);
+        let n = normalize(crate::core::brdf::cross(
+            crate::core::brdf::sub(b, a),
+            crate::core::brdf::sub(c, a),
+        ));
+        if n[2] < 0.0 {
+            n.map(|c| -c)
+        } else {
+            n
+        }
+    }
+
     /// Every build of the packet tests gives the same answer: the portable one, and AVX2 and
     /// AVX-512 where this CPU has them (the walk dispatches to the widest).
     #[test]
@@ -967,13 +981,7 @@ mod tests {
             })
             .expect("a triangle on a wall");
         let [a, b, c] = mesh.corners(t);
-        let mut n = normalize(crate::core::brdf::cross(
-            crate::core::brdf::sub(b, a),
-            crate::core::brdf::sub(c, a),
-        ));
-        if n[2] < 0.0 {
-            n = n.map(|c| -c);
-        }
+        let n = up_normal(&mesh, t);
         let o =
             occluder.local([0, 1, 2].map(|i| ((a[i] + b[i] + c[i]) / 3.0 + 1e-6 * n[i]) as f32));
         let n = n.map(|c| c as f32);
@@ -1030,13 +1038,7 @@ mod tests {
                     // On the walls and the tops, just off them.
                     let t = (i * 7919) % mesh.triangles.len();
                     let [a, b, c] = mesh.corners(t);
-                    let mut n = normalize(crate::core::brdf::cross(
-                        crate::core::brdf::sub(b, a),
-                        crate::core::brdf::sub(c, a),
-                    ));
-                    if n[2] < 0.0 {
-                        n = n.map(|c| -c);
-                    }
+                    let n = up_normal(&mesh, t);
                     let p = [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0 + 1e-5 * n[k]);
                     Point {
                         origin: p.map(|c| c as f32),
@@ -1100,13 +1102,7 @@ mod tests {
                         (u, v) = (1.0 - u, 1.0 - v);
                     }
                     let p = [0, 1, 2].map(|i| a[i] + u * (b[i] - a[i]) + v * (c[i] - a[i]));
-                    let e1 = [0, 1, 2].map(|i| b[i] - a[i]);
-                    let e2 = [0, 1, 2].map(|i| c[i] - a[i]);
-                    let mut n = normalize(crate::core::brdf::cross(e1, e2));
-                    if n[2] < 0.0 {
-                        n = n.map(|c| -c);
-                    }
-                    (p.map(|c| c), n)
+                    (p, up_normal(&mesh, t))
                 })
                 .collect();
             let lift = 1e-6;
