@@ -862,6 +862,16 @@ mod tests {
         }
     }
 
+    /// Numbers in [0, 1) from `seed`, the same on every machine.
+    fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
+        move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
     /// Triangle `t`'s face normal, turned up.
     fn up_normal(mesh: &crate::core::mesh::Mesh, t: usize) -> Vec3 {
         let [a, b, c] = mesh.corners(t);
@@ -937,13 +947,8 @@ mod tests {
         let mesh = grooved_plate(0.1, 0.1, 4, 0.01, 64, 32);
         let occluder = Occluder::new(&Bvh::build(&mesh), Vec::new());
         let held = occluder.held();
-        let mut rng = 11u64;
-        let mut next = || {
-            rng = rng
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (rng >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut uniform = uniform(11);
+        let mut next = || uniform() as f32;
         let (mut planes, mut passed_over) = (0, 0);
         for _ in 0..300 {
             let o = occluder.local([
@@ -1085,13 +1090,7 @@ mod tests {
         let set = lights(2000);
         for mesh in cases {
             let bvh = Bvh::build(&mesh);
-            let mut rng = 7u64;
-            let mut next = || {
-                rng = rng
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                (rng >> 11) as f64 / (1u64 << 53) as f64
-            };
+            let mut next = uniform(7);
             // Points on random triangles, with their faces' normals turned up.
             let points: Vec<(Vec3, Vec3)> = (0..60)
                 .map(|_| {
