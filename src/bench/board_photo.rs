@@ -106,17 +106,24 @@ pub fn render(
         height: h,
         pixels,
     };
-    blur(&mut raster, spoil.blur_px);
-    let mut rng = rand::rngs::StdRng::seed_from_u64(spoil.seed);
-    if spoil.noise > 0.0 {
-        let normal = Normal::new(0.0, spoil.noise).expect("a positive σ");
-        for p in &mut raster.pixels {
-            for c in 0..3 {
-                p[c] = (p[c] + paper[c] * normal.sample(&mut rng) as f32).max(0.0);
+    spoil.apply(&mut raster, paper);
+    Ok(raster)
+}
+
+impl Spoil {
+    /// Blurs the radiance, then adds the noise, relative to `reference` (the paper's).
+    pub fn apply(&self, raster: &mut Raster, reference: [f32; 3]) {
+        blur(raster, self.blur_px);
+        let mut rng = rand::rngs::StdRng::seed_from_u64(self.seed);
+        if self.noise > 0.0 {
+            let normal = Normal::new(0.0, self.noise).expect("a positive σ");
+            for p in &mut raster.pixels {
+                for c in 0..3 {
+                    p[c] = (p[c] + reference[c] * normal.sample(&mut rng) as f32).max(0.0);
+                }
             }
         }
     }
-    Ok(raster)
 }
 
 /// A separable Gaussian blur of σ pixels (none at 0), the image's edge repeated beyond it.

@@ -9,6 +9,7 @@
 //! OpenCV's: x right, y down, z forward.
 
 pub mod board;
+pub mod silhouette;
 
 use nalgebra::{DMatrix, Matrix3, Rotation3, Vector3};
 
