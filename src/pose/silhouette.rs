@@ -93,7 +93,13 @@ impl Mask {
             .map(|i| diff[i])
             .collect();
         let overall = if all_interior.is_empty() {
-            median(diff.iter().zip(&inside).filter(|(_, s)| **s).map(|(d, _)| *d).collect())
+            median(
+                diff.iter()
+                    .zip(&inside)
+                    .filter(|(_, s)| **s)
+                    .map(|(d, _)| *d)
+                    .collect(),
+            )
         } else {
             median(all_interior)
         };
@@ -343,7 +349,11 @@ pub struct Offset {
 impl Offset {
     fn apply(&self, p: Vec3) -> Vec3 {
         let (s, c) = self.turn_deg.to_radians().sin_cos();
-        let q = [p[0] - self.pivot[0], p[1] - self.pivot[1], p[2] - self.pivot[2]];
+        let q = [
+            p[0] - self.pivot[0],
+            p[1] - self.pivot[1],
+            p[2] - self.pivot[2],
+        ];
         let turned = [c * q[0] + s * q[2], q[1], -s * q[0] + c * q[2]];
         [0, 1, 2].map(|i| turned[i] + self.pivot[i] + self.shift[i])
     }
@@ -424,8 +434,7 @@ struct Prepared {
 
 impl Prepared {
     fn new(view: &View) -> anyhow::Result<Prepared> {
-        let Some((k, e)) = pinhole(&view.camera.turned_about_y(-view.turn_deg.to_radians()))
-        else {
+        let Some((k, e)) = pinhole(&view.camera.turned_about_y(-view.turn_deg.to_radians())) else {
             bail!("the object's silhouette is aligned through a pinhole camera");
         };
         let (cw, ch) = view.camera.size();
@@ -517,8 +526,14 @@ fn fill_triangle(a: [f64; 2], b: [f64; 2], c: [f64; 2], w: usize, h: usize, out:
     }
     let lo = |v: f64| (v - 0.5).ceil().max(0.0) as usize;
     let hi = |v: f64, n: usize| ((v - 0.5).floor() + 1.0).clamp(0.0, n as f64) as usize;
-    let (x0, x1) = (lo(a[0].min(b[0]).min(c[0])), hi(a[0].max(b[0]).max(c[0]), w));
-    let (y0, y1) = (lo(a[1].min(b[1]).min(c[1])), hi(a[1].max(b[1]).max(c[1]), h));
+    let (x0, x1) = (
+        lo(a[0].min(b[0]).min(c[0])),
+        hi(a[0].max(b[0]).max(c[0]), w),
+    );
+    let (y0, y1) = (
+        lo(a[1].min(b[1]).min(c[1])),
+        hi(a[1].max(b[1]).max(c[1]), h),
+    );
     let sign = area.signum();
     let edge = |p: [f64; 2], q: [f64; 2], x: f64, y: f64| {
         sign * ((q[0] - p[0]) * (y - p[1]) - (q[1] - p[1]) * (x - p[0]))
@@ -527,8 +542,7 @@ fn fill_triangle(a: [f64; 2], b: [f64; 2], c: [f64; 2], w: usize, h: usize, out:
         let py = y as f64 + 0.5;
         for x in x0..x1 {
             let px = x as f64 + 0.5;
-            if edge(a, b, px, py) >= 0.0 && edge(b, c, px, py) >= 0.0 && edge(c, a, px, py) >= 0.0
-            {
+            if edge(a, b, px, py) >= 0.0 && edge(b, c, px, py) >= 0.0 && edge(c, a, px, py) >= 0.0 {
                 out[y * w + x] = 1;
             }
         }
@@ -687,7 +701,11 @@ mod tests {
 
     #[test]
     fn euler_angles_make_the_rotation_back() {
-        for deg in [[-25.0, 0.0, 0.0], [10.0, 35.0, -70.0], [170.0, -60.0, 120.0]] {
+        for deg in [
+            [-25.0, 0.0, 0.0],
+            [10.0, 35.0, -70.0],
+            [170.0, -60.0, 120.0],
+        ] {
             let r = rotation(deg);
             let back = rotation(euler_deg(&r));
             for i in 0..3 {
@@ -792,7 +810,11 @@ mod tests {
         let centre = [0usize, 1].map(|axis| {
             let moment: f64 = (0..(w * h) as usize)
                 .map(|i| {
-                    let at = if axis == 0 { i % w as usize } else { i / w as usize };
+                    let at = if axis == 0 {
+                        i % w as usize
+                    } else {
+                        i / w as usize
+                    };
                     (at as f64 + 0.5) * mask.cover[i] as f64
                 })
                 .sum();
