@@ -215,13 +215,7 @@ fn largest_piece(set: &[bool], w: usize, h: usize) -> Vec<bool> {
         let mut size = 0;
         while let Some(i) = stack.pop() {
             size += 1;
-            let (x, y) = ((i % w) as i64, (i / w) as i64);
-            for (dx, dy) in NEIGHBOURS_8 {
-                let (nx, ny) = (x + dx, y + dy);
-                if nx < 0 || ny < 0 || nx >= w as i64 || ny >= h as i64 {
-                    continue;
-                }
-                let j = ny as usize * w + nx as usize;
+            for j in neighbours(i % w, i / w, w, h) {
                 if set[j] && label[j] == 0 {
                     label[j] = next;
                     stack.push(j);
@@ -245,6 +239,15 @@ const NEIGHBOURS_8: [(i64, i64); 8] = [
     (0, 1),
     (1, 1),
 ];
+
+/// The indices of pixel (x, y)'s 8 neighbours inside a `w` × `h` frame.
+fn neighbours(x: usize, y: usize, w: usize, h: usize) -> impl Iterator<Item = usize> {
+    NEIGHBOURS_8.iter().filter_map(move |(dx, dy)| {
+        let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+        ((0..w as i64).contains(&nx) && (0..h as i64).contains(&ny))
+            .then(|| ny as usize * w + nx as usize)
+    })
+}
 
 /// `set` with its holes filled: what the frame's edge cannot reach through `!set`
 /// (4-connected) is inside.
@@ -290,14 +293,7 @@ fn distance_to_edge(set: &[bool], w: usize, h: usize, cap: usize) -> Vec<u8> {
     for y in 0..h {
         for x in 0..w {
             let i = y * w + x;
-            let differs = NEIGHBOURS_8.iter().any(|(dx, dy)| {
-                let (nx, ny) = (x as i64 + dx, y as i64 + dy);
-                nx >= 0
-                    && ny >= 0
-                    && nx < w as i64
-                    && ny < h as i64
-                    && set[ny as usize * w + nx as usize] != set[i]
-            });
+            let differs = neighbours(x, y, w, h).any(|j| set[j] != set[i]);
             if differs {
                 d[i] = 1;
             }
@@ -312,14 +308,7 @@ fn distance_to_edge(set: &[bool], w: usize, h: usize, cap: usize) -> Vec<u8> {
                 if before[i] < ring {
                     continue;
                 }
-                let touches = NEIGHBOURS_8.iter().any(|(dx, dy)| {
-                    let (nx, ny) = (x as i64 + dx, y as i64 + dy);
-                    nx >= 0
-                        && ny >= 0
-                        && nx < w as i64
-                        && ny < h as i64
-                        && before[ny as usize * w + nx as usize] == ring - 1
-                });
+                let touches = neighbours(x, y, w, h).any(|j| before[j] == ring - 1);
                 if touches {
                     d[i] = ring;
                 }
