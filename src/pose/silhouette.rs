@@ -729,8 +729,9 @@ mod tests {
         let (lo, hi) = mesh.bounds();
         let pivot = [0, 1, 2].map(|i| (lo[i] + hi[i]) / 2.0);
         let truth = Offset {
-            shift: [0.003, 0.0, -0.004],
-            turn_deg: 2.0,
+            // Off the search's grid of steps (4 mm and 2° halved).
+            shift: [0.00273, 0.00041, -0.00338],
+            turn_deg: 1.73,
             pivot,
         };
         let views: Vec<View> = [0.0, 30.0, -30.0]
