@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Deserializer};
 
 use crate::core::estimate::Model;
-use crate::core::geometry::{Camera, SceneGeometry};
+use crate::core::geometry::{Camera, SceneGeometry, Shape};
 use crate::core::solve::{ColourChoice, Solver};
 use crate::selector::Selector;
 
@@ -413,6 +413,11 @@ pub struct Simulation {
     /// rehearse `brdfd calibrate pose`, which finds it from a photo of the board. The rig's
     /// camera when absent.
     pub camera: Option<crate::core::geometry::Camera>,
+    /// The object as it truly stands on the simulated bench (a `[geometry.shape]` table of
+    /// the same mesh), where the rig's `[geometry.shape]` is where the operator believes it
+    /// stands: to rehearse `brdfd calibrate pose --refine-object`, which finds it from the
+    /// object's silhouette. The rig's shape when absent.
+    pub shape: Option<crate::core::geometry::Shape>,
 }
 
 impl Default for Simulation {
@@ -425,6 +430,7 @@ impl Default for Simulation {
             theta: SimulatedLink::Http,
             shutter: SimulatedPresence::Absent,
             camera: None,
+            shape: None,
         }
     }
 }
@@ -512,6 +518,39 @@ impl<'de> Deserialize<'de> for PixelCount {
 
 /// The fallback bracket's values. Whether the rig needs them is the capture's question
 /// ([`crate::rig::plan`]).
+/// `[simulation.shape]` is the rig's object placed elsewhere: the same mesh, its numbers
+/// checked as `[geometry.shape]`'s are.
+fn check_true_shape(
+    file: &str,
+    geometry: &SceneGeometry,
+    truth: &Shape,
+) -> Result<(), ConfigError> {
+    let same = match (&geometry.shape, truth) {
+        (
+            Some(Shape::Mesh {
+                file: a, units: ua, ..
+            }),
+            Shape::Mesh {
+                file: b, units: ub, ..
+            },
+        ) => a.file_name() == b.file_name() && ua == ub,
+        _ => false,
+    };
+    if !same {
+        return Err(invalid(
+            file,
+            "simulation.shape",
+            "is where the rig's mesh truly stands: [geometry.shape] must be a mesh, and this the same file in the same units, placed elsewhere",
+        ));
+    }
+    SceneGeometry {
+        shape: Some(truth.clone()),
+        ..geometry.clone()
+    }
+    .check()
+    .map_err(|e| invalid(file, "simulation.shape", e))
+}
+
 fn check_fallback_bracket(file: &str, b: &Brackets) -> Result<(), ConfigError> {
     check_exposures(file, "brackets.fallback_shutters", &b.fallback_shutters)?;
     if !(1..=MAX_FALLBACK_FRAMES).contains(&b.fallback_frames) {
@@ -778,6 +817,9 @@ impl Rig {
                 ));
             }
         }
+        if let Some(truth) = r.simulation.as_ref().and_then(|s| s.shape.as_ref()) {
+            check_true_shape(file, &r.geometry, truth)?;
+        }
         if let Some(t) = &r.turntable {
             if !(1..=crate::rig::MAX_VIEWS).contains(&t.views) || !t.step_deg.is_finite() {
                 return Err(invalid(
@@ -803,6 +845,13 @@ impl Rig {
             .and_then(|p| p.parent().map(Path::to_path_buf))
             .unwrap_or_default();
         rig.geometry.resolve_files(&dir);
+        if let Some(Shape::Mesh { file, .. }) =
+            rig.simulation.as_mut().and_then(|s| s.shape.as_mut())
+        {
+            if file.is_relative() && !crate::core::mesh::is_builtin(file) {
+                *file = dir.join(&*file);
+            }
+        }
         Ok(rig)
     }
 
@@ -816,6 +865,16 @@ impl Rig {
                 truth.resized(w, h)
             }
             None => believed.clone(),
+        }
+    }
+
+    /// The object as the simulated bench places it, for a scene whose shape is `believed`:
+    /// `[simulation] shape` where `believed` is the rig's own `[geometry.shape]`, else
+    /// `believed` itself (a preset's object is where the preset says).
+    pub fn bench_shape(&self, believed: Option<&Shape>) -> Option<Shape> {
+        match self.simulation.as_ref().and_then(|s| s.shape.as_ref()) {
+            Some(truth) if believed == self.geometry.shape.as_ref() => Some(truth.clone()),
+            _ => believed.cloned(),
         }
     }
 

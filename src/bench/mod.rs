@@ -9,6 +9,7 @@
 pub mod board_photo;
 pub mod cache;
 pub mod camera;
+pub mod object_photo;
 pub mod panorama;
 pub mod raw_file;
 pub mod tiff;

@@ -1,16 +1,17 @@
 //! `brdfd calibrate target`: the board to print. `brdfd calibrate pose`: the object camera's
 //! pose (and focal length) from a photo of it on the bench, written into the rig file.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
 use brdfd::config::Rig;
-use brdfd::core::geometry::Camera;
+use brdfd::core::geometry::{Camera, Shape};
 use brdfd::pose::board::Board;
+use brdfd::pose::silhouette::Refined;
 use brdfd::pose::{angle_between_deg, pinhole, Calibrated, Focal};
 use brdfd::rig::flow::Context;
-use brdfd::rig::pose::{self, BoardPhoto};
+use brdfd::rig::pose::{self, OnBench, Photo};
 use brdfd::rig::{Devices, Progress, KEEP_ALIVE};
 use toml_edit::{value, Array, Item};
 
@@ -128,6 +129,21 @@ pub struct PoseArgs {
     /// not the focal plane's resolution.
     #[arg(long)]
     pub sensor_width_mm: Option<f64>,
+    /// Also refine where the object stands, from its silhouette: after the board, the empty
+    /// bench and then the object are photographed at the board's views, and the rig's mesh
+    /// aligned with the object's outline. The placement found is written into
+    /// `[geometry.shape]` (a mesh). Lay white card under and behind a dark or grey object,
+    /// black cloth under a white one.
+    #[arg(long)]
+    pub refine_object: bool,
+    /// With --photo: photos of the object standing where the rig places it, from the camera
+    /// as it stood for the board's; the bracket's frames, each with its --empty-photo.
+    /// Refines the object's placement as --refine-object does.
+    #[arg(long, num_args = 1.., requires = "empty_photo")]
+    pub object_photo: Vec<PathBuf>,
+    /// The empty bench's photos, one for each --object-photo, at its exposure.
+    #[arg(long, num_args = 1.., requires = "object_photo")]
+    pub empty_photo: Vec<PathBuf>,
     /// Print the pose only; leave the rig file as it is.
     #[arg(long)]
     pub dry_run: bool,
@@ -160,19 +176,44 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             bail!("--sensor-width-mm must be a positive number of millimetres, not {s}");
         }
     }
+    let refine_object = a.refine_object || !a.object_photo.is_empty();
+    if !a.object_photo.is_empty() && a.photo.is_empty() {
+        bail!("--object-photo goes with --photo (the board's photos from the camera as it stood for the object's); without them, --refine-object photographs both");
+    }
+    if a.object_photo.len() != a.empty_photo.len() {
+        bail!(
+            "{} --object-photo and {} --empty-photo: each photo of the object needs one of the empty bench at its exposure",
+            a.object_photo.len(),
+            a.empty_photo.len()
+        );
+    }
+    if refine_object && !matches!(rig.geometry.shape, Some(Shape::Mesh { .. })) {
+        bail!(
+            "{}: --refine-object aligns the object's mesh with its silhouette, and [geometry.shape] is no mesh",
+            a.rig.display()
+        );
+    }
     // Opened first: a file the pose cannot go into is said before anything is shot.
     let rig_file = if a.dry_run {
         None
     } else {
-        Some(open_for_pose(&a.rig)?)
+        Some(open_for_pose(&a.rig, refine_object)?)
     };
     let focal = if a.fix_focal {
         Focal::Fixed
     } else {
         Focal::Refine
     };
+    let settle = |found: &Calibrated, out: Option<&Path>| {
+        print_found(&rig.geometry.camera, found);
+        let note = note(found);
+        if let Some(out) = out {
+            write_json(out, &json(found, None, &note))?;
+        }
+        check_fit(found, a.force || rig_file.is_none())
+    };
     let mut warn = |w: String| eprintln!("  warning: {w}");
-    let (found, out) = if a.photo.is_empty() {
+    let (found, object, out) = if a.photo.is_empty() {
         let roles = brdfd::rig::plan::devices(&rig)?;
         let n = a.views.unwrap_or(if roles.turntable { 3 } else { 1 }) as usize;
         if !(a.turn.is_finite() && a.turn.abs() > 0.0 && a.turn.abs() < 80.0) {
@@ -183,7 +224,7 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
         }
         let devices = Devices::start(&rig, KEEP_ALIVE)?;
         let out = calibration_dir(a.out.as_deref(), a.state_dir.as_deref(), "pose")?;
-        println!("the board's photos go to {}", out.display());
+        println!("the photos go to {}", out.display());
         let cx = Context {
             rig: &rig,
             devices: &devices,
@@ -192,7 +233,8 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             operator: Arc::new(Terminal),
         };
         let angles = pose::view_angles(n, a.turn);
-        let views = pose::shoot(&cx, &mut Folder(out.clone()), &board, &angles)?;
+        let mut folder = Folder(out.clone());
+        let views = pose::shoot(&cx, &mut folder, OnBench::Board(&board), &angles, "")?;
         let found = pose::solve(
             &mut warn,
             &rig.geometry.camera,
@@ -201,28 +243,46 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             focal,
             a.sensor_width_mm,
         )?;
-        (found, Some(out))
+        settle(&found, Some(&out))?;
+        let object = if refine_object {
+            let simulated = devices.sim.is_some();
+            ready(
+                simulated,
+                "take the board away, leaving the bench as it was",
+            )?;
+            let empty = pose::shoot(&cx, &mut folder, OnBench::Nothing, &angles, "empty-")?;
+            ready(
+                simulated,
+                "stand the object where [geometry.shape] places it, as nearly as you can",
+            )?;
+            let object = pose::shoot(&cx, &mut folder, OnBench::Object, &angles, "object-")?;
+            Some((empty, object))
+        } else {
+            None
+        };
+        (found, object, Some(out))
     } else {
         if a.views.is_some_and(|v| v > 1) {
             bail!("--views turns the board on the turntable; --photo takes photos of the board as it stands, and solves from the one that shows the most of it");
         }
-        let photos = a
-            .photo
-            .iter()
-            .map(|p| {
-                let bytes = std::fs::read(p).with_context(|| format!("reading {}", p.display()))?;
-                BoardPhoto::decode(&p.display().to_string(), &bytes)
-            })
-            .collect::<anyhow::Result<Vec<_>>>()?;
-        let view = [pose::BoardView {
-            turn_deg: 0.0,
-            photos,
-        }];
+        let view = |files: &[PathBuf]| {
+            Ok::<_, anyhow::Error>(vec![pose::PhotoView {
+                turn_deg: 0.0,
+                photos: files
+                    .iter()
+                    .map(|p| {
+                        let bytes =
+                            std::fs::read(p).with_context(|| format!("reading {}", p.display()))?;
+                        Photo::decode(&p.display().to_string(), &bytes)
+                    })
+                    .collect::<anyhow::Result<Vec<_>>>()?,
+            }])
+        };
         let found = pose::solve(
             &mut warn,
             &rig.geometry.camera,
             &board,
-            &view,
+            &view(&a.photo)?,
             focal,
             a.sensor_width_mm,
         )?;
@@ -230,36 +290,46 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             Some(o) => Some(calibration_dir(Some(o), None, "pose")?),
             None => None,
         };
-        (found, out)
+        settle(&found, out.as_deref())?;
+        let object = if refine_object {
+            eprintln!("  warning: one view pins the object's distance from the camera only by its outline's size; photographed by `--refine-object` on a rig with a turntable, the slanted views pin it as well as the rest");
+            Some((view(&a.empty_photo)?, view(&a.object_photo)?))
+        } else {
+            None
+        };
+        (found, object, out)
     };
-    print_found(&rig.geometry.camera, &found);
-    let note = format!(
-        "by `brdfd calibrate pose` on {}: {:.3} px RMS over {} board corners",
-        humantime::format_rfc3339_seconds(std::time::SystemTime::now()),
-        found.fit.rms_px,
-        found.fit.corners
-    );
-    if let Some(out) = &out {
-        let file = out.join("pose.json");
-        let text = serde_json::to_string_pretty(&json(&found, &note))?;
-        brdfd::session::write_atomic(&file, text.as_bytes())?;
-        println!("the fit is in {}", file.display());
-    }
-    if found.fit.rms_px > MAX_RMS_PX || found.fit.worst_px > MAX_WORST_PX {
-        let why = format!(
-            "the board's corners do not fit one camera well ({:.2} px RMS, {:.2} px at worst; a good fit is under {MAX_RMS_PX} and {MAX_WORST_PX}): check the board's square_mm and [placement], that it is flat, and that it turned with the turntable",
-            found.fit.rms_px, found.fit.worst_px
-        );
-        if !a.force && rig_file.is_some() {
-            bail!("{why}; the rig file is left as it is (--force writes it anyway)");
+    let note = note(&found);
+    let placed = match object {
+        Some((empty, object)) => {
+            let shape = rig.geometry.shape.as_ref().expect("checked to be a mesh");
+            let refined = pose::refine_object(&found.camera, shape, &empty, &object)?;
+            print_refined(&refined);
+            let placed = refined.offset.placed(shape);
+            if let Some(out) = &out {
+                write_json(out, &json(&found, Some((&refined, &placed)), &note))?;
+            }
+            Some(placed)
         }
-        eprintln!("  warning: {why}");
+        None => None,
+    };
+    if let Some(out) = &out {
+        println!("the fit is in {}", out.join("pose.json").display());
     }
     match rig_file {
-        Some(f) => {
-            let backup = write_camera(f, &found.camera, &note)?;
+        Some(mut f) => {
+            set_camera(&mut f, &found.camera, &note)?;
+            if let Some(shape) = &placed {
+                set_shape(&mut f, shape)?;
+            }
+            let backup = f.save()?;
             println!(
-                "wrote the pose into {} (the file before is {})",
+                "wrote the {} into {} (the file before is {})",
+                if placed.is_some() {
+                    "pose and the object's placement"
+                } else {
+                    "pose"
+                },
                 a.rig.display(),
                 backup.display()
             );
@@ -269,6 +339,81 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Where the pose came from, for the rig file's comment and pose.json.
+fn note(found: &Calibrated) -> String {
+    format!(
+        "by `brdfd calibrate pose` on {}: {:.3} px RMS over {} board corners",
+        humantime::format_rfc3339_seconds(std::time::SystemTime::now()),
+        found.fit.rms_px,
+        found.fit.corners
+    )
+}
+
+fn write_json(out: &Path, v: &serde_json::Value) -> anyhow::Result<()> {
+    let text = serde_json::to_string_pretty(v)?;
+    brdfd::session::write_atomic(&out.join("pose.json"), text.as_bytes())?;
+    Ok(())
+}
+
+/// A poor fit is an error, unless it is only printed (`warn_only`: --force, --dry-run).
+fn check_fit(found: &Calibrated, warn_only: bool) -> anyhow::Result<()> {
+    if found.fit.rms_px > MAX_RMS_PX || found.fit.worst_px > MAX_WORST_PX {
+        let why = format!(
+            "the board's corners do not fit one camera well ({:.2} px RMS, {:.2} px at worst; a good fit is under {MAX_RMS_PX} and {MAX_WORST_PX}): check the board's square_mm and [placement], that it is flat, and that it turned with the turntable",
+            found.fit.rms_px, found.fit.worst_px
+        );
+        if !warn_only {
+            bail!("{why}; the rig file is left as it is (--force writes it anyway)");
+        }
+        eprintln!("  warning: {why}");
+    }
+    Ok(())
+}
+
+/// Waits for the operator to change what stands on the bench; a simulated bench changes it
+/// itself.
+fn ready(simulated: bool, what: &str) -> anyhow::Result<()> {
+    if simulated {
+        println!("simulated rig: {what}: done by the simulated bench");
+        return Ok(());
+    }
+    Terminal::ask(
+        &format!("{what}, then press Enter"),
+        "no one can change what stands on the bench: standard input is closed. --refine-object needs someone at the terminal, or photos taken already (--photo with --object-photo and --empty-photo)",
+        &|| Ok(true),
+    )
+    .map(|_| ())
+}
+
+/// A silhouette that matches the mesh worse than this at the offset found has lost or gained
+/// a part: with the blur of a sharp lens, a good match is above 0.98.
+const MIN_IOU: f64 = 0.97;
+
+fn print_refined(r: &Refined) {
+    let o = &r.offset;
+    println!(
+        "object: moved [{:.2}, {:.2}, {:.2}] mm and turned {:.2}° about the vertical, from where [geometry.shape] placed it",
+        o.shift[0] * 1e3,
+        o.shift[1] * 1e3,
+        o.shift[2] * 1e3,
+        o.turn_deg
+    );
+    let list = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:.3}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    println!(
+        "  silhouette overlap (IoU) in each view: {} as placed, {} as refined",
+        list(&r.iou_before),
+        list(&r.iou_after)
+    );
+    if r.iou_after.iter().any(|i| *i < MIN_IOU) {
+        eprintln!("  warning: the object's outline does not match its mesh's well (below {MIN_IOU}): a face as bright as the bench behind it is lost (lay white card under and behind a dark or grey object, black cloth under a white one), or the mesh is not the object's");
+    }
+}
+
 /// A fit worse than these is not written without --force: the board's corners are found to
 /// a tenth of a pixel, so a pixel means the model (the board's size or place, its flatness,
 /// the lens's distortion) is wrong.
@@ -276,31 +421,59 @@ const MAX_RMS_PX: f64 = 1.0;
 const MAX_WORST_PX: f64 = 3.0;
 
 /// The rig file, opened for the pose before anything is shot: its `[geometry.camera]` must be
-/// there to be written.
-fn open_for_pose(path: &std::path::Path) -> anyhow::Result<RigFile> {
+/// there to be written, and its `[geometry.shape]` for the object's placement.
+fn open_for_pose(path: &Path, object: bool) -> anyhow::Result<RigFile> {
     let file = RigFile::open(path)?;
-    let camera = file
-        .doc
-        .get("geometry")
-        .and_then(|g| g.get("camera"))
-        .and_then(Item::as_table_like);
-    if camera.is_none() {
-        bail!(
-            "{} has no [geometry.camera] table to write the pose into",
-            path.display()
-        );
+    let tables: &[(&str, &str)] = if object {
+        &[("camera", "pose"), ("shape", "object's placement")]
+    } else {
+        &[("camera", "pose")]
+    };
+    for (table, what) in tables {
+        let found = file
+            .doc
+            .get("geometry")
+            .and_then(|g| g.get(table))
+            .and_then(Item::as_table_like);
+        if found.is_none() {
+            bail!(
+                "{} has no [geometry.{table}] table to write the {what} into",
+                path.display()
+            );
+        }
     }
     Ok(file)
 }
 
-/// What `pose.json` holds: the fit, the camera written, and each view's corners.
-fn json(c: &Calibrated, note: &str) -> serde_json::Value {
+/// What `pose.json` holds: the fit, the camera written, and each view's corners; and the
+/// object's placement refined from its silhouette, where it was.
+fn json(c: &Calibrated, object: Option<(&Refined, &Shape)>, note: &str) -> serde_json::Value {
     let (k, _) = pinhole(&c.camera).expect("a pinhole camera");
     let pose = match &c.camera {
         Camera::Pinhole { pose, .. } | Camera::Orthographic { pose, .. } => pose,
     };
+    let object = object.map(|(r, placed)| {
+        let (rotation_deg, position) = match placed {
+            Shape::Mesh {
+                rotation_deg,
+                position,
+                ..
+            } => (Some(rotation_deg), Some(position)),
+            _ => (None, None),
+        };
+        serde_json::json!({
+            "shift_m": r.offset.shift,
+            "turn_deg": r.offset.turn_deg,
+            "turned_about": r.offset.pivot,
+            "iou_before": r.iou_before,
+            "iou_after": r.iou_after,
+            "rotation_deg": rotation_deg,
+            "position": position,
+        })
+    });
     serde_json::json!({
         "measured": note,
+        "object": object,
         "rms_px": c.fit.rms_px,
         "worst_px": c.fit.worst_px,
         "corners": c.fit.corners,
@@ -377,9 +550,9 @@ fn print_found(before: &Camera, c: &Calibrated) {
     );
 }
 
-/// Writes the camera's pose and focal lengths into `[geometry.camera]`, with a comment that
+/// Sets the camera's pose and focal lengths in `[geometry.camera]`, with a comment that
 /// says where they came from; the rest of the file as it was.
-fn write_camera(mut file: RigFile, camera: &Camera, note: &str) -> anyhow::Result<PathBuf> {
+fn set_camera(file: &mut RigFile, camera: &Camera, note: &str) -> anyhow::Result<()> {
     let Camera::Pinhole { fx, fy, pose, .. } = camera else {
         bail!("a pose is written for a pinhole camera");
     };
@@ -411,5 +584,48 @@ fn write_camera(mut file: RigFile, camera: &Camera, note: &str) -> anyhow::Resul
         key.leaf_decor_mut()
             .set_prefix(format!("# fx, fy, position, look_at and up {note}.\n"));
     }
-    file.save()
+    Ok(())
+}
+
+/// Sets the mesh's `position` and `rotation_deg` in `[geometry.shape]` to where its
+/// silhouette placed it, with a comment that says so.
+fn set_shape(file: &mut RigFile, placed: &Shape) -> anyhow::Result<()> {
+    let Shape::Mesh {
+        rotation_deg,
+        position,
+        ..
+    } = placed
+    else {
+        bail!("an object's placement is written for a mesh");
+    };
+    let path = file.path.display().to_string();
+    let item = file
+        .doc
+        .get_mut("geometry")
+        .and_then(|g| g.get_mut("shape"))
+        .with_context(|| {
+            format!("{path} has no [geometry.shape] table to write the placement into")
+        })?;
+    let is_table = item.is_table();
+    let table = item
+        .as_table_like_mut()
+        .with_context(|| format!("{path}: geometry.shape is not a table"))?;
+    // Hundredths of a degree and tenths of a millimetre: finer than a silhouette pins.
+    let triple = |v: [f64; 3], decimals: usize| {
+        let mut a = Array::new();
+        for x in v {
+            let x: f64 = format!("{x:.decimals$}").parse().expect("a number");
+            a.push(x + 0.0);
+        }
+        value(a)
+    };
+    table.insert("rotation_deg", triple(*rotation_deg, 2));
+    table.insert("position", triple(*position, 4));
+    if let (true, Some(mut key)) = (is_table, table.key_mut("rotation_deg")) {
+        key.leaf_decor_mut().set_prefix(format!(
+            "# rotation_deg and position from the object's silhouette, by `brdfd calibrate pose --refine-object` on {}.\n",
+            humantime::format_rfc3339_seconds(std::time::SystemTime::now())
+        ));
+    }
+    Ok(())
 }

@@ -137,15 +137,28 @@ fn stdin_lines() -> &'static Mutex<std::sync::mpsc::Receiver<std::io::Result<usi
 }
 
 impl Terminal {
-    /// Waits for Enter, after saying `hint`, while `still_needed` says so: true once Enter is
-    /// pressed, false once the wait is no longer needed (answered elsewhere).
+    /// Waits for Enter once the object is turned, after saying `hint`, while `still_needed`
+    /// says so: true once Enter is pressed, false once the wait is no longer needed
+    /// (answered elsewhere).
     pub fn enter(
         hint: &str,
         still_needed: &dyn Fn() -> anyhow::Result<bool>,
     ) -> anyhow::Result<bool> {
-        let closed = || {
-            anyhow::anyhow!("no one can say the object is turned: standard input is closed. A capture of several views on a rig with no turntable needs someone at the terminal (or a client that calls the API's `continue`)")
-        };
+        Terminal::ask(
+            &format!("press Enter once it is turned ({hint})"),
+            "no one can say the object is turned: standard input is closed. A capture of several views on a rig with no turntable needs someone at the terminal (or a client that calls the API's `continue`)",
+            still_needed,
+        )
+    }
+
+    /// Says `prompt` and waits for Enter while `still_needed` says so; `closed` is the error
+    /// when no one can answer (standard input is closed).
+    pub fn ask(
+        prompt: &str,
+        closed: &str,
+        still_needed: &dyn Fn() -> anyhow::Result<bool>,
+    ) -> anyhow::Result<bool> {
+        let closed = || anyhow::anyhow!("{closed}");
         let lines = stdin_lines().lock().expect("stdin lines");
         // Lines typed before the question do not answer it.
         while let Ok(r) = lines.try_recv() {
@@ -153,7 +166,7 @@ impl Terminal {
                 return Err(closed());
             }
         }
-        eprintln!("  press Enter once it is turned ({hint})");
+        eprintln!("  {prompt}");
         loop {
             match lines.recv_timeout(STILL_NEEDED_EVERY) {
                 Ok(Ok(n)) if n > 0 => return Ok(true),

@@ -67,20 +67,24 @@ impl Mask {
             );
         }
         let (w, h) = (object.width() as usize, object.height() as usize);
+        // The difference is taken in linear light, in 255ths of white: a blurred edge mixes
+        // the object's radiance with the bench's, and only there is a pixel's share of the
+        // object its share of the contrast (in sRGB a bright object's edge would look wider).
+        let linear = |v: u8| crate::core::raster::srgb_to_linear(v as f32 / 255.0) * 255.0;
         let diff: Vec<f32> = object
             .pixels()
             .zip(empty.pixels())
-            .map(|(a, b)| (a.0[0] as f32 - b.0[0] as f32).abs())
+            .map(|(a, b)| (linear(a.0[0]) - linear(b.0[0])).abs())
             .collect();
         // The median of |a − b| over bench pixels is 0.674 σ of the difference's noise.
         let sigma = median(diff.clone()) / 0.6745;
-        let threshold = (5.0 * sigma).max(4.0);
+        let threshold = (5.0 * sigma).max(2.0);
         let seen: Vec<bool> = diff.iter().map(|d| *d > threshold).collect();
         let object_px = largest_piece(&seen, w, h);
         let count = object_px.iter().filter(|p| **p).count();
         if count < MIN_OBJECT_PIXELS {
             bail!(
-                "{name}: no object found: the photo differs from the empty bench's by more than {threshold:.0} of 255 (5 σ of its noise) in {count} connected pixels; is the object in view, and was the empty photo taken without it?"
+                "{name}: no object found: the photo differs from the empty bench's by more than {threshold:.1} of 255 in linear light (5 σ of its noise, at least 2) in {count} connected pixels; is the object in view, and was the empty photo taken without it?"
             );
         }
         let inside = fill_holes(&object_px, w, h);
@@ -507,6 +511,24 @@ impl Prepared {
     }
 }
 
+/// The mesh's soft mask over the whole frame of `camera` at turntable view `turn_deg`,
+/// placed by `offset`.
+pub fn outline(mesh: &Mesh, camera: &Camera, turn_deg: f64, offset: &Offset) -> Option<Mask> {
+    let (w, h) = camera.size();
+    let (k, e) = pinhole(&camera.turned_about_y(-turn_deg.to_radians()))?;
+    let p = Prepared {
+        k,
+        e,
+        region: (0, 0, w, h),
+        mask: vec![],
+    };
+    Some(Mask {
+        width: w,
+        height: h,
+        cover: p.cover(mesh, offset, &mut Vec::new())?,
+    })
+}
+
 /// Marks the samples whose centres the triangle covers (either winding; edges included).
 fn fill_triangle(a: [f64; 2], b: [f64; 2], c: [f64; 2], w: usize, h: usize, out: &mut [u8]) {
     let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
@@ -536,6 +558,29 @@ fn fill_triangle(a: [f64; 2], b: [f64; 2], c: [f64; 2], w: usize, h: usize, out:
             }
         }
     }
+}
+
+/// The search's moves, in steps: ± along each of the 4 axes, or ± along two at once.
+fn moves(pairs: bool) -> Vec<[f64; 4]> {
+    let mut all = Vec::new();
+    for i in 0..4 {
+        for a in [1.0, -1.0] {
+            if !pairs {
+                let mut m = [0.0; 4];
+                m[i] = a;
+                all.push(m);
+                continue;
+            }
+            for j in i + 1..4 {
+                for b in [1.0, -1.0] {
+                    let mut m = [0.0; 4];
+                    (m[i], m[j]) = (a, b);
+                    all.push(m);
+                }
+            }
+        }
+    }
+    all
 }
 
 /// Intersection over union of two soft masks.
@@ -594,11 +639,19 @@ pub fn refine(mesh: &Mesh, views: &[View]) -> anyhow::Result<Refined> {
     let limit = [MAX_SHIFT_M, MAX_SHIFT_M, MAX_SHIFT_M, MAX_TURN_DEG];
     while step[3] >= smallest[3] {
         let mut moved = false;
-        for i in 0..4 {
-            for sign in [1.0, -1.0] {
+        // Along each axis first, then along each pair of them together: a turn and a shift
+        // across the view move the outline alike, and a ridge between them stops moves along
+        // one axis at a time short of the best.
+        for pairs in [false, true] {
+            if moved {
+                break;
+            }
+            for m in moves(pairs) {
                 let mut t = q;
-                t[i] += sign * step[i];
-                if t[i].abs() > limit[i] {
+                for i in 0..4 {
+                    t[i] += m[i] * step[i];
+                }
+                if (0..4).any(|i| t[i].abs() > limit[i]) {
                     continue;
                 }
                 if let Some((s, _)) = score(&t) {
@@ -671,23 +724,6 @@ mod tests {
         (shape, mesh)
     }
 
-    /// The mesh's own soft mask over the whole frame, placed by `offset`.
-    fn rendered(mesh: &Mesh, camera: &Camera, turn_deg: f64, offset: &Offset) -> Mask {
-        let (w, h) = camera.size();
-        let (k, e) = pinhole(&camera.turned_about_y(-turn_deg.to_radians())).unwrap();
-        let p = Prepared {
-            k,
-            e,
-            region: (0, 0, w, h),
-            mask: vec![],
-        };
-        Mask {
-            width: w,
-            height: h,
-            cover: p.cover(mesh, offset, &mut Vec::new()).unwrap(),
-        }
-    }
-
     #[test]
     fn euler_angles_make_the_rotation_back() {
         for deg in [
@@ -739,7 +775,7 @@ mod tests {
             .map(|&t| View {
                 camera: cam.clone(),
                 turn_deg: t,
-                mask: rendered(&mesh, &cam, t, &truth),
+                mask: outline(&mesh, &cam, t, &truth).unwrap(),
             })
             .collect();
         let found = refine(&mesh, &views).unwrap();
@@ -756,7 +792,8 @@ mod tests {
 
     #[test]
     fn a_blurred_outline_gives_a_mask_of_the_objects_own_area() {
-        // A disc of radius 40 px, 150 grey levels over a bench of 60, blurred by σ ≈ 0.8 px.
+        // A disc of radius 40 px, 40% of white over a bench of 5% (linear light), blurred by
+        // σ ≈ 0.8 px and written as 8-bit sRGB, as a camera's JPEG is.
         let (w, h) = (160u32, 120u32);
         let truth = |x: f64, y: f64| ((x - 80.3).powi(2) + (y - 61.7).powi(2)).sqrt() < 40.0;
         let sharp: Vec<f64> = (0..w * h)
@@ -789,10 +826,12 @@ mod tests {
                 .collect()
         };
         let soft = blur(&blur(&sharp, 1, 0), 0, 1);
-        let empty = image::GrayImage::from_pixel(w, h, image::Luma([60]));
-        let object = image::GrayImage::from_fn(w, h, |x, y| {
-            image::Luma([(60.0 + 90.0 * soft[(y * w + x) as usize]).round() as u8])
-        });
+        let srgb = |v: f64| {
+            image::Luma([(crate::core::raster::linear_to_srgb(v as f32) * 255.0).round() as u8])
+        };
+        let empty = image::GrayImage::from_pixel(w, h, srgb(0.05));
+        let object =
+            image::GrayImage::from_fn(w, h, |x, y| srgb(0.05 + 0.35 * soft[(y * w + x) as usize]));
         let mask = Mask::from_photos(&empty, &object, "disc").unwrap();
         let area: f64 = mask.cover.iter().map(|c| *c as f64).sum();
         let want = std::f64::consts::PI * 1600.0;

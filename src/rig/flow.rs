@@ -389,8 +389,11 @@ fn place_sample(
         return Ok(None);
     };
     let p = phases.start("simulated bench: place the sample", 1);
+    // The bench photographs the object where it truly stands; the estimate uses where the
+    // rig says it is.
     let scene = SceneGeometry {
         camera: cx.rig.bench_camera(&s.scene.camera),
+        shape: cx.rig.bench_shape(s.scene.shape.as_ref()),
         ..s.scene.clone()
     };
     let bench = simulated_bench(&s.plan, s.preset.as_ref(), &scene, s.yaw, basis)?;

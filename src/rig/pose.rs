@@ -1,10 +1,12 @@
-//! The board photographed by the rig's object camera, for `brdfd calibrate pose`: the DSLR's
-//! bracket as JPEGs (or the fallback camera's frames), each frame kept as it arrives, and the
-//! pose solved from the frame that shows the most of the board.
+//! The bench photographed by the rig's object camera, for `brdfd calibrate pose`: the DSLR's
+//! bracket as JPEGs (or the fallback camera's frames), each frame kept as it arrives. The
+//! camera's pose is solved from the frame that shows the most of the board; the object's
+//! placement, optionally, from its silhouette against the empty bench.
 //!
-//! A simulated rig shows the board to its DSLR as the virtual bench renders it, through the
-//! camera of `[simulation] camera` when the rig has one: the pose the operator typed into the
-//! rig is then what the calibration corrects.
+//! A simulated rig shows what stands on it to its DSLR as the virtual bench renders it,
+//! through the camera of `[simulation] camera` and with the object where `[simulation] shape`
+//! puts it, when the rig has them: what the operator typed into the rig is then what the
+//! calibration corrects.
 
 use anyhow::bail;
 
@@ -14,27 +16,29 @@ use super::plan;
 use super::settings::Bracket;
 use super::turning::turn_to;
 use crate::bench::board_photo::{self, Spoil};
+use crate::bench::object_photo;
 use crate::config::DslrFiles;
-use crate::core::geometry::Camera;
+use crate::core::geometry::{Camera, Shape};
 use crate::core::raster::linear_to_srgb;
 use crate::pose::board::Board;
+use crate::pose::silhouette::{refine, Mask, Refined, View};
 use crate::pose::{calibrate, check_photo_size, find, Calibrated, Focal, Found};
 use crate::radiometry::ExifFocal;
 
-/// A photo of the board to solve from: 8-bit grey, with the lens's EXIF where it has one.
-pub struct BoardPhoto {
+/// A photo of the bench to solve from: 8-bit grey, with the lens's EXIF where it has one.
+pub struct Photo {
     pub name: String,
     pub grey: image::GrayImage,
     pub exif: Option<ExifFocal>,
 }
 
-impl BoardPhoto {
+impl Photo {
     /// A JPEG or PNG file.
-    pub fn decode(name: &str, bytes: &[u8]) -> anyhow::Result<BoardPhoto> {
+    pub fn decode(name: &str, bytes: &[u8]) -> anyhow::Result<Photo> {
         let image = image::load_from_memory(bytes).map_err(|e| {
             anyhow::anyhow!("{name}: not a photo brdfd reads for a pose (JPEG or PNG): {e}")
         })?;
-        Ok(BoardPhoto {
+        Ok(Photo {
             name: name.to_string(),
             grey: image.to_luma8(),
             exif: crate::radiometry::exif_focal(bytes),
@@ -42,10 +46,10 @@ impl BoardPhoto {
     }
 }
 
-/// The photos of one view of the board: the turntable's angle, and a bracket's frames.
-pub struct BoardView {
+/// The photos of one view: the turntable's angle, and a bracket's frames.
+pub struct PhotoView {
     pub turn_deg: f64,
-    pub photos: Vec<BoardPhoto>,
+    pub photos: Vec<Photo>,
 }
 
 /// The turntable's angles for `n` views `step` degrees apart: 0, +step, −step, +2·step, ...
@@ -64,18 +68,44 @@ pub fn view_angles(n: usize, step: f64) -> Vec<f64> {
         .collect()
 }
 
-/// Photographs the board with the rig's object camera at each of `angles` (turntable
-/// degrees; the turntable is turned back to 0 after): the DSLR's bracket (as JPEGs) if the rig
-/// has a DSLR that answers, else the fallback camera's. Every file is kept as it arrives.
+/// What stands where the object goes while the object camera photographs the bench.
+#[derive(Clone, Copy)]
+pub enum OnBench<'a> {
+    /// The printed board, for the camera's pose.
+    Board(&'a Board),
+    /// Nothing: the empty bench a silhouette is told from.
+    Nothing,
+    /// The object itself, for its silhouette.
+    Object,
+}
+
+impl OnBench<'_> {
+    fn name(&self) -> &'static str {
+        match self {
+            OnBench::Board(_) => "board",
+            OnBench::Nothing => "empty bench",
+            OnBench::Object => "object",
+        }
+    }
+}
+
+/// Photographs the bench with the rig's object camera at each of `angles` (turntable
+/// degrees; the turntable is turned back to 0 after), with `on_bench` standing where the
+/// object goes: the DSLR's bracket (as JPEGs) if the rig has a DSLR that answers, else the
+/// fallback camera's. Every file is kept as it arrives, under `prefix`.
 pub fn shoot(
     cx: &Context,
     keep: &mut dyn Keep,
-    board: &Board,
+    on_bench: OnBench,
     angles: &[f64],
-) -> anyhow::Result<Vec<BoardView>> {
+    prefix: &str,
+) -> anyhow::Result<Vec<PhotoView>> {
     let turns = angles.iter().any(|a| *a != 0.0);
     if turns && cx.devices.turntable.is_none() {
-        bail!("several views of the board need the rig's turntable, and it has none");
+        bail!(
+            "several views of the {} need the rig's turntable, and it has none",
+            on_bench.name()
+        );
     }
     let mut views = Vec::new();
     let mut dslr_answers = true;
@@ -89,22 +119,23 @@ pub fn shoot(
             };
             if angles.len() > 1 {
                 cx.say(format!(
-                    "board view {} of {}: turntable at {at:.2}°",
+                    "{} view {} of {}: turntable at {at:.2}°",
+                    on_bench.name(),
                     i + 1,
                     angles.len()
                 ));
             }
             let prefix = if angles.len() > 1 {
-                format!("view{}-", i + 1)
+                format!("{prefix}view{}-", i + 1)
             } else {
-                String::new()
+                prefix.to_string()
             };
             let mut keep = Prefixed(keep, prefix.clone());
-            let mut photos = shoot_one(cx, &mut keep, board, at, i == 0, &mut dslr_answers)?;
+            let mut photos = shoot_one(cx, &mut keep, on_bench, at, i == 0, &mut dslr_answers)?;
             for p in &mut photos {
                 p.name = format!("{prefix}{}", p.name);
             }
-            views.push(BoardView {
+            views.push(PhotoView {
                 turn_deg: at,
                 photos,
             });
@@ -122,33 +153,19 @@ pub fn shoot(
     Ok(views)
 }
 
-/// One view's bracket, the board turned `turn_deg` on the turntable.
+/// One view's bracket, the bench turned `turn_deg` on the turntable.
 fn shoot_one(
     cx: &Context,
     keep: &mut dyn Keep,
-    board: &Board,
+    on_bench: OnBench,
     turn_deg: f64,
     first_view: bool,
     dslr_answers: &mut bool,
-) -> anyhow::Result<Vec<BoardPhoto>> {
+) -> anyhow::Result<Vec<Photo>> {
     let rig = cx.rig;
     let roles = plan::devices(rig)?;
     if let Some(sim) = &cx.devices.sim {
-        // The board turned by θ is, in its own frame, the camera and the light turned by −θ.
-        let theta = turn_deg.to_radians();
-        let camera = rig
-            .bench_camera(&rig.geometry.camera)
-            .turned_about_y(-theta);
-        let env = crate::bench::studio_envmap(512);
-        let radiance = board_photo::render(
-            board,
-            &camera,
-            &env,
-            rig.theta_yaw_deg.to_radians() - theta,
-            Spoil::default(),
-        )?;
-        sim.show_radiance(radiance, &camera)?;
-        cx.say("simulated rig: the board stands where the object goes, under the studio light");
+        show_simulated(cx, sim, on_bench, turn_deg)?;
     }
     let mut dslr_failed = None;
     if let (true, true, Some(role)) = (roles.dslr, *dslr_answers, &cx.devices.dslr) {
@@ -194,9 +211,45 @@ fn shoot_one(
     }
 }
 
-/// The DSLR's JPEGs as photos of the board. RAW files (a body that keeps its own image
+/// What the simulated bench shows its cameras: `on_bench` turned `turn_deg`, under the studio
+/// light.
+fn show_simulated(
+    cx: &Context,
+    sim: &crate::rig::simulated::SimulatedRig,
+    on_bench: OnBench,
+    turn_deg: f64,
+) -> anyhow::Result<()> {
+    let rig = cx.rig;
+    // The bench turned by θ is, in its own frame, the camera and the light turned by −θ.
+    let theta = turn_deg.to_radians();
+    let camera = rig
+        .bench_camera(&rig.geometry.camera)
+        .turned_about_y(-theta);
+    let env = crate::bench::studio_envmap(512);
+    let yaw = rig.theta_yaw_deg.to_radians() - theta;
+    let radiance = match on_bench {
+        OnBench::Board(board) => board_photo::render(board, &camera, &env, yaw, Spoil::default())?,
+        OnBench::Nothing => object_photo::render(None, &camera, &env, yaw, Spoil::default())?.0,
+        OnBench::Object => {
+            let shape = rig.bench_shape(rig.geometry.shape.as_ref());
+            let Some(mesh) = shape.as_ref().map(Shape::mesh).transpose()?.flatten() else {
+                bail!("the rig's [geometry.shape] is no mesh: a silhouette is aligned for a mesh");
+            };
+            object_photo::render(Some(&mesh), &camera, &env, yaw, Spoil::default())?.0
+        }
+    };
+    sim.show_radiance(radiance, &camera)?;
+    cx.say(match on_bench {
+        OnBench::Board(_) => "simulated rig: the board stands where the object goes, under the studio light",
+        OnBench::Nothing => "simulated rig: the bench is empty, under the studio light",
+        OnBench::Object => "simulated rig: the object stands on the bench (where [simulation] shape says, else where [geometry.shape] does), under the studio light",
+    });
+    Ok(())
+}
+
+/// The DSLR's JPEGs as photos. RAW files (a body that keeps its own image
 /// quality setting) are left out, with a note; a bracket of RAW files only is an error.
-fn jpegs(cx: &Context, files: &RawFiles) -> anyhow::Result<Vec<BoardPhoto>> {
+fn jpegs(cx: &Context, files: &RawFiles) -> anyhow::Result<Vec<Photo>> {
     let (raw, jpeg): (Vec<_>, Vec<_>) = files
         .iter()
         .partition(|(name, _)| crate::radiometry::raw::is_raw_name(name));
@@ -213,12 +266,12 @@ fn jpegs(cx: &Context, files: &RawFiles) -> anyhow::Result<Vec<BoardPhoto>> {
         ));
     }
     jpeg.iter()
-        .map(|(name, bytes)| BoardPhoto::decode(name, bytes))
+        .map(|(name, bytes)| Photo::decode(name, bytes))
         .collect()
 }
 
 /// The fallback camera's frames as 8-bit sRGB grey.
-fn frames_as_photos(files: &RawFiles) -> anyhow::Result<Vec<BoardPhoto>> {
+fn frames_as_photos(files: &RawFiles) -> anyhow::Result<Vec<Photo>> {
     let bracket = FallbackBracket::read(files)?;
     Ok(bracket
         .frames
@@ -231,7 +284,7 @@ fn frames_as_photos(files: &RawFiles) -> anyhow::Result<Vec<BoardPhoto>> {
                 let lum = 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2];
                 image::Luma([(linear_to_srgb(lum.clamp(0.0, 1.0)) * 255.0).round() as u8])
             });
-            BoardPhoto {
+            Photo {
                 name: format!("fallback frame {} ({:.4} s)", i + 1, f.exposure.shutter_s),
                 grey,
                 exif: None,
@@ -247,7 +300,7 @@ pub fn solve(
     warn: &mut dyn FnMut(String),
     rig_camera: &Camera,
     board: &Board,
-    views: &[BoardView],
+    views: &[PhotoView],
     focal: Focal,
     sensor_width_mm: Option<f64>,
 ) -> anyhow::Result<Calibrated> {
@@ -315,4 +368,53 @@ fn contrast(grey: &image::GrayImage) -> u8 {
             .unwrap_or(255) as u8
     };
     level(95).saturating_sub(level(5))
+}
+
+/// The object's placement refined from its silhouette: at each view, the bracket's frame of
+/// most contrast of the object (unclipped) against the empty bench's frame of the same
+/// exposure, seen through `camera` (the calibrated one). `object` and `empty` are views at
+/// the same turntable angles, with as many frames each.
+pub fn refine_object(
+    camera: &Camera,
+    shape: &Shape,
+    empty: &[PhotoView],
+    object: &[PhotoView],
+) -> anyhow::Result<Refined> {
+    let Some(mesh) = shape.mesh()? else {
+        bail!(
+            "the rig's [geometry.shape] is {}: a silhouette is aligned for a mesh",
+            shape.describe()
+        );
+    };
+    if empty.len() != object.len() {
+        bail!(
+            "{} views of the object and {} of the empty bench: each view needs both",
+            object.len(),
+            empty.len()
+        );
+    }
+    let mut views = Vec::new();
+    for (e, o) in empty.iter().zip(object) {
+        if (e.turn_deg - o.turn_deg).abs() > 0.05 || e.photos.len() != o.photos.len() {
+            bail!(
+                "the empty bench's view at {:.2}° ({} photos) and the object's at {:.2}° ({} photos) are not of one bracket at one angle",
+                e.turn_deg,
+                e.photos.len(),
+                o.turn_deg,
+                o.photos.len()
+            );
+        }
+        let Some(best) = (0..o.photos.len()).max_by_key(|&i| contrast(&o.photos[i].grey)) else {
+            bail!("no photo of the object at {:.2}°", o.turn_deg);
+        };
+        let (oi, ei) = (&o.photos[best], &e.photos[best]);
+        check_photo_size(camera, (oi.grey.width(), oi.grey.height()), &oi.name)?;
+        let mask = Mask::from_photos(&ei.grey, &oi.grey, &oi.name)?;
+        views.push(View {
+            camera: camera.resized(mask.width, mask.height),
+            turn_deg: o.turn_deg,
+            mask,
+        });
+    }
+    refine(&mesh, &views)
 }
