@@ -7,7 +7,7 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
 
-use crate::core::brdf::{add, dot, scale, sub};
+use crate::core::brdf::{add, dot, scale, sub, Vec3};
 use crate::core::envmap::EnvMap;
 use crate::core::geometry::Camera;
 use crate::core::raster::Raster;
@@ -59,16 +59,37 @@ pub fn render(
     let down = sub(board.world([0.0, 1.0]), origin);
     let mm_per_m2 = 1.0 / dot(across, across);
     let lights = env.compressed(LIGHTS, yaw);
-    let mut irradiance = [0.0f64; 3];
-    for i in 0..lights.len() {
-        let w = lights.directions[i].map(f64::from);
-        let cos = dot(w, normal).max(0.0) * lights.solid_angle[i] as f64;
-        for c in 0..3 {
-            irradiance[c] += lights.radiance[i][c] as f64 * cos;
-        }
-    }
+    let irradiance = lights.irradiance_facing(normal);
     let radiance_of = |albedo: f64| irradiance.map(|e| (albedo / std::f64::consts::PI * e) as f32);
     let paper = radiance_of(PAPER);
+    let background = paper.map(|p| p * BACKGROUND);
+    photograph(
+        camera,
+        |o, d| {
+            let facing = dot(d, normal);
+            let t = dot(sub(centre, o), normal) / facing;
+            let value = if facing < 0.0 && t > 0.0 {
+                let rel = sub(add(o, scale(d, t)), origin);
+                let (mx, my) = (dot(rel, across) * mm_per_m2, dot(rel, down) * mm_per_m2);
+                pattern.at(mx, my).map(radiance_of)
+            } else {
+                None
+            };
+            value.unwrap_or(background)
+        },
+        spoil,
+        paper,
+    )
+}
+
+/// What `camera` sees where `radiance` says what each ray from `o` along `d` meets: each
+/// pixel the mean of 4 × 4 rays, then spoiled (`reference`: what the noise is relative to).
+pub fn photograph(
+    camera: &Camera,
+    radiance: impl Fn(Vec3, Vec3) -> [f32; 3] + Sync,
+    spoil: Spoil,
+    reference: [f32; 3],
+) -> anyhow::Result<Raster> {
     let (w, h) = camera.size();
     camera.ray_through(0.5, 0.5)?;
     let mut pixels = vec![[0.0f32; 3]; w * h];
@@ -82,16 +103,7 @@ pub fn render(
                     let Ok((o, d)) = camera.ray_through(u, v) else {
                         continue;
                     };
-                    let facing = dot(d, normal);
-                    let t = dot(sub(centre, o), normal) / facing;
-                    let value = if facing < 0.0 && t > 0.0 {
-                        let rel = sub(add(o, scale(d, t)), origin);
-                        let (mx, my) = (dot(rel, across) * mm_per_m2, dot(rel, down) * mm_per_m2);
-                        pattern.at(mx, my).map(radiance_of)
-                    } else {
-                        None
-                    };
-                    let value = value.unwrap_or(paper.map(|p| p * BACKGROUND));
+                    let value = radiance(o, d);
                     for c in 0..3 {
                         sum[c] += value[c];
                     }
@@ -106,7 +118,7 @@ pub fn render(
         height: h,
         pixels,
     };
-    spoil.apply(&mut raster, paper);
+    spoil.apply(&mut raster, reference);
     Ok(raster)
 }
 

@@ -6,9 +6,7 @@
 //! print of half its albedo differs everywhere but in a face lit twice as brightly as the card.
 //! Each pixel averages 4 × 4 rays, and the photo is spoiled as the board's is ([`Spoil`]).
 
-use rayon::prelude::*;
-
-use super::board_photo::Spoil;
+use super::board_photo::{photograph, Spoil};
 use crate::core::brdf::{cross, dot, normalize, scale, sub, Vec3};
 use crate::core::bvh::Bvh;
 use crate::core::envmap::EnvMap;
@@ -17,8 +15,6 @@ use crate::core::mesh::Mesh;
 use crate::core::raster::Raster;
 use crate::pose::board::PAPER;
 
-/// Rays per pixel, each way.
-const SUPERSAMPLE: usize = 4;
 /// Lights the print's irradiance is summed over: it is smooth in the normal.
 const LIGHTS: usize = 256;
 /// A grey print's albedo.
@@ -37,143 +33,27 @@ pub fn render(
     spoil: Spoil,
 ) -> anyhow::Result<(Raster, [f32; 3])> {
     let lights = env.compressed(LIGHTS, yaw);
-    let irradiance = |n: Vec3| {
-        let mut e = [0.0f64; 3];
-        for i in 0..lights.len() {
-            let w = lights.directions[i].map(f64::from);
-            let cos = dot(w, n).max(0.0) * lights.solid_angle[i] as f64;
-            for c in 0..3 {
-                e[c] += lights.radiance[i][c] as f64 * cos;
-            }
-        }
-        e
-    };
+    let irradiance = |n: Vec3| lights.irradiance_facing(n);
     let radiance_of =
         |albedo: f64, e: [f64; 3]| e.map(|e| (albedo / std::f64::consts::PI * e) as f32);
     let paper = radiance_of(PAPER, irradiance([0.0, 1.0, 0.0]));
     let bench = radiance_of(CARD, irradiance([0.0, 1.0, 0.0]));
     let bvh = mesh.map(Bvh::build);
-    let (w, h) = camera.size();
-    camera.ray_through(0.5, 0.5)?;
-    let mut pixels = vec![[0.0f32; 3]; w * h];
-    pixels.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (x, out) in row.iter_mut().enumerate() {
-            let mut sum = [0.0f32; 3];
-            for sy in 0..SUPERSAMPLE {
-                for sx in 0..SUPERSAMPLE {
-                    let u = x as f64 + (sx as f64 + 0.5) / SUPERSAMPLE as f64;
-                    let v = y as f64 + (sy as f64 + 0.5) / SUPERSAMPLE as f64;
-                    let seen = match (&bvh, mesh, camera.ray_through(u, v)) {
-                        (Some(bvh), Some(mesh), Ok((o, d))) => {
-                            bvh.closest(o, d, 0.0, f64::INFINITY).map(|hit| {
-                                let [a, b, c] = mesh.corners(hit.triangle);
-                                let mut n = normalize(cross(sub(b, a), sub(c, a)));
-                                if dot(n, d) > 0.0 {
-                                    n = scale(n, -1.0);
-                                }
-                                radiance_of(PRINT, irradiance(n))
-                            })
-                        }
-                        _ => None,
-                    };
-                    let value = seen.unwrap_or(bench);
-                    for c in 0..3 {
-                        sum[c] += value[c];
-                    }
+    let radiance = |o: Vec3, d: Vec3| {
+        let (Some(bvh), Some(mesh)) = (&bvh, mesh) else {
+            return bench;
+        };
+        match bvh.closest(o, d, 0.0, f64::INFINITY) {
+            Some(hit) => {
+                let [a, b, c] = mesh.corners(hit.triangle);
+                let mut n = normalize(cross(sub(b, a), sub(c, a)));
+                if dot(n, d) > 0.0 {
+                    n = scale(n, -1.0);
                 }
+                radiance_of(PRINT, irradiance(n))
             }
-            let n = (SUPERSAMPLE * SUPERSAMPLE) as f32;
-            *out = sum.map(|s| s / n);
+            None => bench,
         }
-    });
-    let mut raster = Raster {
-        width: w,
-        height: h,
-        pixels,
     };
-    spoil.apply(&mut raster, paper);
-    Ok((raster, paper))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::core::geometry::{Pose, Shape};
-    use crate::core::raster::linear_to_srgb;
-    use crate::pose::silhouette::{refine, Mask, Offset, View};
-
-    /// 8-bit sRGB grey, white paper facing up at 90% of the range.
-    fn grey(r: &Raster, paper: [f32; 3]) -> image::GrayImage {
-        let white = 0.2126 * paper[0] + 0.7152 * paper[1] + 0.0722 * paper[2];
-        image::GrayImage::from_fn(r.width as u32, r.height as u32, |x, y| {
-            let p = r.get(x as usize, y as usize);
-            let lum = (0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]) / white * 0.9;
-            image::Luma([(linear_to_srgb(lum.clamp(0.0, 1.0)) * 255.0).round() as u8])
-        })
-    }
-
-    /// The grooved block photographed at three turntable views, placed a few millimetres off
-    /// and turned, against the empty bench: the search finds the offset from the photos'
-    /// masks, blurred and noisy and in 8 bits as a camera's JPEG is.
-    #[test]
-    fn the_print_s_photos_give_its_offset() {
-        let camera = Camera::Pinhole {
-            width: 640,
-            height: 424,
-            fx: 2400.0,
-            fy: 2400.0,
-            cx: 320.0,
-            cy: 212.0,
-            pose: Pose {
-                position: [0.0, 0.25, 1.2],
-                look_at: [0.0, 0.0, 0.0],
-                up: [0.0, 1.0, 0.0],
-            },
-        };
-        let shape = Shape::Mesh {
-            file: "builtin:grooved-block.obj".into(),
-            units: crate::core::mesh::Units::Mm,
-            rotation_deg: [-25.0, 0.0, 0.0],
-            position: [0.0; 3],
-        };
-        let believed = shape.mesh().unwrap().unwrap();
-        let (lo, hi) = believed.bounds();
-        let truth = Offset {
-            shift: [0.00273, 0.00041, -0.00338],
-            turn_deg: 1.73,
-            pivot: [0, 1, 2].map(|i| (lo[i] + hi[i]) / 2.0),
-        };
-        let there = truth.placed(&shape).mesh().unwrap().unwrap();
-        let env = crate::bench::studio_envmap(256);
-        let views: Vec<View> = [0.0f64, 30.0, -30.0]
-            .iter()
-            .enumerate()
-            .map(|(i, &turn)| {
-                let seen = camera.turned_about_y(-turn.to_radians());
-                let yaw = -turn.to_radians();
-                let spoil = |seed| Spoil {
-                    seed,
-                    ..Spoil::default()
-                };
-                let (empty, paper) = render(None, &seen, &env, yaw, spoil(2 * i as u64)).unwrap();
-                let (object, _) =
-                    render(Some(&there), &seen, &env, yaw, spoil(2 * i as u64 + 1)).unwrap();
-                let mask =
-                    Mask::from_photos(&grey(&empty, paper), &grey(&object, paper), "view").unwrap();
-                View {
-                    camera: camera.clone(),
-                    turn_deg: turn,
-                    mask,
-                }
-            })
-            .collect();
-        let found = refine(&believed, &views).unwrap();
-        let o = found.offset;
-        let miss = (0..3)
-            .map(|i| (o.shift[i] - truth.shift[i]).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        assert!(miss < 2e-4, "{:.3} mm off: {o:?}", miss * 1e3);
-        assert!((o.turn_deg - truth.turn_deg).abs() < 0.1, "{o:?}");
-    }
+    Ok((photograph(camera, radiance, spoil, paper)?, paper))
 }

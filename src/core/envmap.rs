@@ -61,6 +61,27 @@ impl LightSet {
         self.directions.is_empty()
     }
 
+    /// The irradiance Σ L·cos·Δω per channel on an unshadowed surface facing `normal`
+    /// (unit).
+    pub fn irradiance_facing(&self, normal: [f64; 3]) -> [f64; 3] {
+        let mut e = [0.0f64; 3];
+        for ((d, l), w) in self
+            .directions
+            .iter()
+            .zip(&self.radiance)
+            .zip(&self.solid_angle)
+        {
+            let cos = (0..3)
+                .map(|c| d[c] as f64 * normal[c])
+                .sum::<f64>()
+                .max(0.0);
+            for c in 0..3 {
+                e[c] += l[c] as f64 * cos * *w as f64;
+            }
+        }
+        e
+    }
+
     /// Total irradiance-weighted power, Σ L·Δω per channel: what compression must preserve.
     pub fn power(&self) -> [f64; 3] {
         let mut p = [0.0; 3];
