@@ -516,8 +516,6 @@ impl<'de> Deserialize<'de> for PixelCount {
     }
 }
 
-/// The fallback bracket's values. Whether the rig needs them is the capture's question
-/// ([`crate::rig::plan`]).
 /// `[simulation.shape]` is the rig's object placed elsewhere: the same mesh, its numbers
 /// checked as `[geometry.shape]`'s are.
 fn check_true_shape(
@@ -533,7 +531,7 @@ fn check_true_shape(
             Shape::Mesh {
                 file: b, units: ub, ..
             },
-        ) => a.file_name() == b.file_name() && ua == ub,
+        ) => a == b && ua == ub,
         _ => false,
     };
     if !same {
@@ -551,6 +549,8 @@ fn check_true_shape(
     .map_err(|e| invalid(file, "simulation.shape", e))
 }
 
+/// The fallback bracket's values. Whether the rig needs them is the capture's question
+/// ([`crate::rig::plan`]).
 fn check_fallback_bracket(file: &str, b: &Brackets) -> Result<(), ConfigError> {
     check_exposures(file, "brackets.fallback_shutters", &b.fallback_shutters)?;
     if !(1..=MAX_FALLBACK_FRAMES).contains(&b.fallback_frames) {

@@ -358,7 +358,8 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
     let said = common::out(&run);
     assert!(run.status.success(), "{said}");
     assert!(
-        said.contains("object: moved [") && said.contains("one view pins the object's distance"),
+        said.contains("object: its middle moved [")
+            && said.contains("one view pins the object's distance"),
         "{said}"
     );
     // The empty bench given as the object: nothing differs.
@@ -437,7 +438,7 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
     );
     // The relight is what the estimate is judged by. Its re-render of its own photo is held
     // more loosely: the block is placed from a camera found to a tenth of a millimetre, and
-    // from a silhouette to another, and the grooves' edges show it (0.033 against 0.022).
+    // from a silhouette to another, and the grooves' edges show it (0.035 against 0.022).
     assert!(
         as_found.0 <= as_true.0 * 1.6 + 0.005,
         "{as_found:?} against {as_true:?}"
@@ -555,5 +556,71 @@ fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
     let said = common::out(&run);
     assert!(!run.status.success());
     assert!(said.contains("--refine-object aligns the object's mesh with its silhouette, and [geometry.shape] is no mesh"), "{said}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The DSLR powers off once the board's 15 photos are taken, so the empty bench's are not:
+/// the object's placement is not found, and says why, but the board's pose is written all
+/// the same (and the photos stay of one camera: the webcam does not take over midway).
+/// `--refine-object` with photos of the board alone is refused before anything is read.
+#[test]
+fn an_object_step_that_fails_keeps_the_board_s_pose() {
+    use std::path::Path;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = std::env::temp_dir().join(format!("brdfd-pose-off-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let shipped = std::fs::read_to_string(root.join("config/rigs/simulated-pose.toml")).unwrap();
+    let rig = shipped.replace(
+        "\n[simulation.camera]",
+        "\n[simulation]\ndslr_powers_off_after = 15\n\n[simulation.camera]",
+    );
+    std::fs::write(dir.join("rig.toml"), &rig).unwrap();
+    let args = [
+        "calibrate",
+        "pose",
+        "--rig",
+        "rig.toml",
+        "--refine-object",
+        "--out",
+        "photos",
+    ];
+    let run = common::brdfd(&args, &dir);
+    let said = common::out(&run);
+    assert!(!run.status.success(), "{said}");
+    assert!(
+        said.contains("the object's placement was not found; the camera's pose is kept")
+            && said.contains("the DSLR stopped answering at the empty bench's photos"),
+        "{said}"
+    );
+    let written = brdfd::config::Rig::read(&dir.join("rig.toml")).unwrap();
+    let (k, _) = pinhole(&written.geometry.camera).unwrap();
+    assert!((k.fx / 2400.0 - 1.0).abs() < 0.005, "fx {}", k.fx);
+    assert_eq!(
+        written.geometry.shape,
+        brdfd::config::Rig::parse("typed", &rig)
+            .unwrap()
+            .geometry
+            .shape
+    );
+
+    let run = common::brdfd(
+        &[
+            "calibrate",
+            "pose",
+            "--rig",
+            "rig.toml",
+            "--photo",
+            "board.jpg",
+            "--refine-object",
+        ],
+        &dir,
+    );
+    let said = common::out(&run);
+    assert!(!run.status.success());
+    assert!(
+        said.contains("with --photo, --refine-object needs the object's photos"),
+        "{said}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -3,7 +3,7 @@
 //! the card alone. The card is what a bench lays down for it: a grey print's faces turned from
 //! the light are as dark as a grey bench, and a face turned down (lit by nothing but the
 //! floor) as dark as black cloth, and a mask against either loses them; against white card a
-//! print of half its albedo differs everywhere but in a face lit twice as brightly as the card.
+//! print of half its albedo differs everywhere but in a face lit 1.8 times as brightly as the card.
 //! Each pixel averages 4 × 4 rays, and the photo is spoiled as the board's is ([`Spoil`]).
 
 use super::board_photo::{photograph, Spoil};

@@ -102,7 +102,8 @@ pub fn target(a: TargetArgs) -> anyhow::Result<()> {
 #[derive(clap::Args)]
 pub struct PoseArgs {
     /// The rig file: its object camera (a pinhole camera) is read, then written with the
-    /// pose found (the file before is kept beside it as FILE.bak).
+    /// pose found, and its object's placement with --refine-object (the file before is kept
+    /// beside it as FILE.bak).
     #[arg(long)]
     pub rig: PathBuf,
     /// The board file `brdfd calibrate target` wrote; else its default board, standing where
@@ -180,6 +181,9 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
     if !a.object_photo.is_empty() && a.photo.is_empty() {
         bail!("--object-photo goes with --photo (the board's photos from the camera as it stood for the object's); without them, --refine-object photographs both");
     }
+    if a.refine_object && !a.photo.is_empty() && a.object_photo.is_empty() {
+        bail!("with --photo, --refine-object needs the object's photos and the empty bench's: --object-photo and --empty-photo");
+    }
     if a.object_photo.len() != a.empty_photo.len() {
         bail!(
             "{} --object-photo and {} --empty-photo: each photo of the object needs one of the empty bench at its exposure",
@@ -234,7 +238,11 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
         };
         let angles = pose::view_angles(n, a.turn);
         let mut folder = Folder(out.clone());
-        let views = pose::shoot(&cx, &mut folder, OnBench::Board(&board), &angles, "")?;
+        let mut shooting = pose::Shooting::default();
+        let mut shoot = |on_bench, prefix| {
+            pose::shoot(&cx, &mut folder, &mut shooting, on_bench, &angles, prefix)
+        };
+        let views = shoot(OnBench::Board(&board), "")?;
         let found = pose::solve(
             &mut warn,
             &rig.geometry.camera,
@@ -244,22 +252,20 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             a.sensor_width_mm,
         )?;
         settle(&found, Some(&out))?;
-        let object = if refine_object {
-            let simulated = devices.sim.is_some();
+        // An error from here on leaves the board's pose good: it is written all the same.
+        let simulated = devices.sim.is_some();
+        let object = refine_object.then(|| {
             ready(
                 simulated,
                 "take the board away, leaving the bench as it was",
             )?;
-            let empty = pose::shoot(&cx, &mut folder, OnBench::Nothing, &angles, "empty-")?;
+            let empty = shoot(OnBench::Nothing, "empty-")?;
             ready(
                 simulated,
                 "stand the object where [geometry.shape] places it, as nearly as you can",
             )?;
-            let object = pose::shoot(&cx, &mut folder, OnBench::Object, &angles, "object-")?;
-            Some((empty, object))
-        } else {
-            None
-        };
+            Ok((empty, shoot(OnBench::Object, "object-")?))
+        });
         (found, object, Some(out))
     } else {
         if a.views.is_some_and(|v| v > 1) {
@@ -293,39 +299,38 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
         settle(&found, out.as_deref())?;
         let object = if refine_object {
             eprintln!("  warning: one view pins the object's distance from the camera only by its outline's size; photographed by `--refine-object` on a rig with a turntable, the slanted views pin it as well as the rest");
-            Some((view(&a.empty_photo)?, view(&a.object_photo)?))
+            Some(view(&a.empty_photo).and_then(|e| Ok((e, view(&a.object_photo)?))))
         } else {
             None
         };
         (found, object, out)
     };
     let note = note(&found);
-    let placed = match object {
-        Some((empty, object)) => {
-            let shape = rig.geometry.shape.as_ref().expect("checked to be a mesh");
-            let refined = pose::refine_object(&found.camera, shape, &empty, &object)?;
-            print_refined(&refined);
-            let placed = refined.offset.placed(shape);
-            if let Some(out) = &out {
-                write_json(out, &json(&found, Some((&refined, &placed)), &note))?;
-            }
-            Some(placed)
+    let placed = object.map(|photos| {
+        let (empty, object) = photos?;
+        let shape = rig.geometry.shape.as_ref().expect("checked to be a mesh");
+        let refined = pose::refine_object(&found.camera, shape, &empty, &object)?;
+        print_refined(&refined);
+        let placed = refined.offset.placed(shape);
+        if let Some(out) = &out {
+            write_json(out, &json(&found, Some((&refined, &placed)), &note))?;
         }
-        None => None,
-    };
+        Ok::<_, anyhow::Error>(placed)
+    });
     if let Some(out) = &out {
         println!("the fit is in {}", out.join("pose.json").display());
     }
+    let shape = placed.as_ref().and_then(|p| p.as_ref().ok());
     match rig_file {
         Some(mut f) => {
             set_camera(&mut f, &found.camera, &note)?;
-            if let Some(shape) = &placed {
+            if let Some(shape) = shape {
                 set_shape(&mut f, shape)?;
             }
             let backup = f.save()?;
             println!(
                 "wrote the {} into {} (the file before is {})",
-                if placed.is_some() {
+                if shape.is_some() {
                     "pose and the object's placement"
                 } else {
                     "pose"
@@ -336,7 +341,12 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
         }
         None => println!("the rig file is left as it is"),
     }
-    Ok(())
+    match placed {
+        Some(Err(e)) => Err(e.context(
+            "the object's placement was not found; the camera's pose is kept (run again with --refine-object, or place the object by hand in [geometry.shape])",
+        )),
+        _ => Ok(()),
+    }
 }
 
 /// Where the pose came from, for the rig file's comment and pose.json.
@@ -392,7 +402,7 @@ const MIN_IOU: f64 = 0.97;
 fn print_refined(r: &Refined) {
     let o = &r.offset;
     println!(
-        "object: moved [{:.2}, {:.2}, {:.2}] mm and turned {:.2}° about the vertical, from where [geometry.shape] placed it",
+        "object: its middle moved [{:.2}, {:.2}, {:.2}] mm and turned {:.2}° about the vertical through it, from where [geometry.shape] placed it",
         o.shift[0] * 1e3,
         o.shift[1] * 1e3,
         o.shift[2] * 1e3,
@@ -610,7 +620,7 @@ fn set_shape(file: &mut RigFile, placed: &Shape) -> anyhow::Result<()> {
     let table = item
         .as_table_like_mut()
         .with_context(|| format!("{path}: geometry.shape is not a table"))?;
-    // Hundredths of a degree and tenths of a millimetre: finer than a silhouette pins.
+    // Hundredths of a degree and hundredths of a millimetre: finer than a silhouette pins.
     let triple = |v: [f64; 3], decimals: usize| {
         let mut a = Array::new();
         for x in v {
@@ -620,7 +630,7 @@ fn set_shape(file: &mut RigFile, placed: &Shape) -> anyhow::Result<()> {
         value(a)
     };
     table.insert("rotation_deg", triple(*rotation_deg, 2));
-    table.insert("position", triple(*position, 4));
+    table.insert("position", triple(*position, 5));
     if let (true, Some(mut key)) = (is_table, table.key_mut("rotation_deg")) {
         key.leaf_decor_mut().set_prefix(format!(
             "# rotation_deg and position from the object's silhouette, by `brdfd calibrate pose --refine-object` on {}.\n",

@@ -76,15 +76,20 @@ impl Mask {
             .zip(empty.pixels())
             .map(|(a, b)| (linear(a.0[0]) - linear(b.0[0])).abs())
             .collect();
-        // The median of |a − b| over bench pixels is 0.674 σ of the difference's noise.
+        // The median of |a − b| over bench pixels is 0.674 σ of the difference's noise. A
+        // clean JPEG's may be 0; the floor is then a code and a half at the bench's level
+        // (its codes are 2 of 255 apart in linear light on white card), and 2 at least.
         let sigma = median(diff.clone()) / 0.6745;
-        let threshold = (5.0 * sigma).max(2.0);
+        let level = median(empty.pixels().map(|p| p.0[0] as f32).collect()) as u8;
+        let code = linear(level.saturating_add(1)) - linear(level);
+        let floor = (1.5 * code).max(2.0);
+        let threshold = (5.0 * sigma).max(floor);
         let seen: Vec<bool> = diff.iter().map(|d| *d > threshold).collect();
         let object_px = largest_piece(&seen, w, h);
         let count = object_px.iter().filter(|p| **p).count();
         if count < MIN_OBJECT_PIXELS {
             bail!(
-                "{name}: no object found: the photo differs from the empty bench's by more than {threshold:.1} of 255 in linear light (5 σ of its noise, at least 2) in {count} connected pixels; is the object in view, and was the empty photo taken without it?"
+                "{name}: no object found: the photo differs from the empty bench's by more than {threshold:.1} of 255 in linear light (5 σ of its noise, at least {floor:.1}) in {count} connected pixels; is the object in view, and was the empty photo taken without it?"
             );
         }
         let inside = fill_holes(&object_px, w, h);
@@ -662,12 +667,12 @@ pub fn refine(mesh: &Mesh, views: &[View]) -> anyhow::Result<Refined> {
             }
         }
         if !moved {
+            if step == smallest {
+                // A round at the smallest steps has found nothing better.
+                break;
+            }
             for (s, m) in step.iter_mut().zip(&smallest) {
                 *s = (*s / 2.0).max(*m);
-            }
-            if step[3] == smallest[3] && step[0] == smallest[0] {
-                // One last round at the smallest steps has found nothing.
-                break;
             }
         }
     }

@@ -159,6 +159,7 @@ pub fn radiometry(
     if let Some(sim) = &cx.devices.sim {
         let truth = SceneGeometry {
             camera: rig.bench_camera(&scene.camera),
+            shape: rig.bench_shape(scene.shape.as_ref()),
             ..scene.clone()
         };
         let bench = grey_bench(&truth, yaw, target.albedo.0);

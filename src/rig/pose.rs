@@ -89,13 +89,33 @@ impl OnBench<'_> {
     }
 }
 
+/// Which camera a calibration's photos are of, carried from one [`shoot`] to the next: all of
+/// them (the board's, the empty bench's, the object's) must be of one camera, since the pose
+/// solved from the board is that camera's, and the object's frames are paired with the empty
+/// bench's by exposure.
+pub struct Shooting {
+    dslr_answers: bool,
+    shot_any: bool,
+}
+
+impl Default for Shooting {
+    fn default() -> Self {
+        Shooting {
+            dslr_answers: true,
+            shot_any: false,
+        }
+    }
+}
+
 /// Photographs the bench with the rig's object camera at each of `angles` (turntable
 /// degrees; the turntable is turned back to 0 after), with `on_bench` standing where the
 /// object goes: the DSLR's bracket (as JPEGs) if the rig has a DSLR that answers, else the
-/// fallback camera's. Every file is kept as it arrives, under `prefix`.
+/// fallback camera's (chosen at the first view of the first shoot, kept in `shooting`).
+/// Every file is kept as it arrives, under `prefix`.
 pub fn shoot(
     cx: &Context,
     keep: &mut dyn Keep,
+    shooting: &mut Shooting,
     on_bench: OnBench,
     angles: &[f64],
     prefix: &str,
@@ -108,7 +128,6 @@ pub fn shoot(
         );
     }
     let mut views = Vec::new();
-    let mut dslr_answers = true;
     let shot = (|| {
         for (i, &angle) in angles.iter().enumerate() {
             // The turntable says where it is in [0, 360); a view 30° the other way is −30°.
@@ -131,7 +150,8 @@ pub fn shoot(
                 prefix.to_string()
             };
             let mut keep = Prefixed(keep, prefix.clone());
-            let mut photos = shoot_one(cx, &mut keep, on_bench, at, i == 0, &mut dslr_answers)?;
+            let mut photos = shoot_one(cx, &mut keep, on_bench, at, shooting)?;
+            shooting.shot_any = true;
             for p in &mut photos {
                 p.name = format!("{prefix}{}", p.name);
             }
@@ -159,16 +179,16 @@ fn shoot_one(
     keep: &mut dyn Keep,
     on_bench: OnBench,
     turn_deg: f64,
-    first_view: bool,
-    dslr_answers: &mut bool,
+    shooting: &mut Shooting,
 ) -> anyhow::Result<Vec<Photo>> {
+    let first_view = !shooting.shot_any;
     let rig = cx.rig;
     let roles = plan::devices(rig)?;
     if let Some(sim) = &cx.devices.sim {
         show_simulated(cx, sim, on_bench, turn_deg)?;
     }
     let mut dslr_failed = None;
-    if let (true, true, Some(role)) = (roles.dslr, *dslr_answers, &cx.devices.dslr) {
+    if let (true, true, Some(role)) = (roles.dslr, shooting.dslr_answers, &cx.devices.dslr) {
         let mut bracket = Bracket::dslr(rig, rig.brackets.dslr_shutters.clone());
         // The board is found in 8-bit files; a RAW file would add nothing but time.
         bracket.camera.files = Some(DslrFiles::Jpeg);
@@ -178,18 +198,20 @@ fn shoot_one(
         match shot {
             Ok(files) => return jpegs(cx, &files),
             // As in a capture, the fallback camera shoots when the DSLR does not answer; but
-            // only from the first view, so that all views are of one camera.
+            // only from the first view, so that all photos are of one camera.
             Err(e) if roles.fallback && first_view && object::the_dslrs_fault(cx, &e) => {
                 cx.warn(format!(
-                    "the DSLR did not photograph the board ({e:#}); the fallback camera does"
+                    "the DSLR did not photograph the {} ({e:#}); the fallback camera does",
+                    on_bench.name()
                 ));
-                *dslr_answers = false;
+                shooting.dslr_answers = false;
                 dslr_failed = Some(e);
             }
             Err(e) if !first_view => {
-                return Err(e.context(
-                    "the DSLR stopped answering between the board's views (they must all be of one camera): calibrate again",
-                ))
+                return Err(e.context(format!(
+                    "the DSLR stopped answering at the {}'s photos (a calibration's photos must all be of one camera): wake it, and run again",
+                    on_bench.name()
+                )))
             }
             Err(e) => return Err(e),
         }
@@ -207,7 +229,10 @@ fn shoot_one(
     }
     match dslr_failed {
         Some(e) => Err(e),
-        None => bail!("the rig has no object camera to photograph the board with"),
+        None => bail!(
+            "the rig has no object camera to photograph the {} with",
+            on_bench.name()
+        ),
     }
 }
 
