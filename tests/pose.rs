@@ -455,22 +455,32 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// A rig whose DSLR does not answer: the webcam photographs the board, its frames carry no
-/// EXIF, and the focal length (4% off as typed) comes from three views on the turntable.
-/// A photo with no board in it is an error that says so.
-#[test]
-fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
-    use std::path::Path;
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let dir = std::env::temp_dir().join(format!("brdfd-pose-webcam-{}", std::process::id()));
+/// A fresh folder named for `name` holding `rig.toml`: the shipped `simulated-pose.toml` with
+/// `simulation` (lines of its `[simulation]` table) added; the folder and the rig's text.
+fn pose_rig(name: &str, simulation: &str) -> (std::path::PathBuf, String) {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = std::env::temp_dir().join(format!("brdfd-pose-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     let shipped = std::fs::read_to_string(root.join("config/rigs/simulated-pose.toml")).unwrap();
     let rig = shipped.replace(
         "\n[simulation.camera]",
-        "\n[simulation]\ndslr = \"absent\"\n\n[simulation.camera]",
+        &format!("\n[simulation]\n{simulation}\n\n[simulation.camera]"),
     );
     std::fs::write(dir.join("rig.toml"), &rig).unwrap();
+    (dir, rig)
+}
+
+/// A rig whose DSLR does not answer: the webcam photographs the board, its frames carry no
+/// EXIF, and the focal length (4% off as typed) comes from three views on the turntable.
+/// A photo with no board in it is an error that says so.
+#[test]
+fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
+    let (dir, _) = pose_rig("webcam", "dslr = \"absent\"");
+    let shipped = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rigs/simulated-pose.toml"),
+    )
+    .unwrap();
     let said = common::succeeds(
         &[
             "calibrate",
@@ -565,17 +575,7 @@ fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
 /// `--refine-object` with photos of the board alone is refused before anything is read.
 #[test]
 fn an_object_step_that_fails_keeps_the_board_s_pose() {
-    use std::path::Path;
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let dir = std::env::temp_dir().join(format!("brdfd-pose-off-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    let shipped = std::fs::read_to_string(root.join("config/rigs/simulated-pose.toml")).unwrap();
-    let rig = shipped.replace(
-        "\n[simulation.camera]",
-        "\n[simulation]\ndslr_powers_off_after = 15\n\n[simulation.camera]",
-    );
-    std::fs::write(dir.join("rig.toml"), &rig).unwrap();
+    let (dir, rig) = pose_rig("off", "dslr_powers_off_after = 15");
     let args = [
         "calibrate",
         "pose",
