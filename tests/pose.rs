@@ -514,7 +514,7 @@ fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
     image::GrayImage::from_pixel(640, 424, image::Luma([128]))
         .save(dir.join("grey.png"))
         .unwrap();
-    let run = common::brdfd(
+    let said = common::fails(
         &[
             "calibrate",
             "pose",
@@ -526,8 +526,6 @@ fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
         ],
         &dir,
     );
-    let said = common::out(&run);
-    assert!(!run.status.success());
     assert!(
         said.contains("grey.png: no 9 × 6 ChArUco board (DICT_4X4_50) found in the 640×424 photo"),
         "{said}"
@@ -562,9 +560,7 @@ fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
         format!("{}{}", &sphere[..at], &sphere[end..]),
     )
     .unwrap();
-    let run = common::brdfd(&refine, &dir);
-    let said = common::out(&run);
-    assert!(!run.status.success());
+    let said = common::fails(&refine, &dir);
     assert!(said.contains("--refine-object aligns the object's mesh with its silhouette, and [geometry.shape] is no mesh"), "{said}");
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -585,9 +581,7 @@ fn an_object_step_that_fails_keeps_the_board_s_pose() {
         "--out",
         "photos",
     ];
-    let run = common::brdfd(&args, &dir);
-    let said = common::out(&run);
-    assert!(!run.status.success(), "{said}");
+    let said = common::fails(&args, &dir);
     assert!(
         said.contains("the object's placement was not found; the camera's pose is kept")
             && said.contains("the DSLR stopped answering at the empty bench's photos"),
@@ -604,7 +598,7 @@ fn an_object_step_that_fails_keeps_the_board_s_pose() {
             .shape
     );
 
-    let run = common::brdfd(
+    let said = common::fails(
         &[
             "calibrate",
             "pose",
@@ -616,8 +610,6 @@ fn an_object_step_that_fails_keeps_the_board_s_pose() {
         ],
         &dir,
     );
-    let said = common::out(&run);
-    assert!(!run.status.success());
     assert!(
         said.contains("with --photo, --refine-object needs the object's photos"),
         "{said}"

@@ -41,6 +41,18 @@ pub fn brdfd(args: &[&str], dir: &Path) -> Output {
 }
 
 /// Runs `brdfd ARGS` in `dir`, which must succeed: what it said, on both streams.
+/// Runs brdfd, which must fail: what it said.
+pub fn fails(args: &[&str], dir: &Path) -> String {
+    let run = brdfd(args, dir);
+    let said = out(&run);
+    assert!(
+        !run.status.success(),
+        "brdfd {} succeeded:\n{said}",
+        args.join(" ")
+    );
+    said
+}
+
 pub fn succeeds(args: &[&str], dir: &Path) -> String {
     let run = brdfd(args, dir);
     let said = out(&run);
