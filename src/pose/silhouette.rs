@@ -517,8 +517,9 @@ impl Prepared {
 }
 
 /// The mesh's soft mask over the whole frame of `camera` at turntable view `turn_deg`,
-/// placed by `offset`.
-pub fn outline(mesh: &Mesh, camera: &Camera, turn_deg: f64, offset: &Offset) -> Option<Mask> {
+/// placed by `offset`: the masks the tests align.
+#[cfg(test)]
+fn outline(mesh: &Mesh, camera: &Camera, turn_deg: f64, offset: &Offset) -> Option<Mask> {
     let (w, h) = camera.size();
     let (k, e) = pinhole(&camera.turned_about_y(-turn_deg.to_radians()))?;
     let p = Prepared {
