@@ -16,7 +16,8 @@
 //! - [`selector`]: the strings that name devices (`usb:04b0:0429`, `osc:http://...`, ...).
 //! - [`results`]: the files an estimate leaves behind; [`compare`]: its photo-against-estimate
 //!   picture; [`report`]: its `report.html`.
-//! - [`export`]: the analytic estimate as a glTF material and an OpenPBR `.mtlx`.
+//! - [`export`]: the estimate as a glTF material and an OpenPBR `.mtlx`, fitted to how it relights.
+//! - [`summary`]: the judged lines a finished estimate is reported in, the verdict first.
 //! - [`rig`]: the devices on their worker threads, and the capture flow.
 //! - [`daemon`]: `brdfd serve`: the devices kept open, one capture at a time, the HTTP API.
 //! - `drivers/` (workspace crates, as they land): device protocols and their simulators.
@@ -40,3 +41,4 @@ pub mod results;
 pub mod rig;
 pub mod selector;
 pub mod session;
+pub mod summary;

@@ -21,6 +21,7 @@ use crate::core::geometry::{GeomPixel, PixelGeometry};
 use crate::core::merl;
 use crate::core::raster::Raster;
 use crate::core::render::{visible_fraction, SpherePicture};
+use crate::export::Export;
 
 /// What a report shows besides the estimate itself; every part is optional.
 #[derive(Default)]
@@ -127,9 +128,10 @@ pub fn write(
     basis_id: &str,
     preview: &RgbImage,
     lights: &LightSet,
+    export: &Export,
     cx: &Context,
 ) -> Result<()> {
-    let html = page(estimate, basis_id, preview, lights, cx)?;
+    let html = page(estimate, basis_id, preview, lights, export, cx)?;
     std::fs::write(path, html).map_err(|e| CoreError::io(path, e))
 }
 
@@ -138,6 +140,7 @@ fn page(
     basis_id: &str,
     preview: &RgbImage,
     lights: &LightSet,
+    export: &Export,
     cx: &Context,
 ) -> Result<String> {
     let mut h = String::new();
@@ -254,7 +257,7 @@ fn page(
     );
 
     h.push_str("<h2>Numbers</h2>\n<table>\n");
-    for (k, v) in numbers(est, basis_id, cx) {
+    for (k, v) in numbers(est, basis_id, export, cx) {
         let _ = writeln!(h, "<tr><th>{}</th><td>{}</td></tr>", escape(&k), escape(&v));
     }
     h.push_str("</table>\n<details><summary>Coefficients</summary>\n<table>\n");
@@ -286,7 +289,7 @@ th,td{text-align:left;padding:0.2em 0.8em;border-bottom:1px solid #eee;vertical-
 th{font-weight:normal;color:#555}.summary{font-size:1.05em}.note{font-size:0.85em;color:#555}";
 
 /// The numbers, each with its verdict where brdfd has one.
-fn numbers(est: &Estimate, basis_id: &str, cx: &Context) -> Vec<(String, String)> {
+fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec<(String, String)> {
     let mut rows = vec![
         ("model".to_string(), est.model.name().to_string()),
         (
@@ -306,6 +309,13 @@ fn numbers(est: &Estimate, basis_id: &str, cx: &Context) -> Vec<(String, String)
         ));
     }
     rows.push(("condition number".into(), est.selection.condition_text()));
+    rows.push((
+        "material.gltf, material.mtlx".into(),
+        format!(
+            "relit {:.4} from the estimate under light their fit did not see ({})",
+            export.relight_error, export.verdict
+        ),
+    ));
     if let Some((text, _)) = est.certainty_text() {
         rows.push(("steadiness".into(), text));
     }

@@ -113,10 +113,9 @@ pub struct CoefficientsFile<'a> {
     /// `brdf-sigma.exr`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub uncertainty: Option<&'a Uncertainty>,
-    /// The analytic estimate as a glTF material and an OpenPBR `.mtlx`, and how far they
+    /// The estimate as a glTF material and an OpenPBR `.mtlx`, fitted to it, and how far they
     /// relight from the estimate itself.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub exports: Option<Export>,
+    pub exports: Export,
 }
 
 /// Whether the estimated BRDF could be a real surface's (`coefficients.json`'s `plausibility`).
@@ -180,6 +179,8 @@ pub struct ResultFiles {
     /// The photo beside the estimate, when the photo was given.
     pub compare_png: Option<PathBuf>,
     pub report: PathBuf,
+    /// The exported materials and how far they relight from the estimate.
+    pub exports: Export,
 }
 
 /// Writes a bivariate table (`quantity`: what its values are) as a 90 × 90 EXR whose header
@@ -249,10 +250,7 @@ pub fn write_results(
 ) -> Result<ResultFiles> {
     std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
     let brdf = &estimate.brdf;
-    let exports = match &estimate.analytic {
-        Some(m) => write_exports(dir, "brdfd_estimate", m, brdf, basis.header.grid)?,
-        None => None,
-    };
+    let exports = write_exports(dir, "brdfd_estimate", brdf, cx.env.map(|m| (m, cx.yaw)))?;
     let all = estimate.selection.pixels.len() == estimate.candidates;
     let file = CoefficientsFile {
         format: COEFFICIENTS_FORMAT,
@@ -308,7 +306,7 @@ pub fn write_results(
         timings: &estimate.timings,
         plausibility: Plausibility::of(brdf),
         uncertainty: estimate.uncertainty.as_ref(),
-        exports,
+        exports: exports.clone(),
     };
     let files = ResultFiles {
         coefficients: dir.join("coefficients.json"),
@@ -317,6 +315,7 @@ pub fn write_results(
         preview_png: dir.join("preview.png"),
         compare_png: cx.photo.map(|_| dir.join("compare.png")),
         report: dir.join("report.html"),
+        exports,
     };
     let json = serde_json::to_string_pretty(&file).expect("coefficients serialise");
     std::fs::write(&files.coefficients, json).map_err(|e| CoreError::io(&files.coefficients, e))?;
@@ -346,7 +345,15 @@ pub fn write_results(
     std::thread::scope(|s| {
         let merl = s.spawn(|| brdf.to_merl().write(&files.merl));
         let preview = write_preview(dir, &files.preview_png, brdf, lights, cx)?;
-        crate::report::write(&files.report, estimate, basis_id, &preview, lights, cx)?;
+        crate::report::write(
+            &files.report,
+            estimate,
+            basis_id,
+            &preview,
+            lights,
+            &files.exports,
+            cx,
+        )?;
         merl.join().expect("writing the MERL table panicked")
     })?;
     Ok(files)

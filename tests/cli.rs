@@ -55,6 +55,7 @@ fn simulated_capture_prints_coefficients() {
             "96",
             "--out",
             "result",
+            "--verbose",
         ],
         dir.path(),
     );
@@ -699,6 +700,7 @@ fn a_rig_file_drives_the_devices_it_names() {
             "gold",
             "--state-dir",
             "state",
+            "--verbose",
         ],
         dir.path(),
     );

@@ -33,6 +33,7 @@ fn captures_in_the_daemon_and_in_process_recover_the_known_coefficients() {
         "all",
         "--colour",
         "joint",
+        "--verbose",
     ];
 
     let mut with_daemon = args.to_vec();

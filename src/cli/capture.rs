@@ -75,6 +75,10 @@ pub struct CaptureArgs {
     /// Also write the results and the raw files to this folder.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Also print the estimate's coefficients and each phase's time (both are in the
+    /// session: `result/coefficients.json`, `manifest.json`).
+    #[arg(long, short)]
+    pub verbose: bool,
     #[command(flatten)]
     pub daemon: DaemonArgs,
 }
@@ -212,7 +216,7 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
             Err(e) if e.is::<Busy>() => return Err(e.context("the capture was not started")),
             Err(e) => return Err(e),
         };
-        return follow(&d, &id, a.out.as_deref());
+        return follow(&d, &id, a.out.as_deref(), a.verbose);
     }
     let (Some((rig, rig_text)), Some(settings)) = (rig, settings) else {
         bail!("no rig: give --rig FILE for a hardware rig (config/rigs/bench.toml is a template), or --simulate for the simulated one");
@@ -224,7 +228,7 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         session.manifest.id,
         session.dir.display()
     );
-    in_process(&mut session, &settings, &rig, a.out.as_deref())
+    in_process(&mut session, &settings, &rig, a.out.as_deref(), a.verbose)
 }
 
 /// Runs the flow here, on devices opened for this capture.
@@ -233,6 +237,7 @@ fn in_process(
     settings: &CaptureSettings,
     rig: &Rig,
     out: Option<&Path>,
+    verbose: bool,
 ) -> anyhow::Result<()> {
     let devices = Devices::start(rig, KEEP_ALIVE)?;
     let bars: Arc<dyn Progress> = Arc::new(Bars::new());
@@ -253,7 +258,9 @@ fn in_process(
         }
         return Err(e);
     }
-    print_phases(&session.manifest.phases);
+    if verbose {
+        print_details(&session.dir, &session.manifest.phases)?;
+    }
     println!(
         "session {} done: {}",
         session.manifest.id,
@@ -325,7 +332,7 @@ impl Progress for Answering<'_> {
 }
 
 /// Follows a capture in the daemon to its end.
-pub fn follow(d: &Daemon, id: &str, out: Option<&Path>) -> anyhow::Result<()> {
+pub fn follow(d: &Daemon, id: &str, out: Option<&Path>, verbose: bool) -> anyhow::Result<()> {
     println!("session {id} (in the daemon)");
     // Leaving stops only the watching: the capture is the daemon's, and goes on.
     let detach = {
@@ -352,8 +359,10 @@ pub fn follow(d: &Daemon, id: &str, out: Option<&Path>) -> anyhow::Result<()> {
         Event::Finished {
             state: State::Done, ..
         } => {
-            print_phases(&phases);
             let dir = stored["dir"].as_str().map(PathBuf::from);
+            if let (true, Some(dir)) = (verbose, &dir) {
+                print_details(dir, &phases)?;
+            }
             println!(
                 "session {id} done: {}",
                 dir.as_deref().unwrap_or(Path::new("?")).display()
@@ -381,7 +390,7 @@ pub fn resume(state: &Path, id: &str, daemon: &DaemonArgs) -> anyhow::Result<()>
     let config = daemon.config()?;
     if let Some(d) = daemon.find(&config)? {
         let id = d.resume(id)?;
-        return follow(&d, &id, None);
+        return follow(&d, &id, None, false);
     }
     let mut session = Session::open(state, id)?;
     let plan = brdfd::daemon::resumable(&mut session)?;
@@ -398,7 +407,27 @@ pub fn resume(state: &Path, id: &str, daemon: &DaemonArgs) -> anyhow::Result<()>
         "resuming session {} (was {:?})",
         session.manifest.id, session.manifest.state
     );
-    in_process(&mut session, &settings, &rig, None)
+    in_process(&mut session, &settings, &rig, None, false)
+}
+
+/// `--verbose`: the coefficients from the session's `result/coefficients.json`, and the phases.
+fn print_details(session_dir: &Path, phases: &[PhaseTime]) -> anyhow::Result<()> {
+    let path = session_dir.join("result/coefficients.json");
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("reading {}", path.display()))?;
+    let names: Vec<String> = serde_json::from_value(v["columns"].clone())
+        .with_context(|| format!("{}: field `columns`", path.display()))?;
+    let values: Vec<Option<f64>> = serde_json::from_value(v["coefficients"].clone())
+        .with_context(|| format!("{}: field `coefficients`", path.display()))?;
+    let values: Vec<f64> = values.into_iter().map(|c| c.unwrap_or(f64::NAN)).collect();
+    println!(
+        "{}",
+        brdfd::results::coefficient_lines("coefficients", &names, &values)
+    );
+    print_phases(phases);
+    Ok(())
 }
 
 fn print_phases(phases: &[PhaseTime]) {

@@ -8,8 +8,8 @@ use brdfd::core::basis::Basis;
 use brdfd::core::bivariate::Bivariate;
 use brdfd::core::envmap::{CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd::core::estimate::{
-    estimate as run_estimate, fit_verdict, unused_basis_settings, EstimateOptions, Model,
-    SelectionMethod, View, DEFAULT_LOBES, DEFAULT_MAX_CANDIDATES,
+    estimate as run_estimate, unused_basis_settings, EstimateOptions, Model, SelectionMethod, View,
+    DEFAULT_LOBES, DEFAULT_MAX_CANDIDATES,
 };
 use brdfd::core::hybrid::{HybridFit, MixWeight};
 use brdfd::core::merl::MerlBrdf;
@@ -92,6 +92,9 @@ pub struct EstimateArgs {
     /// Output folder.
     #[arg(long, default_value = "estimate")]
     pub out: PathBuf,
+    /// Also print the estimate's coefficients (they are in `coefficients.json`).
+    #[arg(long, short)]
+    pub verbose: bool,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy)]
@@ -254,28 +257,28 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
             ..ReportContext::default()
         },
     )?;
-    print_estimate(&est.names, &est.solution.coefficients);
-    if est.clipped > 0 {
-        println!(
-            "{} object pixels were clipped (at or above the white level) and left out",
-            est.clipped
-        );
+    if a.verbose {
+        print_estimate(&est.names, &est.solution.coefficients);
     }
     println!(
-        "{}, condition number {}, relative residual {:.4} on the pixels solved from; the estimate re-renders the photo to a relative RMSE of {:.4} over every candidate ({}), {:.2} s",
+        "{}, relative residual {:.4} on the pixels solved from, {:.2} s",
         est.method_text(),
-        est.selection.condition_text(),
         est.solution.relative_residual,
-        est.fit_error,
-        fit_verdict(est.fit_error),
         total.elapsed().as_secs_f64()
     );
-    if let Some((text, distrust)) = est.certainty_text() {
-        if distrust {
-            eprintln!("warning: {text}");
-        } else {
-            println!("{text}");
-        }
+    let extras = brdfd::summary::Extras {
+        relight: None,
+        views: 1,
+        bracketed: false,
+        export: Some(&files.exports),
+        report: Some(&files.report),
+    };
+    let lines = brdfd::summary::lines("the estimate", &est, &extras);
+    if lines[0].contains("do not trust") {
+        eprintln!("warning: {}", lines[0]);
+        println!("{}", lines[1..].join("\n"));
+    } else {
+        println!("{}", lines.join("\n"));
     }
     println!("wrote {}", files.coefficients.display());
     Ok(())

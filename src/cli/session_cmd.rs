@@ -89,7 +89,7 @@ pub fn run(a: SessionArgs) -> anyhow::Result<()> {
             let Some(d) = daemon.running(&daemon.config()?)? else {
                 bail!("no daemon runs, so nothing is capturing {id} to follow: `brdfd session show {id}` shows where it stands");
             };
-            super::capture::follow(&d, &id, None)?
+            super::capture::follow(&d, &id, None, false)?
         }
         SessionCommand::Export { id: i, to } => {
             let id = id(&i)?;

@@ -979,15 +979,16 @@ impl Estimate {
             (Model::Hybrid, Some(m)) => {
                 let alphas: Vec<String> =
                     m.lobes.iter().map(|l| format!("{:.4}", l.alpha)).collect();
-                let names: Vec<&str> = self.mixture.iter().map(|w| w.material.as_str()).collect();
+                // The measured atoms are not what the object is made of (a gold estimate
+                // may mix in a walnut's table): they are counted, not named.
+                let atoms = self.mixture.len();
                 format!(
-                    "model hybrid (Lambert + {} GGX lobe{}, roughness α {}, and {} measured material{}{}), solved on {} pixels spread over all {}",
+                    "model hybrid (Lambert + {} GGX lobe{}, roughness α {}, and {} measured atom{} of the MERL database), solved on {} pixels spread over all {}",
                     m.lobes.len(),
                     if m.lobes.len() == 1 { "" } else { "s" },
                     alphas.join(" and "),
-                    names.len(),
-                    if names.len() == 1 { "" } else { "s" },
-                    if names.is_empty() { String::new() } else { format!(": {}", names.join(", ")) },
+                    atoms,
+                    if atoms == 1 { "" } else { "s" },
                     self.solved,
                     self.candidates
                 )

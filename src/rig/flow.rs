@@ -308,7 +308,7 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
         cx.warn(text.clone());
     }
     session.set_state(State::Estimating, None)?;
-    let est = estimate(cx, s, &basis, &captured, &mut phases)?;
+    let est = estimate(s, &basis, &captured, &mut phases)?;
     let truth = match &sim {
         Some(sim) => compare_with_truth(cx, &basis, &est, sim, &mut phases),
         None => None,
@@ -333,9 +333,9 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
     let visibility = Visibility::of(&first.geometry, &first.lights);
     let mut report = report_context(session, &env, &captured, true_brdf.as_ref(), relight);
     report.visibility = visibility.as_ref();
-    write_result(session, &basis, &est, &captured.views[0].lights, &report)?;
+    let exports = write_result(session, &basis, &est, &captured.views[0].lights, &report)?;
     phases.end(p);
-    say_result(cx, &est, captured.views.len(), relight);
+    say_result(cx, session, &est, captured.views.len(), relight, &exports);
     session.manifest.phases = phases.done;
     session.set_state(State::Done, None)?;
     let fit = est.fit_error;
@@ -350,6 +350,8 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
             fit_verdict: fit_verdict(fit),
             relight_error: relight,
             fallback: captured.fallback,
+            export_relight_error: Some(exports.relight_error),
+            export_verdict: Some(exports.verdict.clone()),
         },
         truth,
         pixels: est.selection.pixels.len(),
@@ -627,7 +629,6 @@ fn show_view(
 
 /// The estimate of every view together, with the clip level of their merges.
 fn estimate(
-    cx: &Context,
     s: &CaptureSettings,
     basis: &Basis,
     captured: &Captured,
@@ -650,11 +651,6 @@ fn estimate(
     let p = phases.start("estimate", 1);
     let est = estimate_views(basis, &views, &options)?;
     phases.end(p);
-    cx.say(crate::results::coefficient_lines(
-        "coefficients",
-        &est.names,
-        &est.solution.coefficients,
-    ));
     Ok(est)
 }
 
@@ -739,34 +735,30 @@ fn report_context<'a>(
     report
 }
 
-/// The estimate in a few lines for the operator.
-fn say_result(cx: &Context, est: &Estimate, views: usize, relight: Option<f64>) {
-    cx.say(format!(
-        "{}, condition number {}; the estimate re-renders the photo{} to a relative RMSE of {:.4} over {} pixels ({})",
-        est.method_text(),
-        est.selection.condition_text(),
-        if views > 1 { "s" } else { "" },
-        est.fit_error,
-        est.candidates,
-        fit_verdict(est.fit_error),
-    ));
-    if let Some(error) = relight {
-        cx.say(format!(
-            "relit under the bench's map turned {HELD_OUT_YAW_DEG}° (light it was not fitted to), the estimate is {error:.4} from the truth (relative RMSE over the object)"
-        ));
-    }
-    if let Some((text, distrust)) = est.certainty_text() {
-        if distrust {
-            cx.warn(text);
-        } else {
-            cx.say(text);
-        }
-    }
-    if est.clipped > 0 {
-        cx.say(format!(
-            "{} object pixels were clipped in every frame of their bracket and left out; a shorter exposure would keep them",
-            est.clipped
-        ));
+/// The estimate in a few judged lines for the operator, the verdict first
+/// ([`crate::summary`]).
+fn say_result(
+    cx: &Context,
+    session: &Session,
+    est: &Estimate,
+    views: usize,
+    relight: Option<f64>,
+    exports: &crate::export::Export,
+) {
+    let report = session.dir.join("result/report.html");
+    let extras = crate::summary::Extras {
+        relight: relight.map(|e| (e, format!("the bench's map turned {HELD_OUT_YAW_DEG}°"))),
+        views,
+        bracketed: true,
+        export: Some(exports),
+        report: Some(&report),
+    };
+    let lines = crate::summary::lines(&session.manifest.material, est, &extras);
+    if lines[0].contains("do not trust") {
+        cx.warn(lines[0].clone());
+        cx.say(lines[1..].join("\n"));
+    } else {
+        cx.say(lines.join("\n"));
     }
 }
 
@@ -777,14 +769,14 @@ fn write_result(
     est: &Estimate,
     lights: &crate::core::envmap::LightSet,
     report: &ReportContext,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<crate::export::Export> {
     let fresh = session.dir.join("result.partial");
     let _ = std::fs::remove_dir_all(&fresh);
-    crate::results::write_results(&fresh, basis, est, "fast", lights, report)?;
+    let files = crate::results::write_results(&fresh, basis, est, "fast", lights, report)?;
     let result = session.dir.join("result");
     let _ = std::fs::remove_dir_all(&result);
     std::fs::rename(&fresh, &result).context("moving the results into place")?;
-    Ok(())
+    Ok(files.exports)
 }
 
 /// A thread the flow started, joined when dropped: a capture that ends early (an error, a

@@ -218,6 +218,12 @@ pub struct Summary {
     /// noise.
     #[serde(default)]
     pub fallback: Option<String>,
+    /// How far `material.gltf` relights from the estimate under light its fit did not see.
+    #[serde(default)]
+    pub export_relight_error: Option<f64>,
+    /// That figure in words (`faithful`, `close` or `approximate`), with its threshold.
+    #[serde(default)]
+    pub export_verdict: Option<String>,
 }
 
 impl Summary {
@@ -234,6 +240,8 @@ impl Summary {
             fit_verdict: crate::core::estimate::fit_verdict(fit.unwrap_or(f64::NAN)),
             relight_error: v["relight_error"].as_f64(),
             fallback: v["fallback"].as_str().map(str::to_string),
+            export_relight_error: v["exports"]["relight_error"].as_f64(),
+            export_verdict: v["exports"]["verdict"].as_str().map(str::to_string),
         })
     }
 

@@ -211,6 +211,9 @@ function finished(e) {
     out.append(
       `Done: model ${r.model}, fit to the photo ${fit} (${r.fit_verdict})` +
         (r.relight_error != null ? `, relit error ${r.relight_error.toFixed(4)}` : "") +
+        (r.export_relight_error != null
+          ? `; material.gltf relights ${r.export_relight_error.toFixed(3)} from the estimate (${r.export_verdict})`
+          : "") +
         ". ",
       resultLinks(e.session)
     );

@@ -1,0 +1,189 @@
+//! The result in a few judged lines, answer first: what `brdfd capture` and `brdfd estimate`
+//! print when an estimate is done.
+//!
+//! Every number printed comes with its verdict and the threshold it was judged by, and the
+//! first line is the worst of them: a poor or unsteady estimate never opens with "good". The
+//! coefficients themselves are in `coefficients.json` (and printed with `--verbose`): they are
+//! a model's internals, not what the material is.
+//!
+//! Not here: the thresholds of the fit and the steadiness ([`crate::core::estimate`]) and of
+//! the exports ([`crate::export`]); this module only gathers them.
+
+use std::path::Path;
+
+use crate::core::estimate::{fit_verdict, Estimate, Model, GOOD_FIT, POOR_FIT, UNSTEADY_SPREAD};
+use crate::export::{Export, CLOSE, FAITHFUL};
+
+/// Condition numbers at or below this are good: the presets' estimates on the sphere measure
+/// 300–2,000, and the hybrid's many columns make a few thousand usual.
+pub const WELL_CONDITIONED: f64 = 1e4;
+/// Above this a system is ill-conditioned: noise in the photo is amplified more than
+/// 100,000-fold in the direction the pixels pin worst. More views, or pixels facing more
+/// directions, pin it better (the gold part's mesh from one view measures 16,000: fair).
+pub const ILL_CONDITIONED: f64 = 1e5;
+
+/// How a number was judged, from best to worst.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Grade {
+    Good,
+    Fair,
+    Poor,
+}
+
+impl Grade {
+    fn word(self) -> &'static str {
+        match self {
+            Grade::Good => "good",
+            Grade::Fair => "fair",
+            Grade::Poor => "poor",
+        }
+    }
+
+    /// Against two thresholds, lower being better; not a number is poor.
+    fn of(value: f64, good: f64, poor: f64) -> Grade {
+        if value <= good {
+            Grade::Good
+        } else if value <= poor {
+            Grade::Fair
+        } else {
+            Grade::Poor
+        }
+    }
+}
+
+/// One judged line.
+struct Line {
+    grade: Grade,
+    text: String,
+}
+
+/// What the summary knows beside the estimate.
+pub struct Extras<'a> {
+    /// A simulated capture's relit error against the truth, and the light it was relit
+    /// under.
+    pub relight: Option<(f64, String)>,
+    /// How many views (photos) the estimate was fitted to.
+    pub views: usize,
+    /// Whether the photos were merged from exposure brackets (a capture's are).
+    pub bracketed: bool,
+    pub export: Option<&'a Export>,
+    pub report: Option<&'a Path>,
+}
+
+fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
+    let mut lines = Vec::new();
+    let fit = estimate.fit_error;
+    lines.push(Line {
+        grade: Grade::of(fit, GOOD_FIT, POOR_FIT),
+        text: format!(
+            "re-renders the photo{} to a relative RMSE of {fit:.4} over {} pixels ({})",
+            if extras.views > 1 { "s" } else { "" },
+            estimate.candidates,
+            fit_verdict(fit)
+        ),
+    });
+    if let Some((e, under)) = &extras.relight {
+        lines.push(Line {
+            grade: Grade::of(*e, GOOD_FIT, POOR_FIT),
+            text: format!(
+                "relit under {under} (light it was not fitted to), the estimate is {e:.4} from the truth (a simulation's figure, judged as the fit)"
+            ),
+        });
+    }
+    if let Some(u) = &estimate.uncertainty {
+        let s = u.bootstrap_spread;
+        lines.push(Line {
+            grade: if s <= UNSTEADY_SPREAD {
+                Grade::Good
+            } else {
+                Grade::Poor
+            },
+            text: format!(
+                "resampling its pixels {} times moves its relit sphere by {:.1}% RMS ({} {:.0}%)",
+                u.resamples,
+                100.0 * s,
+                if s <= UNSTEADY_SPREAD {
+                    "steady: at most"
+                } else {
+                    "unsteady: above"
+                },
+                100.0 * UNSTEADY_SPREAD
+            ),
+        });
+    }
+    let k = estimate.selection.condition;
+    // The prior solves a system with fewer equations than unknowns: its κ is infinite by
+    // construction and says nothing of noise, so it is reported, not judged.
+    if k.is_finite() {
+        lines.push(Line {
+            grade: Grade::of(k, WELL_CONDITIONED, ILL_CONDITIONED),
+            text: format!(
+                "condition number {k:.0} ({})",
+                match Grade::of(k, WELL_CONDITIONED, ILL_CONDITIONED) {
+                    Grade::Good => format!("well conditioned: at most {WELL_CONDITIONED:.0}"),
+                    Grade::Fair => format!("noise is amplified: above {WELL_CONDITIONED:.0}"),
+                    Grade::Poor => format!(
+                        "ill-conditioned: above {ILL_CONDITIONED:.0}; more views or pixels facing more ways pin it better"
+                    ),
+                }
+            ),
+        });
+    }
+    lines
+}
+
+/// The summary's lines: the verdict first, then each judged number, the exports and where the
+/// report is.
+pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String> {
+    let judged = judged(estimate, extras);
+    let worst = judged.iter().map(|l| l.grade).max().unwrap_or(Grade::Poor);
+    let model = match estimate.model {
+        Model::Hybrid => "hybrid model",
+        Model::Analytic => "analytic model",
+        Model::Basis => "basis model",
+    };
+    let mut out = vec![format!(
+        "{material}: {} estimate ({model}){}",
+        worst.word(),
+        match worst {
+            Grade::Good => "",
+            Grade::Fair => "; look at the report before relying on it",
+            Grade::Poor => "; do not trust it under other light",
+        }
+    )];
+    out.extend(
+        judged
+            .iter()
+            .map(|l| format!("  {}: {}", l.grade.word(), l.text)),
+    );
+    if estimate.clipped > 0 {
+        out.push(if extras.bracketed {
+            format!(
+                "  {} object pixels were clipped in every frame of their bracket and left out; a shorter exposure would keep them",
+                estimate.clipped
+            )
+        } else {
+            format!(
+                "  {} object pixels were clipped (at or above the white level) and left out",
+                estimate.clipped
+            )
+        });
+    }
+    if let Some(e) = extras.export {
+        out.push(format!(
+            "  material.gltf, material.mtlx: relit {:.3} from the estimate, {} (faithful at most {FAITHFUL}, close at most {CLOSE})",
+            e.relight_error,
+            e.verdict.split(" (").next().unwrap_or(&e.verdict),
+        ));
+        if e.relight_error > CLOSE {
+            out.push(
+                "    the glTF/OpenPBR model cannot hold this material; brdf.binary (MERL) keeps it whole"
+                    .into(),
+            );
+        }
+    }
+    if let Some(r) = extras.report {
+        out.push(format!("  report: {}", r.display()));
+    }
+    out
+}

@@ -1,0 +1,100 @@
+//! The ecosystem's own validators judge the exports (issue 38): the Khronos glTF validator
+//! (npm `gltf-validator`) reads `material.gltf` with no error and no warning, and MaterialX's
+//! Python package validates `material.mtlx` against its standard library. The files are the
+//! README's main command's, at a smaller size. CI installs both, points
+//! BRDFD_GLTF_VALIDATOR_MODULES at the validator's `node_modules` and BRDFD_MATERIALX_PYTHON at
+//! a Python that imports MaterialX, and sets BRDFD_REQUIRE_EXPORT_VALIDATORS=1, so there the
+//! test cannot skip.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::{brdfd, text};
+
+/// The validators' settings, or `None` (and a skip message) where they are not installed.
+fn validators() -> Option<(String, String)> {
+    let found = (
+        std::env::var("BRDFD_GLTF_VALIDATOR_MODULES").ok(),
+        std::env::var("BRDFD_MATERIALX_PYTHON").ok(),
+    );
+    match found {
+        (Some(modules), Some(python)) => Some((modules, python)),
+        _ => {
+            assert!(
+                std::env::var_os("BRDFD_REQUIRE_EXPORT_VALIDATORS").is_none(),
+                "the glTF validator and MaterialX are required here but not configured"
+            );
+            eprintln!(
+                "skipping: npm install gltf-validator, pip install MaterialX, and set \
+                 BRDFD_GLTF_VALIDATOR_MODULES and BRDFD_MATERIALX_PYTHON"
+            );
+            None
+        }
+    }
+}
+
+fn script(name: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scripts")
+        .join(name)
+        .display()
+        .to_string()
+}
+
+#[test]
+fn outside_validators_accept_the_exports() {
+    let Some((modules, python)) = validators() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let o = brdfd(
+        &[
+            "capture",
+            "--simulate",
+            "--material",
+            "gold",
+            "--size",
+            "64",
+            "--in-process",
+            "--state-dir",
+            "state",
+            "--out",
+            "result",
+        ],
+        dir.path(),
+    );
+    let (out, err) = text(&o);
+    assert!(o.status.success(), "{out}\n{err}");
+    // The summary names the exports' verdict with its figure.
+    assert!(
+        out.contains("material.gltf, material.mtlx: relit "),
+        "{out}"
+    );
+
+    let gltf = dir.path().join("result/material.gltf");
+    let o = Command::new("node")
+        .arg(script("validate-gltf.cjs"))
+        .arg(&gltf)
+        .env("NODE_PATH", &modules)
+        .output()
+        .expect("node runs");
+    let (report, err) = text(&o);
+    assert!(o.status.success(), "glTF validator: {report}\n{err}");
+    let report: serde_json::Value = serde_json::from_str(report.trim()).unwrap();
+    assert_eq!(
+        (report["errors"].as_u64(), report["warnings"].as_u64()),
+        (Some(0), Some(0))
+    );
+
+    let mtlx = dir.path().join("result/material.mtlx");
+    let o = Command::new(&python)
+        .arg(script("validate-mtlx.py"))
+        .arg(&mtlx)
+        .output()
+        .expect("python runs");
+    let (said, err) = text(&o);
+    assert!(o.status.success(), "MaterialX: {said}\n{err}");
+    assert!(said.contains(": valid"), "{said}");
+}
