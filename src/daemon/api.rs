@@ -663,7 +663,8 @@ async fn events(
                 state: s.manifest.state,
                 result: (s.manifest.state == crate::session::State::Done)
                     .then(|| crate::rig::Summary::read(&s.dir.join("result/coefficients.json")))
-                    .flatten(),
+                    .flatten()
+                    .map(Box::new),
                 error: s.manifest.history.last().and_then(|t| t.reason.clone()),
             });
             log

@@ -11,10 +11,10 @@
 //!
 //! # Layout
 //!
-//! - [`fit`]: the shared model and its fit to the estimate's renders.
-//! - [`gltf`]: `material.gltf` and glTF's BRDF.
-//! - [`maps`]: the embedded panoramas the fit and the check use.
-//! - [`openpbr`]: `material.mtlx`.
+//! - [`fit`] holds the shared model and its fit to the estimate's renders.
+//! - [`gltf`] writes `material.gltf` and evaluates glTF's BRDF.
+//! - [`maps`] holds the embedded panoramas the fit and the check use.
+//! - [`openpbr`] writes `material.mtlx`.
 
 pub mod fit;
 pub mod gltf;

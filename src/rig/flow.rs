@@ -171,7 +171,7 @@ pub fn execute(
         } else {
             State::Failed
         },
-        result: result.as_ref().ok().map(|o| o.summary.clone()),
+        result: result.as_ref().ok().map(|o| Box::new(o.summary.clone())),
         error: reason,
     });
     result.map_err(|e| {

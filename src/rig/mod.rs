@@ -193,7 +193,8 @@ pub enum Event {
     Finished {
         session: String,
         state: crate::session::State,
-        result: Option<Summary>,
+        /// Boxed: the summary is most of the event's size, and the other events are small.
+        result: Option<Box<Summary>>,
         error: Option<String>,
     },
 }
