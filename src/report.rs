@@ -112,6 +112,11 @@ impl Visibility {
 
 /// θd of the BRDF slices, in degrees: near the retro direction, a middle angle, near grazing.
 const SLICE_THETA_D: [f64; 3] = [5.0, 30.0, 60.0];
+/// θh in degrees on the slices' square-root axis (0 to 90).
+fn sqrt_axis(theta_h_deg: f64) -> f64 {
+    (theta_h_deg.max(0.0) / 90.0).sqrt() * 90.0
+}
+
 /// Lowest value the log axis shows, as a fraction of the plotted peak.
 const LOG_FLOOR: f64 = 1e-4;
 const CHANNELS: [(&str, RGBColor); 3] = [
@@ -243,7 +248,7 @@ fn page(
     let _ = writeln!(
         h,
         "</div>\n<p class=\"note\">The estimate's BRDF against the half-angle θh at three \
-         difference angles θd, per channel, on a log axis{}{}.</p>",
+         difference angles θd, per channel, on a log axis against √θh{}{}.</p>",
         if est.uncertainty.as_ref().is_some_and(|u| !u.band.is_empty()) {
             "; the shaded band is its 1-σ uncertainty"
         } else {
@@ -365,7 +370,14 @@ fn slice_svg(est: &Estimate, truth: Option<&Bivariate>, theta_d_deg: f64) -> Res
     let cells: Vec<(f64, usize)> = (0..N_THETA_H)
         .map(|ih| (ih, ih * N_THETA_D + jd))
         .filter(|&(_, g)| brdf.valid[g])
-        .map(|(ih, g)| (brdf.grid.theta_h_binning.center(ih).to_degrees(), g))
+        // x is √θh scaled to 0–90, MERL's own θh axis: a sharp peak spreads over the plot
+        // instead of sitting within θh < 5° of a linear one.
+        .map(|(ih, g)| {
+            (
+                sqrt_axis(brdf.grid.theta_h_binning.center(ih).to_degrees()),
+                g,
+            )
+        })
         .collect();
     let value = |b: &Bivariate, c: usize, g: usize| b.values[c * GRID_CELLS + g];
     let peak = cells
@@ -409,10 +421,17 @@ fn slice_svg(est: &Estimate, truth: Option<&Bivariate>, theta_d_deg: f64) -> Res
             .map_err(|e| plot_err(&e))?;
         chart
             .configure_mesh()
-            .x_desc("θh (degrees)")
+            .x_desc("θh (degrees, square-root scale)")
             .y_desc("BRDF (1/sr)")
             .x_labels(10)
-            .x_label_formatter(&|v| format!("{v:.0}"))
+            .x_label_formatter(&|v| {
+                let theta = (v / 90.0).powi(2) * 90.0;
+                if theta < 10.0 {
+                    format!("{theta:.1}")
+                } else {
+                    format!("{theta:.0}")
+                }
+            })
             .y_label_formatter(&|v| format!("{v:.0e}"))
             .light_line_style(TRANSPARENT)
             .bold_line_style(BLACK.mix(0.08))
