@@ -7,16 +7,19 @@
 //! OpenPBR's base layer), per colour channel k:
 //!
 //! ```text
-//! f_k = (1 − m)·[(1 − q·Fr)·c_k/π + q·Fr·S]  +  m·(c_k + (1 − c_k)·w)·S
-//! Fr  = F + (1 − F)·w,   w = (1 − cos θd)⁵,   S = D·V (GGX/Smith, roughness α)
+//! f_k = (1 − m)·[(1 − q·F)·c_k/π + q·Fr_k·S]  +  m·(c_k + (1 − c_k)·w)·S
+//! Fr_k = F₀_k + (1 − F₀_k)·w,   F = max over k of Fr_k,   w = (1 − cos θd)⁵,
+//! S = D·V (GGX/Smith, roughness α)
 //! ```
 //!
-//! with base colour c, metalness m, specular weight q and the dielectric's F₀ = F (from its
-//! IOR). Rendering is linear in the BRDF, so a render is a sum of four images per α: Lambert
-//! `L`, Lambert·w `Lw`, `S(1 − w)` and `S·w`. For fixed (α, m, q, F) the render is affine in
-//! c_k, which is solved exactly per channel; (m, q, F) are searched on a grid and refined,
-//! all through the 5 × 5 Gram matrix of the four images and the target (no image is formed
-//! in the search). α is searched on a log grid, then by golden section with new renders.
+//! with base colour c, metalness m, specular weight q and the dielectric's F₀ per channel (the
+//! largest from the IOR, the others through the specular colour). Rendering is linear in the
+//! BRDF, so a render is a sum of four images per α: Lambert `L`, Lambert·w `Lw`, `S(1 − w)`
+//! and `S·w`. For fixed (α, m, q, largest F₀) the render is linear in each channel's c_k and
+//! F₀_k, which are solved exactly on their box; (m, q, largest F₀) are searched on a grid and
+//! refined, all through the 5 × 5 Gram matrix of the four images and the target (no image is
+//! formed in the search). α is searched on a log grid, then by golden section with new
+//! renders.
 //!
 //! Not here: the formats' writers ([`super::gltf`], [`super::openpbr`]), and measuring the
 //! result under maps the fit did not see ([`super::write_exports`]).
