@@ -313,7 +313,7 @@ fn the_page_signs_in_captures_follows_progress_and_opens_the_report() {
            decoded: imgs.filter(i => i.naturalWidth > 0).length,
            plots: document.querySelectorAll('svg').length,
            axes: [...document.querySelectorAll('svg text')]
-             .filter(t => t.textContent.includes('θh (degrees)')).length,
+             .filter(t => t.textContent.includes('θh (degrees, square-root scale)')).length,
          };",
         Duration::from_secs(20),
     );
