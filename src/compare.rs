@@ -17,9 +17,9 @@ use std::path::Path;
 
 use image::{Rgb, RgbImage};
 
-use crate::core::error::{CoreError, Result};
-use crate::core::estimate::Rerendered;
-use crate::core::raster::{linear_to_srgb, Raster};
+use brdfd_core::error::{CoreError, Result};
+use brdfd_core::estimate::Rerendered;
+use brdfd_core::raster::{linear_to_srgb, Raster};
 
 /// Longest side of one panel; larger photos are averaged down by a whole factor.
 pub const PANEL_MAX: usize = 512;

@@ -14,10 +14,10 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Deserializer};
 
-use crate::core::estimate::Model;
-use crate::core::geometry::{Camera, SceneGeometry, Shape};
-use crate::core::solve::{ColourChoice, Solver};
 use crate::selector::Selector;
+use brdfd_core::estimate::Model;
+use brdfd_core::geometry::{Camera, SceneGeometry, Shape};
+use brdfd_core::solve::{ColourChoice, Solver};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -412,12 +412,12 @@ pub struct Simulation {
     /// table), where the rig's `[geometry.camera]` is what the operator believes: to
     /// rehearse `brdfd calibrate pose`, which finds it from a photo of the board. The rig's
     /// camera when absent.
-    pub camera: Option<crate::core::geometry::Camera>,
+    pub camera: Option<brdfd_core::geometry::Camera>,
     /// The object as it truly stands on the simulated bench (a `[geometry.shape]` table of
     /// the same mesh), where the rig's `[geometry.shape]` is where the operator believes it
     /// stands: to rehearse `brdfd calibrate pose --refine-object`, which finds it from the
     /// object's silhouette. The rig's shape when absent.
-    pub shape: Option<crate::core::geometry::Shape>,
+    pub shape: Option<brdfd_core::geometry::Shape>,
 }
 
 impl Default for Simulation {
@@ -612,10 +612,10 @@ impl SimulatedObject {
         let text = include_str!("../config/rigs/simulated-grooved-block.toml");
         let mut rig = Rig::parse("config/rigs/simulated-grooved-block.toml", text)
             .expect("the shipped rigs are checked by tests");
-        if let Some(crate::core::geometry::Shape::Mesh { file, .. }) = &mut rig.geometry.shape {
+        if let Some(brdfd_core::geometry::Shape::Mesh { file, .. }) = &mut rig.geometry.shape {
             *file = PathBuf::from(format!(
                 "{}grooved-block.obj",
-                crate::core::mesh::BUILTIN_PREFIX
+                brdfd_core::mesh::BUILTIN_PREFIX
             ));
         }
         rig.geometry
@@ -848,7 +848,7 @@ impl Rig {
         if let Some(Shape::Mesh { file, .. }) =
             rig.simulation.as_mut().and_then(|s| s.shape.as_mut())
         {
-            if file.is_relative() && !crate::core::mesh::is_builtin(file) {
+            if file.is_relative() && !brdfd_core::mesh::is_builtin(file) {
                 *file = dir.join(&*file);
             }
         }

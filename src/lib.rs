@@ -2,10 +2,11 @@
 //! Simple Measurement and Data-driven Model".
 //!
 //! # Layout
-//! - [`core`]: the estimation core (BRDF sources, bivariate reduction, PCA basis, environment
-//!   maps, geometry, rendering matrix, pixel selection, solve, evaluation). No async, no drivers.
-//! - [`evaluation`]: relighting under maps an estimate never saw, through the one estimate
-//!   pipeline.
+//! - `brdfd-core` (`crates/core`, its own crate): the estimation core (BRDF sources, bivariate
+//!   reduction, PCA basis, environment maps, geometry, rendering matrix, pixel selection, solve,
+//!   the models). No async, no drivers, no HTTP: Cargo keeps it so.
+//! - `brdfd-eval` (`crates/eval`): relighting under maps an estimate never saw, through the one
+//!   estimate pipeline, and the paper's protocol. See docs/architecture.md for the layers.
 //! - [`bench`](mod@bench): the virtual bench: renders what a camera on a simulated rig would see.
 //! - [`radiometry`]: camera files to linear radiance (EXIF exposure, HDR merge).
 //! - [`panorama`]: 360° camera files to environment maps (GPano projection, bracket merge).
@@ -22,16 +23,10 @@
 //! - [`daemon`]: `brdfd serve`: the devices kept open, one capture at a time, the HTTP API.
 //! - `drivers/` (workspace crates, as they land): device protocols and their simulators.
 
-// Matrix and colour-channel loops index several arrays with one index (a[i][j], g[i][j],
-// rows[c][j]); explicit ranges read closer to the maths than zipped iterators there.
-#![allow(clippy::needless_range_loop)]
-
 pub mod bench;
 pub mod compare;
 pub mod config;
-pub mod core;
 pub mod daemon;
-pub mod evaluation;
 pub mod export;
 pub mod panorama;
 pub mod pose;

@@ -9,8 +9,8 @@
 //! Assumes the camera's JPEG tone curve is sRGB, as for the DSLR; a measured response curve
 //! would plug in where `radiometry::decode_jpeg` linearises.
 
-use crate::core::envmap::EnvMap;
 use crate::radiometry::{decode_jpeg, merge_hdr, Frame, RadiometryError, SATURATED};
+use brdfd_core::envmap::EnvMap;
 
 /// What GPano XMP says about a panorama (Google's Photo Sphere XMP metadata).
 #[derive(Debug, Clone, PartialEq)]

@@ -13,15 +13,15 @@ use base64::Engine as _;
 use image::{ImageFormat, Rgb, RgbImage};
 use plotters::prelude::*;
 
-use crate::core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
-use crate::core::envmap::{uv_of, EnvMap, LightSet};
-use crate::core::error::{CoreError, Result};
-use crate::core::estimate::{fit_verdict, Estimate};
-use crate::core::geometry::{GeomPixel, PixelGeometry};
-use crate::core::merl;
-use crate::core::raster::Raster;
-use crate::core::render::{visible_fraction, SpherePicture};
 use crate::export::Export;
+use brdfd_core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
+use brdfd_core::envmap::{uv_of, EnvMap, LightSet};
+use brdfd_core::error::{CoreError, Result};
+use brdfd_core::estimate::{fit_verdict, Estimate};
+use brdfd_core::geometry::{GeomPixel, PixelGeometry};
+use brdfd_core::merl;
+use brdfd_core::raster::Raster;
+use brdfd_core::render::{visible_fraction, SpherePicture};
 
 /// What a report shows besides the estimate itself; every part is optional.
 #[derive(Default)]
@@ -50,7 +50,7 @@ pub struct Context<'a> {
 }
 
 /// The fraction of the light reaching each object pixel that the object itself lets through
-/// ([`crate::core::render::visible_fraction`]), and its mean over the object.
+/// ([`brdfd_core::render::visible_fraction`]), and its mean over the object.
 pub struct Visibility {
     pub fraction: Raster,
     pub mean: f64,

@@ -6,18 +6,18 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::core::analytic::Microfacet;
-use crate::core::basis::Basis;
-use crate::core::bivariate::{Bivariate, Grid, ThetaHBinning, GRID_CELLS, N_THETA_D, N_THETA_H};
-use crate::core::brdf::directional_albedo;
-use crate::core::envmap::{write_exr_attributed, ExrAttribute, LightSet};
-use crate::core::estimate::{Estimate, Model, Timings};
-use crate::core::hybrid::MixWeight;
-use crate::core::render::SpherePicture;
-use crate::core::uncertainty::Uncertainty;
-use crate::core::{CoreError, Result};
 use crate::export::{write_exports, Export};
 use crate::report::Context;
+use brdfd_core::analytic::Microfacet;
+use brdfd_core::basis::Basis;
+use brdfd_core::bivariate::{Bivariate, Grid, ThetaHBinning, GRID_CELLS, N_THETA_D, N_THETA_H};
+use brdfd_core::brdf::directional_albedo;
+use brdfd_core::envmap::{write_exr_attributed, ExrAttribute, LightSet};
+use brdfd_core::estimate::{Estimate, Model, Timings};
+use brdfd_core::hybrid::MixWeight;
+use brdfd_core::render::SpherePicture;
+use brdfd_core::uncertainty::Uncertainty;
+use brdfd_core::{CoreError, Result};
 
 /// `coefficients.json`'s format name and version: a reader checks both. The version grows
 /// when a field changes meaning or goes; new fields may appear within a version.

@@ -6,13 +6,13 @@
 //! coefficients themselves are in `coefficients.json` (and printed with `--verbose`): they are
 //! a model's internals, not what the material is.
 //!
-//! Not here: the thresholds of the fit and the steadiness ([`crate::core::estimate`]) and of
+//! Not here: the thresholds of the fit and the steadiness ([`brdfd_core::estimate`]) and of
 //! the exports ([`crate::export`]); this module only gathers them.
 
 use std::path::Path;
 
-use crate::core::estimate::{fit_verdict, Estimate, Model, GOOD_FIT, POOR_FIT, UNSTEADY_SPREAD};
 use crate::export::{Export, CLOSE, FAITHFUL};
+use brdfd_core::estimate::{fit_verdict, Estimate, Model, GOOD_FIT, POOR_FIT, UNSTEADY_SPREAD};
 
 /// Condition numbers at or below this are good: the presets' estimates on the sphere measure
 /// 300–2,000, and the hybrid's many columns make a few thousand usual.

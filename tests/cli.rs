@@ -201,7 +201,7 @@ fn pixels_clipped_in_every_frame_are_left_out() {
         .collect();
     assert_eq!(sessions.len(), 1, "{sessions:?}");
     let (photo, white) =
-        brdfd::core::raster::Raster::read_with_white(&sessions[0].join("derived/photo-view1.exr"))
+        brdfd_core::raster::Raster::read_with_white(&sessions[0].join("derived/photo-view1.exr"))
             .unwrap();
     let white = white.expect("the merged photo records its white level");
     let at_white = photo
@@ -229,7 +229,7 @@ fn estimate_from_files() {
     let dir = tempfile::tempdir().unwrap();
     let env = dir.path().join("studio.exr");
     let map = brdfd::bench::studio_envmap(256);
-    brdfd::core::envmap::write_exr(&env, map.width, map.height, &map.pixels).unwrap();
+    brdfd_core::envmap::write_exr(&env, map.width, map.height, &map.pixels).unwrap();
     let o = brdfd(
         &[
             "render",
@@ -406,7 +406,7 @@ fn estimate_from_files() {
     let merl = std::fs::metadata(dir.path().join("est/brdf.binary"))
         .unwrap()
         .len();
-    assert_eq!(merl as usize, brdfd::core::merl::FILE_BYTES);
+    assert_eq!(merl as usize, brdfd_core::merl::FILE_BYTES);
     let o = brdfd(
         &[
             "render",
@@ -491,8 +491,8 @@ fn bad_inputs_get_clear_errors() {
     // An environment map with a NaN.
     let mut px = vec![[1.0f32; 3]; 32 * 16];
     px[3 * 32 + 7] = [f32::NAN, 0.0, 0.0];
-    brdfd::core::envmap::write_exr(&dir.path().join("nan.exr"), 32, 16, &px).unwrap();
-    brdfd::core::envmap::write_exr(&dir.path().join("photo.exr"), 8, 8, &vec![[0.5f32; 3]; 64])
+    brdfd_core::envmap::write_exr(&dir.path().join("nan.exr"), 32, 16, &px).unwrap();
+    brdfd_core::envmap::write_exr(&dir.path().join("photo.exr"), 8, 8, &vec![[0.5f32; 3]; 64])
         .unwrap();
     let o = brdfd(
         &[
@@ -520,7 +520,7 @@ fn bad_inputs_get_clear_errors() {
     );
     // A geometry file with an unknown field names the file, the line of its table and the field.
     std::fs::write(dir.path().join("g.toml"), "[camera]\ntype = \"orthographic\"\nwidth = 8\nheight = 8\nextent = 2.0\nposition = [0,0,5]\nlook_at = [0,0,0]\n\n[shape]\ntype = \"sphere\"\ncenter = [0,0,0]\nradius = 1.0\ncolour = \"red\"\n").unwrap();
-    brdfd::core::envmap::write_exr(&dir.path().join("env.exr"), 32, 16, &vec![[1.0f32; 3]; 512])
+    brdfd_core::envmap::write_exr(&dir.path().join("env.exr"), 32, 16, &vec![[1.0f32; 3]; 512])
         .unwrap();
     let o = brdfd(
         &[
@@ -549,7 +549,7 @@ fn basis_build_from_merl_files() {
     let set = brdfd::bench::embedded_materials();
     std::fs::create_dir(dir.path().join("merl")).unwrap();
     for name in ["nickel", "blue-fabric", "white-paint", "pearl-paint"] {
-        brdfd::core::merl::MerlBrdf::tabulate(set.get(name).unwrap())
+        brdfd_core::merl::MerlBrdf::tabulate(set.get(name).unwrap())
             .write(&dir.path().join(format!("merl/{name}.binary")))
             .unwrap();
     }
@@ -773,7 +773,7 @@ fn a_rig_file_drives_the_devices_it_names() {
 fn analytic_estimate_from_files_and_argument_checks() {
     let dir = tempfile::tempdir().unwrap();
     let map = brdfd::bench::studio_envmap(256);
-    brdfd::core::envmap::write_exr(
+    brdfd_core::envmap::write_exr(
         &dir.path().join("studio.exr"),
         map.width,
         map.height,

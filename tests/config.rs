@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use brdfd::config::{DaemonConfig, MaterialPreset, PixelCount, Rig};
-use brdfd::core::geometry::SceneGeometry;
+use brdfd_core::geometry::SceneGeometry;
 
 fn files(sub: &str) -> Vec<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR"))

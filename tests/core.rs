@@ -2,18 +2,18 @@
 //! tolerances. Only the solver comparison reads the shared data folder (for grace).
 
 use brdfd::bench::{embedded_materials, studio_envmap};
-use brdfd::core::basis::Basis;
-use brdfd::core::bivariate::{Bivariate, Grid};
-use brdfd::core::brdf::{dot, normalize, IsotropicBrdf, Vec3};
-use brdfd::core::envmap::{EnvMap, LightSet};
-use brdfd::core::estimate::{estimate, EstimateOptions, Model, SelectionMethod, View};
-use brdfd::core::geometry::{Camera, GeomPixel, PixelGeometry, Shape};
-use brdfd::core::merl::MerlBrdf;
-use brdfd::core::raster::Raster;
-use brdfd::core::render::{render_bivariate, render_full, render_merl, RenderingMatrix};
-use brdfd::core::select::{self, Blocks, SwapParams};
-use brdfd::core::solve::{Colour, ColourChoice, Solver};
-use brdfd::evaluation::paper::brdf_error;
+use brdfd_core::basis::Basis;
+use brdfd_core::bivariate::{Bivariate, Grid};
+use brdfd_core::brdf::{dot, normalize, IsotropicBrdf, Vec3};
+use brdfd_core::envmap::{EnvMap, LightSet};
+use brdfd_core::estimate::{estimate, EstimateOptions, Model, SelectionMethod, View};
+use brdfd_core::geometry::{Camera, GeomPixel, PixelGeometry, Shape};
+use brdfd_core::merl::MerlBrdf;
+use brdfd_core::raster::Raster;
+use brdfd_core::render::{render_bivariate, render_full, render_merl, RenderingMatrix};
+use brdfd_core::select::{self, Blocks, SwapParams};
+use brdfd_core::solve::{Colour, ColourChoice, Solver};
+use brdfd_eval::paper::brdf_error;
 
 /// The embedded basis's rendering matrix for a sphere under the studio map.
 fn studio_matrix(basis: &Basis, size: usize) -> RenderingMatrix {
@@ -94,7 +94,7 @@ fn merl_round_trip_through_file() {
     gold.write(&path).unwrap();
     assert_eq!(
         std::fs::metadata(&path).unwrap().len() as usize,
-        brdfd::core::merl::FILE_BYTES
+        brdfd_core::merl::FILE_BYTES
     );
     let back = MerlBrdf::read(&path).unwrap();
     // Stored = value / scale, read = stored × scale: at most one rounding each way.
@@ -253,7 +253,7 @@ fn coefficients_inside_the_span_are_recovered() {
 /// from all; the joint model, one set for every channel, cannot fit the photo.
 #[test]
 fn per_channel_colour_recovers_what_the_joint_basis_cannot() {
-    use brdfd::core::solve::{channel_coefficients, Colour};
+    use brdfd_core::solve::{channel_coefficients, Colour};
     let basis = Basis::embedded();
     // A different in-span shape and scale per channel, each ≥ 0 in every cell: a colour the
     // joint basis's RGB patterns cannot mix.
@@ -327,7 +327,7 @@ fn per_channel_colour_recovers_what_the_joint_basis_cannot() {
 /// models hold it, and both fit to f32 rounding), which rounding must not decide.
 #[test]
 fn auto_colour_keeps_joint_on_a_tie() {
-    use brdfd::core::estimate::COLOUR_FIT_MARGIN;
+    use brdfd_core::estimate::COLOUR_FIT_MARGIN;
     let basis = Basis::embedded();
     let (c_true, g, lights, photo) = in_span_photo(&basis);
     let opts = EstimateOptions {
@@ -457,7 +457,7 @@ fn sky_map(width: usize) -> EnvMap {
     let h = width / 2;
     let px = (0..width * h)
         .map(|i| {
-            let d = brdfd::core::envmap::direction(
+            let d = brdfd_core::envmap::direction(
                 ((i % width) as f64 + 0.5) / width as f64,
                 ((i / width) as f64 + 0.5) / h as f64,
                 0.0,
@@ -473,7 +473,7 @@ fn sky_map(width: usize) -> EnvMap {
 fn quadrature(px: &GeomPixel) -> f64 {
     let n = px.normal.map(|c| c as f64);
     let v = px.view.map(|c| c as f64);
-    let (t, b) = brdfd::core::brdf::tangent_frame(n);
+    let (t, b) = brdfd_core::brdf::tangent_frame(n);
     let wo = [dot(v, t), dot(v, b), dot(v, n)];
     let (nt, np) = (400, 800);
     let mut sum = 0.0;
@@ -524,7 +524,7 @@ fn light_at_plus_x() -> EnvMap {
     let (w, h) = (128, 64);
     let px = (0..w * h)
         .map(|i| {
-            let d = brdfd::core::envmap::direction(
+            let d = brdfd_core::envmap::direction(
                 ((i % w) as f64 + 0.5) / w as f64,
                 ((i / w) as f64 + 0.5) / h as f64,
                 0.0,
@@ -578,7 +578,7 @@ fn compression_keeps_renders_unchanged() {
     let map = studio_envmap(512);
     let g = sphere(32);
     let full = map.lights(0.0);
-    let adaptive = map.compressed(brdfd::core::envmap::DEFAULT_LIGHTS, 0.0);
+    let adaptive = map.compressed(brdfd_core::envmap::DEFAULT_LIGHTS, 0.0);
     // The uniform 90 × 45 grid earlier versions used, for comparison.
     let grid = map.downsample(90, 45).lights(0.0);
     let materials = embedded_materials();
@@ -599,7 +599,7 @@ fn compression_keeps_renders_unchanged() {
     }
     // Several counts in one pass (an estimate's candidate and chosen lights) give each
     // count's own compression, light for light.
-    let levels = map.compressed_levels(&[512, brdfd::core::envmap::DEFAULT_LIGHTS, 16_384], 0.0);
+    let levels = map.compressed_levels(&[512, brdfd_core::envmap::DEFAULT_LIGHTS, 16_384], 0.0);
     for (set, alone) in levels.iter().zip([
         map.compressed(512, 0.0),
         adaptive,
@@ -708,7 +708,7 @@ fn estimate_recovers_an_embedded_material_on_the_virtual_bench() {
     let g = bench.pixels().unwrap();
     let lights = bench
         .env
-        .compressed(brdfd::core::envmap::DEFAULT_LIGHTS, 0.0);
+        .compressed(brdfd_core::envmap::DEFAULT_LIGHTS, 0.0);
     let basis = Basis::embedded();
     for method in [SelectionMethod::Fast, SelectionMethod::Paper] {
         let opts = EstimateOptions {
@@ -739,7 +739,7 @@ fn nan_in_an_exr_is_rejected_with_its_pixel() {
     let path = dir.path().join("bad.exr");
     let mut px = vec![[1.0f32; 3]; 16 * 8];
     px[8 * 16 + 5 - 16] = [1.0, f32::NAN, 1.0];
-    brdfd::core::envmap::write_exr(&path, 16, 8, &px).unwrap();
+    brdfd_core::envmap::write_exr(&path, 16, 8, &px).unwrap();
     let e = EnvMap::load(&path).unwrap_err().to_string();
     assert!(
         e.contains("bad.exr") && e.contains("x=5, y=7") && e.contains("channel 1"),
@@ -781,7 +781,7 @@ fn basis_files_round_trip_and_reject_damage() {
 /// file claims it, rather than failing later inside the renderer.
 #[test]
 fn bases_with_more_components_than_estimates_use_are_refused() {
-    use brdfd::core::basis::{CellWeight, Normalisation, MAX_K};
+    use brdfd_core::basis::{CellWeight, Normalisation, MAX_K};
     let grid = Grid::default();
     // Twelve training materials: the ten test fits, and the square roots of two of them (a
     // repeat would add no rank).
@@ -825,7 +825,7 @@ fn bases_with_more_components_than_estimates_use_are_refused() {
 /// at 1.0, and a damaged attribute is an error that names it.
 #[test]
 fn photo_files_carry_their_white_level() {
-    use brdfd::core::envmap::WHITE_LEVEL_ATTRIBUTE;
+    use brdfd_core::envmap::WHITE_LEVEL_ATTRIBUTE;
     let dir = tempfile::tempdir().unwrap();
     let photo = Raster {
         width: 3,
@@ -856,11 +856,9 @@ fn embedded_defaults_load() {
     let b = Basis::embedded();
     assert_eq!(b.header.k, 5);
     assert_eq!(b.header.materials.len(), 90);
-    assert!(brdfd::evaluation::paper::TEST_SET.iter().all(|m| !b
-        .header
-        .materials
+    assert!(brdfd_eval::paper::TEST_SET
         .iter()
-        .any(|t| t == m)));
+        .all(|m| !b.header.materials.iter().any(|t| t == m)));
     assert_eq!(embedded_materials().materials.len(), 10);
 }
 
@@ -871,7 +869,7 @@ fn embedded_defaults_load() {
 /// extra normals must condition the all-pixel system better than one view does.
 #[test]
 fn turntable_views_recover_the_coefficients_and_improve_conditioning() {
-    use brdfd::core::estimate::estimate_views;
+    use brdfd_core::estimate::estimate_views;
     let basis = Basis::embedded();
     let c_true = in_span_nonnegative(&basis);
     let in_span = basis.reconstruct(&c_true);
@@ -961,13 +959,13 @@ fn analytic_model_recovers_a_tabulated_ggx_material() {
     // render and the fit disagree only through the full table's bin centres against the
     // bivariate grid's φd mean, and the compressed lights; measured α within 0.1%, kd and F₀
     // within 0.004, fit 0.015, so 5%, 0.03 and 0.02 leave room without hiding a wrong lobe.
-    use brdfd::core::analytic::Microfacet;
+    use brdfd_core::analytic::Microfacet;
     let truth = Microfacet::one_lobe([0.30, 0.10, 0.05], [0.9, 0.7, 0.4], [1.0; 3], 0.15);
     let table = MerlBrdf::tabulate(&truth);
     let g = sphere(96);
     let env = studio_envmap(256);
     let photo = render_merl(&g, &env.compressed(8192, 0.0), &table);
-    let lights = env.compressed(brdfd::core::envmap::DEFAULT_LIGHTS, 0.0);
+    let lights = env.compressed(brdfd_core::envmap::DEFAULT_LIGHTS, 0.0);
     let opts = EstimateOptions {
         model: Model::Analytic,
         lobes: 1,
@@ -999,8 +997,8 @@ fn default_estimates_are_plausible_on_every_evaluation_material() {
     // Issue 18: f ≥ 0 in every cell and directional albedo ≤ 1, for the default model's
     // estimate (and f ≥ 0 for the basis model's) of each of the 10 test materials (embedded NBRDF fits) and of brdfd's own GGX
     // materials, from a 48² sphere under the studio map.
-    use brdfd::evaluation::relight::analytic_materials;
     use brdfd::results::Plausibility;
+    use brdfd_eval::relight::analytic_materials;
     let set = embedded_materials();
     let mut tables: Vec<(String, MerlBrdf)> = set
         .materials
@@ -1053,7 +1051,7 @@ fn hybrid_model_recovers_a_measured_material_in_its_mix() {
     // rendered under finer lights than the estimate uses, and the embedded tables are half
     // precision, so neither the fit nor the relight is exact (measured: fit 0.006, relight
     // 0.010; the tests hold 0.02 and 0.05).
-    use brdfd::core::hybrid::HybridFit;
+    use brdfd_core::hybrid::HybridFit;
     let basis = Basis::embedded();
     let (name, table) = basis
         .atoms()
@@ -1062,19 +1060,19 @@ fn hybrid_model_recovers_a_measured_material_in_its_mix() {
     let grid = basis.header.grid;
     let mut values: Vec<f64> = table.iter().map(|v| 0.7 * v).collect();
     for c in 0..3 {
-        for g in 0..brdfd::core::bivariate::GRID_CELLS {
-            values[c * brdfd::core::bivariate::GRID_CELLS + g] += 0.05 / std::f64::consts::PI;
+        for g in 0..brdfd_core::bivariate::GRID_CELLS {
+            values[c * brdfd_core::bivariate::GRID_CELLS + g] += 0.05 / std::f64::consts::PI;
         }
     }
     let reference = Bivariate::reduce(
-        &brdfd::core::analytic::Microfacet::one_lobe([0.0; 3], [0.0; 3], [0.0; 3], 0.5),
+        &brdfd_core::analytic::Microfacet::one_lobe([0.0; 3], [0.0; 3], [0.0; 3], 0.5),
         grid,
     );
     let truth = Bivariate::from_values(grid, values, reference.valid.clone());
     let g = sphere(96);
     let env = studio_envmap(256);
     let photo = render_bivariate(&g, &env.compressed(8192, 0.0), &truth);
-    let lights = env.compressed(brdfd::core::envmap::DEFAULT_LIGHTS, 0.0);
+    let lights = env.compressed(brdfd_core::envmap::DEFAULT_LIGHTS, 0.0);
     let opts = EstimateOptions {
         model: Model::Hybrid,
         ..Default::default()

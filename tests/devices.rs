@@ -144,7 +144,7 @@ fn v4l_capture_on_the_simulated_camera_writes_the_averaged_frame() {
     assert!(o.status.success(), "{text}");
     assert!(text.contains("applied: exposure 0.01 s"), "{text}");
     assert!(text.contains("3 frames of 128×128 averaged"), "{text}");
-    let r = brdfd::core::raster::Raster::read(&dir.path().join("f.exr")).unwrap();
+    let r = brdfd_core::raster::Raster::read(&dir.path().join("f.exr")).unwrap();
     assert_eq!((r.width, r.height), (128, 128));
     let bad = brdfd(
         &["v4l", "capture", "--device", "serial:/dev/ttyS0"],
@@ -156,7 +156,7 @@ fn v4l_capture_on_the_simulated_camera_writes_the_averaged_frame() {
 /// Averaging N frames divides the sensor noise by about √N.
 #[test]
 fn averaging_frames_reduces_noise_by_the_square_root_of_their_number() {
-    use brdfd::core::raster::srgb_to_linear;
+    use brdfd_core::raster::srgb_to_linear;
     let bench = VirtualBench::embedded("paint", 48).unwrap();
     let source = Arc::new(BenchCamera::new(bench, "brdfd", "sim"));
     let exposure_s = 0.004;
@@ -197,7 +197,7 @@ fn averaging_frames_reduces_noise_by_the_square_root_of_their_number() {
         inside.len()
     );
     let truth = &clean.pixels;
-    let rms = |r: &brdfd::core::raster::Raster| {
+    let rms = |r: &brdfd_core::raster::Raster| {
         let s: f64 = inside
             .iter()
             .flat_map(|&i| (0..3).map(move |c| ((r.pixels[i][c] - truth[i][c]) as f64).powi(2)))

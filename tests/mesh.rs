@@ -3,9 +3,9 @@
 
 use std::io::Write;
 
-use brdfd::core::brdf::{dot, Vec3};
-use brdfd::core::geometry::{scale_warning, Camera, PixelGeometry, SceneGeometry, Shape};
-use brdfd::core::mesh::{uv_sphere, Mesh, Placement, Units};
+use brdfd_core::brdf::{dot, Vec3};
+use brdfd_core::geometry::{scale_warning, Camera, PixelGeometry, SceneGeometry, Shape};
+use brdfd_core::mesh::{uv_sphere, Mesh, Placement, Units};
 
 /// The tolerance: a sphere mesh's interpolated normals against the sphere's, at 256².
 const NORMAL_TOLERANCE_DEG: f64 = 0.5;
@@ -90,7 +90,7 @@ fn a_sphere_mesh_rasterises_as_the_sphere_does() {
     let kept: std::collections::HashSet<_> = mesh.pixels.iter().map(|p| (p.x, p.y)).collect();
     let mut outline = analytic.clone();
     outline.drop_outline();
-    let limit = (brdfd::core::geometry::GRAZING_LIMIT_DEG - NORMAL_TOLERANCE_DEG)
+    let limit = (brdfd_core::geometry::GRAZING_LIMIT_DEG - NORMAL_TOLERANCE_DEG)
         .to_radians()
         .cos();
     let inner: std::collections::HashSet<_> = outline

@@ -4,15 +4,15 @@
 mod common;
 
 use brdfd::bench::studio_envmap;
-use brdfd::core::basis::Basis;
-use brdfd::core::bivariate::{Bivariate, Grid};
-use brdfd::core::brdf::IsotropicBrdf;
-use brdfd::core::envmap::LightSet;
-use brdfd::core::geometry::{Camera, GeomPixel, PixelGeometry, Pose, SceneGeometry};
-use brdfd::core::merl::MerlBrdf;
-use brdfd::core::mesh::{bowl, grooved_plate, uv_sphere, Mesh};
-use brdfd::core::raster::Raster;
-use brdfd::core::render::{render_bivariate, render_full, render_merl, visible_fraction};
+use brdfd_core::basis::Basis;
+use brdfd_core::bivariate::{Bivariate, Grid};
+use brdfd_core::brdf::IsotropicBrdf;
+use brdfd_core::envmap::LightSet;
+use brdfd_core::geometry::{Camera, GeomPixel, PixelGeometry, Pose, SceneGeometry};
+use brdfd_core::merl::MerlBrdf;
+use brdfd_core::mesh::{bowl, grooved_plate, uv_sphere, Mesh};
+use brdfd_core::raster::Raster;
+use brdfd_core::render::{render_bivariate, render_full, render_merl, visible_fraction};
 
 /// A white Lambertian surface: under a sky of radiance 1 it returns the cosine-weighted
 /// fraction of the sky it sees.
@@ -221,8 +221,8 @@ fn grooved_block() -> SceneGeometry {
 /// the coefficients when the estimate knows what the part hides, and not when it does not.
 #[test]
 fn turned_views_of_a_concave_part_recover_the_material_only_with_occlusion() {
-    use brdfd::core::estimate::{estimate_views, EstimateOptions, Model, View};
-    use brdfd::core::solve::ColourChoice;
+    use brdfd_core::estimate::{estimate_views, EstimateOptions, Model, View};
+    use brdfd_core::solve::ColourChoice;
     let basis = Basis::embedded();
     let c_true: Vec<f64> = basis
         .column_prior()
@@ -303,8 +303,8 @@ fn turned_views_of_a_concave_part_recover_the_material_only_with_occlusion() {
 #[test]
 fn the_relight_error_on_a_concave_part_with_and_without_occlusion() {
     use brdfd::bench::VirtualBench;
-    use brdfd::core::envmap::{CHOSEN_LIGHTS, DEFAULT_LIGHTS};
-    use brdfd::core::estimate::{estimate, EstimateOptions, View};
+    use brdfd_core::envmap::{CHOSEN_LIGHTS, DEFAULT_LIGHTS};
+    use brdfd_core::estimate::{estimate, EstimateOptions, View};
     let mut bench = VirtualBench::embedded("gold", 128).unwrap();
     bench.geometry = grooved_block();
     let g = bench.pixels().unwrap();
@@ -442,13 +442,13 @@ fn the_gold_part_preset_captures_gold_on_the_grooved_block() {
 /// 12 mm deep.
 #[test]
 fn shadow_rays_start_just_off_the_surface() {
-    use brdfd::core::bvh::Bvh;
-    use brdfd::core::mesh::Placement;
+    use brdfd_core::bvh::Bvh;
+    use brdfd_core::mesh::Placement;
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/geometry");
     let mut scene = SceneGeometry::read(&dir.join("corrugated-mesh-d5100.toml")).unwrap();
     scene.camera = scene.camera.resized(616, 408);
     let g = scene.pixels(616, 408).unwrap();
-    let Some(brdfd::core::geometry::Shape::Mesh {
+    let Some(brdfd_core::geometry::Shape::Mesh {
         file,
         units,
         rotation_deg,

@@ -7,11 +7,11 @@ mod common;
 use brdfd::bench::board_photo::{self, Spoil};
 use brdfd::bench::camera::BenchCamera;
 use brdfd::bench::{studio_envmap, VirtualBench};
-use brdfd::core::geometry::{Camera, Pose, Shape};
-use brdfd::core::raster::Raster;
 use brdfd::pose::board::Board;
 use brdfd::pose::{angle_between_deg, calibrate, find, pinhole, Calibrated, Focal};
 use brdfd::rig::pose::Photo;
+use brdfd_core::geometry::{Camera, Pose, Shape};
+use brdfd_core::raster::Raster;
 use brdfd_sim::{ImageSource, Shot};
 
 const WIDTH: usize = 1600;

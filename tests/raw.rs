@@ -6,9 +6,9 @@ mod common;
 use brdfd::bench::camera::{BenchCamera, SENSOR_GAIN};
 use brdfd::bench::raw_file::{self, RawFormat, ShotInfo, D5100};
 use brdfd::bench::VirtualBench;
-use brdfd::core::raster::Raster;
 use brdfd::radiometry::raw::{decode_raw, WhiteBalance};
 use brdfd::radiometry::{decode_jpeg, merge_hdr, Frame};
+use brdfd_core::raster::Raster;
 use brdfd_sim::{ImageSource, Shot};
 use common::shared_data;
 

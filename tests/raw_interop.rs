@@ -9,8 +9,8 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use brdfd::core::raster::Raster;
 use brdfd::radiometry::raw::{decode_raw, WhiteBalance};
+use brdfd_core::raster::Raster;
 use common::{brdfd, text, Simulator};
 
 fn tools_present() -> bool {

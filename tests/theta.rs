@@ -11,8 +11,8 @@ use common::{brdfd, shared_data, text, Simulator};
 use std::time::Duration;
 
 use brdfd::bench::panorama::{BenchPanorama, THETA_SENSOR_GAIN};
-use brdfd::core::envmap::EnvMap;
 use brdfd::panorama::{load_jpeg, merge_bracket, read_gpano, MergedPanorama};
+use brdfd_core::envmap::EnvMap;
 use brdfd_sim::theta::{OscServer, ThetaConfig};
 use brdfd_theta::{BracketPlan, Exposure, HttpTimeouts, Theta};
 
@@ -106,8 +106,8 @@ fn resolved_threshold() -> f32 {
 /// merge itself loses.
 #[test]
 fn hdr_merge_of_lossless_8_bit_frames_recovers_grace() {
-    use brdfd::core::raster::{linear_to_srgb, srgb_to_linear, Raster};
     use brdfd::radiometry::{merge_hdr, Exposure as FrameExposure, Frame};
+    use brdfd_core::raster::{linear_to_srgb, srgb_to_linear, Raster};
     let Some(data) = shared_data() else { return };
     let (truth, plan) = grace_nd_and_plan(&data);
     let frames: Vec<Frame> = plan

@@ -12,6 +12,6 @@ fuzz_target!(|data: &[u8]| {
     let n = (u16::from_le_bytes([data[0], data[1]]) as usize).min(data.len() - 2);
     let (json, exr) = data[2..].split_at(n);
     if let Ok(json) = std::str::from_utf8(json) {
-        let _ = brdfd::core::basis::Basis::from_parts(json, exr, "fuzz basis");
+        let _ = brdfd_core::basis::Basis::from_parts(json, exr, "fuzz basis");
     }
 });

@@ -16,10 +16,10 @@ fuzz_target!(|data: &[u8]| {
     let Some((&which, rest)) = data.split_first() else {
         return;
     };
-    let _ = brdfd::core::merl::MerlBrdf::from_bytes(rest, "fuzz.binary");
+    let _ = brdfd_core::merl::MerlBrdf::from_bytes(rest, "fuzz.binary");
     let ext = if which % 2 == 0 { "exr" } else { "hdr" };
     let path = dir().path().join(format!("input.{ext}"));
     std::fs::write(&path, rest).expect("the temporary file is written");
-    let _ = brdfd::core::envmap::EnvMap::load(&path);
-    let _ = brdfd::core::raster::Raster::read_with_white(&path);
+    let _ = brdfd_core::envmap::EnvMap::load(&path);
+    let _ = brdfd_core::raster::Raster::read_with_white(&path);
 });

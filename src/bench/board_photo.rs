@@ -7,11 +7,11 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
 
-use crate::core::brdf::{add, dot, scale, sub, Vec3};
-use crate::core::envmap::EnvMap;
-use crate::core::geometry::Camera;
-use crate::core::raster::Raster;
 use crate::pose::board::{Board, PAPER};
+use brdfd_core::brdf::{add, dot, scale, sub, Vec3};
+use brdfd_core::envmap::EnvMap;
+use brdfd_core::geometry::Camera;
+use brdfd_core::raster::Raster;
 
 /// Rays per pixel, each way.
 const SUPERSAMPLE: usize = 4;

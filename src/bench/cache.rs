@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 
 use sha2::{Digest, Sha256};
 
-use crate::core::raster::Raster;
+use brdfd_core::raster::Raster;
 
 /// `BRDFD_RENDER_CACHE`: a directory to use, or `off`.
 pub const ENV: &str = "BRDFD_RENDER_CACHE";

@@ -9,8 +9,8 @@ use brdfd_sim::{ImageSource, Shot};
 use super::raw_file::{self, exif_ifd, RawFormat, ShotInfo};
 use super::tiff::{self, ByteOrder, Ifd, Value};
 use super::VirtualBench;
-use crate::core::geometry::Camera;
-use crate::core::raster::{linear_to_srgb, Raster};
+use brdfd_core::geometry::Camera;
+use brdfd_core::raster::{linear_to_srgb, Raster};
 
 /// Sensor response of the simulated cameras: a pixel value of 1.0 (white) at radiance 1 needs
 /// an exposure factor (t·ISO/100/N²) of 1/SENSOR_GAIN. The rig calibration's default relative

@@ -14,14 +14,14 @@ pub mod panorama;
 pub mod raw_file;
 pub mod tiff;
 
-use crate::core::bivariate::Bivariate;
-use crate::core::envmap::{EnvMap, LightSet};
-use crate::core::geometry::{Camera, PixelGeometry, SceneGeometry, Shape};
-use crate::core::merl::MerlBrdf;
-use crate::core::nbrdf::NbrdfSet;
-use crate::core::raster::Raster;
-use crate::core::render::{render_bivariate, render_merl};
-use crate::core::Result;
+use brdfd_core::bivariate::Bivariate;
+use brdfd_core::envmap::{EnvMap, LightSet};
+use brdfd_core::geometry::{Camera, PixelGeometry, SceneGeometry, Shape};
+use brdfd_core::merl::MerlBrdf;
+use brdfd_core::nbrdf::NbrdfSet;
+use brdfd_core::raster::Raster;
+use brdfd_core::render::{render_bivariate, render_merl};
+use brdfd_core::Result;
 
 use cache::{Key, RenderCache};
 
@@ -96,7 +96,7 @@ fn procedural_map(width: usize, name: &str, radiance: impl Fn([f64; 3]) -> [f32;
     let mut pixels = Vec::with_capacity(width * height);
     for y in 0..height {
         for x in 0..width {
-            pixels.push(radiance(crate::core::envmap::direction(
+            pixels.push(radiance(brdfd_core::envmap::direction(
                 (x as f64 + 0.5) / width as f64,
                 (y as f64 + 0.5) / height as f64,
                 0.0,
@@ -136,7 +136,7 @@ pub fn reference_maps() -> [(&'static str, EnvMap); 2] {
 }
 
 fn unit(v: [f64; 3]) -> [f64; 3] {
-    crate::core::brdf::normalize(v)
+    brdfd_core::brdf::normalize(v)
 }
 
 /// The simulated rig's geometry: an orthographic camera on a unit sphere.
@@ -220,7 +220,7 @@ impl VirtualBench {
         // The map's or the mesh's file is read by the render: its size and time stand for its
         // content (a shipped mesh is the binary's own).
         let mesh = match &geometry.shape {
-            Some(Shape::Mesh { file, .. }) if !crate::core::mesh::is_builtin(file) => Some(file),
+            Some(Shape::Mesh { file, .. }) if !brdfd_core::mesh::is_builtin(file) => Some(file),
             _ => None,
         };
         for path in geometry.normal_map.iter().chain(mesh) {

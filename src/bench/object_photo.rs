@@ -7,13 +7,13 @@
 //! Each pixel averages 4 × 4 rays, and the photo is spoiled as the board's is ([`Spoil`]).
 
 use super::board_photo::{photograph, Spoil};
-use crate::core::brdf::{cross, dot, normalize, scale, sub, Vec3};
-use crate::core::bvh::Bvh;
-use crate::core::envmap::EnvMap;
-use crate::core::geometry::Camera;
-use crate::core::mesh::Mesh;
-use crate::core::raster::Raster;
 use crate::pose::board::PAPER;
+use brdfd_core::brdf::{cross, dot, normalize, scale, sub, Vec3};
+use brdfd_core::bvh::Bvh;
+use brdfd_core::envmap::EnvMap;
+use brdfd_core::geometry::Camera;
+use brdfd_core::mesh::Mesh;
+use brdfd_core::raster::Raster;
 
 /// Lights the print's irradiance is summed over: it is smooth in the normal.
 const LIGHTS: usize = 256;

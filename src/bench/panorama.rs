@@ -6,7 +6,7 @@
 use brdfd_sim::{ImageSource, Shot};
 
 use super::camera::{expose_to_jpeg, insert_app1, insert_exif};
-use crate::core::envmap::EnvMap;
+use brdfd_core::envmap::EnvMap;
 
 /// Sensor response of the simulated THETA: a pixel value of 1.0 (white) at map radiance 1
 /// needs an exposure factor (t·ISO/100/N²) of 1/THETA_SENSOR_GAIN. It is ten times less

@@ -12,7 +12,7 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
 use super::tiff::{self, ByteOrder, Ifd, Value};
-use crate::core::raster::{linear_to_srgb, Raster};
+use brdfd_core::raster::{linear_to_srgb, Raster};
 
 /// Which RAW file the simulated camera writes.
 #[derive(

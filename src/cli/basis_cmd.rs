@@ -3,11 +3,11 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use brdfd::core::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
-use brdfd::core::bivariate::{Bivariate, Grid, PhiReduction, ThetaHBinning};
-use brdfd::core::merl::MerlBrdf;
-use brdfd::core::nbrdf::NbrdfSet;
-use brdfd::evaluation::paper::TEST_SET;
+use brdfd_core::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
+use brdfd_core::bivariate::{Bivariate, Grid, PhiReduction, ThetaHBinning};
+use brdfd_core::merl::MerlBrdf;
+use brdfd_core::nbrdf::NbrdfSet;
+use brdfd_eval::paper::TEST_SET;
 
 #[derive(clap::Subcommand)]
 pub enum BasisCommand {

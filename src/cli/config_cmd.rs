@@ -9,8 +9,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::bail;
 use brdfd::config::{ConfigError, DaemonConfig, MaterialPreset, Rig};
-use brdfd::core::geometry::SceneGeometry;
 use brdfd::rig::calibrate::Target;
+use brdfd_core::geometry::SceneGeometry;
 
 #[derive(clap::Subcommand)]
 pub enum ConfigCommand {

@@ -3,23 +3,23 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
-use brdfd::core::analytic::{Microfacet, MAX_LOBES};
-use brdfd::core::basis::Basis;
-use brdfd::core::bivariate::Bivariate;
-use brdfd::core::envmap::{CHOSEN_LIGHTS, DEFAULT_LIGHTS};
-use brdfd::core::estimate::{
+use brdfd::report::{Context as ReportContext, Visibility};
+use brdfd::results::write_results;
+use brdfd_core::analytic::{Microfacet, MAX_LOBES};
+use brdfd_core::basis::Basis;
+use brdfd_core::bivariate::Bivariate;
+use brdfd_core::envmap::{CHOSEN_LIGHTS, DEFAULT_LIGHTS};
+use brdfd_core::estimate::{
     estimate as run_estimate, unused_basis_settings, EstimateOptions, Model, SelectionMethod, View,
     DEFAULT_LOBES, DEFAULT_MAX_CANDIDATES,
 };
-use brdfd::core::hybrid::{HybridFit, MixWeight};
-use brdfd::core::merl::MerlBrdf;
-use brdfd::core::nbrdf::NbrdfSet;
-use brdfd::core::raster::Raster;
-use brdfd::core::render::{render_bivariate, render_merl};
-use brdfd::core::select::SwapParams;
-use brdfd::core::solve::{ColourChoice, Solver};
-use brdfd::report::{Context as ReportContext, Visibility};
-use brdfd::results::write_results;
+use brdfd_core::hybrid::{HybridFit, MixWeight};
+use brdfd_core::merl::MerlBrdf;
+use brdfd_core::nbrdf::NbrdfSet;
+use brdfd_core::raster::Raster;
+use brdfd_core::render::{render_bivariate, render_merl};
+use brdfd_core::select::SwapParams;
+use brdfd_core::solve::{ColourChoice, Solver};
 
 use super::GeometryArgs;
 

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use brdfd::core::geometry::{Camera, SceneGeometry, Shape};
+use brdfd_core::geometry::{Camera, SceneGeometry, Shape};
 
 #[derive(clap::Args, Clone)]
 pub struct GeometryArgs {

@@ -129,7 +129,7 @@ pub struct EvalArgs {
     #[arg(long)]
     pub choices: bool,
     /// Principal components to estimate with (the paper's 5 unless told otherwise).
-    #[arg(long, default_value_t = brdfd::core::basis::DEFAULT_K)]
+    #[arg(long, default_value_t = brdfd_core::basis::DEFAULT_K)]
     pub k: usize,
     /// Run the relighting evaluation instead (the headline measure): estimate under each
     /// --capture map, relight under every other map, compare with the truth. Its documented
@@ -222,20 +222,19 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Estimate(a) => estimate_cmd::estimate(a),
         Command::Render(a) => estimate_cmd::render(a),
         Command::Eval(a) if a.relight => {
-            let report =
-                brdfd::evaluation::relight::run(&brdfd::evaluation::relight::RelightConfig {
-                    data: a.data,
-                    out: a.out,
-                    size: a.size,
-                    capture_maps: a.capture,
-                    materials: a.materials,
-                    leave_one_out: a.leave_one_out,
-                })?;
+            let report = brdfd_eval::relight::run(&brdfd_eval::relight::RelightConfig {
+                data: a.data,
+                out: a.out,
+                size: a.size,
+                capture_maps: a.capture,
+                materials: a.materials,
+                leave_one_out: a.leave_one_out,
+            })?;
             println!("{report}");
             Ok(())
         }
         Command::Eval(a) => {
-            let report = brdfd::evaluation::paper::run(&brdfd::evaluation::paper::EvalConfig {
+            let report = brdfd_eval::paper::run(&brdfd_eval::paper::EvalConfig {
                 data: a.data,
                 out: a.out,
                 size: a.size,

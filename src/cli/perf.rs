@@ -4,12 +4,12 @@
 use std::time::Instant;
 
 use brdfd::bench::{embedded_materials, studio_envmap};
-use brdfd::core::basis::Basis;
-use brdfd::core::bivariate::{Bivariate, Grid};
-use brdfd::core::envmap::{write_exr, DEFAULT_LIGHTS};
-use brdfd::core::geometry::{Camera, PixelGeometry, Pose, Shape};
-use brdfd::core::render::RenderingMatrix;
-use brdfd::core::select::{self, Blocks, SwapParams};
+use brdfd_core::basis::Basis;
+use brdfd_core::bivariate::{Bivariate, Grid};
+use brdfd_core::envmap::{write_exr, DEFAULT_LIGHTS};
+use brdfd_core::geometry::{Camera, PixelGeometry, Pose, Shape};
+use brdfd_core::render::RenderingMatrix;
+use brdfd_core::select::{self, Blocks, SwapParams};
 
 #[derive(clap::Args)]
 pub struct BenchArgs {
@@ -193,14 +193,14 @@ fn estimate_end_to_end(runs: usize) -> anyhow::Result<()> {
             up: [0.0, 1.0, 0.0],
         },
     };
-    let geometry = brdfd::core::geometry::SceneGeometry {
+    let geometry = brdfd_core::geometry::SceneGeometry {
         camera: camera.clone(),
         shape: Some(Shape::unit_sphere()),
         normal_map: None,
     };
     std::fs::write(dir.join("geometry.toml"), toml::to_string(&geometry)?)?;
     // The photo: a render at one eighth of the size, enlarged; content does not change timing.
-    let small = brdfd::core::render::render_bivariate(
+    let small = brdfd_core::render::render_bivariate(
         &PixelGeometry::rasterize(&camera.resized(w / 8, h / 8), &Shape::unit_sphere())?,
         &studio_envmap(256).compressed(2048, 0.0),
         &Bivariate::reduce(
@@ -331,9 +331,9 @@ fn capture_bench(runs: usize, size: usize) -> anyhow::Result<()> {
 fn raw_bench(runs: usize) -> anyhow::Result<()> {
     use brdfd::bench::camera::SENSOR_GAIN;
     use brdfd::bench::raw_file::{nef, ShotInfo, D5100};
-    use brdfd::core::raster::Raster;
     use brdfd::radiometry::raw::{decode_raw, WhiteBalance};
     use brdfd::radiometry::{merge_hdr, Frame};
+    use brdfd_core::raster::Raster;
 
     let (w, h) = (4928, 3264);
     let mut scene = Raster::black(w, h);
@@ -385,9 +385,9 @@ fn raw_bench(runs: usize) -> anyhow::Result<()> {
 /// triangles (eight V-grooves, walls at 62°), seen from 30° off its normal; the rendering
 /// matrix and the whole estimate on those pixels against a sphere's.
 fn occlusion_bench(runs: usize) -> anyhow::Result<()> {
-    use brdfd::core::bvh::Bvh;
-    use brdfd::core::mesh::grooved_plate;
-    use brdfd::core::visibility::Occluder;
+    use brdfd_core::bvh::Bvh;
+    use brdfd_core::mesh::grooved_plate;
+    use brdfd_core::visibility::Occluder;
     use rayon::prelude::*;
     let mesh = grooved_plate(0.1, 0.1, 8, 0.006, 224, 224);
     let tilt = 30f64.to_radians();
@@ -453,7 +453,7 @@ fn occlusion_bench(runs: usize) -> anyhow::Result<()> {
     let basis = Basis::embedded();
     let model = basis.model();
     let binning = basis.header.grid.theta_h_binning;
-    let build = |pixels: &[brdfd::core::geometry::GeomPixel]| {
+    let build = |pixels: &[brdfd_core::geometry::GeomPixel]| {
         std::hint::black_box(RenderingMatrix::build(
             pixels,
             &lights,
@@ -476,8 +476,8 @@ fn occlusion_bench(runs: usize) -> anyhow::Result<()> {
     // The whole estimate, as `brdfd estimate` runs it (default model, candidates under 4,096
     // lights, chosen rows under 65,536), on the part and on the sphere: the part's time
     // includes casting its pixels and all of its visibility, worked out afresh each run.
-    use brdfd::core::envmap::CHOSEN_LIGHTS;
-    use brdfd::core::estimate::{estimate, EstimateOptions, View};
+    use brdfd_core::envmap::CHOSEN_LIGHTS;
+    use brdfd_core::estimate::{estimate, EstimateOptions, View};
     let map = studio_envmap(1024);
     let (lights, chosen) = map.estimate_lights(DEFAULT_LIGHTS, CHOSEN_LIGHTS, 0.0);
     let gold = Bivariate::reduce(
@@ -489,8 +489,8 @@ fn occlusion_bench(runs: usize) -> anyhow::Result<()> {
         g.pixels.truncate(50_000);
         Ok(g)
     };
-    let photo_part = brdfd::core::render::render_bivariate(&part()?, &lights, &gold);
-    let photo_sphere = brdfd::core::render::render_bivariate(&sphere, &lights, &gold);
+    let photo_part = brdfd_core::render::render_bivariate(&part()?, &lights, &gold);
+    let photo_sphere = brdfd_core::render::render_bivariate(&sphere, &lights, &gold);
     let run = |g: &PixelGeometry, photo| {
         let view = View {
             geometry: g,

@@ -6,13 +6,13 @@ use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
 use brdfd::config::Rig;
-use brdfd::core::geometry::{Camera, Shape};
 use brdfd::pose::board::Board;
 use brdfd::pose::silhouette::Refined;
 use brdfd::pose::{angle_between_deg, pinhole, Calibrated, Focal};
 use brdfd::rig::flow::Context;
 use brdfd::rig::pose::{self, OnBench, Photo};
 use brdfd::rig::{Devices, Progress, KEEP_ALIVE};
+use brdfd_core::geometry::{Camera, Shape};
 use toml_edit::{value, Array, Item};
 
 use super::calibrate_cmd::{calibration_dir, Folder};

@@ -217,7 +217,7 @@ fn summary(s: &Session) -> Vec<String> {
     match result_of(&s.dir) {
         Some((model, fit)) => lines.push(format!(
             "estimate: {model} model, fit to the photo {fit:.4} ({})",
-            brdfd::core::estimate::fit_verdict(fit)
+            brdfd_core::estimate::fit_verdict(fit)
         )),
         None if m.state != State::Done => lines.push(format!(
             "no estimate yet: `brdfd session resume {}` continues it",

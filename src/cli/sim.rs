@@ -79,7 +79,7 @@ pub struct ThetaArgs {
     pub shot_ms: u64,
 }
 
-fn bench_env(env: &Option<PathBuf>) -> anyhow::Result<brdfd::core::envmap::EnvMap> {
+fn bench_env(env: &Option<PathBuf>) -> anyhow::Result<brdfd_core::envmap::EnvMap> {
     Ok(match env {
         Some(p) => {
             brdfd::panorama::load_envmap(p).with_context(|| format!("reading {}", p.display()))?

@@ -5,10 +5,10 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
-use brdfd::core::envmap::EnvMap;
 use brdfd::panorama::merge_bracket;
 use brdfd::rig::Event;
 use brdfd::selector::Selector;
+use brdfd_core::envmap::EnvMap;
 use brdfd_theta::{BracketPlan, Credentials, Exposure, Frame, HttpTimeouts, Theta};
 
 #[derive(clap::Subcommand)]
@@ -156,7 +156,7 @@ pub fn run(cmd: ThetaCommand) -> anyhow::Result<()> {
                 );
             }
             let exr = a.out.join("panorama.exr");
-            brdfd::core::envmap::write_exr(&exr, map.width, map.height, &map.pixels)?;
+            brdfd_core::envmap::write_exr(&exr, map.width, map.height, &map.pixels)?;
             println!(
                 "{} ({}×{}, linear, relative units)",
                 exr.display(),

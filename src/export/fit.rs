@@ -26,13 +26,13 @@
 
 use rayon::prelude::*;
 
-use crate::core::analytic::{columns, lambert_column, schlick_weight};
-use crate::core::bivariate::{Bivariate, Grid, GRID_CELLS, N_THETA_D};
-use crate::core::envmap::LightSet;
-use crate::core::geometry::GeomPixel;
-use crate::core::merl::theta_d_center;
-use crate::core::render::{RenderingMatrix, PASS_COLUMNS};
-use crate::core::{CoreError, Result};
+use brdfd_core::analytic::{columns, lambert_column, schlick_weight};
+use brdfd_core::bivariate::{Bivariate, Grid, GRID_CELLS, N_THETA_D};
+use brdfd_core::envmap::LightSet;
+use brdfd_core::geometry::GeomPixel;
+use brdfd_core::merl::theta_d_center;
+use brdfd_core::render::{RenderingMatrix, PASS_COLUMNS};
+use brdfd_core::{CoreError, Result};
 
 /// Roughness (GGX α) searched: glTF roughness 0.02 (a polished mirror; below it the sphere's
 /// pixels cannot tell α apart) to 1.

@@ -9,8 +9,8 @@
 
 use base64::Engine as _;
 
-use crate::core::analytic::{schlick_weight, Microfacet};
-use crate::core::brdf::{from_rusinkiewicz, IsotropicBrdf};
+use brdfd_core::analytic::{schlick_weight, Microfacet};
+use brdfd_core::brdf::{from_rusinkiewicz, IsotropicBrdf};
 
 use super::fit::Fitted;
 

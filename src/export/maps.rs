@@ -7,8 +7,8 @@
 //! `regenerate_the_embedded_maps` below. Averaging keeps each region's power, which is what a
 //! sphere's render under 1,024–4,096 compressed lights reads.
 
-use crate::core::envmap::EnvMap;
-use crate::core::{CoreError, Result};
+use brdfd_core::envmap::EnvMap;
+use brdfd_core::{CoreError, Result};
 
 /// Width of the embedded maps (height is half).
 pub const WIDTH: usize = 256;

@@ -25,11 +25,11 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use crate::core::bivariate::Bivariate;
-use crate::core::envmap::{EnvMap, LightSet};
-use crate::core::geometry::{Camera, PixelGeometry, Shape};
-use crate::core::render::render_bivariate;
-use crate::core::{CoreError, Result};
+use brdfd_core::bivariate::Bivariate;
+use brdfd_core::envmap::{EnvMap, LightSet};
+use brdfd_core::geometry::{Camera, PixelGeometry, Shape};
+use brdfd_core::render::render_bivariate;
+use brdfd_core::{CoreError, Result};
 
 pub use gltf::{GltfBrdf, GltfMaterial};
 pub use openpbr::OpenPbrMaterial;
@@ -184,8 +184,8 @@ pub fn write_exports(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::core::analytic::Microfacet;
-    use crate::core::bivariate::Grid;
+    use brdfd_core::analytic::Microfacet;
+    use brdfd_core::bivariate::Grid;
 
     #[test]
     fn materials_gltf_holds_are_recovered_from_their_renders() {
@@ -251,7 +251,7 @@ mod tests {
 #[cfg(test)]
 mod figures {
     use super::*;
-    use crate::core::bivariate::Grid;
+    use brdfd_core::bivariate::Grid;
 
     #[test]
     #[ignore]

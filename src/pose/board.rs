@@ -19,7 +19,7 @@ use calib_targets::printable::{
 use serde::{Deserialize, Serialize};
 
 use super::Correspondence;
-use crate::core::brdf::Vec3;
+use brdfd_core::brdf::Vec3;
 
 /// A board file: what was printed, and where it stands.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -170,14 +170,14 @@ impl Board {
     pub fn world(&self, mm: [f64; 2]) -> Vec3 {
         let (w, h) = self.size_mm();
         let local = [(mm[0] - w / 2.0) / 1000.0, (h / 2.0 - mm[1]) / 1000.0, 0.0];
-        let r = crate::core::mesh::rotation(self.placement.rotation_deg);
+        let r = brdfd_core::mesh::rotation(self.placement.rotation_deg);
         let p = self.placement.position;
         [0, 1, 2].map(|i| r[i][0] * local[0] + r[i][1] * local[1] + p[i])
     }
 
     /// The board's face normal in the world.
     pub fn normal(&self) -> Vec3 {
-        let r = crate::core::mesh::rotation(self.placement.rotation_deg);
+        let r = brdfd_core::mesh::rotation(self.placement.rotation_deg);
         [r[0][2], r[1][2], r[2][2]]
     }
 

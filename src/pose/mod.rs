@@ -13,8 +13,8 @@ pub mod silhouette;
 
 use nalgebra::{DMatrix, Matrix3, Rotation3, Vector3};
 
-use crate::core::brdf::Vec3;
-use crate::core::geometry::{Camera, Pose};
+use brdfd_core::brdf::Vec3;
+use brdfd_core::geometry::{Camera, Pose};
 
 /// A pinhole camera's intrinsics, in pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -18,9 +18,9 @@ use anyhow::bail;
 use nalgebra::Vector3;
 
 use super::{pinhole, Extrinsics, Intrinsics};
-use crate::core::brdf::Vec3;
-use crate::core::geometry::{Camera, Shape};
-use crate::core::mesh::{rotation, Mesh};
+use brdfd_core::brdf::Vec3;
+use brdfd_core::geometry::{Camera, Shape};
+use brdfd_core::mesh::{rotation, Mesh};
 
 /// Samples per pixel each way in the mesh's mask.
 const SUPERSAMPLE: usize = 4;
@@ -70,7 +70,7 @@ impl Mask {
         // The difference is taken in linear light, in 255ths of white: a blurred edge mixes
         // the object's radiance with the bench's, and only there is a pixel's share of the
         // object its share of the contrast (in sRGB a bright object's edge would look wider).
-        let linear = |v: u8| crate::core::raster::srgb_to_linear(v as f32 / 255.0) * 255.0;
+        let linear = |v: u8| brdfd_core::raster::srgb_to_linear(v as f32 / 255.0) * 255.0;
         let diff: Vec<f32> = object
             .pixels()
             .zip(empty.pixels())
@@ -702,7 +702,7 @@ pub fn refine(mesh: &Mesh, views: &[View]) -> anyhow::Result<Refined> {
 mod tests {
     use super::*;
     use crate::bench::object_photo;
-    use crate::core::geometry::Pose;
+    use brdfd_core::geometry::Pose;
 
     fn camera() -> Camera {
         Camera::Pinhole {
@@ -723,7 +723,7 @@ mod tests {
     fn block() -> (Shape, Mesh) {
         let shape = Shape::Mesh {
             file: "builtin:grooved-block.obj".into(),
-            units: crate::core::mesh::Units::Mm,
+            units: brdfd_core::mesh::Units::Mm,
             rotation_deg: [-25.0, 0.0, 0.0],
             position: [0.0; 3],
         };
@@ -834,7 +834,7 @@ mod tests {
         };
         let soft = blur(&blur(&sharp, 1, 0), 0, 1);
         let srgb = |v: f64| {
-            image::Luma([(crate::core::raster::linear_to_srgb(v as f32) * 255.0).round() as u8])
+            image::Luma([(brdfd_core::raster::linear_to_srgb(v as f32) * 255.0).round() as u8])
         };
         let empty = image::GrayImage::from_pixel(w, h, srgb(0.05));
         let object =
@@ -870,13 +870,13 @@ mod tests {
     }
 
     /// 8-bit sRGB grey, white paper facing up at 90% of the range.
-    fn grey(r: &crate::core::raster::Raster, paper: [f32; 3]) -> image::GrayImage {
+    fn grey(r: &brdfd_core::raster::Raster, paper: [f32; 3]) -> image::GrayImage {
         let white = 0.2126 * paper[0] + 0.7152 * paper[1] + 0.0722 * paper[2];
         image::GrayImage::from_fn(r.width as u32, r.height as u32, |x, y| {
             let p = r.get(x as usize, y as usize);
             let lum = (0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]) / white * 0.9;
             image::Luma([
-                (crate::core::raster::linear_to_srgb(lum.clamp(0.0, 1.0)) * 255.0).round() as u8,
+                (brdfd_core::raster::linear_to_srgb(lum.clamp(0.0, 1.0)) * 255.0).round() as u8,
             ])
         })
     }

@@ -8,7 +8,7 @@ use std::io::Cursor;
 
 use rayon::prelude::*;
 
-use crate::core::raster::{srgb8_to_linear, Raster};
+use brdfd_core::raster::{srgb8_to_linear, Raster};
 
 #[derive(Debug, thiserror::Error)]
 pub enum RadiometryError {
@@ -20,7 +20,7 @@ pub enum RadiometryError {
     Merge(String),
     /// Files the core reads itself (Radiance, OpenEXR).
     #[error(transparent)]
-    Core(#[from] crate::core::CoreError),
+    Core(#[from] brdfd_core::CoreError),
 }
 
 /// Exposure as a camera recorded it.

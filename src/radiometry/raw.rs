@@ -25,7 +25,7 @@ use rawler::rawsource::RawSource;
 use rayon::prelude::*;
 
 use super::{Exposure, Frame, RadiometryError};
-use crate::core::raster::Raster;
+use brdfd_core::raster::Raster;
 
 /// File extensions of the RAW formats cameras write (upper or lower case).
 const RAW_EXTENSIONS: [&str; 9] = [

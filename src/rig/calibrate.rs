@@ -24,12 +24,12 @@ use super::plan;
 use super::settings::{light_plan, Bracket};
 use crate::bench::VirtualBench;
 use crate::config::{invalid, ConfigError, Gain};
-use crate::core::envmap::{LightSet, DEFAULT_LIGHTS};
-use crate::core::geometry::{PixelGeometry, SceneGeometry, Shape};
-use crate::core::merl::MerlBrdf;
-use crate::core::raster::Raster;
 use crate::panorama::merge_bracket;
 use crate::radiometry::{merge_hdr, merged_white_level, Frame};
+use brdfd_core::envmap::{LightSet, DEFAULT_LIGHTS};
+use brdfd_core::geometry::{PixelGeometry, SceneGeometry, Shape};
+use brdfd_core::merl::MerlBrdf;
+use brdfd_core::raster::Raster;
 
 /// The albedo of a photographer's grey card (18% reflectance), the target assumed when
 /// none is given.
@@ -92,7 +92,7 @@ impl Target {
         if let Some(shape) = &self.shape {
             // The shape's numbers, checked as a geometry file's are (the camera is the rig's).
             SceneGeometry {
-                camera: crate::core::geometry::Camera::eval_orthographic(8),
+                camera: brdfd_core::geometry::Camera::eval_orthographic(8),
                 shape: Some(shape.clone()),
                 normal_map: None,
             }
@@ -327,7 +327,7 @@ fn predicted_for(
 /// lights' unit: ρ/π · Σ L·max(0, n·ω)·Δω over the lights the pixel sees (a mesh target's
 /// own shape hides some, as the renderers count it).
 pub fn lambertian(pixels: &PixelGeometry, lights: &LightSet, albedo: [f64; 3]) -> Vec<[f64; 3]> {
-    crate::core::render::irradiance(pixels, lights)
+    brdfd_core::render::irradiance(pixels, lights)
         .into_iter()
         .map(|e| [0, 1, 2].map(|c| albedo[c] / PI * e[c]))
         .collect()

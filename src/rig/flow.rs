@@ -22,18 +22,18 @@ use super::turning::{turn, turned, turned_bench};
 use super::{Cancel, Devices, Event, Operator, Plan, Progress};
 use crate::bench::{VirtualBench, HELD_OUT_YAW_DEG};
 use crate::config::{MaterialPreset, Rig};
-use crate::core::basis::Basis;
-use crate::core::bivariate::Bivariate;
-use crate::core::envmap::{write_exr, EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
-use crate::core::estimate::{estimate_views, fit_verdict, Estimate, EstimateOptions, Model, View};
-use crate::core::geometry::{PixelGeometry, SceneGeometry};
-use crate::core::merl::MerlBrdf;
-use crate::core::nbrdf::NbrdfSet;
-use crate::core::raster::Raster;
-use crate::core::solve::Colour;
 use crate::panorama::merge_bracket;
 use crate::report::{Context as ReportContext, Visibility};
 use crate::session::{PhaseTime, Session, State};
+use brdfd_core::basis::Basis;
+use brdfd_core::bivariate::Bivariate;
+use brdfd_core::envmap::{write_exr, EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
+use brdfd_core::estimate::{estimate_views, fit_verdict, Estimate, EstimateOptions, Model, View};
+use brdfd_core::geometry::{PixelGeometry, SceneGeometry};
+use brdfd_core::merl::MerlBrdf;
+use brdfd_core::nbrdf::NbrdfSet;
+use brdfd_core::raster::Raster;
+use brdfd_core::solve::Colour;
 
 /// Camera files by name, exactly as the camera sent them.
 pub type RawFiles = Vec<(String, Vec<u8>)>;
@@ -221,8 +221,8 @@ fn disk_full(e: &anyhow::Error) -> bool {
             .and_then(std::io::Error::raw_os_error)
             == Some(ENOSPC)
             || matches!(
-                c.downcast_ref::<crate::core::CoreError>(),
-                Some(crate::core::CoreError::Io { error, .. }) if error.raw_os_error() == Some(ENOSPC)
+                c.downcast_ref::<brdfd_core::CoreError>(),
+                Some(brdfd_core::CoreError::Io { error, .. }) if error.raw_os_error() == Some(ENOSPC)
             )
             || c.to_string().contains("the disk is full")
     })
@@ -376,7 +376,7 @@ fn check_turntable(cx: &Context, s: &CaptureSettings) -> anyhow::Result<()> {
 /// relit against, rendered in the background once the first view is in front of the camera.
 struct Simulated {
     bench: VirtualBench,
-    relight_truth: Option<Joined<crate::core::Result<Raster>>>,
+    relight_truth: Option<Joined<brdfd_core::Result<Raster>>>,
 }
 
 /// A simulated rig needs a sample on its bench. Tabulating the material is the simulator's
@@ -767,7 +767,7 @@ fn write_result(
     session: &Session,
     basis: &Basis,
     est: &Estimate,
-    lights: &crate::core::envmap::LightSet,
+    lights: &brdfd_core::envmap::LightSet,
     report: &ReportContext,
 ) -> anyhow::Result<crate::export::Export> {
     let fresh = session.dir.join("result.partial");
@@ -818,7 +818,7 @@ fn simulated_bench(
         let mut b = VirtualBench::embedded("gold", plan.size)?;
         b.material = MerlBrdf::tabulate(set.get(name)?);
         b.material_name = name.to_string();
-        Ok::<_, crate::core::CoreError>(b)
+        Ok::<_, brdfd_core::CoreError>(b)
     })?;
     if plan.in_span {
         let projected = basis.project(&Bivariate::reduce(&bench.material, basis.header.grid));

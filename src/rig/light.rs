@@ -9,7 +9,7 @@ use super::flow::{Context, Keep, RawFiles};
 use super::roles::LightProbe;
 use super::{Event, Progress};
 use crate::bench::VirtualBench;
-use crate::core::envmap::EnvMap;
+use brdfd_core::envmap::EnvMap;
 
 /// Shoots the light probe's bracket on its worker; the frames are kept as the camera sent
 /// them.

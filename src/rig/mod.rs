@@ -38,8 +38,8 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
-use crate::core::estimate::Model;
-use crate::core::solve::{ColourChoice, Solver};
+use brdfd_core::estimate::Model;
+use brdfd_core::solve::{ColourChoice, Solver};
 pub use devices::Devices;
 pub use worker::{Device, DeviceStatus, Worker};
 
@@ -109,7 +109,7 @@ impl Plan {
             return Ok(());
         }
         if let Some(path) = &self.nbrdf {
-            let set = crate::core::nbrdf::NbrdfSet::read(path)?;
+            let set = brdfd_core::nbrdf::NbrdfSet::read(path)?;
             set.get(merl)?;
             return Ok(());
         }
@@ -238,7 +238,7 @@ impl Summary {
             columns: serde_json::from_value(v["columns"].clone()).ok()?,
             coefficients: serde_json::from_value(v["coefficients"].clone()).ok()?,
             fit_error: fit,
-            fit_verdict: crate::core::estimate::fit_verdict(fit.unwrap_or(f64::NAN)),
+            fit_verdict: brdfd_core::estimate::fit_verdict(fit.unwrap_or(f64::NAN)),
             relight_error: v["relight_error"].as_f64(),
             fallback: v["fallback"].as_str().map(str::to_string),
             export_relight_error: v["exports"]["relight_error"].as_f64(),

@@ -18,13 +18,13 @@ use super::roles::{ObjectCamera, Output, Role};
 use super::settings::Bracket;
 use super::Event;
 use crate::config::{Calibration, CameraGain};
-use crate::core::envmap::{exr_bytes, read_exr_rgb_bytes, ExrAttribute};
-use crate::core::raster::Raster;
 use crate::radiometry::raw::{decode_raw, is_raw_name, WhiteBalance};
 use crate::radiometry::{
     average_frames, averaging_noise, decode_jpeg, merge_hdr, merged_white_level, with_gain, Frame,
 };
 use crate::session::Session;
+use brdfd_core::envmap::{exr_bytes, read_exr_rgb_bytes, ExrAttribute};
+use brdfd_core::raster::Raster;
 
 /// EXR attributes of a fallback exposure: the exposure time the camera applied, seconds; the
 /// frames averaged; and their noise (the median relative standard error of the average).

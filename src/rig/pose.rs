@@ -18,12 +18,12 @@ use super::turning::turn_to;
 use crate::bench::board_photo::{self, Spoil};
 use crate::bench::object_photo;
 use crate::config::DslrFiles;
-use crate::core::geometry::{Camera, Shape};
-use crate::core::raster::linear_to_srgb;
 use crate::pose::board::Board;
 use crate::pose::silhouette::{refine, Mask, Refined, View};
 use crate::pose::{calibrate, check_photo_size, find, Calibrated, Focal, Found};
 use crate::radiometry::ExifFocal;
+use brdfd_core::geometry::{Camera, Shape};
+use brdfd_core::raster::linear_to_srgb;
 
 /// A photo of the bench to solve from: 8-bit grey, with the lens's EXIF where it has one.
 pub struct Photo {

@@ -16,10 +16,10 @@ use super::plan::{self, Roles};
 use super::roles::CameraSettings;
 use super::Plan;
 use crate::config::{MaterialPreset, PixelCount, Rig};
-use crate::core::basis::DEFAULT_K;
-use crate::core::estimate::{unused_basis_settings, EstimateOptions, Model};
-use crate::core::geometry::{SceneGeometry, Shape};
 use crate::session::Session;
+use brdfd_core::basis::DEFAULT_K;
+use brdfd_core::estimate::{unused_basis_settings, EstimateOptions, Model};
+use brdfd_core::geometry::{SceneGeometry, Shape};
 
 /// The rig's text as a session keeps it: its mesh and normal map named by the paths this
 /// capture found them at (beside the rig file), so that a resume finds them from any folder.
@@ -41,7 +41,7 @@ fn with_files_found(rig_text: &str, scene: &SceneGeometry) -> String {
             .and_then(|s| s.as_table_like_mut()),
         &scene.shape,
     ) {
-        if let (Some(item), false) = (shape.get_mut("file"), crate::core::mesh::is_builtin(file)) {
+        if let (Some(item), false) = (shape.get_mut("file"), brdfd_core::mesh::is_builtin(file)) {
             *item = toml_edit::value(absolute(file).display().to_string());
         }
     }
@@ -392,6 +392,6 @@ mod tests {
 
     #[test]
     fn the_embedded_basis_has_the_k_presets_are_checked_against() {
-        assert_eq!(crate::core::basis::Basis::embedded().header.k, DEFAULT_K);
+        assert_eq!(brdfd_core::basis::Basis::embedded().header.k, DEFAULT_K);
     }
 }

@@ -213,8 +213,8 @@ impl SimulatedRig {
     /// sees it.
     pub fn show_radiance(
         &self,
-        radiance: crate::core::raster::Raster,
-        camera: &crate::core::geometry::Camera,
+        radiance: brdfd_core::raster::Raster,
+        camera: &brdfd_core::geometry::Camera,
     ) -> anyhow::Result<()> {
         let camera = BenchCamera::of_radiance(radiance, camera, "NIKON CORPORATION", "NIKON D5100")
             .with_raw(self.raw);

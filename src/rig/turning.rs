@@ -8,8 +8,8 @@ use super::flow::{note_device, Context};
 use super::settings::{CaptureSettings, Turning};
 use super::Event;
 use crate::bench::VirtualBench;
-use crate::core::geometry::SceneGeometry;
 use crate::session::Session;
+use brdfd_core::geometry::SceneGeometry;
 
 /// Turns the object for view `i` (from 0), as the rig turns it; where it stands.
 pub fn turn(

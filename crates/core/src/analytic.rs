@@ -129,7 +129,7 @@ fn visibility(ci: f64, co: f64, alpha: f64) -> f64 {
 }
 
 /// Schlick's weight w = (1 − cos θd)⁵.
-pub(crate) fn schlick_weight(cos_d: f64) -> f64 {
+pub fn schlick_weight(cos_d: f64) -> f64 {
     (1.0 - cos_d).clamp(0.0, 1.0).powi(5)
 }
 
@@ -1018,7 +1018,7 @@ mod tests {
         // With F₀ = F₉₀ = 1, a single-scattering GGX lobe loses only what its masking loses:
         // about 1% at α 0.02 seen from the normal, more for rough lobes and at grazing views.
         // The albedo must stay ≤ 1 (plus the quadrature's 0.5%) and near 1 for a sharp lobe.
-        use crate::core::brdf::directional_albedo;
+        use crate::brdf::directional_albedo;
         let sharp = Microfacet::one_lobe([0.0; 3], [1.0; 3], [1.0; 3], 0.02);
         let a = directional_albedo(&sharp, 0.0)[0];
         assert!(a > 0.97 && a < 1.005, "α 0.02 at normal view: {a}");

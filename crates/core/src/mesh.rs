@@ -65,11 +65,11 @@ pub struct Placement {
 const BUILTIN: [(&str, &str); 2] = [
     (
         "grooved-block.obj",
-        include_str!("../../config/geometry/grooved-block.obj"),
+        include_str!("../../../config/geometry/grooved-block.obj"),
     ),
     (
         "corrugated-sample.obj",
-        include_str!("../../config/geometry/corrugated-sample.obj"),
+        include_str!("../../../config/geometry/corrugated-sample.obj"),
     ),
 ];
 
@@ -538,7 +538,7 @@ mod tests {
             rotation_deg: [-25.0, 0.0, 0.0],
             position: [0.0; 3],
         };
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/geometry");
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/geometry");
         for (name, _) in BUILTIN {
             let built_in = Mesh::read(Path::new(&format!("builtin:{name}")), &placement).unwrap();
             assert_eq!(

@@ -793,7 +793,7 @@ mod tests {
     #[test]
     fn a_tile_larger_than_its_image_is_refused() {
         // The fuzz input's first byte picks the reader; the EXR follows.
-        let input = include_bytes!("../../fuzz/seeds/image_files/tile-of-117m-pixels.bin");
+        let input = include_bytes!("../../../fuzz/seeds/image_files/tile-of-117m-pixels.bin");
         let e = read_exr_rgb_bytes(&input[1..], "tiles.exr")
             .err()
             .unwrap()

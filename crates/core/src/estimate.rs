@@ -41,9 +41,8 @@ pub enum SelectionMethod {
 
 /// The BRDF model an estimate fits: the seam between the estimate's shared steps (candidate
 /// pixels, the fit to the photo, the result) and each model's own fit.
-#[derive(
-    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize, utoipa::ToSchema,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 #[serde(rename_all = "kebab-case")]
 pub enum Model {
     /// The paper's: coefficients of the data-driven PCA basis, from selected pixels.

@@ -11,7 +11,8 @@ use super::nnls::least_distance;
 use super::render::RenderingMatrix;
 
 /// How coefficients are solved from the chosen rows.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 #[serde(rename_all = "kebab-case")]
 pub enum Solver {
     /// Least squares, as in the paper.
@@ -141,7 +142,8 @@ impl Colour {
 }
 
 /// The colour model an estimate is asked for (`--colour`, a preset's `colour`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 #[serde(rename_all = "kebab-case")]
 pub enum ColourChoice {
     Joint,

@@ -368,7 +368,7 @@ fn triangle(tri: &[Vec3; 3], o: Vec3, d: Vec3, t_min: f64, t_max: f64) -> Option
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::core::mesh::uv_sphere;
+    use crate::mesh::uv_sphere;
 
     #[test]
     fn rays_hit_a_sphere_mesh_where_the_sphere_is() {
@@ -389,7 +389,7 @@ mod tests {
         };
         for _ in 0..200 {
             let o = [next() * 3.0, next() * 3.0, 3.0];
-            let d = crate::core::brdf::normalize([next() * 0.5, next() * 0.5, -1.0]);
+            let d = crate::brdf::normalize([next() * 0.5, next() * 0.5, -1.0]);
             let brute = (0..s.triangles.len())
                 .filter_map(|t| {
                     let [a, b, c] = s.corners(t);

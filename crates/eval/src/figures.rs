@@ -8,8 +8,8 @@ use std::io::Cursor;
 use base64::Engine as _;
 use plotters::prelude::*;
 
-use crate::core::error::{CoreError, Result};
-use crate::core::raster::Raster;
+use brdfd_core::error::{CoreError, Result};
+use brdfd_core::raster::Raster;
 
 /// Line colours, one per series in order (matplotlib's "tab10", which readers know).
 const COLOURS: [RGBColor; 10] = [

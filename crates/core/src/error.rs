@@ -32,14 +32,14 @@ pub enum CoreError {
 }
 
 impl CoreError {
-    pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         CoreError::Io {
             path: path.into(),
             error: source,
         }
     }
 
-    pub(crate) fn format(what: impl std::fmt::Display, reason: impl Into<String>) -> Self {
+    pub fn format(what: impl std::fmt::Display, reason: impl Into<String>) -> Self {
         CoreError::Format {
             what: what.to_string(),
             reason: reason.into(),

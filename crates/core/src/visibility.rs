@@ -840,8 +840,8 @@ mod avx512 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::core::brdf::normalize;
-    use crate::core::mesh::{bowl, grooved_plate};
+    use crate::brdf::normalize;
+    use crate::mesh::{bowl, grooved_plate};
 
     fn lights(n: usize) -> LightSet {
         // A Fibonacci sphere: even, and no two directions on one grid line.
@@ -873,11 +873,11 @@ mod tests {
     }
 
     /// Triangle `t`'s face normal, turned up.
-    fn up_normal(mesh: &crate::core::mesh::Mesh, t: usize) -> Vec3 {
+    fn up_normal(mesh: &crate::mesh::Mesh, t: usize) -> Vec3 {
         let [a, b, c] = mesh.corners(t);
-        let n = normalize(crate::core::brdf::cross(
-            crate::core::brdf::sub(b, a),
-            crate::core::brdf::sub(c, a),
+        let n = normalize(crate::brdf::cross(
+            crate::brdf::sub(b, a),
+            crate::brdf::sub(c, a),
         ));
         if n[2] < 0.0 {
             n.map(|c| -c)
@@ -1122,7 +1122,7 @@ mod tests {
                 let o = [0, 1, 2].map(|i| p[i] + lift * n[i]);
                 for (i, d) in set.directions.iter().enumerate() {
                     let d = d.map(|c| c as f64);
-                    let up = crate::core::brdf::dot(d, *n) > 0.0;
+                    let up = crate::brdf::dot(d, *n) > 0.0;
                     let expect = up && !bvh.occluded(o, d, 1e-9, f64::INFINITY);
                     asked += up as usize;
                     hidden += (up && !expect) as usize;

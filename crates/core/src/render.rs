@@ -957,9 +957,9 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn the_avx2_loops_match_the_portable_ones_bit_for_bit() {
-        use crate::core::bivariate::VALUES;
-        use crate::core::envmap::EnvMap;
-        use crate::core::geometry::{Camera, PixelGeometry, Shape};
+        use crate::bivariate::VALUES;
+        use crate::envmap::EnvMap;
+        use crate::geometry::{Camera, PixelGeometry, Shape};
         if !std::arch::is_x86_feature_detected!("avx2") {
             eprintln!("no AVX2 on this CPU: nothing to compare");
             return;
@@ -1009,9 +1009,9 @@ mod tests {
     /// albedo, and neither depends on how bright the room was.
     #[test]
     fn sphere_pictures_are_on_the_white_spheres_scale() {
-        use crate::core::analytic::lambert_column;
-        use crate::core::bivariate::Grid;
-        use crate::core::envmap::EnvMap;
+        use crate::analytic::lambert_column;
+        use crate::bivariate::Grid;
+        use crate::envmap::EnvMap;
         let (w, h) = (16, 8);
         let room = |gain: f32| {
             let pixels = (0..w * h)

@@ -4,7 +4,7 @@
 //! Data flow: [`merl`]/[`nbrdf`] sources → [`bivariate`] reduction → [`basis`] (PCA) →
 //! [`render`] builds A from [`geometry`] and [`envmap`] lights → [`select`] picks pixels →
 //! [`solve`] gives the coefficients; [`analytic`] and [`hybrid`] are the other models. [`estimate`] runs the chain;
-//! `crate::evaluation` measures it from outside. A real part's shape is a [`mesh`], cast per
+//! `brdfd-eval`, a crate above this one, measures it from outside. A real part's shape is a [`mesh`], cast per
 //! pixel through a [`bvh`]; what it hides of its own lights is [`visibility`].
 
 pub mod analytic;

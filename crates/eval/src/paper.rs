@@ -26,19 +26,19 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Poisson};
 
-use crate::core::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
-use crate::core::bivariate::{Bivariate, Grid, GRID_CELLS};
-use crate::core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
-use crate::core::error::{CoreError, Result};
-use crate::core::estimate::{
+use brdfd_core::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
+use brdfd_core::bivariate::{Bivariate, Grid, GRID_CELLS};
+use brdfd_core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
+use brdfd_core::error::{CoreError, Result};
+use brdfd_core::estimate::{
     estimate_views_shared, EstimateOptions, Model, SelectionMethod, Shared, View,
 };
-use crate::core::geometry::{Camera, PixelGeometry, Shape};
-use crate::core::merl::MerlBrdf;
-use crate::core::nbrdf::NbrdfSet;
-use crate::core::raster::Raster;
-use crate::core::render::{render_bivariate, render_merl, RenderingMatrix};
-use crate::core::solve::{channel_coefficients, ColourChoice, Solver};
+use brdfd_core::geometry::{Camera, PixelGeometry, Shape};
+use brdfd_core::merl::MerlBrdf;
+use brdfd_core::nbrdf::NbrdfSet;
+use brdfd_core::raster::Raster;
+use brdfd_core::render::{render_bivariate, render_merl, RenderingMatrix};
+use brdfd_core::solve::{channel_coefficients, ColourChoice, Solver};
 
 pub const TEST_SET: [&str; 10] = [
     "black-soft-plastic",
@@ -532,7 +532,7 @@ fn measure_choices(
     set: &NbrdfSet,
     reduced: &[(String, Bivariate)],
 ) -> Result<String> {
-    use crate::core::bivariate::{PhiReduction, ThetaHBinning};
+    use brdfd_core::bivariate::{PhiReduction, ThetaHBinning};
     let size = LOO_SIZE;
     let lighting = load_lighting(&cfg.data, "grace")?;
     let geometry =

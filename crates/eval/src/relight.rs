@@ -7,7 +7,7 @@
 //!   GGX materials that brdfd tabulates itself ([`analytic_materials`]), which no basis was
 //!   trained on.
 //! - Photo: a unit sphere, orthographic, `size`², rendered from the full table under the
-//!   capture map with [`GT_LIGHTS`](crate::evaluation::paper::GT_LIGHTS) lights, with sensor noise ([`add_sensor_noise`]).
+//!   capture map with [`GT_LIGHTS`](crate::paper::GT_LIGHTS) lights, with sensor noise ([`add_sensor_noise`]).
 //! - Each method is an [`EstimateOptions`] run through the one estimate pipeline
 //!   ([`estimate`]), exactly as `brdfd estimate` runs it.
 //! - Measures, per held-out map: relative RMSE of the linear images over the object (as
@@ -22,20 +22,18 @@ use std::path::{Path, PathBuf};
 
 use rand::{Rng, SeedableRng};
 
-use crate::core::analytic::Microfacet;
-use crate::core::bivariate::{Bivariate, Grid};
-use crate::core::brdf::IsotropicBrdf;
-use crate::core::error::{CoreError, Result};
-use crate::core::estimate::{estimate, EstimateOptions, Model, View};
-use crate::core::geometry::{Camera, PixelGeometry, Shape};
-use crate::core::merl::MerlBrdf;
-use crate::core::nbrdf::NbrdfSet;
-use crate::core::raster::{linear_to_srgb, Raster};
-use crate::core::render::{render_bivariate, render_merl};
-use crate::core::solve::{ColourChoice, Solver};
-use crate::evaluation::paper::{
-    add_sensor_noise, default_basis, load_lighting, Lighting, TEST_SET,
-};
+use crate::paper::{add_sensor_noise, default_basis, load_lighting, Lighting, TEST_SET};
+use brdfd_core::analytic::Microfacet;
+use brdfd_core::bivariate::{Bivariate, Grid};
+use brdfd_core::brdf::IsotropicBrdf;
+use brdfd_core::error::{CoreError, Result};
+use brdfd_core::estimate::{estimate, EstimateOptions, Model, View};
+use brdfd_core::geometry::{Camera, PixelGeometry, Shape};
+use brdfd_core::merl::MerlBrdf;
+use brdfd_core::nbrdf::NbrdfSet;
+use brdfd_core::raster::{linear_to_srgb, Raster};
+use brdfd_core::render::{render_bivariate, render_merl};
+use brdfd_core::solve::{ColourChoice, Solver};
 
 /// Directions of the log error's Monte Carlo mean (uniform over both hemispheres): its
 /// standard error is below 1% of the error at this count.
@@ -265,7 +263,7 @@ pub fn run(cfg: &RelightConfig) -> Result<String> {
     let shared = if cfg.leave_one_out {
         None
     } else {
-        Some(default_basis(&reduced, crate::core::basis::DEFAULT_K)?)
+        Some(default_basis(&reduced, brdfd_core::basis::DEFAULT_K)?)
     };
     // Names first, so that a filtered run tabulates only what it uses.
     let mut chosen: Vec<(String, Option<Microfacet>)> = if cfg.leave_one_out {
@@ -319,7 +317,7 @@ pub fn run(cfg: &RelightConfig) -> Result<String> {
             None => {
                 let others: Vec<(String, Bivariate)> =
                     reduced.iter().filter(|(n, _)| n != name).cloned().collect();
-                own = default_basis(&others, crate::core::basis::DEFAULT_K)?;
+                own = default_basis(&others, brdfd_core::basis::DEFAULT_K)?;
                 &own
             }
         };

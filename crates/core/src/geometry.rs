@@ -34,7 +34,7 @@ fn up_y() -> Vec3 {
 
 impl Pose {
     /// Camera axes in the world: (right, up, forward).
-    pub(crate) fn axes(&self) -> Result<(Vec3, Vec3, Vec3)> {
+    pub fn axes(&self) -> Result<(Vec3, Vec3, Vec3)> {
         let fwd = normalize(sub(self.look_at, self.position));
         let right = cross(fwd, self.up);
         if dot(right, right) < 1e-12 || dot(fwd, fwd) < 0.5 {
