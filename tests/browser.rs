@@ -1,7 +1,9 @@
 //! The daemon's web page in a real browser: Debian's headless Chromium, driven through
 //! chromedriver over the W3C WebDriver protocol (a few JSON requests, spoken here directly).
 //! It signs in with the token, starts a capture from the form, sees progress arrive, opens
-//! the finished session's report and checks its images and plots, and saves screenshots.
+//! the finished session's report and checks its images and plots, and saves screenshots. On a
+//! rig turned by hand it checks the states a user watches: an error under the form, a running
+//! session's state, the wait's spinner and elapsed time, and a cancel acknowledged at once.
 //! CI installs chromium and chromium-driver and sets BRDFD_REQUIRE_BROWSER=1, so there the
 //! test cannot skip.
 
@@ -321,4 +323,160 @@ fn the_page_signs_in_captures_follows_progress_and_opens_the_report() {
     assert_eq!(checked["plots"], 3, "{checked}");
     assert_eq!(checked["axes"], 3, "{checked}");
     browser.screenshot("report.png");
+}
+
+/// The simulated rig without its turntable, two views by default: a capture that waits for
+/// the operator's turn, so the page's running states can be looked at without a race.
+fn rig_turned_by_hand() -> String {
+    format!(
+        "{}\n[turntable]\nviews = 2\nstep_deg = 45.0\n\n[simulation]\nturntable = \"absent\"\n",
+        include_str!("../config/rigs/simulated.toml")
+    )
+}
+
+#[test]
+fn the_page_shows_errors_a_running_capture_its_wait_and_a_cancel_at_once() {
+    if !browser_present() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let rig = dir.path().join("rig.toml");
+    std::fs::write(&rig, rig_turned_by_hand()).unwrap();
+    let daemon = Daemon::start(&dir.path().join("state"), &["--rig", rig.to_str().unwrap()]);
+    let browser = Browser::start();
+    browser.go(&format!("http://{}/", daemon.addr));
+    browser.wait_for(
+        "the material presets",
+        "return document.querySelectorAll('#material option').length > 0 && !document.getElementById('size-field').hidden",
+        Duration::from_secs(10),
+    );
+
+    // A plan the daemon refuses: its error shows right under the form, in view.
+    browser.run(
+        "const size = document.querySelector('#capture input[name=size]');
+         size.removeAttribute('min');
+         size.value = '4';
+         document.getElementById('material').value = 'gold';",
+        json!([]),
+    );
+    browser.click("#start");
+    let error = browser.wait_for(
+        "the refusal under the form",
+        "const e = document.getElementById('error');
+         if (e.hidden || !e.textContent) return null;
+         const r = e.getBoundingClientRect();
+         return {
+           text: e.textContent,
+           after_form: document.getElementById('capture').nextElementSibling === e,
+           in_view: r.top >= 0 && r.bottom <= window.innerHeight,
+         };",
+        Duration::from_secs(10),
+    );
+    assert!(
+        error["text"]
+            .as_str()
+            .unwrap()
+            .contains("size 4 is outside"),
+        "{error}"
+    );
+    assert_eq!(error["after_form"], true, "{error}");
+    assert_eq!(error["in_view"], true, "{error}");
+
+    // A capture that runs until the object is turned: the error goes, the list says the
+    // session is capturing (not "created"), with a spinner and no Resume.
+    browser.run(
+        "document.querySelector('#capture input[name=size]').value = '64';",
+        json!([]),
+    );
+    browser.click("#start");
+    let id = browser.wait_for(
+        "the run's title",
+        "const t = document.getElementById('run-title').textContent;
+         return t.startsWith('session ') ? t.slice(8) : null",
+        Duration::from_secs(10),
+    );
+    let id = id.as_str().unwrap().to_string();
+    assert_eq!(
+        browser.run("return document.getElementById('error').hidden", json!([])),
+        true
+    );
+    let row = format!(
+        "const row = [...document.querySelectorAll('#sessions tbody tr')]
+           .find(r => r.cells[0].textContent === {});",
+        json!(id)
+    );
+    let listed = browser.wait_for(
+        "the running session in the list",
+        &format!(
+            "{row}
+             if (!row || !row.querySelector('.state-running')) return null;
+             return {{ state: row.cells[1].textContent, buttons: row.querySelectorAll('button').length }};"
+        ),
+        Duration::from_secs(30),
+    );
+    assert_eq!(listed["buttons"], 0, "{listed}");
+    let state = listed["state"].as_str().unwrap();
+    assert!(
+        state == "capturing…" || state == "captured…",
+        "a running capture is listed as {state:?}"
+    );
+
+    // The wait for the turn is a phase of its own, with a turning spinner and its elapsed
+    // time counting up.
+    let waiting = browser.wait_for(
+        "the wait for the turn, a second in",
+        "const p = [...document.querySelectorAll('#phases .phase.running')]
+           .find(p => p.textContent.includes('view 2: waiting for the turn'));
+         if (!p) return null;
+         const seconds = parseInt(p.querySelector('.time').textContent, 10);
+         if (!(seconds >= 1)) return null;
+         const spinner = getComputedStyle(p.querySelector('.spinner'));
+         return { seconds, visibility: spinner.visibility, animation: spinner.animationName,
+                  continue_shown: !document.getElementById('continue').hidden };",
+        Duration::from_secs(60),
+    );
+    assert_eq!(waiting["visibility"], "visible", "{waiting}");
+    assert_eq!(waiting["animation"], "spin", "{waiting}");
+    assert_eq!(waiting["continue_shown"], true, "{waiting}");
+    browser.screenshot("capture-waiting.png");
+
+    // Cancel is acknowledged in the same moment as the click, before the daemon answers.
+    let ack = browser.run(
+        "const b = document.getElementById('cancel');
+         b.click();
+         const m = document.querySelectorAll('#messages li');
+         return { disabled: b.disabled, text: b.textContent, said: m[m.length - 1].textContent };",
+        json!([]),
+    );
+    assert_eq!(ack["disabled"], true, "{ack}");
+    assert_eq!(ack["text"], "Cancelling…", "{ack}");
+    assert!(
+        ack["said"].as_str().unwrap().starts_with("Cancel asked"),
+        "{ack}"
+    );
+    let outcome = browser.wait_for(
+        "the cancelled outcome",
+        "const o = document.getElementById('outcome').textContent;
+         return o.startsWith('Cancelled') ? o : null",
+        Duration::from_secs(30),
+    );
+    assert!(outcome.as_str().unwrap().contains("Resume"), "{outcome}");
+    // The wait stopped where it was, its spinner gone; the list offers to resume.
+    let after = browser.wait_for(
+        "the stopped capture in the list",
+        &format!(
+            "{row}
+             if (!row || row.cells[1].textContent !== 'failed') return null;
+             const wait = [...document.querySelectorAll('#phases .phase')]
+               .find(p => p.textContent.includes('waiting for the turn'));
+             return {{ resume: row.querySelectorAll('button').length,
+                      stopped: wait.classList.contains('stopped'),
+                      spinner: getComputedStyle(wait.querySelector('.spinner')).visibility }};"
+        ),
+        Duration::from_secs(10),
+    );
+    assert_eq!(after["resume"], 1, "{after}");
+    assert_eq!(after["stopped"], true, "{after}");
+    assert_eq!(after["spinner"], "hidden", "{after}");
+    browser.screenshot("capture-cancelled.png");
 }

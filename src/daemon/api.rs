@@ -7,7 +7,7 @@
 //! | `GET /api/v1/health` | `{"software", "rig": {"simulated"}, "busy": id or null}` |
 //! | `GET /api/v1/materials` | `{"presets": [...]}`: the material presets a capture can name |
 //! | `GET /api/v1/devices` | `[{"role", "selector", "state": "closed"/"open"/"lost", "identity", "last_error", "opened"}]` |
-//! | `GET /api/v1/sessions` | `[{"id", "state", "material", "created"}]`, oldest first |
+//! | `GET /api/v1/sessions` | `[{"id", "state", "material", "created", "running"}]`, oldest first |
 //! | `POST /api/v1/sessions` | body: a plan (`{"material": "gold", "pixels": "20", "views": 1, ...}`); 202 `{"id", "dir", "events"}`; 409 `busy`; 400 `bad_request` |
 //! | `GET /api/v1/sessions/{id}` | `{"id", "dir", "manifest", "waiting_for_view"}`: where it is stored, its manifest, and the view whose hand turn it waits for |
 //! | `GET /api/v1/sessions/{id}/events` | Server-Sent Events, one JSON [`Event`] each with its place as `id`, from the session's first (after `Last-Event-ID` if given); ends after `finished` |
@@ -276,10 +276,12 @@ async fn materials() -> Json<Materials> {
 async fn list(State(d): State<Shared>) -> ApiResult<Json<Vec<SessionItem>>> {
     let all = Session::list(&d.state_dir)
         .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, "storage", e.to_string()))?;
+    let busy = d.busy();
     Ok(Json(
         all.into_iter()
             .map(|m| d.shown(m))
             .map(|m| SessionItem {
+                running: busy.as_deref() == Some(m.id.as_str()),
                 id: m.id,
                 state: m.state,
                 material: m.material,
@@ -658,6 +660,7 @@ async fn events(
             // Not run by this daemon: a stored session's stream is its outcome alone.
             let s = open(&d, &id)?;
             let log = super::EventLog::new();
+            let reason = s.manifest.history.last().and_then(|t| t.reason.clone());
             log.push(Event::Finished {
                 session: id.clone(),
                 state: s.manifest.state,
@@ -665,7 +668,9 @@ async fn events(
                     .then(|| crate::rig::Summary::read(&s.dir.join("result/coefficients.json")))
                     .flatten()
                     .map(Box::new),
-                error: s.manifest.history.last().and_then(|t| t.reason.clone()),
+                cancelled: s.manifest.state == crate::session::State::Failed
+                    && reason.as_deref() == Some(crate::rig::flow::CANCELLED),
+                error: reason,
             });
             log
         }

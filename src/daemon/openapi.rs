@@ -55,6 +55,8 @@ pub struct SessionItem {
     pub material: String,
     /// RFC 3339, UTC.
     pub created: String,
+    /// Whether this is the capture the daemon is running now (its state then moves on).
+    pub running: bool,
 }
 
 /// A capture that was started or resumed.

@@ -35,6 +35,9 @@ use brdfd_core::nbrdf::NbrdfSet;
 use brdfd_core::raster::Raster;
 use brdfd_core::solve::Colour;
 
+/// The failure a cancelled capture records: its manifest's reason, which the API reads back.
+pub const CANCELLED: &str = "cancelled; what was captured is kept";
+
 /// Camera files by name, exactly as the camera sent them.
 pub type RawFiles = Vec<(String, Vec<u8>)>;
 
@@ -139,7 +142,7 @@ pub fn execute(
         let result = run(session, settings, cx);
         let reason = result.as_ref().err().map(|e| {
             let reason = if cx.cancel.is_cancelled() {
-                "cancelled; what was captured is kept".to_string()
+                CANCELLED.to_string()
             } else if disk_full(e) && !format!("{e:#}").contains("the disk is full") {
                 // A derived map or a result, written by the core, says only ENOSPC.
                 format!(
@@ -173,6 +176,7 @@ pub fn execute(
         },
         result: result.as_ref().ok().map(|o| Box::new(o.summary.clone())),
         error: reason,
+        cancelled: result.is_err() && cx.cancel.is_cancelled(),
     });
     result.map_err(|e| {
         let e = match unrecorded {
@@ -286,6 +290,11 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
         cx,
         done: Vec::new(),
     };
+    // Capturing from the first step: a list of sessions must not show a running capture as
+    // "created", nor offer to resume it.
+    if matches!(session.manifest.state, State::Created | State::Failed) {
+        session.set_state(State::Capturing, None)?;
+    }
     let p = phases.start("load the basis", 1);
     let basis = Basis::embedded();
     phases.end(p);
@@ -297,9 +306,6 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
     }
     check_turntable(cx, s)?;
     let mut sim = place_sample(cx, s, &basis, &mut phases)?;
-    if matches!(session.manifest.state, State::Created | State::Failed) {
-        session.set_state(State::Capturing, None)?;
-    }
     let env = measure_light(cx, session, s, sim.as_ref(), &mut phases)?;
     let captured = shoot_views(cx, session, s, &env, sim.as_mut(), &mut phases)?;
     session.set_state(State::Captured, None)?;

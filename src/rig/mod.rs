@@ -196,6 +196,9 @@ pub enum Event {
         /// Boxed: the summary is most of the event's size, and the other events are small.
         result: Option<Box<Summary>>,
         error: Option<String>,
+        /// Failed because it was cancelled (what was captured is kept; a resume continues).
+        #[serde(default)]
+        cancelled: bool,
     },
 }
 

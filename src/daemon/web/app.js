@@ -49,12 +49,37 @@ function row(cells) {
   return tr;
 }
 
+// Errors show under the capture form, where the user just acted, and are scrolled to; before
+// the page is shown (the daemon unreachable), in the header.
 function showError(e) {
-  if (!(e instanceof Unauthorized)) $("error").textContent = String(e.message || e);
+  if (e instanceof Unauthorized) return;
+  if ($("app").hidden) {
+    $("health").textContent = String(e.message || e);
+    $("health").className = "failed";
+    return;
+  }
+  const box = $("error");
+  box.textContent = String(e.message || e);
+  box.hidden = false;
+  box.scrollIntoView({ block: "nearest" });
+}
+
+function clearError() {
+  $("error").textContent = "";
+  $("error").hidden = true;
+}
+
+// What a session's state reads as in the list: a running capture says so, with a spinner.
+function stateCell(s) {
+  if (!s.running) return el("span", s.state, { class: `state-${s.state}` });
+  const span = el("span", null, { class: "state-running" });
+  span.append(el("span", null, { class: "spinner", "aria-hidden": "true" }), `${s.state}…`);
+  return span;
 }
 
 async function refreshHealth() {
   const h = await api("/health");
+  $("health").className = "";
   $("health").textContent =
     `${h.software}; ${h.rig.simulated ? "simulated rig" : "hardware rig"}; ` +
     (h.busy ? `capturing ${h.busy}` : "idle");
@@ -92,15 +117,14 @@ async function refreshSessions() {
   const body = $("sessions").tBodies[0];
   body.replaceChildren(
     ...sessions.reverse().map((s) => {
-      const state = el("span", s.state, { class: `state-${s.state}` });
       let action = "";
-      if (s.state === "failed" || s.state === "created") {
+      if (!s.running && (s.state === "failed" || s.state === "created")) {
         action = el("button", "Resume", { type: "button" });
         action.addEventListener("click", () => resume(s.id).catch(showError));
       }
       return row([
         s.id,
-        state,
+        stateCell(s),
         s.material,
         s.created,
         s.state === "done" ? resultLinks(s.id) : "",
@@ -115,19 +139,40 @@ async function loadMaterials() {
   $("material").replaceChildren(...m.presets.map((p) => el("option", p, { value: p })));
 }
 
+// A phase's row: its name, a bar, and its time. While it runs the time is the elapsed time
+// beside a spinner, so a long phase (a slow camera, an estimate) is visibly alive.
 function phaseRow(phases, name) {
   let p = phases.get(name);
   if (!p) {
     const bar = el("progress", null, { max: "1", value: "0" });
-    const time = el("span", "");
-    const div = el("div", null, { class: "phase" });
-    div.append(el("span", name), bar, time);
+    const time = el("span", "", { class: "time" });
+    const div = el("div", null, { class: "phase running" });
+    div.append(el("span", null, { class: "spinner", "aria-hidden": "true" }), el("span", name), bar, time);
     $("phases").append(div);
-    p = { div, bar, time };
+    p = { div, bar, time, since: performance.now() };
     phases.set(name, p);
   }
   return p;
 }
+
+function endPhase(p, seconds) {
+  p.div.classList.remove("running");
+  p.div.classList.add("done");
+  p.bar.value = p.bar.max;
+  p.time.textContent = `${seconds.toFixed(2)} s`;
+}
+
+function tickPhases(phases) {
+  const now = performance.now();
+  for (const p of phases.values()) {
+    if (p.div.classList.contains("running")) {
+      p.time.textContent = `${Math.floor((now - p.since) / 1000)} s`;
+    }
+  }
+}
+
+// The operator's turn is a phase of its own: the capture waits on the bench, not on brdfd.
+const WAITING = (view) => `view ${view}: waiting for the turn`;
 
 function follow(id) {
   if (following) following.source.close();
@@ -138,19 +183,35 @@ function follow(id) {
   $("outcome").textContent = "";
   $("outcome").className = "";
   $("cancel").hidden = false;
+  $("cancel").disabled = false;
+  $("cancel").textContent = "Cancel it";
   $("start").disabled = true;
   const phases = new Map();
   const source = new EventSource(`/api/v1/sessions/${encodeURIComponent(id)}/events`);
-  following = { id, source };
+  const ticker = setInterval(() => tickPhases(phases), 500);
+  following = { id, source, ticker };
+  let waiting = null;
   source.onmessage = (message) => {
     const e = JSON.parse(message.data);
     // Any later event means the capture went on: the object was turned.
     $("continue").hidden = e.type !== "waiting_for_operator";
-    if (e.type === "waiting_for_operator") $("continue").dataset.view = e.view;
+    // The turn is done when the capture goes on; a cancel or failure stops it instead.
+    if (waiting && e.type !== "waiting_for_operator" && e.type !== "finished") {
+      const p = phases.get(waiting);
+      endPhase(p, (performance.now() - p.since) / 1000);
+      waiting = null;
+    }
+    if (e.type === "waiting_for_operator") {
+      $("continue").dataset.view = e.view;
+      waiting = WAITING(e.view);
+      phaseRow(phases, waiting);
+    }
     switch (e.type) {
       case "phase_started": {
         const p = phaseRow(phases, e.phase);
         p.bar.max = Math.max(e.total, 1);
+        // The list's state moves with the capture's phases.
+        refreshSessions().catch(showError);
         break;
       }
       case "progress": {
@@ -160,10 +221,7 @@ function follow(id) {
         break;
       }
       case "phase_done": {
-        const p = phaseRow(phases, e.phase);
-        p.bar.value = p.bar.max;
-        p.time.textContent = `${e.seconds.toFixed(2)} s`;
-        p.div.classList.add("done");
+        endPhase(phaseRow(phases, e.phase), e.seconds);
         // A bracket's per-frame download bar has no end of its own: it goes with the
         // bracket's, as on the command line.
         const download = e.phase.replace(/: object bracket$/, ": download");
@@ -180,11 +238,13 @@ function follow(id) {
         break;
       case "finished":
         source.close();
+        clearInterval(ticker);
         following = null;
         // A failed or cancelled capture ends phases that never finished: their bars stop
         // where they were, and download bars go (as on the command line).
         for (const [name, p] of phases) {
           if (p.div.classList.contains("done")) continue;
+          p.div.classList.remove("running");
           if (name.endsWith(": download")) p.div.remove();
           else p.div.classList.add("stopped");
         }
@@ -219,6 +279,9 @@ function finished(e) {
     );
   } else if (e.state === "done") {
     out.append("Done; the result could not be read back. ", resultLinks(e.session));
+  } else if (e.cancelled) {
+    out.className = "failed";
+    out.textContent = `Cancelled. What was captured is kept: Resume, in the list below, continues it.`;
   } else {
     out.className = "failed";
     out.textContent = `${e.state}: ${e.error || "no reason given"}`;
@@ -231,20 +294,37 @@ async function start(event) {
   const form = new FormData($("capture"));
   const plan = { material: form.get("material") };
   if (!$("size-field").hidden) plan.size = Number(form.get("size"));
-  $("error").textContent = "";
+  clearError();
   const started = await post("/sessions", plan);
   follow(started.id);
   refreshAll();
 }
 
 async function resume(id) {
-  $("error").textContent = "";
+  clearError();
   await post(`/sessions/${encodeURIComponent(id)}/resume`);
   follow(id);
 }
 
+// Acknowledged at once, before the daemon answers: the capture stops at its next step (a
+// camera mid-download finishes the file first), and the button must not look ignored.
 async function cancel() {
-  if (following) await post(`/sessions/${encodeURIComponent(following.id)}/cancel`);
+  if (!following) return;
+  const button = $("cancel");
+  button.disabled = true;
+  button.textContent = "Cancelling…";
+  $("messages").append(
+    el("li", "Cancel asked: the capture stops at its next step; what was captured is kept.", {
+      class: "warning",
+    })
+  );
+  try {
+    await post(`/sessions/${encodeURIComponent(following.id)}/cancel`);
+  } catch (e) {
+    button.disabled = false;
+    button.textContent = "Cancel it";
+    throw e;
+  }
 }
 
 // Says the object has been turned by hand, as the capture asked.
@@ -278,6 +358,7 @@ async function main() {
   setInterval(() => {
     refreshHealth().catch(showError);
     refreshDevices().catch(showError);
+    refreshSessions().catch(showError);
   }, 5000);
 }
 
