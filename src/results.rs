@@ -332,6 +332,10 @@ pub fn write_results(
         let sigma = "BRDF 1-sigma (bootstrap over the pixels)";
         write_bivariate_exr(&dir.join("brdf-sigma.exr"), &band, sigma, basis_id)?;
     }
+    // The capture's light, for the web page's viewer to show the export under.
+    if let Some(map) = cx.env {
+        crate::export::maps::write_light(&dir.join("light.hdr"), map, cx.yaw)?;
+    }
     if let (Some(photo), Some(path)) = (cx.photo, &files.compare_png) {
         crate::compare::write(path, photo, &estimate.rerender)?;
     }

@@ -17,7 +17,7 @@ use brdfd_core::hybrid::{HybridFit, MixWeight};
 use brdfd_core::merl::MerlBrdf;
 use brdfd_core::nbrdf::NbrdfSet;
 use brdfd_core::raster::Raster;
-use brdfd_core::render::{render_bivariate, render_merl};
+use brdfd_core::render::{render_bivariate, render_full, render_merl};
 use brdfd_core::select::SwapParams;
 use brdfd_core::solve::{ColourChoice, Solver};
 
@@ -294,8 +294,12 @@ pub fn print_estimate(names: &[String], coefficients: &[f64]) {
 #[derive(clap::Args)]
 pub struct RenderArgs {
     /// An NBRDF material name (from --nbrdf, or the embedded test materials).
-    #[arg(long, conflicts_with_all = ["merl", "coefficients"])]
+    #[arg(long, conflicts_with_all = ["merl", "coefficients", "gltf"])]
     pub material: Option<String>,
+    /// A glTF file's first material (an export's `material.gltf`), as glTF's own BRDF:
+    /// what a renderer that reads the export shows.
+    #[arg(long, conflicts_with_all = ["merl", "coefficients"])]
+    pub gltf: Option<PathBuf>,
     #[arg(long)]
     pub nbrdf: Option<PathBuf>,
     /// A MERL .binary file.
@@ -339,6 +343,9 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
         render_merl(&geometry, &lights, &table)
     } else if let Some(p) = &a.merl {
         render_merl(&geometry, &lights, &MerlBrdf::read(p)?)
+    } else if let Some(p) = &a.gltf {
+        let material = brdfd::export::GltfMaterial::read(p)?;
+        render_full(&geometry, &lights, &brdfd::export::GltfBrdf(material))
     } else if let Some(p) = &a.coefficients {
         let basis = load_basis(&a.basis)?;
         let text =
@@ -382,7 +389,7 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
             .with_context(|| format!("{}: field `coefficients`", p.display()))?;
         render_bivariate(&geometry, &lights, &b)
     } else {
-        bail!("say what to render: --material, --merl or --coefficients");
+        bail!("say what to render: --material, --merl, --coefficients or --gltf");
     };
     finish_render(&a.out, img)
 }

@@ -128,6 +128,10 @@ pub fn router(daemon: Shared) -> Router {
         .route("/", get(web::index))
         .route("/app.js", get(web::script))
         .route("/app.css", get(web::style))
+        .route("/viewer.html", get(web::viewer))
+        .route("/viewer.js", get(web::viewer_script))
+        .route("/vendor/three/{file}", get(web::three))
+        .route("/maps/{file}", get(web::map))
         .route(
             "/login",
             post(web::login).layer(DefaultBodyLimit::max(web::MAX_LOGIN_BYTES)),
@@ -538,10 +542,12 @@ pub enum ResultFile {
     Gltf,
     #[serde(rename = "material.mtlx")]
     MaterialX,
+    #[serde(rename = "light.hdr")]
+    Light,
 }
 
 impl ResultFile {
-    pub const ALL: [ResultFile; 12] = [
+    pub const ALL: [ResultFile; 13] = [
         ResultFile::Report,
         ResultFile::PreviewPng,
         ResultFile::PreviewScale,
@@ -554,6 +560,7 @@ impl ResultFile {
         ResultFile::Merl,
         ResultFile::Gltf,
         ResultFile::MaterialX,
+        ResultFile::Light,
     ];
 
     pub fn named(name: &str) -> Option<ResultFile> {
@@ -574,6 +581,7 @@ impl ResultFile {
             ResultFile::Merl => "brdf.binary",
             ResultFile::Gltf => "material.gltf",
             ResultFile::MaterialX => "material.mtlx",
+            ResultFile::Light => "light.hdr",
         }
     }
 
@@ -587,6 +595,7 @@ impl ResultFile {
             // glTF's registered media type; MaterialX has none, and is XML.
             ResultFile::Gltf => "model/gltf+json",
             ResultFile::MaterialX => "application/xml",
+            ResultFile::Light => "image/vnd.radiance",
         }
     }
 }

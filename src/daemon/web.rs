@@ -11,7 +11,7 @@
 //! `require_json_posts` in [`super::api`]).
 
 use axum::body::Bytes;
-use axum::extract::State;
+use axum::extract::{Path, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{Html, IntoResponse, Redirect, Response};
 
@@ -20,6 +20,33 @@ use super::api::Shared;
 const INDEX: &str = include_str!("web/index.html");
 const SCRIPT: &str = include_str!("web/app.js");
 const STYLE: &str = include_str!("web/app.css");
+const VIEWER: &str = include_str!("web/viewer.html");
+const VIEWER_SCRIPT: &str = include_str!("web/viewer.js");
+
+/// three.js 0.166.1 (MIT) and the add-ons the viewer imports, as `scripts/vendor-three.sh`
+/// fetched them from npm. A fixed list: a name from a request never reaches a file system.
+const THREE: [(&str, &str); 5] = [
+    (
+        "three.module.min.js",
+        include_str!("web/vendor/three/three.module.min.js"),
+    ),
+    (
+        "GLTFLoader.js",
+        include_str!("web/vendor/three/GLTFLoader.js"),
+    ),
+    (
+        "RGBELoader.js",
+        include_str!("web/vendor/three/RGBELoader.js"),
+    ),
+    (
+        "OrbitControls.js",
+        include_str!("web/vendor/three/OrbitControls.js"),
+    ),
+    (
+        "BufferGeometryUtils.js",
+        include_str!("web/vendor/three/BufferGeometryUtils.js"),
+    ),
+];
 
 /// The cookie that carries the token, hex-encoded (a token may hold any character).
 pub const COOKIE: &str = "brdfd_token";
@@ -27,16 +54,25 @@ pub const COOKIE: &str = "brdfd_token";
 const PAGE_POLICY: &str = "default-src 'none'; script-src 'self'; style-src 'self'; \
      connect-src 'self'; img-src 'self' data:; form-action 'self'; frame-ancestors 'none'; \
      base-uri 'none'";
+/// The viewer's policy: the page's, and `data:` fetches, which is how three.js's glTF loader
+/// reads the buffer the export embeds.
+const VIEWER_POLICY: &str = "default-src 'none'; script-src 'self'; style-src 'self'; \
+     connect-src 'self' data:; img-src 'self' data:; form-action 'self'; frame-ancestors 'none'; \
+     base-uri 'none'";
 /// The longest login form read: a token and its field name.
 pub const MAX_LOGIN_BYTES: usize = 4096;
 
 fn page(kind: &'static str, body: &'static str) -> Response {
+    with_policy(kind, body, PAGE_POLICY)
+}
+
+fn with_policy(kind: &'static str, body: impl IntoResponse, policy: &'static str) -> Response {
     (
         [
             (header::CONTENT_TYPE, HeaderValue::from_static(kind)),
             (
                 header::CONTENT_SECURITY_POLICY,
-                HeaderValue::from_static(PAGE_POLICY),
+                HeaderValue::from_static(policy),
             ),
             (
                 header::X_CONTENT_TYPE_OPTIONS,
@@ -58,6 +94,35 @@ pub async fn script() -> Response {
 
 pub async fn style() -> Response {
     page("text/css; charset=utf-8", STYLE)
+}
+
+/// `/viewer.html?session=ID`: a session's export in 3D (`web/viewer.js` says what it shows).
+pub async fn viewer() -> Response {
+    with_policy("text/html; charset=utf-8", VIEWER, VIEWER_POLICY)
+}
+
+pub async fn viewer_script() -> Response {
+    page("text/javascript; charset=utf-8", VIEWER_SCRIPT)
+}
+
+/// `/vendor/three/{file}`: the 3D library, compiled in so that an offline bench has it.
+pub async fn three(Path(file): Path<String>) -> Response {
+    match THREE.iter().find(|(name, _)| *name == file) {
+        Some((_, body)) => page("text/javascript; charset=utf-8", body),
+        None => (StatusCode::NOT_FOUND, "no such file").into_response(),
+    }
+}
+
+/// `/maps/{name}.hdr`: the reference maps exports are checked under, as Radiance RGBE, for
+/// the viewer to light with. They are part of brdfd, not of any session.
+pub async fn map(Path(file): Path<String>) -> Response {
+    let bytes = file
+        .strip_suffix(".hdr")
+        .and_then(crate::export::maps::reference_map_file);
+    match bytes {
+        Some(b) => with_policy("image/vnd.radiance", b, PAGE_POLICY),
+        None => (StatusCode::NOT_FOUND, "no such map").into_response(),
+    }
 }
 
 /// `POST /login` with the form field `token`: a matching token sets the cookie and returns to

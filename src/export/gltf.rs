@@ -11,6 +11,7 @@ use base64::Engine as _;
 
 use brdfd_core::analytic::{schlick_weight, Microfacet};
 use brdfd_core::brdf::{from_rusinkiewicz, IsotropicBrdf};
+use brdfd_core::{CoreError, Result};
 
 use super::fit::Fitted;
 
@@ -45,6 +46,89 @@ impl GltfMaterial {
             specular_color: f.specular_color(),
             ior: f.ior(),
         }
+    }
+
+    /// The first material of a glTF file (`.gltf`, JSON): its metallic-roughness factors and
+    /// the specular and IOR extensions, with glTF's defaults for what it leaves out. Textures
+    /// are not read: a material that has them is refused, since its factors alone are not it.
+    pub fn read(path: &std::path::Path) -> Result<GltfMaterial> {
+        let what = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| CoreError::io(path, e))?;
+        let doc: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| CoreError::format(&what, format!("not glTF JSON: {e}")))?;
+        let m = doc["materials"]
+            .get(0)
+            .ok_or_else(|| CoreError::format(&what, "has no `materials[0]`"))?;
+        let pbr = &m["pbrMetallicRoughness"];
+        let spec = &m["extensions"]["KHR_materials_specular"];
+        for (texture, v) in [
+            (
+                "pbrMetallicRoughness.baseColorTexture",
+                &pbr["baseColorTexture"],
+            ),
+            (
+                "pbrMetallicRoughness.metallicRoughnessTexture",
+                &pbr["metallicRoughnessTexture"],
+            ),
+            (
+                "KHR_materials_specular.specularTexture",
+                &spec["specularTexture"],
+            ),
+            (
+                "KHR_materials_specular.specularColorTexture",
+                &spec["specularColorTexture"],
+            ),
+        ] {
+            if !v.is_null() {
+                return Err(CoreError::format(
+                    &what,
+                    format!(
+                        "materials[0].{texture}: textured materials are not rendered, only factors"
+                    ),
+                ));
+            }
+        }
+        let number = |v: &serde_json::Value, field: &str, default: f64, range: (f64, f64)| {
+            if v.is_null() {
+                return Ok(default);
+            }
+            v.as_f64()
+                .filter(|x| (range.0..=range.1).contains(x))
+                .ok_or_else(|| {
+                    CoreError::format(
+                        &what,
+                        format!(
+                            "materials[0].{field} is {v}, not a number in [{}, {}]",
+                            range.0, range.1
+                        ),
+                    )
+                })
+        };
+        let unit = (0.0, 1.0);
+        let rgb = |v: &serde_json::Value, field: &str, range: (f64, f64)| -> Result<[f64; 3]> {
+            let mut out = [1.0; 3];
+            for (c, o) in out.iter_mut().enumerate() {
+                *o = number(&v[c], field, 1.0, range)?;
+            }
+            Ok(out)
+        };
+        Ok(GltfMaterial {
+            base_color: rgb(&pbr["baseColorFactor"], "baseColorFactor", unit)?,
+            metallic: number(&pbr["metallicFactor"], "metallicFactor", 1.0, unit)?,
+            roughness: number(&pbr["roughnessFactor"], "roughnessFactor", 1.0, unit)?,
+            specular: number(&spec["specularFactor"], "specularFactor", 1.0, unit)?,
+            specular_color: rgb(
+                &spec["specularColorFactor"],
+                "specularColorFactor",
+                (0.0, f64::MAX),
+            )?,
+            ior: number(
+                &m["extensions"]["KHR_materials_ior"]["ior"],
+                "KHR_materials_ior.ior",
+                1.5,
+                (1.0, f64::MAX),
+            )?,
+        })
     }
 
     /// The document: the material on a unit sphere at the origin, one node, one scene.
@@ -188,6 +272,25 @@ impl IsotropicBrdf for GltfBrdf {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_written_material_reads_back_and_a_bad_one_is_named() {
+        let m = GltfMaterial {
+            base_color: [0.9, 0.6, 0.2],
+            metallic: 0.75,
+            roughness: 0.3,
+            specular: 0.5,
+            specular_color: [1.0, 0.8, 0.6],
+            ior: 1.7,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.gltf");
+        std::fs::write(&path, m.document("m")).unwrap();
+        assert_eq!(GltfMaterial::read(&path).unwrap(), m);
+        std::fs::write(&path, m.document("m").replace("0.75", "1.75")).unwrap();
+        let e = GltfMaterial::read(&path).unwrap_err().to_string();
+        assert!(e.contains("materials[0].metallicFactor is 1.75"), "{e}");
+    }
 
     #[test]
     fn the_sphere_is_closed_and_its_faces_point_out() {

@@ -36,6 +36,47 @@ pub fn reference_maps() -> Result<Vec<(&'static str, EnvMap)>> {
         .collect()
 }
 
+/// The embedded map `name` as its Radiance RGBE file, for a viewer to load.
+pub fn reference_map_file(name: &str) -> Option<&'static [u8]> {
+    MAPS.iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, bytes)| *bytes)
+}
+
+/// The names of the embedded maps.
+pub fn reference_map_names() -> Vec<&'static str> {
+    MAPS.iter().map(|(n, _)| *n).collect()
+}
+
+/// The widest light map a result holds: a viewer's image-based lighting reads no finer.
+const LIGHT_WIDTH: usize = 512;
+
+/// Writes `map`, turned by `yaw` radians into the estimate's world, as Radiance RGBE at most
+/// 512 wide: `light.hdr`, the capture's light for a viewer. The yaw is applied by turning the
+/// columns, to the nearest column.
+pub fn write_light(path: &std::path::Path, map: &EnvMap, yaw: f64) -> Result<()> {
+    let map = if map.width > LIGHT_WIDTH {
+        map.downsample(LIGHT_WIDTH, LIGHT_WIDTH / 2)
+    } else {
+        map.clone()
+    };
+    let (w, h) = (map.width, map.height);
+    // Under yaw ψ the map's column u lights the world's column u − ψ/2π (envmap::direction).
+    let shift = (yaw / std::f64::consts::TAU * w as f64).round() as isize;
+    let pixels: Vec<image::Rgb<f32>> = (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let from = (x as isize + shift).rem_euclid(w as isize) as usize;
+            image::Rgb(map.pixels[y * w + from])
+        })
+        .collect();
+    let mut bytes = Vec::new();
+    image::codecs::hdr::HdrEncoder::new(&mut bytes)
+        .encode(&pixels, w, h)
+        .map_err(|e| CoreError::format(path.display(), format!("could not encode RGBE: {e}")))?;
+    std::fs::write(path, bytes).map_err(|e| CoreError::io(path, e))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -48,6 +89,32 @@ mod tests {
             assert_eq!((m.width, m.height), (WIDTH, WIDTH / 2), "{name}");
             assert!(m.lights(0.0).power().iter().all(|p| *p > 0.0), "{name}");
         }
+    }
+
+    #[test]
+    fn the_light_file_is_the_map_turned_by_its_yaw() {
+        // One bright column: its light's direction under the yaw is the file's under none.
+        let (w, h) = (64, 32);
+        let mut pixels = vec![[0.01f32; 3]; w * h];
+        for y in 0..h {
+            pixels[y * w + 40] = [5.0; 3];
+        }
+        let map = EnvMap::from_pixels(w, h, pixels, "test").unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("light.hdr");
+        let yaw = 90f64.to_radians();
+        write_light(&path, &map, yaw).unwrap();
+        let written = EnvMap::load(&path).unwrap();
+        let brightest = |m: &EnvMap, yaw: f64| {
+            let set = m.lights(yaw);
+            let i = (0..set.len())
+                .max_by(|&a, &b| set.radiance[a][0].total_cmp(&set.radiance[b][0]))
+                .unwrap();
+            set.directions[i]
+        };
+        let (a, b) = (brightest(&map, yaw), brightest(&written, 0.0));
+        let dot: f32 = (0..3).map(|k| a[k] * b[k]).sum();
+        assert!(dot > 0.99, "{a:?} against {b:?}");
     }
 
     /// Writes `maps/*.hdr` from the reference data beside the repository

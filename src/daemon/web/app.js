@@ -109,6 +109,9 @@ function resultLinks(id) {
     const a = el("a", label, { href: file ? `${base}/${file}` : base, target: "_blank" });
     span.append(a, " ");
   }
+  // The export in 3D, on the daemon's viewer page.
+  const viewer = `/viewer.html?session=${encodeURIComponent(id)}`;
+  span.append(el("a", "3D view", { href: viewer, target: "_blank" }), " ");
   return span;
 }
 
