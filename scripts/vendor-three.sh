@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Fetches three.js for the web page's 3D viewer from npm into src/daemon/web/vendor/three/:
-# the library and the four add-ons the viewer imports, unchanged except that their bare
-# `'three'` import names the file beside them (the page's security policy allows no inline
-# import map). three.js is MIT-licensed (its LICENSE goes with it). The daemon compiles the
+# the library, the three add-ons the viewer imports and the one GLTFLoader imports, unchanged
+# except that their bare `'three'` import names the file beside them (the page's security
+# policy allows no inline import map). three.js is MIT-licensed (its LICENSE goes with it). The daemon compiles the
 # files in, so the viewer works on a bench with no network.
 set -euo pipefail
 version=0.166.1

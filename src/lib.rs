@@ -4,7 +4,7 @@
 //! # Layout
 //! - `brdfd-core` (`crates/core`, its own crate): the estimation core (BRDF sources, bivariate
 //!   reduction, PCA basis, environment maps, geometry, rendering matrix, pixel selection, solve,
-//!   the models). No async, no drivers, no HTTP: Cargo keeps it so.
+//!   the models). No async, no drivers, no HTTP (`tests/layers.rs` checks its dependencies).
 //! - `brdfd-eval` (`crates/eval`): relighting under maps an estimate never saw, through the one
 //!   estimate pipeline, and the paper's protocol. See docs/architecture.md for the layers.
 //! - [`bench`](mod@bench): the virtual bench: renders what a camera on a simulated rig would see.

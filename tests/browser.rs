@@ -525,8 +525,8 @@ fn the_viewer_shows_the_export_as_brdfd_renders_it() {
             "courtyard.hdr",
             "--size",
             &size,
-            // Within 0.04 of Mitsuba at this count (tests/mitsuba.rs), and 4 times faster
-            // than the default.
+            // Within 0.04–0.07 of Mitsuba at this count (tests/mitsuba.rs), and 4 times
+            // faster than the default.
             "--lights",
             "4096",
             "--out",

@@ -422,6 +422,46 @@ fn estimate_from_files() {
         dir.path(),
     );
     assert!(o.status.success(), "{:?}", text(&o));
+    // The export, rendered as glTF's BRDF: lit, and a file it cannot render is named.
+    let gltf = |file: &str| {
+        brdfd(
+            &[
+                "render",
+                "--gltf",
+                file,
+                "--env",
+                "studio.exr",
+                "--size",
+                "32",
+                "--out",
+                "gltf.exr",
+            ],
+            dir.path(),
+        )
+    };
+    let o = gltf("est/material.gltf");
+    assert!(o.status.success(), "{:?}", text(&o));
+    let lit = brdfd_core::raster::Raster::read(&dir.path().join("gltf.exr")).unwrap();
+    assert!(lit.pixels.iter().any(|p| p[1] > 0.0));
+    let exported = std::fs::read_to_string(dir.path().join("est/material.gltf")).unwrap();
+    std::fs::write(
+        dir.path().join("textured.gltf"),
+        exported.replacen(
+            "\"pbrMetallicRoughness\": {",
+            "\"pbrMetallicRoughness\": {\"baseColorTexture\": {\"index\": 0},",
+            1,
+        ),
+    )
+    .unwrap();
+    let o = gltf("textured.gltf");
+    assert!(!o.status.success());
+    assert!(
+        text(&o)
+            .1
+            .contains("materials[0].pbrMetallicRoughness.baseColorTexture is not rendered"),
+        "{:?}",
+        text(&o)
+    );
     // The PNG path of the photo reader: sRGB decoded to linear.
     let o = brdfd(
         &[

@@ -143,6 +143,19 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
         out(&o)
     );
     assert_eq!(daemon.get("/health").1["busy"], id.as_str());
+    // The list says which session is running, and that it is capturing, never "created".
+    let (_, list) = daemon.get("/sessions");
+    let listed = list
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["id"] == id.as_str())
+        .unwrap();
+    assert_eq!(
+        (&listed["running"], &listed["state"]),
+        (&json!(true), &json!("capturing")),
+        "{listed}"
+    );
 
     daemon.wait_for_step(&id, "view1");
     let (status, body) = daemon.post(&format!("/sessions/{id}/cancel"), json!({}));
@@ -155,6 +168,7 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
         last["error"].as_str().unwrap().contains("cancelled"),
         "{last}"
     );
+    assert_eq!(last["cancelled"], true, "{last}");
     // The stream showed the phases as they ran.
     assert!(events
         .iter()
@@ -229,6 +243,23 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
     let (status, png) = daemon.get_bytes(&format!("/sessions/{id}/result/compare.png"));
     assert_eq!(status, 200);
     assert!(png.starts_with(b"\x89PNG"));
+    // The capture's light, for the 3D view: Radiance RGBE, as the daemon's media type says.
+    let (status, hdr) = daemon.get_bytes(&format!("/sessions/{id}/result/light.hdr"));
+    assert_eq!(status, 200);
+    assert!(
+        hdr.starts_with(b"#?RADIANCE"),
+        "{:?}",
+        &hdr[..16.min(hdr.len())]
+    );
+    // Done, so no longer running.
+    let (_, list) = daemon.get("/sessions");
+    let listed = list
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["id"] == id.as_str())
+        .unwrap();
+    assert_eq!(listed["running"], false, "{listed}");
     let (status, _) = daemon.get_bytes(&format!("/sessions/{id}/result/manifest.json"));
     assert_eq!(status, 404);
     let (status, body) = daemon.get("/sessions/..%2F..%2Fetc");

@@ -122,7 +122,7 @@ fn brdfd_renders_a_sphere_under_a_map_as_mitsuba_does() {
                 "--size",
                 &size,
                 // A quarter of the default: `render --gltf` evaluates the BRDF per light and
-                // pixel, 4 times faster so (the figures in docs/evaluation.md use the default).
+                // pixel, so this is 4 times faster (docs/evaluation.md's figures are at it too).
                 "--lights",
                 "4096",
                 "--out",

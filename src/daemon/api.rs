@@ -12,7 +12,7 @@
 //! | `GET /api/v1/sessions/{id}` | `{"id", "dir", "manifest", "waiting_for_view"}`: where it is stored, its manifest, and the view whose hand turn it waits for |
 //! | `GET /api/v1/sessions/{id}/events` | Server-Sent Events, one JSON [`Event`] each with its place as `id`, from the session's first (after `Last-Event-ID` if given); ends after `finished` |
 //! | `GET /api/v1/sessions/{id}/result` | `coefficients.json`; 409 `not_done` until the session is done |
-//! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `coefficients.json`, `preview.png`, `preview.json`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`, `material.gltf`, `material.mtlx` |
+//! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `coefficients.json`, `preview.png`, `preview.json`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`, `material.gltf`, `material.mtlx`, `light.hdr` |
 //! | `POST /api/v1/sessions/{id}/cancel` | 202; 409 `not_running` |
 //! | `POST /api/v1/sessions/{id}/continue` | the object is turned by hand, as the `waiting_for_operator` event asked: 202; 409 `not_waiting` |
 //! | `POST /api/v1/sessions/{id}/resume` | 202 as for a new capture; 409 `busy` |
@@ -612,13 +612,14 @@ impl ResultFile {
         (status = 200, description = "the file", content(
             (FileBytes = "image/png"),
             (FileBytes = "image/x-exr"),
+            (FileBytes = "image/vnd.radiance"),
             (FileBytes = "application/octet-stream"),
             (Object = "application/json"),
             (String = "text/html"),
             (Object = "model/gltf+json"),
             (String = "application/xml"),
         )),
-        (status = 404, description = "`not_found`: no such session, or no such file in its result (`brdf-sigma.exr` with an uncertainty band, `compare.png` with a photo)", body = ErrorBody),
+        (status = 404, description = "`not_found`: no such session, or no such file in its result (`brdf-sigma.exr` with an uncertainty band, `compare.png` with a photo, `light.hdr` with a capture's map)", body = ErrorBody),
         (status = 409, description = "`not_done`: the session is not done", body = ErrorBody),
     )
 )]

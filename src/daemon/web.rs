@@ -1,6 +1,7 @@
 //! The daemon's web page at `/`: devices, a capture from a material preset followed live,
-//! cancel and resume, and the sessions with their reports. Its three files are compiled in,
-//! so the page works with no network. It talks to the API like any client.
+//! cancel and resume, and the sessions with their reports; and `/viewer.html`, a session's
+//! export in 3D. Its files, three.js among them, are compiled in, so the pages work with no
+//! network. It talks to the API like any client.
 //!
 //! With a token configured, the browser signs in once (`POST /login`, a form) and keeps the
 //! token in a cookie: an address never holds it, and `EventSource`, which cannot send an

@@ -49,8 +49,9 @@ impl GltfMaterial {
     }
 
     /// The first material of a glTF file (`.gltf`, JSON): its metallic-roughness factors and
-    /// the specular and IOR extensions, with glTF's defaults for what it leaves out. Textures
-    /// are not read: a material that has them is refused, since its factors alone are not it.
+    /// the specular and IOR extensions, with glTF's defaults for what it leaves out. What else
+    /// a material can hold (textures, emission, transparency, other extensions) is refused by
+    /// name: brdfd would render something else than the file says.
     pub fn read(path: &std::path::Path) -> Result<GltfMaterial> {
         let what = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|e| CoreError::io(path, e))?;
@@ -59,35 +60,14 @@ impl GltfMaterial {
         let m = doc["materials"]
             .get(0)
             .ok_or_else(|| CoreError::format(&what, "has no `materials[0]`"))?;
+        if let Some(field) = unrendered(m, "materials[0]") {
+            return Err(CoreError::format(
+                &what,
+                format!("{field} is not rendered: brdfd renders glTF's metallic-roughness BRDF with the specular and IOR extensions, from factors alone"),
+            ));
+        }
         let pbr = &m["pbrMetallicRoughness"];
         let spec = &m["extensions"]["KHR_materials_specular"];
-        for (texture, v) in [
-            (
-                "pbrMetallicRoughness.baseColorTexture",
-                &pbr["baseColorTexture"],
-            ),
-            (
-                "pbrMetallicRoughness.metallicRoughnessTexture",
-                &pbr["metallicRoughnessTexture"],
-            ),
-            (
-                "KHR_materials_specular.specularTexture",
-                &spec["specularTexture"],
-            ),
-            (
-                "KHR_materials_specular.specularColorTexture",
-                &spec["specularColorTexture"],
-            ),
-        ] {
-            if !v.is_null() {
-                return Err(CoreError::format(
-                    &what,
-                    format!(
-                        "materials[0].{texture}: textured materials are not rendered, only factors"
-                    ),
-                ));
-            }
-        }
         let number = |v: &serde_json::Value, field: &str, default: f64, range: (f64, f64)| {
             if v.is_null() {
                 return Ok(default);
@@ -107,6 +87,12 @@ impl GltfMaterial {
         let unit = (0.0, 1.0);
         let rgb = |v: &serde_json::Value, field: &str, range: (f64, f64)| -> Result<[f64; 3]> {
             let mut out = [1.0; 3];
+            if !v.is_null() && v.as_array().is_none_or(|a| a.len() < 3) {
+                return Err(CoreError::format(
+                    &what,
+                    format!("materials[0].{field} is {v}, not a colour of 3 (or 4) numbers"),
+                ));
+            }
             for (c, o) in out.iter_mut().enumerate() {
                 *o = number(&v[c], field, 1.0, range)?;
             }
@@ -186,6 +172,37 @@ impl GltfMaterial {
         });
         serde_json::to_string_pretty(&json).expect("a material serialises")
     }
+}
+
+/// The first part of a glTF material (`at` names where) that [`GltfBrdf`] does not render:
+/// a texture, emission, transparency, or an extension other than the specular and IOR ones.
+fn unrendered(v: &serde_json::Value, at: &str) -> Option<String> {
+    let object = v.as_object()?;
+    for (key, value) in object {
+        let here = format!("{at}.{key}");
+        let emissive = key == "emissiveFactor"
+            && value
+                .as_array()
+                .is_some_and(|a| a.iter().any(|c| c.as_f64() != Some(0.0)));
+        let transparent = key == "alphaMode" && value.as_str() != Some("OPAQUE");
+        if key.ends_with("Texture") || emissive || transparent {
+            return Some(here);
+        }
+        if key == "extensions" {
+            let known = ["KHR_materials_specular", "KHR_materials_ior"];
+            if let Some(other) = value
+                .as_object()?
+                .keys()
+                .find(|k| !known.contains(&k.as_str()))
+            {
+                return Some(format!("{here}.{other}"));
+            }
+        }
+        if let Some(inner) = unrendered(value, &here) {
+            return Some(inner);
+        }
+    }
+    None
 }
 
 /// A unit UV sphere: positions (which are also the normals), then normals, then u16 indices;
@@ -290,6 +307,19 @@ mod tests {
         std::fs::write(&path, m.document("m").replace("0.75", "1.75")).unwrap();
         let e = GltfMaterial::read(&path).unwrap_err().to_string();
         assert!(e.contains("materials[0].metallicFactor is 1.75"), "{e}");
+        let with = |key: &str, value: serde_json::Value| {
+            let mut doc: serde_json::Value = serde_json::from_str(&m.document("m")).unwrap();
+            doc["materials"][0][key] = value;
+            std::fs::write(&path, doc.to_string()).unwrap();
+            GltfMaterial::read(&path).unwrap_err().to_string()
+        };
+        let e = with("normalTexture", serde_json::json!({ "index": 0 }));
+        assert!(
+            e.contains("materials[0].normalTexture is not rendered"),
+            "{e}"
+        );
+        let e = with("alphaMode", serde_json::json!("BLEND"));
+        assert!(e.contains("materials[0].alphaMode is not rendered"), "{e}");
     }
 
     #[test]

@@ -175,8 +175,8 @@ pub fn execute(
             State::Failed
         },
         result: result.as_ref().ok().map(|o| Box::new(o.summary.clone())),
+        cancelled: reason.as_deref() == Some(CANCELLED),
         error: reason,
-        cancelled: result.is_err() && cx.cancel.is_cancelled(),
     });
     result.map_err(|e| {
         let e = match unrecorded {

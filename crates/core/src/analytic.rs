@@ -280,7 +280,7 @@ pub fn columns(grid: Grid, alpha: f64) -> [Vec<f64>; 3] {
 impl Microfacet {
     /// The model of per-channel weights in the column order of the fit (Lambert, then each
     /// lobe's F₀ and F₉₀; further columns are not read) at roughnesses `alphas`.
-    pub fn from_weights(w: &[DVector<f64>; 3], alphas: &[f64]) -> Microfacet {
+    pub(crate) fn from_weights(w: &[DVector<f64>; 3], alphas: &[f64]) -> Microfacet {
         Microfacet {
             diffuse: std::array::from_fn(|c| w[c][0]),
             lobes: alphas
@@ -435,7 +435,7 @@ fn search_subset(n: usize, views: usize) -> Vec<usize> {
 
 /// The normal equations of `rows` rows of m unknowns: G = XᵀX, b = Xᵀy and yᵀy. `row(r, x)`
 /// writes row r of X into `x` and returns its observation. Only G's lower half is summed.
-pub fn normal_equations(
+pub(crate) fn normal_equations(
     m: usize,
     rows: usize,
     mut row: impl FnMut(usize, &mut [f64]) -> f64,
@@ -729,7 +729,7 @@ fn observed_of(views: &[ViewPixels], subset: bool) -> Vec<[f64; 3]> {
 
 /// The search pixels of every view (spread over its candidates, [`SEARCH_PIXELS`] in all) and
 /// what they measured, in the order the search's matrices hold them.
-pub fn search_pixels(views: &[ViewPixels]) -> (Vec<Vec<GeomPixel>>, Vec<[f64; 3]>) {
+pub(crate) fn search_pixels(views: &[ViewPixels]) -> (Vec<Vec<GeomPixel>>, Vec<[f64; 3]>) {
     let pixels = views
         .iter()
         .map(|v| {
@@ -925,7 +925,7 @@ fn uncertainty(
 /// b = Xᵀy and yᵀy, over `n` observations), over the weights the fit keeps: a weight held at
 /// zero by its bound gets 0. σ² is the residual's variance, so model error counts as noise and
 /// a poor fit is reported as unsure.
-pub fn linearised_covariance(
+pub(crate) fn linearised_covariance(
     g: &DMatrix<f64>,
     b: &DVector<f64>,
     yy: f64,
@@ -951,7 +951,7 @@ pub fn linearised_covariance(
 
 /// κ of X from its Gram matrix G = XᵀX, with X's columns scaled to unit norm first (the
 /// columns' units differ; their overlap is what matters).
-pub fn scaled_condition(g: &DMatrix<f64>) -> f64 {
+pub(crate) fn scaled_condition(g: &DMatrix<f64>) -> f64 {
     let n = g.nrows();
     let d: Vec<f64> = (0..n)
         .map(|i| g[(i, i)].max(f64::MIN_POSITIVE).sqrt())

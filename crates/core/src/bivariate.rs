@@ -73,7 +73,7 @@ impl ThetaHBinning {
     }
 
     /// Lower edge of bin `i` (bin 0 starts at 0).
-    pub fn lower_edge(self, i: usize) -> f64 {
+    pub(crate) fn lower_edge(self, i: usize) -> f64 {
         let s = i as f64 / N_THETA_H as f64;
         match self {
             ThetaHBinning::Sqrt => s * s * HALF_PI,
@@ -82,13 +82,13 @@ impl ThetaHBinning {
     }
 }
 
-pub fn theta_d_lower_edge(j: usize) -> f64 {
+pub(crate) fn theta_d_lower_edge(j: usize) -> f64 {
     j as f64 / N_THETA_D as f64 * HALF_PI
 }
 
 /// Index of a grid cell within one channel plane: θh major, θd minor (an image with θh down
 /// the rows and θd across the columns, as in the paper's Fig. 3).
-pub fn grid_index(ih: usize, jd: usize) -> usize {
+pub(crate) fn grid_index(ih: usize, jd: usize) -> usize {
     ih * N_THETA_D + jd
 }
 

@@ -63,7 +63,7 @@ pub fn scale(a: Vec3, s: f64) -> Vec3 {
 }
 
 /// Angle between two unit vectors, accurate near 0 and π (unlike `acos` of the dot product).
-pub fn angle_between(a: Vec3, b: Vec3) -> f64 {
+pub(crate) fn angle_between(a: Vec3, b: Vec3) -> f64 {
     cross(a, b)
         .iter()
         .map(|c| c * c)
@@ -86,7 +86,7 @@ fn rot_y(v: Vec3, angle: f64) -> Vec3 {
 
 /// (θh, θd, φd) for local unit directions `wi`, `wo` (Rusinkiewicz 1998): the half vector's
 /// polar angle, then `wi` expressed in the frame where the half vector is the pole.
-pub fn to_rusinkiewicz(wi: Vec3, wo: Vec3) -> (f64, f64, f64) {
+pub(crate) fn to_rusinkiewicz(wi: Vec3, wo: Vec3) -> (f64, f64, f64) {
     let h = normalize(add(wi, wo));
     let theta_h = angle_between(h, [0.0, 0.0, 1.0]);
     let phi_h = h[1].atan2(h[0]);
@@ -111,7 +111,7 @@ pub fn from_rusinkiewicz(theta_h: f64, theta_d: f64, phi_d: f64) -> (Vec3, Vec3)
 
 /// Whether the light and view directions of (θh, θd, φd) are both above the horizon: the
 /// cells a gonioreflectometer can measure.
-pub fn above_horizon(theta_h: f64, theta_d: f64, phi_d: f64) -> bool {
+pub(crate) fn above_horizon(theta_h: f64, theta_d: f64, phi_d: f64) -> bool {
     let (wi, wo) = from_rusinkiewicz(theta_h, theta_d, phi_d);
     wi[2] > 0.0 && wo[2] > 0.0
 }

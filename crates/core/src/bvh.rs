@@ -245,7 +245,8 @@ impl Bvh {
     }
 
     /// Whether anything lies on the ray within `(t_min, t_max)`: the first hit ends the search.
-    pub fn occluded(&self, origin: Vec3, dir: Vec3, t_min: f64, t_max: f64) -> bool {
+    #[cfg(test)]
+    pub(crate) fn occluded(&self, origin: Vec3, dir: Vec3, t_min: f64, t_max: f64) -> bool {
         let mut far = t_max;
         let mut hit = false;
         self.walk(origin, dir, t_min, &mut far, &mut |_, _| {

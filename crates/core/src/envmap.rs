@@ -371,7 +371,7 @@ impl EnvMap {
     }
 
     /// Reads an EXR's RGB without radiance checks (normal maps hold negative components).
-    pub fn load_raw_exr(path: &Path) -> Result<(usize, usize, Vec<[f32; 3]>)> {
+    pub(crate) fn load_raw_exr(path: &Path) -> Result<(usize, usize, Vec<[f32; 3]>)> {
         read_exr_rgb(path).map(|e| (e.width, e.height, e.pixels))
     }
 

@@ -217,7 +217,7 @@ pub const COLOUR_FIT_MARGIN: f64 = 1e-3;
 /// The rule `auto` chooses by, for estimates offered in order of increasing unknowns, each
 /// with its fit: the `candidate` replaces the `kept` one only if it fits better by more than
 /// [`COLOUR_FIT_MARGIN`]. The evaluation's `prior-auto` uses it too.
-pub fn keep_better_fit<T>(kept: Option<(T, f64)>, candidate: (T, f64)) -> Option<(T, f64)> {
+pub(crate) fn keep_better_fit<T>(kept: Option<(T, f64)>, candidate: (T, f64)) -> Option<(T, f64)> {
     match kept {
         Some(k) if candidate.1 >= k.1 - COLOUR_FIT_MARGIN => Some(k),
         _ => Some(candidate),
@@ -239,7 +239,7 @@ fn secs(d: Duration) -> f64 {
 /// The candidate pixels of `geometry` in `photo`: pixels the photo saw with finite,
 /// non-negative values, below `white` if given, spread to at most `max_candidates`. Returns
 /// them, what they measured, and how many object pixels were clipped.
-pub fn candidate_pixels(
+pub(crate) fn candidate_pixels(
     geometry: &PixelGeometry,
     photo: &Raster,
     max_candidates: usize,
@@ -285,23 +285,10 @@ pub fn candidate_pixels(
     Ok((picked, observed, clipped))
 }
 
-/// Builds the basis's A for the candidate pixels ([`candidate_pixels`]) under `lights`.
-pub fn candidate_matrix(
-    basis: &Basis,
-    geometry: &PixelGeometry,
-    lights: &LightSet,
-    photo: &Raster,
-    max_candidates: usize,
-    white: Option<f32>,
-) -> Result<(RenderingMatrix, Vec<[f64; 3]>, usize)> {
-    let (picked, observed, clipped) = candidate_pixels(geometry, photo, max_candidates, white)?;
-    Ok((basis.rendering_matrix(&picked, lights), observed, clipped))
-}
-
 /// The pixels `options` asks for, chosen on a prepared rendering matrix for a solve with
 /// `colour`: selection conditions the systems that solve will use, one joint system or one
 /// per channel (see [`Blocks`]).
-pub fn select_pixels(
+pub(crate) fn select_pixels(
     basis: &Basis,
     a: &RenderingMatrix,
     options: &EstimateOptions,
@@ -902,7 +889,7 @@ fn stacked_matrix(basis: &Basis, candidates: &[Candidates]) -> Result<RenderingM
 }
 
 /// ‖predicted − observed‖ / ‖observed‖ over every pixel and channel.
-pub fn relative_misfit(predicted: &[f64], observed: &[[f64; 3]]) -> f64 {
+pub(crate) fn relative_misfit(predicted: &[f64], observed: &[[f64; 3]]) -> f64 {
     let (mut num, mut den) = (0.0, 0.0);
     for (p, o) in predicted.chunks_exact(3).zip(observed) {
         for c in 0..3 {
@@ -1028,7 +1015,7 @@ impl Estimate {
     }
 
     /// The colour model for a person to read, and when several were tried, why this one.
-    pub fn colour_text(&self) -> String {
+    pub(crate) fn colour_text(&self) -> String {
         let others: Vec<String> = self
             .colour_fits
             .iter()

@@ -656,7 +656,7 @@ impl PixelGeometry {
 
     /// Reads world-frame normals from an EXR (RGB = x, y, z); pixels whose normal has length
     /// below ½ are outside the mask. View vectors come from `camera`, resized to the map.
-    pub fn from_normal_map(path: &Path, camera: &Camera) -> Result<PixelGeometry> {
+    pub(crate) fn from_normal_map(path: &Path, camera: &Camera) -> Result<PixelGeometry> {
         let map = super::envmap::EnvMap::load_raw_exr(path)?;
         let camera = camera.resized(map.0, map.1);
         let axes = camera.pose().axes()?;
@@ -688,15 +688,6 @@ impl PixelGeometry {
             height: map.1,
             pixels,
         })
-    }
-
-    /// Writes the normals as an EXR that [`PixelGeometry::from_normal_map`] reads back.
-    pub fn write_normal_map(&self, path: &Path) -> Result<()> {
-        let mut img = vec![[0f32; 3]; self.width * self.height];
-        for p in &self.pixels {
-            img[p.y as usize * self.width + p.x as usize] = p.normal;
-        }
-        super::envmap::write_exr(path, self.width, self.height, &img)
     }
 }
 

@@ -23,19 +23,19 @@ pub const CHANNEL_SCALE: [f64; 3] = [1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0]
 const HALF_PI: f64 = std::f64::consts::FRAC_PI_2;
 
 /// θh bin: square-root spacing, so the specular peak near θh = 0 gets most of the bins.
-pub fn theta_h_bin(theta_h: f64) -> usize {
+pub(crate) fn theta_h_bin(theta_h: f64) -> usize {
     if theta_h <= 0.0 {
         return 0;
     }
     (((theta_h / HALF_PI).sqrt() * THETA_H_BINS as f64) as usize).min(THETA_H_BINS - 1)
 }
 
-pub fn theta_d_bin(theta_d: f64) -> usize {
+pub(crate) fn theta_d_bin(theta_d: f64) -> usize {
     ((theta_d.max(0.0) / HALF_PI * THETA_D_BINS as f64) as usize).min(THETA_D_BINS - 1)
 }
 
 /// φd bin over [0, π): reciprocity maps φd and φd + π to the same value.
-pub fn phi_d_bin(phi_d: f64) -> usize {
+pub(crate) fn phi_d_bin(phi_d: f64) -> usize {
     let mut p = phi_d.rem_euclid(2.0 * std::f64::consts::PI);
     if p >= std::f64::consts::PI {
         p -= std::f64::consts::PI;
@@ -44,7 +44,7 @@ pub fn phi_d_bin(phi_d: f64) -> usize {
 }
 
 /// Centre angles of a cell, inverse of the bin functions.
-pub fn theta_h_center(i: usize) -> f64 {
+pub(crate) fn theta_h_center(i: usize) -> f64 {
     let s = (i as f64 + 0.5) / THETA_H_BINS as f64;
     s * s * HALF_PI
 }
@@ -53,11 +53,11 @@ pub fn theta_d_center(j: usize) -> f64 {
     (j as f64 + 0.5) / THETA_D_BINS as f64 * HALF_PI
 }
 
-pub fn phi_d_center(k: usize) -> f64 {
+pub(crate) fn phi_d_center(k: usize) -> f64 {
     (k as f64 + 0.5) / PHI_D_BINS as f64 * std::f64::consts::PI
 }
 
-pub fn cell_index(ih: usize, jd: usize, kp: usize) -> usize {
+pub(crate) fn cell_index(ih: usize, jd: usize, kp: usize) -> usize {
     kp + PHI_D_BINS * (jd + THETA_D_BINS * ih)
 }
 

@@ -223,7 +223,7 @@ impl Mesh {
 
     /// The surface normal at barycentric (u, v) of triangle `t`: the file's normals
     /// interpolated, or the face's, oriented like the file's (or the winding's).
-    pub fn normal_at(&self, t: usize, u: f64, v: f64) -> Vec3 {
+    pub(crate) fn normal_at(&self, t: usize, u: f64, v: f64) -> Vec3 {
         let [a, b, c] = self.corners(t);
         let face = normalize(cross(sub(b, a), sub(c, a)));
         match &self.corner_normals {

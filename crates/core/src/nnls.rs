@@ -93,7 +93,7 @@ impl NormalEquations for Columns<'_> {
 /// Non-negative least squares on the normal equations: minimises ‖Xc − y‖² subject to c ≥ 0,
 /// given G = XᵀX and b = Xᵀy. Small systems only (a dozen unknowns for the analytic model,
 /// about a hundred for the hybrid model's mix); returns c.
-pub fn nnls(g: &DMatrix<f64>, b: &DVector<f64>) -> DVector<f64> {
+pub(crate) fn nnls(g: &DMatrix<f64>, b: &DVector<f64>) -> DVector<f64> {
     lawson_hanson(&Gram { g, b })
 }
 
@@ -164,7 +164,7 @@ fn solve_passive(p: &impl NormalEquations, passive: &[bool]) -> DVector<f64> {
 /// u ≥ 0 minimising ‖[Eᵀ; fᵀ]·u − (0, …, 0, 1)‖ and r that residual, z = −r₁..ₙ / rₙ₊₁. Its
 /// passive set holds at most n + 1 rows, so the cost is a few passes over E whatever its
 /// length.
-pub fn least_distance(e: &DMatrix<f64>, f: &DVector<f64>) -> Option<DVector<f64>> {
+pub(crate) fn least_distance(e: &DMatrix<f64>, f: &DVector<f64>) -> Option<DVector<f64>> {
     let n = e.ncols();
     // z = 0 when every bound is at most zero; otherwise the bounds are scaled to at most 1, so
     // that the reduction's tolerances are relative (z scales with them).

@@ -119,7 +119,7 @@ const FOOTPRINT_SPOKES: usize = 24;
 /// `out[i]` lists (bin, weight) with weights summing to 1. With `rho` below the bin's own
 /// width this is the identity; near the specular peak it spreads a light over the narrow
 /// √-spaced bins its footprint covers.
-pub fn theta_h_smoothing(binning: ThetaHBinning, rho: f64) -> Vec<Vec<(usize, f64)>> {
+pub(crate) fn theta_h_smoothing(binning: ThetaHBinning, rho: f64) -> Vec<Vec<(usize, f64)>> {
     (0..N_THETA_H)
         .map(|i| {
             let theta = binning.center(i);
@@ -603,7 +603,7 @@ impl RenderingMatrix {
     }
 
     /// The rows of the given pixels (indices into `pixels`), in that order.
-    pub fn subset(&self, keep: &[usize]) -> RenderingMatrix {
+    pub(crate) fn subset(&self, keep: &[usize]) -> RenderingMatrix {
         let k = self.columns;
         RenderingMatrix {
             columns: k,
@@ -624,7 +624,7 @@ impl RenderingMatrix {
 
     /// Replaces pixel `i`'s rows (and offsets) with pixel `j`'s of `other`, a matrix of the
     /// same model built for the same pixel under other lights.
-    pub fn replace_pixel(&mut self, i: usize, other: &RenderingMatrix, j: usize) {
+    pub(crate) fn replace_pixel(&mut self, i: usize, other: &RenderingMatrix, j: usize) {
         let n = 3 * self.columns;
         self.rows[i * n..(i + 1) * n].copy_from_slice(&other.rows[j * n..(j + 1) * n]);
         if let (Some(mine), Some(theirs)) = (&mut self.offset, &other.offset) {

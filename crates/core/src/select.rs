@@ -121,7 +121,7 @@ impl Blocks {
     }
 
     /// The blocks for the systems a solve with `colour` uses.
-    pub fn for_colour(a: &RenderingMatrix, scales: &[f64], colour: Colour) -> Blocks {
+    pub(crate) fn for_colour(a: &RenderingMatrix, scales: &[f64], colour: Colour) -> Blocks {
         match colour {
             Colour::Joint => Self::scaled(a, scales),
             Colour::PerChannel => Self::per_channel(a, scales),
@@ -270,12 +270,12 @@ fn add_into(g: &mut Sym, q: &[f64], s: f64, m: usize) {
 
 /// Eigenvalues of a symmetric m × m matrix by cyclic Jacobi rotations (m ≤ 12, so this is
 /// a few hundred flops per sweep and converges in a handful of sweeps).
-pub fn sym_eigenvalues(g: &Sym, m: usize) -> Vec<f64> {
+pub(crate) fn sym_eigenvalues(g: &Sym, m: usize) -> Vec<f64> {
     jacobi(g, m, None)
 }
 
 /// Eigenvalues, and eigenvectors as the columns of the returned matrix.
-pub fn sym_eigen(g: &Sym, m: usize) -> (Vec<f64>, Sym) {
+pub(crate) fn sym_eigen(g: &Sym, m: usize) -> (Vec<f64>, Sym) {
     let mut v = [[0.0; MAX_COLUMNS]; MAX_COLUMNS];
     (0..m).for_each(|i| v[i][i] = 1.0);
     let values = jacobi(g, m, Some(&mut v));

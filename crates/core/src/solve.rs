@@ -17,7 +17,7 @@ use super::render::RenderingMatrix;
 pub enum Solver {
     /// Least squares, as in the paper.
     LeastSquares,
-    /// Least squares with the training set's prior ([`with_prior`]); the default, measured in
+    /// Least squares with the training set's prior ([`with_prior_system`]); the default, measured in
     /// docs/evaluation.md.
     #[default]
     Prior,
@@ -66,7 +66,7 @@ impl Solver {
     /// [`Colour::PerChannel`] solves each channel from its own rows, and the coefficients are
     /// the three channels' in turn (R, G, B; see [`channel_coefficients`]), each channel's
     /// BRDF kept ≥ 0 with `nonnegative` as in [`Solver::solve`].
-    pub fn solve_colour(
+    pub(crate) fn solve_colour(
         self,
         colour: Colour,
         a: &RenderingMatrix,
@@ -254,16 +254,6 @@ fn finish(x: &DMatrix<f64>, y: &DVector<f64>, c: DVector<f64>) -> Solution {
     }
 }
 
-/// Ordinary least squares via SVD, unconstrained: the paper's solve.
-pub fn least_squares(
-    a: &RenderingMatrix,
-    pixels: &[usize],
-    observed: &[[f64; 3]],
-) -> Result<Solution> {
-    let (x, y) = system(a, pixels, observed);
-    least_squares_system(pixels.len(), x, y, None)
-}
-
 fn least_squares_system(
     pixels: usize,
     x: DMatrix<f64>,
@@ -440,34 +430,8 @@ const HAIRS: [f64; 4] = [1e-9, 1e-8, 1e-7, 1e-6];
 /// Rounds of cutting planes in [`Cells::constrained`] at most; a handful are needed.
 const MAX_CUTS: usize = 64;
 
-/// Iterations of [`with_prior`]; it settles in a handful (the change is checked each time).
+/// Iterations of [`with_prior_system`]; it settles in a handful (the change is checked each time).
 const PRIOR_ITERATIONS: usize = 50;
-
-/// Maximum a posteriori coefficients under the training set's prior, with nothing to tune.
-///
-/// An RMS-normalised basis models a material as s·(b₀ + Σₖ zₖ bₖ): scale s (the free mean
-/// coefficient c₀) times a normalised shape whose scores zₖ spread over the training set with
-/// standard deviation σₖ (`prior[k]`). So cₖ = s·zₖ, and the prior on cₖ is N(0, (c₀σₖ)²).
-/// The misfit variance σ² is estimated from the residual (model error dominates it, not
-/// sensor noise, so it cannot be known in advance). Each step solves
-///
-///   min ‖Xc − y‖² + Σₖ (σ / (c₀σₖ))² cₖ²
-///
-/// with c₀ and σ from the step before, starting from least squares.
-///
-/// Why: with 5 to 20 pixels, least squares follows the model error into coefficients far
-/// outside anything in the training set; the prior keeps them plausible. With every pixel the
-/// data term dominates and the answer is close to least squares. A column with `prior[k] =
-/// None` (the scale) is free; with no such column, the scale is taken as 1.
-pub fn with_prior(
-    a: &RenderingMatrix,
-    pixels: &[usize],
-    observed: &[[f64; 3]],
-    prior: &[Option<f64>],
-) -> Result<Solution> {
-    let (x, y) = system(a, pixels, observed);
-    with_prior_system(pixels.len(), x, y, prior, None)
-}
 
 fn with_prior_system(
     pixels: usize,

@@ -62,7 +62,7 @@ pub fn band(samples: &[Vec<f64>]) -> Vec<f64> {
 /// Why an image and not the BRDF's cells: a cell's error matters as much as light reaches it.
 /// The analytic lobe's values near θd = 90° run to 10⁴ 1/sr and are barely measured, so a
 /// per-cell measure is all grazing noise, while an image weighs every cell by what it shows.
-pub fn image_spread(images: &[Vec<f64>], fitted: &[f64]) -> f64 {
+pub(crate) fn image_spread(images: &[Vec<f64>], fitted: &[f64]) -> f64 {
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
     rms(&band(images)) / rms(fitted).max(f64::MIN_POSITIVE)
 }
@@ -72,7 +72,7 @@ pub fn image_spread(images: &[Vec<f64>], fitted: &[f64]) -> f64 {
 pub const SPREAD_SPHERE: usize = 48;
 
 /// The pixels of the [`SPREAD_SPHERE`] sphere.
-pub fn spread_sphere() -> Result<Vec<GeomPixel>> {
+pub(crate) fn spread_sphere() -> Result<Vec<GeomPixel>> {
     Ok(PixelGeometry::rasterize(
         &Camera::eval_orthographic(SPREAD_SPHERE),
         &Shape::unit_sphere(),
@@ -81,7 +81,7 @@ pub fn spread_sphere() -> Result<Vec<GeomPixel>> {
 }
 
 /// The sample covariance (row-major) of coefficient vectors.
-pub fn sample_covariance(samples: &[Vec<f64>]) -> Vec<f64> {
+pub(crate) fn sample_covariance(samples: &[Vec<f64>]) -> Vec<f64> {
     let m = samples.first().map_or(0, Vec::len);
     let n = samples.len() as f64;
     let mean: Vec<f64> = (0..m)
@@ -99,7 +99,7 @@ pub fn sample_covariance(samples: &[Vec<f64>]) -> Vec<f64> {
 }
 
 /// The square roots of a row-major covariance's diagonal.
-pub fn std_of(covariance: &[f64], m: usize) -> Vec<f64> {
+pub(crate) fn std_of(covariance: &[f64], m: usize) -> Vec<f64> {
     (0..m)
         .map(|i| covariance[i * m + i].max(0.0).sqrt())
         .collect()

@@ -659,7 +659,7 @@ impl Seen {
 
 /// Whether bit `i` of a visibility row is set.
 #[inline(always)]
-pub fn is_seen(row: &[u64], i: u32) -> bool {
+pub(crate) fn is_seen(row: &[u64], i: u32) -> bool {
     row[(i >> 6) as usize] >> (i & 63) & 1 == 1
 }
 

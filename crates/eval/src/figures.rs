@@ -82,7 +82,7 @@ fn tick_label(categories: &[String], x: f64) -> String {
 
 /// A line plot over categories: `categories` along x, one series per `(name, values)` (a
 /// value may be missing), y from 0, with title, axis labels and a legend.
-pub fn category_lines(
+pub(crate) fn category_lines(
     title: &str,
     x_label: &str,
     y_label: &str,
@@ -140,7 +140,7 @@ pub fn category_lines(
 /// A dot plot of unordered categories (materials), one row each, read across: x is the value
 /// from 0, one marker per series (`(name, values)`, a value may be missing), with title, axis
 /// label and a legend. Lines would join materials that have no order; rows keep names legible.
-pub fn category_dots(
+pub(crate) fn category_dots(
     title: &str,
     x_label: &str,
     categories: &[String],
@@ -207,7 +207,11 @@ pub fn category_dots(
 
 /// A grid of images: one row per `(name, images)`, columns headed `columns`, each row
 /// tone-mapped with its first image's exposure; the images inline as PNGs.
-pub fn image_grid(title: &str, columns: &[&str], rows: &[(String, Vec<Raster>)]) -> Result<String> {
+pub(crate) fn image_grid(
+    title: &str,
+    columns: &[&str],
+    rows: &[(String, Vec<Raster>)],
+) -> Result<String> {
     let Some((tw, th)) = rows
         .first()
         .and_then(|(_, r)| r.first())

@@ -151,7 +151,7 @@ pub struct Row {
 /// [`EXPOSURE_PERCENTILE`] of the object's values reaches the white point. Clipped values stay
 /// clipped, as on a real sensor, at exactly the returned white level, which the estimate is
 /// told (as `brdfd estimate` knows an 8-bit photo's): clipped pixels are lower bounds only.
-pub fn add_sensor_noise(img: &Raster, seed: u64) -> (Raster, Option<f32>) {
+pub(crate) fn add_sensor_noise(img: &Raster, seed: u64) -> (Raster, Option<f32>) {
     let mut values: Vec<f32> = img
         .pixels
         .iter()
@@ -228,7 +228,7 @@ struct Truth {
 }
 
 /// The default basis settings (the measured choice; see docs/evaluation.md) with `k` components.
-pub fn default_basis(training: &[(String, Bivariate)], k: usize) -> Result<Basis> {
+pub(crate) fn default_basis(training: &[(String, Bivariate)], k: usize) -> Result<Basis> {
     Basis::build(
         training,
         k,

@@ -191,7 +191,7 @@ fn map_names(data: &Path) -> Result<Vec<String>> {
 /// PSNR (dB) of the tone-mapped estimate against the tone-mapped truth, over the object: both
 /// exposed by the same factor (the truth's mean to [`TONE_MAP_MEAN`]), mapped by x/(1 + x),
 /// sRGB-encoded.
-pub fn tone_mapped_psnr(estimate: &Raster, truth: &Raster) -> f64 {
+pub(crate) fn tone_mapped_psnr(estimate: &Raster, truth: &Raster) -> f64 {
     let object: Vec<usize> = (0..truth.pixels.len())
         .filter(|&i| truth.pixels[i].iter().any(|v| *v != 0.0))
         .collect();
@@ -218,7 +218,7 @@ pub fn tone_mapped_psnr(estimate: &Raster, truth: &Raster) -> f64 {
 /// The cosine-weighted log error of Liu, Fischer & Ritschel 2023: the mean over random
 /// direction pairs (uniform on the hemisphere, seeded) and channels of
 /// |log(1 + ρ cos θi) − log(1 + ρ̂ cos θi)|.
-pub fn log_error(estimate: &dyn IsotropicBrdf, truth: &dyn IsotropicBrdf, seed: u64) -> f64 {
+pub(crate) fn log_error(estimate: &dyn IsotropicBrdf, truth: &dyn IsotropicBrdf, seed: u64) -> f64 {
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let mut hemisphere = || {
         // Uniform in solid angle: cos θ uniform on [0, 1).

@@ -64,6 +64,14 @@ function showError(e) {
   box.scrollIntoView({ block: "nearest" });
 }
 
+// A background refresh that fails (the daemon restarting, the network gone) says so in the
+// header, without moving the page or replacing what the user's own action was told.
+function showStatus(e) {
+  if (e instanceof Unauthorized) return;
+  $("health").textContent = `cannot reach the daemon: ${e.message || e}`;
+  $("health").className = "failed";
+}
+
 function clearError() {
   $("error").textContent = "";
   $("error").hidden = true;
@@ -115,8 +123,14 @@ function resultLinks(id) {
   return span;
 }
 
+// Answers can come back out of order (a phase's refresh, the timer's, the finish's): only the
+// latest request's answer is shown.
+let sessionsAsked = 0;
+
 async function refreshSessions() {
+  const asked = ++sessionsAsked;
   const sessions = await api("/sessions");
+  if (asked !== sessionsAsked) return;
   const body = $("sessions").tBodies[0];
   body.replaceChildren(
     ...sessions.reverse().map((s) => {
@@ -359,9 +373,9 @@ async function main() {
     return;
   }
   setInterval(() => {
-    refreshHealth().catch(showError);
-    refreshDevices().catch(showError);
-    refreshSessions().catch(showError);
+    refreshHealth().catch(showStatus);
+    refreshDevices().catch(showStatus);
+    refreshSessions().catch(showStatus);
   }, 5000);
 }
 

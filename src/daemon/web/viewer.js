@@ -25,12 +25,6 @@ function showError(e) {
   $("error").hidden = false;
 }
 
-async function getJson(path) {
-  const r = await fetch(path, { credentials: "same-origin" });
-  if (!r.ok) throw new Error(`${path}: ${r.status} ${r.statusText}`);
-  return r.json();
-}
-
 // The map's mean luminance, so that a white matte sphere shows mid-grey under any map.
 function meanLuminance(texture) {
   const { data, width, height } = texture.image;
@@ -54,6 +48,13 @@ async function main() {
   if (!session) throw new Error("say which session: viewer.html?session=ID");
   const base = `/api/v1/sessions/${encodeURIComponent(session)}/result`;
   $("title").textContent = `session ${session}: 3D view`;
+  // Whether there is a result to show, and the daemon's own words if not.
+  const probe = await fetch(`${base}/coefficients.json`, { credentials: "same-origin" });
+  if (probe.status === 401) throw new Error("sign in on the main page first (this daemon has a token)");
+  if (!probe.ok) {
+    const body = await probe.json().catch(() => ({}));
+    throw new Error(body.message || `${probe.status} ${probe.statusText}`);
+  }
   $("photo").src = `${base}/compare.png`;
   $("photo").addEventListener("error", () => ($("photo-figure").hidden = true));
 
@@ -80,7 +81,7 @@ async function main() {
   const gltf = await new GLTFLoader().loadAsync(`${base}/material.gltf`);
   scene.add(gltf.scene);
 
-  const coefficients = await getJson(`${base}/coefficients.json`).catch(() => null);
+  const coefficients = await probe.json().catch(() => null);
   const exports = coefficients && coefficients.exports;
   if (exports && exports.relight_error != null) {
     $("verdict").textContent =
@@ -109,18 +110,30 @@ async function main() {
   $("turn").value = Number(params.get("turn")) || 0;
 
   const pmrem = new THREE.PMREMGenerator(renderer);
+  // Each map is loaded once, even when asked for again while it loads; the one shown is the
+  // one selected when its load ends.
   const loaded = new Map();
+  function load(name, url) {
+    if (!loaded.has(name)) {
+      loaded.set(
+        name,
+        new RGBELoader().loadAsync(url).then((texture) => {
+          texture.mapping = THREE.EquirectangularReflectionMapping;
+          const env = pmrem.fromEquirectangular(texture).texture;
+          return { texture, env, mean: meanLuminance(texture) };
+        })
+      );
+    }
+    return loaded.get(name);
+  }
   async function useMap() {
     const [name, url] = maps.find(([n]) => n === $("map").value);
-    if (!loaded.has(name)) {
-      const texture = await new RGBELoader().loadAsync(url);
-      texture.mapping = THREE.EquirectangularReflectionMapping;
-      loaded.set(name, { texture, env: pmrem.fromEquirectangular(texture).texture, mean: meanLuminance(texture) });
-    }
-    const m = loaded.get(name);
+    const m = await load(name, url);
+    if ($("map").value !== name) return;
     scene.environment = m.env;
     scene.background = $("background").checked ? m.texture : null;
-    renderer.toneMappingExposure = Number(params.get("exposure")) || 0.5 / m.mean;
+    // A black map has no exposure of its own: it shows black at any.
+    renderer.toneMappingExposure = Number(params.get("exposure")) || (m.mean > 0 ? 0.5 / m.mean : 1);
     turn();
   }
   function turn() {

@@ -1,0 +1,90 @@
+//! The workspace's floor plan (docs/architecture.md), checked from Cargo's own dependency
+//! graph: the estimation core depends on no runtime, HTTP stack, device driver or the API's
+//! schema crate, and stays near a hundred packages. Cargo itself refuses cycles between
+//! crates; this refuses a dependency that points up.
+
+use std::process::Command;
+
+/// The packages a build of `package` compiles (normal dependencies, itself included).
+fn packages(package: &str, features: &[&str]) -> Vec<String> {
+    let mut args = vec![
+        "tree",
+        "--offline",
+        "-p",
+        package,
+        "-e",
+        "normal",
+        "--prefix",
+        "none",
+    ];
+    if !features.is_empty() {
+        args.extend(["--features", features[0]]);
+    }
+    let o = Command::new(env!("CARGO"))
+        .args(&args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("cargo runs");
+    assert!(
+        o.status.success(),
+        "cargo tree: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let mut names: Vec<String> = String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .filter_map(|l| l.split_whitespace().next())
+        .map(str::to_string)
+        .collect();
+    names.sort();
+    names.dedup();
+    names
+}
+
+#[test]
+fn the_core_knows_no_runtime_http_driver_or_schema() {
+    let core = packages("brdfd-core", &[]);
+    let forbidden = [
+        "tokio",
+        "hyper",
+        "axum",
+        "reqwest",
+        "utoipa",
+        "rusb",
+        "serialport",
+        "v4l",
+        "brdfd",
+        "brdfd-ptp",
+        "brdfd-theta",
+        "brdfd-serial",
+        "brdfd-v4l",
+        "brdfd-sim",
+        "brdfd-eval",
+    ];
+    let found: Vec<&String> = core
+        .iter()
+        .filter(|p| forbidden.contains(&p.as_str()))
+        .collect();
+    assert!(found.is_empty(), "brdfd-core depends on {found:?}");
+    // Issue 39's figure: at most 100 packages (98 when it was split out).
+    assert!(
+        core.len() <= 100,
+        "brdfd-core builds {} packages",
+        core.len()
+    );
+    // With its schema feature, utoipa and nothing of the daemon's.
+    let schema = packages("brdfd-core", &["schema"]);
+    assert!(schema.iter().any(|p| p == "utoipa"), "{schema:?}");
+    assert!(
+        !schema.iter().any(|p| p == "tokio" || p == "axum"),
+        "{schema:?}"
+    );
+}
+
+#[test]
+fn the_evaluation_sits_on_the_core_alone() {
+    let eval = packages("brdfd-eval", &[]);
+    for p in ["brdfd", "tokio", "axum", "brdfd-ptp", "brdfd-sim"] {
+        assert!(!eval.iter().any(|e| e == p), "brdfd-eval depends on {p}");
+    }
+    assert!(eval.iter().any(|e| e == "brdfd-core"));
+}
