@@ -515,24 +515,15 @@ fn the_viewer_shows_the_export_as_brdfd_renders_it() {
     assert_eq!(map.status().as_u16(), 200);
     std::fs::write(dir.path().join("courtyard.hdr"), map.bytes().unwrap()).unwrap();
     const SIZE: usize = 256;
-    let size = SIZE.to_string();
-    let o = common::brdfd(
-        &[
-            "render",
-            "--gltf",
-            "material.gltf",
-            "--env",
-            "courtyard.hdr",
-            "--size",
-            &size,
-            // Within 0.04–0.07 of Mitsuba at this count (tests/mitsuba.rs), and 4 times
-            // faster than the default.
-            "--lights",
-            "4096",
-            "--out",
-            "ours.exr",
-        ],
+    // 4,096 lights: within 0.04–0.07 of Mitsuba (tests/mitsuba.rs), 4 times faster than
+    // the default.
+    let o = common::render_gltf(
         dir.path(),
+        "material.gltf",
+        "courtyard.hdr",
+        SIZE,
+        4096,
+        "ours.exr",
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let ours = brdfd_core::raster::Raster::read(&dir.path().join("ours.exr")).unwrap();

@@ -144,13 +144,7 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
     );
     assert_eq!(daemon.get("/health").1["busy"], id.as_str());
     // The list says which session is running, and that it is capturing, never "created".
-    let (_, list) = daemon.get("/sessions");
-    let listed = list
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|s| s["id"] == id.as_str())
-        .unwrap();
+    let listed = daemon.listed(&id);
     assert_eq!(
         (&listed["running"], &listed["state"]),
         (&json!(true), &json!("capturing")),
@@ -252,13 +246,7 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
         &hdr[..16.min(hdr.len())]
     );
     // Done, so no longer running.
-    let (_, list) = daemon.get("/sessions");
-    let listed = list
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|s| s["id"] == id.as_str())
-        .unwrap();
+    let listed = daemon.listed(&id);
     assert_eq!(listed["running"], false, "{listed}");
     let (status, _) = daemon.get_bytes(&format!("/sessions/{id}/result/manifest.json"));
     assert_eq!(status, 404);

@@ -94,11 +94,10 @@ fn brdfd_renders_a_sphere_under_a_map_as_mitsuba_does() {
         ("mirror-0.02", 0.09),
     ];
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/mitsuba-reference.py");
-    let size = SIZE.to_string();
     let o = Command::new(&python)
         .arg(&script)
         .arg(&map)
-        .arg(&size)
+        .arg(SIZE.to_string())
         .arg(dir.path())
         .args(cases.map(|(c, _)| c))
         .output()
@@ -112,24 +111,10 @@ fn brdfd_renders_a_sphere_under_a_map_as_mitsuba_does() {
     for (case, limit) in cases {
         std::fs::write(dir.path().join(format!("{case}.gltf")), gltf(case)).unwrap();
         let out = format!("ours-{case}.exr");
-        let o = common::brdfd(
-            &[
-                "render",
-                "--gltf",
-                &format!("{case}.gltf"),
-                "--env",
-                "courtyard.hdr",
-                "--size",
-                &size,
-                // A quarter of the default: `render --gltf` evaluates the BRDF per light and
-                // pixel, so this is 4 times faster (docs/evaluation.md's figures are at it too).
-                "--lights",
-                "4096",
-                "--out",
-                &out,
-            ],
-            dir.path(),
-        );
+        // A quarter of the default light count: `render --gltf` evaluates the BRDF per light
+        // and pixel, so this is 4 times faster (docs/evaluation.md's figures are at it too).
+        let gltf = format!("{case}.gltf");
+        let o = common::render_gltf(dir.path(), &gltf, "courtyard.hdr", SIZE, 4096, &out);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let ours = Raster::read(&dir.path().join(&out)).unwrap();
         let reference = Raster::read(&dir.path().join(format!("{case}.exr"))).unwrap();

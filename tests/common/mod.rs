@@ -40,6 +40,26 @@ pub fn brdfd(args: &[&str], dir: &Path) -> Output {
         .expect("brdfd runs")
 }
 
+/// `brdfd render --gltf GLTF --env MAP` on its built-in sphere at `size`² with `lights`, into
+/// `out` (all in `dir`): the glTF material as brdfd renders it.
+pub fn render_gltf(
+    dir: &Path,
+    gltf: &str,
+    map: &str,
+    size: usize,
+    lights: usize,
+    out: &str,
+) -> Output {
+    let (size, lights) = (size.to_string(), lights.to_string());
+    brdfd(
+        &[
+            "render", "--gltf", gltf, "--env", map, "--size", &size, "--lights", &lights, "--out",
+            out,
+        ],
+        dir,
+    )
+}
+
 /// Runs `brdfd ARGS` in `dir`, which must succeed: what it said, on both streams.
 /// Runs brdfd, which must fail: what it said.
 pub fn fails(args: &[&str], dir: &Path) -> String {
@@ -177,6 +197,15 @@ impl Daemon {
     pub fn get_bytes(&self, path: &str) -> (u16, Vec<u8>) {
         let r = self.http.get(self.url(path)).send().expect("GET");
         (r.status().as_u16(), r.bytes().expect("body").to_vec())
+    }
+
+    /// The session `id` as `GET /sessions` lists it.
+    pub fn listed(&self, id: &str) -> serde_json::Value {
+        let (_, list) = self.get("/sessions");
+        list.as_array()
+            .and_then(|all| all.iter().find(|s| s["id"] == id))
+            .cloned()
+            .unwrap_or_else(|| panic!("{id} is not listed: {list}"))
     }
 
     pub fn post(&self, path: &str, body: serde_json::Value) -> (u16, serde_json::Value) {

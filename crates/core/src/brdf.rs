@@ -96,7 +96,7 @@ pub(crate) fn to_rusinkiewicz(wi: Vec3, wo: Vec3) -> (f64, f64, f64) {
     (theta_h, theta_d, phi_d)
 }
 
-/// The inverse of [`to_rusinkiewicz`] with φh = 0: returns (wi, wo).
+/// The inverse of `to_rusinkiewicz` with φh = 0: returns (wi, wo).
 pub fn from_rusinkiewicz(theta_h: f64, theta_d: f64, phi_d: f64) -> (Vec3, Vec3) {
     let h = [theta_h.sin(), 0.0, theta_h.cos()];
     let d = [

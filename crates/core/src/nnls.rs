@@ -1,7 +1,7 @@
 //! Non-negative least squares (Lawson and Hanson's active-set method) in the two shapes the
 //! estimate needs: on small normal equations (the analytic and hybrid models' weights), and on
 //! a wide matrix with few rows, which solves a least-distance problem (the basis model's
-//! solve kept non-negative in every cell of its BRDF, [`least_distance`]).
+//! solve kept non-negative in every cell of its BRDF, `least_distance`).
 //!
 //! The method adds one variable at a time to a passive (free) set and solves the
 //! unconstrained problem on that set; a passive variable that would go negative is stepped

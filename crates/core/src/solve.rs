@@ -17,7 +17,7 @@ use super::render::RenderingMatrix;
 pub enum Solver {
     /// Least squares, as in the paper.
     LeastSquares,
-    /// Least squares with the training set's prior ([`with_prior_system`]); the default, measured in
+    /// Least squares with the training set's prior (`with_prior_system`); the default, measured in
     /// docs/evaluation.md.
     #[default]
     Prior,
@@ -331,7 +331,7 @@ impl Cells {
     ///
     /// With H = LLᵀ and c₀ = H⁻¹rhs, c = c₀ + L⁻ᵀz turns this into the shortest z with
     /// (G·L⁻ᵀ) z ≥ −offset − G·c₀ (G: the columns' values, one row per cell), a least-distance
-    /// problem ([`least_distance`]): the exact constrained optimum, not a clamp.
+    /// problem (`least_distance`): the exact constrained optimum, not a clamp.
     ///
     /// Only the cells that bind matter, and they are few, so the rows are cutting planes: the
     /// cells negative at c₀ first, then, after each solve, any cell that the answer leaves
@@ -430,7 +430,7 @@ const HAIRS: [f64; 4] = [1e-9, 1e-8, 1e-7, 1e-6];
 /// Rounds of cutting planes in [`Cells::constrained`] at most; a handful are needed.
 const MAX_CUTS: usize = 64;
 
-/// Iterations of [`with_prior_system`]; it settles in a handful (the change is checked each time).
+/// Iterations of `with_prior_system`; it settles in a handful (the change is checked each time).
 const PRIOR_ITERATIONS: usize = 50;
 
 fn with_prior_system(

@@ -28,7 +28,7 @@ pub struct Uncertainty {
     /// `bootstrap` (the basis model: the spread over the resamples).
     pub covariance_from: &'static str,
     /// How much the estimate's relit sphere moves over [`BOOTSTRAP_RESAMPLES`] resamples of the
-    /// pixels ([`image_spread`]).
+    /// pixels (`image_spread`).
     pub bootstrap_spread: f64,
     /// Resamples used (a resample with fewer distinct pixels than unknowns per channel system
     /// is left out).
@@ -67,7 +67,7 @@ pub(crate) fn image_spread(images: &[Vec<f64>], fitted: &[f64]) -> f64 {
     rms(&band(images)) / rms(fitted).max(f64::MIN_POSITIVE)
 }
 
-/// Size of the sphere [`image_spread`] is measured on (orthographic, every normal facing the
+/// Size of the sphere `image_spread` is measured on (orthographic, every normal facing the
 /// camera), relit under the estimate's own lights.
 pub const SPREAD_SPHERE: usize = 48;
 

@@ -5,7 +5,7 @@
 //! - Scene: unit sphere, orthographic camera, `size`² pixels. Ground truth is rendered from the
 //!   full table with [`GT_LIGHTS`] lights; estimates use the default compression
 //!   ([`DEFAULT_LIGHTS`]), so compression error counts too, as it would for a real photo.
-//! - Pixel counts 5, 10, 20 and all; noise-free and with sensor noise ([`add_sensor_noise`]).
+//! - Pixel counts 5, 10, 20 and all; noise-free and with sensor noise (`add_sensor_noise`).
 //! - Errors: BRDF error = ‖w⊙(f̂ − f)‖ / ‖w⊙f‖ over the bivariate grid in the basis's cell
 //!   weighting (the "normalised" BRDF of the paper: each material relative to its own scale);
 //!   image error = relative RMSE of the re-render against the ground-truth image.

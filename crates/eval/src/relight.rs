@@ -7,13 +7,13 @@
 //!   GGX materials that brdfd tabulates itself ([`analytic_materials`]), which no basis was
 //!   trained on.
 //! - Photo: a unit sphere, orthographic, `size`², rendered from the full table under the
-//!   capture map with [`GT_LIGHTS`](crate::paper::GT_LIGHTS) lights, with sensor noise ([`add_sensor_noise`]).
+//!   capture map with [`GT_LIGHTS`](crate::paper::GT_LIGHTS) lights, with sensor noise (`add_sensor_noise`).
 //! - Each method is an [`EstimateOptions`] run through the one estimate pipeline
 //!   ([`estimate`]), exactly as `brdfd estimate` runs it.
 //! - Measures, per held-out map: relative RMSE of the linear images over the object (as
-//!   [`Raster::relative_rmse`]), PSNR of tone-mapped images ([`tone_mapped_psnr`]), and once
+//!   [`Raster::relative_rmse`]), PSNR of tone-mapped images (`tone_mapped_psnr`), and once
 //!   per estimate the cosine-weighted log error of Liu, Fischer & Ritschel 2023
-//!   ([`log_error`]).
+//!   (`log_error`).
 //!
 //! Everything is seeded: the same data give the same table.
 
