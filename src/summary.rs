@@ -11,7 +11,7 @@
 
 use std::path::Path;
 
-use crate::export::{Export, CLOSE, FAITHFUL};
+use crate::export::{export_word, Export, CLOSE, FAITHFUL};
 use brdfd_core::estimate::{fit_verdict, Estimate, Model, GOOD_FIT, POOR_FIT, UNSTEADY_SPREAD};
 
 /// Condition numbers at or below this are good: the presets' estimates on the sphere measure
@@ -92,21 +92,17 @@ fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
     }
     if let Some(u) = &estimate.uncertainty {
         let s = u.bootstrap_spread;
+        let (grade, word) = if s <= UNSTEADY_SPREAD {
+            (Grade::Good, "steady: at most")
+        } else {
+            (Grade::Poor, "unsteady: above")
+        };
         lines.push(Line {
-            grade: if s <= UNSTEADY_SPREAD {
-                Grade::Good
-            } else {
-                Grade::Poor
-            },
+            grade,
             text: format!(
-                "resampling its pixels {} times moves its relit sphere by {:.1}% RMS ({} {:.0}%)",
+                "resampling its pixels {} times moves its relit sphere by {:.1}% RMS ({word} {:.0}%)",
                 u.resamples,
                 100.0 * s,
-                if s <= UNSTEADY_SPREAD {
-                    "steady: at most"
-                } else {
-                    "unsteady: above"
-                },
                 100.0 * UNSTEADY_SPREAD
             ),
         });
@@ -115,11 +111,12 @@ fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
     // The prior solves a system with fewer equations than unknowns: its κ is infinite by
     // construction and says nothing of noise, so it is reported, not judged.
     if k.is_finite() {
+        let grade = Grade::of(k, WELL_CONDITIONED, ILL_CONDITIONED);
         lines.push(Line {
-            grade: Grade::of(k, WELL_CONDITIONED, ILL_CONDITIONED),
+            grade,
             text: format!(
                 "condition number {k:.0} ({})",
-                match Grade::of(k, WELL_CONDITIONED, ILL_CONDITIONED) {
+                match grade {
                     Grade::Good => format!("well conditioned: at most {WELL_CONDITIONED:.0}"),
                     Grade::Fair => format!("noise is amplified: above {WELL_CONDITIONED:.0}"),
                     Grade::Poor => format!(
@@ -173,7 +170,7 @@ pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String
         out.push(format!(
             "  material.gltf, material.mtlx: relit {:.3} from the estimate, {} (faithful at most {FAITHFUL}, close at most {CLOSE})",
             e.relight_error,
-            e.verdict.split(" (").next().unwrap_or(&e.verdict),
+            export_word(e.relight_error),
         ));
         if e.relight_error > CLOSE {
             out.push(

@@ -131,6 +131,7 @@ pub fn router(daemon: Shared) -> Router {
         .route("/viewer.html", get(web::viewer))
         .route("/viewer.js", get(web::viewer_script))
         .route("/vendor/three/{file}", get(web::three))
+        .route("/maps", get(web::map_names))
         .route("/maps/{file}", get(web::map))
         .route(
             "/login",

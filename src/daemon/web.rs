@@ -114,6 +114,13 @@ pub async fn three(Path(file): Path<String>) -> Response {
     }
 }
 
+/// `/maps`: the reference maps' names, in order, as JSON.
+pub async fn map_names() -> Response {
+    let names = serde_json::to_string(&crate::export::maps::reference_map_names())
+        .expect("names serialise");
+    with_policy("application/json", names, PAGE_POLICY)
+}
+
 /// `/maps/{name}.hdr`: the reference maps exports are checked under, as Radiance RGBE, for
 /// the viewer to light with. They are part of brdfd, not of any session.
 pub async fn map(Path(file): Path<String>) -> Response {

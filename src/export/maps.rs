@@ -43,6 +43,21 @@ pub fn reference_map_file(name: &str) -> Option<&'static [u8]> {
         .map(|(_, bytes)| *bytes)
 }
 
+/// The embedded maps' names, in order: what a viewer offers beside the capture's light.
+pub fn reference_map_names() -> Vec<&'static str> {
+    MAPS.iter().map(|(name, _)| *name).collect()
+}
+
+/// `pixels` (`width` across) as a Radiance RGBE file; `what` names it in an error.
+fn rgbe(pixels: &[[f32; 3]], width: usize, what: &str) -> Result<Vec<u8>> {
+    let pixels: Vec<image::Rgb<f32>> = pixels.iter().map(|p| image::Rgb(*p)).collect();
+    let mut bytes = Vec::new();
+    image::codecs::hdr::HdrEncoder::new(&mut bytes)
+        .encode(&pixels, width, pixels.len() / width)
+        .map_err(|e| CoreError::format(what, format!("could not encode RGBE: {e}")))?;
+    Ok(bytes)
+}
+
 /// The widest light map a result holds: a viewer's image-based lighting reads no finer.
 const LIGHT_WIDTH: usize = 512;
 
@@ -58,17 +73,13 @@ pub fn write_light(path: &std::path::Path, map: &EnvMap, yaw: f64) -> Result<()>
     let (w, h) = (map.width, map.height);
     // Under yaw ψ the map's column u lights the world's column u − ψ/2π (envmap::direction).
     let shift = (yaw / std::f64::consts::TAU * w as f64).round() as isize;
-    let pixels: Vec<image::Rgb<f32>> = (0..w * h)
+    let turned: Vec<[f32; 3]> = (0..w * h)
         .map(|i| {
             let (x, y) = (i % w, i / w);
-            let from = (x as isize + shift).rem_euclid(w as isize) as usize;
-            image::Rgb(map.pixels[y * w + from])
+            map.pixels[y * w + (x as isize + shift).rem_euclid(w as isize) as usize]
         })
         .collect();
-    let mut bytes = Vec::new();
-    image::codecs::hdr::HdrEncoder::new(&mut bytes)
-        .encode(&pixels, w, h)
-        .map_err(|e| CoreError::format(path.display(), format!("could not encode RGBE: {e}")))?;
+    let bytes = rgbe(&turned, w, &path.display().to_string())?;
     std::fs::write(path, bytes).map_err(|e| CoreError::io(path, e))
 }
 
@@ -122,12 +133,8 @@ mod tests {
         for (name, _) in MAPS {
             let source = root.join(format!("../shared/data/envmaps/{name}.hdr"));
             let map = EnvMap::load(&source).unwrap().downsample(WIDTH, WIDTH / 2);
-            let out =
-                std::fs::File::create(root.join(format!("src/export/maps/{name}.hdr"))).unwrap();
-            let pixels: Vec<image::Rgb<f32>> = map.pixels.iter().map(|p| image::Rgb(*p)).collect();
-            image::codecs::hdr::HdrEncoder::new(std::io::BufWriter::new(out))
-                .encode(&pixels, map.width, map.height)
-                .unwrap();
+            let bytes = rgbe(&map.pixels, map.width, name).unwrap();
+            std::fs::write(root.join(format!("src/export/maps/{name}.hdr")), bytes).unwrap();
         }
     }
 }

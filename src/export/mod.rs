@@ -52,18 +52,30 @@ pub const FAITHFUL: f64 = 0.05;
 /// (`brdf.binary`) or the coefficients are the faithful record.
 pub const CLOSE: f64 = 0.10;
 
-/// The verdict on an export's relight error, with its threshold.
-pub fn export_verdict(error: f64) -> String {
+/// The word for an export's relight error: faithful, close, approximate, or not measured.
+pub fn export_word(error: f64) -> &'static str {
     if error <= FAITHFUL {
-        format!("faithful (at most {FAITHFUL})")
+        "faithful"
     } else if error <= CLOSE {
-        format!("close (at most {CLOSE})")
+        "close"
     } else if error.is_finite() {
-        format!(
-            "approximate (above {CLOSE}): the format cannot hold this material; brdf.binary keeps it whole"
-        )
+        "approximate"
     } else {
-        "not measured".into()
+        "not measured"
+    }
+}
+
+/// The verdict on an export's relight error: its word, with its threshold.
+pub fn export_verdict(error: f64) -> String {
+    let word = export_word(error);
+    if error <= FAITHFUL {
+        format!("{word} (at most {FAITHFUL})")
+    } else if error <= CLOSE {
+        format!("{word} (at most {CLOSE})")
+    } else if error.is_finite() {
+        format!("{word} (above {CLOSE}): the format cannot hold this material; brdf.binary keeps it whole")
+    } else {
+        word.into()
     }
 }
 
@@ -134,7 +146,8 @@ pub fn write_exports(
             lights: map.compressed(FIT_LIGHTS, yaw),
         });
     }
-    let lights: Vec<LightSet> = fit_maps.iter().map(|m| m.lights.clone()).collect();
+    let (fitted_under, lights): (Vec<String>, Vec<LightSet>) =
+        fit_maps.into_iter().map(|m| (m.name, m.lights)).unzip();
     let fit_sphere = sphere(FIT_SIZE)?;
     let fitted = fit::Scenes::new(&fit_sphere.pixels, &lights, estimate)?.fit();
     let material = GltfMaterial::from_fit(&fitted);
@@ -167,7 +180,7 @@ pub fn write_exports(
         fit_error: fitted.fit_error,
         relight_error,
         verdict: export_verdict(relight_error),
-        fitted_under: fit_maps.into_iter().map(|m| m.name).collect(),
+        fitted_under,
         checked_under: checks
             .into_iter()
             .zip(per_map)

@@ -93,9 +93,8 @@ async function main() {
   const maps = [];
   const light = await fetch(`${base}/light.hdr`, { method: "HEAD", credentials: "same-origin" });
   if (light.ok) maps.push(["capture", `${base}/light.hdr`, "the capture's light"]);
-  for (const name of ["courtyard", "interior", "sunrise", "city"]) {
-    maps.push([name, `/maps/${name}.hdr`, name]);
-  }
+  const references = await fetch("/maps").then((r) => r.json());
+  for (const name of references) maps.push([name, `/maps/${name}.hdr`, name]);
   $("map").replaceChildren(
     ...maps.map(([name, , label]) => {
       const o = document.createElement("option");
