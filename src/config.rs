@@ -401,6 +401,12 @@ pub struct Simulation {
     /// The RAW files the simulated DSLR writes: `nef` (the default; 14-bit, a D5100's),
     /// `dng` (14-bit) or `dng12` (12-bit).
     pub dslr_raw: Option<crate::bench::raw_file::RawFormat>,
+    /// Damage the simulated DSLR does to every RAW file: `oversized` (the raw image declares
+    /// 131,072 × 131,072 pixels) or `ifd_loop` (IFD0 links back to itself). None by default.
+    pub dslr_raw_damage: Option<crate::bench::raw_file::RawDamage>,
+    /// The simulated DSLR names every file as its first (`DSC_0001.NEF`, `DSC_0001.JPG`), as
+    /// a camera can after a card change or when it shoots to its memory.
+    pub dslr_reuses_file_names: bool,
     /// How the simulated THETA is reached: `http` (the default: the THETA Web API on
     /// loopback) or `usb` (PTP over an in-memory USB pipe, with USB's framing).
     pub theta: SimulatedLink,
@@ -427,6 +433,8 @@ impl Default for Simulation {
             dslr_powers_off_after: None,
             turntable: SimulatedPresence::Present,
             dslr_raw: None,
+            dslr_raw_damage: None,
+            dslr_reuses_file_names: false,
             theta: SimulatedLink::Http,
             shutter: SimulatedPresence::Absent,
             camera: None,

@@ -145,10 +145,28 @@ pub struct Transition {
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RawFile {
-    /// Name under `raw/`.
+    /// Name under `raw/`: `<step>-a<attempt>-<frame>-<the device's name>`.
     pub name: String,
     pub sha256: String,
     pub bytes: u64,
+    /// The name the device gave the file. Cameras reuse names (after a card change, or when
+    /// they shoot to memory), so it is kept here and the stored name carries a frame index.
+    /// Absent in sessions written before it was recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub device_name: Option<String>,
+}
+
+impl RawFile {
+    /// The name the device gave the file, as far as the session knows it: recorded, or read
+    /// from the stored name of an older session (`<step>-a<attempt>-<name>`).
+    pub fn device_name(&self, step: &Step) -> &str {
+        if let Some(n) = &self.device_name {
+            return n;
+        }
+        self.name
+            .strip_prefix(&format!("{}-a{}-", step.name, step.attempt))
+            .unwrap_or(&self.name)
+    }
 }
 
 /// One capture step's attempt.
@@ -444,23 +462,32 @@ impl Session {
             .ok_or_else(|| SessionError::Invalid(format!("step {name} was not begun")))
     }
 
-    /// Stores a device's file as it arrived, under `raw/<step>-a<attempt>-<name>`, and
-    /// records it in the manifest.
+    /// Stores a device's file as it arrived, under `raw/<step>-a<attempt>-<frame>-<name>`
+    /// (the frame counts the attempt's files from 01, so a name the device reuses is stored
+    /// apart), and records it in the manifest.
     pub fn add_raw(&mut self, step: &str, device_name: &str, bytes: &[u8]) -> Result<PathBuf> {
-        let attempt = self.current_step(step)?.attempt;
-        let name = format!("{step}-a{attempt}-{}", safe_file_name(device_name));
-        let path = self.dir.join("raw").join(&name);
-        if path.exists() {
-            return Err(SessionError::Invalid(format!(
-                "{}: already captured; a raw file is never overwritten",
-                path.display()
-            )));
-        }
+        let current = self.current_step(step)?;
+        let (attempt, stored) = (current.attempt, current.files.len());
+        let raw = self.dir.join("raw");
+        // A file stored before a crash, and not yet adopted, keeps its frame: never
+        // overwritten, the next free one is taken.
+        let (name, path) = (stored + 1..)
+            .map(|frame| {
+                let name = format!(
+                    "{step}-a{attempt}-{frame:02}-{}",
+                    safe_file_name(device_name)
+                );
+                let path = raw.join(&name);
+                (name, path)
+            })
+            .find(|(_, path)| !path.exists())
+            .expect("an unbounded range has a free frame");
         write_atomic(&path, bytes)?;
         let file = RawFile {
             name,
             sha256: sha256_hex(bytes),
             bytes: bytes.len() as u64,
+            device_name: Some(device_name.to_string()),
         };
         self.current_step(step)?.files.push(file);
         self.save()?;
@@ -489,17 +516,26 @@ impl Session {
             if name.starts_with('.') || listed.contains(&name) {
                 continue;
             }
-            let Some(step) = self
-                .manifest
-                .steps
-                .iter_mut()
-                .find(|s| name.starts_with(&format!("{}-a{}-", s.name, s.attempt)))
-            else {
+            let Some((step, rest)) = self.manifest.steps.iter_mut().find_map(|s| {
+                let prefix = format!("{}-a{}-", s.name, s.attempt);
+                let rest = name.strip_prefix(&prefix)?.to_string();
+                Some((s, rest))
+            }) else {
                 continue;
+            };
+            // `<frame>-<device name>`, or the device's name alone in an older session.
+            let device_name = match rest.split_once('-') {
+                Some((frame, n))
+                    if frame.len() >= 2 && frame.bytes().all(|b| b.is_ascii_digit()) =>
+                {
+                    n
+                }
+                _ => &rest,
             };
             let bytes = std::fs::read(e.path()).map_err(|err| io(&e.path(), err))?;
             tracing::warn!("adopting {name}: stored before the manifest was saved");
             step.files.push(RawFile {
+                device_name: Some(device_name.to_string()),
                 name,
                 sha256: sha256_hex(&bytes),
                 bytes: bytes.len() as u64,
@@ -600,10 +636,11 @@ mod tests {
         s.add_raw("panorama", "R0010001.JPG", b"second").unwrap();
         s.finish_step("panorama").unwrap();
         let step = s.complete_step("panorama").unwrap();
-        assert_eq!(step.files[0].name, "panorama-a2-R0010001.JPG");
+        assert_eq!(step.files[0].name, "panorama-a2-01-R0010001.JPG");
+        assert_eq!(step.files[0].device_name(step), "R0010001.JPG");
         assert_eq!(s.read_raw(&step.files[0]).unwrap(), b"second");
         assert_eq!(s.verify().unwrap(), 2);
-        std::fs::write(s.dir.join("raw/panorama-a1-R0010001.JPG"), b"tampered").unwrap();
+        std::fs::write(s.dir.join("raw/panorama-a1-01-R0010001.JPG"), b"tampered").unwrap();
         assert!(s
             .verify()
             .unwrap_err()
@@ -614,5 +651,39 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("no session"));
+    }
+
+    #[test]
+    fn a_name_the_camera_reuses_keeps_every_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut s = Session::create(dir.path(), "gold", "", None, serde_json::json!({})).unwrap();
+        s.begin_step("view1", serde_json::json!({})).unwrap();
+        for bytes in [b"one", b"two"] {
+            s.add_raw("view1", "DSC_0001.NEF", bytes).unwrap();
+        }
+        // Stored by a process killed before it saved the manifest: adopted with its name.
+        std::fs::write(s.dir.join("raw/view1-a1-03-DSC_0001.NEF"), b"three").unwrap();
+        let mut s = Session::open(dir.path(), &s.manifest.id).unwrap();
+        assert_eq!(s.adopt_orphans().unwrap(), 1);
+        // The next frame number is taken by the adopted file.
+        s.add_raw("view1", "DSC_0001.NEF", b"four").unwrap();
+        s.finish_step("view1").unwrap();
+        let step = s.complete_step("view1").unwrap();
+        let names: Vec<_> = step.files.iter().map(|f| f.name.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "view1-a1-01-DSC_0001.NEF",
+                "view1-a1-02-DSC_0001.NEF",
+                "view1-a1-03-DSC_0001.NEF",
+                "view1-a1-04-DSC_0001.NEF"
+            ]
+        );
+        assert!(step
+            .files
+            .iter()
+            .all(|f| f.device_name(step) == "DSC_0001.NEF"));
+        let read: Vec<_> = step.files.iter().map(|f| s.read_raw(f).unwrap()).collect();
+        assert_eq!(read, [&b"one"[..], b"two", b"three", b"four"]);
     }
 }

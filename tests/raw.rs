@@ -238,17 +238,7 @@ const SIMULATED_RIG: &str = include_str!("../config/rigs/simulated.toml");
 fn capture(files: &str, simulation: &str) -> (String, Vec<String>) {
     let dir = tempfile::tempdir().unwrap();
     assert!(SIMULATED_RIG.contains("dslr_files = \"jpeg\""));
-    let rig = format!(
-        "{}\n[simulation]\n{simulation}\n",
-        SIMULATED_RIG
-            .replace("width = 256", "width = 64")
-            .replace("height = 256", "height = 64")
-            .replace(
-                "dslr_files = \"jpeg\"",
-                &format!("dslr_files = \"{files}\"")
-            )
-    );
-    std::fs::write(dir.path().join("rig.toml"), rig).unwrap();
+    write_rig(dir.path(), files, simulation);
     let args = [
         "capture",
         "--rig",
@@ -305,4 +295,102 @@ fn a_capture_keeps_both_files_of_each_shot_and_merges_the_raw_ones() {
     let (text, names) = capture("jpeg", "");
     assert_eq!(names.len(), 5, "{names:?}");
     assert!(text.contains("DSC_0001.JPG: JPEG, EXIF 0.0010 s"), "{text}");
+}
+
+/// The shipped simulated rig at 64², its DSLR shooting `files`, with `simulation` as its
+/// `[simulation]`, written to `dir/rig.toml`.
+fn write_rig(dir: &std::path::Path, files: &str, simulation: &str) -> std::path::PathBuf {
+    let rig = format!(
+        "{}\n[simulation]\n{simulation}\n",
+        SIMULATED_RIG
+            .replace("width = 256", "width = 64")
+            .replace("height = 256", "height = 64")
+            .replace(
+                "dslr_files = \"jpeg\"",
+                &format!("dslr_files = \"{files}\"")
+            )
+    );
+    let path = dir.join("rig.toml");
+    std::fs::write(&path, rig).unwrap();
+    path
+}
+
+/// Issue 40: a camera's RAW file that declares a 34 GB image, or whose IFDs loop, used to
+/// abort the daemon (or grow it without end) on capture and again on every resume. Through
+/// the daemon: the session fails with the file and the fault named, keeps the file, says
+/// the same on resume, and the daemon serves on. Given JPEGs beside the RAW files, the
+/// capture merges those instead.
+#[test]
+fn a_damaged_raw_file_fails_its_capture_clearly_and_the_daemon_serves_on() {
+    for (damage, says) in [
+        ("oversized", "declares an image of 131072 × 131072 pixels"),
+        ("ifd_loop", "the file's IFDs form a loop"),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let simulation = format!("dslr_raw = \"dng\"\ndslr_raw_damage = \"{damage}\"");
+        let rig = write_rig(dir.path(), "raw", &simulation);
+        let daemon =
+            common::Daemon::start(&dir.path().join("state"), &["--rig", rig.to_str().unwrap()]);
+        let (status, started) = daemon.post(
+            "/sessions",
+            serde_json::json!({ "material": "gold", "size": 64 }),
+        );
+        assert_eq!(status, 202, "{started}");
+        let id = started["id"].as_str().unwrap().to_string();
+        let last = daemon.events(&id).last().cloned().unwrap();
+        assert_eq!(last["state"], "failed", "{damage}: {last}");
+        let error = last["error"].as_str().unwrap();
+        assert!(
+            error.contains("DSC_0001.DNG") && error.contains(says),
+            "{damage}: {error}"
+        );
+        // The files are kept, each with its checksum.
+        let (status, shown) = daemon.get(&format!("/sessions/{id}"));
+        assert_eq!(status, 200);
+        let kept: usize = shown["manifest"]["steps"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|s| s["name"] == "view1")
+            .map(|s| s["files"].as_array().unwrap().len())
+            .sum();
+        assert_eq!(kept, 5, "{damage}: {shown}");
+        // Resumed, it fails again for the same reason, and the daemon is still there.
+        let (status, body) = daemon.post(&format!("/sessions/{id}/resume"), serde_json::json!({}));
+        assert_eq!(status, 202, "{body}");
+        let last = daemon.events(&id).last().cloned().unwrap();
+        assert_eq!(last["state"], "failed", "{damage}: {last}");
+        assert!(last["error"].as_str().unwrap().contains(says), "{last}");
+        assert_eq!(daemon.get("/health").0, 200);
+    }
+
+    // RAW + JPEG: the JPEGs are merged, and the warning says why.
+    let (text, names) = capture(
+        "raw+jpeg",
+        "dslr_raw = \"dng\"\ndslr_raw_damage = \"ifd_loop\"",
+    );
+    assert_eq!(names.len(), 10, "{names:?}");
+    assert!(
+        text.contains("the file's IFDs form a loop")
+            && text.contains("merging the JPEG files instead"),
+        "{text}"
+    );
+}
+
+/// Issue 40: a camera that reuses a file name across a bracket (after a card change, or
+/// shooting to memory) failed every capture ("already captured"). Every file is kept, under
+/// a name with its frame, and merged.
+#[test]
+fn a_camera_that_reuses_file_names_loses_no_file() {
+    let (text, names) = capture("raw+jpeg", "dslr_reuses_file_names = true");
+    assert_eq!(names.len(), 10, "{names:?}");
+    for frame in 1..=10 {
+        assert!(
+            names
+                .iter()
+                .any(|n| n.starts_with(&format!("view1-a1-{frame:02}-DSC_0001."))),
+            "frame {frame}: {names:?}"
+        );
+    }
+    assert_eq!(text.matches("DSC_0001.NEF: RAW 64×64").count(), 5, "{text}");
 }

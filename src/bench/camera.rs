@@ -6,7 +6,7 @@ use std::sync::OnceLock;
 
 use brdfd_sim::{ImageSource, Shot};
 
-use super::raw_file::{self, exif_ifd, RawFormat, ShotInfo};
+use super::raw_file::{self, exif_ifd, RawDamage, RawFormat, ShotInfo};
 use super::tiff::{self, ByteOrder, Ifd, Value};
 use super::VirtualBench;
 use brdfd_core::geometry::Camera;
@@ -33,6 +33,7 @@ pub struct BenchCamera {
     make: String,
     model: String,
     raw: RawFormat,
+    raw_damage: Option<RawDamage>,
     radiance: OnceLock<Result<Raster, String>>,
 }
 
@@ -65,6 +66,7 @@ impl BenchCamera {
             make: make.into(),
             model: model.into(),
             raw: RawFormat::Nef,
+            raw_damage: None,
             radiance: OnceLock::new(),
         }
     }
@@ -72,6 +74,12 @@ impl BenchCamera {
     /// The RAW files it writes when the camera is set to RAW (NEF unless told).
     pub fn with_raw(mut self, raw: RawFormat) -> Self {
         self.raw = raw;
+        self
+    }
+
+    /// Damages every RAW file it writes (a camera or card that writes bad files).
+    pub fn with_raw_damage(mut self, damage: Option<RawDamage>) -> Self {
+        self.raw_damage = damage;
         self
     }
 
@@ -117,14 +125,18 @@ impl ImageSource for BenchCamera {
         };
         // Each shot's noise is its own, and the same for the same shot.
         let seed = shot.sequence as u64;
-        Ok(Some(match self.raw {
+        let (ext, mut file) = match self.raw {
             RawFormat::Nef => ("NEF", raw_file::nef(r, k, &raw_file::D5100, &info, seed)),
             RawFormat::Dng => ("DNG", raw_file::dng(r, k, &raw_file::D5100, &info, seed)),
             RawFormat::Dng12 => {
                 let sensor = raw_file::D5100.at_12_bits();
                 ("DNG", raw_file::dng(r, k, &sensor, &info, seed))
             }
-        }))
+        };
+        if let Some(d) = self.raw_damage {
+            raw_file::damage(&mut file, d);
+        }
+        Ok(Some((ext, file)))
     }
 
     fn dimensions(&self) -> (u32, u32) {

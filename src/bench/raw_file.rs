@@ -28,6 +28,71 @@ pub enum RawFormat {
     Dng12,
 }
 
+/// Damage the simulated camera does to each RAW file it writes, to rehearse a camera (or a
+/// card) that writes a bad one: what a decoder that trusts the file's structure fails on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RawDamage {
+    /// The raw image's IFD declares 131,072 × 131,072 pixels (34 GB at 16 bits).
+    Oversized,
+    /// IFD0's link to the next IFD points back at IFD0 itself: a four-byte change.
+    IfdLoop,
+}
+
+/// Applies `damage` to a NEF or DNG this module wrote.
+pub fn damage(file: &mut [u8], damage: RawDamage) {
+    let big = file.starts_with(b"MM");
+    let u16_at = |b: &[u8], at: usize| {
+        let v = [b[at], b[at + 1]];
+        if big {
+            u16::from_be_bytes(v)
+        } else {
+            u16::from_le_bytes(v)
+        }
+    };
+    let u32_at = |b: &[u8], at: usize| {
+        let v = [b[at], b[at + 1], b[at + 2], b[at + 3]];
+        if big {
+            u32::from_be_bytes(v)
+        } else {
+            u32::from_le_bytes(v)
+        }
+    };
+    let put = |b: &mut [u8], at: usize, v: u32| {
+        let v = if big {
+            v.to_be_bytes()
+        } else {
+            v.to_le_bytes()
+        };
+        b[at..at + 4].copy_from_slice(&v);
+    };
+    // (tag, entry offset) of each entry of the IFD at `ifd`.
+    let entries = |b: &[u8], ifd: usize| {
+        (0..u16_at(b, ifd) as usize)
+            .map(|i| (u16_at(b, ifd + 2 + 12 * i), ifd + 2 + 12 * i))
+            .collect::<Vec<_>>()
+    };
+    let ifd0 = u32_at(file, 4) as usize;
+    match damage {
+        RawDamage::IfdLoop => {
+            let link = ifd0 + 2 + 12 * u16_at(file, ifd0) as usize;
+            put(file, link, ifd0 as u32);
+        }
+        RawDamage::Oversized => {
+            let sub = entries(file, ifd0)
+                .into_iter()
+                .find(|(tag, _)| *tag == 0x014A)
+                .map(|(_, at)| u32_at(file, at + 8) as usize)
+                .expect("the writers give IFD0 a SubIFD");
+            for (tag, at) in entries(file, sub) {
+                if tag == 0x0100 || tag == 0x0101 {
+                    put(file, at + 8, 131_072);
+                }
+            }
+        }
+    }
+}
+
 /// How the simulated sensor records light.
 #[derive(Debug, Clone, Copy)]
 pub struct Sensor {

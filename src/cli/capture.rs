@@ -13,7 +13,7 @@ use brdfd::config::{DaemonConfig, Rig};
 use brdfd::rig::flow::{self, Context};
 use brdfd::rig::settings::CaptureSettings;
 use brdfd::rig::{Cancel, Devices, Event, Plan, Progress, KEEP_ALIVE};
-use brdfd::session::{PhaseTime, Session, State};
+use brdfd::session::{safe_file_name, PhaseTime, Session, State};
 
 use super::client::{Busy, Daemon};
 use super::estimate_cmd::{ColourArg, ModelArg, SolveArg};
@@ -479,9 +479,8 @@ fn export_flat(session: &Session, out: &Path) -> anyhow::Result<()> {
         .filter(|s| s.complete && s.name.starts_with("view"))
         .count();
     for step in session.manifest.steps.iter().filter(|s| s.complete) {
-        let prefix = format!("{}-a{}-", step.name, step.attempt);
         for (k, f) in step.files.iter().enumerate() {
-            let name = f.name.strip_prefix(&prefix).unwrap_or(&f.name);
+            let name = safe_file_name(f.device_name(step));
             let flat = match step.name.as_str() {
                 "panorama" => format!("theta-{name}"),
                 view if views > 1 => format!("{view}-dslr-{:02}-{name}", k + 1),

@@ -3,6 +3,7 @@
 //! tone curve assumed sRGB), RAW files in [`raw`]; both give a [`Frame`].
 
 pub mod raw;
+pub mod tiff;
 
 use std::io::Cursor;
 

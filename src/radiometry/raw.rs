@@ -71,10 +71,13 @@ pub fn decode_raw(bytes: &[u8], file: &str, wb: WhiteBalance) -> Result<Frame, R
     })
 }
 
-/// The sensor data and the exposure. rawler's decoders can panic on a damaged file; that is
-/// caught and named like any other decoding error, so a bad file never takes the capture
-/// down with it.
+/// The sensor data and the exposure. The file's structure is checked first, and rawler's
+/// decoders can still panic on a damaged file; that is caught and named like any other
+/// decoding error, so a bad file never takes the capture down with it.
 fn read_raw(bytes: &[u8], file: &str) -> Result<(RawImage, Exposure), RadiometryError> {
+    // The decoder trusts the file's structure (super::tiff says how that fails).
+    super::tiff::check(bytes)
+        .map_err(|e| decode_error(file, format!("RAW: the file is damaged: {e}")))?;
     let source = RawSource::new_from_slice(bytes);
     let params = RawDecodeParams::default();
     let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {

@@ -849,14 +849,10 @@ pub fn stored(
     let Some(s) = session.complete_step(step) else {
         return Ok(None);
     };
-    let prefix = format!("{step}-a{}-", s.attempt);
     let files = s
         .files
         .iter()
-        .map(|f| {
-            let name = f.name.strip_prefix(&prefix).unwrap_or(&f.name).to_string();
-            Ok((name, session.read_raw(f)?))
-        })
+        .map(|f| Ok((f.device_name(s).to_string(), session.read_raw(f)?)))
         .collect::<anyhow::Result<Vec<_>>>()?;
     Ok(Some((files, s.meta.clone())))
 }

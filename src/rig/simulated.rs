@@ -21,7 +21,7 @@ use super::plan;
 use super::roles::RigDevice;
 use crate::bench::camera::BenchCamera;
 use crate::bench::panorama::BenchPanorama;
-use crate::bench::raw_file::RawFormat;
+use crate::bench::raw_file::{RawDamage, RawFormat};
 use crate::bench::VirtualBench;
 use crate::config::{Rig, SimulatedLink, SimulatedPresence};
 use crate::selector::Selector;
@@ -47,8 +47,9 @@ enum ThetaLink {
 pub struct SimulatedRig {
     /// Whether the rig has the simulated V4L2 webcam.
     fallback: bool,
-    /// The RAW files the DSLR writes (`[simulation] dslr_raw`).
+    /// The RAW files the DSLR writes (`[simulation] dslr_raw`), and how it damages them.
     raw: RawFormat,
+    raw_damage: Option<RawDamage>,
     dslr_scene: Arc<Stage>,
     dslr_time: Arc<Timed>,
     dslr: SharedResponder,
@@ -73,6 +74,7 @@ impl SimulatedRig {
         let dslr_time = Arc::new(Timed::new(dslr_scene.clone()));
         let dslr = Responder::new(Profile::NikonD5100, dslr_time.clone()).shared();
         lock(&dslr).faults.power_off_after_captures = simulation.dslr_powers_off_after;
+        lock(&dslr).faults.same_file_names = simulation.dslr_reuses_file_names;
         let ptpip = Server::start("127.0.0.1:0", dslr.clone())?;
         // An absent DSLR is one that is off: the server closes every connection at once.
         // (A port nobody listens on could be taken by another program meanwhile.)
@@ -127,6 +129,7 @@ impl SimulatedRig {
         Ok(SimulatedRig {
             fallback: rig.devices.fallback_camera.is_some(),
             raw: simulation.dslr_raw.unwrap_or(RawFormat::Nef),
+            raw_damage: simulation.dslr_raw_damage,
             dslr_scene,
             dslr_time,
             dslr,
@@ -199,8 +202,9 @@ impl SimulatedRig {
     /// rendered at once, as a real scene simply exists.
     pub fn show_object(&self, bench: &VirtualBench) -> anyhow::Result<()> {
         let t = Instant::now();
-        let camera =
-            BenchCamera::new(bench.clone(), "NIKON CORPORATION", "NIKON D5100").with_raw(self.raw);
+        let camera = BenchCamera::new(bench.clone(), "NIKON CORPORATION", "NIKON D5100")
+            .with_raw(self.raw)
+            .with_raw_damage(self.raw_damage);
         camera
             .prepare()
             .map_err(|e| anyhow::anyhow!("rendering the simulated scene: {e}"))?;
@@ -217,7 +221,8 @@ impl SimulatedRig {
         camera: &brdfd_core::geometry::Camera,
     ) -> anyhow::Result<()> {
         let camera = BenchCamera::of_radiance(radiance, camera, "NIKON CORPORATION", "NIKON D5100")
-            .with_raw(self.raw);
+            .with_raw(self.raw)
+            .with_raw_damage(self.raw_damage);
         self.dslr_scene.show(Arc::new(camera));
         Ok(())
     }

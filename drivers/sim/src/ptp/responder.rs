@@ -37,6 +37,9 @@ pub struct Faults {
     /// Power off when asked to capture after this many captures (a flat battery): the link
     /// drops, and the camera answers nothing more.
     pub power_off_after_captures: Option<u32>,
+    /// Name every shot's files as the first shot's (`DSC_0001.NEF`), as a camera can after
+    /// a card change, or when it shoots to its memory and numbers nothing.
+    pub same_file_names: bool,
 }
 
 impl Responder {
@@ -513,6 +516,7 @@ impl Responder {
                 bit_depth: if format == format::EXIF_JPEG { 24 } else { 16 },
                 filename: match self.profile {
                     Profile::ThetaV => format!("R{:07}.{ext}", 10_000 + self.shots),
+                    _ if self.faults.same_file_names => format!("DSC_0001.{ext}"),
                     _ => format!("DSC_{:04}.{ext}", self.shots % 10_000),
                 },
                 capture_date: format!("20261122T1200{:02}", self.shots % 60),
