@@ -694,13 +694,29 @@ fn read(path: &Path) -> Result<(String, String), ConfigError> {
     Ok((file, text))
 }
 
+/// Most exposures in one bracket. A bench brackets 3 to 9; a longer list is a mistake, and
+/// each exposure is a photo to shoot, download and keep.
+pub const MAX_BRACKET: usize = 32;
+/// Longest exposure accepted, seconds.
+pub const MAX_EXPOSURE_S: f64 = 60.0;
+
 fn check_exposures(file: &str, field: &str, values: &[f64]) -> Result<(), ConfigError> {
+    if values.len() > MAX_BRACKET {
+        return Err(invalid(
+            file,
+            field.to_string(),
+            format!(
+                "{} exposures; a bracket has at most {MAX_BRACKET}",
+                values.len()
+            ),
+        ));
+    }
     for (i, &s) in values.iter().enumerate() {
-        if !(s.is_finite() && s > 0.0 && s <= 60.0) {
+        if !(s.is_finite() && s > 0.0 && s <= MAX_EXPOSURE_S) {
             return Err(invalid(
                 file,
                 format!("{field}[{i}]"),
-                format!("{s} s is not an exposure time (0 to 60 s)"),
+                format!("{s} s is not an exposure time (0 to {MAX_EXPOSURE_S} s)"),
             ));
         }
     }

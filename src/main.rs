@@ -41,6 +41,14 @@ fn main() -> std::process::ExitCode {
         // Colour only for a person at a terminal: a log file or journal gets plain text.
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
+    // RAW files are decoded in a child process of this binary, bounded in memory and time,
+    // so that a file the decoder mishandles cannot take a capture (or the daemon) down.
+    if !matches!(args.command, cli::Command::DecodeRaw(_)) {
+        match std::env::current_exe() {
+            Ok(exe) => brdfd::radiometry::isolated::use_child_processes(exe),
+            Err(e) => tracing::warn!("RAW files will be decoded in this process: {e}"),
+        }
+    }
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

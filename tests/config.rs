@@ -97,6 +97,12 @@ fn rig_files_with_impossible_numbers_are_refused() {
             "look_at equals position",
         ),
         ("half_size = 0.05", "half_size = -5.0", "shape.half_size"),
+        // Issue 40: a 9,000-exposure bracket was accepted.
+        (
+            "dslr_shutters = [0.001, 0.004, 0.0166, 0.0666, 0.25]",
+            &format!("dslr_shutters = [{}]", ["0.01"; 9000].join(", ")),
+            "field `brackets.dslr_shutters`: 9000 exposures; a bracket has at most 32",
+        ),
         (
             "views = 3",
             "views = 100000000000",
@@ -154,4 +160,27 @@ fn rig_files_with_impossible_numbers_are_refused() {
         assert!(!o.status.success(), "{to}: accepted");
         assert!(err.contains(says), "{to}: {err}");
     }
+}
+
+/// Issue 40: `config check` on a geometry file ran none of the geometry checks a rig's
+/// `[geometry]` gets, so `fx = nan` passed.
+#[test]
+fn a_geometry_file_with_impossible_numbers_is_refused() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("config/geometry/corrugated-d5100.toml")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("corrugated-d5100.toml");
+    let fx = text.lines().find(|l| l.starts_with("fx = ")).unwrap();
+    std::fs::write(&path, text.replace(fx, "fx = nan")).unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_brdfd"))
+        .args(["config", "check", "--kind", "geometry"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stdout) + String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "accepted: {err}");
+    assert!(
+        err.contains("field `geometry`: camera.fx must be a positive number, not NaN"),
+        "{err}"
+    );
 }

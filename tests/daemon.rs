@@ -662,6 +662,11 @@ fn other_hosts_and_server_paths_are_refused() {
             json!({ "material": "gold", "env": "missing.hdr" }),
             "no file \"missing.hdr\"",
         ),
+        // Issue 40: a 9,000-exposure bracket was accepted.
+        (
+            json!({ "material": "gold", "bracket": vec![0.01; 9000] }),
+            "bracket has 9000 shutter speeds; at most 32",
+        ),
     ] {
         let (status, body) = daemon.post("/sessions", plan.clone());
         assert_eq!(status, 400, "{plan}: {body}");

@@ -394,3 +394,69 @@ fn a_camera_that_reuses_file_names_loses_no_file() {
     }
     assert_eq!(text.matches("DSC_0001.NEF: RAW 64×64").count(), 5, "{text}");
 }
+
+/// Issue 40: the binary decodes each RAW file in a child process. Its answer is the frame the
+/// library decodes in-process, and a child past its memory or its time fails the file with a
+/// clear error instead of taking the caller with it.
+#[test]
+fn the_decoder_process_answers_exactly_and_is_stopped_past_its_budget() {
+    use brdfd::radiometry::isolated::{decode, Budget};
+    use brdfd::radiometry::raw::decode_raw_here;
+    use std::time::Duration;
+
+    let program = std::path::Path::new(env!("CARGO_BIN_EXE_brdfd"));
+    let truth = scene(96, 64);
+    let dng = raw_file::dng(&truth, 0.5, &D5100, &info(0.01), 7);
+    let budget = Budget::for_file(dng.len());
+    let child = decode(program, &dng, "DSC_0001.DNG", WhiteBalance::AsShot, budget).unwrap();
+    let here = decode_raw_here(&dng, "DSC_0001.DNG", WhiteBalance::AsShot).unwrap();
+    assert_eq!(child.values.pixels, here.values.pixels);
+    assert_eq!(child.exposure, here.exposure);
+    assert_eq!(child.white_balance, here.white_balance);
+    // The fixed white balance reaches the child.
+    let fixed = WhiteBalance::Fixed([2.0, 1.0, 1.5]);
+    let child = decode(program, &dng, "DSC_0001.DNG", fixed, budget).unwrap();
+    assert_eq!(child.white_balance, [2.0, 1.0, 1.5]);
+
+    let starved = Budget {
+        memory: 16 << 20,
+        ..budget
+    };
+    let e = decode(program, &dng, "DSC_0001.DNG", WhiteBalance::AsShot, starved)
+        .err()
+        .unwrap()
+        .to_string();
+    println!("{e}");
+    assert!(
+        e.starts_with("DSC_0001.DNG: RAW: the decoder")
+            && e.contains("more than its 16 MB of memory"),
+        "{e}"
+    );
+    let hurried = Budget {
+        time: Duration::from_millis(1),
+        ..budget
+    };
+    let e = decode(program, &dng, "DSC_0001.DNG", WhiteBalance::AsShot, hurried)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("took longer than 1ms on this file"), "{e}");
+
+    // A file the decoder refuses is refused in the child's words.
+    let mut damaged = dng.clone();
+    raw_file::damage(&mut damaged, raw_file::RawDamage::IfdLoop);
+    let e = decode(
+        program,
+        &damaged,
+        "DSC_0001.DNG",
+        WhiteBalance::AsShot,
+        budget,
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(
+        e.starts_with("DSC_0001.DNG: RAW: the file is damaged: IFD0"),
+        "{e}"
+    );
+}

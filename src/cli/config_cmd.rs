@@ -87,6 +87,12 @@ impl Kind {
                 .map(|m| format!("material preset, simulated as {}", m.simulate_as)),
             Kind::Geometry => {
                 brdfd::config::parse::<SceneGeometry>(file, text).and_then(|mut g| {
+                    // The checks a rig's [geometry] gets (issue 40: `fx = nan` passed here).
+                    g.check().map_err(|e| ConfigError::Invalid {
+                        file: file.into(),
+                        field: "geometry".into(),
+                        reason: e,
+                    })?;
                     // A mesh is read and checked as the capture reads it, beside the file.
                     let dir = Path::new(file).parent().unwrap_or(Path::new("."));
                     g.resolve_files(dir);

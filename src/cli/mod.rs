@@ -6,6 +6,7 @@ mod calibrate_cmd;
 mod capture;
 mod client;
 mod config_cmd;
+mod decode_raw;
 mod devices_cmd;
 mod estimate_cmd;
 mod geometry_args;
@@ -109,6 +110,10 @@ pub enum Command {
         #[command(subcommand)]
         command: sim::SimCommand,
     },
+    /// Decode one RAW file, from stdin to stdout, within a memory budget: the child process
+    /// captures decode RAW files in.
+    #[command(hide = true)]
+    DecodeRaw(decode_raw::DecodeRawArgs),
 }
 
 #[derive(clap::Args)]
@@ -257,6 +262,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Config { command } => config_cmd::run(command),
         Command::Session(a) => session_cmd::run(a),
         Command::Sim { command } => sim::run(command),
+        Command::DecodeRaw(a) => decode_raw::run(a),
         Command::Completions { shell } => {
             let mut cmd = <Cli as clap::CommandFactory>::command();
             // Into memory first: the generator panics on a write error, such as a closed pipe.

@@ -137,14 +137,8 @@ impl Board {
                 self.dictionary
             )
         })?;
-        let spec = CharucoTargetSpec::new(
-            self.rows,
-            self.cols,
-            self.square_mm,
-            self.marker,
-            dictionary,
-        );
-        let markers = (self.rows * self.cols / 2) as usize;
+        // Counted in u64: a board file's rows × cols can overflow u32.
+        let markers = (self.rows as u64 * self.cols as u64 / 2) as usize;
         if markers > dictionary.codes().len() {
             bail!(
                 "{} × {} squares need {markers} markers, and {} has {}",
@@ -154,7 +148,13 @@ impl Board {
                 dictionary.codes().len()
             );
         }
-        Ok(spec)
+        Ok(CharucoTargetSpec::new(
+            self.rows,
+            self.cols,
+            self.square_mm,
+            self.marker,
+            dictionary,
+        ))
     }
 
     /// The board's width and height, millimetres.
@@ -432,5 +432,11 @@ mod tests {
             b.cols = 12
         })
         .contains("need 72 markers"));
+        // Issue 40: 65,536² overflowed u32 and aborted `calibrate target`.
+        assert!(bad(&|b| {
+            b.rows = 65_536;
+            b.cols = 65_536
+        })
+        .contains("need 2147483648 markers"));
     }
 }

@@ -2,6 +2,7 @@
 //! exposure from EXIF, and the HDR merge of an exposure bracket. JPEG is decoded here (its
 //! tone curve assumed sRGB), RAW files in [`raw`]; both give a [`Frame`].
 
+pub mod isolated;
 pub mod raw;
 pub mod tiff;
 

@@ -56,8 +56,27 @@ fn decode_error(file: &str, reason: impl std::fmt::Display) -> RadiometryError {
 }
 
 /// Decodes a RAW file to linear camera RGB (see the module's description), with the
-/// exposure from the file's own EXIF.
+/// exposure from the file's own EXIF: in a child process bounded in memory and time when the
+/// binary asked for one ([`super::isolated`]), else here.
 pub fn decode_raw(bytes: &[u8], file: &str, wb: WhiteBalance) -> Result<Frame, RadiometryError> {
+    match super::isolated::program() {
+        Some(program) => super::isolated::decode(
+            program,
+            bytes,
+            file,
+            wb,
+            super::isolated::Budget::for_file(bytes.len()),
+        ),
+        None => decode_raw_here(bytes, file, wb),
+    }
+}
+
+/// [`decode_raw`] in this process, whatever the file makes the decoder do.
+pub fn decode_raw_here(
+    bytes: &[u8],
+    file: &str,
+    wb: WhiteBalance,
+) -> Result<Frame, RadiometryError> {
     let (image, exposure) = read_raw(bytes, file)?;
     let white_balance = match wb {
         WhiteBalance::Fixed(m) => m,

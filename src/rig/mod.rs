@@ -68,6 +68,7 @@ pub struct Plan {
     pub colour: Option<ColourChoice>,
     /// DSLR shutter speeds, seconds; the preset's, else the rig's.
     #[serde(default)]
+    #[schema(max_items = 32)] // config::MAX_BRACKET
     pub bracket: Vec<f64>,
     /// Turntable views (1: no turntable); the rig's `[turntable]` plan, else 1.
     #[serde(default)]
@@ -147,9 +148,17 @@ impl Plan {
         if let Some(p) = &self.pixels {
             flow::parse_pixels(p)?;
         }
+        use crate::config::{MAX_BRACKET, MAX_EXPOSURE_S};
         anyhow::ensure!(
-            self.bracket.iter().all(|s| s.is_finite() && *s > 0.0),
-            "bracket shutter speeds must be positive seconds"
+            self.bracket.len() <= MAX_BRACKET,
+            "bracket has {} shutter speeds; at most {MAX_BRACKET}",
+            self.bracket.len()
+        );
+        anyhow::ensure!(
+            self.bracket
+                .iter()
+                .all(|s| s.is_finite() && *s > 0.0 && *s <= MAX_EXPOSURE_S),
+            "bracket shutter speeds must be seconds above 0, at most {MAX_EXPOSURE_S}"
         );
         Ok(())
     }
