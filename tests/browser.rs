@@ -596,16 +596,17 @@ fn the_viewer_shows_the_export_as_brdfd_renders_it() {
             browser.screenshot("viewer.png");
         }
     }
-    // Issue 38 asks for 0.10. Measured: 0.35 for gold, 0.23 paint, 0.50 fabric. three.js's
-    // image-based lighting (prefiltered maps, split-sum) and brdfd's light grid differ more
-    // than that; this bound holds the viewer to its orientation and units until they meet.
+    // Issue 38 asks for 0.10. The viewer integrates the map for glTF's BRDF itself (GGX
+    // samples with filtered lookups, the map's peaks as lights, exact irradiance). Measured:
+    // 0.023 for gold (brightness 1.01), 0.017 paint, 0.045 fabric; 0.93–1.07 a quarter turn
+    // off. three.js's own image-based lighting was 0.35, 0.23 and 0.50.
     assert!(
-        errors[0] <= 0.45,
+        errors[0] <= 0.05,
         "the viewer is {:.4} from brdfd's render",
         errors[0]
     );
     assert!(
-        errors[1..].iter().all(|e| *e > 1.5 * errors[0]),
+        errors[1..].iter().all(|e| *e > 10.0 * errors[0]),
         "a quarter turn of the light matches as well: {errors:?}"
     );
 }
