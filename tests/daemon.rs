@@ -815,3 +815,76 @@ fn a_failure_that_could_not_be_written_is_recorded_once_it_can() {
     assert_eq!(status, 200);
     assert_eq!(shown["manifest"]["state"], "failed", "{shown}");
 }
+
+/// The daemon's resident memory, bytes (Linux).
+fn resident(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let kb: u64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap();
+    kb * 1024
+}
+
+/// Issue 40: result files were read whole into memory per request, and a response nobody
+/// read was never timed out: 40 clients asking for `brdf.binary` (35 MB) and reading nothing
+/// took the daemon from 138 MB to 1.5 GB. Streamed from disk with a write timeout, memory
+/// stays flat, the stalled connections are dropped, and a reader gets the whole file.
+#[test]
+fn clients_that_never_read_a_large_result_hold_neither_memory_nor_their_slot() {
+    use std::io::{Read as _, Write as _};
+    use std::net::TcpStream;
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = Daemon::start(
+        &dir.path().join("state"),
+        &["--simulate", "--write-timeout", "2"],
+    );
+    let (status, started) = daemon.post("/sessions", json!({ "material": "gold", "size": 64 }));
+    assert_eq!(status, 202, "{started}");
+    let id = started["id"].as_str().unwrap().to_string();
+    assert_eq!(daemon.events(&id).last().unwrap()["state"], "done");
+    let path = format!("/api/v1/sessions/{id}/result/brdf.binary");
+    let (status, whole) = daemon.get_bytes(&format!("/sessions/{id}/result/brdf.binary"));
+    assert_eq!(status, 200);
+    assert!(whole.len() > 30_000_000, "{}", whole.len());
+
+    let pid = daemon.child.id();
+    let before = resident(pid);
+    let stalled: Vec<TcpStream> = (0..40)
+        .map(|_| {
+            let mut s = TcpStream::connect(&daemon.addr).unwrap();
+            write!(s, "GET {path} HTTP/1.1\r\nHost: {}\r\n\r\n", daemon.addr).unwrap();
+            s
+        })
+        .collect();
+    std::thread::sleep(Duration::from_millis(1500));
+    let during = resident(pid);
+    println!(
+        "resident memory: {} MB before, {} MB with 40 stalled readers of {} MB",
+        before >> 20,
+        during >> 20,
+        whole.len() >> 20
+    );
+    assert!(during < before + (100 << 20), "{before} → {during}");
+    // The daemon answers meanwhile.
+    assert_eq!(daemon.get("/health").0, 200);
+    // Past the write timeout, each stalled connection is dropped: what a late reader gets
+    // ends, short of the file.
+    std::thread::sleep(Duration::from_secs(3));
+    for mut s in stalled {
+        s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        let mut got = Vec::new();
+        let _ = s.read_to_end(&mut got);
+        assert!(
+            got.len() < whole.len(),
+            "a stalled reader got the whole file"
+        );
+    }
+    let after = resident(pid);
+    assert!(after < before + (100 << 20), "{before} → {after}");
+    // And a reader that reads gets every byte.
+    let (status, again) = daemon.get_bytes(&format!("/sessions/{id}/result/brdf.binary"));
+    assert_eq!((status, again == whole), (200, true));
+}

@@ -41,6 +41,10 @@ pub struct ServeArgs {
     /// requests) before it is closed.
     #[arg(long, default_value_t = 10.0)]
     pub header_timeout: f64,
+    /// Seconds a response may wait for the client to take more of it before the connection
+    /// is dropped.
+    #[arg(long, default_value_t = 30.0)]
+    pub write_timeout: f64,
 }
 
 impl ServeArgs {
@@ -67,8 +71,12 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
     if !(a.header_timeout.is_finite() && a.header_timeout > 0.0) {
         bail!("--header-timeout must be a positive number of seconds");
     }
+    if !(a.write_timeout.is_finite() && a.write_timeout > 0.0) {
+        bail!("--write-timeout must be a positive number of seconds");
+    }
     let mut limits = brdfd::daemon::server::Limits {
         header_timeout: Duration::from_secs_f64(a.header_timeout),
+        write_timeout: Duration::from_secs_f64(a.write_timeout),
         ..Default::default()
     };
     if let Some(n) = a.max_connections {

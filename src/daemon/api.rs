@@ -631,9 +631,18 @@ async fn result_file(
     let file =
         ResultFile::named(&file).ok_or_else(|| not_found(format!("no result file {file:?}")))?;
     let s = done(&d, &id)?;
-    let bytes = tokio::fs::read(s.dir.join("result").join(file.name()))
-        .await
-        .map_err(not_found)?;
+    let path = s.dir.join("result").join(file.name());
+    let opened = tokio::fs::File::open(&path).await.map_err(not_found)?;
+    let length = opened.metadata().await.map_err(not_found)?.len();
+    // Streamed from disk a chunk at a time: 40 clients that ask for the 35 MB BRDF table and
+    // never read it hold a chunk each, not the file (the server's write timeout drops them).
+    let chunks = futures_util::stream::try_unfold(opened, |mut f| async move {
+        use tokio::io::AsyncReadExt as _;
+        let mut chunk = vec![0u8; 64 * 1024];
+        let n = f.read(&mut chunk).await?;
+        chunk.truncate(n);
+        Ok::<_, std::io::Error>((n > 0).then_some((axum::body::Bytes::from(chunk), f)))
+    });
     // The report is a page of inline images, SVG and CSS: nothing in it may run or load.
     let policy = "default-src 'none'; img-src data:; style-src 'unsafe-inline'";
     Ok((
@@ -641,7 +650,8 @@ async fn result_file(
             (header::CONTENT_TYPE, file.media_type()),
             (header::CONTENT_SECURITY_POLICY, policy),
         ],
-        bytes,
+        [(header::CONTENT_LENGTH, length.to_string())],
+        axum::body::Body::from_stream(chunks),
     )
         .into_response())
 }

@@ -12,6 +12,9 @@
 //!   request with a body, a plan, must arrive within 10 s (`api`), so only event streams stay
 //!   busy for long. The cap stays below the process's file limit, so a capture always has
 //!   descriptors left for its files.
+//! - **Write time.** A response the client stops reading fails once a write has waited
+//!   [`Limits::write_timeout`], and its connection is dropped ([`WriteTimeout`]): a client that
+//!   asks for a large file and never reads it holds neither memory nor its slot for long.
 //! - **Shutdown.** On the signal, no connection is accepted; open ones are asked to finish
 //!   their response, and after [`Limits::shutdown_grace`] the rest are dropped, so a client
 //!   holding a request open cannot keep the daemon from stopping.
@@ -36,6 +39,7 @@ use tokio::sync::{watch, Notify};
 pub struct Limits {
     pub max_connections: usize,
     pub header_timeout: Duration,
+    pub write_timeout: Duration,
     pub shutdown_grace: Duration,
 }
 
@@ -51,6 +55,8 @@ impl Default for Limits {
         Limits {
             max_connections: connection_cap(raise_file_limit()),
             header_timeout: Duration::from_secs(10),
+            // A reader on a slow link still takes a 64 KiB chunk well within this.
+            write_timeout: Duration::from_secs(30),
             shutdown_grace: Duration::from_secs(1),
         }
     }
@@ -150,7 +156,7 @@ pub async fn serve(
                 .timer(TokioTimer::new())
                 .header_read_timeout(limits.header_timeout);
             let conn = builder.serve_connection(
-                TokioIo::new(stream),
+                TokioIo::new(WriteTimeout::new(stream, limits.write_timeout)),
                 hyper_util::service::TowerToHyperService::new(service),
             );
             tokio::pin!(conn);
@@ -302,5 +308,100 @@ mod tests {
         assert!(make_room(&open, 3));
         let busy = Mutex::new(vec![entry(1, 300, 1), entry(2, 200, 2)]);
         assert!(!make_room(&busy, 2));
+    }
+}
+
+/// A connection whose writes must make progress: a write (or flush) that has waited `limit`
+/// for the client to take bytes fails with `TimedOut`, and hyper then drops the connection.
+/// Time without writing (an event stream between events) does not count.
+pub struct WriteTimeout<S> {
+    inner: S,
+    limit: Duration,
+    /// Running while a write waits.
+    stalled: Option<Pin<Box<tokio::time::Sleep>>>,
+}
+
+impl<S> WriteTimeout<S> {
+    pub fn new(inner: S, limit: Duration) -> Self {
+        WriteTimeout {
+            inner,
+            limit,
+            stalled: None,
+        }
+    }
+
+    /// After the inner write was not ready: still waiting, or past the limit.
+    fn wait<T>(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<T>> {
+        let limit = self.limit;
+        let sleep = self
+            .stalled
+            .get_or_insert_with(|| Box::pin(tokio::time::sleep(limit)));
+        match sleep.as_mut().poll(cx) {
+            Poll::Ready(()) => Poll::Ready(Err(std::io::Error::new(
+                std::io::ErrorKind::TimedOut,
+                format!(
+                    "the client took nothing for {} s; connection dropped",
+                    limit.as_secs_f64()
+                ),
+            ))),
+            Poll::Pending => Poll::Pending,
+        }
+    }
+
+    fn progress<T>(
+        &mut self,
+        polled: Poll<std::io::Result<T>>,
+        cx: &mut Context<'_>,
+    ) -> Poll<std::io::Result<T>> {
+        match polled {
+            Poll::Pending => self.wait(cx),
+            ready => {
+                self.stalled = None;
+                ready
+            }
+        }
+    }
+}
+
+impl<S: tokio::io::AsyncRead + Unpin> tokio::io::AsyncRead for WriteTimeout<S> {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_read(cx, buf)
+    }
+}
+
+impl<S: tokio::io::AsyncWrite + Unpin> tokio::io::AsyncWrite for WriteTimeout<S> {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<std::io::Result<usize>> {
+        let polled = Pin::new(&mut self.inner).poll_write(cx, buf);
+        self.progress(polled, cx)
+    }
+
+    fn poll_write_vectored(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[std::io::IoSlice<'_>],
+    ) -> Poll<std::io::Result<usize>> {
+        let polled = Pin::new(&mut self.inner).poll_write_vectored(cx, bufs);
+        self.progress(polled, cx)
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.inner.is_write_vectored()
+    }
+
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        let polled = Pin::new(&mut self.inner).poll_flush(cx);
+        self.progress(polled, cx)
+    }
+
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_shutdown(cx)
     }
 }
