@@ -42,6 +42,8 @@ impl Default for Timeouts {
 
 /// Attempts of a download before its error is final (each after a reset and a new session).
 const DOWNLOAD_ATTEMPTS: usize = 3;
+/// Storages a camera may list (card slots and internal memory).
+const MAX_STORAGES: usize = 64;
 /// Bytes per GetPartialObject request for large files.
 pub const PARTIAL_CHUNK: u32 = 4 << 20;
 
@@ -216,7 +218,16 @@ impl Camera {
 
     pub fn storage_ids(&mut self) -> Result<Vec<u32>> {
         let b = self.data_in(op::GET_STORAGE_IDS, &[])?;
-        crate::wire::Reader::new(&b, "StorageIDs").u32_array()
+        let ids = crate::wire::Reader::new(&b, "StorageIDs").u32_array()?;
+        // A camera has a card slot or two, and its memory: a list of thousands is not one.
+        if ids.len() > MAX_STORAGES {
+            return Err(PtpError::malformed(
+                "StorageIDs",
+                0,
+                format!("{} storages, more than {MAX_STORAGES}", ids.len()),
+            ));
+        }
+        Ok(ids)
     }
 
     pub fn storage_info(&mut self, id: u32) -> Result<StorageInfo> {
@@ -273,6 +284,9 @@ impl Camera {
         size: u64,
         progress: &mut dyn FnMut(u64, u64),
     ) -> Result<Vec<u8>> {
+        // Refused before any transfer, however it would be fetched (whole, or in chunks each
+        // within the data-phase limit).
+        crate::check_object_size(size, &format!("the object info of {handle:#010x}"))?;
         let partial = self.info.supports(op::GET_PARTIAL_OBJECT) && size > PARTIAL_CHUNK as u64;
         let mut out = Vec::with_capacity((size as usize).min(crate::PREALLOCATE_MAX));
         let mut attempt = 0;

@@ -389,8 +389,10 @@ impl DevicePropDesc {
                     max.as_i64().unwrap_or(0),
                     step.as_i64().unwrap_or(1).max(1),
                 );
-                (0..=((b - a) / s).min(100_000))
-                    .map(|i| a + i * s)
+                // In i128: a camera's range can span all of i64 (issue 40: `b - a` overflowed).
+                let steps = ((b as i128 - a as i128) / s as i128).min(100_000);
+                (0..=steps)
+                    .map(|i| (a as i128 + i * s as i128) as i64)
                     .collect()
             }
             Form::None => self.current.as_i64().into_iter().collect(),
@@ -451,6 +453,24 @@ mod tests {
         assert_eq!(DevicePropDesc::decode(&pd.encode()).unwrap(), pd);
         let ev = vec![(0xC101, 0xFFFF0001)];
         assert_eq!(decode_nikon_events(&encode_nikon_events(&ev)).unwrap(), ev);
+    }
+
+    #[test]
+    fn a_range_over_all_of_i64_lists_its_first_values_without_overflow() {
+        let pd = DevicePropDesc {
+            code: 0x500D,
+            datatype: dt::INT64,
+            writable: true,
+            factory_default: Value::Int(0),
+            current: Value::Int(0),
+            form: Form::Range {
+                min: Value::Int(i64::MIN),
+                max: Value::Int(i64::MAX),
+                step: Value::Int(1),
+            },
+        };
+        let v = pd.allowed();
+        assert_eq!((v.len(), v[0], v[1]), (100_001, i64::MIN, i64::MIN + 1));
     }
 
     #[test]

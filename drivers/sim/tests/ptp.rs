@@ -524,3 +524,37 @@ fn usb_class_requests_cancel_and_reset_reach_the_device() {
         .unwrap();
     assert_eq!(resp.code, 0x2003, "SessionNotOpen after reset");
 }
+
+/// Issue 40: how long a download may take was the camera's to choose (its declared size at
+/// 100 kB/s: about 12 h for 4 GiB). An object above brdfd's maximum (512 MiB) is now refused
+/// before any of it is fetched, over USB and PTP/IP.
+#[test]
+fn an_object_larger_than_brdfd_accepts_is_refused_before_its_download() {
+    let bytes = brdfd_ptp::MAX_OBJECT_BYTES as usize + 1;
+    for link in ["usb", "ptpip"] {
+        let r = responder(Profile::Generic, bytes);
+        let server = Server::start("127.0.0.1:0", r.clone()).unwrap();
+        let mut cam = if link == "usb" {
+            usb_camera(&r)
+        } else {
+            ptpip_camera(&server)
+        };
+        let opts = CaptureOptions {
+            target: Target::Card,
+            delete_after: false,
+        };
+        let e = cam
+            .capture(&opts, &mut |_, _, _| {})
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("more than the 512 MiB brdfd accepts for one object"),
+            "{link}: {e}"
+        );
+        let log = ops(&r);
+        assert!(
+            !log.contains(&op::GET_OBJECT) && !log.contains(&op::GET_PARTIAL_OBJECT),
+            "{link}: {log:x?}"
+        );
+    }
+}

@@ -156,11 +156,6 @@ fn read_packet_by(stream: &TcpStream, deadline: Instant) -> Result<Packet> {
     read_packet(&mut UntilDeadline { stream, deadline })
 }
 
-/// The slowest data phase allowed for, in bytes per second: far below any camera's link
-/// (USB 2 and Wi-Fi move megabytes a second), and a bound on how long a camera announcing a
-/// large object may take to send it.
-pub const MIN_DATA_RATE: f64 = 100_000.0;
-
 pub fn write_packet(w: &mut impl Write, p: &Packet) -> Result<()> {
     w.write_all(&p.to_bytes())?;
     Ok(())
@@ -339,8 +334,8 @@ impl Transport for PtpIpTransport {
         let mut data: Option<Vec<u8>> = None;
         let mut total = 0u64;
         // Each packet must come whole within the response timeout; once the data phase is
-        // announced, the whole transaction must end within the time its size allows at
-        // MIN_DATA_RATE.
+        // announced, the whole transaction must end within the time its size allows
+        // (`crate::data_deadline`).
         let mut deadline: Option<Instant> = None;
         loop {
             let p = self.read_cmd(response_timeout, deadline, "camera response")?;
@@ -350,17 +345,11 @@ impl Transport for PtpIpTransport {
                     let mut r = Reader::new(&p.body, "StartData");
                     r.u32()?;
                     total = r.u64()?;
-                    if total as usize > 4 << 30 {
-                        return Err(r.error(format!("data phase of {total} bytes")));
-                    }
+                    crate::check_object_size(total, "a PTP/IP data phase (StartData)")?;
                     data = Some(Vec::with_capacity(
                         (total as usize).min(crate::PREALLOCATE_MAX),
                     ));
-                    deadline = Some(
-                        Instant::now()
-                            + response_timeout
-                            + Duration::from_secs_f64(total as f64 / MIN_DATA_RATE),
-                    );
+                    deadline = Some(Instant::now() + crate::data_deadline(response_timeout, total));
                     progress(0, total);
                 }
                 ty::DATA | ty::END_DATA => {

@@ -178,14 +178,25 @@ impl<P: BulkPipe> UsbTransport<P> {
                 format!("{:?} container of {total} bytes", header.kind),
             ));
         }
+        crate::check_object_size(header.payload_len() as u64, "a USB data container")?;
         let mut payload = Vec::with_capacity(header.payload_len().min(crate::PREALLOCATE_MAX));
         payload.extend_from_slice(&self.pending[HEADER_LEN..self.pending.len().min(total)]);
         self.pending.drain(..self.pending.len().min(total));
-        // The timeout bounds each read, not the whole phase: a large file over a slow link
-        // takes as long as it takes while bytes keep coming.
+        // Each read within the timeout, and the whole phase within the time its size allows
+        // (`crate::data_deadline`): a camera that sends a byte now and then cannot hold the
+        // capture for hours.
+        let phase = crate::data_deadline(timeout, header.payload_len() as u64);
+        let deadline = std::time::Instant::now() + phase;
         while payload.len() < header.payload_len() {
             progress(payload.len() as u64, header.payload_len() as u64);
-            let n = self.read_bulk_in(timeout, timeout, "data phase")?;
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            if left.is_zero() {
+                return Err(PtpError::Timeout {
+                    what: "data phase",
+                    after: phase,
+                });
+            }
+            let n = self.read_bulk_in(timeout.min(left), timeout, "data phase")?;
             let need = header.payload_len() - payload.len();
             payload.extend_from_slice(&self.buf[..n.min(need)]);
             self.pending.extend_from_slice(&self.buf[n.min(need)..n]);
