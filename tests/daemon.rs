@@ -888,3 +888,43 @@ fn clients_that_never_read_a_large_result_hold_neither_memory_nor_their_slot() {
     let (status, again) = daemon.get_bytes(&format!("/sessions/{id}/result/brdf.binary"));
     assert_eq!((status, again == whole), (200, true));
 }
+
+/// Issue 40: event streams could fill the connection cap, and then a cancel was refused too.
+/// Streams have a cap of their own, half the connections: beyond it a stream is refused with
+/// 503, and `/health` and a cancel still get through.
+#[test]
+fn event_streams_leave_connections_for_health_and_cancel() {
+    use std::io::{Read as _, Write as _};
+    use std::net::TcpStream;
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = Daemon::start(
+        &dir.path().join("state"),
+        &["--simulate", "--max-connections", "8"],
+    );
+    let id = start_slow(&daemon);
+    let open_stream = || {
+        let mut s = TcpStream::connect(&daemon.addr).unwrap();
+        write!(
+            s,
+            "GET /api/v1/sessions/{id}/events HTTP/1.1\r\nHost: {}\r\n\r\n",
+            daemon.addr
+        )
+        .unwrap();
+        let mut head = [0u8; 12];
+        s.read_exact(&mut head).unwrap();
+        (String::from_utf8_lossy(&head).into_owned(), s)
+    };
+    let streams: Vec<_> = (0..4).map(|_| open_stream()).collect();
+    for (head, _) in &streams {
+        assert_eq!(head, "HTTP/1.1 200", "{head}");
+    }
+    let (head, _) = open_stream();
+    assert_eq!(head, "HTTP/1.1 503", "a fifth stream of 8 connections");
+    assert_eq!(daemon.get("/health").0, 200);
+    let (status, body) = daemon.post(&format!("/sessions/{id}/cancel"), json!({}));
+    assert_eq!(status, 202, "{body}");
+    drop(streams);
+    // The slots come back with the streams' ends.
+    let last = daemon.events(&id).last().cloned().unwrap();
+    assert_eq!(last["cancelled"], true, "{last}");
+}

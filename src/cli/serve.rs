@@ -117,6 +117,8 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
             )
         })?;
         daemon.hosts = config.hosts.clone();
+        daemon.max_event_streams =
+            (limits.max_connections / 2).clamp(1, brdfd::daemon::MAX_EVENT_STREAMS);
         let daemon = Arc::new(daemon);
         // Scripts and tests wait for this line.
         println!(

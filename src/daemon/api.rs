@@ -668,6 +668,7 @@ async fn result_file(
     responses(
         (status = 200, description = "a stream of events, each `data` an Event", content_type = "text/event-stream", body = StreamEvent),
         (status = 404, description = "`not_found`: no such session", body = ErrorBody),
+        (status = 503, description = "`too_many_streams`: as many event streams are open as the daemon serves at once (half its connection cap, at most 64), so that `/health` and a cancel always get a connection", body = ErrorBody),
     )
 )]
 async fn events(
@@ -696,6 +697,18 @@ async fn events(
             log
         }
     };
+    // Counted while the stream lives (the guard moves into it), and refused beyond the cap.
+    let guard = StreamSlot::take(&d).ok_or_else(|| {
+        ApiError(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "too_many_streams",
+            format!(
+                "{} event streams are open, the most this daemon serves at once; close one, or \
+                 poll GET /sessions/{id} instead",
+                d.max_event_streams
+            ),
+        )
+    })?;
     // A client that reconnects says the last event it saw; it gets the ones after it.
     let from = log.resume_from(headers.get("last-event-id").and_then(|v| v.to_str().ok()));
     let (history, live) = log.subscribe();
@@ -715,31 +728,56 @@ async fn events(
             .skip(from)
             .map(move |(id, e)| Ok(sse(id, &e))),
     );
-    let rest = stream::unfold((live, ended), move |(mut rx, ended)| async move {
-        if ended {
-            return None;
-        }
-        loop {
-            match rx.recv().await {
-                Ok((id, e)) => {
-                    let last = matches!(e, Event::Finished { .. });
-                    if id < from {
-                        // Only when the client's id is ahead of this run's history: skip to it.
-                        if last {
-                            return None;
-                        }
-                        continue;
-                    }
-                    return Some((Ok(sse(id, &e)), (rx, last)));
-                }
-                // A slow reader misses events rather than stalling the capture.
-                Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
-                Err(tokio::sync::broadcast::error::RecvError::Closed) => return None,
+    let rest = stream::unfold(
+        (live, ended, guard),
+        move |(mut rx, ended, guard)| async move {
+            if ended {
+                return None;
             }
-        }
-    });
+            loop {
+                match rx.recv().await {
+                    Ok((id, e)) => {
+                        let last = matches!(e, Event::Finished { .. });
+                        if id < from {
+                            // Only when the client's id is ahead of this run's history: skip to it.
+                            if last {
+                                return None;
+                            }
+                            continue;
+                        }
+                        return Some((Ok(sse(id, &e)), (rx, last, guard)));
+                    }
+                    // A slow reader misses events rather than stalling the capture.
+                    Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
+                    Err(tokio::sync::broadcast::error::RecvError::Closed) => return None,
+                }
+            }
+        },
+    );
     use futures_util::StreamExt;
     Ok(Sse::new(first.chain(rest)).keep_alive(KeepAlive::default()))
+}
+
+/// One of the daemon's event-stream slots, given back when dropped (the stream ended, or its
+/// client went away).
+struct StreamSlot(std::sync::Arc<std::sync::atomic::AtomicUsize>);
+
+impl StreamSlot {
+    fn take(d: &Shared) -> Option<StreamSlot> {
+        use std::sync::atomic::Ordering;
+        let open = d.event_streams.clone();
+        open.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+            (n < d.max_event_streams).then_some(n + 1)
+        })
+        .ok()?;
+        Some(StreamSlot(open))
+    }
+}
+
+impl Drop for StreamSlot {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, std::sync::atomic::Ordering::AcqRel);
+    }
 }
 
 #[cfg(test)]

@@ -124,7 +124,16 @@ pub struct Daemon {
     /// Event logs of the latest captures, oldest first (a stored session older than these
     /// streams its outcome alone).
     events: Mutex<VecDeque<(String, Arc<EventLog>)>>,
+    /// Event streams open now, and how many may be ([`Daemon::max_event_streams`]).
+    pub(crate) event_streams: Arc<std::sync::atomic::AtomicUsize>,
+    /// Event streams at most, below the server's connection cap (`serve` sets it to half of
+    /// that, at most [`MAX_EVENT_STREAMS`]): streams stay open for a whole capture, and must
+    /// leave connections for `/health` and a cancel.
+    pub max_event_streams: usize,
 }
+
+/// Event streams at most, whatever the connection cap: a bench has a few clients.
+pub const MAX_EVENT_STREAMS: usize = 64;
 
 /// The state directory's folder of scene files (environment maps, NBRDF files) that a
 /// simulated capture through the daemon may name.
@@ -252,6 +261,8 @@ impl Daemon {
             unrecorded: Unrecorded::default(),
             stopping: Cancel::default(),
             events: Mutex::new(VecDeque::new()),
+            event_streams: Arc::default(),
+            max_event_streams: MAX_EVENT_STREAMS,
         })
     }
 
