@@ -280,37 +280,6 @@ impl http_body::Body for Guarded {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_cap_leaves_descriptors_for_the_daemon() {
-        assert_eq!(connection_cap(1024), 1024 - RESERVED_FILES);
-        assert_eq!(connection_cap(100), 16);
-        assert_eq!(connection_cap(1 << 20), MAX_CONNECTIONS);
-    }
-
-    #[test]
-    fn room_is_made_by_closing_the_oldest_idle_connection() {
-        let entry = |id, age_ms: u64, busy: usize| Open {
-            id,
-            opened: Instant::now() - Duration::from_millis(age_ms),
-            in_flight: Arc::new(AtomicUsize::new(busy)),
-            close: Arc::default(),
-        };
-        // The oldest (id 1) is busy; the oldest idle one (id 2) goes.
-        let open = Mutex::new(vec![entry(1, 300, 1), entry(2, 200, 0), entry(3, 100, 0)]);
-        assert!(make_room(&open, 3));
-        let ids: Vec<u64> = open.lock().unwrap().iter().map(|o| o.id).collect();
-        assert!(!ids.contains(&2) && ids.len() == 2, "{ids:?}");
-        // Under the cap nothing is closed; with every connection busy the new one is refused.
-        assert!(make_room(&open, 3));
-        let busy = Mutex::new(vec![entry(1, 300, 1), entry(2, 200, 2)]);
-        assert!(!make_room(&busy, 2));
-    }
-}
-
 /// A connection whose writes must make progress: a write (or flush) that has waited `limit`
 /// for the client to take bytes fails with `TimedOut`, and hyper then drops the connection.
 /// Time without writing (an event stream between events) does not count.
@@ -403,5 +372,36 @@ impl<S: tokio::io::AsyncWrite + Unpin> tokio::io::AsyncWrite for WriteTimeout<S>
 
     fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
         Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cap_leaves_descriptors_for_the_daemon() {
+        assert_eq!(connection_cap(1024), 1024 - RESERVED_FILES);
+        assert_eq!(connection_cap(100), 16);
+        assert_eq!(connection_cap(1 << 20), MAX_CONNECTIONS);
+    }
+
+    #[test]
+    fn room_is_made_by_closing_the_oldest_idle_connection() {
+        let entry = |id, age_ms: u64, busy: usize| Open {
+            id,
+            opened: Instant::now() - Duration::from_millis(age_ms),
+            in_flight: Arc::new(AtomicUsize::new(busy)),
+            close: Arc::default(),
+        };
+        // The oldest (id 1) is busy; the oldest idle one (id 2) goes.
+        let open = Mutex::new(vec![entry(1, 300, 1), entry(2, 200, 0), entry(3, 100, 0)]);
+        assert!(make_room(&open, 3));
+        let ids: Vec<u64> = open.lock().unwrap().iter().map(|o| o.id).collect();
+        assert!(!ids.contains(&2) && ids.len() == 2, "{ids:?}");
+        // Under the cap nothing is closed; with every connection busy the new one is refused.
+        assert!(make_room(&open, 3));
+        let busy = Mutex::new(vec![entry(1, 300, 1), entry(2, 200, 2)]);
+        assert!(!make_room(&busy, 2));
     }
 }
