@@ -43,8 +43,16 @@ fn main() -> std::process::ExitCode {
         .init();
     // RAW files are decoded in a child process of this binary, bounded in memory and time,
     // so that a file the decoder mishandles cannot take a capture (or the daemon) down.
+    // On Linux through /proc/self/exe, which stays this very binary after a package upgrade
+    // replaced the file on disk.
     if !matches!(args.command, cli::Command::DecodeRaw(_)) {
-        match std::env::current_exe() {
+        let own = std::path::Path::new("/proc/self/exe");
+        let exe = if own.exists() {
+            Ok(own.to_path_buf())
+        } else {
+            std::env::current_exe()
+        };
+        match exe {
             Ok(exe) => brdfd::radiometry::isolated::use_child_processes(exe),
             Err(e) => tracing::warn!("RAW files will be decoded in this process: {e}"),
         }

@@ -142,7 +142,7 @@ fn simulated_capture_prints_coefficients() {
         "{raw:?}"
     );
     assert_eq!(
-        raw.iter().filter(|n| n.starts_with("theta-R00")).count(),
+        raw.iter().filter(|n| n.starts_with("theta-0")).count(),
         8,
         "{raw:?}"
     );

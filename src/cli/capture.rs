@@ -451,8 +451,9 @@ fn print_phases(phases: &[PhaseTime]) {
 }
 
 /// Copies a done session's results, first-view photo, panorama and raw files into one
-/// folder, the raw files named by device and order (`theta-R0010001.JPG`,
-/// `dslr-01-DSC_0001.JPG`, `view2-dslr-01-...` with several views).
+/// folder, the raw files named by device and order (`theta-01-R0010001.JPG`,
+/// `dslr-01-DSC_0001.JPG`, `view2-dslr-01-...` with several views): the order keeps apart
+/// the files of a camera that reuses names.
 fn export_flat(session: &Session, out: &Path) -> anyhow::Result<()> {
     let copy = |from: PathBuf, to: PathBuf| {
         std::fs::copy(&from, &to)
@@ -482,7 +483,7 @@ fn export_flat(session: &Session, out: &Path) -> anyhow::Result<()> {
         for (k, f) in step.files.iter().enumerate() {
             let name = safe_file_name(f.device_name(step));
             let flat = match step.name.as_str() {
-                "panorama" => format!("theta-{name}"),
+                "panorama" => format!("theta-{:02}-{name}", k + 1),
                 view if views > 1 => format!("{view}-dslr-{:02}-{name}", k + 1),
                 _ => format!("dslr-{:02}-{name}", k + 1),
             };

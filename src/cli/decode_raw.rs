@@ -15,6 +15,10 @@ pub struct DecodeRawArgs {
     /// process ends, which the parent reports.
     #[arg(long)]
     pub memory_bytes: u64,
+    /// Processor time this process may use, seconds: a decoder that loops is stopped even if
+    /// the process that started it is gone.
+    #[arg(long)]
+    pub seconds: u64,
     /// Fixed white balance multipliers `R,G,B` instead of the file's as-shot ones.
     #[arg(long, value_parser = parse_white_balance)]
     pub white_balance: Option<WhiteBalance>,
@@ -34,16 +38,28 @@ fn parse_white_balance(s: &str) -> Result<WhiteBalance, String> {
 /// Reads the file from stdin and writes the frame to stdout; a file that cannot be decoded
 /// exits with [`UNDECODABLE`] and the reason on stderr.
 pub fn run(a: DecodeRawArgs) -> anyhow::Result<()> {
-    let limit = libc::rlimit {
-        rlim_cur: a.memory_bytes,
-        rlim_max: a.memory_bytes,
-    };
-    // SAFETY: setrlimit reads the struct it is given, which lives across the call.
-    if unsafe { libc::setrlimit(libc::RLIMIT_AS, &limit) } != 0 {
-        anyhow::bail!(
-            "cannot limit the decoder's memory: {}",
-            std::io::Error::last_os_error()
-        );
+    // Ended with the process that started it (a daemon killed mid-decode), so that it
+    // cannot spin on alone. Linux only; elsewhere the processor-time limit stops it.
+    #[cfg(target_os = "linux")]
+    // SAFETY: PR_SET_PDEATHSIG takes a signal number and touches no memory of ours.
+    unsafe {
+        libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL);
+    }
+    for (resource, value, what) in [
+        (libc::RLIMIT_AS, a.memory_bytes, "memory"),
+        (libc::RLIMIT_CPU, a.seconds, "processor time"),
+    ] {
+        let limit = libc::rlimit {
+            rlim_cur: value,
+            rlim_max: value,
+        };
+        // SAFETY: setrlimit reads the struct it is given, which lives across the call.
+        if unsafe { libc::setrlimit(resource, &limit) } != 0 {
+            anyhow::bail!(
+                "cannot limit the decoder's {what}: {}",
+                std::io::Error::last_os_error()
+            );
+        }
     }
     let mut bytes = Vec::new();
     std::io::stdin().read_to_end(&mut bytes)?;

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::{bail, Context};
+use anyhow::Context;
 use brdfd::config::Rig;
 use brdfd::daemon::{api, Daemon};
 
@@ -65,18 +65,19 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         None => config_source,
     };
     let addr = config.check_api(&source)?;
-    if !(a.keep_alive.is_finite() && a.keep_alive > 0.0) {
-        bail!("--keep-alive must be a positive number of seconds");
-    }
-    if !(a.header_timeout.is_finite() && a.header_timeout > 0.0) {
-        bail!("--header-timeout must be a positive number of seconds");
-    }
-    if !(a.write_timeout.is_finite() && a.write_timeout > 0.0) {
-        bail!("--write-timeout must be a positive number of seconds");
-    }
+    // Positive, and within what a Duration holds (a huge number would panic).
+    let seconds = |v: f64, flag: &str| {
+        Duration::try_from_secs_f64(v)
+            .ok()
+            .filter(|d| !d.is_zero())
+            .with_context(|| format!("{flag} must be a positive number of seconds, not {v}"))
+    };
+    let keep_alive = seconds(a.keep_alive, "--keep-alive")?;
+    let header_timeout = seconds(a.header_timeout, "--header-timeout")?;
+    let write_timeout = seconds(a.write_timeout, "--write-timeout")?;
     let mut limits = brdfd::daemon::server::Limits {
-        header_timeout: Duration::from_secs_f64(a.header_timeout),
-        write_timeout: Duration::from_secs_f64(a.write_timeout),
+        header_timeout,
+        write_timeout,
         ..Default::default()
     };
     if let Some(n) = a.max_connections {
@@ -113,7 +114,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
                 rig_text,
                 state.clone(),
                 config.token.clone(),
-                Duration::from_secs_f64(a.keep_alive),
+                keep_alive,
             )
         })?;
         daemon.hosts = config.hosts.clone();

@@ -77,98 +77,105 @@ pub fn decode(
     budget: Budget,
 ) -> Result<Frame, RadiometryError> {
     let mut command = Command::new(program);
-    command
-        .args(["decode-raw", "--name", file, "--memory-bytes"])
-        .arg(budget.memory.to_string());
+    // `--name=…`: a camera's file name may start with a dash.
+    command.args([
+        "decode-raw".to_string(),
+        format!("--name={file}"),
+        format!("--memory-bytes={}", budget.memory),
+        format!("--seconds={}", budget.time.as_secs().max(1)),
+    ]);
     if let WhiteBalance::Fixed([r, g, b]) = wb {
-        command.args(["--white-balance", &format!("{r},{g},{b}")]);
+        command.arg(format!("--white-balance={r},{g},{b}"));
     }
+    // The child's first words on stderr are its cause, not a log line. Its address space is
+    // what the budget bounds: few malloc arenas and threads keep the reserved part small on a
+    // machine with many cores.
+    let threads = std::thread::available_parallelism().map_or(2, |n| n.get().min(8));
+    command
+        .env_remove("BRDFD_LOG")
+        .env("MALLOC_ARENA_MAX", "2")
+        .env("RAYON_NUM_THREADS", threads.to_string());
     let mut child = command
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .map_err(|e| {
-            decode_error(
-                file,
-                format!("RAW: cannot start the decoder ({}): {e}", program.display()),
-            )
-        })?;
+        .map_err(|e| decode_error(file, format!("RAW: cannot start the decoder process: {e}")))?;
     let (mut stdin, mut stdout, mut stderr) = (
         child.stdin.take().expect("piped stdin"),
         child.stdout.take().expect("piped stdout"),
         child.stderr.take().expect("piped stderr"),
     );
     let started = Instant::now();
-    let (status, out, err) = std::thread::scope(|s| {
+    let (status, frame, err) = std::thread::scope(|s| {
         // A child that dies early closes its stdin: the write then fails, and its status
         // says why.
         s.spawn(move || {
             let _ = stdin.write_all(bytes);
         });
-        let out = s.spawn(move || {
-            let mut v = Vec::new();
-            stdout.read_to_end(&mut v).map(|_| v)
-        });
+        let frame = s.spawn(move || read_frame(&mut stdout));
         let err = s.spawn(move || {
             let mut v = String::new();
             let _ = stderr.read_to_string(&mut v);
             v
         });
         let status = loop {
-            match child.try_wait() {
+            let stop = match child.try_wait() {
                 Ok(Some(status)) => break Ok(status),
-                Ok(None) if started.elapsed() > budget.time => {
-                    let _ = child.kill();
-                    let _ = child.wait();
-                    break Err(format!(
-                        "RAW: the decoder took longer than {} on this file, and was stopped",
-                        humantime::format_duration(budget.time)
-                    ));
+                Ok(None) if started.elapsed() > budget.time => format!(
+                    "RAW: the decoder took longer than {} on this file, and was stopped",
+                    humantime::format_duration(budget.time)
+                ),
+                Ok(None) => {
+                    std::thread::sleep(Duration::from_millis(5));
+                    continue;
                 }
-                Ok(None) => std::thread::sleep(Duration::from_millis(5)),
-                Err(e) => break Err(format!("RAW: waiting for the decoder: {e}")),
-            }
+                Err(e) => format!("RAW: waiting for the decoder: {e}"),
+            };
+            // Killed, so that its pipes close and the threads above end.
+            let _ = child.kill();
+            let _ = child.wait();
+            break Err(stop);
         };
         (
             status,
-            out.join().expect("the reader does not panic"),
+            frame.join().expect("the reader does not panic"),
             err.join().expect("the reader does not panic"),
         )
     });
     let status = status.map_err(|e| decode_error(file, e))?;
+    let first_line = err
+        .lines()
+        .map(str::trim)
+        .find(|l| !l.is_empty())
+        .unwrap_or("no message");
     if status.code() == Some(UNDECODABLE) {
-        // The child's own words, its last line: `file: reason`, as RadiometryError prints it.
-        let last = err
-            .lines()
-            .rev()
-            .find(|l| !l.trim().is_empty())
-            .unwrap_or("");
-        let reason = last.trim().trim_start_matches(&format!("{file}: "));
+        // The child's own words: `file: reason`, as RadiometryError prints it.
+        let reason = first_line.trim_start_matches(&format!("{file}: "));
         return Err(decode_error(file, reason));
     }
     if !status.success() {
-        let how = match status.code() {
-            Some(code) => format!("exited with status {code}"),
-            None => "was stopped by a signal".to_string(),
-        };
-        return Err(decode_error(
-            file,
+        // An allocation past the budget aborts: Rust says so on stderr, then SIGABRT.
+        let reason = if first_line.starts_with("memory allocation of") {
             format!(
-                "RAW: the decoder {how} on this file: it needed more than its {} MB of memory, \
-                 or the file made it crash ({})",
-                budget.memory >> 20,
-                // The first line says what failed ("memory allocation of … bytes failed", a
-                // panic's place); the rest is backtrace advice.
-                err.lines()
-                    .find(|l| !l.trim().is_empty())
-                    .unwrap_or("no message")
-                    .trim()
-            ),
-        ));
+                "RAW: the decoder needed more than its {} MB of memory on this file, and was \
+                 stopped ({first_line})",
+                budget.memory >> 20
+            )
+        } else {
+            let how = match status.code() {
+                Some(code) => format!("exited with status {code}"),
+                None => "was stopped by a signal".to_string(),
+            };
+            format!("RAW: the decoder {how} on this file ({first_line})")
+        };
+        return Err(decode_error(file, reason));
     }
-    let out = out.map_err(|e| decode_error(file, format!("RAW: reading the decoder: {e}")))?;
-    read_frame(&out).ok_or_else(|| decode_error(file, "RAW: the decoder's answer is truncated"))
+    match frame {
+        Ok(Some(frame)) => Ok(frame),
+        Ok(None) => Err(decode_error(file, "RAW: the decoder's answer is cut short")),
+        Err(e) => Err(decode_error(file, format!("RAW: reading the decoder: {e}"))),
+    }
 }
 
 /// The child's side: decodes `bytes` in this process and writes the frame to `out`.
@@ -195,32 +202,38 @@ pub fn write_frame(frame: &Frame, out: &mut impl Write) -> std::io::Result<()> {
     out.flush()
 }
 
-fn read_frame(b: &[u8]) -> Option<Frame> {
-    let mut at = 0;
-    let mut take = |n: usize| {
-        let s = b.get(at..at + n)?;
-        at += n;
-        Some(s)
-    };
-    if take(8)? != TAG {
-        return None;
+/// A frame from the child: its header, then exactly its pixels, read into one buffer of
+/// their size. `None` if the answer is cut short or says more than its header.
+fn read_frame(r: &mut impl Read) -> std::io::Result<Option<Frame>> {
+    let mut head = [0u8; 8 + 8 + 8 + 3 * 8 + 3 * 4];
+    if !read_all(r, &mut head)? || &head[..8] != TAG {
+        return Ok(None);
     }
-    let u64_ = |s: &[u8]| u64::from_le_bytes(s.try_into().expect("8 bytes"));
-    let f64_ = |s: &[u8]| f64::from_le_bytes(s.try_into().expect("8 bytes"));
-    let f32_ = |s: &[u8]| f32::from_le_bytes(s.try_into().expect("4 bytes"));
-    let (width, height) = (u64_(take(8)?) as usize, u64_(take(8)?) as usize);
+    let u64_ = |at: usize| u64::from_le_bytes(head[at..at + 8].try_into().expect("8 bytes"));
+    let f64_ = |at: usize| f64::from_le_bytes(head[at..at + 8].try_into().expect("8 bytes"));
+    let f32_ = |at: usize| f32::from_le_bytes(head[at..at + 4].try_into().expect("4 bytes"));
+    let (width, height) = (u64_(8) as usize, u64_(16) as usize);
     let exposure = Exposure {
-        shutter_s: f64_(take(8)?),
-        f_number: f64_(take(8)?),
-        iso: f64_(take(8)?),
+        shutter_s: f64_(24),
+        f_number: f64_(32),
+        iso: f64_(40),
     };
-    let white_balance = [f32_(take(4)?), f32_(take(4)?), f32_(take(4)?)];
-    let n = width.checked_mul(height)?.checked_mul(12)?;
-    let pixels = take(n)?
+    let white_balance = [f32_(48), f32_(52), f32_(56)];
+    // No larger than a RAW file's image may be (the structure check's limit).
+    let n = width.saturating_mul(height);
+    if n as u64 > super::tiff::MAX_PIXELS {
+        return Ok(None);
+    }
+    let mut bytes = vec![0u8; n * 12];
+    if !read_all(r, &mut bytes)? || r.read(&mut [0u8; 1])? != 0 {
+        return Ok(None);
+    }
+    let f = |p: &[u8]| f32::from_le_bytes(p.try_into().expect("4 bytes"));
+    let pixels = bytes
         .chunks_exact(12)
-        .map(|p| [f32_(&p[0..4]), f32_(&p[4..8]), f32_(&p[8..12])])
+        .map(|p| [f(&p[0..4]), f(&p[4..8]), f(&p[8..12])])
         .collect();
-    Some(Frame {
+    Ok(Some(Frame {
         values: Raster {
             width,
             height,
@@ -228,7 +241,16 @@ fn read_frame(b: &[u8]) -> Option<Frame> {
         },
         exposure,
         white_balance,
-    })
+    }))
+}
+
+/// Fills `buf`; false if the stream ends first.
+fn read_all(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<bool> {
+    match r.read_exact(buf) {
+        Ok(()) => Ok(true),
+        Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => Ok(false),
+        Err(e) => Err(e),
+    }
 }
 
 #[cfg(test)]
@@ -252,11 +274,14 @@ mod tests {
         };
         let mut wire = Vec::new();
         write_frame(&frame, &mut wire).unwrap();
-        let back = read_frame(&wire).unwrap();
+        let back = read_frame(&mut &wire[..]).unwrap().unwrap();
         assert_eq!(back.values.pixels, frame.values.pixels);
         assert_eq!(back.exposure, frame.exposure);
         assert_eq!(back.white_balance, frame.white_balance);
-        assert!(read_frame(&wire[..wire.len() - 1]).is_none());
-        assert!(read_frame(b"BRDFDFR1").is_none());
+        assert!(read_frame(&mut &wire[..wire.len() - 1]).unwrap().is_none());
+        assert!(read_frame(&mut &b"BRDFDFR1"[..]).unwrap().is_none());
+        let mut longer = wire.clone();
+        longer.push(0);
+        assert!(read_frame(&mut &longer[..]).unwrap().is_none());
     }
 }

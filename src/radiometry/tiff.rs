@@ -45,6 +45,7 @@ pub fn check(bytes: &[u8]) -> Result<(), String> {
     let mut walk = Walk {
         bytes,
         seen: std::collections::HashSet::new(),
+        path: Vec::new(),
     };
     walk.chain(Tiff { order, base: 0 }, first, 0, "IFD0")
 }
@@ -121,13 +122,18 @@ fn type_size(kind: u16) -> u64 {
 
 struct Walk<'a> {
     bytes: &'a [u8],
-    /// IFDs already walked, by their place in the file: a second visit is a loop.
-    seen: std::collections::HashSet<usize>,
+    /// IFDs checked, by their place in the file: one that two pointers share is checked once.
+    seen: std::collections::HashSet<u64>,
+    /// The IFDs that lead to the one being checked (its chain's earlier IFDs and its parents'):
+    /// one of these reached again is a loop.
+    path: Vec<u64>,
 }
 
 impl Walk<'_> {
-    /// An IFD chain from `offset`: each IFD, then the one its link names, until a zero link.
+    /// An IFD chain from `offset`: each IFD, then the one its link names, until a zero link
+    /// (or an IFD checked before, with the rest of its chain).
     fn chain(&mut self, t: Tiff, offset: u32, depth: usize, name: &str) -> Result<(), String> {
+        let depth_of_path = self.path.len();
         let mut next = offset;
         let mut index = 0;
         while next != 0 {
@@ -136,23 +142,38 @@ impl Walk<'_> {
             } else {
                 format!("{name} (+{index} in its chain)")
             };
-            next = self.ifd(t, next, depth, &label)?;
+            match self.ifd(t, next, depth, &label)? {
+                Some(link) => next = link,
+                None => break,
+            }
             index += 1;
         }
+        self.path.truncate(depth_of_path);
         Ok(())
     }
 
-    /// Checks one IFD and the IFDs it points to; returns its link to the next.
-    fn ifd(&mut self, t: Tiff, offset: u32, depth: usize, name: &str) -> Result<u32, String> {
-        let at = t.base + offset as usize;
-        if depth > MAX_DEPTH {
+    /// Checks one IFD and the IFDs it points to; returns its link to the next, or `None` if
+    /// it was checked before. It stays on the path for the rest of its chain.
+    fn ifd(
+        &mut self,
+        t: Tiff,
+        offset: u32,
+        depth: usize,
+        name: &str,
+    ) -> Result<Option<u32>, String> {
+        // In u64: on a 32-bit machine an offset from the file must not wrap.
+        let at = t.base as u64 + offset as u64;
+        if self.path.contains(&at) {
             return Err(format!(
-                "{name} at byte {at} is nested more than {MAX_DEPTH} IFDs deep"
+                "{name} at byte {at} is an IFD that leads to itself: the file's IFDs form a loop"
             ));
         }
         if !self.seen.insert(at) {
+            return Ok(None);
+        }
+        if depth > MAX_DEPTH {
             return Err(format!(
-                "{name} at byte {at} is an IFD already read: the file's IFDs form a loop"
+                "{name} at byte {at} is nested more than {MAX_DEPTH} IFDs deep"
             ));
         }
         if self.seen.len() > MAX_IFDS {
@@ -165,13 +186,19 @@ impl Walk<'_> {
                 b.len()
             )
         };
-        let n = t.u16(b, at).ok_or_else(outside)? as usize;
-        let link_at = at + 2 + 12 * n;
+        let start = usize::try_from(at).map_err(|_| outside())?;
+        let n = t.u16(b, start).ok_or_else(outside)? as usize;
+        // An IFD's entries must lie in the file; then these sums fit in usize.
+        let link_at = start
+            .checked_add(2 + 12 * n)
+            .filter(|e| e + 4 <= b.len())
+            .ok_or_else(outside)?;
         let link = t.u32(b, link_at).ok_or_else(outside)?;
         let entries: Vec<Entry> = (0..n)
-            .map(|i| self.entry(t, at + 2 + 12 * i, name))
+            .map(|i| self.entry(t, start + 2 + 12 * i, name))
             .collect::<Result<_, _>>()?;
         self.image(t, &entries, name)?;
+        self.path.push(at);
         for e in &entries {
             let child = match e.tag {
                 SUB_IFDS => "SubIFD",
@@ -183,7 +210,7 @@ impl Walk<'_> {
                 }
                 _ => continue,
             };
-            if !matches!(type_size(e.kind), 4) {
+            if !matches!(e.kind, 4 | 13) {
                 continue;
             }
             for k in 0..e.count as usize {
@@ -192,10 +219,10 @@ impl Walk<'_> {
                 self.chain(t, offset, depth + 1, &label)?;
             }
         }
-        Ok(link)
+        Ok(Some(link))
     }
 
-    /// An entry at `at`, its values checked to lie in the file.
+    /// An entry at `at` (inside the file), its values checked to lie in the file.
     fn entry(&self, t: Tiff, at: usize, name: &str) -> Result<Entry, String> {
         let b = self.bytes;
         let (tag, kind, count) = (
@@ -205,11 +232,11 @@ impl Walk<'_> {
         );
         let size = count * type_size(kind);
         let values = if size <= 4 {
-            at + 8
+            at as u64 + 8
         } else {
-            t.base + t.u32(b, at + 8).unwrap_or(0) as usize
+            t.base as u64 + t.u32(b, at + 8).unwrap_or(0) as u64
         };
-        if size > 0 && values as u64 + size > b.len() as u64 {
+        if size > 0 && values + size > b.len() as u64 {
             return Err(format!(
                 "{name}: tag 0x{tag:04X} has {count} values at byte {values}, past the file's end ({} bytes)",
                 b.len()
@@ -219,35 +246,60 @@ impl Walk<'_> {
             tag,
             kind,
             count,
-            at: values,
+            // Within the file (checked above), so within usize.
+            at: values as usize,
         })
     }
 
-    /// The first value of an entry as an integer (SHORT or LONG).
-    fn first(&self, t: Tiff, e: &Entry) -> Option<u64> {
-        self.value(t, e, 0)
-    }
-
-    fn value(&self, t: Tiff, e: &Entry, k: usize) -> Option<u64> {
+    /// Value `k` of an entry as a number, of any numeric type: the decoder reads a size
+    /// written as a byte, a signed long, a rational or a double as readily as a LONG.
+    fn value(&self, t: Tiff, e: &Entry, k: usize) -> Option<f64> {
         if k as u64 >= e.count {
             return None;
         }
-        match e.kind {
-            3 => t.u16(self.bytes, e.at + 2 * k).map(u64::from),
-            4 | 13 => t.u32(self.bytes, e.at + 4 * k).map(u64::from),
-            _ => None,
-        }
+        let b = self.bytes;
+        let at = e.at + k * type_size(e.kind) as usize;
+        let (high, low) = match t.order {
+            Order::Little => (4, 0),
+            Order::Big => (0, 4),
+        };
+        Some(match e.kind {
+            1 | 7 => *b.get(at)? as f64,
+            6 => *b.get(at)? as i8 as f64,
+            3 => t.u16(b, at)? as f64,
+            8 => t.u16(b, at)? as i16 as f64,
+            4 | 13 => t.u32(b, at)? as f64,
+            9 => t.u32(b, at)? as i32 as f64,
+            5 => t.u32(b, at)? as f64 / t.u32(b, at + 4)? as f64,
+            10 => t.u32(b, at)? as i32 as f64 / t.u32(b, at + 4)? as i32 as f64,
+            11 => f32::from_bits(t.u32(b, at)?) as f64,
+            12 => {
+                f64::from_bits(((t.u32(b, at + high)? as u64) << 32) | t.u32(b, at + low)? as u64)
+            }
+            _ => return None,
+        })
     }
 
     /// An IFD's image: its size, and its strips or tiles inside the file.
     fn image(&self, t: Tiff, entries: &[Entry], name: &str) -> Result<(), String> {
         let find = |tag| entries.iter().find(|e| e.tag == tag);
-        let get = |tag| find(tag).and_then(|e| self.first(t, e));
-        let size = |w: Option<u64>, h: Option<u64>, what: &str| match (w, h) {
-            (Some(w), Some(h)) if w > MAX_SIDE || h > MAX_SIDE || w * h > MAX_PIXELS => {
+        // The largest of every entry with the tag: a file may repeat a tag, and the decoder
+        // keeps the last. NaN counts as too large.
+        let get = |tag| {
+            entries
+                .iter()
+                .filter(|e| e.tag == tag)
+                .filter_map(|e| self.value(t, e, 0))
+                .map(|v| if v.is_nan() { f64::INFINITY } else { v })
+                .reduce(f64::max)
+        };
+        let size = |w: Option<f64>, h: Option<f64>, what: &str| match (w, h) {
+            (Some(w), Some(h))
+                if w > MAX_SIDE as f64 || h > MAX_SIDE as f64 || w * h > MAX_PIXELS as f64 =>
+            {
                 Err(format!(
                     "{name} declares {what} of {w} × {h} pixels, larger than any camera's \
-                 ({MAX_SIDE} a side, {} megapixels at most)",
+                     ({MAX_SIDE} a side, {} megapixels at most)",
                     MAX_PIXELS / 1_000_000
                 ))
             }
@@ -267,8 +319,9 @@ impl Walk<'_> {
                 else {
                     continue;
                 };
-                let start = t.base as u64 + o;
-                if start + c > self.bytes.len() as u64 {
+                let start = t.base as f64 + o;
+                // Negative, NaN or past the end: all refused.
+                if !(o >= 0.0 && c >= 0.0 && start + c <= self.bytes.len() as f64) {
                     return Err(format!(
                         "{name}: {what} {} of {c} bytes at byte {start} runs past the file's end ({} bytes)",
                         k + 1,
@@ -365,6 +418,38 @@ mod tests {
         entries.push((EXIF_IFD, 4, 1, 8));
         let back = check(&tiff(&entries, 0, 64)).unwrap_err();
         assert!(back.contains("IFD0 → EXIF IFD 1 at byte 8"), "{back}");
+
+        // A size the decoder reads from another type (a DOUBLE, a signed LONG), or a second
+        // ImageWidth after a small one: the decoder keeps the last.
+        // Two entries: 8 + 2 + 2 · 12 + 4 = 38 bytes, then the DOUBLE.
+        let entries = [(IMAGE_WIDTH, 12, 1, 38), (IMAGE_LENGTH, 3, 1, 8)];
+        let mut b = tiff(&entries, 0, 0);
+        assert_eq!(b.len(), 38);
+        b.extend(131_072f64.to_le_bytes());
+        let e = check(&b).unwrap_err();
+        assert!(e.contains("131072 × 8 pixels"), "{e}");
+        let e = check(&tiff(
+            &[(IMAGE_WIDTH, 9, 1, 131_072), (IMAGE_LENGTH, 3, 1, 8)],
+            0,
+            0,
+        ));
+        assert!(e.unwrap_err().contains("131072 × 8"));
+        let twice = [
+            (IMAGE_WIDTH, 3, 1, 8),
+            (IMAGE_LENGTH, 3, 1, 8),
+            (IMAGE_WIDTH, 4, 1, 131_072),
+        ];
+        assert!(check(&tiff(&twice, 0, 0))
+            .unwrap_err()
+            .contains("131072 × 8"));
+
+        // Two pointers to one IFD are no loop: the EXIF IFD and the GPS IFD both at IFD0's
+        // end, where an empty IFD stands.
+        let mut shared = image(8, 8, 0, 0);
+        shared.truncate(2);
+        shared.push((EXIF_IFD, 4, 1, 8 + 2 + 4 * 12 + 4));
+        shared.push((GPS_IFD, 4, 1, 8 + 2 + 4 * 12 + 4));
+        assert_eq!(check(&tiff(&shared, 0, 6)), Ok(()));
 
         // A value array past the end.
         let far = check(&tiff(&[(0x010F, 2, 100, 1_000_000)], 0, 0)).unwrap_err();

@@ -324,7 +324,17 @@ impl Camera {
         out: &mut Vec<u8>,
         progress: &mut dyn FnMut(u64, u64),
     ) -> Result<()> {
+        // Each chunk is a data phase with its own deadline; the whole attempt has one too, so
+        // a camera that answers each request with a byte cannot hold the download for hours.
+        let whole = crate::data_deadline(self.timeouts.data, size - out.len() as u64);
+        let deadline = std::time::Instant::now() + whole;
         while (out.len() as u64) < size {
+            if std::time::Instant::now() > deadline {
+                return Err(PtpError::Timeout {
+                    what: "data",
+                    after: whole,
+                });
+            }
             let offset = out.len() as u64;
             let n = PARTIAL_CHUNK.min((size - offset) as u32);
             let t = self.timeouts.data;

@@ -271,8 +271,12 @@ function follow(id) {
   };
   source.onerror = () => {
     // The stream ends after `finished`; an error before that is a lost connection, which
-    // EventSource retries on its own.
+    // EventSource retries on its own, unless the daemon refused the stream (503
+    // `too_many_streams`: other pages follow captures), after which it never retries.
     if (!following) source.close();
+    else if (source.readyState === EventSource.CLOSED) {
+      showStatus(new Error("the daemon serves no more event streams now; reload this page to follow the capture"));
+    }
   };
 }
 

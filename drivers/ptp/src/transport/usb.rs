@@ -192,11 +192,20 @@ impl<P: BulkPipe> UsbTransport<P> {
             let left = deadline.saturating_duration_since(std::time::Instant::now());
             if left.is_zero() {
                 return Err(PtpError::Timeout {
-                    what: "data phase",
+                    what: "data",
                     after: phase,
                 });
             }
-            let n = self.read_bulk_in(timeout.min(left), timeout, "data phase")?;
+            let n = match self.read_bulk_in(timeout.min(left), timeout, "data phase") {
+                // Cut short by the phase's deadline: say so, not the per-read timeout.
+                Err(PtpError::Timeout { .. }) if std::time::Instant::now() >= deadline => {
+                    return Err(PtpError::Timeout {
+                        what: "data",
+                        after: phase,
+                    })
+                }
+                r => r?,
+            };
             let need = header.payload_len() - payload.len();
             payload.extend_from_slice(&self.buf[..n.min(need)]);
             self.pending.extend_from_slice(&self.buf[n.min(need)..n]);
