@@ -47,6 +47,9 @@ pub struct Context<'a> {
     pub record: Vec<(String, String)>,
     /// On a mesh, what of its light the object hides from itself in the first view.
     pub visibility: Option<&'a Visibility>,
+    /// The object's mesh, placed in the world as the first view saw it: `object.gltf` shows
+    /// the export on it.
+    pub object: Option<&'a brdfd_core::mesh::Mesh>,
 }
 
 /// The fraction of the light reaching each object pixel that the object itself lets through

@@ -332,9 +332,18 @@ pub fn write_results(
         let sigma = "BRDF 1-sigma (bootstrap over the pixels)";
         write_bivariate_exr(&dir.join("brdf-sigma.exr"), &band, sigma, basis_id)?;
     }
-    // The capture's light, for the web page's viewer to show the export under.
+    // The capture's light, for the web page's viewer to show the export under, and on a
+    // mesh the export on the object itself, in the same world.
     if let Some(map) = cx.env {
         crate::export::maps::write_light(&dir.join("light.hdr"), map, cx.yaw)?;
+    }
+    if let Some(mesh) = cx.object {
+        let path = dir.join("object.gltf");
+        let text = files
+            .exports
+            .material
+            .document_on_mesh("brdfd_estimate", mesh);
+        std::fs::write(&path, text).map_err(|e| CoreError::io(&path, e))?;
     }
     if let (Some(photo), Some(path)) = (cx.photo, &files.compare_png) {
         crate::compare::write(path, photo, &estimate.rerender)?;

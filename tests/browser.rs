@@ -11,6 +11,7 @@
 
 mod common;
 
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -608,5 +609,67 @@ fn the_viewer_shows_the_export_as_brdfd_renders_it() {
     assert!(
         errors[1..].iter().all(|e| *e > 10.0 * errors[0]),
         "a quarter turn of the light matches as well: {errors:?}"
+    );
+}
+
+/// On a mesh, the viewer offers the export on the object (`object.gltf`) and draws it: the
+/// grooved block's picture is not the sphere's.
+#[test]
+fn the_viewer_shows_the_export_on_the_sessions_mesh() {
+    if !browser_present() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let rig =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rigs/simulated-grooved-block.toml");
+    let daemon = Daemon::start(&dir.path().join("state"), &["--rig", rig.to_str().unwrap()]);
+    let (status, started) = daemon.post("/sessions", json!({ "material": "gold", "size": 64 }));
+    assert_eq!(status, 202, "{started}");
+    let id = started["id"].as_str().unwrap().to_string();
+    let last = daemon.events(&id).last().cloned().unwrap();
+    assert_eq!(last["state"], "done", "{last}");
+
+    let browser = Browser::start();
+    let mut shown = Vec::new();
+    for shape in ["sphere", "object"] {
+        browser.go(&format!(
+            "http://{}/viewer.html?session={id}&shape={shape}&map=courtyard&background=off&size=128",
+            daemon.addr
+        ));
+        let seen = browser.wait_for(
+            "the viewer's first frame",
+            "const e = document.getElementById('error');
+             if (!e.hidden) return 'error: ' + e.textContent;
+             if (document.body.dataset.rendered !== '1') return null;
+             return [document.getElementById('shape-label').hidden,
+                     document.getElementById('view').toDataURL('image/png')];",
+            Duration::from_secs(60),
+        );
+        assert!(
+            !seen.as_str().is_some_and(|s| s.starts_with("error")),
+            "{seen}"
+        );
+        assert_eq!(seen[0], false, "{shape}: the shape chooser is hidden");
+        use base64::Engine as _;
+        let png = seen[1].as_str().unwrap();
+        let bytes = base64::engine::general_purpose::STANDARD
+            .decode(png.trim_start_matches("data:image/png;base64,"))
+            .unwrap();
+        let image = image::load_from_memory(&bytes).unwrap().into_rgb8();
+        // Pixels the shape covers (the background is off: black).
+        let covered = image
+            .pixels()
+            .filter(|p| p.0.iter().any(|c| *c > 8))
+            .count();
+        shown.push(covered);
+        if shape == "object" {
+            browser.screenshot("viewer-object.png");
+        }
+    }
+    // Both drawn, and differently: a block is not a sphere.
+    assert!(shown.iter().all(|c| *c > 500), "{shown:?}");
+    assert!(
+        (shown[0] as f64 - shown[1] as f64).abs() > 0.05 * shown[0] as f64,
+        "the object's picture covers as much as the sphere's: {shown:?}"
     );
 }

@@ -73,20 +73,7 @@ fn outside_validators_accept_the_exports() {
         "{out}"
     );
 
-    let gltf = dir.path().join("result/material.gltf");
-    let o = Command::new("node")
-        .arg(script("validate-gltf.cjs"))
-        .arg(&gltf)
-        .env("NODE_PATH", &modules)
-        .output()
-        .expect("node runs");
-    let (report, err) = text(&o);
-    assert!(o.status.success(), "glTF validator: {report}\n{err}");
-    let report: serde_json::Value = serde_json::from_str(report.trim()).unwrap();
-    assert_eq!(
-        (report["errors"].as_u64(), report["warnings"].as_u64()),
-        (Some(0), Some(0))
-    );
+    validate_gltf(&modules, &dir.path().join("result/material.gltf"));
 
     let mtlx = dir.path().join("result/material.mtlx");
     let o = Command::new(&python)
@@ -97,4 +84,71 @@ fn outside_validators_accept_the_exports() {
     let (said, err) = text(&o);
     assert!(o.status.success(), "MaterialX: {said}\n{err}");
     assert!(said.contains(": valid"), "{said}");
+}
+
+/// The Khronos validator's verdict on a glTF file: no error, no warning.
+fn validate_gltf(modules: &str, gltf: &std::path::Path) {
+    let o = Command::new("node")
+        .arg(script("validate-gltf.cjs"))
+        .arg(gltf)
+        .env("NODE_PATH", modules)
+        .output()
+        .expect("node runs");
+    let (report, err) = text(&o);
+    assert!(o.status.success(), "glTF validator: {report}\n{err}");
+    let report: serde_json::Value = serde_json::from_str(report.trim()).unwrap();
+    assert_eq!(
+        (report["errors"].as_u64(), report["warnings"].as_u64()),
+        (Some(0), Some(0)),
+        "{}: {report}",
+        gltf.display()
+    );
+}
+
+/// On a mesh, `object.gltf` holds the export on the object itself, as the first view saw it:
+/// the validator accepts it, and it carries the mesh's every triangle.
+#[test]
+fn the_export_on_the_object_is_valid_gltf() {
+    let Some((modules, _)) = validators() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let rig =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rigs/simulated-grooved-block.toml");
+    let o = brdfd(
+        &[
+            "capture",
+            "--rig",
+            rig.to_str().unwrap(),
+            "--material",
+            "gold",
+            "--size",
+            "64",
+            "--in-process",
+            "--state-dir",
+            "state",
+            "--out",
+            "result",
+        ],
+        dir.path(),
+    );
+    let (out, err) = text(&o);
+    assert!(o.status.success(), "{out}\n{err}");
+    let object = dir.path().join("result/object.gltf");
+    validate_gltf(&modules, &object);
+    let doc: serde_json::Value = serde_json::from_slice(&std::fs::read(&object).unwrap()).unwrap();
+    let mesh = brdfd_core::mesh::Mesh::read(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("config/geometry/grooved-block.obj"),
+        &brdfd_core::mesh::Placement {
+            units: brdfd_core::mesh::Units::M,
+            rotation_deg: [0.0; 3],
+            position: [0.0; 3],
+        },
+    )
+    .unwrap();
+    assert_eq!(
+        doc["accessors"][0]["count"].as_u64(),
+        Some(3 * mesh.triangles.len() as u64)
+    );
+    assert_eq!(doc["nodes"][0]["name"], "object");
 }

@@ -190,7 +190,13 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         brdfd::panorama::load_envmap(&a.env).with_context(|| "reading the environment map")?;
     let (lights, chosen_lights) =
         env.estimate_lights(a.lights, a.chosen_lights, a.yaw.to_radians());
-    let geometry = a.geometry.scene()?.pixels(photo.width, photo.height)?;
+    let scene = a.geometry.scene()?;
+    let geometry = scene.pixels(photo.width, photo.height)?;
+    // On a mesh, `object.gltf` shows the export on the object.
+    let object = match &scene.shape {
+        Some(shape) => shape.mesh()?,
+        None => None,
+    };
     let model: Model = a.model.into();
     if let Some(warning) = unused_basis_settings(
         model,
@@ -242,6 +248,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         &lights,
         &ReportContext {
             visibility: Visibility::of(&geometry, &lights).as_ref(),
+            object: object.as_ref(),
             title: format!("{} under {}", a.photo.display(), a.env.display()),
             photo: Some(&photo),
             env: Some(&env),

@@ -545,10 +545,12 @@ pub enum ResultFile {
     MaterialX,
     #[serde(rename = "light.hdr")]
     Light,
+    #[serde(rename = "object.gltf")]
+    Object,
 }
 
 impl ResultFile {
-    pub const ALL: [ResultFile; 13] = [
+    pub const ALL: [ResultFile; 14] = [
         ResultFile::Report,
         ResultFile::PreviewPng,
         ResultFile::PreviewScale,
@@ -562,6 +564,7 @@ impl ResultFile {
         ResultFile::Gltf,
         ResultFile::MaterialX,
         ResultFile::Light,
+        ResultFile::Object,
     ];
 
     pub fn named(name: &str) -> Option<ResultFile> {
@@ -583,6 +586,7 @@ impl ResultFile {
             ResultFile::Gltf => "material.gltf",
             ResultFile::MaterialX => "material.mtlx",
             ResultFile::Light => "light.hdr",
+            ResultFile::Object => "object.gltf",
         }
     }
 
@@ -594,7 +598,7 @@ impl ResultFile {
             ResultFile::Coefficients | ResultFile::PreviewScale => "application/json",
             ResultFile::Report => "text/html; charset=utf-8",
             // glTF's registered media type; MaterialX has none, and is XML.
-            ResultFile::Gltf => "model/gltf+json",
+            ResultFile::Gltf | ResultFile::Object => "model/gltf+json",
             ResultFile::MaterialX => "application/xml",
             ResultFile::Light => "image/vnd.radiance",
         }
@@ -620,7 +624,7 @@ impl ResultFile {
             (Object = "model/gltf+json"),
             (String = "application/xml"),
         )),
-        (status = 404, description = "`not_found`: no such session, or no such file in its result (`brdf-sigma.exr` with an uncertainty band, `compare.png` with a photo, `light.hdr` with a capture's map)", body = ErrorBody),
+        (status = 404, description = "`not_found`: no such session, or no such file in its result (`brdf-sigma.exr` with an uncertainty band, `compare.png` with a photo, `light.hdr` with a capture's map, `object.gltf` on a mesh)", body = ErrorBody),
         (status = 409, description = "`not_done`: the session is not done", body = ErrorBody),
     )
 )]

@@ -11,6 +11,7 @@ use base64::Engine as _;
 
 use brdfd_core::analytic::{schlick_weight, Microfacet};
 use brdfd_core::brdf::{from_rusinkiewicz, IsotropicBrdf};
+use brdfd_core::mesh::Mesh;
 use brdfd_core::{CoreError, Result};
 
 use super::fit::Fitted;
@@ -119,39 +120,63 @@ impl GltfMaterial {
 
     /// The document: the material on a unit sphere at the origin, one node, one scene.
     pub fn document(&self, name: &str) -> String {
-        let (buffer, counts) = sphere_buffer();
-        let (vertices, indices) = counts;
+        self.document_on(name, "sphere", &sphere_buffer())
+    }
+
+    /// The document with the material on `mesh` (in the world, as the capture saw it): the
+    /// object itself, for a viewer or a renderer to show.
+    pub fn document_on_mesh(&self, name: &str, mesh: &Mesh) -> String {
+        self.document_on(name, "object", &mesh_buffer(mesh))
+    }
+
+    fn document_on(&self, name: &str, shape: &str, geometry: &Geometry) -> String {
+        let Geometry {
+            buffer,
+            vertices,
+            indices,
+            min,
+            max,
+        } = geometry;
         let positions = vertices * 12;
+        let mut primitive = serde_json::json!({
+            "attributes": { "POSITION": 0, "NORMAL": 1 },
+            "material": 0,
+        });
+        let mut accessors = vec![
+            serde_json::json!({ "bufferView": 0, "componentType": 5126, "count": vertices,
+                                "type": "VEC3", "min": min, "max": max }),
+            serde_json::json!({ "bufferView": 1, "componentType": 5126, "count": vertices,
+                                "type": "VEC3" }),
+        ];
+        let mut views = vec![
+            serde_json::json!({ "buffer": 0, "byteOffset": 0, "byteLength": positions,
+                                "target": 34962 }),
+            serde_json::json!({ "buffer": 0, "byteOffset": positions, "byteLength": positions,
+                                "target": 34962 }),
+        ];
+        if let Some(indices) = indices {
+            primitive["indices"] = 2.into();
+            accessors.push(serde_json::json!({ "bufferView": 2, "componentType": 5123,
+                                               "count": indices, "type": "SCALAR" }));
+            views.push(
+                serde_json::json!({ "buffer": 0, "byteOffset": 2 * positions,
+                                           "byteLength": indices * 2, "target": 34963 }),
+            );
+        }
         let json = serde_json::json!({
             "asset": { "version": "2.0", "generator": concat!("brdfd ", env!("CARGO_PKG_VERSION")) },
             "extensionsUsed": ["KHR_materials_specular", "KHR_materials_ior"],
             "scene": 0,
             "scenes": [{ "name": name, "nodes": [0] }],
-            "nodes": [{ "name": "sphere", "mesh": 0 }],
-            "meshes": [{
-                "name": "sphere",
-                "primitives": [{
-                    "attributes": { "POSITION": 0, "NORMAL": 1 },
-                    "indices": 2,
-                    "material": 0,
-                }],
-            }],
-            "accessors": [
-                { "bufferView": 0, "componentType": 5126, "count": vertices, "type": "VEC3",
-                  "min": [-1.0, -1.0, -1.0], "max": [1.0, 1.0, 1.0] },
-                { "bufferView": 1, "componentType": 5126, "count": vertices, "type": "VEC3" },
-                { "bufferView": 2, "componentType": 5123, "count": indices, "type": "SCALAR" },
-            ],
-            "bufferViews": [
-                { "buffer": 0, "byteOffset": 0, "byteLength": positions, "target": 34962 },
-                { "buffer": 0, "byteOffset": positions, "byteLength": positions, "target": 34962 },
-                { "buffer": 0, "byteOffset": 2 * positions, "byteLength": indices * 2, "target": 34963 },
-            ],
+            "nodes": [{ "name": shape, "mesh": 0 }],
+            "meshes": [{ "name": shape, "primitives": [primitive] }],
+            "accessors": accessors,
+            "bufferViews": views,
             "buffers": [{
                 "byteLength": buffer.len(),
                 "uri": format!(
                     "data:application/octet-stream;base64,{}",
-                    base64::engine::general_purpose::STANDARD.encode(&buffer)
+                    base64::engine::general_purpose::STANDARD.encode(buffer)
                 ),
             }],
             "materials": [{
@@ -205,9 +230,48 @@ fn unrendered(v: &serde_json::Value, at: &str) -> Option<String> {
     None
 }
 
-/// A unit UV sphere: positions (which are also the normals), then normals, then u16 indices;
-/// and (vertices, indices).
-fn sphere_buffer() -> (Vec<u8>, (usize, usize)) {
+/// A glTF buffer of positions, then normals (f32 VEC3, one per vertex), then u16 indices if
+/// any, padded to 4 bytes; with the counts and the positions' bounds glTF asks for.
+struct Geometry {
+    buffer: Vec<u8>,
+    vertices: usize,
+    indices: Option<usize>,
+    min: [f32; 3],
+    max: [f32; 3],
+}
+
+impl Geometry {
+    fn new(points: &[[f32; 3]], normals: &[[f32; 3]], indices: Option<&[u16]>) -> Geometry {
+        let mut buffer = Vec::new();
+        for p in points.iter().chain(normals) {
+            for v in p {
+                buffer.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        for i in indices.unwrap_or(&[]) {
+            buffer.extend_from_slice(&i.to_le_bytes());
+        }
+        // A buffer's length is padded to 4 bytes.
+        while buffer.len() % 4 != 0 {
+            buffer.push(0);
+        }
+        let bound = |f: fn(f32, f32) -> f32, start: f32| {
+            points.iter().fold([start; 3], |acc, p| {
+                std::array::from_fn(|i| f(acc[i], p[i]))
+            })
+        };
+        Geometry {
+            buffer,
+            vertices: points.len(),
+            indices: indices.map(<[u16]>::len),
+            min: bound(f32::min, f32::INFINITY),
+            max: bound(f32::max, f32::NEG_INFINITY),
+        }
+    }
+}
+
+/// A unit UV sphere, its positions also its normals, indexed.
+fn sphere_buffer() -> Geometry {
     let mut points = Vec::with_capacity((RINGS + 1) * (SEGMENTS + 1));
     for r in 0..=RINGS {
         let theta = std::f64::consts::PI * r as f64 / RINGS as f64;
@@ -234,22 +298,38 @@ fn sphere_buffer() -> (Vec<u8>, (usize, usize)) {
             }
         }
     }
-    let mut buffer = Vec::new();
-    for _ in 0..2 {
-        for p in &points {
-            for v in p {
-                buffer.extend_from_slice(&v.to_le_bytes());
-            }
+    Geometry::new(&points, &points, Some(&indices))
+}
+
+/// A mesh as three vertices a triangle, not indexed (a mesh may have more than u16 indexes),
+/// with the file's corner normals, or the face's where it has none.
+fn mesh_buffer(mesh: &Mesh) -> Geometry {
+    let mut points = Vec::with_capacity(3 * mesh.triangles.len());
+    let mut normals = Vec::with_capacity(3 * mesh.triangles.len());
+    for t in 0..mesh.triangles.len() {
+        let corners = mesh.corners(t);
+        let face = {
+            let (a, b, c) = (corners[0], corners[1], corners[2]);
+            let (u, v) = (
+                [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
+                [c[0] - a[0], c[1] - a[1], c[2] - a[2]],
+            );
+            let n = [
+                u[1] * v[2] - u[2] * v[1],
+                u[2] * v[0] - u[0] * v[2],
+                u[0] * v[1] - u[1] * v[0],
+            ];
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().max(1e-30);
+            n.map(|x| x / len)
+        };
+        for k in 0..3 {
+            points.push(corners[k].map(|x| x as f32));
+            let n = mesh.corner_normals.as_ref().map_or(face, |c| c[t][k]);
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().max(1e-30);
+            normals.push(n.map(|x| (x / len) as f32));
         }
     }
-    for i in &indices {
-        buffer.extend_from_slice(&i.to_le_bytes());
-    }
-    // A buffer's length is padded to 4 bytes.
-    while buffer.len() % 4 != 0 {
-        buffer.push(0);
-    }
-    (buffer, (points.len(), indices.len()))
+    Geometry::new(&points, &normals, None)
 }
 
 /// glTF's metallic-roughness BRDF with the specular and IOR extensions, white specular colour:
@@ -324,7 +404,13 @@ mod tests {
 
     #[test]
     fn the_sphere_is_closed_and_its_faces_point_out() {
-        let (buffer, (vertices, indices)) = sphere_buffer();
+        let Geometry {
+            buffer,
+            vertices,
+            indices,
+            ..
+        } = sphere_buffer();
+        let indices = indices.unwrap();
         assert_eq!(
             buffer.len(),
             (vertices * 24 + indices * 2).next_multiple_of(4)

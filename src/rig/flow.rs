@@ -337,8 +337,13 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
     let first = &captured.views[0];
     // Under the candidates' lights, whose visibility the estimate has worked out already.
     let visibility = Visibility::of(&first.geometry, &first.lights);
+    let object = match &s.scene.shape {
+        Some(shape) => shape.mesh()?,
+        None => None,
+    };
     let mut report = report_context(session, &env, &captured, true_brdf.as_ref(), relight);
     report.visibility = visibility.as_ref();
+    report.object = object.as_ref();
     let exports = write_result(session, &basis, &est, &captured.views[0].lights, &report)?;
     phases.end(p);
     say_result(cx, session, &est, captured.views.len(), relight, &exports);
@@ -726,6 +731,7 @@ fn report_context<'a>(
         truth,
         fallback: captured.fallback.clone(),
         visibility: None,
+        object: None,
         record: vec![
             ("session".into(), m.id.clone()),
             ("material".into(), m.material.clone()),

@@ -2,8 +2,8 @@
 // an environment map (the capture's light, or one of the four reference maps), turned by the
 // mouse, beside the photo. Everything comes from the daemon: the library is compiled into it.
 //
-// The address says what to show: `?session=ID`, and optionally `map=NAME` (`capture` or a
-// reference map), `turn=DEGREES` (the light about +Y), `background=off`, `camera=orthographic`
+// The address says what to show: `?session=ID`, and optionally `shape=object` (the export on
+// the session's mesh, where it has one), `map=NAME` (`capture` or a reference map), `turn=DEGREES` (the light about +Y), `background=off`, `camera=orthographic`
 // (the view brdfd's own renders use: the unit sphere filling the frame, looking down −Z) and
 // `exposure=X` (linear radiance × X is shown as white; otherwise from the map's mean).
 //
@@ -497,16 +497,41 @@ async function main() {
     fresnelMean: { value: fresnelMeans() },
   };
 
-  const gltf = await new GLTFLoader().loadAsync(`${base}/material.gltf`);
-  gltf.scene.traverse((o) => {
-    if (!o.isMesh) return;
-    o.material = new THREE.ShaderMaterial({
-      uniforms: { ...lighting, ...brdfUniforms(o.material) },
-      vertexShader: SPHERE_VERTEX,
-      fragmentShader: SPHERE_FRAGMENT,
+  // A glTF file's meshes, each shaded with its own material's BRDF.
+  async function shaded(url) {
+    const gltf = await new GLTFLoader().loadAsync(url);
+    gltf.scene.traverse((o) => {
+      if (!o.isMesh) return;
+      o.material = new THREE.ShaderMaterial({
+        uniforms: { ...lighting, ...brdfUniforms(o.material) },
+        vertexShader: SPHERE_VERTEX,
+        fragmentShader: SPHERE_FRAGMENT,
+      });
     });
-  });
-  scene.add(gltf.scene);
+    return gltf.scene;
+  }
+  const sphere = await shaded(`${base}/material.gltf`);
+  scene.add(sphere);
+  // On a mesh, the export on the object too (`object.gltf`), in the world the capture saw it
+  // in, so that under the capture's light it is lit as it was at the bench. It is scaled to
+  // the sphere's frame, not turned. Its own shadows and reflections on itself are not drawn.
+  let object = null;
+  const hasObject = (await fetch(`${base}/object.gltf`, { method: "HEAD", credentials: "same-origin" })).ok;
+  $("shape-label").hidden = !hasObject;
+  async function useShape() {
+    const wantObject = hasObject && $("shape").value === "object";
+    if (wantObject && !object) {
+      object = await shaded(`${base}/object.gltf`);
+      const bounds = new THREE.Box3().setFromObject(object).getBoundingSphere(new THREE.Sphere());
+      const scale = 1 / Math.max(bounds.radius, 1e-9);
+      object.scale.setScalar(scale);
+      object.position.copy(bounds.center).multiplyScalar(-scale);
+      scene.add(object);
+    }
+    sphere.visible = !wantObject;
+    if (object) object.visible = wantObject;
+    draw();
+  }
 
   const background = new THREE.Mesh(
     new THREE.PlaneGeometry(2, 2),
@@ -547,6 +572,7 @@ async function main() {
   const wanted = params.get("map");
   if (wanted && maps.some(([n]) => n === wanted)) $("map").value = wanted;
   if (params.get("background") === "off") $("background").checked = false;
+  if (params.get("shape") === "object") $("shape").value = "object";
   $("turn").value = Number(params.get("turn")) || 0;
 
   // Frames are drawn when something changes: each costs SAMPLES map reads per pixel.
@@ -605,7 +631,9 @@ async function main() {
   $("map").addEventListener("change", () => useMap().catch(showError));
   $("background").addEventListener("change", () => useMap().catch(showError));
   $("turn").addEventListener("input", turn);
+  $("shape").addEventListener("change", () => useShape().catch(showError));
   controls.addEventListener("change", draw);
+  await useShape();
   await useMap();
 }
 
