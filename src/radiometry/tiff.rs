@@ -314,6 +314,11 @@ impl Walk<'_> {
             let (Some(offsets), Some(counts)) = (find(offsets), find(counts)) else {
                 continue;
             };
+            // Only types with a size: their counts were checked against the file's length,
+            // so this loop is no longer than the file (an unknown type's count is anything).
+            if type_size(offsets.kind) == 0 || type_size(counts.kind) == 0 {
+                continue;
+            }
             for k in 0..offsets.count.min(counts.count) as usize {
                 let (Some(o), Some(c)) = (self.value(t, offsets, k), self.value(t, counts, k))
                 else {
