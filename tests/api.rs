@@ -178,12 +178,14 @@ fn the_openapi_description_is_the_live_api() {
                 }
                 if path.contains("{file}") {
                     // The session's object is a sphere, which hides nothing from itself: the
-                    // visibility picture is written for a mesh only.
-                    let expected = if url.ends_with("/visibility.png") {
-                        404
-                    } else {
-                        200
-                    };
+                    // visibility picture and the export on the object are written for a mesh
+                    // only.
+                    let expected =
+                        if url.ends_with("/visibility.png") || url.ends_with("/object.gltf") {
+                            404
+                        } else {
+                            200
+                        };
                     assert_eq!(status, expected, "{url}: a listed result file is missing");
                 }
             }

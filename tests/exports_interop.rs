@@ -49,24 +49,7 @@ fn outside_validators_accept_the_exports() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let o = brdfd(
-        &[
-            "capture",
-            "--simulate",
-            "--material",
-            "gold",
-            "--size",
-            "64",
-            "--in-process",
-            "--state-dir",
-            "state",
-            "--out",
-            "result",
-        ],
-        dir.path(),
-    );
-    let (out, err) = text(&o);
-    assert!(o.status.success(), "{out}\n{err}");
+    let out = capture_gold(dir.path(), &["--simulate"]);
     // The summary names the exports' verdict with its figure.
     assert!(
         out.contains("material.gltf, material.mtlx: relit "),
@@ -84,6 +67,28 @@ fn outside_validators_accept_the_exports() {
     let (said, err) = text(&o);
     assert!(o.status.success(), "MaterialX: {said}\n{err}");
     assert!(said.contains(": valid"), "{said}");
+}
+
+/// `brdfd capture` of gold at 64² in-process, on the rig `rig_args` name, its results copied
+/// to `dir/result`; what it printed.
+fn capture_gold(dir: &Path, rig_args: &[&str]) -> String {
+    let mut args = vec!["capture"];
+    args.extend(rig_args);
+    args.extend([
+        "--material",
+        "gold",
+        "--size",
+        "64",
+        "--in-process",
+        "--state-dir",
+        "state",
+        "--out",
+        "result",
+    ]);
+    let o = brdfd(&args, dir);
+    let (out, err) = text(&o);
+    assert!(o.status.success(), "{out}\n{err}");
+    out
 }
 
 /// The Khronos validator's verdict on a glTF file: no error, no warning.
@@ -115,25 +120,7 @@ fn the_export_on_the_object_is_valid_gltf() {
     let dir = tempfile::tempdir().unwrap();
     let rig =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rigs/simulated-grooved-block.toml");
-    let o = brdfd(
-        &[
-            "capture",
-            "--rig",
-            rig.to_str().unwrap(),
-            "--material",
-            "gold",
-            "--size",
-            "64",
-            "--in-process",
-            "--state-dir",
-            "state",
-            "--out",
-            "result",
-        ],
-        dir.path(),
-    );
-    let (out, err) = text(&o);
-    assert!(o.status.success(), "{out}\n{err}");
+    capture_gold(dir.path(), &["--rig", rig.to_str().unwrap()]);
     let object = dir.path().join("result/object.gltf");
     validate_gltf(&modules, &object);
     let doc: serde_json::Value = serde_json::from_slice(&std::fs::read(&object).unwrap()).unwrap();
