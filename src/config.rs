@@ -723,6 +723,9 @@ fn check_exposures(file: &str, field: &str, values: &[f64]) -> Result<(), Config
     Ok(())
 }
 
+/// Shortest token accepted when the API listens beyond loopback.
+pub const MIN_TOKEN_CHARS: usize = 16;
+
 impl DaemonConfig {
     pub fn parse(file: &str, text: &str) -> Result<DaemonConfig, ConfigError> {
         let c: DaemonConfig = parse(file, text)?;
@@ -740,12 +743,32 @@ impl DaemonConfig {
                 format!("{:?} is not IP:PORT ({e})", self.api),
             )
         })?;
-        if !addr.ip().is_loopback() && self.token.as_deref().is_none_or(str::is_empty) {
-            return Err(invalid(
-                source,
-                "api",
-                format!("{addr} is reachable from other machines: set `token` too"),
-            ));
+        if !addr.ip().is_loopback() {
+            let token = self.token.as_deref().unwrap_or("");
+            if token.is_empty() {
+                return Err(invalid(
+                    source,
+                    "api",
+                    format!("{addr} is reachable from other machines: set `token` too"),
+                ));
+            }
+            // Guessable from another machine in hours at the rate a daemon answers: a floor,
+            // not a measure of randomness.
+            let distinct = token
+                .chars()
+                .collect::<std::collections::HashSet<_>>()
+                .len();
+            if token.chars().count() < MIN_TOKEN_CHARS || distinct < 8 {
+                return Err(invalid(
+                    source,
+                    "token",
+                    format!(
+                        "too weak for an API reachable from other machines ({addr}): use at \
+                         least {MIN_TOKEN_CHARS} characters, not a word or a repeated one, \
+                         for example the output of `openssl rand -hex 16`"
+                    ),
+                ));
+            }
         }
         Ok(addr)
     }
@@ -1014,6 +1037,26 @@ mod tests {
             e.contains("field `api`") && e.contains("set `token`"),
             "{e}"
         );
+        // Issue 40: beyond loopback, a token has a strength floor.
+        for weak in ["secret", "aaaaaaaaaaaaaaaaaaaa", "abababababababababab"] {
+            let e = DaemonConfig::parse(
+                "b.toml",
+                &format!("api = \"0.0.0.0:7878\"\ntoken = \"{weak}\"\n"),
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(
+                e.contains("field `token`") && e.contains("too weak"),
+                "{weak}: {e}"
+            );
+        }
+        DaemonConfig::parse(
+            "b.toml",
+            "api = \"0.0.0.0:7878\"\ntoken = \"3f9c2a7e5b1d8046c7e2\"\n",
+        )
+        .unwrap();
+        // On loopback a short token is the user's choice.
+        DaemonConfig::parse("b.toml", "token = \"secret\"\n").unwrap();
         let rig = include_str!("../config/rigs/bench.toml").replace("usb:04b0:0429", "usb:nikon");
         let e = Rig::parse("r.toml", &rig).unwrap_err().to_string();
         assert!(
