@@ -941,3 +941,60 @@ fn event_streams_leave_connections_for_health_and_cancel() {
     assert_eq!(status, 202, "{body}");
     drop(again);
 }
+
+/// Issue 40: 1,900 token guesses a second went unhindered. Five wrong tokens from an address
+/// are free (a person mistyping); then each locks the address out for a delay that doubles,
+/// answered 429 with `Retry-After` even for the right token, through the API and the sign-in
+/// form alike; once it has passed, the right token works and clears the address.
+#[test]
+fn wrong_tokens_lock_their_address_out_for_a_growing_delay() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("brdfd.toml"),
+        "api = \"127.0.0.1:7878\"\ntoken = \"correct horse\"\n",
+    )
+    .unwrap();
+    let daemon = Daemon::start(
+        &dir.path().join("state"),
+        &[
+            "--simulate",
+            "--config",
+            dir.path().join("brdfd.toml").to_str().unwrap(),
+        ],
+    );
+    let client = reqwest::blocking::Client::new();
+    let url = format!("http://{}/api/v1/health", daemon.addr);
+    let with = |token: &str| client.get(&url).bearer_auth(token).send().unwrap();
+    // Asking without a token guesses nothing.
+    for _ in 0..10 {
+        assert_eq!(client.get(&url).send().unwrap().status().as_u16(), 401);
+    }
+    for guess in 0..6 {
+        assert_eq!(
+            with(&format!("guess {guess}")).status().as_u16(),
+            401,
+            "{guess}"
+        );
+    }
+    let locked = with("correct horse");
+    assert_eq!(locked.status().as_u16(), 429);
+    let wait: u64 = locked.headers()["retry-after"]
+        .to_str()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!((1..=60).contains(&wait), "{wait}");
+    // The sign-in form is locked out too.
+    let form = client
+        .post(format!("http://{}/login", daemon.addr))
+        .header("content-type", "application/x-www-form-urlencoded")
+        .body("token=correct+horse")
+        .send()
+        .unwrap();
+    assert_eq!(form.status().as_u16(), 429);
+    std::thread::sleep(Duration::from_secs(wait));
+    assert_eq!(with("correct horse").status().as_u16(), 200);
+    // Cleared: the next mistake is free again.
+    assert_eq!(with("guess again").status().as_u16(), 401);
+    assert_eq!(with("correct horse").status().as_u16(), 200);
+}

@@ -150,8 +150,37 @@ pub fn router(daemon: Shared) -> Router {
         .with_state(daemon)
 }
 
+/// The client's address, as the server recorded it for the connection.
+pub(crate) fn peer_ip(extensions: &axum::http::Extensions) -> Option<std::net::IpAddr> {
+    extensions
+        .get::<axum::extract::ConnectInfo<std::net::SocketAddr>>()
+        .map(|c| c.0.ip())
+}
+
+/// 429 while an address is locked out for wrong tokens ([`super::throttle`]).
+pub(crate) fn locked_out(wait: std::time::Duration) -> Response {
+    let seconds = wait.as_secs_f64().ceil().max(1.0) as u64;
+    let mut response = ApiError(
+        StatusCode::TOO_MANY_REQUESTS,
+        "too_many_attempts",
+        format!(
+            "too many wrong tokens from this address; try again in {seconds} s (the token is \
+             the `token` in the daemon's brdfd.toml)"
+        ),
+    )
+    .into_response();
+    response
+        .headers_mut()
+        .insert(header::RETRY_AFTER, seconds.into());
+    response
+}
+
 async fn require_token(State(d): State<Shared>, req: Request, next: Next) -> Response {
     if let Some(token) = &d.token {
+        let ip = peer_ip(req.extensions());
+        if let Some(Err(wait)) = ip.map(|ip| d.throttle.check(ip)) {
+            return locked_out(wait);
+        }
         let given = req
             .headers()
             .get(header::AUTHORIZATION)
@@ -160,7 +189,16 @@ async fn require_token(State(d): State<Shared>, req: Request, next: Next) -> Res
             .map(|g| g.as_bytes().to_vec())
             // The web page's sign-in cookie (see [`web`]).
             .or_else(|| web::token_from_cookie(req.headers()));
+        let guessed = given.is_some();
         let ok = given.is_some_and(|g| web::same_secret(&g, token.as_bytes()));
+        // Only a token given counts: a page loading before its sign-in guesses nothing.
+        if let (Some(ip), true) = (ip, guessed) {
+            if ok {
+                d.throttle.succeeded(ip);
+            } else {
+                d.throttle.failed(ip);
+            }
+        }
         if !ok {
             return ApiError(
                 StatusCode::UNAUTHORIZED,

@@ -8,6 +8,7 @@
 pub mod api;
 pub mod openapi;
 pub mod server;
+pub mod throttle;
 pub mod web;
 
 use std::collections::VecDeque;
@@ -130,6 +131,8 @@ pub struct Daemon {
     /// that, at most [`MAX_EVENT_STREAMS`]): streams stay open for a whole capture, and must
     /// leave connections for `/health` and a cancel.
     pub max_event_streams: usize,
+    /// Wrong tokens per address, and the lockouts they earn.
+    pub(crate) throttle: throttle::Throttle,
 }
 
 /// Event streams at most, whatever the connection cap: a bench has a few clients.
@@ -263,6 +266,7 @@ impl Daemon {
             events: Mutex::new(VecDeque::new()),
             event_streams: Arc::default(),
             max_event_streams: MAX_EVENT_STREAMS,
+            throttle: throttle::Throttle::default(),
         })
     }
 

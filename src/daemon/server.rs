@@ -148,6 +148,7 @@ pub async fn serve(
         let service = Counted {
             app: app.clone(),
             in_flight,
+            peer,
         };
         let (open, mut stop, limits) = (open.clone(), stop_rx.clone(), limits.clone());
         tasks.spawn(async move {
@@ -212,6 +213,8 @@ fn make_room(open: &Mutex<Vec<Open>>, cap: usize) -> bool {
 struct Counted {
     app: Router,
     in_flight: Arc<AtomicUsize>,
+    /// The client's address, for the routes (`ConnectInfo`): the token's throttle.
+    peer: std::net::SocketAddr,
 }
 
 impl tower::Service<Request<hyper::body::Incoming>> for Counted {
@@ -226,8 +229,11 @@ impl tower::Service<Request<hyper::body::Incoming>> for Counted {
     fn call(&mut self, req: Request<hyper::body::Incoming>) -> Self::Future {
         let guard = InFlight::new(self.in_flight.clone());
         let app = self.app.clone();
+        let mut req = req.map(Body::new);
+        req.extensions_mut()
+            .insert(axum::extract::ConnectInfo(self.peer));
         Box::pin(async move {
-            let response = tower::ServiceExt::oneshot(app, req.map(Body::new)).await?;
+            let response = tower::ServiceExt::oneshot(app, req).await?;
             Ok(response.map(|body| {
                 Body::new(Guarded {
                     body,

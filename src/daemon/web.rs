@@ -135,13 +135,29 @@ pub async fn map(Path(file): Path<String>) -> Response {
 
 /// `POST /login` with the form field `token`: a matching token sets the cookie and returns to
 /// the page; another gets 401 and a line saying so.
-pub async fn login(State(d): State<Shared>, body: Bytes) -> Response {
+pub async fn login(
+    State(d): State<Shared>,
+    extensions: axum::http::Extensions,
+    body: Bytes,
+) -> Response {
     let Some(token) = &d.token else {
         // No token configured: nothing to sign in to.
         return Redirect::to("/").into_response();
     };
+    let ip = super::api::peer_ip(&extensions);
+    if let Some(Err(wait)) = ip.map(|ip| d.throttle.check(ip)) {
+        return super::api::locked_out(wait);
+    }
     let given = form_field(&body, "token").unwrap_or_default();
-    if !same_secret(given.as_bytes(), token.as_bytes()) {
+    let ok = same_secret(given.as_bytes(), token.as_bytes());
+    if let Some(ip) = ip {
+        if ok {
+            d.throttle.succeeded(ip);
+        } else {
+            d.throttle.failed(ip);
+        }
+    }
+    if !ok {
         return (
             StatusCode::UNAUTHORIZED,
             Html(
