@@ -494,6 +494,25 @@ fn linear(v: u8) -> f64 {
     }
 }
 
+/// The 3D view's first frame, once drawn (or the page's error, as a failure).
+fn viewer_frame(browser: &Browser) -> image::RgbImage {
+    let png = browser.wait_for(
+        "the viewer's first frame",
+        "const e = document.getElementById('error');
+         if (!e.hidden) return 'error: ' + e.textContent;
+         if (document.body.dataset.rendered !== '1') return null;
+         return document.getElementById('view').toDataURL('image/png');",
+        Duration::from_secs(60),
+    );
+    let png = png.as_str().unwrap();
+    assert!(!png.starts_with("error"), "{png}");
+    use base64::Engine as _;
+    let bytes = base64::engine::general_purpose::STANDARD
+        .decode(png.trim_start_matches("data:image/png;base64,"))
+        .unwrap();
+    image::load_from_memory(&bytes).unwrap().into_rgb8()
+}
+
 #[test]
 fn the_viewer_shows_the_export_as_brdfd_renders_it() {
     if !browser_present() {
@@ -553,21 +572,7 @@ fn the_viewer_shows_the_export_as_brdfd_renders_it() {
             "http://{}/viewer.html?session={id}&map=courtyard&camera=orthographic&background=off&size={SIZE}&exposure={exposure}&turn={turn}",
             daemon.addr
         ));
-        let png = browser.wait_for(
-            "the viewer's first frame",
-            "const e = document.getElementById('error');
-             if (!e.hidden) return 'error: ' + e.textContent;
-             if (document.body.dataset.rendered !== '1') return null;
-             return document.getElementById('view').toDataURL('image/png');",
-            Duration::from_secs(60),
-        );
-        let png = png.as_str().unwrap();
-        assert!(!png.starts_with("error"), "{png}");
-        use base64::Engine as _;
-        let bytes = base64::engine::general_purpose::STANDARD
-            .decode(png.trim_start_matches("data:image/png;base64,"))
-            .unwrap();
-        let theirs = image::load_from_memory(&bytes).unwrap().into_rgb8();
+        let theirs = viewer_frame(&browser);
         assert_eq!(theirs.dimensions(), (SIZE as u32, SIZE as u32));
         let (mut diff, mut norm, mut ab) = (0.0, 0.0, 0.0);
         for y in 0..SIZE {
@@ -636,26 +641,12 @@ fn the_viewer_shows_the_export_on_the_sessions_mesh() {
             "http://{}/viewer.html?session={id}&shape={shape}&map=courtyard&background=off&size=128",
             daemon.addr
         ));
-        let seen = browser.wait_for(
-            "the viewer's first frame",
-            "const e = document.getElementById('error');
-             if (!e.hidden) return 'error: ' + e.textContent;
-             if (document.body.dataset.rendered !== '1') return null;
-             return [document.getElementById('shape-label').hidden,
-                     document.getElementById('view').toDataURL('image/png')];",
-            Duration::from_secs(60),
+        let image = viewer_frame(&browser);
+        let hidden = browser.run(
+            "return document.getElementById('shape-label').hidden;",
+            json!([]),
         );
-        assert!(
-            !seen.as_str().is_some_and(|s| s.starts_with("error")),
-            "{seen}"
-        );
-        assert_eq!(seen[0], false, "{shape}: the shape chooser is hidden");
-        use base64::Engine as _;
-        let png = seen[1].as_str().unwrap();
-        let bytes = base64::engine::general_purpose::STANDARD
-            .decode(png.trim_start_matches("data:image/png;base64,"))
-            .unwrap();
-        let image = image::load_from_memory(&bytes).unwrap().into_rgb8();
+        assert_eq!(hidden, false, "{shape}: the shape chooser is hidden");
         // Pixels the shape covers (the background is off: black).
         let covered = image
             .pixels()

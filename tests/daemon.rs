@@ -398,22 +398,27 @@ fn sigterm_cancels_the_capture_and_stops_the_daemon() {
     );
 }
 
-#[test]
-fn a_configured_token_is_required_and_other_machines_need_one() {
-    let dir = tempfile::tempdir().unwrap();
+/// A simulated daemon whose brdfd.toml (in `dir`) sets the token "correct horse".
+fn with_token(dir: &std::path::Path) -> Daemon {
     std::fs::write(
-        dir.path().join("brdfd.toml"),
+        dir.join("brdfd.toml"),
         "api = \"127.0.0.1:7878\"\ntoken = \"correct horse\"\n",
     )
     .unwrap();
-    let daemon = Daemon::start(
-        &dir.path().join("state"),
+    Daemon::start(
+        &dir.join("state"),
         &[
             "--simulate",
             "--config",
-            dir.path().join("brdfd.toml").to_str().unwrap(),
+            dir.join("brdfd.toml").to_str().unwrap(),
         ],
-    );
+    )
+}
+
+#[test]
+fn a_configured_token_is_required_and_other_machines_need_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = with_token(dir.path());
     let (status, body) = daemon.get("/health");
     assert_eq!(
         (status, body["error"].as_str()),
@@ -949,19 +954,7 @@ fn event_streams_leave_connections_for_health_and_cancel() {
 #[test]
 fn wrong_tokens_lock_their_address_out_for_a_growing_delay() {
     let dir = tempfile::tempdir().unwrap();
-    std::fs::write(
-        dir.path().join("brdfd.toml"),
-        "api = \"127.0.0.1:7878\"\ntoken = \"correct horse\"\n",
-    )
-    .unwrap();
-    let daemon = Daemon::start(
-        &dir.path().join("state"),
-        &[
-            "--simulate",
-            "--config",
-            dir.path().join("brdfd.toml").to_str().unwrap(),
-        ],
-    );
+    let daemon = with_token(dir.path());
     let client = reqwest::blocking::Client::new();
     let url = format!("http://{}/api/v1/health", daemon.addr);
     let with = |token: &str| client.get(&url).bearer_auth(token).send().unwrap();

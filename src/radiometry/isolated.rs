@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 
 use brdfd_core::raster::Raster;
 
-use super::raw::WhiteBalance;
+use super::raw::{decode_error, WhiteBalance};
 use super::{Exposure, Frame, RadiometryError};
 
 /// The program that decodes: `<program> decode-raw`.
@@ -60,13 +60,6 @@ impl Budget {
 const TAG: &[u8; 8] = b"BRDFDFR1";
 /// What a child exits with when the file cannot be decoded (its reason on stderr).
 pub const UNDECODABLE: i32 = 3;
-
-fn decode_error(file: &str, reason: impl std::fmt::Display) -> RadiometryError {
-    RadiometryError::Decode {
-        file: file.into(),
-        reason: reason.to_string(),
-    }
-}
 
 /// Decodes `bytes` in a child of `program` within `budget`.
 pub fn decode(

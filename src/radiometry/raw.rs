@@ -48,7 +48,7 @@ pub enum WhiteBalance {
     Fixed([f32; 3]),
 }
 
-fn decode_error(file: &str, reason: impl std::fmt::Display) -> RadiometryError {
+pub(super) fn decode_error(file: &str, reason: impl std::fmt::Display) -> RadiometryError {
     RadiometryError::Decode {
         file: file.into(),
         reason: reason.to_string(),
