@@ -107,6 +107,13 @@ fn simulated_capture_prints_coefficients() {
     ] {
         assert!(dir.path().join("result").join(f).is_file(), "{f} missing");
     }
+    // The panorama says it is one in OpenEXR's own terms (issue 42): `envmap` = latlong.
+    let pano =
+        exr::meta::MetaData::read_from_file(dir.path().join("result/panorama.exr"), false).unwrap();
+    assert_eq!(
+        pano.headers[0].own_attributes.environment_map,
+        Some(exr::meta::attribute::EnvironmentMap::LatitudeLongitude)
+    );
     // The preview is 512², on the scale written beside it.
     let preview = image::open(dir.path().join("result/preview.png")).unwrap();
     assert_eq!((preview.width(), preview.height()), (512, 512));
@@ -266,6 +273,11 @@ fn estimate_from_files() {
         let o = brdfd(&args, dir.path());
         let (stdout, stderr) = text(&o);
         assert!(o.status.success(), "{stdout}\n{stderr}");
+        // Every file it wrote, the report first (issue 42).
+        assert!(
+            stdout.contains(&format!("files in {out}: report.html, coefficients.json, ")),
+            "{stdout}"
+        );
         coefficients_json(dir.path(), out)
     };
     // The paper's colour model first; the default (auto) is checked against it below.
@@ -275,7 +287,7 @@ fn estimate_from_files() {
     assert_eq!(json["format"], "brdfd-coefficients");
     assert!(json.get("session").is_none(), "no session for files");
     // Outside brdfd, the exported basis turns the coefficients back into the estimate's BRDF:
-    // f = Σ coefficientⱼ · layer(columnⱼ), with `mean` and `pc01`… as docs/formats.md says
+    // f = Σ coefficientⱼ · part(columnⱼ), with `mean` and `pc01`… as docs/formats.md says
     // (this basis's mean is a column, not an offset: its header's normalisation is `rms`).
     let o = brdfd(&["basis", "export", "--out", "exported"], dir.path());
     assert!(o.status.success(), "{:?}", text(&o));
@@ -284,6 +296,14 @@ fn estimate_from_files() {
             .unwrap();
     assert_eq!(header["normalisation"], "rms");
     let layers = exr_layers(&dir.path().join("exported.exr"));
+    // A multi-part OpenEXR, one part per vector (issue 42): the mean, K components and the
+    // 90 training materials' atoms.
+    let meta = exr::meta::MetaData::read_from_file(dir.path().join("exported.exr"), false).unwrap();
+    assert!(meta.requirements.has_multiple_layers);
+    assert_eq!((meta.headers.len(), layers.len()), (96, 96));
+    assert!(["mean", "pc01", "pc05"]
+        .iter()
+        .all(|p| layers.contains_key(*p)));
     let mut rebuilt = vec![[0f64; 3]; 90 * 90];
     let names = json["columns"].as_array().unwrap();
     for (name, c) in names.iter().zip(json["coefficients"].as_array().unwrap()) {
@@ -986,6 +1006,13 @@ fn the_relighting_table_reproduces_from_one_command() {
             dir.path(),
         );
         assert!(o.status.success(), "{:?}", text(&o));
+        // Runs take minutes: each material is said as it begins (issue 42).
+        let progress = text(&o).1;
+        assert!(
+            progress.contains("relighting: 1 of 2, nickel")
+                && progress.contains("relighting: 2 of 2, ggx-steel-mid"),
+            "{progress}"
+        );
         std::fs::read_to_string(dir.path().join(out).join("relight.csv")).unwrap()
     };
     let (a, b) = (run("a"), run("b"));

@@ -14,7 +14,10 @@ pub enum BasisCommand {
     /// Build a basis from MERL .binary files or an NBRDF file.
     Build(BuildArgs),
     /// Print a basis header (the embedded default if no path is given).
-    Show { path: Option<PathBuf> },
+    Show {
+        /// The basis (a `.exr` with its `.json` beside it).
+        path: Option<PathBuf>,
+    },
     /// Write a basis (the embedded default unless --basis names one) as `STEM.exr` and
     /// `STEM.json`, so that an estimate's coefficients can be turned back into a BRDF outside
     /// brdfd (docs/formats.md describes both files).
@@ -43,21 +46,30 @@ pub struct BuildArgs {
     /// Materials: `training` (all but the 10 test materials), `all`, or a comma-separated list.
     #[arg(long, default_value = "training")]
     pub materials: String,
+    /// Principal components to keep.
     #[arg(short, long, default_value_t = DEFAULT_K)]
     pub k: usize,
+    /// `rms` divides each material by its RMS so that every one weighs the same (the paper's
+    /// choice); `none` lets specular materials dominate the components.
     #[arg(long, value_enum, default_value = "rms")]
     pub normalisation: NormArg,
+    /// Per-cell weight before the PCA: `solid-angle` weighs cells as they weigh in images;
+    /// `none` lets the specular peak and grazing cells dominate.
     #[arg(long, value_enum, default_value = "solid-angle")]
     pub cell_weight: WeightArg,
     /// Build without a mean term.
     #[arg(long)]
     pub no_mean: bool,
+    /// θh bins: `sqrt` (MERL's, uniform in √θh: fine near the specular peak) or `uniform`
+    /// (1° each).
     #[arg(long, value_enum, default_value = "sqrt")]
     pub theta_h: BinArg,
+    /// How φd is reduced: `valid-mean` (the mean over the measured cells) or `slice90` (the
+    /// φd = 90° slice).
     #[arg(long, value_enum, default_value = "valid-mean")]
     pub phi: PhiArg,
     /// Output stem: writes STEM.exr and STEM.json.
-    #[arg(long)]
+    #[arg(short, long)]
     pub out: PathBuf,
 }
 

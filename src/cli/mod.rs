@@ -10,6 +10,7 @@ mod decode_raw;
 mod devices_cmd;
 mod estimate_cmd;
 mod geometry_args;
+mod man_cmd;
 mod perf;
 mod perf_ptp;
 mod pose_cmd;
@@ -21,6 +22,8 @@ mod serve;
 mod session_cmd;
 mod sim;
 mod theta_cmd;
+#[cfg(test)]
+mod tree_check;
 mod v4l_cmd;
 
 use std::path::PathBuf;
@@ -40,8 +43,11 @@ pub struct Cli {
     pub command: Command,
 }
 
+// `--help` lists them in this order: `capture` first, as what a new user comes for.
 #[derive(Subcommand)]
 pub enum Command {
+    /// Capture a material at the bench and estimate its BRDF (in the daemon if one runs).
+    Capture(capture::CaptureArgs),
     /// Build or inspect PCA bases.
     Basis {
         #[command(subcommand)]
@@ -54,8 +60,6 @@ pub enum Command {
     /// Run the evaluation (the paper's protocol, or relighting with --relight) on reference data
     /// and write tables and figures (docs/evaluation.md describes both).
     Eval(EvalArgs),
-    /// Capture a material at the bench and estimate its BRDF (in the daemon if one runs).
-    Capture(capture::CaptureArgs),
     /// Calibrate the rig: each camera's gain from a grey card, the object camera's pose from
     /// a printed board.
     Calibrate {
@@ -97,14 +101,16 @@ pub enum Command {
     Devices(devices_cmd::DevicesArgs),
     /// Print a shell completion script, e.g. `brdfd completions bash > ~/.local/share/bash-completion/completions/brdfd`.
     Completions {
+        /// The shell to write the script for.
         #[arg(value_enum)]
         shell: clap_complete::Shell,
     },
-    /// Write man pages (brdfd.1 and one per subcommand) into a folder.
-    Man {
-        #[arg(long, default_value = "man")]
-        out: PathBuf,
-    },
+    /// Write man pages (brdfd.1 and one per subcommand), by default into the user's man path.
+    ///
+    /// With no folder they go to $XDG_DATA_HOME/man/man1, else ~/.local/share/man/man1, where
+    /// `man brdfd` and the systemd unit's `man:brdfd-serve(1)` find them (man-db searches it
+    /// when ~/.local/bin is on PATH; else add it to MANPATH, as the command then says).
+    Man(man_cmd::ManArgs),
     /// Run a simulated device until stopped.
     Sim {
         #[command(subcommand)]
@@ -122,7 +128,7 @@ pub struct EvalArgs {
     #[arg(long, env = "BRDFD_DATA")]
     pub data: PathBuf,
     /// Where the tables and figures go.
-    #[arg(long, default_value = "eval")]
+    #[arg(short, long, default_value = "eval")]
     pub out: PathBuf,
     /// Image size of the evaluation sphere, in pixels.
     #[arg(long, default_value_t = 256, value_parser = image_size)]
@@ -198,6 +204,23 @@ pub fn write_new(dir: &std::path::Path, name: &str, bytes: &[u8]) -> anyhow::Res
     unreachable!("an unbounded range ends only by returning")
 }
 
+/// An evaluation's progress, a line on stderr as each material (or variant) begins: the runs
+/// take 5 to 25 minutes, and stdout is kept for the report.
+fn eval_progress(start: std::time::Instant) -> impl Fn(brdfd_eval::Progress) {
+    move |p| {
+        let s = start.elapsed().as_secs();
+        eprintln!(
+            "[{:2}:{:02}] {}: {} of {}, {}",
+            s / 60,
+            s % 60,
+            p.stage,
+            p.index,
+            p.total,
+            p.item
+        );
+    }
+}
+
 impl Command {
     /// Whether the command only reports: ended by SIGPIPE when its reader goes away, rather
     /// than going on (a capture, the daemon, a simulator).
@@ -215,7 +238,7 @@ impl Command {
             Command::Config { .. }
             | Command::Devices(_)
             | Command::Completions { .. }
-            | Command::Man { .. } => true,
+            | Command::Man(_) => true,
             _ => false,
         }
     }
@@ -227,26 +250,32 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Estimate(a) => estimate_cmd::estimate(a),
         Command::Render(a) => estimate_cmd::render(a),
         Command::Eval(a) if a.relight => {
-            let report = brdfd_eval::relight::run(&brdfd_eval::relight::RelightConfig {
-                data: a.data,
-                out: a.out,
-                size: a.size,
-                capture_maps: a.capture,
-                materials: a.materials,
-                leave_one_out: a.leave_one_out,
-            })?;
+            let report = brdfd_eval::relight::run(
+                &brdfd_eval::relight::RelightConfig {
+                    data: a.data,
+                    out: a.out,
+                    size: a.size,
+                    capture_maps: a.capture,
+                    materials: a.materials,
+                    leave_one_out: a.leave_one_out,
+                },
+                &eval_progress(std::time::Instant::now()),
+            )?;
             println!("{report}");
             Ok(())
         }
         Command::Eval(a) => {
-            let report = brdfd_eval::paper::run(&brdfd_eval::paper::EvalConfig {
-                data: a.data,
-                out: a.out,
-                size: a.size,
-                leave_one_out: !a.no_loo,
-                choices: a.choices,
-                k: a.k,
-            })?;
+            let report = brdfd_eval::paper::run(
+                &brdfd_eval::paper::EvalConfig {
+                    data: a.data,
+                    out: a.out,
+                    size: a.size,
+                    leave_one_out: !a.no_loo,
+                    choices: a.choices,
+                    k: a.k,
+                },
+                &eval_progress(std::time::Instant::now()),
+            )?;
             println!("{report}");
             Ok(())
         }
@@ -271,15 +300,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             std::io::Write::write_all(&mut std::io::stdout(), &script)?;
             Ok(())
         }
-        Command::Man { out } => {
-            std::fs::create_dir_all(&out)?;
-            clap_mangen::generate_to(<Cli as clap::CommandFactory>::command(), &out)?;
-            println!(
-                "man pages in {} (try: man {}/brdfd.1)",
-                out.display(),
-                out.display()
-            );
-            Ok(())
-        }
+        Command::Man(a) => man_cmd::run(a, <Cli as clap::CommandFactory>::command()),
     }
 }

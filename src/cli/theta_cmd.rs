@@ -31,14 +31,73 @@ pub struct ThetaPort {
     /// `osc:http://HOST[:PORT]` or `http://HOST[:PORT]` (access-point mode:
     /// http://192.168.1.1), `usb` (the first RICOH camera), `usb:VVVV:PPPP`, or
     /// `ptpip:HOST[:PORT]`.
-    #[arg(long, default_value = "http://192.168.1.1")]
+    #[arg(short, long, default_value = "http://192.168.1.1")]
     pub port: String,
     /// HTTP Digest user, for a THETA in client mode (THETAxx<serial>).
-    #[arg(long)]
+    #[arg(long, env = "BRDFD_THETA_USER")]
     pub user: Option<String>,
-    /// HTTP Digest password (the serial number unless it was changed).
-    #[arg(long)]
+    #[command(flatten)]
+    pub password: PasswordArgs,
+}
+
+/// The variable a THETA's Digest password may come from, out of sight of `ps`.
+pub const PASSWORD_VAR: &str = "BRDFD_THETA_PASSWORD";
+
+/// A THETA's HTTP Digest password: from a file or standard input, or the environment
+/// ([`PASSWORD_VAR`]), where other users cannot see it as they can see the command line.
+#[derive(clap::Args)]
+pub struct PasswordArgs {
+    /// HTTP Digest password (the serial number unless it was changed). Other users can see
+    /// it in `ps`: prefer --password-file, or BRDFD_THETA_PASSWORD in the environment.
+    #[arg(long, conflicts_with = "password_file")]
     pub password: Option<String>,
+    /// Read the password from the first line of FILE (`-`: standard input).
+    #[arg(long, value_name = "FILE")]
+    pub password_file: Option<PathBuf>,
+}
+
+impl PasswordArgs {
+    /// The password given, and whether it was asked for on the command line (a password
+    /// from the environment is there for whichever command needs one, so it is no mistake
+    /// to have it set without a user).
+    pub fn resolve(&self) -> anyhow::Result<(Option<String>, bool)> {
+        if let Some(p) = &self.password {
+            return Ok((Some(p.clone()), true));
+        }
+        if let Some(file) = &self.password_file {
+            let text = if file.as_os_str() == "-" {
+                let mut line = String::new();
+                std::io::stdin()
+                    .read_line(&mut line)
+                    .context("reading the password from standard input")?;
+                line
+            } else {
+                std::fs::read_to_string(file)
+                    .with_context(|| format!("reading the password from {}", file.display()))?
+            };
+            let first = text.lines().next().unwrap_or("").to_string();
+            if first.is_empty() {
+                bail!("no password in {}: its first line is empty", file.display());
+            }
+            return Ok((Some(first), true));
+        }
+        Ok((
+            std::env::var(PASSWORD_VAR).ok().filter(|p| !p.is_empty()),
+            false,
+        ))
+    }
+
+    /// User and password together, or neither.
+    pub fn credentials(&self, user: Option<&str>) -> anyhow::Result<Option<(String, String)>> {
+        match (user, self.resolve()?) {
+            (Some(user), (Some(password), _)) => Ok(Some((user.to_string(), password))),
+            (None, (_, false)) => Ok(None),
+            (None, (_, true)) => bail!("a password without a user: give --user too"),
+            (Some(_), (None, _)) => bail!(
+                "--user without a password: give --password-file FILE (or - for standard input), set {PASSWORD_VAR}, or give --password"
+            ),
+        }
+    }
 }
 
 #[derive(clap::Args)]
@@ -49,23 +108,20 @@ pub struct ThetaCaptureArgs {
     /// value shoots a single frame.
     #[arg(long, value_delimiter = ',')]
     pub shutter: Vec<f64>,
+    /// ISO sensitivity of every shot.
     #[arg(long, default_value_t = 100)]
     pub iso: u32,
     /// Folder for the frames and `panorama.exr`.
-    #[arg(long, default_value = ".")]
+    #[arg(short, long, default_value = ".")]
     pub out: PathBuf,
 }
 
 /// Opens the THETA a port selector names.
 pub fn open(p: &ThetaPort, timeouts: HttpTimeouts) -> anyhow::Result<Theta> {
-    let credentials = match (&p.user, &p.password) {
-        (Some(user), Some(password)) => Some(Credentials {
-            user: user.clone(),
-            password: password.clone(),
-        }),
-        (None, None) => None,
-        _ => bail!("give both --user and --password, or neither"),
-    };
+    let credentials = p
+        .password
+        .credentials(p.user.as_deref())?
+        .map(|(user, password)| Credentials { user, password });
     brdfd::rig::open::theta(&p.port.parse::<Selector>()?, credentials, timeouts)
 }
 
@@ -156,7 +212,7 @@ pub fn run(cmd: ThetaCommand) -> anyhow::Result<()> {
                 );
             }
             let exr = a.out.join("panorama.exr");
-            brdfd_core::envmap::write_exr(&exr, map.width, map.height, &map.pixels)?;
+            map.write_exr(&exr)?;
             println!(
                 "{} ({}×{}, linear, relative units)",
                 exr.display(),

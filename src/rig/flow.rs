@@ -27,7 +27,7 @@ use crate::report::{Context as ReportContext, Visibility};
 use crate::session::{PhaseTime, Session, State};
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::Bivariate;
-use brdfd_core::envmap::{write_exr, EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
+use brdfd_core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd_core::estimate::{estimate_views, fit_verdict, Estimate, EstimateOptions, Model, View};
 use brdfd_core::geometry::{PixelGeometry, SceneGeometry};
 use brdfd_core::merl::MerlBrdf;
@@ -314,7 +314,7 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
         cx.warn(text.clone());
     }
     session.set_state(State::Estimating, None)?;
-    let est = estimate(s, &basis, &captured, &mut phases)?;
+    let est = estimate(cx, s, &basis, &captured, &mut phases)?;
     let truth = match &sim {
         Some(sim) => compare_with_truth(cx, &basis, &est, sim, &mut phases),
         None => None,
@@ -324,12 +324,7 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
         None => None,
     };
     let p = phases.start("write results", 1);
-    write_exr(
-        &session.dir.join("derived/panorama.exr"),
-        env.width,
-        env.height,
-        &env.pixels,
-    )?;
+    env.write_exr(&session.dir.join("derived/panorama.exr"))?;
     // The simulator knows the material: the report overlays it on the estimate's slices.
     let true_brdf = sim
         .as_ref()
@@ -640,6 +635,7 @@ fn show_view(
 
 /// The estimate of every view together, with the clip level of their merges.
 fn estimate(
+    cx: &Context,
     s: &CaptureSettings,
     basis: &Basis,
     captured: &Captured,
@@ -647,6 +643,7 @@ fn estimate(
 ) -> anyhow::Result<Estimate> {
     let options = EstimateOptions {
         white: captured.clip_level,
+        stop: cx.cancel.stop(),
         ..s.estimate.clone()
     };
     let views: Vec<View> = captured

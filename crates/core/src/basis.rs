@@ -2,9 +2,12 @@
 //! default built from the 90 training materials of docs/evaluation.md.
 //!
 //! File format (`brdfd-basis/1`): two files with one stem.
-//! - `NAME.exr`: one layer per vector, named `mean` (when the basis has a mean term) and
-//!   `pc01`, `pc02`, …; each layer is a 90 × 90 image with channels R, G, B as 32-bit floats,
-//!   θh bins down the rows and θd bins across the columns. Any EXR viewer shows the components.
+//! - `NAME.exr`: a multi-part OpenEXR, one part per vector, named `mean` (when the basis has
+//!   a mean term), `pc01`, `pc02`, … and `atom.<material>`; each part is a 90 × 90 image with
+//!   channels R, G, B (unprefixed), θh bins down the rows and θd bins across the columns.
+//!   Parts rather than one part's prefixed channels (`pc01.R`): each vector is a whole RGB
+//!   image that a viewer shows alone and a reader decodes without the others (OpenEXR's
+//!   `exrmultipart -separate` splits them into files), and the atoms can be half floats.
 //! - `NAME.json`: the [`BasisHeader`]: materials, K, normalisation, grid, explained variance.
 //!
 //! Vectors are stored in BRDF units (1/sr), so f ≈ offset + Σ cₖ·bₖ holds with no further
@@ -565,7 +568,7 @@ impl Basis {
                 return Err(CoreError::format(
                     what,
                     format!(
-                        "layer {name} is {}×{}, expected 90×90",
+                        "part {name} is {}×{}, expected 90×90",
                         layer.size.0, layer.size.1
                     ),
                 ));
@@ -578,14 +581,14 @@ impl Basis {
                     .iter()
                     .find(|ch| ch.name.to_string() == *label)
                     .ok_or_else(|| {
-                        CoreError::format(what, format!("layer {name} lacks channel {label}"))
+                        CoreError::format(what, format!("part {name} lacks channel {label}"))
                     })?;
                 for (i, x) in ch.sample_data.values_as_f32().enumerate() {
                     if !x.is_finite() {
                         return Err(CoreError::format(
                             what,
                             format!(
-                                "layer {name} channel {label} has a non-finite value at cell {i}"
+                                "part {name} channel {label} has a non-finite value at cell {i}"
                             ),
                         ));
                     }
@@ -597,7 +600,7 @@ impl Basis {
         let mut take = |name: &str| {
             found
                 .remove(name)
-                .ok_or_else(|| CoreError::format(what, format!("the EXR has no layer {name}")))
+                .ok_or_else(|| CoreError::format(what, format!("the EXR has no part {name}")))
         };
         let mean = if header.mean {
             take("mean")?
@@ -652,7 +655,7 @@ impl Basis {
 }
 
 fn layout_text() -> String {
-    "EXR beside this file: layers 'mean' (if mean) and 'pc01'..; if atoms, 'atom.<material>' per training material (its own table); each 90x90 RGB, float32 (atoms half where their range allows), rows = theta_h bins, columns = theta_d bins; values in 1/sr; f = offset + sum(c_k * b_k)".into()
+    "multi-part EXR beside this file, one part per vector: 'mean' (if mean) and 'pc01'..; if atoms, 'atom.<material>' per training material (its own table); each 90x90 RGB, float32 (atoms half where their range allows), rows = theta_h bins, columns = theta_d bins; values in 1/sr; f = offset + sum(c_k * b_k)".into()
 }
 
 fn atom_layer(material: &str) -> String {

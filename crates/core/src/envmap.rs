@@ -215,6 +215,23 @@ impl EnvMap {
             clamped_negatives: clamped,
         })
     }
+    /// Writes the map as a float EXR that carries OpenEXR's standard `envmap` attribute
+    /// (latitude-longitude), so that renderers and viewers take it for a panorama.
+    ///
+    /// OpenEXR's lat-long (ImfEnvmap) has +Y up and +Z at the centre column; brdfd's frame
+    /// (module header) has −Z there. A tool that follows OpenEXR's axes to the letter sees
+    /// the map turned 180° about +Y, which is how tools that load a lat-long map as a sky
+    /// differ among themselves anyway; the pixels' layout is the same.
+    pub fn write_exr(&self, path: &Path) -> Result<()> {
+        let bytes = encode_exr(
+            self.width,
+            self.height,
+            &self.pixels,
+            &[],
+            Some(exr::meta::attribute::EnvironmentMap::LatitudeLongitude),
+        )?;
+        std::fs::write(path, bytes).map_err(|e| CoreError::io(path, e))
+    }
 
     /// Solid angle of a pixel in row `y`.
     pub fn pixel_solid_angle(&self, y: usize) -> f64 {
@@ -605,6 +622,17 @@ pub fn exr_bytes(
     pixels: &[[f32; 3]],
     attributes: &[(&str, ExrAttribute)],
 ) -> Result<Vec<u8>> {
+    encode_exr(width, height, pixels, attributes, None)
+}
+
+/// [`exr_bytes`], with OpenEXR's standard `envmap` attribute when the image is a panorama.
+fn encode_exr(
+    width: usize,
+    height: usize,
+    pixels: &[[f32; 3]],
+    attributes: &[(&str, ExrAttribute)],
+    environment_map: Option<exr::meta::attribute::EnvironmentMap>,
+) -> Result<Vec<u8>> {
     use exr::prelude::*;
     let channels = SpecificChannels::rgb(|Vec2(x, y): Vec2<usize>| {
         let p = pixels[y * width + x];
@@ -614,6 +642,7 @@ pub fn exr_bytes(
         software_name: Some(Text::from(
             format!("brdfd {}", env!("CARGO_PKG_VERSION")).as_str(),
         )),
+        environment_map,
         ..LayerAttributes::default()
     };
     for (name, value) in attributes {
@@ -839,6 +868,31 @@ mod tests {
         let e = EnvMap::load(&path).unwrap_err().to_string();
         assert!(e.contains("huge.exr"), "{e}");
         assert!(e.contains("declares 100000 × 100000 pixels"), "{e}");
+    }
+
+    /// A panorama says what it is in OpenEXR's own terms: `envmap` = latlong (0).
+    #[test]
+    fn a_written_map_is_tagged_latlong() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("panorama.exr");
+        let map = EnvMap::from_pixels(4, 2, vec![[0.5, 1.0, 2.0]; 8], "test").unwrap();
+        map.write_exr(&path).unwrap();
+        let meta = exr::meta::MetaData::read_from_file(&path, false).unwrap();
+        assert_eq!(
+            meta.headers[0].own_attributes.environment_map,
+            Some(exr::meta::attribute::EnvironmentMap::LatitudeLongitude)
+        );
+        let key = b"envmap\0envmap\0";
+        let bytes = std::fs::read(&path).unwrap();
+        let at = bytes.windows(key.len()).position(|w| w == key).unwrap() + key.len();
+        // The attribute's size (4 bytes, little-endian 1), then its value: 0 is LATLONG.
+        assert_eq!(&bytes[at..at + 5], &[1, 0, 0, 0, 0]);
+        let back = EnvMap::load(&path).unwrap();
+        assert_eq!(back.pixels, map.pixels);
+        // An image that is not a panorama is not tagged.
+        write_exr(&path, 4, 2, &map.pixels).unwrap();
+        let meta = exr::meta::MetaData::read_from_file(&path, false).unwrap();
+        assert_eq!(meta.headers[0].own_attributes.environment_map, None);
     }
 
     #[test]
