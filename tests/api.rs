@@ -1,8 +1,12 @@
 //! The daemon's OpenAPI description (`GET /api/v1/openapi.json`) against the live daemon:
 //! every operation it lists answers only as it says, every route the daemon answers is in it,
-//! and schemathesis (from PyPI), an outside client that generates requests from the
-//! description, finds no server error and no answer outside it. CI installs schemathesis and
-//! sets BRDFD_REQUIRE_SCHEMATHESIS=1, so there that test cannot skip.
+//! openapi-spec-validator (PyPI) finds it valid OpenAPI 3.1, and schemathesis (PyPI), an
+//! outside client that generates requests from the description, finds no server error, no
+//! answer outside it, and with every check of its own no failure. CI installs both and sets
+//! BRDFD_REQUIRE_SCHEMATHESIS=1 and BRDFD_REQUIRE_OPENAPI_VALIDATOR=1, so there those tests
+//! cannot skip. And the HTTP conventions the description cannot state (issue 42): errors as
+//! RFC 9457 problems, `WWW-Authenticate` on a 401, 405 before 415, `Location`, and result
+//! files with `ETag` and byte ranges.
 
 mod common;
 
@@ -107,6 +111,13 @@ fn the_openapi_description_is_the_live_api() {
         spec["openapi"].as_str().unwrap().starts_with("3.1"),
         "{spec}"
     );
+    // brdfd's own name, version and licence: not utoipa-axum's (issue 42), which a client
+    // generator would have named the client after.
+    let info = &spec["info"];
+    assert_eq!(info["title"], "brdfd", "{info}");
+    assert_eq!(info["version"], env!("CARGO_PKG_VERSION"), "{info}");
+    assert_eq!(info["license"]["identifier"], "MIT", "{info}");
+    assert!(info["contact"].is_null(), "{info}");
     let files: Vec<String> = spec["components"]["schemas"]["ResultFile"]["enum"]
         .as_array()
         .expect("the result files are listed")
@@ -169,7 +180,8 @@ fn the_openapi_description_is_the_live_api() {
                 let described = content
                     .get(&media)
                     .unwrap_or_else(|| panic!("{method} {url}: {media} is not among {content:?}"));
-                if media == "application/json" && !path.ends_with("/events") {
+                let json = media == "application/json" || media == "application/problem+json";
+                if json && !path.ends_with("/events") {
                     let body: Value = r.json().unwrap();
                     if let Some(schema) = described.get("schema") {
                         conforms(&spec, schema, &body)
@@ -237,24 +249,22 @@ fn schemathesis() -> Option<String> {
     Some(st)
 }
 
-/// schemathesis, bounded to 100 examples per operation, against a daemon with a finished session: no
-/// 500, and no status, media type, header or body the description does not allow.
-#[test]
-fn schemathesis_finds_no_error_and_no_answer_outside_the_schema() {
-    let Some(st) = schemathesis() else {
-        return;
-    };
+/// schemathesis with `checks`, bounded to 100 examples per operation, against a daemon with a
+/// finished session, with tests/schemathesis.toml's settings; its summary's tail is printed.
+fn run_schemathesis(st: &str, checks: &str) {
     let dir = tempfile::tempdir().unwrap();
     let daemon = Daemon::simulated(&dir.path().join("state"));
     finished_session(&daemon);
-    let o = Command::new(&st)
+    let settings = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/schemathesis.toml");
+    let o = Command::new(st)
         .current_dir(dir.path())
         .args([
+            "--config-file",
+            settings,
             "run",
             &format!("http://{}/api/v1/openapi.json", daemon.addr),
             "--checks",
-            "not_a_server_error,status_code_conformance,content_type_conformance,\
-             response_headers_conformance,response_schema_conformance",
+            checks,
             "--max-examples",
             "100",
             "--workers",
@@ -282,4 +292,484 @@ fn schemathesis_finds_no_error_and_no_answer_outside_the_schema() {
         "schemathesis failed:\n{stdout}\n{stderr}"
     );
     assert!(stdout.contains("passed"), "{stdout}");
+}
+
+/// schemathesis, bounded to 100 examples per operation, against a daemon with a finished session: no
+/// 500, and no status, media type, header or body the description does not allow.
+#[test]
+fn schemathesis_finds_no_error_and_no_answer_outside_the_schema() {
+    let Some(st) = schemathesis() else {
+        return;
+    };
+    run_schemathesis(
+        &st,
+        "not_a_server_error,status_code_conformance,content_type_conformance,\
+         response_headers_conformance,response_schema_conformance",
+    );
+}
+
+/// schemathesis with every check it has (issue 42): besides the answers above, schema-valid
+/// requests are accepted and invalid ones refused, a method the description lacks gets 405
+/// with `Allow`, a deleted or missing resource reads as missing, an operation that declares
+/// security refuses a request without it. One operation's settings differ, and
+/// tests/schemathesis.toml says why.
+#[test]
+fn schemathesis_with_every_check_finds_no_failure() {
+    let Some(st) = schemathesis() else {
+        return;
+    };
+    run_schemathesis(&st, "all");
+}
+
+/// The Python that has openapi-spec-validator: `BRDFD_OPENAPI_VALIDATOR`, else `python3` on
+/// the PATH if it has the package.
+fn openapi_validator() -> Option<String> {
+    let python = std::env::var("BRDFD_OPENAPI_VALIDATOR").unwrap_or_else(|_| "python3".into());
+    let present = Command::new(&python)
+        .args(["-c", "import openapi_spec_validator"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !present {
+        assert!(
+            std::env::var_os("BRDFD_REQUIRE_OPENAPI_VALIDATOR").is_none(),
+            "openapi-spec-validator is required here but not installed (pip install \
+             openapi-spec-validator; BRDFD_OPENAPI_VALIDATOR names the Python that has it)"
+        );
+        eprintln!("skipping: openapi-spec-validator is not installed (pip install openapi-spec-validator; or set BRDFD_OPENAPI_VALIDATOR)");
+        return None;
+    }
+    Some(python)
+}
+
+/// The description the daemon serves is valid OpenAPI 3.1, as openapi-spec-validator judges
+/// it, every error counted (issue 42: it found 8, a response without its required
+/// `description` each).
+#[test]
+fn openapi_spec_validator_finds_the_live_description_valid() {
+    let Some(python) = openapi_validator() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = Daemon::simulated(&dir.path().join("state"));
+    let (status, spec) = daemon.get_bytes("/openapi.json");
+    assert_eq!(status, 200);
+    let file = dir.path().join("openapi.json");
+    std::fs::write(&file, spec).unwrap();
+    let o = Command::new(&python)
+        .args([
+            "-m",
+            "openapi_spec_validator",
+            "--schema",
+            "3.1",
+            "--validation-errors",
+            "all",
+        ])
+        .arg(&file)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.success() && stdout.trim_end().ends_with(": OK"),
+        "openapi-spec-validator:\n{stdout}\n{stderr}"
+    );
+}
+
+/// A client that sends no token of its own.
+fn http() -> reqwest::blocking::Client {
+    reqwest::blocking::Client::new()
+}
+
+/// The media type of a response, without its parameters.
+fn media_type(r: &reqwest::blocking::Response) -> String {
+    r.headers()
+        .get("content-type")
+        .and_then(|v| v.to_str().ok())
+        .map(|v| v.split(';').next().unwrap().trim().to_string())
+        .unwrap_or_default()
+}
+
+/// Asserts that `r` is an RFC 9457 problem with `status` and brdfd's `code`: the standard
+/// members, and `error` and `message` beside them as before. Returns the body.
+fn problem(r: reqwest::blocking::Response, status: u16, code: &str) -> Value {
+    assert_eq!(r.status().as_u16(), status, "{:?}", r.headers());
+    assert_eq!(media_type(&r), "application/problem+json");
+    let body: Value = r.json().unwrap();
+    assert_eq!(body["type"], "about:blank", "{body}");
+    assert_eq!(body["status"], status, "{body}");
+    let reason = reqwest::StatusCode::from_u16(status)
+        .unwrap()
+        .canonical_reason()
+        .unwrap();
+    assert_eq!(body["title"], reason, "{body}");
+    assert_eq!(body["error"], code, "{body}");
+    assert!(
+        body["detail"].as_str().is_some_and(|d| !d.is_empty()),
+        "{body}"
+    );
+    assert_eq!(body["detail"], body["message"], "{body}");
+    body
+}
+
+/// Issue 42: errors are RFC 9457 problems (`application/problem+json`), keeping the `error`
+/// and `message` members the CLI and the web page read; a 401 names the scheme that would
+/// pass (RFC 9110 §11.6.1); and the description says both.
+#[test]
+fn errors_are_problem_details_and_a_401_names_its_scheme() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("brdfd.toml"),
+        "api = \"127.0.0.1:7878\"\ntoken = \"correct horse\"\n",
+    )
+    .unwrap();
+    let config = dir.path().join("brdfd.toml");
+    let daemon = Daemon::start(
+        &dir.path().join("state"),
+        &["--simulate", "--config", config.to_str().unwrap()],
+    );
+    let base = format!("http://{}/api/v1", daemon.addr);
+    let r = http().get(format!("{base}/health")).send().unwrap();
+    let challenge = r.headers()["www-authenticate"]
+        .to_str()
+        .unwrap()
+        .to_string();
+    assert_eq!(challenge, r#"Bearer realm="brdfd""#);
+    problem(r, 401, "unauthorized");
+    let r = http()
+        .get(format!("{base}/sessions/no-such-session"))
+        .bearer_auth("correct horse")
+        .send()
+        .unwrap();
+    problem(r, 404, "not_found");
+    // The fallback's answer, and an answer axum gives itself (a path that is not UTF-8), too.
+    let r = http()
+        .get(format!("{base}/nothing"))
+        .bearer_auth("correct horse")
+        .send()
+        .unwrap();
+    problem(r, 404, "not_found");
+    let r = http()
+        .get(format!("{base}/sessions/%FF/result"))
+        .bearer_auth("correct horse")
+        .send()
+        .unwrap();
+    problem(r, 400, "bad_request");
+
+    let (_, spec) = daemon.get("/openapi.json");
+    let schema = &spec["components"]["schemas"]["ErrorBody"];
+    for member in ["type", "title", "status", "detail", "error", "message"] {
+        assert!(
+            schema["required"]
+                .as_array()
+                .unwrap()
+                .contains(&json!(member)),
+            "{member}: {schema}"
+        );
+    }
+    let health = &spec["paths"]["/api/v1/health"]["get"]["responses"];
+    assert!(
+        health["401"]["content"]["application/problem+json"].is_object(),
+        "{health}"
+    );
+    assert!(
+        health["401"]["headers"]["WWW-Authenticate"].is_object(),
+        "{health}"
+    );
+    let start = &spec["paths"]["/api/v1/sessions"]["post"]["responses"];
+    assert!(
+        start["409"]["content"]["application/problem+json"].is_object(),
+        "{start}"
+    );
+    assert!(
+        start["409"]["content"]["application/json"].is_null(),
+        "{start}"
+    );
+}
+
+/// Issue 42: a method a route lacks is 405 with `Allow` (RFC 9110 §15.5.6), whatever its
+/// content type; it was 415 when the content-type check ran before the method was routed.
+/// The check still refuses a POST to a route that takes one.
+#[test]
+fn a_method_a_route_lacks_gets_405_with_allow_before_the_content_check() {
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = Daemon::simulated(&dir.path().join("state"));
+    let base = format!("http://{}/api/v1", daemon.addr);
+    for path in [
+        "/health",
+        "/devices",
+        "/materials",
+        "/sessions/x",
+        "/sessions/x/events",
+        "/sessions/x/result",
+        "/sessions/x/result/report.html",
+    ] {
+        let r = http().post(format!("{base}{path}")).send().unwrap();
+        let allow = r.headers()["allow"].to_str().unwrap().to_string();
+        assert!(
+            allow.contains("GET") && !allow.contains("POST"),
+            "{path}: {allow}"
+        );
+        problem(r, 405, "method_not_allowed");
+    }
+    let r = http().delete(format!("{base}/sessions")).send().unwrap();
+    let allow = r.headers()["allow"].to_str().unwrap().to_string();
+    assert!(allow.contains("GET") && allow.contains("POST"), "{allow}");
+    problem(r, 405, "method_not_allowed");
+    let r = http()
+        .get(format!("{base}/sessions/x/cancel"))
+        .send()
+        .unwrap();
+    assert_eq!(r.headers()["allow"], "POST");
+    problem(r, 405, "method_not_allowed");
+    // A route that takes POST still wants JSON.
+    let r = http().post(format!("{base}/sessions")).send().unwrap();
+    problem(r, 415, "unsupported_media_type");
+}
+
+/// Issue 42: the material-name rule (`config::validate_name`) is the plan schema's `pattern`,
+/// and the daemon draws the line where the pattern does: a name of the wrong shape is a bad
+/// request (400), one of the right shape that names no material cannot be carried out (422).
+#[test]
+fn the_material_name_rule_is_the_schema_pattern() {
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = Daemon::simulated(&dir.path().join("state"));
+    let (_, spec) = daemon.get("/openapi.json");
+    let material = &spec["components"]["schemas"]["Plan"]["properties"]["material"];
+    assert_eq!(
+        material["pattern"], "^[a-z0-9][a-z0-9-]{0,63}$",
+        "{material}"
+    );
+    let long = "a".repeat(65);
+    for name in ["", "-gold", "Gold", "go/ld", "gold.", long.as_str()] {
+        let (status, body) = daemon.post("/sessions", json!({ "material": name }));
+        assert_eq!(
+            (status, body["error"].as_str()),
+            (400, Some("bad_request")),
+            "{name:?}: {body}"
+        );
+    }
+    let longest = "a".repeat(64);
+    for name in ["0", "no-such-material", longest.as_str()] {
+        let (status, body) = daemon.post("/sessions", json!({ "material": name }));
+        assert_eq!(
+            (status, body["error"].as_str()),
+            (422, Some("invalid_plan")),
+            "{name:?}: {body}"
+        );
+    }
+    // JSON Schema's integers include 2.0: a count so written is a count.
+    let (status, body) = daemon.post("/sessions/x/continue", json!({ "view": 2.0 }));
+    assert_eq!(
+        (status, body["error"].as_str()),
+        (409, Some("not_waiting")),
+        "{body}"
+    );
+    let (status, body) = daemon.post("/sessions/x/continue", json!({ "view": 2.5 }));
+    assert_eq!(
+        (status, body["error"].as_str()),
+        (400, Some("bad_request")),
+        "{body}"
+    );
+    // `{}` is the body of a cancel and a resume, not any JSON at all.
+    let (status, body) = daemon.post("/sessions/x/resume", json!([]));
+    assert_eq!(
+        (status, body["error"].as_str()),
+        (400, Some("bad_request")),
+        "{body}"
+    );
+}
+
+/// Issue 42: what a client can read of an error is about its request, never where the daemon
+/// keeps its files: no message names the state directory's path.
+#[test]
+fn error_messages_do_not_name_the_state_directory() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let daemon = Daemon::simulated(&state);
+    std::fs::create_dir_all(state.join("scenes")).unwrap();
+    let folders = [
+        state.display().to_string(),
+        std::fs::canonicalize(&state).unwrap().display().to_string(),
+    ];
+    let mut answers = vec![
+        daemon.get("/sessions/no-such-session"),
+        daemon.get("/sessions/no-such-session/result"),
+        daemon.get("/sessions/no-such-session/result/report.html"),
+        daemon.post("/sessions/no-such-session/resume", json!({})),
+    ];
+    for plan in [
+        json!({ "material": "gold", "env": "missing.hdr" }),
+        json!({ "material": "gold", "nbrdf": "missing.nbrdf" }),
+        json!({ "material": "gold", "env": "/dev/zero" }),
+        json!({ "material": "gold", "nbrdf": ".." }),
+        json!({ "material": "gold", "env": "." }),
+    ] {
+        answers.push(daemon.post("/sessions", plan));
+    }
+    for (status, body) in answers {
+        assert!(status >= 400, "{body}");
+        let message = body["message"].as_str().unwrap();
+        for folder in &folders {
+            assert!(!message.contains(folder.as_str()), "{message}");
+        }
+    }
+}
+
+/// Issue 42: `POST /sessions` says where the new session is (`Location`); a finished session
+/// cannot be resumed (409, the session's state, not the request, is what refuses); and result
+/// files are served as download tools expect (RFC 9110 §8.8.3, §13, §14): a strong `ETag`,
+/// 304 for `If-None-Match`, one byte range as 206 with `Content-Range`, 416 past the end.
+#[test]
+fn sessions_have_a_location_and_result_files_take_etags_and_ranges() {
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = Daemon::simulated(&dir.path().join("state"));
+    let origin = format!("http://{}", daemon.addr);
+    let r = http()
+        .post(format!("{origin}/api/v1/sessions"))
+        .json(&json!({ "material": "gold", "size": 64 }))
+        .send()
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 202);
+    let location = r.headers()["location"].to_str().unwrap().to_string();
+    let body: Value = r.json().unwrap();
+    let id = body["id"].as_str().unwrap().to_string();
+    assert_eq!(location, format!("/api/v1/sessions/{id}"));
+    let shown: Value = http()
+        .get(format!("{origin}{location}"))
+        .send()
+        .unwrap()
+        .json()
+        .unwrap();
+    assert_eq!(shown["id"], id.as_str(), "{shown}");
+    let events = daemon.events(&id);
+    assert_eq!(events.last().unwrap()["state"], "done");
+
+    let r = http()
+        .post(format!("{origin}/api/v1/sessions/{id}/resume"))
+        .json(&json!({}))
+        .send()
+        .unwrap();
+    problem(r, 409, "already_done");
+
+    let url = format!("{origin}/api/v1/sessions/{id}/result/preview.png");
+    let get = |headers: &[(&str, &str)]| {
+        let mut r = http().get(&url);
+        for (name, value) in headers {
+            r = r.header(*name, *value);
+        }
+        r.send().unwrap()
+    };
+    let whole = get(&[]);
+    assert_eq!(whole.status().as_u16(), 200);
+    assert_eq!(whole.headers()["accept-ranges"], "bytes");
+    let tag = whole.headers()["etag"].to_str().unwrap().to_string();
+    assert!(
+        tag.starts_with('"') && tag.ends_with('"') && tag.len() > 2,
+        "a strong tag: {tag}"
+    );
+    let bytes = whole.bytes().unwrap().to_vec();
+    let length = bytes.len();
+    assert!(length > 100, "{length}");
+
+    // The same file, asked again with its tag, and the tag among others or weakly compared.
+    for given in [
+        tag.clone(),
+        format!("\"other\", {tag}"),
+        format!("W/{tag}"),
+        "*".into(),
+    ] {
+        let r = get(&[("If-None-Match", &given)]);
+        assert_eq!(r.status().as_u16(), 304, "{given}");
+        assert_eq!(r.headers()["etag"], tag.as_str());
+        assert!(r.bytes().unwrap().is_empty());
+    }
+    assert_eq!(
+        get(&[("If-None-Match", "\"other\"")]).status().as_u16(),
+        200
+    );
+    // The same tag a second time: the file did not change.
+    assert_eq!(get(&[]).headers()["etag"], tag.as_str());
+
+    let part = |range: &str, if_range: Option<&str>| {
+        let mut headers = vec![("Range", range)];
+        if let Some(v) = if_range {
+            headers.push(("If-Range", v));
+        }
+        let r = get(&headers);
+        let status = r.status().as_u16();
+        let content_range = r
+            .headers()
+            .get("content-range")
+            .map(|v| v.to_str().unwrap().to_string());
+        (status, content_range, r.bytes().unwrap().to_vec())
+    };
+    assert_eq!(
+        part("bytes=10-19", None),
+        (
+            206,
+            Some(format!("bytes 10-19/{length}")),
+            bytes[10..20].to_vec()
+        )
+    );
+    assert_eq!(
+        part("bytes=-16", None),
+        (
+            206,
+            Some(format!("bytes {}-{}/{length}", length - 16, length - 1)),
+            bytes[length - 16..].to_vec()
+        )
+    );
+    assert_eq!(
+        part(&format!("bytes={}-", length - 5), None),
+        (
+            206,
+            Some(format!("bytes {}-{}/{length}", length - 5, length - 1)),
+            bytes[length - 5..].to_vec()
+        )
+    );
+    // A last byte past the end is the end.
+    assert_eq!(
+        part(&format!("bytes=0-{}", length * 2), None).1,
+        Some(format!("bytes 0-{}/{length}", length - 1))
+    );
+    // The range of this version only; several ranges, or a range the syntax does not allow,
+    // get the whole file (§14.2, §14.1.1).
+    for (range, if_range) in [
+        ("bytes=10-19", Some("\"another version\"")),
+        ("bytes=0-1,5-6", None),
+        ("bytes=19-10", None),
+        ("bytes=+1-2", None),
+        ("lines=1-2", None),
+    ] {
+        assert_eq!(part(range, if_range), (200, None, bytes.clone()), "{range}");
+    }
+    assert_eq!(part("bytes=10-19", Some(&tag)).0, 206);
+    // Past the end: 416, saying how long the file is.
+    for range in [format!("bytes={length}-"), "bytes=-0".to_string()] {
+        let r = get(&[("Range", &range)]);
+        assert_eq!(
+            r.headers()["content-range"].to_str().unwrap(),
+            format!("bytes */{length}"),
+            "{range}"
+        );
+        problem(r, 416, "range_not_satisfiable");
+    }
+    // The result itself (coefficients.json) is served the same way.
+    let r = http()
+        .get(format!("{origin}/api/v1/sessions/{id}/result"))
+        .send()
+        .unwrap();
+    assert!(r.headers().contains_key("etag"));
+    // A result file the session does not have is named as such, not by its path.
+    let r = http()
+        .get(format!(
+            "{origin}/api/v1/sessions/{id}/result/visibility.png"
+        ))
+        .send()
+        .unwrap();
+    let body = problem(r, 404, "not_found");
+    assert_eq!(
+        body["detail"],
+        format!("session {id} has no visibility.png")
+    );
 }

@@ -654,27 +654,38 @@ fn other_hosts_and_server_paths_are_refused() {
         .unwrap();
     assert_eq!(r.status().as_u16(), 200);
 
-    for (plan, says) in [
+    // A plan that breaks its schema's rules is a bad request; one of the right shape that names
+    // no file there cannot be carried out (422, issue 42).
+    for (plan, status_wanted, says) in [
         (
             json!({ "material": "gold", "env": "/dev/zero" }),
+            400,
             "not give a path",
         ),
         (
             json!({ "material": "gold", "nbrdf": "../../etc/passwd" }),
+            400,
+            "not give a path",
+        ),
+        (
+            json!({ "material": "gold", "nbrdf": ".." }),
+            422,
             "not give a path",
         ),
         (
             json!({ "material": "gold", "env": "missing.hdr" }),
+            422,
             "no file \"missing.hdr\"",
         ),
         // Issue 40: a 9,000-exposure bracket was accepted.
         (
             json!({ "material": "gold", "bracket": vec![0.01; 9000] }),
+            400,
             "bracket has 9000 shutter speeds; at most 32",
         ),
     ] {
         let (status, body) = daemon.post("/sessions", plan.clone());
-        assert_eq!(status, 400, "{plan}: {body}");
+        assert_eq!(status, status_wanted, "{plan}: {body}");
         assert!(body["message"].as_str().unwrap().contains(says), "{body}");
     }
     // Nothing was started, and no session was created for the refused plans.
@@ -990,4 +1001,137 @@ fn wrong_tokens_lock_their_address_out_for_a_growing_delay() {
     // Cleared: the next mistake is free again.
     assert_eq!(with("guess again").status().as_u16(), 401);
     assert_eq!(with("correct horse").status().as_u16(), 200);
+}
+
+/// A relay to the daemon that cuts the first event stream it carries once `cut_after` events
+/// have passed, as a proxy's timeout or a dropped Wi-Fi link would, and keeps what every client
+/// sent (the request heads).
+struct CuttingRelay {
+    addr: String,
+    sent: std::sync::Arc<std::sync::Mutex<Vec<u8>>>,
+}
+
+impl CuttingRelay {
+    fn start(daemon: &str, cut_after: usize) -> CuttingRelay {
+        use std::io::{Read, Write};
+        use std::net::{Shutdown, TcpListener, TcpStream};
+        use std::sync::atomic::{AtomicBool, Ordering};
+        use std::sync::{Arc, Mutex};
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap().to_string();
+        let sent: Arc<Mutex<Vec<u8>>> = Arc::default();
+        let cut = Arc::new(AtomicBool::new(false));
+        let (daemon, log) = (daemon.to_string(), sent.clone());
+        std::thread::spawn(move || {
+            for client in listener.incoming().map_while(Result::ok) {
+                let Ok(server) = TcpStream::connect(&daemon) else {
+                    continue;
+                };
+                let streaming = Arc::new(AtomicBool::new(false));
+                // Client to daemon: kept, and marked once it asks for an event stream.
+                let (mut from, mut to) = (client.try_clone().unwrap(), server.try_clone().unwrap());
+                let (log, asked) = (log.clone(), streaming.clone());
+                std::thread::spawn(move || {
+                    let mut buf = [0u8; 4096];
+                    while let Ok(n @ 1..) = from.read(&mut buf) {
+                        log.lock().unwrap().extend_from_slice(&buf[..n]);
+                        if String::from_utf8_lossy(&buf[..n]).contains("/events HTTP/1.1") {
+                            asked.store(true, Ordering::SeqCst);
+                        }
+                        if to.write_all(&buf[..n]).is_err() {
+                            break;
+                        }
+                    }
+                    let _ = to.shutdown(Shutdown::Write);
+                });
+                // Daemon to client: the first event stream ends after `cut_after` events.
+                let (mut from, mut to, cut) = (server, client, cut.clone());
+                std::thread::spawn(move || {
+                    let mut buf = [0u8; 4096];
+                    let mut events = 0;
+                    while let Ok(n @ 1..) = from.read(&mut buf) {
+                        let mut end = n;
+                        if streaming.load(Ordering::SeqCst) && !cut.load(Ordering::SeqCst) {
+                            // Up to the end of the event that makes `cut_after` (its blank line).
+                            let text = &buf[..n];
+                            let mut at = 0;
+                            while let Some(i) = find(&text[at..], b"data:") {
+                                events += 1;
+                                at += i + 5;
+                                if events == cut_after {
+                                    end = find(&text[at..], b"\n\n").map_or(n, |j| at + j + 2);
+                                    break;
+                                }
+                            }
+                        }
+                        if to.write_all(&buf[..end]).is_err() {
+                            break;
+                        }
+                        if events >= cut_after && !cut.swap(true, Ordering::SeqCst) {
+                            let _ = to.shutdown(Shutdown::Both);
+                            let _ = from.shutdown(Shutdown::Both);
+                            return;
+                        }
+                    }
+                    let _ = to.shutdown(Shutdown::Write);
+                });
+            }
+        });
+        CuttingRelay { addr, sent }
+    }
+
+    /// The `Last-Event-ID` of each event-stream request sent through the relay, in order
+    /// (`None` for a request without one).
+    fn stream_requests(&self) -> Vec<Option<String>> {
+        let sent = String::from_utf8_lossy(&self.sent.lock().unwrap()).to_string();
+        sent.split("GET ")
+            .filter(|r| r.contains("/events HTTP/1.1"))
+            .map(|r| {
+                let head = r.split("\r\n\r\n").next().unwrap();
+                head.lines()
+                    .filter_map(|l| l.split_once(':'))
+                    .find(|(name, _)| name.trim().eq_ignore_ascii_case("last-event-id"))
+                    .map(|(_, v)| v.trim().to_string())
+            })
+            .collect()
+    }
+}
+
+/// Where `needle` first starts in `haystack`.
+fn find(haystack: &[u8], needle: &[u8]) -> Option<usize> {
+    haystack.windows(needle.len()).position(|w| w == needle)
+}
+
+/// Issue 42: `brdfd capture` through the daemon follows the event stream; when it drops before
+/// the capture finishes, the CLI opens it again with the last event's id as `Last-Event-ID`,
+/// and goes on after that event, rather than failing ("the event stream ended").
+#[test]
+fn the_cli_follows_a_dropped_event_stream_from_its_last_event() {
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = Daemon::simulated(&dir.path().join("state"));
+    let relay = CuttingRelay::start(&daemon.addr, 3);
+    let o = brdfd(
+        &[
+            "capture",
+            "--simulate",
+            "--material",
+            "gold",
+            "--size",
+            "64",
+            "--daemon",
+            &relay.addr,
+        ],
+        dir.path(),
+    );
+    let (stdout, stderr) = text(&o);
+    assert!(o.status.success(), "{stdout}\n{stderr}");
+    assert!(stdout.contains(" done: "), "{stdout}");
+    let requests = relay.stream_requests();
+    assert_eq!(requests.len(), 2, "{requests:?}");
+    assert_eq!(requests[0], None);
+    // The third event's id, `RUN-2`: the stream goes on after it.
+    let resumed = requests[1]
+        .as_deref()
+        .expect("the second asks with Last-Event-ID");
+    assert!(resumed.ends_with("-2"), "{resumed}");
 }

@@ -1,5 +1,5 @@
 //! The CLI's side of the daemon's API: is one running, start or resume a capture there, and
-//! follow its events.
+//! follow its events (again from the last one seen when the stream drops).
 
 use std::io::{BufRead, BufReader};
 use std::time::Duration;
@@ -122,27 +122,99 @@ impl Daemon {
         Ok(())
     }
 
-    /// Follows a session's events until it finishes; returns the last one.
+    /// Follows a session's events until it finishes; returns the last one. A stream that
+    /// drops before then (a proxy's timeout, a network hiccup, the daemon restarted) is opened
+    /// again with the last event's id as `Last-Event-ID`, so it goes on after that event
+    /// rather than from the first; [`RECONNECTS`] times in a row at most.
     pub fn follow(&self, id: &str, progress: &dyn Progress) -> anyhow::Result<Event> {
-        let r = self.check(self.get(&format!("/sessions/{id}/events")).send()?)?;
-        let mut last = None;
-        // Server-Sent Events: `data: <json>` lines; comments (keep-alives) start with ':'.
-        for line in BufReader::new(r).lines() {
-            let line = line.context("reading the daemon's event stream")?;
-            let Some(data) = line.strip_prefix("data:") else {
-                continue;
-            };
-            let e: Event = serde_json::from_str(data.trim())
-                .with_context(|| format!("an event from the daemon: {data}"))?;
-            let finished = matches!(e, Event::Finished { .. });
-            progress.event(e.clone());
-            last = Some(e);
-            if finished {
-                break;
+        let mut last_seen: Option<String> = None;
+        let mut failures = 0;
+        loop {
+            let mut request = self.get(&format!("/sessions/{id}/events"));
+            if let Some(seen) = &last_seen {
+                request = request.header("Last-Event-ID", seen.as_str());
             }
+            let dropped = match request.send() {
+                // An answer that is not the stream (no such session, a token refused) is the
+                // daemon's word, not a drop.
+                Ok(r) => match read_events(self.check(r)?, progress, &mut last_seen)? {
+                    Stream::Finished(e) => return Ok(e),
+                    Stream::Dropped { events, why } => {
+                        if events > 0 {
+                            failures = 0;
+                        }
+                        why
+                    }
+                },
+                Err(e) => e.into(),
+            };
+            failures += 1;
+            if failures > RECONNECTS {
+                return Err(dropped.context(
+                    "the daemon's event stream ended before the capture finished (did the daemon stop?)",
+                ));
+            }
+            tracing::debug!("the event stream dropped ({dropped:#}); opening it again");
+            std::thread::sleep(RECONNECT_DELAY);
         }
-        last.context(
-            "the daemon's event stream ended before the capture finished (did the daemon stop?)",
-        )
     }
+}
+
+/// Times in a row the event stream is opened again after it dropped with no event between.
+const RECONNECTS: u32 = 5;
+
+/// The pause before opening a dropped stream again: a daemon that restarts is back within a
+/// few of them.
+const RECONNECT_DELAY: Duration = Duration::from_millis(500);
+
+/// How one connection's event stream ended.
+enum Stream {
+    Finished(Event),
+    /// Before `finished`, after `events` events.
+    Dropped {
+        events: usize,
+        why: anyhow::Error,
+    },
+}
+
+/// Reads Server-Sent Events (`id:` and `data: <json>` lines; comments, the keep-alives, start
+/// with ':') until `finished` or the stream's end, noting each event's id in `last_seen`.
+fn read_events(
+    r: Response,
+    progress: &dyn Progress,
+    last_seen: &mut Option<String>,
+) -> anyhow::Result<Stream> {
+    let mut id = None;
+    let mut events = 0;
+    for line in BufReader::new(r).lines() {
+        let line = match line {
+            Ok(line) => line,
+            Err(e) => {
+                let why = anyhow::Error::from(e).context("reading the daemon's event stream");
+                return Ok(Stream::Dropped { events, why });
+            }
+        };
+        if let Some(i) = line.strip_prefix("id:") {
+            id = Some(i.trim().to_string());
+            continue;
+        }
+        let Some(data) = line.strip_prefix("data:") else {
+            continue;
+        };
+        let e: Event = serde_json::from_str(data.trim())
+            .with_context(|| format!("an event from the daemon: {data}"))?;
+        events += 1;
+        if let Some(id) = id.take() {
+            *last_seen = Some(id);
+        }
+        if matches!(e, Event::Finished { .. }) {
+            progress.event(e.clone());
+            return Ok(Stream::Finished(e));
+        }
+        progress.event(e);
+    }
+    Ok(Stream::Dropped {
+        events,
+        why: anyhow::anyhow!("the stream ended"),
+    })
 }

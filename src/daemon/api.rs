@@ -1,5 +1,6 @@
-//! The daemon's HTTP API, version 1. Every body is JSON; errors are
-//! `{"error": "<code>", "message": "<what was wrong>"}` with a matching HTTP status.
+//! The daemon's HTTP API, version 1. Every body is JSON; errors are RFC 9457 problems
+//! (`application/problem+json`: `type`, `title`, `status`, `detail`), which also carry
+//! `{"error": "<code>", "message": "<what was wrong>"}`.
 //!
 //! | method and path | answer |
 //! |---|---|
@@ -8,24 +9,25 @@
 //! | `GET /api/v1/materials` | `{"presets": [...]}`: the material presets a capture can name |
 //! | `GET /api/v1/devices` | `[{"role", "selector", "state": "closed"/"open"/"lost", "identity", "last_error", "opened"}]` |
 //! | `GET /api/v1/sessions` | `[{"id", "state", "material", "created", "running"}]`, oldest first |
-//! | `POST /api/v1/sessions` | body: a plan (`{"material": "gold", "pixels": "20", "views": 1, ...}`); 202 `{"id", "dir", "events"}`; 409 `busy`; 400 `bad_request` |
+//! | `POST /api/v1/sessions` | body: a plan (`{"material": "gold", "pixels": "20", "views": 1, ...}`); 202 `{"id", "dir", "events"}` and `Location`; 409 `busy`; 400 `bad_request`; 422 `invalid_plan` |
 //! | `GET /api/v1/sessions/{id}` | `{"id", "dir", "manifest", "waiting_for_view"}`: where it is stored, its manifest, and the view whose hand turn it waits for |
 //! | `GET /api/v1/sessions/{id}/events` | Server-Sent Events, one JSON [`Event`] each with its place as `id`, from the session's first (after `Last-Event-ID` if given); ends after `finished` |
 //! | `GET /api/v1/sessions/{id}/result` | `coefficients.json`; 409 `not_done` until the session is done |
-//! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `coefficients.json`, `preview.png`, `preview.json`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`, `material.gltf`, `material.mtlx`, `light.hdr` |
+//! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `coefficients.json`, `preview.png`, `preview.json`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`, `material.gltf`, `material.mtlx`, `light.hdr`; with `ETag` (`If-None-Match`: 304) and one byte range (`Range`: 206, or 416) |
 //! | `POST /api/v1/sessions/{id}/cancel` | 202; 409 `not_running` |
 //! | `POST /api/v1/sessions/{id}/continue` | the object is turned by hand, as the `waiting_for_operator` event asked: 202; 409 `not_waiting` |
-//! | `POST /api/v1/sessions/{id}/resume` | 202 as for a new capture; 409 `busy` |
+//! | `POST /api/v1/sessions/{id}/resume` | 202 as for a new capture; 409 `busy`, `already_done`, `not_resumable` |
 //!
 //! With a token configured, every request needs `Authorization: Bearer <token>`, or the
-//! cookie the web page's sign-in sets ([`web`]) (401 `unauthorized` otherwise). Every POST needs `Content-Type: application/json`, its body or
-//! not (415 `unsupported_media_type` otherwise).
+//! cookie the web page's sign-in sets ([`web`]) (401 `unauthorized` with `WWW-Authenticate`
+//! otherwise). Every POST needs `Content-Type: application/json`, its body or not (415
+//! `unsupported_media_type` otherwise). A method a route lacks gets 405 with `Allow`.
 
 use std::convert::Infallible;
 use std::sync::Arc;
 
 use axum::extract::{DefaultBodyLimit, Path, Request, State};
-use axum::http::{header, StatusCode};
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::middleware::Next;
 use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
@@ -36,25 +38,35 @@ use utoipa::{Modify as _, OpenApi as _};
 use utoipa_axum::{router::OpenApiRouter, routes};
 
 use super::openapi::{
-    ApiDoc, Cancelling, ContinueRequest, Continuing, ErrorBody, FileBytes, Guards, Health,
-    Materials, RigSummary, SessionDetail, SessionItem, Started, StreamEvent,
+    self, ApiDoc, Cancelling, ContinueRequest, Continuing, Empty, ErrorBody, FileBytes, Guards,
+    Health, Materials, RigSummary, SessionDetail, SessionItem, Started, StreamEvent,
 };
 use super::{web, Daemon, StartError};
 use crate::rig::{Event, Plan};
-use crate::session::{Session, State as SessionState};
+use crate::session::{Session, SessionError, State as SessionState};
 
 pub type Shared = Arc<Daemon>;
 
-/// An error answer.
+/// An error answer: its status, code and message.
 struct ApiError(StatusCode, &'static str, String);
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
+        let ApiError(status, code, message) = self;
         let body = ErrorBody {
-            error: self.1.into(),
-            message: self.2,
+            kind: "about:blank".into(),
+            title: status.canonical_reason().unwrap_or("Error").into(),
+            status: status.as_u16(),
+            detail: message.clone(),
+            error: code.into(),
+            message,
         };
-        (self.0, Json(body)).into_response()
+        let mut response = (status, Json(body)).into_response();
+        response.headers_mut().insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static(openapi::PROBLEM),
+        );
+        response
     }
 }
 
@@ -68,26 +80,47 @@ fn bad_request(e: impl std::fmt::Display) -> ApiError {
     ApiError(StatusCode::BAD_REQUEST, "bad_request", e.to_string())
 }
 
-/// The API's routes, each registered with its OpenAPI description ([`openapi`]).
+/// The API's routes, each registered with its OpenAPI description ([`openapi`]), and each
+/// through [`guarded`].
 fn api() -> OpenApiRouter<Shared> {
     OpenApiRouter::with_openapi(ApiDoc::openapi())
-        .routes(routes!(health))
-        .routes(routes!(devices))
-        .routes(routes!(materials))
-        .routes(routes!(list, start))
-        .routes(routes!(show))
-        .routes(routes!(events))
-        .routes(routes!(result))
-        .routes(routes!(result_file))
-        .routes(routes!(cancel))
-        .routes(routes!(continue_capture))
-        .routes(routes!(resume))
+        .routes(guarded(routes!(health)))
+        .routes(guarded(routes!(devices)))
+        .routes(guarded(routes!(materials)))
+        .routes(guarded(routes!(list, start)))
+        .routes(guarded(routes!(show)))
+        .routes(guarded(routes!(events)))
+        .routes(guarded(routes!(result)))
+        .routes(guarded(routes!(result_file)))
+        .routes(guarded(routes!(cancel)))
+        .routes(guarded(routes!(continue_capture)))
+        .routes(guarded(routes!(resume)))
+}
+
+/// A route's methods with the JSON check on its POST ([`require_json_posts`]) and 405 for the
+/// methods it lacks. The check is on the route's methods, not on the router: there it ran
+/// before the method was routed, and a POST to a GET-only route got 415 where RFC 9110 says
+/// 405 (with `Allow`, which axum adds to the fallback's answer).
+fn guarded(
+    (schemas, paths, methods): utoipa_axum::router::UtoipaMethodRouter<Shared>,
+) -> utoipa_axum::router::UtoipaMethodRouter<Shared> {
+    let methods = methods
+        .route_layer(axum::middleware::from_fn(require_json_posts))
+        .fallback(|method: axum::http::Method| async move {
+            ApiError(
+                StatusCode::METHOD_NOT_ALLOWED,
+                "method_not_allowed",
+                format!("this route does not answer {method}; `Allow` lists what it answers"),
+            )
+        });
+    (schemas, paths, methods)
 }
 
 /// The OpenAPI description of everything under `/api/v1`, as `GET /api/v1/openapi.json`
-/// serves it.
+/// serves it. Its `info` is [`ApiDoc`]'s: the outer router starts from it, because a bare
+/// `OpenApiRouter::new()` brings utoipa-axum's own (its name, version and author).
 pub fn openapi() -> utoipa::openapi::OpenApi {
-    let mut description = OpenApiRouter::<Shared>::new()
+    let mut description = OpenApiRouter::<Shared>::with_openapi(ApiDoc::openapi())
         .nest(API, api())
         .into_openapi();
     Guards.modify(&mut description);
@@ -104,7 +137,7 @@ pub fn router(daemon: Shared) -> Router {
         .into();
     let (api, _) = api().split_for_parts();
     let api = api
-        .layer(axum::middleware::from_fn(require_json_posts))
+        .layer(axum::middleware::map_response(problem_for_plain_errors))
         .layer(axum::middleware::from_fn_with_state(
             daemon.clone(),
             require_token,
@@ -200,13 +233,19 @@ async fn require_token(State(d): State<Shared>, req: Request, next: Next) -> Res
             }
         }
         if !ok {
-            return ApiError(
+            let mut response = ApiError(
                 StatusCode::UNAUTHORIZED,
                 "unauthorized",
                 "this daemon requires `Authorization: Bearer <token>` (the token in its brdfd.toml), or, in a browser, signing in on its page at /"
                     .into(),
             )
             .into_response();
+            // RFC 9110 §11.6.1: a 401 names the scheme that would succeed.
+            response.headers_mut().insert(
+                header::WWW_AUTHENTICATE,
+                HeaderValue::from_static(r#"Bearer realm="brdfd""#),
+            );
+            return response;
         }
     }
     next.run(req).await
@@ -232,6 +271,39 @@ async fn require_own_host(State(d): State<Shared>, req: Request, next: Next) -> 
         }
     }
     next.run(req).await
+}
+
+/// An error axum answers itself (a path segment that is not UTF-8, say) as a problem like
+/// the API's own, its text as the detail: every error of the API is `application/problem+json`.
+async fn problem_for_plain_errors(response: Response) -> Response {
+    let status = response.status();
+    let problem = response
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .is_some_and(|v| v.as_bytes() == openapi::PROBLEM.as_bytes());
+    if !(status.is_client_error() || status.is_server_error()) || problem {
+        return response;
+    }
+    // axum's own messages are a line; a longer body is not read, and the status's phrase
+    // stands in for it.
+    const MAX_TEXT: usize = 4096;
+    let text = axum::body::to_bytes(response.into_body(), MAX_TEXT)
+        .await
+        .map(|b| String::from_utf8_lossy(&b).trim().to_string())
+        .unwrap_or_default();
+    let code = if status == StatusCode::NOT_FOUND {
+        "not_found"
+    } else if status.is_client_error() {
+        "bad_request"
+    } else {
+        "internal"
+    };
+    let text = if text.is_empty() {
+        status.canonical_reason().unwrap_or("error").to_string()
+    } else {
+        text
+    };
+    ApiError(status, code, text).into_response()
 }
 
 /// Whether a `Host` header's value (name or address, with or without a port) is this
@@ -282,7 +354,7 @@ async fn require_json_posts(req: Request, next: Next) -> Response {
 }
 
 /// The daemon's software, its rig, and the capture running now.
-#[utoipa::path(get, path = "/health", responses((status = 200, body = Health)))]
+#[utoipa::path(get, path = "/health", responses((status = 200, description = "the daemon's health", body = Health)))]
 async fn health(State(d): State<Shared>) -> Json<Health> {
     Json(Health {
         software: format!("brdfd {}", env!("CARGO_PKG_VERSION")),
@@ -294,13 +366,13 @@ async fn health(State(d): State<Shared>) -> Json<Health> {
 }
 
 /// The rig's devices and their state.
-#[utoipa::path(get, path = "/devices", responses((status = 200, body = Vec<crate::rig::DeviceStatus>)))]
+#[utoipa::path(get, path = "/devices", responses((status = 200, description = "each device of the rig", body = Vec<crate::rig::DeviceStatus>)))]
 async fn devices(State(d): State<Shared>) -> Json<Vec<crate::rig::DeviceStatus>> {
     Json(d.devices())
 }
 
 /// The material presets a capture can name.
-#[utoipa::path(get, path = "/materials", responses((status = 200, body = Materials)))]
+#[utoipa::path(get, path = "/materials", responses((status = 200, description = "the presets", body = Materials)))]
 async fn materials() -> Json<Materials> {
     Json(Materials {
         presets: crate::config::preset_names(),
@@ -312,13 +384,18 @@ async fn materials() -> Json<Materials> {
     get,
     path = "/sessions",
     responses(
-        (status = 200, body = Vec<SessionItem>),
+        (status = 200, description = "the sessions, oldest first", body = Vec<SessionItem>),
         (status = 500, description = "`storage`: the state directory cannot be read", body = ErrorBody),
     )
 )]
 async fn list(State(d): State<Shared>) -> ApiResult<Json<Vec<SessionItem>>> {
-    let all = Session::list(&d.state_dir)
-        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, "storage", e.to_string()))?;
+    let all = Session::list(&d.state_dir).map_err(|e| {
+        ApiError(
+            StatusCode::INTERNAL_SERVER_ERROR,
+            "storage",
+            d.relative(&e.to_string()),
+        )
+    })?;
     let busy = d.busy();
     Ok(Json(
         all.into_iter()
@@ -334,18 +411,34 @@ async fn list(State(d): State<Shared>) -> ApiResult<Json<Vec<SessionItem>>> {
     ))
 }
 
+/// 202 for a capture started or resumed, with the session's address in `Location` (the
+/// resource that tells how it goes, RFC 9110 §15.3.3).
 fn started(s: Session) -> Response {
     let id = s.manifest.id;
     let events = format!("{API}/sessions/{id}/events");
+    let location = format!("{API}/sessions/{id}");
     let dir = s.dir.display().to_string();
-    (StatusCode::ACCEPTED, Json(Started { id, dir, events })).into_response()
+    (
+        StatusCode::ACCEPTED,
+        [(header::LOCATION, location)],
+        Json(Started { id, dir, events }),
+    )
+        .into_response()
 }
 
 fn start_error(e: StartError) -> ApiError {
-    match e {
-        StartError::Busy(_) => ApiError(StatusCode::CONFLICT, "busy", e.to_string()),
-        StartError::Invalid(_) => bad_request(e),
-    }
+    let (status, code) = match e {
+        StartError::Busy(_) => (StatusCode::CONFLICT, "busy"),
+        StartError::Invalid(_) => (StatusCode::BAD_REQUEST, "bad_request"),
+        // RFC 9110 §15.5.21: the plan is well-formed, and names what this daemon cannot use.
+        StartError::Unusable(_) => (StatusCode::UNPROCESSABLE_ENTITY, "invalid_plan"),
+        StartError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
+        // The request is right; the session's state is what refuses it (RFC 9110 §15.5.10).
+        StartError::Done(_) => (StatusCode::CONFLICT, "already_done"),
+        StartError::NotResumable(..) => (StatusCode::CONFLICT, "not_resumable"),
+        StartError::Storage(_) => (StatusCode::INTERNAL_SERVER_ERROR, "storage"),
+    };
+    ApiError(status, code, e.to_string())
 }
 
 /// A plan's size at most: a plan is a few hundred bytes.
@@ -361,11 +454,14 @@ const PLAN_READ_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10
     path = "/sessions",
     request_body = crate::rig::Plan,
     responses(
-        (status = 202, description = "started; follow `events`", body = Started),
-        (status = 400, description = "`bad_request`: the plan is not valid JSON, or names what does not exist", body = ErrorBody),
+        (status = 202, description = "started; follow `events`", body = Started, headers(
+            ("Location" = String, description = "the session's address: `/api/v1/sessions/{id}`"),
+        )),
+        (status = 400, description = "`bad_request`: the plan is not valid JSON, or breaks a rule of its schema", body = ErrorBody),
         (status = 408, description = "`request_timeout`: the plan did not arrive in time", body = ErrorBody),
         (status = 409, description = "`busy`: a capture is running", body = ErrorBody),
-        (status = 500, description = "`internal`: the daemon could not start the capture's thread", body = ErrorBody),
+        (status = 422, description = "`invalid_plan`: the plan names what this daemon does not have (a material, a scene file), or asks what its rig cannot do", body = ErrorBody),
+        (status = 500, description = "`storage`, `internal`: the daemon could not create the session or start the capture's thread", body = ErrorBody),
     )
 )]
 async fn start(State(d): State<Shared>, body: axum::body::Body) -> ApiResult<Response> {
@@ -390,20 +486,39 @@ async fn on_capture_thread(
     post,
     path = "/sessions/{id}/resume",
     params(("id" = String, Path, description = "the session's id")),
-    request_body(content = Object, description = "`{}`", content_type = "application/json"),
+    request_body(content = Empty, description = "`{}`", content_type = "application/json"),
     responses(
-        (status = 202, description = "resumed; follow `events`", body = Started),
-        (status = 400, description = "`bad_request`: the session cannot be resumed", body = ErrorBody),
-        (status = 409, description = "`busy`: a capture is running", body = ErrorBody),
-        (status = 500, description = "`internal`: the daemon could not start the capture's thread", body = ErrorBody),
+        (status = 202, description = "resumed; follow `events`", body = Started, headers(
+            ("Location" = String, description = "the session's address: `/api/v1/sessions/{id}`"),
+        )),
+        (status = 400, description = "`bad_request`: the body is not `{}`", body = ErrorBody),
+        (status = 404, description = "`not_found`: no such session", body = ErrorBody),
+        (status = 408, description = "`request_timeout`: the body did not arrive in time", body = ErrorBody),
+        (status = 409, description = "`busy`: a capture is running; `already_done`: the session is done; `not_resumable`: its files changed since, or the rig no longer fits its plan", body = ErrorBody),
+        (status = 500, description = "`storage`, `internal`: the daemon could not read the session or start the capture's thread", body = ErrorBody),
     )
 )]
-async fn resume(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Response> {
+async fn resume(
+    State(d): State<Shared>,
+    Path(id): Path<String>,
+    body: axum::body::Body,
+) -> ApiResult<Response> {
+    let Empty {} = json_body(body, "the request").await?;
     on_capture_thread(move || d.resume(&id)).await
 }
 
+/// The session `id`; 404 if there is none (an id that is not a session's name names none).
 fn open(d: &Daemon, id: &str) -> ApiResult<Session> {
-    Session::open(&d.state_dir, id).map_err(not_found)
+    Session::open(&d.state_dir, id).map_err(|e| match e {
+        SessionError::NotFound { .. } | SessionError::Invalid(_) => {
+            not_found(format!("no session {id:?}; GET {API}/sessions lists them"))
+        }
+        e => ApiError(
+            StatusCode::INTERNAL_SERVER_ERROR,
+            "storage",
+            d.relative(&e.to_string()),
+        ),
+    })
 }
 
 /// A session: where it is stored, and its manifest.
@@ -412,7 +527,7 @@ fn open(d: &Daemon, id: &str) -> ApiResult<Session> {
     path = "/sessions/{id}",
     params(("id" = String, Path, description = "the session's id")),
     responses(
-        (status = 200, body = SessionDetail),
+        (status = 200, description = "the session", body = SessionDetail),
         (status = 404, description = "`not_found`: no such session", body = ErrorBody),
     )
 )]
@@ -427,9 +542,10 @@ async fn show(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Json
     }))
 }
 
-/// A request's JSON body, read within [`PLAN_READ_TIMEOUT`] and [`MAX_PLAN_BYTES`] (an empty
-/// body is `{}`). Parsed here rather than by the Json extractor, so that the error names the
-/// field in our own error shape.
+/// A request's JSON object, read within [`PLAN_READ_TIMEOUT`] and [`MAX_PLAN_BYTES`] (an
+/// empty body is `{}`). Parsed here rather than by the Json extractor, so that the error names
+/// the field in our own error shape; and only an object, because serde also builds a struct
+/// from an array of its fields in order, which no schema here allows.
 async fn json_body<T: serde::de::DeserializeOwned>(
     body: axum::body::Body,
     what: &str,
@@ -455,7 +571,21 @@ async fn json_body<T: serde::de::DeserializeOwned>(
     } else {
         &body
     };
-    serde_json::from_slice(body).map_err(|e| bad_request(format!("{what}: {e}")))
+    let value: serde_json::Value =
+        serde_json::from_slice(body).map_err(|e| bad_request(format!("{what}: {e}")))?;
+    if !value.is_object() {
+        let kind = match value {
+            serde_json::Value::Array(_) => "an array",
+            serde_json::Value::String(_) => "a string",
+            serde_json::Value::Number(_) => "a number",
+            serde_json::Value::Bool(_) => "a boolean",
+            _ => "null",
+        };
+        return Err(bad_request(format!(
+            "{what} must be a JSON object, not {kind}"
+        )));
+    }
+    serde_json::from_value(value).map_err(|e| bad_request(format!("{what}: {e}")))
 }
 
 /// Tells the running capture that the operator has turned the object by hand, as its
@@ -466,8 +596,9 @@ async fn json_body<T: serde::de::DeserializeOwned>(
     params(("id" = String, Path, description = "the session's id")),
     request_body(content = ContinueRequest, content_type = "application/json"),
     responses(
-        (status = 202, body = Continuing),
+        (status = 202, description = "the capture goes on", body = Continuing),
         (status = 400, description = "`bad_request`: the body is not `{}` or `{\"view\": N}`", body = ErrorBody),
+        (status = 408, description = "`request_timeout`: the body did not arrive in time", body = ErrorBody),
         (status = 409, description = "`not_waiting`: the session is not waiting for the operator now", body = ErrorBody),
     )
 )]
@@ -500,13 +631,20 @@ async fn continue_capture(
     post,
     path = "/sessions/{id}/cancel",
     params(("id" = String, Path, description = "the session's id")),
-    request_body(content = Object, description = "`{}`", content_type = "application/json"),
+    request_body(content = Empty, description = "`{}`", content_type = "application/json"),
     responses(
-        (status = 202, body = Cancelling),
+        (status = 202, description = "the capture stops at its next step", body = Cancelling),
+        (status = 400, description = "`bad_request`: the body is not `{}`", body = ErrorBody),
+        (status = 408, description = "`request_timeout`: the body did not arrive in time", body = ErrorBody),
         (status = 409, description = "`not_running`: the session is not capturing now", body = ErrorBody),
     )
 )]
-async fn cancel(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Response> {
+async fn cancel(
+    State(d): State<Shared>,
+    Path(id): Path<String>,
+    body: axum::body::Body,
+) -> ApiResult<Response> {
+    let Empty {} = json_body(body, "the request").await?;
     if d.cancel(&id) {
         let body = Cancelling {
             id,
@@ -540,17 +678,30 @@ fn done(d: &Daemon, id: &str) -> ApiResult<Session> {
     path = "/sessions/{id}/result",
     params(("id" = String, Path, description = "the session's id")),
     responses(
-        (status = 200, body = Object, content_type = "application/json"),
+        (status = 200, description = "`coefficients.json`", body = Object, content_type = "application/json", headers(
+            ("ETag" = String, description = "the file's strong validator"),
+            ("Accept-Ranges" = String, description = "`bytes`"),
+        )),
+        (status = 206, description = "the bytes `Range` asked for, as `Content-Range` says", body = FileBytes, content_type = "application/json", headers(
+            ("ETag" = String, description = "the file's strong validator"),
+            ("Content-Range" = String, description = "`bytes FIRST-LAST/LENGTH`"),
+        )),
+        (status = 304, description = "not modified: `If-None-Match` named the file's `ETag`", headers(
+            ("ETag" = String, description = "the file's strong validator"),
+        )),
         (status = 404, description = "`not_found`: no such session, or no result file", body = ErrorBody),
         (status = 409, description = "`not_done`: the session is not done", body = ErrorBody),
+        (status = 416, description = "`range_not_satisfiable`: `Range` starts past the file's end", body = ErrorBody, headers(
+            ("Content-Range" = String, description = "`bytes */LENGTH`"),
+        )),
     )
 )]
-async fn result(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Response> {
-    let s = done(&d, &id)?;
-    let bytes = tokio::fs::read(s.dir.join("result/coefficients.json"))
-        .await
-        .map_err(not_found)?;
-    Ok(([(header::CONTENT_TYPE, "application/json")], bytes).into_response())
+async fn result(
+    State(d): State<Shared>,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+) -> ApiResult<Response> {
+    serve_result(&d, &id, ResultFile::Coefficients, &headers).await
 }
 
 /// The result files the API serves. A fixed list, so a file name from a request never reaches
@@ -661,41 +812,224 @@ impl ResultFile {
             (String = "text/html"),
             (Object = "model/gltf+json"),
             (String = "application/xml"),
+        ), headers(
+            ("ETag" = String, description = "the file's strong validator"),
+            ("Accept-Ranges" = String, description = "`bytes`"),
+        )),
+        (status = 206, description = "the bytes `Range` asked for, as `Content-Range` says, in the file's media type", content(
+            (FileBytes = "image/png"),
+            (FileBytes = "image/x-exr"),
+            (FileBytes = "image/vnd.radiance"),
+            (FileBytes = "application/octet-stream"),
+            (FileBytes = "application/json"),
+            (FileBytes = "text/html"),
+            (FileBytes = "model/gltf+json"),
+            (FileBytes = "application/xml"),
+        ), headers(
+            ("ETag" = String, description = "the file's strong validator"),
+            ("Content-Range" = String, description = "`bytes FIRST-LAST/LENGTH`"),
+        )),
+        (status = 304, description = "not modified: `If-None-Match` named the file's `ETag`", headers(
+            ("ETag" = String, description = "the file's strong validator"),
         )),
         (status = 404, description = "`not_found`: no such session, or no such file in its result (`brdf-sigma.exr` with an uncertainty band, `compare.png` with a photo, `light.hdr` with a capture's map, `object.gltf` on a mesh)", body = ErrorBody),
         (status = 409, description = "`not_done`: the session is not done", body = ErrorBody),
+        (status = 416, description = "`range_not_satisfiable`: `Range` starts past the file's end", body = ErrorBody, headers(
+            ("Content-Range" = String, description = "`bytes */LENGTH`"),
+        )),
     )
 )]
 async fn result_file(
     State(d): State<Shared>,
     Path((id, file)): Path<(String, String)>,
+    headers: HeaderMap,
 ) -> ApiResult<Response> {
     let file =
         ResultFile::named(&file).ok_or_else(|| not_found(format!("no result file {file:?}")))?;
-    let s = done(&d, &id)?;
-    let path = s.dir.join("result").join(file.name());
-    let opened = tokio::fs::File::open(&path).await.map_err(not_found)?;
-    let length = opened.metadata().await.map_err(not_found)?.len();
-    // Streamed from disk a chunk at a time: 40 clients that ask for the 35 MB BRDF table and
-    // never read it hold a chunk each, not the file (the server's write timeout drops them).
-    let chunks = futures_util::stream::try_unfold(opened, |mut f| async move {
+    serve_result(&d, &id, file, &headers).await
+}
+
+/// Bytes a result file is read and sent in: 40 clients that ask for the 35 MB BRDF table and
+/// never read it hold a chunk each, not the file (the server's write timeout drops them).
+const FILE_CHUNK: usize = 64 * 1024;
+
+/// A finished session's result file, as download tools and browsers expect a file to be
+/// served (RFC 9110 §13, §14): a strong `ETag` from its size and modification time
+/// (`If-None-Match` gives 304), and one byte range (`Range`, within `If-Range`) as 206, or 416
+/// past its end. Several ranges get the whole file, as §14.2 allows. Result files are written
+/// once, by a rename; a file written again has another time, so another tag. Our own code,
+/// not tower-http's `ServeFile`: in tower-http 0.6 that has no `ETag`, and answers errors as
+/// plain text.
+async fn serve_result(
+    d: &Daemon,
+    id: &str,
+    file: ResultFile,
+    headers: &HeaderMap,
+) -> ApiResult<Response> {
+    let s = done(d, id)?;
+    let missing = || not_found(format!("session {id} has no {}", file.name()));
+    let mut opened = tokio::fs::File::open(s.dir.join("result").join(file.name()))
+        .await
+        .map_err(|_| missing())?;
+    let meta = opened.metadata().await.map_err(|_| missing())?;
+    let length = meta.len();
+    let tag = entity_tag(length, meta.modified().ok());
+    let tag_header = HeaderValue::from_str(&tag).expect("an entity tag is ASCII");
+    let given = |name: header::HeaderName| headers.get(name).and_then(|v| v.to_str().ok());
+    if given(header::IF_NONE_MATCH).is_some_and(|list| none_match_fails(list, &tag)) {
+        return Ok((StatusCode::NOT_MODIFIED, [(header::ETAG, tag_header)]).into_response());
+    }
+    // A range of another version of the file would splice two files: the whole file then.
+    let same = given(header::IF_RANGE).is_none_or(|v| v.trim() == tag);
+    let range = match given(header::RANGE) {
+        Some(r) if same => byte_range(r, length),
+        _ => Ranged::Whole,
+    };
+    let (status, first, last) = match range {
+        Ranged::Whole => (StatusCode::OK, 0, length.checked_sub(1)),
+        Ranged::Part(first, last) => (StatusCode::PARTIAL_CONTENT, first, Some(last)),
+        Ranged::Unsatisfiable => {
+            let mut response = ApiError(
+                StatusCode::RANGE_NOT_SATISFIABLE,
+                "range_not_satisfiable",
+                format!(
+                    "{} has {length} bytes; the range asked for starts past them",
+                    file.name()
+                ),
+            )
+            .into_response();
+            response.headers_mut().insert(
+                header::CONTENT_RANGE,
+                HeaderValue::from_str(&format!("bytes */{length}")).expect("ASCII"),
+            );
+            return Ok(response);
+        }
+    };
+    let count = last.map_or(0, |last| last + 1 - first);
+    if first > 0 {
+        use tokio::io::AsyncSeekExt as _;
+        opened
+            .seek(std::io::SeekFrom::Start(first))
+            .await
+            .map_err(|_| missing())?;
+    }
+    let chunks = futures_util::stream::try_unfold((opened, count), |(mut f, left)| async move {
         use tokio::io::AsyncReadExt as _;
-        let mut chunk = vec![0u8; 64 * 1024];
+        if left == 0 {
+            return Ok(None);
+        }
+        let mut chunk = vec![0u8; FILE_CHUNK.min(usize::try_from(left).unwrap_or(FILE_CHUNK))];
         let n = f.read(&mut chunk).await?;
+        if n == 0 {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::UnexpectedEof,
+                "the file ended before its length",
+            ));
+        }
         chunk.truncate(n);
-        Ok::<_, std::io::Error>((n > 0).then_some((axum::body::Bytes::from(chunk), f)))
+        Ok(Some((axum::body::Bytes::from(chunk), (f, left - n as u64))))
     });
     // The report is a page of inline images, SVG and CSS: nothing in it may run or load.
     let policy = "default-src 'none'; img-src data:; style-src 'unsafe-inline'";
-    Ok((
+    let mut response = (
+        status,
         [
             (header::CONTENT_TYPE, file.media_type()),
             (header::CONTENT_SECURITY_POLICY, policy),
+            (header::ACCEPT_RANGES, "bytes"),
         ],
-        [(header::CONTENT_LENGTH, length.to_string())],
+        [(header::CONTENT_LENGTH, count.to_string())],
         axum::body::Body::from_stream(chunks),
     )
-        .into_response())
+        .into_response();
+    let headers = response.headers_mut();
+    headers.insert(header::ETAG, tag_header);
+    if let (StatusCode::PARTIAL_CONTENT, Some(last)) = (status, last) {
+        headers.insert(
+            header::CONTENT_RANGE,
+            HeaderValue::from_str(&format!("bytes {first}-{last}/{length}")).expect("ASCII"),
+        );
+    }
+    Ok(response)
+}
+
+/// A strong entity tag (RFC 9110 §8.8.3) from a file's length and modification time, to the
+/// nanosecond: `"LENGTH-SECONDS.NANOS"` in hex.
+fn entity_tag(length: u64, modified: Option<std::time::SystemTime>) -> String {
+    let since = modified
+        .and_then(|m| m.duration_since(std::time::UNIX_EPOCH).ok())
+        .unwrap_or_default();
+    format!(
+        "\"{length:x}-{:x}.{:x}\"",
+        since.as_secs(),
+        since.subsec_nanos()
+    )
+}
+
+/// Whether `If-None-Match: list` fails for the tag `tag`, so that a GET answers 304: `*`, or a
+/// tag in the list that matches by the weak comparison (RFC 9110 §13.1.2).
+fn none_match_fails(list: &str, tag: &str) -> bool {
+    list.split(',')
+        .map(str::trim)
+        .any(|t| t == "*" || t.strip_prefix("W/").unwrap_or(t) == tag)
+}
+
+/// What a `Range` header asks of a file.
+#[derive(Debug, PartialEq, Eq)]
+enum Ranged {
+    /// No range the server takes (none, several, or not `bytes=` in RFC 9110's syntax): the
+    /// whole file, 200.
+    Whole,
+    /// Bytes `first..=last`, within the file: 206.
+    Part(u64, u64),
+    /// A range that starts past the end, or asks for the last 0 bytes: 416.
+    Unsatisfiable,
+}
+
+/// The one byte range of `Range: value` (RFC 9110 §14.1.2) of a file of `length` bytes.
+fn byte_range(value: &str, length: u64) -> Ranged {
+    let digits = |s: &str| -> Option<u64> {
+        if s.is_empty() || !s.bytes().all(|b| b.is_ascii_digit()) {
+            return None;
+        }
+        // More digits than a u64 holds: past any file's end.
+        Some(s.parse().unwrap_or(u64::MAX))
+    };
+    let Some((unit, spec)) = value.trim().split_once('=') else {
+        return Ranged::Whole;
+    };
+    if !unit.trim().eq_ignore_ascii_case("bytes") || spec.contains(',') {
+        return Ranged::Whole;
+    }
+    let Some((first, last)) = spec.trim().split_once('-') else {
+        return Ranged::Whole;
+    };
+    let (first, last) = (first.trim(), last.trim());
+    if first.is_empty() {
+        // The last N bytes.
+        return match digits(last) {
+            None => Ranged::Whole,
+            Some(0) => Ranged::Unsatisfiable,
+            Some(_) if length == 0 => Ranged::Unsatisfiable,
+            Some(n) => Ranged::Part(length - n.min(length), length - 1),
+        };
+    }
+    let Some(first) = digits(first) else {
+        return Ranged::Whole;
+    };
+    let last = match (last.is_empty(), digits(last)) {
+        (true, _) => None,
+        (false, Some(last)) => Some(last),
+        (false, None) => return Ranged::Whole,
+    };
+    if last.is_some_and(|last| last < first) {
+        // An invalid range: the header is ignored (§14.1.1).
+        return Ranged::Whole;
+    }
+    if first >= length {
+        return Ranged::Unsatisfiable;
+    }
+    Ranged::Part(first, last.map_or(length - 1, |last| last.min(length - 1)))
 }
 
 /// The session's events as Server-Sent Events, one JSON [`Event`] each, with its place as
@@ -824,7 +1158,46 @@ impl Drop for StreamSlot {
 
 #[cfg(test)]
 mod tests {
-    use super::is_own_host;
+    use super::{byte_range, is_own_host, none_match_fails, Ranged};
+
+    #[test]
+    fn one_byte_range_is_taken_as_rfc_9110_writes_it() {
+        let part = Ranged::Part;
+        for (range, length, wanted) in [
+            ("bytes=0-9", 100, part(0, 9)),
+            ("bytes=90-", 100, part(90, 99)),
+            ("bytes=-10", 100, part(90, 99)),
+            ("bytes=-1000", 100, part(0, 99)),
+            ("bytes=50-1000", 100, part(50, 99)),
+            ("Bytes = 1-2", 100, part(1, 2)),
+            ("bytes=100-", 100, Ranged::Unsatisfiable),
+            ("bytes=100-200", 100, Ranged::Unsatisfiable),
+            ("bytes=-0", 100, Ranged::Unsatisfiable),
+            ("bytes=0-", 0, Ranged::Unsatisfiable),
+            ("bytes=99999999999999999999999-", 100, Ranged::Unsatisfiable),
+            // Ignored: the whole file.
+            ("bytes=0-1,3-4", 100, Ranged::Whole),
+            ("bytes=9-0", 100, Ranged::Whole),
+            ("bytes=+1-2", 100, Ranged::Whole),
+            ("bytes=1", 100, Ranged::Whole),
+            ("bytes=-", 100, Ranged::Whole),
+            ("items=0-9", 100, Ranged::Whole),
+            ("", 100, Ranged::Whole),
+        ] {
+            assert_eq!(byte_range(range, length), wanted, "{range:?} of {length}");
+        }
+    }
+
+    #[test]
+    fn if_none_match_compares_tags_weakly() {
+        let tag = "\"1f-2.3\"";
+        for list in [tag, "*", "W/\"1f-2.3\"", "\"x\", \"1f-2.3\""] {
+            assert!(none_match_fails(list, tag), "{list}");
+        }
+        for list in ["\"x\"", "1f-2.3", ""] {
+            assert!(!none_match_fails(list, tag), "{list}");
+        }
+    }
 
     #[test]
     fn own_hosts_are_addresses_localhost_and_the_configured_names() {

@@ -23,7 +23,7 @@ use crate::config::Rig;
 use crate::rig::flow::{self, Context};
 use crate::rig::settings::CaptureSettings;
 use crate::rig::{Cancel, Devices, Event, GoAhead, Plan};
-use crate::session::{Session, State};
+use crate::session::{Session, SessionError, State};
 
 /// Events of one session: everything so far, and a channel for what comes next. A client
 /// that connects late gets the history first, so no event is missed. An event's id is
@@ -152,28 +152,48 @@ fn scene_file(
     use std::path::Component;
     let dir = state.join(SCENES_DIR);
     let mut parts = name.components();
+    // The messages reach API clients: they name the folder as the state directory's, never by
+    // its absolute path on this machine.
     if !matches!(
         (parts.next(), parts.next()),
         (Some(Component::Normal(_)), None)
     ) {
         anyhow::bail!(
-            "`{what}` must name a file in the daemon's {} folder, not give a path: {:?}",
-            dir.display(),
+            "`{what}` must name a file in the daemon's {SCENES_DIR} folder, not give a path: {:?}",
             name.display().to_string()
         );
     }
     let path = dir.join(name);
-    let meta = std::fs::metadata(&path).with_context(|| {
-        format!(
-            "`{what}`: no file {:?} in {}",
+    let meta = std::fs::metadata(&path).map_err(|e| {
+        anyhow::anyhow!(
+            "`{what}`: no file {:?} in the daemon's {SCENES_DIR} folder ({})",
             name.display().to_string(),
-            dir.display()
+            e.kind()
         )
     })?;
     if !meta.is_file() {
-        anyhow::bail!("`{what}`: {} is not a regular file", path.display());
+        anyhow::bail!(
+            "`{what}`: {:?} in the daemon's {SCENES_DIR} folder is not a regular file",
+            name.display().to_string()
+        );
     }
     Ok(path)
+}
+
+/// A plan's scene files are named, never given as paths: a name has no `/` (the pattern the
+/// API's description gives `env` and `nbrdf`). A name of that shape that is no file in the
+/// folder (`..`, say) is refused when it is looked up ([`scene_file`]).
+fn scene_names(plan: &Plan) -> anyhow::Result<()> {
+    for (what, file) in [("env", &plan.env), ("nbrdf", &plan.nbrdf)] {
+        if let Some(name) = file {
+            let name = name.to_string_lossy();
+            anyhow::ensure!(
+                !name.is_empty() && !name.contains('/'),
+                "`{what}` must name a file in the daemon's {SCENES_DIR} folder, not give a path: {name:?}"
+            );
+        }
+    }
+    Ok(())
 }
 
 type Unrecorded = Arc<Mutex<std::collections::BTreeMap<String, flow::Unrecorded>>>;
@@ -227,13 +247,30 @@ fn record_when_possible(
 /// Captures whose events the daemon keeps.
 const EVENT_LOGS_KEPT: usize = 32;
 
-/// Why a capture could not start.
+/// Why a capture could not start or resume. The API answers each with its own status
+/// (`api::start_error`).
 #[derive(Debug, thiserror::Error)]
 pub enum StartError {
     #[error("busy: session {0} is capturing on this rig; wait for it, or cancel it")]
     Busy(String),
+    /// The plan breaks a rule its schema states (a name, a range, a count): fix the plan.
     #[error("{0:#}")]
     Invalid(anyhow::Error),
+    /// A well-formed plan this daemon cannot carry out: a material its simulator lacks, a scene
+    /// file not in its folder, a rig that cannot run it.
+    #[error("{0:#}")]
+    Unusable(anyhow::Error),
+    #[error("no session {0:?}; GET /api/v1/sessions lists them")]
+    NotFound(String),
+    #[error("session {0} is already done; its result is at /api/v1/sessions/{0}/result")]
+    Done(String),
+    /// A stored session that cannot go on as it is (its files changed, or the rig no longer
+    /// fits its plan).
+    #[error("session {0} cannot be resumed: {1:#}")]
+    NotResumable(String, anyhow::Error),
+    /// The state directory could not hold the session, or the capture's thread not start.
+    #[error("{0:#}")]
+    Storage(anyhow::Error),
 }
 
 impl Daemon {
@@ -268,6 +305,30 @@ impl Daemon {
             max_event_streams: MAX_EVENT_STREAMS,
             throttle: throttle::Throttle::default(),
         })
+    }
+
+    /// `e` as API clients may read it: paths in the state directory relative to it, so that no
+    /// answer tells a client where this machine keeps its files.
+    pub fn private(&self, e: anyhow::Error) -> anyhow::Error {
+        anyhow::Error::msg(self.relative(&format!("{e:#}")))
+    }
+
+    /// `text` with the state directory's path (as given, and resolved) left out of the paths
+    /// in it.
+    pub fn relative(&self, text: &str) -> String {
+        let given = self.state_dir.display().to_string();
+        let resolved = std::fs::canonicalize(&self.state_dir)
+            .map(|p| p.display().to_string())
+            .unwrap_or_else(|_| given.clone());
+        let mut text = text.to_string();
+        for dir in [resolved, given] {
+            if !dir.is_empty() && dir != "/" {
+                text = text
+                    .replace(&format!("{dir}/"), "")
+                    .replace(&dir, "the state directory");
+            }
+        }
+        text
     }
 
     pub fn devices(&self) -> Vec<crate::rig::DeviceStatus> {
@@ -309,16 +370,18 @@ impl Daemon {
         // A malformed plan is refused as such whether or not a capture runs: the caller
         // learns what to fix, not only that it must wait.
         plan.validate().map_err(StartError::Invalid)?;
+        scene_names(&plan).map_err(StartError::Invalid)?;
         // The scene files by name first: every later step reads the files they resolve to,
         // never a path the client sent.
-        let plan = self.scene_files(plan).map_err(StartError::Invalid)?;
-        let settings = CaptureSettings::resolve(&plan, &self.rig).map_err(StartError::Invalid)?;
+        let plan = self.scene_files(plan).map_err(StartError::Unusable)?;
+        let settings = CaptureSettings::resolve(&plan, &self.rig)
+            .map_err(|e| StartError::Unusable(self.private(e)))?;
         // One lock from the busy check to the launch: two plans sent at once must not both
         // pass the check and leave a session behind for the one that loses.
         let mut running = self.lock_idle()?;
         let session = settings
             .new_session(&self.state_dir, &self.rig_text)
-            .map_err(StartError::Invalid)?;
+            .map_err(|e| StartError::Storage(self.private(e)))?;
         self.launch(&mut running, session, settings)
     }
 
@@ -341,10 +404,19 @@ impl Daemon {
         // A failure not yet recorded is no longer retried: the resumed run records its own
         // state, and no retry may write the manifest while `resumable` does.
         self.unrecorded.lock().expect("unrecorded").remove(id);
-        let mut s =
-            Session::open(&self.state_dir, id).map_err(|e| StartError::Invalid(e.into()))?;
-        let plan = resumable(&mut s).map_err(StartError::Invalid)?;
-        let settings = CaptureSettings::resolve(&plan, &self.rig).map_err(StartError::Invalid)?;
+        let mut s = Session::open(&self.state_dir, id).map_err(|e| match e {
+            SessionError::NotFound { .. } | SessionError::Invalid(_) => {
+                StartError::NotFound(id.to_string())
+            }
+            e => StartError::Storage(self.private(e.into())),
+        })?;
+        if s.manifest.state == State::Done {
+            return Err(StartError::Done(id.to_string()));
+        }
+        let unresumable =
+            |e: anyhow::Error| StartError::NotResumable(id.to_string(), self.private(e));
+        let plan = resumable(&mut s).map_err(unresumable)?;
+        let settings = CaptureSettings::resolve(&plan, &self.rig).map_err(unresumable)?;
         // Checked again under the lock: another capture may have started meanwhile.
         let mut running = self.lock_idle()?;
         self.launch(&mut running, s, settings)
@@ -422,7 +494,7 @@ impl Daemon {
                     }
                 }
             })
-            .map_err(|e| StartError::Invalid(e.into()))?;
+            .map_err(|e| StartError::Storage(e.into()))?;
         *running = Some(Running {
             id,
             cancel,

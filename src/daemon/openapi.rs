@@ -1,28 +1,51 @@
 //! The API's OpenAPI description, served at `GET /api/v1/openapi.json`. It is generated from
 //! the handlers' `#[utoipa::path]` attributes as [`super::api::router`] registers them
 //! (utoipa-axum), so a route cannot exist without its description, nor the other way round.
-//! What the middleware adds to every answer (401, 421, 415) is added here to every operation
-//! by [`Guards`], the one place that mirrors it.
+//! What the middleware adds to every answer (401, 421, 429, 415) is added here to every
+//! operation by [`Guards`], the one place that mirrors it; it also gives every error its
+//! media type, `application/problem+json`.
 
 use serde::{Deserialize, Serialize};
+use utoipa::openapi::header::HeaderBuilder;
 use utoipa::openapi::path::Operation;
+use utoipa::openapi::schema::{ObjectBuilder, Type};
 use utoipa::openapi::security::{
     ApiKey, ApiKeyValue, HttpAuthScheme, HttpBuilder, SecurityRequirement, SecurityScheme,
 };
-use utoipa::openapi::{ContentBuilder, OpenApi, Ref, ResponseBuilder};
+use utoipa::openapi::{ContentBuilder, OpenApi, Ref, RefOr, ResponseBuilder};
 use utoipa::{Modify, ToSchema};
 
 use crate::session::State as SessionState;
 
-/// Every error: a code for programs and a sentence for people.
+/// Every error: an RFC 9457 problem (`application/problem+json`), with brdfd's code for
+/// programs (`error`) and its sentence for people (`message`, the same as `detail`) as
+/// extension members, as before the standard members came.
 #[derive(Serialize, ToSchema)]
 pub struct ErrorBody {
-    /// `not_found`, `bad_request`, `busy`, `not_done`, `not_running`, `unauthorized`,
-    /// `unknown_host`, `unsupported_media_type`, `request_timeout`, `storage`, `internal`.
-    pub error: String,
+    /// `about:blank`: a daemon on a bench has no stable address to name its problem types
+    /// by, so the type is the status's own (RFC 9457 §4.2.1), and `error` says which problem
+    /// of that status this is.
+    #[serde(rename = "type")]
+    #[schema(example = "about:blank")]
+    pub kind: String,
+    /// The status's reason phrase (`Conflict`, `Not Found`, ...).
+    pub title: String,
+    /// The HTTP status of the answer.
+    #[schema(minimum = 400, maximum = 599)]
+    pub status: u16,
     /// What was wrong, and where.
+    pub detail: String,
+    /// `not_found`, `bad_request`, `invalid_plan`, `busy`, `already_done`, `not_resumable`,
+    /// `not_done`, `not_running`, `not_waiting`, `unauthorized`, `unknown_host`,
+    /// `method_not_allowed`, `unsupported_media_type`, `range_not_satisfiable`,
+    /// `request_timeout`, `too_many_attempts`, `too_many_streams`, `storage`, `internal`.
+    pub error: String,
+    /// `detail` again, under the name brdfd's clients have read since before RFC 9457.
     pub message: String,
 }
+
+/// The media type of every error answer.
+pub const PROBLEM: &str = "application/problem+json";
 
 /// `GET /health`.
 #[derive(Serialize, ToSchema)]
@@ -93,10 +116,15 @@ pub struct Cancelling {
 #[derive(Deserialize, ToSchema, Default)]
 #[serde(deny_unknown_fields)]
 pub struct ContinueRequest {
-    #[serde(default)]
-    #[schema(minimum = 1)]
+    #[serde(default, deserialize_with = "crate::rig::some_whole_number")]
+    #[schema(minimum = 1, maximum = 360)] // rig::MAX_VIEWS
     pub view: Option<usize>,
 }
+
+/// `POST /sessions/{id}/cancel` and `.../resume`: `{}`, nothing else.
+#[derive(Deserialize, ToSchema, Default)]
+#[serde(deny_unknown_fields)]
+pub struct Empty {}
 
 /// `POST /sessions/{id}/continue`.
 #[derive(Serialize, ToSchema)]
@@ -126,16 +154,19 @@ pub struct FileBytes(pub Vec<u8>);
 #[openapi(
     info(
         title = "brdfd",
+        version = env!("CARGO_PKG_VERSION"),
         description = "The brdfd daemon's HTTP API (`brdfd serve`): devices, captures and their \
-                       results. docs/api.md says more."
+                       results. docs/api.md says more.",
+        license(name = "MIT", identifier = "MIT"),
     ),
     components(schemas(ErrorBody, crate::rig::Event, super::api::ResultFile))
 )]
 pub struct ApiDoc;
 
-/// Adds what the middleware answers to every operation: 401 (a daemon with a token), 421 (a
-/// `Host` not its own), 415 on a POST without a JSON body; and the two ways to give the token.
-/// Applied to the whole description once the routes are in it.
+/// Adds what the middleware answers to every operation: 401 (a daemon with a token), 429
+/// (an address locked out for wrong tokens), 421 (a `Host` not its own), 415 on a POST
+/// without a JSON body; the two ways to give the token; and `application/problem+json` as
+/// every error's media type. Applied to the whole description once the routes are in it.
 pub struct Guards;
 
 impl Modify for Guards {
@@ -155,22 +186,27 @@ impl Modify for Guards {
             SecurityRequirement::new("signed_in", Vec::<String>::new()),
             SecurityRequirement::default(),
         ]);
-        let error = |what: &str| {
-            ResponseBuilder::new()
-                .description(what)
-                .content(
-                    "application/json",
-                    ContentBuilder::new()
-                        .schema(Some(Ref::from_schema_name("ErrorBody")))
-                        .build(),
-                )
-                .build()
+        let error = |what: &str, header: Option<(&str, &str)>| {
+            let mut response = ResponseBuilder::new().description(what).content(
+                PROBLEM,
+                ContentBuilder::new()
+                    .schema(Some(Ref::from_schema_name("ErrorBody")))
+                    .build(),
+            );
+            if let Some((name, says)) = header {
+                let header = HeaderBuilder::new()
+                    .schema(Some(ObjectBuilder::new().schema_type(Type::String)))
+                    .description(Some(says))
+                    .build();
+                response = response.header(name, header);
+            }
+            response.build()
         };
-        let add = |op: &mut Operation, status: &str, what: &str| {
+        let add = |op: &mut Operation, status: &str, what: &str, header| {
             op.responses
                 .responses
                 .entry(status.to_string())
-                .or_insert_with(|| error(what).into());
+                .or_insert_with(|| error(what, header).into());
         };
         for item in api.paths.paths.values_mut() {
             let ops = [
@@ -189,19 +225,53 @@ impl Modify for Guards {
                     op,
                     "401",
                     "`unauthorized`: the daemon has a token and none was given",
+                    Some((
+                        "WWW-Authenticate",
+                        "`Bearer realm=\"brdfd\"` (RFC 9110 §11.6.1)",
+                    )),
+                );
+                add(
+                    op,
+                    "429",
+                    "`too_many_attempts`: this address gave wrong tokens, and must wait",
+                    Some(("Retry-After", "seconds to wait")),
                 );
                 add(
                     op,
                     "421",
                     "`unknown_host`: the request's `Host` is not this daemon's",
+                    None,
                 );
                 if post {
                     add(
                         op,
                         "415",
                         "`unsupported_media_type`: a POST without `Content-Type: application/json`",
+                        None,
                     );
                 }
+                problems(op);
+            }
+        }
+    }
+}
+
+/// Every answer of `op` whose body is an [`ErrorBody`] as [`PROBLEM`]: the handlers' own
+/// errors are declared with `body = ErrorBody`, which utoipa gives `application/json`.
+fn problems(op: &mut Operation) {
+    for response in op.responses.responses.values_mut() {
+        let RefOr::T(response) = response else {
+            continue;
+        };
+        let is_problem = match response.content.get("application/json") {
+            Some(RefOr::T(c)) => {
+                matches!(&c.schema, Some(RefOr::Ref(r)) if r.ref_location.ends_with("/ErrorBody"))
+            }
+            _ => false,
+        };
+        if is_problem {
+            if let Some(content) = response.content.shift_remove("application/json") {
+                response.content.insert(PROBLEM.to_string(), content);
             }
         }
     }

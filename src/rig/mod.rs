@@ -49,13 +49,17 @@ pub use worker::{Device, DeviceStatus, Worker};
 #[serde(deny_unknown_fields)]
 pub struct Plan {
     /// A preset in config/materials, a MERL name, or an alias (gold, chrome, paint, ...).
+    // The pattern is `config::validate_name`'s rule, which `validate` applies.
+    #[schema(pattern = "^[a-z0-9][a-z0-9-]{0,63}$")]
     pub material: String,
     /// Image size of the simulated camera (ignored on a hardware rig).
-    #[serde(default = "default_size")]
+    #[serde(default = "default_size", deserialize_with = "whole_number")]
     #[schema(minimum = 8, maximum = 8192, default = 256)]
     pub size: usize,
     /// Pixels to estimate from: a number or "all"; the preset's, else 20.
+    // The pattern is what `validate` accepts (`pixels_rule`).
     #[serde(default)]
+    #[schema(pattern = "^(all|[1-9][0-9]{0,8})$")]
     pub pixels: Option<String>,
     /// The BRDF model: "hybrid", "analytic" or "basis"; the preset's, else hybrid.
     #[serde(default)]
@@ -68,21 +72,23 @@ pub struct Plan {
     pub colour: Option<ColourChoice>,
     /// DSLR shutter speeds, seconds; the preset's, else the rig's.
     #[serde(default)]
-    #[schema(max_items = 32)] // config::MAX_BRACKET
+    #[schema(schema_with = bracket_schema)]
     pub bracket: Vec<f64>,
     /// Turntable views (1: no turntable); the rig's `[turntable]` plan, else 1.
-    #[serde(default)]
-    #[schema(minimum = 1, maximum = 360)]
+    #[serde(default, deserialize_with = "some_whole_number")]
+    #[schema(minimum = 1, maximum = 360)] // MAX_VIEWS
     pub views: Option<usize>,
     /// Turntable step between views, degrees; the rig's, else 30.
     #[serde(default)]
     pub turn: Option<f64>,
-    /// Simulated rig only: the environment map and NBRDF file of the scene.
+    /// Simulated rig only: the environment map and NBRDF file of the scene, by file name in
+    /// the daemon's `scenes` folder.
+    // A path is refused (`daemon::scene_names`): the pattern says so.
     #[serde(default)]
-    #[schema(value_type = Option<String>)]
+    #[schema(value_type = Option<String>, pattern = "^[^/]+$")]
     pub env: Option<PathBuf>,
     #[serde(default)]
-    #[schema(value_type = Option<String>)]
+    #[schema(value_type = Option<String>, pattern = "^[^/]+$")]
     pub nbrdf: Option<PathBuf>,
     /// Simulated rig only: the sample is the material's projection onto the basis (its best
     /// K-term approximation) rather than the material itself. Its coefficients are then known
@@ -93,6 +99,51 @@ pub struct Plan {
 
 fn default_size() -> usize {
     256
+}
+
+/// The plan's `bracket` in the API's description: [`crate::config::MAX_BRACKET`] shutter
+/// speeds at most, each above 0 and at most [`crate::config::MAX_EXPOSURE_S`] seconds, as
+/// [`Plan::validate`] requires.
+fn bracket_schema() -> utoipa::openapi::Array {
+    use utoipa::openapi::schema::{ArrayBuilder, ObjectBuilder, Type};
+    let speed = ObjectBuilder::new()
+        .schema_type(Type::Number)
+        .exclusive_minimum(Some(0.0))
+        .maximum(Some(crate::config::MAX_EXPOSURE_S));
+    ArrayBuilder::new()
+        .items(speed)
+        .max_items(Some(crate::config::MAX_BRACKET))
+        .description(Some(
+            "DSLR shutter speeds, seconds; the preset's, else the rig's.",
+        ))
+        .build()
+}
+
+/// A count given as a JSON number: `5` or `5.0` alike. JSON Schema's `integer` is any number
+/// without a fraction (a client's JSON library may write 5 as `5.0`), where serde takes only
+/// the former.
+pub fn whole_number<'de, D: serde::Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
+    let n = serde_json::Number::deserialize(d)?;
+    if let Some(n) = n.as_u64() {
+        return usize::try_from(n).map_err(serde::de::Error::custom);
+    }
+    match n.as_f64() {
+        // Up to u32::MAX, which every count a plan holds is far below, and which an f64 holds
+        // exactly.
+        Some(f) if f >= 0.0 && f.fract() == 0.0 && f <= u32::MAX as f64 => Ok(f as usize),
+        _ => Err(serde::de::Error::custom(format!(
+            "expected a whole number, not {n}"
+        ))),
+    }
+}
+
+/// [`whole_number`] for an optional field (`null` or absent is `None`).
+pub fn some_whole_number<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> Result<Option<usize>, D::Error> {
+    #[derive(Deserialize)]
+    struct Whole(#[serde(deserialize_with = "whole_number")] usize);
+    Ok(Option::<Whole>::deserialize(d)?.map(|w| w.0))
 }
 
 impl Plan {
@@ -146,7 +197,7 @@ impl Plan {
             self.size
         );
         if let Some(p) = &self.pixels {
-            flow::parse_pixels(p)?;
+            pixels_rule(p)?;
         }
         use crate::config::{MAX_BRACKET, MAX_EXPOSURE_S};
         anyhow::ensure!(
@@ -162,6 +213,20 @@ impl Plan {
         );
         Ok(())
     }
+}
+
+/// A plan's `pixels`: `all`, or a count from 1 written plainly (no sign, no leading zero, at
+/// most nine digits), the pattern the API's description gives it.
+fn pixels_rule(p: &str) -> anyhow::Result<()> {
+    let plain = !p.is_empty()
+        && p.len() <= 9
+        && !p.starts_with('0')
+        && p.bytes().all(|b| b.is_ascii_digit());
+    anyhow::ensure!(
+        p == "all" || plain,
+        "pixels takes `all` or a count from 1 (at most nine digits), not {p:?}"
+    );
+    flow::parse_pixels(p).map(|_| ())
 }
 
 /// Turntable views at most: one per degree, more than any bench turns for one estimate, and a
