@@ -279,3 +279,157 @@ fn capture_with_the_simulated_turntable_uses_every_view() {
         out(&zero)
     );
 }
+
+/// A loopback port where a connection is never accepted: its queue (of one) is held full, so
+/// a connect waits until it gives up, as at an address where nothing answers. Held while the
+/// values live.
+fn silent_port() -> (std::net::TcpListener, std::net::TcpStream, u16) {
+    use std::os::fd::AsRawFd;
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    // SAFETY: a listening socket of ours; listen() again only shortens its queue.
+    assert_eq!(unsafe { libc::listen(listener.as_raw_fd(), 0) }, 0);
+    let port = listener.local_addr().unwrap().port();
+    let filler = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+    (listener, filler, port)
+}
+
+/// Issue 42: `theta info` at an address where nothing listens was silent for 29 s, retrying;
+/// `theta info` and `ptp info` answer within 5 s, saying what to check. Over USB, `ptp info`
+/// says why USB cannot be used as `brdfd devices` does, not only "libusb: Other error".
+#[test]
+fn a_dead_address_is_answered_within_five_seconds_with_what_to_check() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_listener, _filler, silent) = silent_port();
+    let within = |args: &[&str]| {
+        let start = std::time::Instant::now();
+        let o = brdfd(args, dir.path());
+        let took = start.elapsed();
+        assert!(!o.status.success(), "{args:?}: {}", out(&o));
+        assert!(
+            took < std::time::Duration::from_secs(5),
+            "{args:?} took {took:?}"
+        );
+        out(&o)
+    };
+    for port in ["9".to_string(), silent.to_string()] {
+        let said = within(&[
+            "theta",
+            "info",
+            "--port",
+            &format!("http://127.0.0.1:{port}"),
+        ]);
+        assert!(
+            said.contains(&format!(
+                "cannot connect to the THETA at http://127.0.0.1:{port}/"
+            )) && said.contains("Check the address")
+                && said.contains("access-point mode")
+                && said.contains("firewall"),
+            "{said}"
+        );
+        let said = within(&["ptp", "info", "--port", &format!("ptpip:127.0.0.1:{port}")]);
+        assert!(
+            said.contains(&format!(
+                "cannot connect to a PTP/IP camera at 127.0.0.1:{port}"
+            )) && said.contains("Check the address")
+                && said.contains("PTP/IP (PC connection) mode")
+                && said.contains("firewall"),
+            "{said}"
+        );
+    }
+    // Something that answers, but not as a camera.
+    let http = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = http.local_addr().unwrap().port();
+    std::thread::spawn(move || {
+        use std::io::Write;
+        if let Ok((mut s, _)) = http.accept() {
+            let _ = s.write_all(b"HTTP/1.1 400 Bad Request\r\n\r\n");
+        }
+    });
+    let said = within(&["ptp", "info", "--port", &format!("ptpip:127.0.0.1:{port}")]);
+    assert!(
+        said.contains("answered, but not as a PTP/IP camera"),
+        "{said}"
+    );
+    // USB: without USB access (a container), the reason and what to do, as `devices` says.
+    let said = out(&brdfd(&["ptp", "info"], dir.path()));
+    if said.contains("libusb") {
+        assert!(said.contains("no USB access here?"), "{said}");
+        let listed = out(&brdfd(&["devices", "--no-theta-http"], dir.path()));
+        assert!(listed.contains("no USB access here?"), "{listed}");
+    }
+}
+
+/// A pseudo-terminal: its controlling side, and the path of the side a child writes to.
+fn pty() -> (std::fs::File, std::path::PathBuf) {
+    use std::os::fd::FromRawFd;
+    // SAFETY: plain libc calls on a descriptor they return, checked before use; ptsname_r
+    // writes a NUL-terminated path into the buffer given.
+    unsafe {
+        let fd = libc::posix_openpt(libc::O_RDWR | libc::O_NOCTTY);
+        assert!(fd >= 0, "no pseudo-terminal");
+        assert_eq!(libc::grantpt(fd), 0);
+        assert_eq!(libc::unlockpt(fd), 0);
+        let mut name = [0 as libc::c_char; 128];
+        assert_eq!(libc::ptsname_r(fd, name.as_mut_ptr(), name.len()), 0);
+        let path = std::ffi::CStr::from_ptr(name.as_ptr())
+            .to_string_lossy()
+            .into_owned();
+        (std::fs::File::from_raw_fd(fd), path.into())
+    }
+}
+
+/// Issue 42: the logs are coloured at a terminal, and not when NO_COLOR is set
+/// (https://no-color.org), nor when they go to a file or pipe.
+#[test]
+fn logs_honour_no_color() {
+    use std::io::Read;
+    let dir = tempfile::tempdir().unwrap();
+    // What `brdfd` writes to a terminal, with NO_COLOR as given.
+    let logged = |no_color: Option<&str>| {
+        let (mut terminal, path) = pty();
+        let tty = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(&path)
+            .unwrap();
+        let mut c = common::command();
+        c.args(["theta", "info", "--port", "http://127.0.0.1:9"])
+            .current_dir(dir.path())
+            // Debug level: the HTTP client logs its connection attempt.
+            .env("BRDFD_LOG", "debug")
+            .env_remove("NO_COLOR")
+            .stdout(std::process::Stdio::null())
+            .stderr(tty);
+        if let Some(v) = no_color {
+            c.env("NO_COLOR", v);
+        }
+        let status = c.status().unwrap();
+        assert!(!status.success());
+        // Drop the child's side first: with no writer left, a read past the end fails (EIO)
+        // instead of waiting.
+        drop(c);
+        let mut bytes = Vec::new();
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = terminal.read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            bytes.extend_from_slice(&buf[..n]);
+        }
+        let text = String::from_utf8_lossy(&bytes).into_owned();
+        assert!(text.contains("DEBUG"), "{text}");
+        text
+    };
+    assert!(logged(None).contains("\x1b["), "a terminal gets colour");
+    assert!(!logged(Some("1")).contains("\x1b["), "NO_COLOR=1");
+    // The standard: set and not empty. Empty is as if unset.
+    assert!(logged(Some("")).contains("\x1b["), "NO_COLOR empty");
+    let piped = common::command()
+        .args(["theta", "info", "--port", "http://127.0.0.1:9"])
+        .env("BRDFD_LOG", "debug")
+        .env_remove("NO_COLOR")
+        .output()
+        .unwrap();
+    assert!(out(&piped).contains("DEBUG"), "{}", out(&piped));
+    assert!(!out(&piped).contains("\x1b["), "a pipe gets none");
+}

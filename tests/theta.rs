@@ -292,7 +292,78 @@ fn theta_commands_drive_a_simulated_theta_over_http() {
     assert!(!gone.status.success());
     let err = String::from_utf8_lossy(&gone.stderr).into_owned();
     assert!(
-        err.contains("cannot talk to the THETA at http://127.0.0.1:9/"),
+        err.contains("cannot connect to the THETA at http://127.0.0.1:9/"),
         "{err}"
     );
+}
+
+/// Issue 42: a password on the command line is there for every user of the machine to read
+/// in `ps`; it can come from a file, standard input or the environment instead.
+#[test]
+fn theta_passwords_need_not_be_on_the_command_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let user = "THETAYL00165759";
+    std::fs::write(dir.path().join("pw"), "00165759\n").unwrap();
+    let sim = Simulator::start(&[
+        "sim",
+        "theta",
+        "--http",
+        "127.0.0.1:0",
+        "--width",
+        "64",
+        "--user",
+        user,
+        "--password-file",
+        dir.path().join("pw").to_str().unwrap(),
+    ]);
+    let info = |password: Option<&str>, args: &[&str], stdin: &str| {
+        let mut c = common::command();
+        c.args(["theta", "info", "--port", &sim.addr, "--user", user])
+            .args(args)
+            .current_dir(dir.path())
+            .env_remove("BRDFD_THETA_PASSWORD")
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped());
+        if let Some(p) = password {
+            c.env("BRDFD_THETA_PASSWORD", p);
+        }
+        let mut child = c.spawn().unwrap();
+        use std::io::Write;
+        child
+            .stdin
+            .take()
+            .unwrap()
+            .write_all(stdin.as_bytes())
+            .unwrap();
+        child.wait_with_output().unwrap()
+    };
+    for (how, o) in [
+        ("the environment", info(Some("00165759"), &[], "")),
+        ("a file", info(None, &["--password-file", "pw"], "")),
+        (
+            "standard input",
+            info(None, &["--password-file", "-"], "00165759\n"),
+        ),
+    ] {
+        let (out, err) = text(&o);
+        assert!(o.status.success(), "{how}: {out}{err}");
+        assert!(out.contains("RICOH THETA V"), "{how}: {out}");
+    }
+    let wrong = info(Some("00000000"), &[], "");
+    assert!(
+        text(&wrong).1.contains("refused the credentials"),
+        "{:?}",
+        text(&wrong)
+    );
+    // A user and no password says where a password can come from.
+    let none = info(None, &[], "");
+    let err = text(&none).1;
+    assert!(
+        !none.status.success()
+            && err.contains("--password-file")
+            && err.contains("BRDFD_THETA_PASSWORD"),
+        "{err}"
+    );
+    drop(sim);
 }

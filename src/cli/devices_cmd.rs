@@ -95,10 +95,8 @@ fn ptp_cameras(l: &mut Listing) {
     let list = match brdfd_ptp::transport::usb::list_still_image_devices() {
         Ok(l) => l,
         Err(e) => {
-            // Inside a container or sandbox, usbfs (/dev/bus/usb) is usually not there.
-            l.note(format!(
-                "cannot list USB devices: {e} (no USB access here? a container needs /dev/bus/usb passed in)"
-            ));
+            // The driver's error says what to check (the same as `ptp info` says).
+            l.note(e.to_string());
             return;
         }
     };
@@ -151,7 +149,7 @@ fn theta_http(l: &mut Listing, url: &str, timeout: Duration) {
         Err(ThetaError::Auth { .. }) => l.device(
             sel,
             false,
-            "a THETA in client mode: it asks for a password; give --user and --password to `brdfd theta`".into(),
+            "a THETA in client mode: it asks for a password; give --user and --password-file to `brdfd theta`".into(),
         ),
         Err(e @ ThetaError::Unsupported(_)) => l.device(sel, false, e.to_string()),
         Err(_) => l.note(format!("none answered within {timeout:?} at {url}")),

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::{anyhow, bail, Context};
+use anyhow::{anyhow, Context};
 use brdfd::bench::cache::RenderCache;
 use brdfd::bench::camera::BenchCamera;
 use brdfd::bench::panorama::BenchPanorama;
@@ -35,7 +35,7 @@ pub struct CameraArgs {
     #[arg(long, default_value = "nikon-d5100")]
     pub profile: String,
     /// Material on the virtual bench (name or alias).
-    #[arg(long, default_value = "gold")]
+    #[arg(short, long, default_value = "gold")]
     pub material: String,
     /// Image size of the simulated camera, in pixels.
     #[arg(long, default_value_t = 256, value_parser = super::image_size)]
@@ -69,11 +69,13 @@ pub struct ThetaArgs {
     /// Width of the panoramas, in pixels (larger maps are downsampled to it).
     #[arg(long, default_value_t = 1024)]
     pub width: usize,
-    /// Ask for HTTP Digest with this user (client mode); needs --password.
+    /// Ask for HTTP Digest with this user (client mode); needs a password, from
+    /// --password-file, BRDFD_THETA_PASSWORD or --password.
     #[arg(long)]
     pub user: Option<String>,
-    #[arg(long)]
-    pub password: Option<String>,
+    // The password the simulated THETA asks for with --user.
+    #[command(flatten)]
+    pub password: super::theta_cmd::PasswordArgs,
     /// Time to expose and stitch one frame, in milliseconds.
     #[arg(long, default_value_t = 500)]
     pub shot_ms: u64,
@@ -200,11 +202,7 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
             }
         }
         SimCommand::Theta(a) => {
-            let credentials = match (a.user, a.password) {
-                (Some(u), Some(p)) => Some((u, p)),
-                (None, None) => None,
-                _ => bail!("give both --user and --password, or neither"),
-            };
+            let credentials = a.password.credentials(a.user.as_deref())?;
             let source = BenchPanorama::new(&bench_env(&a.env)?, a.width, "RICOH THETA V");
             let config = ThetaConfig {
                 credentials,

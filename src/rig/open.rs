@@ -14,6 +14,10 @@ use brdfd_theta::{Credentials, HttpTimeouts, Theta};
 use super::devices::video::VideoCamera;
 use crate::selector::Selector;
 
+/// How long a PTP/IP camera has to finish the handshake (the TCP connection itself has
+/// `ptpip::CONNECT_TIMEOUT`, shorter, so that a dead address is told within 5 s).
+const PTPIP_HANDSHAKE: Duration = Duration::from_secs(5);
+
 /// Opens the PTP camera a selector names (`usb`, `usb:VVVV[:PPPP]`, `ptpip:HOST[:PORT]`).
 pub fn ptp_camera(port: &Selector) -> anyhow::Result<Camera> {
     let link: Box<dyn Transport> = match port {
@@ -26,7 +30,7 @@ pub fn ptp_camera(port: &Selector) -> anyhow::Result<Camera> {
             Box::new(PtpIpTransport::connect(
                 addr.as_str(),
                 Initiator::default(),
-                Duration::from_secs(5),
+                PTPIP_HANDSHAKE,
             )?)
         }
         Selector::Usb { vendor, product } => {

@@ -19,6 +19,13 @@ pub enum PtpError {
     Response { op: u16, code: u16 },
     #[error("timed out after {after:?} waiting for {what} (raise `{what}` in the rig's timeouts if the camera is slow)")]
     Timeout { what: &'static str, after: Duration },
+    /// No TCP connection to a PTP/IP camera: nothing listens at the address, or nothing
+    /// answers there.
+    #[error("cannot connect to a PTP/IP camera at {addr}: {reason}. Check the address (PTP/IP's port is 15740), that the camera is on this network with its PTP/IP (PC connection) mode switched on, and that no firewall blocks the connection")]
+    Connect { addr: String, reason: String },
+    /// No USB access at all: libusb cannot start or list the bus.
+    #[error("cannot use USB: libusb: {reason} (no USB access here? a container needs /dev/bus/usb passed in, and libusb needs /sys/bus/usb or udev to list devices)")]
+    NoUsb { reason: String },
     /// A PTP/IP camera accepted the connection but did not finish the handshake in time.
     #[error("the camera at {addr} did not finish the PTP/IP handshake ({step}) within {after:?}: check that it is in PTP/IP (PC connection) mode, that no other program is connected to it, and confirm the pairing on its screen if it asks")]
     Handshake {
@@ -67,6 +74,7 @@ impl PtpError {
         matches!(
             self,
             PtpError::Io(_)
+                | PtpError::Connect { .. }
                 | PtpError::Disconnected { .. }
                 | PtpError::Stalled { .. }
                 | PtpError::Timeout { .. }

@@ -395,7 +395,10 @@ fn a_failed_reset_keeps_the_cause() {
         .split_once("; the reset that followed failed too: ")
         .expect("both errors");
     assert!(cause.contains("disconnected"), "{text}");
-    assert!(reset.contains("connecting to PTP/IP camera"), "{text}");
+    assert!(
+        reset.contains("cannot connect to a PTP/IP camera"),
+        "{text}"
+    );
 }
 
 /// A camera that halts bulk-in mid-download has abandoned the transfer: the halt is

@@ -16,7 +16,16 @@ pub enum ThetaError {
         camera: String,
         after: Duration,
     },
-    /// The connection failed or dropped.
+    /// No connection could be made: nothing listens at the address, or nothing answers
+    /// there. Check the address, that the camera's Wi-Fi is on in the mode the address
+    /// belongs to, and that no firewall is in the way.
+    #[error("{what}: cannot connect to the THETA at {camera}: {reason}. Check the address (in access-point mode the THETA is http://192.168.1.1 and this machine must be on the camera's own Wi-Fi; in client mode it is the address your router gave the camera), that the camera's Wi-Fi is on and in that mode, and that no firewall blocks the connection")]
+    NoConnection {
+        what: String,
+        camera: String,
+        reason: String,
+    },
+    /// The connection dropped, or failed other than in connecting.
     #[error("{what}: cannot talk to the THETA at {camera}: {reason}")]
     Unreachable {
         what: String,
@@ -45,7 +54,7 @@ pub enum ThetaError {
     #[error("{what}: the THETA's answer is not THETA Web API JSON: {reason}")]
     Malformed { what: String, reason: String },
     /// The camera wants credentials, or refused the ones given.
-    #[error("{what}: {reason}. In client mode the THETA's user is THETAxx<serial> (for example THETAYL00165759) and the password its serial number, unless it was changed; give them with --user and --password")]
+    #[error("{what}: {reason}. In client mode the THETA's user is THETAxx<serial> (for example THETAYL00165759) and the password its serial number, unless it was changed; give the user with --user and the password with --password-file or BRDFD_THETA_PASSWORD")]
     Auth { what: String, reason: String },
     /// A file URL that does not point at the camera: never followed.
     #[error("refusing to download {url}: it is not on the camera ({camera})")]

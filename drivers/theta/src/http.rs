@@ -9,9 +9,13 @@
 //! - HTTP Digest (RFC 7616, MD5, qop=auth) for client mode, where the THETA asks for it.
 //!   The challenge is kept and reused with an increasing nonce count, as the RFC intends.
 //! - File URLs are followed only when they point at the camera's own host and port.
+//! - A connection that cannot be made before the camera has ever answered is not retried: the
+//!   address, the camera's network mode or a firewall is wrong, and waiting out the retry
+//!   budget would only keep the user waiting for the same answer.
 //!
 //! It does not own a runtime; [`crate::Theta`] wraps it for blocking callers.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
@@ -48,6 +52,11 @@ impl Default for HttpTimeouts {
         }
     }
 }
+
+/// Longest wait for a TCP connection, whatever `request` is. A camera on the local network
+/// accepts within milliseconds; Linux sends the SYN again after 1 s, so this covers one lost
+/// SYN and still answers a dead address within 5 s.
+pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
 
 /// First pause before a retry; it doubles up to `RETRY_PAUSE_MAX`.
 const RETRY_PAUSE: Duration = Duration::from_millis(100);
@@ -86,6 +95,9 @@ pub struct OscClient {
     /// The last Digest challenge, reused (with a rising nonce count) until the camera issues
     /// a new one.
     challenge: Mutex<Option<digest_auth::WwwAuthenticateHeader>>,
+    /// Whether the camera has answered anything yet: until it has, a failed connection is
+    /// a wrong address rather than a camera waking up.
+    answered: AtomicBool,
     pub timeouts: HttpTimeouts,
 }
 
@@ -105,7 +117,7 @@ impl OscClient {
                 reason: "not an http://HOST[:PORT] address".into(),
             })?;
         let http = reqwest::Client::builder()
-            .connect_timeout(timeouts.request)
+            .connect_timeout(timeouts.request.min(CONNECT_TIMEOUT))
             // The camera is on the local network: a proxy from the environment would only
             // get in the way.
             .no_proxy()
@@ -123,6 +135,7 @@ impl OscClient {
             base,
             credentials,
             challenge: Mutex::new(None),
+            answered: AtomicBool::new(false),
             timeouts,
         })
     }
@@ -377,6 +390,9 @@ impl OscClient {
         let mut answered_challenge = false;
         loop {
             let outcome = self.send_once(&method, &url, body.as_ref(), what).await;
+            if outcome.is_ok() {
+                self.answered.store(true, Ordering::Relaxed);
+            }
             let retryable = match &outcome {
                 Ok(r) if r.status() == StatusCode::UNAUTHORIZED && !answered_challenge => {
                     self.take_challenge(r, what)?;
@@ -390,6 +406,9 @@ impl OscClient {
                     })
                 }
                 Ok(r) => r.status() == StatusCode::SERVICE_UNAVAILABLE,
+                Err(ThetaError::NoConnection { .. }) => {
+                    idempotent && self.answered.load(Ordering::Relaxed)
+                }
                 Err(_) => idempotent,
             };
             if !retryable || start.elapsed() + pause > self.timeouts.retry_budget {
@@ -424,7 +443,11 @@ impl OscClient {
             self.timeouts.request
         };
         req.timeout(timeout).send().await.map_err(|e| {
-            if e.is_timeout() {
+            // Before the timeout test: a connect timeout is both, and it is the connection
+            // that failed, within CONNECT_TIMEOUT rather than `timeout`.
+            if e.is_connect() {
+                self.no_connection(what, &e)
+            } else if e.is_timeout() {
                 self.timeout(what, timeout)
             } else {
                 self.unreachable(what, &e)
@@ -491,19 +514,43 @@ impl OscClient {
     }
 
     fn unreachable(&self, what: &str, e: &reqwest::Error) -> ThetaError {
-        // reqwest's Display hides the cause (connection refused, reset, ...); walk the chain.
+        ThetaError::Unreachable {
+            what: what.into(),
+            camera: self.base.to_string(),
+            reason: chain(e),
+        }
+    }
+
+    fn no_connection(&self, what: &str, e: &reqwest::Error) -> ThetaError {
+        // The innermost cause says it ("Connection refused (os error 111)"); reqwest's own
+        // layers ("error sending request for url ...", "client error (Connect)") do not.
         let mut reason = e.to_string();
         let mut source = std::error::Error::source(e);
         while let Some(s) = source {
-            reason = format!("{reason}: {s}");
+            reason = s.to_string();
             source = s.source();
         }
-        ThetaError::Unreachable {
+        if reason.is_empty() || e.is_timeout() {
+            let after = self.timeouts.request.min(CONNECT_TIMEOUT);
+            reason = format!("no answer within {after:?}");
+        }
+        ThetaError::NoConnection {
             what: what.into(),
             camera: self.base.to_string(),
             reason,
         }
     }
+}
+
+/// reqwest's Display hides the cause (connection refused, reset, ...): the whole chain.
+fn chain(e: &reqwest::Error) -> String {
+    let mut reason = e.to_string();
+    let mut source = std::error::Error::source(e);
+    while let Some(s) = source {
+        reason = format!("{reason}: {s}");
+        source = s.source();
+    }
+    reason
 }
 
 /// A `WWW-Authenticate` Digest challenge, as bytes off the network. digest_auth 0.3 panics on

@@ -16,6 +16,11 @@ pub const PROTOCOL_VERSION: u32 = 0x0001_0000;
 /// The largest packet we accept. Data arrives in packets of tens of kilobytes; anything this
 /// big is a corrupt length.
 pub const MAX_PACKET: usize = 64 << 20;
+/// Longest wait for a TCP connection to the camera, whatever the handshake's timeout is (the
+/// handshake may wait for a person to confirm the pairing). A camera on the local network
+/// accepts within milliseconds; Linux sends the SYN again after 1 s, so this covers one lost
+/// SYN and still answers a dead address within 5 s.
+pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
 /// Payload bytes per Data packet we send.
 pub const DATA_CHUNK: usize = 256 << 10;
 
@@ -231,8 +236,16 @@ impl PtpIpTransport {
 }
 
 fn tcp(addr: SocketAddr, timeout: Duration) -> Result<TcpStream> {
-    let s = TcpStream::connect_timeout(&addr, timeout)
-        .map_err(|e| PtpError::Io(format!("connecting to PTP/IP camera at {addr}: {e}")))?;
+    let connect = timeout.min(CONNECT_TIMEOUT);
+    let s = TcpStream::connect_timeout(&addr, connect).map_err(|e| PtpError::Connect {
+        addr: addr.to_string(),
+        reason: match e.kind() {
+            std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock => {
+                format!("no answer within {connect:?}")
+            }
+            _ => e.to_string(),
+        },
+    })?;
     // Requests are small and each waits for an answer: Nagle would add 40 ms to each.
     s.set_nodelay(true)?;
     s.set_write_timeout(Some(timeout))?;
@@ -266,7 +279,15 @@ fn handshake(
     };
     let deadline = Instant::now() + timeout;
     let ack = read_packet_by(&cmd, deadline)
-        .map_err(handshake_step("waiting for InitCommandAck", deadline))?;
+        .map_err(handshake_step("waiting for InitCommandAck", deadline))
+        .map_err(|e| match e {
+            // Something listens there, but its first bytes are not a PTP/IP packet: an HTTP
+            // server, say, on the wrong port or address.
+            PtpError::Malformed { reason, .. } => PtpError::Protocol(format!(
+                "{addr} answered, but not as a PTP/IP camera ({reason}): check the address and the port (PTP/IP's is {DEFAULT_PORT}), and that the camera is in PTP/IP (PC connection) mode"
+            )),
+            e => e,
+        })?;
     match ack.ty {
         ty::INIT_COMMAND_ACK => {}
         ty::INIT_FAIL => {

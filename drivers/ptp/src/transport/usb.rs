@@ -330,6 +330,13 @@ mod rusb_pipe {
     use super::*;
     use rusb::{Direction, TransferType, UsbContext};
 
+    /// libusb failing before any device is looked at: the machine gives no USB access.
+    fn no_usb(e: rusb::Error) -> PtpError {
+        PtpError::NoUsb {
+            reason: e.to_string(),
+        }
+    }
+
     /// Vendor ids we know make PTP cameras, for devices that do not announce class 6/1/1
     /// at the interface (or announce a vendor class, as some THETA firmwares do).
     pub const KNOWN_VENDORS: [(u16, &str); 4] = [
@@ -422,13 +429,9 @@ mod rusb_pipe {
     /// Every USB device with a still-image interface (class 6/1/1 or a vendor interface with
     /// the PTP endpoint triple on a known camera vendor).
     pub fn list_still_image_devices() -> Result<Vec<UsbCameraInfo>> {
-        let ctx = rusb::Context::new().map_err(|e| PtpError::Io(format!("libusb: {e}")))?;
+        let ctx = rusb::Context::new().map_err(no_usb)?;
         let mut out = Vec::new();
-        for dev in ctx
-            .devices()
-            .map_err(|e| PtpError::Io(format!("libusb: {e}")))?
-            .iter()
-        {
+        for dev in ctx.devices().map_err(no_usb)?.iter() {
             let Ok(desc) = dev.device_descriptor() else {
                 continue;
             };
@@ -454,10 +457,8 @@ mod rusb_pipe {
     /// Opens the first still-image device matching `vendor`/`product` (either may be
     /// omitted), detaching a kernel driver and claiming the interface.
     pub fn open_usb(vendor: Option<u16>, product: Option<u16>) -> Result<RusbPipe> {
-        let ctx = rusb::Context::new().map_err(|e| PtpError::Io(format!("libusb: {e}")))?;
-        let devices = ctx
-            .devices()
-            .map_err(|e| PtpError::Io(format!("libusb: {e}")))?;
+        let ctx = rusb::Context::new().map_err(no_usb)?;
+        let devices = ctx.devices().map_err(no_usb)?;
         for dev in devices.iter() {
             let Ok(desc) = dev.device_descriptor() else {
                 continue;
