@@ -7,8 +7,9 @@
 //! - `materials/<name>.toml`: a material preset: pixel count, K, exposure plan, notes.
 //!
 //! Unknown fields are rejected. A syntax or type error names the file, line and field (from
-//! the TOML parser); a value that parses but makes no sense names the file and the field's
-//! path (`brackets.dslr_shutters[2]`).
+//! the TOML parser); a value that parses but makes no sense names the file, the field's path
+//! (`brackets.dslr_shutters[2]`) and its line ([`ConfigError::locate`]). A rig's checks run
+//! all of them ([`Rig::problems`]), so that `brdfd config check` can list every mistake.
 
 use std::path::{Path, PathBuf};
 
@@ -32,11 +33,14 @@ pub enum ConfigError {
         line: Option<usize>,
     },
     /// A value the schema accepts but the rig cannot use.
-    #[error("{file}: field `{field}`: {reason}")]
+    #[error("{file}{}: field `{field}`: {reason}", line.map(|l| format!(", line {l}")).unwrap_or_default())]
     Invalid {
         file: String,
         field: String,
         reason: String,
+        /// The line (from 1) of the field, or of the table it is missing from, once the
+        /// error is [located](ConfigError::locate) in the file's text.
+        line: Option<usize>,
     },
 }
 
@@ -45,7 +49,63 @@ pub fn invalid(file: &str, field: impl Into<String>, reason: impl Into<String>) 
         file: file.into(),
         field: field.into(),
         reason: reason.into(),
+        line: None,
     }
+}
+
+impl ConfigError {
+    /// Gives an invalid value the line it is on in `text`, the file's TOML: the field's own
+    /// line, else (a field that is missing) that of the nearest table above it that is
+    /// there. Other errors are returned as they are.
+    pub fn locate(self, text: &str) -> ConfigError {
+        match self {
+            ConfigError::Invalid {
+                file,
+                field,
+                reason,
+                line: None,
+            } => {
+                let line = line_of_field(text, &field);
+                ConfigError::Invalid {
+                    file,
+                    field,
+                    reason,
+                    line,
+                }
+            }
+            e => e,
+        }
+    }
+}
+
+/// The line (from 1) in `text` of a field's path as errors spell it (`devices.theta`,
+/// `brackets.dslr_shutters[2]`), or of the deepest part of the path that is in the file.
+fn line_of_field(text: &str, field: &str) -> Option<usize> {
+    use toml_edit::Item;
+    let doc = toml_edit::Document::parse(text).ok()?;
+    let mut span: Option<std::ops::Range<usize>> = None;
+    let mut item: &Item = doc.as_item();
+    for part in field.split('.') {
+        let (key, index) = match part.split_once('[') {
+            Some((key, rest)) => (key, rest.trim_end_matches(']').parse::<usize>().ok()),
+            None => (part, None),
+        };
+        let Some((k, next)) = item.as_table_like().and_then(|t| t.get_key_value(key)) else {
+            break;
+        };
+        // A table's own span is its header; a key's is the line it is set on.
+        span = next.span().or_else(|| k.span()).or(span);
+        item = next;
+        if let Some(i) = index {
+            // An array's elements are values, not items: nothing below one is looked for.
+            if let Some(element) = item.as_array().and_then(|a| a.get(i)) {
+                span = element.span().or(span);
+            }
+            break;
+        }
+    }
+    let start = span?.start.min(text.len());
+    Some(text[..start].matches('\n').count() + 1)
 }
 
 impl<'de> Deserialize<'de> for Selector {
@@ -673,6 +733,20 @@ pub fn default_config_path() -> Option<PathBuf> {
     })
 }
 
+/// The field a geometry check's message is about (`camera.fx must be ...`), under `table`:
+/// `geometry.camera.fx`, else `table` itself.
+pub fn geometry_field(table: &str, message: &str) -> String {
+    let first = message.split([' ', ',']).next().unwrap_or("");
+    match (
+        table,
+        first.starts_with("camera.") || first.starts_with("shape."),
+    ) {
+        (_, false) => table.to_string(),
+        ("", true) => first.to_string(),
+        (_, true) => format!("{table}.{first}"),
+    }
+}
+
 /// Any configuration file's TOML as `T`; errors carry the file, the parser's message and the
 /// line.
 pub fn parse<T: serde::de::DeserializeOwned>(file: &str, text: &str) -> Result<T, ConfigError> {
@@ -809,78 +883,109 @@ impl Rig {
     /// devices in their roles, its calibration) is [`crate::rig::plan::check`]'s question:
     /// `brdfd calibrate radiometry` reads a rig that is not calibrated yet.
     pub fn parse(file: &str, text: &str) -> Result<Rig, ConfigError> {
+        let r = Rig::parse_unchecked(file, text)?;
+        match r.problems().into_iter().next() {
+            Some(e) => Err(e.locate(text)),
+            None => Ok(r),
+        }
+    }
+
+    /// The rig as its TOML reads, before [`Rig::problems`] looks at its values.
+    pub fn parse_unchecked(file: &str, text: &str) -> Result<Rig, ConfigError> {
         let mut r: Rig = parse(file, text)?;
         r.file = file.to_string();
+        Ok(r)
+    }
+
+    /// Every value of the rig that makes no sense, each by its field (not located in the
+    /// text: see [`ConfigError::locate`]). Within one field, or one group of fields checked
+    /// together, only the first is said.
+    pub fn problems(&self) -> Vec<ConfigError> {
+        let (r, file) = (self, self.file.as_str());
         let b = &r.brackets;
+        let mut found = Vec::new();
+        let mut check = |result: Result<(), ConfigError>| found.extend(result.err());
         if b.dslr_shutters.is_empty() {
-            return Err(invalid(
+            check(Err(invalid(
                 file,
                 "brackets.dslr_shutters",
                 "needs at least one exposure",
-            ));
+            )));
         }
-        check_exposures(file, "brackets.dslr_shutters", &b.dslr_shutters)?;
-        check_exposures(file, "brackets.theta_shutters", &b.theta_shutters)?;
+        check(check_exposures(
+            file,
+            "brackets.dslr_shutters",
+            &b.dslr_shutters,
+        ));
+        check(check_exposures(
+            file,
+            "brackets.theta_shutters",
+            &b.theta_shutters,
+        ));
         if !(b.dslr_f_number.is_finite() && b.dslr_f_number >= 0.7 && b.dslr_f_number <= 64.0) {
-            return Err(invalid(
+            check(Err(invalid(
                 file,
                 "brackets.dslr_f_number",
                 format!("f/{} is not an aperture", b.dslr_f_number),
-            ));
+            )));
         }
-        check_fallback_bracket(file, b)?;
-        r.calibration.check(file)?;
+        check(check_fallback_bracket(file, b));
+        check(r.calibration.check(file));
         if r.simulation.is_some() && !r.simulated {
-            return Err(invalid(
+            check(Err(invalid(
                 file,
                 "simulation",
                 "is for simulated rigs (`simulated = true`)",
-            ));
+            )));
         }
         if !r.theta_yaw_deg.is_finite() {
-            return Err(invalid(
+            check(Err(invalid(
                 file,
                 "theta_yaw_deg",
                 "must be a number of degrees",
-            ));
+            )));
         }
-        r.geometry
-            .check()
-            .map_err(|e| invalid(file, "geometry", e))?;
+        check(
+            r.geometry
+                .check()
+                .map_err(|e| invalid(file, geometry_field("geometry", &e), e)),
+        );
         if let Some(truth) = r.simulation.as_ref().and_then(|s| s.camera.as_ref()) {
             let believed = SceneGeometry {
                 camera: truth.clone(),
                 ..r.geometry.clone()
             };
-            believed
-                .check()
-                .map_err(|e| invalid(file, "simulation.camera", e))?;
+            check(
+                believed
+                    .check()
+                    .map_err(|e| invalid(file, "simulation.camera", e)),
+            );
             let ((tw, th), (w, h)) = (truth.size(), r.geometry.camera.size());
             if tw * h != th * w {
-                return Err(invalid(
+                check(Err(invalid(
                     file,
                     "simulation.camera",
                     format!("is {tw}×{th}, and [geometry.camera] {w}×{h}: they are one camera, so of one shape"),
-                ));
+                )));
             }
         }
         if let Some(truth) = r.simulation.as_ref().and_then(|s| s.shape.as_ref()) {
-            check_true_shape(file, &r.geometry, truth)?;
+            check(check_true_shape(file, &r.geometry, truth));
         }
         if let Some(t) = &r.turntable {
             if !(1..=crate::rig::MAX_VIEWS).contains(&t.views) || !t.step_deg.is_finite() {
-                return Err(invalid(
+                check(Err(invalid(
                     file,
                     "turntable",
                     format!(
                         "views must be 1 to {} and step_deg a number",
                         crate::rig::MAX_VIEWS
                     ),
-                ));
+                )));
             }
             // Without a turntable device, the views are turned by hand.
         }
-        Ok(r)
+        found
     }
 
     pub fn read(path: &Path) -> Result<Rig, ConfigError> {
@@ -961,10 +1066,16 @@ pub fn preset_text(name: &str) -> Option<&'static str> {
 
 impl MaterialPreset {
     pub fn parse(file: &str, text: &str) -> Result<MaterialPreset, ConfigError> {
-        let m: MaterialPreset = parse(file, text)?;
+        MaterialPreset::parse_all(file, text).map_err(|mut all| all.remove(0))
+    }
+
+    /// The preset, or every mistake in it (at least one), each located in `text`.
+    pub fn parse_all(file: &str, text: &str) -> Result<MaterialPreset, Vec<ConfigError>> {
+        let m: MaterialPreset = parse(file, text).map_err(|e| vec![e])?;
+        let mut found = Vec::new();
         if let PixelCount::Count(n) = m.pixels {
             if n <= m.k {
-                return Err(invalid(
+                found.push(invalid(
                     file,
                     "pixels",
                     format!(
@@ -975,9 +1086,13 @@ impl MaterialPreset {
             }
         }
         if let Some(s) = &m.dslr_shutters {
-            check_exposures(file, "dslr_shutters", s)?;
+            found.extend(check_exposures(file, "dslr_shutters", s).err());
         }
-        Ok(m)
+        if found.is_empty() {
+            Ok(m)
+        } else {
+            Err(found.into_iter().map(|e| e.locate(text)).collect())
+        }
     }
 
     pub fn read(path: &Path) -> Result<MaterialPreset, ConfigError> {

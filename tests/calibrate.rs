@@ -204,7 +204,7 @@ fn the_target_albedo_is_the_calibration_reference() {
     let o = brdfd(&["config", "check", "card.toml"], dir.path());
     assert!(!o.status.success());
     assert!(
-        out(&o).contains("card.toml: field `shape`: shape.normal must not be zero"),
+        out(&o).contains("card.toml, line 2: field `shape`: shape.normal must not be zero"),
         "{}",
         out(&o)
     );

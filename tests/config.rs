@@ -179,8 +179,64 @@ fn a_geometry_file_with_impossible_numbers_is_refused() {
         .unwrap();
     let err = String::from_utf8_lossy(&o.stdout) + String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "accepted: {err}");
+    // On the line of the field (issue 42).
+    let line = text.lines().position(|l| l == fx).unwrap() + 1;
     assert!(
-        err.contains("field `geometry`: camera.fx must be a positive number, not NaN"),
+        err.contains(&format!(
+            ", line {line}: field `camera.fx`: camera.fx must be a positive number, not NaN"
+        )),
         "{err}"
     );
+}
+
+/// Issue 42: docs/bench-setup.md promises every mistake with its line and field, and
+/// `config check` stopped at the first value that made no sense, without a line.
+#[test]
+fn every_mistake_in_a_rig_is_reported_with_its_line_and_field() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let bench = std::fs::read_to_string(root.join("config/rigs/bench.toml")).unwrap()
+        + "\n[calibration.theta]\ngain = 1.0\n[calibration.dslr_raw]\ngain = 10.0\n[calibration.dslr_jpeg]\ngain = 10.0\n[calibration.fallback]\ngain = 0.6\n";
+    let mistakes = [
+        // (in the file, written instead, the field the error names)
+        (
+            "turntable = \"serial:/dev/ttyUSB0\"",
+            "turntable = \"cable:dtr:/dev/ttyUSB0\"",
+            "devices.turntable",
+        ),
+        (
+            "dslr_shutters = [0.001, 0.004, 0.0166, 0.0666, 0.25]",
+            "dslr_shutters = [0.001, -0.004, 0.0166, 0.0666, 0.25]",
+            "brackets.dslr_shutters[1]",
+        ),
+        (
+            "dslr_f_number = 8.0",
+            "dslr_f_number = 100.0",
+            "brackets.dslr_f_number",
+        ),
+    ];
+    let mut rig = bench.clone();
+    for (from, to, _) in mistakes {
+        assert!(rig.contains(from), "{from}");
+        rig = rig.replace(from, to);
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("my-rig.toml");
+    std::fs::write(&path, &rig).unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_brdfd"))
+        .args(["config", "check"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let out = String::from_utf8_lossy(&o.stdout);
+    let errors: Vec<&str> = out.lines().filter(|l| l.starts_with("ERR ")).collect();
+    assert_eq!(errors.len(), 3, "{out}");
+    // In the file's order, each with the line the mistake is on.
+    for (error, (_, to, field)) in errors.iter().zip(mistakes) {
+        let line = rig.lines().position(|l| l.starts_with(to)).unwrap() + 1;
+        assert!(
+            error.contains(&format!("my-rig.toml, line {line}: field `{field}`: ")),
+            "{error}"
+        );
+    }
 }

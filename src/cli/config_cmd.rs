@@ -2,8 +2,9 @@
 //!
 //! A file's kind comes from `--kind`, else from where it sits (`rigs/`, `materials/`,
 //! `geometry/`, `brdfd.toml`), else from its content, so a rig copied to `my-rig.toml` is still
-//! a rig. Every error in a file is reported, not only the first: after an error on a line, that
-//! line is set aside and the file read again.
+//! a rig. Every error in a file is reported, not only the first: after a syntax or type error
+//! on a line, that line is set aside and the file read again; once it reads, every value that
+//! makes no sense is reported, each with its line and field.
 
 use std::path::{Path, PathBuf};
 
@@ -18,6 +19,7 @@ pub enum ConfigCommand {
     /// calibration targets. The
     /// kind comes from --kind, else the file's folder or name, else its content.
     Check {
+        /// The files to check.
         files: Vec<PathBuf>,
         /// What the files are, when neither their place nor their content says.
         #[arg(long, value_enum)]
@@ -74,50 +76,71 @@ impl Kind {
         }
     }
 
-    /// A one-line description of a valid file, or its first error.
-    fn check(self, file: &str, text: &str) -> Result<String, ConfigError> {
+    /// A one-line description of a valid file; else its syntax or type error, or every value
+    /// in it that makes no sense, located.
+    fn check(self, file: &str, text: &str) -> Result<String, Vec<ConfigError>> {
+        // In the file's order, as they are read and fixed.
+        let located = |found: Vec<ConfigError>| -> Vec<ConfigError> {
+            let mut found: Vec<ConfigError> = found.into_iter().map(|e| e.locate(text)).collect();
+            found.sort_by_key(|e| match e {
+                ConfigError::Invalid { line: Some(l), .. } => *l,
+                _ => usize::MAX,
+            });
+            found
+        };
+        let one = |e: ConfigError| vec![e.locate(text)];
         match self {
-            Kind::Rig => Rig::parse(file, text).and_then(|r| {
-                // Accepted only if the capture can run it: its devices in their roles, and
-                // every camera's gain.
-                let roles = brdfd::rig::plan::check(&r)?;
-                Ok(describe_rig(&r, &roles))
-            }),
-            Kind::Material => MaterialPreset::parse(file, text)
+            Kind::Rig => {
+                let r = Rig::parse_unchecked(file, text).map_err(one)?;
+                // Accepted only if the capture can run it too: its devices in their roles,
+                // and every camera's gain.
+                let mut found = r.problems();
+                let (roles, more) = brdfd::rig::plan::problems(&r);
+                found.extend(more);
+                if found.is_empty() {
+                    Ok(describe_rig(&r, &roles))
+                } else {
+                    Err(located(found))
+                }
+            }
+            Kind::Material => MaterialPreset::parse_all(file, text)
                 .map(|m| format!("material preset, simulated as {}", m.simulate_as)),
             Kind::Geometry => {
-                brdfd::config::parse::<SceneGeometry>(file, text).and_then(|mut g| {
-                    // The checks a rig's [geometry] gets (issue 40: `fx = nan` passed here).
-                    g.check().map_err(|e| ConfigError::Invalid {
-                        file: file.into(),
-                        field: "geometry".into(),
-                        reason: e,
-                    })?;
-                    // A mesh is read and checked as the capture reads it, beside the file.
-                    let dir = Path::new(file).parent().unwrap_or(Path::new("."));
-                    g.resolve_files(dir);
-                    let mesh = g
-                        .shape
-                        .as_ref()
-                        .map(|s| s.mesh())
-                        .transpose()
-                        .map_err(|e| ConfigError::Invalid {
-                            file: file.into(),
-                            field: "shape.file".into(),
-                            reason: e.to_string(),
+                brdfd::config::parse::<SceneGeometry>(file, text)
+                    .and_then(|mut g| {
+                        // The checks a rig's [geometry] gets (issue 40: `fx = nan` passed here).
+                        g.check().map_err(|e| {
+                            brdfd::config::invalid(file, brdfd::config::geometry_field("", &e), e)
                         })?;
-                    Ok(match mesh.flatten() {
-                        Some(m) => format!("geometry, a mesh of {} triangles", m.triangles.len()),
-                        None => "geometry".to_string(),
+                        // A mesh is read and checked as the capture reads it, beside the file.
+                        let dir = Path::new(file).parent().unwrap_or(Path::new("."));
+                        g.resolve_files(dir);
+                        let mesh = g
+                            .shape
+                            .as_ref()
+                            .map(|s| s.mesh())
+                            .transpose()
+                            .map_err(|e| {
+                                brdfd::config::invalid(file, "shape.file", e.to_string())
+                            })?;
+                        Ok(match mesh.flatten() {
+                            Some(m) => {
+                                format!("geometry, a mesh of {} triangles", m.triangles.len())
+                            }
+                            None => "geometry".to_string(),
+                        })
                     })
-                })
+                    .map_err(one)
             }
-            Kind::Target => brdfd::config::parse::<Target>(file, text).and_then(|t| {
-                t.check(file)?;
-                Ok(format!("calibration target, albedo {:?}", t.albedo.0))
-            }),
+            Kind::Target => brdfd::config::parse::<Target>(file, text)
+                .and_then(|t| {
+                    t.check(file)?;
+                    Ok(format!("calibration target, albedo {:?}", t.albedo.0))
+                })
+                .map_err(one),
             Kind::Daemon => DaemonConfig::parse(file, text)
-                .map(|d| format!("daemon settings, API on {}", d.api)),
+                .map(|d| format!("daemon settings, API on {}", d.api))
+                .map_err(one),
         }
     }
 }
@@ -161,39 +184,46 @@ fn check_file(kind: Kind, file: &str, text: &str) -> Result<String, Vec<ConfigEr
     // Keys set aside: a later "missing field" for one of them is our doing, not the file's.
     let mut set_aside: Vec<String> = Vec::new();
     loop {
-        match kind.check(file, &(lines.join("\n") + "\n")) {
+        let e = match kind.check(file, &(lines.join("\n") + "\n")) {
             Ok(what) if errors.is_empty() => return Ok(what),
             Ok(_) => return Err(errors),
-            Err(e)
-                if set_aside
+            // The values' mistakes: the file reads, so they are all there is left to say.
+            Err(found)
+                if found
                     .iter()
-                    .any(|k| e.to_string().contains(&format!("missing field `{k}`"))) =>
+                    .any(|e| !matches!(e, ConfigError::Parse { .. })) =>
             {
-                return Err(errors)
+                errors.extend(found);
+                return Err(errors);
             }
-            Err(e) => {
-                // Set the line aside (as a comment, so that later lines keep their numbers)
-                // and read on. Only a whole `key = value` line can go without changing what
-                // the rest means: an error elsewhere (a table header, inside a multi-line
-                // value, or with no line) ends the list.
-                let line = match &e {
-                    ConfigError::Parse { line: Some(l), .. } => Some(*l),
-                    _ => None,
-                };
-                errors.push(e);
-                match line {
-                    Some(l)
-                        if errors.len() < MAX_ERRORS
-                            && lines.get(l - 1).is_some_and(|t| a_whole_key_value(t)) =>
-                    {
-                        if let Some((key, _)) = lines[l - 1].split_once('=') {
-                            set_aside.push(key.trim().to_string());
-                        }
-                        lines[l - 1].insert(0, '#');
-                    }
-                    _ => return Err(errors),
+            Err(mut found) => found.remove(0),
+        };
+        if set_aside
+            .iter()
+            .any(|k| e.to_string().contains(&format!("missing field `{k}`")))
+        {
+            return Err(errors);
+        }
+        // Set the line aside (as a comment, so that later lines keep their numbers) and read
+        // on. Only a whole `key = value` line can go without changing what the rest means: an
+        // error elsewhere (a table header, inside a multi-line value, or with no line) ends
+        // the list.
+        let line = match &e {
+            ConfigError::Parse { line: Some(l), .. } => Some(*l),
+            _ => None,
+        };
+        errors.push(e);
+        match line {
+            Some(l)
+                if errors.len() < MAX_ERRORS
+                    && lines.get(l - 1).is_some_and(|t| a_whole_key_value(t)) =>
+            {
+                if let Some((key, _)) = lines[l - 1].split_once('=') {
+                    set_aside.push(key.trim().to_string());
                 }
+                lines[l - 1].insert(0, '#');
             }
+            _ => return Err(errors),
         }
     }
 }

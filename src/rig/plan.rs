@@ -33,23 +33,40 @@ pub struct Roles {
 
 /// The devices, then the calibration: everything a capture needs of the rig file.
 pub fn check(rig: &Rig) -> Result<Roles, ConfigError> {
-    let roles = devices(rig)?;
-    calibration(rig, &roles)?;
-    Ok(roles)
+    first(problems(rig))
+}
+
+/// The roles the rig fills, and every problem [`check`] would refuse it for (its first).
+pub fn problems(rig: &Rig) -> (Roles, Vec<ConfigError>) {
+    let (roles, mut found) = device_problems(rig);
+    calibration(rig, &roles, &mut found);
+    (roles, found)
 }
 
 /// The devices alone: what `brdfd calibrate radiometry` needs, on a rig that has no gains
 /// yet.
 pub fn devices(rig: &Rig) -> Result<Roles, ConfigError> {
+    first(device_problems(rig))
+}
+
+fn first((roles, found): (Roles, Vec<ConfigError>)) -> Result<Roles, ConfigError> {
+    match found.into_iter().next() {
+        Some(e) => Err(e),
+        None => Ok(roles),
+    }
+}
+
+fn device_problems(rig: &Rig) -> (Roles, Vec<ConfigError>) {
+    let mut found = Vec::new();
     let roles = if rig.simulated {
-        simulated(rig)?
+        simulated(rig, &mut found)
     } else {
-        hardware(rig)?
+        hardware(rig, &mut found)
     };
     let file = rig.file.as_str();
     let b = &rig.brackets;
     if roles.fallback && b.fallback_shutters.is_empty() {
-        return Err(invalid(
+        found.push(invalid(
             file,
             "brackets.fallback_shutters",
             "needs at least one exposure",
@@ -58,13 +75,13 @@ pub fn devices(rig: &Rig) -> Result<Roles, ConfigError> {
     // Left alone, a webcam's auto gain changes between the bracket's exposures, and the
     // calibration holds for one gain.
     if roles.fallback && b.fallback_gain.is_none() {
-        return Err(invalid(
+        found.push(invalid(
             file,
             "brackets.fallback_gain",
             "a rig with a fallback_camera needs a fixed gain, in the camera's own units (`v4l2-ctl -d /dev/videoN --list-ctrls` shows its range); calibration.fallback is measured at it",
         ));
     }
-    Ok(roles)
+    (roles, found)
 }
 
 /// What each field may name: the kinds of device that can play its role, as the error says
@@ -114,13 +131,13 @@ pub fn shared(a: &str, b: &str, s: &Selector) -> bool {
     matches!(s, Selector::Serial(_)) && [a, b].contains(&TURNTABLE) && [a, b].contains(&SHUTTER)
 }
 
-fn hardware(rig: &Rig) -> Result<Roles, ConfigError> {
+fn hardware(rig: &Rig, found: &mut Vec<ConfigError>) -> Roles {
     let (file, d) = (rig.file.as_str(), &rig.devices);
     for (field, selector) in named(d) {
         let Some(s) = selector else { continue };
         let (fits, what) = kinds(field);
         if !fits(s) {
-            return Err(invalid(
+            found.push(invalid(
                 file,
                 field,
                 format!("{s} cannot be used here: it must be {what}"),
@@ -128,18 +145,18 @@ fn hardware(rig: &Rig) -> Result<Roles, ConfigError> {
         }
     }
     if d.dslr.is_none() && d.fallback_camera.is_none() {
-        return Err(invalid(
+        found.push(invalid(
             file,
             "devices",
             "needs a `dslr` or a `fallback_camera` to see the object",
         ));
     }
     if d.theta.is_none() {
-        return Err(invalid(file, THETA, "needs a THETA to measure the light"));
+        found.push(invalid(file, THETA, "needs a THETA to measure the light"));
     }
     if let Some(s) = &d.shutter {
         if d.dslr.is_none() {
-            return Err(invalid(
+            found.push(invalid(
                 file,
                 SHUTTER,
                 format!("{s} fires a DSLR, and the rig names no `dslr` (the fallback camera streams: it has no shutter to fire)"),
@@ -150,7 +167,7 @@ fn hardware(rig: &Rig) -> Result<Roles, ConfigError> {
         if let (Selector::Cable { path, .. }, Some(Selector::Serial(turntable))) = (s, &d.turntable)
         {
             if path == turntable {
-                return Err(invalid(
+                found.push(invalid(
                     file,
                     SHUTTER,
                     format!(
@@ -160,15 +177,15 @@ fn hardware(rig: &Rig) -> Result<Roles, ConfigError> {
             }
         }
     }
-    Ok(Roles {
+    Roles {
         dslr: d.dslr.is_some(),
         fallback: d.fallback_camera.is_some(),
         turntable: d.turntable.is_some(),
         shutter: d.shutter.is_some(),
-    })
+    }
 }
 
-fn simulated(rig: &Rig) -> Result<Roles, ConfigError> {
+fn simulated(rig: &Rig, found: &mut Vec<ConfigError>) -> Roles {
     let (file, d) = (rig.file.as_str(), &rig.devices);
     for (field, named) in [
         (DSLR, &d.dslr),
@@ -177,7 +194,7 @@ fn simulated(rig: &Rig) -> Result<Roles, ConfigError> {
         (SHUTTER, &d.shutter),
     ] {
         if let Some(s) = named {
-            return Err(invalid(
+            found.push(invalid(
                 file,
                 field,
                 format!("{s}: a simulated rig's devices are its simulators; say which are there in [simulation] (dslr, theta, turntable, shutter)"),
@@ -186,28 +203,31 @@ fn simulated(rig: &Rig) -> Result<Roles, ConfigError> {
     }
     let webcam = Selector::V4l(super::simulated::SIMULATED_WEBCAM.into());
     if let Some(s) = d.fallback_camera.as_ref().filter(|s| **s != webcam) {
-        return Err(invalid(
+        found.push(invalid(
             file,
             FALLBACK,
             format!("{s}: a simulated rig's fallback camera is the simulated webcam, `{webcam}`"),
         ));
     }
     let sim = rig.simulation.clone().unwrap_or_default();
-    Ok(Roles {
+    Roles {
         // An absent simulated DSLR is one that is named and does not answer.
         dslr: true,
         fallback: d.fallback_camera.is_some(),
         turntable: sim.turntable == SimulatedPresence::Present,
         shutter: sim.shutter == SimulatedPresence::Present,
-    })
+    }
 }
 
 /// Every camera that may shoot has its gain: the THETA always, the DSLR for the files it is
 /// set to make (a RAW + JPEG bracket falls back to its JPEGs when its RAW files cannot be
 /// merged), and the fallback camera.
-fn calibration(rig: &Rig, roles: &Roles) -> Result<(), ConfigError> {
+fn calibration(rig: &Rig, roles: &Roles, found: &mut Vec<ConfigError>) {
     let c = &rig.calibration;
-    c.refuse_ratios(&rig.file)?;
+    if let Err(e) = c.refuse_ratios(&rig.file) {
+        found.push(e);
+        return;
+    }
     let [theta, dslr_raw, dslr_jpeg, fallback] = GAIN_FIELDS;
     let mut needed = vec![(theta, c.theta.is_some(), "the THETA")];
     if roles.dslr {
@@ -234,16 +254,16 @@ fn calibration(rig: &Rig, roles: &Roles) -> Result<(), ConfigError> {
     if roles.fallback {
         needed.push((fallback, c.fallback.is_some(), "the fallback camera"));
     }
-    match needed.into_iter().find(|(_, there, _)| !there) {
-        Some((field, _, what)) => Err(invalid(
+    // One missing gain or four, it is one step to take: the first says which.
+    if let Some((field, _, what)) = needed.into_iter().find(|(_, there, _)| !there) {
+        found.push(invalid(
             rig.file.as_str(),
             format!("{field}.gain"),
             format!(
                 "not measured: {what} needs a gain to put its values in the bench's radiance; `brdfd calibrate radiometry --rig {}` measures every camera's from a grey card and writes them here",
                 rig.file
             ),
-        )),
-        None => Ok(()),
+        ));
     }
 }
 
