@@ -181,6 +181,9 @@ pub struct ResultFiles {
     pub report: PathBuf,
     /// The exported materials and how far they relight from the estimate.
     pub exports: Export,
+    /// Every file written, the report first (what a person opens first), then the files a
+    /// program reads, then the pictures.
+    pub written: Vec<PathBuf>,
 }
 
 /// Writes a bivariate table (`quantity`: what its values are) as a 90 × 90 EXR whose header
@@ -316,7 +319,16 @@ pub fn write_results(
         compare_png: cx.photo.map(|_| dir.join("compare.png")),
         report: dir.join("report.html"),
         exports,
+        written: Vec::new(),
     };
+    let mut written = vec![
+        files.report.clone(),
+        files.coefficients.clone(),
+        dir.join("material.gltf"),
+        dir.join("material.mtlx"),
+        files.merl.clone(),
+        files.brdf_exr.clone(),
+    ];
     let json = serde_json::to_string_pretty(&file).expect("coefficients serialise");
     std::fs::write(&files.coefficients, json).map_err(|e| CoreError::io(&files.coefficients, e))?;
     let basis_id = &basis.header.id;
@@ -331,11 +343,13 @@ pub fn write_results(
         let band = Bivariate::from_values(brdf.grid, u.band.clone(), brdf.valid.clone());
         let sigma = "BRDF 1-sigma (bootstrap over the pixels)";
         write_bivariate_exr(&dir.join("brdf-sigma.exr"), &band, sigma, basis_id)?;
+        written.push(dir.join("brdf-sigma.exr"));
     }
     // The capture's light, for the web page's viewer to show the export under, and on a
     // mesh the export on the object itself, in the same world.
     if let Some(map) = cx.env {
         crate::export::maps::write_light(&dir.join("light.hdr"), map, cx.yaw)?;
+        written.push(dir.join("light.hdr"));
     }
     if let Some(mesh) = cx.object {
         let path = dir.join("object.gltf");
@@ -344,15 +358,23 @@ pub fn write_results(
             .material
             .document_on_mesh("brdfd_estimate", mesh);
         std::fs::write(&path, text).map_err(|e| CoreError::io(&path, e))?;
+        written.push(path);
     }
+    written.extend([
+        files.preview_png.clone(),
+        dir.join("preview.exr"),
+        dir.join("preview.json"),
+    ]);
     if let (Some(photo), Some(path)) = (cx.photo, &files.compare_png) {
         crate::compare::write(path, photo, &estimate.rerender)?;
+        written.push(path.clone());
     }
     if let Some(v) = cx.visibility {
         let path = dir.join("visibility.png");
         v.picture()
             .save(&path)
             .map_err(|e| CoreError::format(path.display(), format!("could not write PNG: {e}")))?;
+        written.push(path);
     }
     // The MERL table (35 MB) is written while the preview renders.
     std::thread::scope(|s| {
@@ -369,7 +391,7 @@ pub fn write_results(
         )?;
         merl.join().expect("writing the MERL table panicked")
     })?;
-    Ok(files)
+    Ok(ResultFiles { written, ..files })
 }
 
 /// `preview.png` (on the fixed scale of `preview.json`) and `preview.exr` (linear): the

@@ -210,6 +210,65 @@ fn bad_session_ids_and_material_names_are_refused() {
     assert!(!dir.path().join("sessions").exists(), "nothing was created");
 }
 
+/// Issue 42: a session is named by any start of its id that only it has, as git names a
+/// commit, or by the start of its random last part; more than one or none is said clearly.
+#[test]
+fn a_unique_prefix_names_a_session() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let ids: Vec<String> = ["gold", "gold", "chrome"]
+        .iter()
+        .map(|m| {
+            brdfd::session::Session::create(&state, m, "simulated", None, serde_json::json!({}))
+                .unwrap()
+                .manifest
+                .id
+        })
+        .collect();
+    let state = state.to_str().unwrap();
+    let show = |id: &str| brdfd(&["session", "show", id, "--state-dir", state], dir.path());
+    // The last part is random: a start of it that only one session has.
+    let last = |id: &str| id.rsplit('-').next().unwrap().to_string();
+    let unique = (1..=6)
+        .map(|n| last(&ids[2])[..n].to_string())
+        .find(|p| {
+            ids[..2]
+                .iter()
+                .all(|i| !last(i).starts_with(p.as_str()) && !i.starts_with(p.as_str()))
+        })
+        .expect("three random parts differ within six digits");
+    let o = show(&unique);
+    assert!(o.status.success(), "{}", out(&o));
+    assert!(
+        out(&o).contains(&format!("session {}: created", ids[2])),
+        "{}",
+        out(&o)
+    );
+    // The id's own start: the chrome session's id is the only one with `chrome` in it.
+    let start = ids[2].split("-chrome-").next().unwrap().to_string() + "-c";
+    let o = show(&start);
+    assert!(
+        out(&o).contains(&format!("session {}:", ids[2])),
+        "{}",
+        out(&o)
+    );
+    // The century begins all three.
+    let o = show("2");
+    assert!(!o.status.success());
+    let said = out(&o);
+    assert!(
+        said.contains("begins 3 session ids") && said.contains("give more of the id"),
+        "{said}"
+    );
+    let o = show("ffffffff");
+    assert!(!o.status.success());
+    assert!(
+        out(&o).contains("no session id starts with \"ffffffff\""),
+        "{}",
+        out(&o)
+    );
+}
+
 /// A full disk, for real: the state directory is a 3 MB tmpfs, mounted in a user and mount
 /// namespace of the test's own (`unshare -rm`), so no privilege is needed beyond what a CI
 /// container gives. The raw files fit; the 35 MB MERL table of the results does not.

@@ -32,7 +32,7 @@ pub enum CalibrateCommand {
 pub struct RadiometryArgs {
     /// The rig file: read, then written with the gains (the file before is kept beside it
     /// as FILE.bak).
-    #[arg(long, conflicts_with = "simulate")]
+    #[arg(short, long, conflicts_with = "simulate")]
     pub rig: Option<PathBuf>,
     /// The shipped simulated rig, whose target is a grey sphere on the simulated bench: the
     /// gains are printed, not written.
@@ -51,7 +51,7 @@ pub struct RadiometryArgs {
     pub dry_run: bool,
     /// Where the target's photos go; else a new folder under the state directory's
     /// `calibrations/`.
-    #[arg(long)]
+    #[arg(short, long)]
     pub out: Option<PathBuf>,
     /// The state directory; else BRDFD_STATE_DIR, else the XDG data directory.
     #[arg(long)]

@@ -23,13 +23,13 @@ use super::progress::{Bars, Terminal};
 pub struct CaptureArgs {
     /// Material name (a preset in config/materials, a MERL name, or an alias: gold, chrome,
     /// plastic, paint, fabric, latex).
-    #[arg(long)]
+    #[arg(short, long)]
     pub material: String,
     /// Use the simulated rig: the devices' simulators on loopback, rendering the material.
     #[arg(long, conflicts_with = "rig")]
     pub simulate: bool,
     /// A hardware rig file (see config/rigs/bench.toml).
-    #[arg(long)]
+    #[arg(short, long)]
     pub rig: Option<PathBuf>,
     /// Environment map for the simulated rig; the embedded procedural studio if absent.
     #[arg(long)]
@@ -73,7 +73,7 @@ pub struct CaptureArgs {
     #[arg(long)]
     pub state_dir: Option<PathBuf>,
     /// Also write the results and the raw files to this folder.
-    #[arg(long)]
+    #[arg(short, long)]
     pub out: Option<PathBuf>,
     /// Also print the estimate's coefficients and each phase's time (both are in the
     /// session: `result/coefficients.json`, `manifest.json`).
@@ -94,7 +94,7 @@ pub struct DaemonArgs {
     pub in_process: bool,
     /// The daemon config to read `api`, `token` and `state_dir` from; else BRDFD_CONFIG, else
     /// ~/.config/brdfd/brdfd.toml (XDG) if it exists, else the built-in defaults.
-    #[arg(long)]
+    #[arg(short, long)]
     pub config: Option<PathBuf>,
 }
 

@@ -79,6 +79,8 @@ pub struct EstimateArgs {
     /// candidates' rows.
     #[arg(long, default_value_t = CHOSEN_LIGHTS)]
     pub chosen_lights: usize,
+    /// Object pixels considered as candidates at most (a random spread of them beyond it):
+    /// the selection's conditioning stops improving long before a photo's millions.
     #[arg(long, default_value_t = DEFAULT_MAX_CANDIDATES)]
     pub max_candidates: usize,
     /// The photo's white level: pixels with a channel at or above it were clipped and are left
@@ -90,7 +92,7 @@ pub struct EstimateArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Output folder.
-    #[arg(long, default_value = "estimate")]
+    #[arg(short, long, default_value = "estimate")]
     pub out: PathBuf,
     /// Also print the estimate's coefficients (they are in `coefficients.json`).
     #[arg(long, short)]
@@ -287,7 +289,18 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
     } else {
         println!("{}", lines.join("\n"));
     }
-    println!("wrote {}", files.coefficients.display());
+    let names: Vec<String> = files
+        .written
+        .iter()
+        .filter_map(|p| p.file_name())
+        .map(|n| n.to_string_lossy().into_owned())
+        .collect();
+    println!(
+        "wrote {} files in {}: {}",
+        names.len(),
+        a.out.display(),
+        names.join(", ")
+    );
     Ok(())
 }
 
@@ -301,13 +314,15 @@ pub fn print_estimate(names: &[String], coefficients: &[f64]) {
 #[derive(clap::Args)]
 pub struct RenderArgs {
     /// An NBRDF material name (from --nbrdf, or the embedded test materials).
-    #[arg(long, conflicts_with_all = ["merl", "coefficients", "gltf"])]
+    #[arg(short, long, conflicts_with_all = ["merl", "coefficients", "gltf"])]
     pub material: Option<String>,
     /// A glTF file's first material (an export's `material.gltf`), as glTF's own BRDF:
     /// what a renderer that reads the export shows.
     #[arg(long, conflicts_with_all = ["merl", "coefficients"])]
     pub gltf: Option<PathBuf>,
-    #[arg(long)]
+    /// The NBRDF file (merl_nbrdf.json) --material is taken from; the embedded test
+    /// materials if absent.
+    #[arg(long, requires = "material")]
     pub nbrdf: Option<PathBuf>,
     /// A MERL .binary file.
     #[arg(long)]
@@ -315,11 +330,14 @@ pub struct RenderArgs {
     /// A coefficients.json from `brdfd estimate` (rendered on --basis or the embedded basis).
     #[arg(long)]
     pub coefficients: Option<PathBuf>,
-    #[arg(long)]
+    /// The basis --coefficients were estimated on (STEM.exr + STEM.json); the embedded
+    /// default if absent.
+    #[arg(long, requires = "coefficients")]
     pub basis: Option<PathBuf>,
     /// The environment map; the procedural studio if absent.
     #[arg(long)]
     pub env: Option<PathBuf>,
+    /// Yaw of the map about +Y, degrees (right-handed).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = finite_degrees)]
     pub yaw: f64,
     #[command(flatten)]
@@ -327,10 +345,11 @@ pub struct RenderArgs {
     /// Image size for built-in shapes, 8 to 8192 pixels.
     #[arg(long, default_value_t = 256, value_parser = super::image_size)]
     pub size: usize,
+    /// Lights the map is compressed to for the render.
     #[arg(long, default_value_t = 16384)]
     pub lights: usize,
     /// Output image: .exr (linear) or .png (tone-mapped sRGB).
-    #[arg(long)]
+    #[arg(short, long)]
     pub out: PathBuf,
 }
 

@@ -23,7 +23,7 @@ use super::rig_file::RigFile;
 pub struct TargetArgs {
     /// The folder the board's files go to: board.svg and board.png (300 dpi) to print, and
     /// board.toml, the board file `brdfd calibrate pose --board` reads.
-    #[arg(long, default_value = "board")]
+    #[arg(short, long, default_value = "board")]
     pub out: PathBuf,
     /// Squares across the board.
     #[arg(long, default_value_t = Board::default().cols)]
@@ -104,7 +104,7 @@ pub struct PoseArgs {
     /// The rig file: its object camera (a pinhole camera) is read, then written with the
     /// pose found, and its object's placement with --refine-object (the file before is kept
     /// beside it as FILE.bak).
-    #[arg(long)]
+    #[arg(short, long)]
     pub rig: PathBuf,
     /// The board file `brdfd calibrate target` wrote; else its default board, standing where
     /// the object goes.
@@ -153,7 +153,7 @@ pub struct PoseArgs {
     pub force: bool,
     /// Where the board's photos go; else a new folder under the state directory's
     /// `calibrations/`.
-    #[arg(long)]
+    #[arg(short, long)]
     pub out: Option<PathBuf>,
     /// The state directory; else BRDFD_STATE_DIR, else the XDG data directory.
     #[arg(long)]

@@ -23,7 +23,7 @@ pub enum PtpCommand {
 #[derive(clap::Args)]
 pub struct PortArg {
     /// `usb` (first PTP camera), `usb:VVVV[:PPPP]` (vendor[:product], hex), or `ptpip:HOST[:PORT]`.
-    #[arg(long, default_value = "usb")]
+    #[arg(short, long, default_value = "usb")]
     pub port: String,
 }
 
@@ -34,8 +34,11 @@ pub struct CaptureArgs {
     /// Shutter speeds in seconds; several make a bracket. The camera's current speed if absent.
     #[arg(long, value_delimiter = ',')]
     pub shutter: Vec<f64>,
+    /// Aperture as an f-number (8 for f/8); the camera's current one if absent. The camera
+    /// may round it: what it applied is printed.
     #[arg(long)]
     pub f_number: Option<f64>,
+    /// ISO sensitivity; the camera's current one if absent.
     #[arg(long)]
     pub iso: Option<u32>,
     /// Save to the card and keep the file there (Nikon: the default keeps it in RAM only).
@@ -45,7 +48,7 @@ pub struct CaptureArgs {
     #[arg(long, value_parser = ["jpeg", "raw", "raw+jpeg"])]
     pub files: Option<String>,
     /// Folder for the files.
-    #[arg(long, default_value = ".")]
+    #[arg(short, long, default_value = ".")]
     pub out: PathBuf,
 }
 

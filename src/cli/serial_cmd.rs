@@ -19,6 +19,7 @@ pub enum SerialCommand {
     Fire {
         #[command(flatten)]
         port: SerialPort,
+        /// How long the shutter is held, in milliseconds.
         #[arg(long, default_value_t = 200)]
         ms: u32,
     },
@@ -26,6 +27,7 @@ pub enum SerialCommand {
     Rotate {
         #[command(flatten)]
         port: SerialPort,
+        /// Degrees to turn by; negative turns back.
         #[arg(long, allow_hyphen_values = true)]
         deg: f64,
     },
@@ -36,7 +38,7 @@ pub enum SerialCommand {
 #[derive(clap::Args)]
 pub struct SerialPort {
     /// `serial:/dev/ttyUSB0` (rig protocol) or `cable:dtr:/dev/ttyUSB0` / `cable:rts:...`.
-    #[arg(long)]
+    #[arg(short, long)]
     pub port: String,
 }
 

@@ -14,10 +14,10 @@ use brdfd::daemon::{api, Daemon};
 pub struct ServeArgs {
     /// The daemon config (API address, token, state directory, log); else BRDFD_CONFIG, else
     /// ~/.config/brdfd/brdfd.toml (XDG) if it exists, else the built-in defaults.
-    #[arg(long)]
+    #[arg(short, long)]
     pub config: Option<PathBuf>,
     /// The rig file of the bench's devices.
-    #[arg(long, required_unless_present = "simulate")]
+    #[arg(short, long, required_unless_present = "simulate")]
     pub rig: Option<PathBuf>,
     /// Run the simulated rig (simulators on loopback) instead of hardware.
     #[arg(long, conflicts_with = "rig")]

@@ -26,31 +26,43 @@ pub enum SessionCommand {
         json: bool,
     },
     /// One session: a summary, then its manifest, with every raw file's checksum verified.
-    /// ID may be `latest`.
-    Show { id: String },
+    Show {
+        /// The session: its id, the start of its id or of its last part (`3f2a` for
+        /// 20261122-233000-gold-3f2a1b) if only one session has it, or `latest`.
+        id: String,
+    },
     /// Continue an interrupted or failed session from its last complete step (in the daemon
-    /// if one is running). ID may be `latest`.
+    /// if one is running).
     Resume {
+        /// The session: its id, the start of its id or of its last part (`3f2a` for
+        /// 20261122-233000-gold-3f2a1b) if only one session has it, or `latest`.
         id: String,
         #[command(flatten)]
         daemon: super::capture::DaemonArgs,
     },
     /// Stop a capture: in the daemon if one runs it; else a session left capturing by a
-    /// process that is gone is recorded as interrupted. ID may be `latest`.
+    /// process that is gone is recorded as interrupted.
     Cancel {
+        /// The session: its id, the start of its id or of its last part (`3f2a` for
+        /// 20261122-233000-gold-3f2a1b) if only one session has it, or `latest`.
         id: String,
         #[command(flatten)]
         daemon: super::capture::DaemonArgs,
     },
-    /// Watch a capture running in the daemon until it ends. ID may be `latest`.
+    /// Watch a capture running in the daemon until it ends.
     Follow {
+        /// The session: its id, the start of its id or of its last part (`3f2a` for
+        /// 20261122-233000-gold-3f2a1b) if only one session has it, or `latest`.
         id: String,
         #[command(flatten)]
         daemon: super::capture::DaemonArgs,
     },
     /// Copy a session (manifest, raw, derived, result) to a folder, after verifying it.
     Export {
+        /// The session: its id, the start of its id or of its last part (`3f2a` for
+        /// 20261122-233000-gold-3f2a1b) if only one session has it, or `latest`.
         id: String,
+        /// The folder to copy it into, as a folder named by the session's id.
         #[arg(long)]
         to: PathBuf,
     },
@@ -109,15 +121,61 @@ pub fn run(a: SessionArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `latest` is the newest session (ids start with their creation time); any other id as is.
+/// `latest` is the newest session (ids start with their creation time); a whole id is itself;
+/// else the one session whose id, or whose random last part, starts with `id`, as git takes
+/// a commit's prefix. Resolved here, against the sessions on disk, so that the daemon's API
+/// only ever sees whole ids.
 fn resolve_id(state: &Path, id: &str) -> anyhow::Result<String> {
-    if id != "latest" {
+    if id == "latest" {
+        return Session::list(state)?
+            .pop()
+            .map(|m| m.id)
+            .with_context(|| format!("no sessions in {}, so none is the latest", state.display()));
+    }
+    // Session::open says what is wrong with a name that is not one.
+    if brdfd::config::validate_name("session id", id).is_err()
+        || brdfd::session::session_dir(state, id)
+            .join("manifest.json")
+            .is_file()
+    {
         return Ok(id.to_string());
     }
-    Session::list(state)?
-        .pop()
-        .map(|m| m.id)
-        .with_context(|| format!("no sessions in {}, so none is the latest", state.display()))
+    let ids: Vec<String> = Session::list(state)?.into_iter().map(|m| m.id).collect();
+    match_id(&ids, id).map(str::to_string).map_err(|e| {
+        anyhow::anyhow!(
+            "{e} in {} (`brdfd session list` shows them)",
+            state.display()
+        )
+    })
+}
+
+/// Shown of the sessions an ambiguous prefix names, at most.
+const AMBIGUOUS_SHOWN: usize = 5;
+
+/// The one id among `ids` that starts with `prefix`, or whose random last part (after the
+/// last `-`) does.
+fn match_id<'a>(ids: &'a [String], prefix: &str) -> Result<&'a str, String> {
+    let found: Vec<&str> = ids
+        .iter()
+        .map(String::as_str)
+        .filter(|id| {
+            id.starts_with(prefix) || id.rsplit('-').next().is_some_and(|r| r.starts_with(prefix))
+        })
+        .collect();
+    match found[..] {
+        [one] => Ok(one),
+        [] => Err(format!("no session id starts with {prefix:?}")),
+        _ => Err(format!(
+            "{prefix:?} begins {} session ids ({}{}): give more of the id",
+            found.len(),
+            found[..found.len().min(AMBIGUOUS_SHOWN)].join(", "),
+            if found.len() > AMBIGUOUS_SHOWN {
+                ", ..."
+            } else {
+                ""
+            }
+        )),
+    }
 }
 
 /// The result a session wrote, if it got that far: its model and fit to the photo.
@@ -270,4 +328,30 @@ fn copy_dir(from: &Path, to: &Path) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::match_id;
+
+    #[test]
+    fn a_unique_start_of_an_id_or_of_its_last_part_names_the_session() {
+        let ids = [
+            "20261122-233000-gold-3f2a1b".to_string(),
+            "20261122-233500-gold-3f9c00".to_string(),
+            "20261123-080000-chrome-a0c4e2".to_string(),
+        ];
+        assert_eq!(match_id(&ids, "20261123"), Ok(ids[2].as_str()));
+        assert_eq!(match_id(&ids, "3f2a"), Ok(ids[0].as_str()));
+        assert_eq!(match_id(&ids, "a0c"), Ok(ids[2].as_str()));
+        let e = match_id(&ids, "3f").unwrap_err();
+        assert!(
+            e.contains("begins 2 session ids") && e.contains("give more"),
+            "{e}"
+        );
+        let e = match_id(&ids, "20261122").unwrap_err();
+        assert!(e.contains(&ids[0]) && e.contains(&ids[1]), "{e}");
+        let e = match_id(&ids, "ffff").unwrap_err();
+        assert!(e.contains("no session id starts with \"ffff\""), "{e}");
+    }
 }

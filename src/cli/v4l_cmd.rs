@@ -36,10 +36,10 @@ pub struct V4lCaptureArgs {
     #[arg(long, default_value_t = 5000)]
     pub white_balance: i64,
     /// Material on the simulated bench (with `--device sim`).
-    #[arg(long, default_value = "gold")]
+    #[arg(short, long, default_value = "gold")]
     pub material: String,
     /// The averaged frame, linear, as EXR.
-    #[arg(long, default_value = "frame.exr")]
+    #[arg(short, long, default_value = "frame.exr")]
     pub out: PathBuf,
 }
 

@@ -11,3 +11,20 @@
 pub mod figures;
 pub mod paper;
 pub mod relight;
+
+/// Where a long run stands, for the caller to show (runs take 5 to 25 minutes; a library
+/// never prints). One is sent as each item of a stage begins.
+#[derive(Debug, Clone, Copy)]
+pub struct Progress<'a> {
+    /// The stage, in words: "paper's protocol under grace", "leave-one-out", ...
+    pub stage: &'a str,
+    /// The item begun, usually a material.
+    pub item: &'a str,
+    /// Its number in the stage, from 1.
+    pub index: usize,
+    /// Items in the stage.
+    pub total: usize,
+}
+
+/// What a run is told its progress through.
+pub type OnProgress<'a> = &'a dyn Fn(Progress);

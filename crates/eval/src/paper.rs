@@ -26,6 +26,7 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Poisson};
 
+use crate::{OnProgress, Progress};
 use brdfd_core::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
 use brdfd_core::bivariate::{Bivariate, Grid, GRID_CELLS};
 use brdfd_core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
@@ -334,8 +335,14 @@ fn label(l: Option<usize>) -> String {
 
 /// Runs the protocol, writes `results.csv`, `results.md`, `fig5-*.svg`, `fig6-*.svg` and
 /// (unless disabled) `loo.csv`; returns the Markdown report.
-pub fn run(cfg: &EvalConfig) -> Result<String> {
+pub fn run(cfg: &EvalConfig, progress: OnProgress) -> Result<String> {
     let t0 = Instant::now();
+    progress(Progress {
+        stage: "preparing",
+        item: "reading the measured materials and building the basis",
+        index: 1,
+        total: 1,
+    });
     std::fs::create_dir_all(&cfg.out).map_err(|e| CoreError::io(&cfg.out, e))?;
     let nbrdf_path = cfg.data.join("merl-nbrdf").join("merl_nbrdf.json");
     let set = NbrdfSet::read(&nbrdf_path)?;
@@ -373,7 +380,14 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
     for light_name in ["grace", "courtyard"] {
         let lighting = load_lighting(&cfg.data, light_name)?;
         let scene = Scene::new(&basis, &geometry, &lighting);
+        let stage = format!("the paper's protocol under {light_name}");
         for (i, truth) in truths.iter().enumerate() {
+            progress(Progress {
+                stage: &stage,
+                item: &truth.name,
+                index: i + 1,
+                total: truths.len(),
+            });
             let gt = render_merl(&geometry, &lighting.gt, &truth.table);
             let floor =
                 render_bivariate(&geometry, &lighting.est, &truth.bivariate).relative_rmse(&gt);
@@ -429,12 +443,12 @@ pub fn run(cfg: &EvalConfig) -> Result<String> {
     write_csv(&cfg.out.join("results.csv"), &rows)?;
 
     let loo = if cfg.leave_one_out {
-        Some(leave_one_out(cfg, &set, &reduced)?)
+        Some(leave_one_out(cfg, &set, &reduced, progress)?)
     } else {
         None
     };
     let choices = if cfg.choices {
-        Some(measure_choices(cfg, &set, &reduced)?)
+        Some(measure_choices(cfg, &set, &reduced, progress)?)
     } else {
         None
     };
@@ -457,6 +471,7 @@ fn leave_one_out(
     cfg: &EvalConfig,
     set: &NbrdfSet,
     reduced: &[(String, Bivariate)],
+    progress: OnProgress,
 ) -> Result<String> {
     let lighting = load_lighting(&cfg.data, "grace")?;
     let geometry =
@@ -466,7 +481,13 @@ fn leave_one_out(
     );
     // Per method: (image error at 20, with all, BRDF error at 20, with all) per material.
     let mut per_method: Vec<Vec<[f64; 4]>> = METHODS.iter().map(|_| Vec::new()).collect();
-    for (name, truth_biv) in reduced {
+    for (i, (name, truth_biv)) in reduced.iter().enumerate() {
+        progress(Progress {
+            stage: "leave-one-out",
+            item: name,
+            index: i + 1,
+            total: reduced.len(),
+        });
         let others: Vec<(String, Bivariate)> =
             reduced.iter().filter(|(n, _)| n != name).cloned().collect();
         let basis = default_basis(&others, cfg.k)?;
@@ -531,6 +552,7 @@ fn measure_choices(
     cfg: &EvalConfig,
     set: &NbrdfSet,
     reduced: &[(String, Bivariate)],
+    progress: OnProgress,
 ) -> Result<String> {
     use brdfd_core::bivariate::{PhiReduction, ThetaHBinning};
     let size = LOO_SIZE;
@@ -569,13 +591,21 @@ fn measure_choices(
         .filter(|(n, _)| !TEST_SET.contains(&n.as_str()))
         .cloned()
         .collect();
-    for (norm, weight, with_mean) in [
+    let variants = [
         (Normalisation::Rms, CellWeight::SolidAngle, true),
         (Normalisation::Rms, CellWeight::None, true),
         (Normalisation::Rms, CellWeight::SolidAngle, false),
         (Normalisation::None, CellWeight::SolidAngle, true),
         (Normalisation::None, CellWeight::None, true),
-    ] {
+    ];
+    for (i, (norm, weight, with_mean)) in variants.into_iter().enumerate() {
+        let item = format!("{norm:?} normalisation, {weight:?} cell weight, mean {with_mean}");
+        progress(Progress {
+            stage: "the basis's choices",
+            item: &item,
+            index: i + 1,
+            total: variants.len(),
+        });
         let basis = Basis::build(&training, DEFAULT_K, norm, weight, with_mean)?;
         let scene = Scene::new(&basis, &geometry, &lighting);
         let (mut all, mut twenty, mut brdf) = (Vec::new(), Vec::new(), Vec::new());
@@ -606,7 +636,7 @@ fn measure_choices(
         );
     }
     out.push_str(&measure_k(
-        cfg, &geometry, &lighting, &tables, &training, reduced,
+        cfg, &geometry, &lighting, &tables, &training, reduced, progress,
     )?);
     Ok(out)
 }
@@ -623,6 +653,7 @@ fn measure_k(
     grace: &[(String, MerlBrdf, Raster)],
     training: &[(String, Bivariate)],
     reduced: &[(String, Bivariate)],
+    progress: OnProgress,
 ) -> Result<String> {
     let mut out = String::from("\n| K | lighting | method | image error, 20 px | image error, all px | BRDF error, 20 px | BRDF error, all px | 20 px within 10% of all (BRDF) |\n|---|---|---|---|---|---|---|---|\n");
     let courtyard = load_lighting(&cfg.data, "courtyard")?;
@@ -630,7 +661,13 @@ fn measure_k(
         .iter()
         .map(|(_, t, _)| render_merl(geometry, &courtyard.gt, t))
         .collect();
-    for k in K_CHOICES {
+    for (i, k) in K_CHOICES.into_iter().enumerate() {
+        progress(Progress {
+            stage: "the number of components",
+            item: &format!("K = {k}"),
+            index: i + 1,
+            total: K_CHOICES.len(),
+        });
         let basis = default_basis(training, k)?;
         for (light_name, lighting, truths) in [
             (

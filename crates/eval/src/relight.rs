@@ -23,6 +23,7 @@ use std::path::{Path, PathBuf};
 use rand::{Rng, SeedableRng};
 
 use crate::paper::{add_sensor_noise, default_basis, load_lighting, Lighting, TEST_SET};
+use crate::{OnProgress, Progress};
 use brdfd_core::analytic::Microfacet;
 use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::brdf::IsotropicBrdf;
@@ -247,8 +248,14 @@ struct Material {
 
 /// Runs the relighting evaluation; writes `relight.csv`, `relight.md` and `relight.svg` (the
 /// relighting figure) into `out` and returns the Markdown.
-pub fn run(cfg: &RelightConfig) -> Result<String> {
+pub fn run(cfg: &RelightConfig, progress: OnProgress) -> Result<String> {
     let t0 = std::time::Instant::now();
+    progress(Progress {
+        stage: "preparing",
+        item: "reading the measured materials and building the basis",
+        index: 1,
+        total: 1,
+    });
     std::fs::create_dir_all(&cfg.out).map_err(|e| CoreError::io(&cfg.out, e))?;
     let set = NbrdfSet::read(&cfg.data.join("merl-nbrdf").join("merl_nbrdf.json"))?;
     let grid = Grid::default();
@@ -301,7 +308,18 @@ pub fn run(cfg: &RelightConfig) -> Result<String> {
         .filter(|m| !cfg.leave_one_out || LEAVE_ONE_OUT_METHODS.contains(&m.name))
         .collect();
     let mut rows = Vec::new();
+    let stage = if cfg.leave_one_out {
+        "relighting, leave-one-out"
+    } else {
+        "relighting"
+    };
     for (mi, (name, analytic)) in chosen.iter().enumerate() {
+        progress(Progress {
+            stage,
+            item: name,
+            index: mi + 1,
+            total: chosen.len(),
+        });
         // Tabulated one at a time: a full table is 35 MB, and leave-one-out has 100.
         let material = Material {
             name: name.clone(),
