@@ -35,7 +35,7 @@ fn shared_data() -> Option<std::path::PathBuf> {
 /// Gold's projection onto the basis: coefficients whose BRDF the basis holds exactly.
 fn in_span_gold(basis: &Basis) -> Vec<f64> {
     let truth = Bivariate::reduce(
-        embedded_materials().get("gold-metallic-paint").unwrap(),
+        embedded_materials().get("nickel").unwrap(),
         basis.header.grid,
     );
     basis.project(&truth)
@@ -88,7 +88,7 @@ fn sphere(size: usize) -> PixelGeometry {
 
 #[test]
 fn merl_round_trip_through_file() {
-    let gold = MerlBrdf::tabulate(embedded_materials().get("gold-metallic-paint").unwrap());
+    let gold = MerlBrdf::tabulate(embedded_materials().get("nickel").unwrap());
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("gold.binary");
     gold.write(&path).unwrap();
@@ -1101,4 +1101,41 @@ fn hybrid_model_recovers_a_measured_material_in_its_mix() {
         .fold(0.0, f64::max);
     assert!(most < 1e-9, "rebuilt differs by {most}");
     assert_eq!(est.names.len(), est.solution.coefficients.len());
+}
+
+/// Issue 40: a stop requested of an estimate ends each model's with `CoreError::Stopped`,
+/// whose words ("cancelled") are what a capture records as its cancel; a stop requested
+/// after the work is no error; and the MERL renderer (the simulated camera's) stops too.
+#[test]
+fn a_requested_stop_ends_every_models_estimate_and_the_render() {
+    use brdfd_core::render::render_merl_until;
+    use brdfd_core::stop::Stop;
+    use brdfd_core::CoreError;
+    let g = sphere(32);
+    let lights = studio_envmap(128).compressed(512, 0.0);
+    let table = MerlBrdf::tabulate(embedded_materials().get("nickel").unwrap());
+    let photo = render_merl(&g, &lights, &table);
+    let basis = Basis::embedded();
+    for model in [Model::Basis, Model::Analytic, Model::Hybrid] {
+        let options = EstimateOptions {
+            model,
+            ..EstimateOptions::default()
+        };
+        options.stop.request();
+        let stopped = estimate(&basis, one_view(&g, &lights, &photo), &options);
+        assert!(
+            matches!(stopped, Err(CoreError::Stopped)),
+            "{model:?}: {:?}",
+            stopped.map(|e| e.fit_error)
+        );
+        assert_eq!(CoreError::Stopped.to_string(), "cancelled");
+    }
+    let stop = Stop::default();
+    let done = render_merl_until(&g, &lights, &table, &stop).unwrap();
+    assert_eq!(done.pixels, photo.pixels);
+    stop.request();
+    assert!(matches!(
+        render_merl_until(&g, &lights, &table, &stop),
+        Err(CoreError::Stopped)
+    ));
 }

@@ -378,3 +378,87 @@ fn cancel_records_a_session_left_capturing_as_interrupted() {
     let o = brdfd(&cancel, dir.path());
     assert!(out(&o).contains("is already failed"), "{}", out(&o));
 }
+
+/// Issue 40: Ctrl-C and SIGTERM stop an in-process capture within 5 s, in the estimate as
+/// while shooting, and say what they wait for; the session is recorded as interrupted, with
+/// what was captured kept.
+#[test]
+fn ctrl_c_and_sigterm_stop_a_capture_within_5_s() {
+    // (signal, the manifest state it is sent in)
+    for (signal, when) in [
+        ("-INT", "estimating"),
+        ("-TERM", "estimating"),
+        ("-TERM", "capturing"),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let state = dir.path().join("state");
+        let mut child = common::command()
+            .current_dir(dir.path())
+            .args([
+                "capture",
+                "--simulate",
+                "--in-process",
+                "--material",
+                "gold",
+            ])
+            .args(["--size", "96", "--views", "2", "--state-dir"])
+            .arg(&state)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let start = Instant::now();
+        let session = loop {
+            if let Some((dir, m)) = manifest(&state) {
+                if m["state"] == when {
+                    break dir;
+                }
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(120),
+                "the capture never got to {when}"
+            );
+            assert!(child.try_wait().unwrap().is_none(), "the capture ended");
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        let sent = Instant::now();
+        let killed = Command::new("sh")
+            .args(["-c", &format!("kill {signal} {}", child.id())])
+            .status()
+            .unwrap();
+        assert!(killed.success());
+        let o = loop {
+            if child.try_wait().unwrap().is_some() {
+                break child.wait_with_output().unwrap();
+            }
+            assert!(sent.elapsed() < Duration::from_secs(60), "it never stopped");
+            std::thread::sleep(Duration::from_millis(10));
+        };
+        let took = sent.elapsed();
+        let said = format!(
+            "{}{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        );
+        eprintln!("{signal} while {when}: stopped {took:.2?} after it");
+        assert!(
+            took < Duration::from_secs(5),
+            "{signal} while {when}: {took:?}\n{said}"
+        );
+        assert_eq!(o.status.code(), Some(1), "{said}");
+        assert!(said.contains("stopping: waiting for"), "{said}");
+        assert!(
+            said.contains("interrupted; what was captured is kept"),
+            "{said}"
+        );
+        let m: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(session.join("manifest.json")).unwrap())
+                .unwrap();
+        assert_eq!(m["state"], "failed", "{m}");
+        let reason = m["history"].to_string();
+        assert!(
+            reason.contains("cancelled; what was captured is kept"),
+            "{reason}"
+        );
+    }
+}

@@ -20,7 +20,8 @@ use brdfd_core::geometry::{Camera, PixelGeometry, SceneGeometry, Shape};
 use brdfd_core::merl::MerlBrdf;
 use brdfd_core::nbrdf::NbrdfSet;
 use brdfd_core::raster::Raster;
-use brdfd_core::render::{render_bivariate, render_merl};
+use brdfd_core::render::{render_bivariate, render_merl_until};
+use brdfd_core::stop::Stop;
 use brdfd_core::Result;
 
 use cache::{Key, RenderCache};
@@ -159,6 +160,8 @@ pub struct VirtualBench {
     pub geometry: SceneGeometry,
     /// Where renders are kept between runs; none by default.
     pub cache: Option<RenderCache>,
+    /// Ends a render early: a capture's cancel, so that it need not wait for the scene.
+    pub stop: Stop,
 }
 
 impl VirtualBench {
@@ -174,6 +177,7 @@ impl VirtualBench {
             yaw: 0.0,
             geometry: default_geometry(size),
             cache: None,
+            stop: Stop::default(),
         })
     }
 
@@ -192,7 +196,7 @@ impl VirtualBench {
     pub fn photo(&self) -> Result<Raster> {
         self.cached("photo", self.yaw, &self.geometry, || {
             let lights: LightSet = self.env.compressed(PHOTO_LIGHTS, self.yaw);
-            Ok(render_merl(&self.pixels()?, &lights, &self.material))
+            render_merl_until(&self.pixels()?, &lights, &self.material, &self.stop)
         })
     }
 
@@ -245,7 +249,7 @@ impl VirtualBench {
             "relight truth",
             yaw,
             &default_geometry(RELIGHT_SIZE),
-            || Ok(render_merl(&sphere, &lights, &self.material)),
+            || render_merl_until(&sphere, &lights, &self.material, &self.stop),
         )
     }
 

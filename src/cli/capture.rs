@@ -240,9 +240,9 @@ fn in_process(
     verbose: bool,
 ) -> anyhow::Result<()> {
     let devices = Devices::start(rig, KEEP_ALIVE)?;
-    let bars: Arc<dyn Progress> = Arc::new(Bars::new());
+    let bars = Arc::new(Bars::new());
     let cancel = Cancel::default();
-    interrupt_cancels(&cancel, &session.manifest.id);
+    interrupt_cancels(&cancel, &session.manifest.id, bars.clone());
     let cx = Context {
         rig,
         devices: &devices,
@@ -272,16 +272,21 @@ fn in_process(
     Ok(())
 }
 
-/// Ctrl-C stops the capture at its next step, which records the session as interrupted; a
-/// second Ctrl-C quits at once.
-fn interrupt_cancels(cancel: &Cancel, id: &str) {
+/// Ctrl-C, SIGTERM or SIGHUP stops the capture at its next check (a frame, a pass of the
+/// estimate: within seconds), which records the session as interrupted; a second one quits
+/// at once.
+fn interrupt_cancels(cancel: &Cancel, id: &str, bars: Arc<Bars>) {
     let (cancel, id) = (cancel.clone(), id.to_string());
     let handler = ctrlc::set_handler(move || {
         if cancel.is_cancelled() {
             eprintln!("\nquitting now; session {id} may still say it is capturing: `brdfd session resume {id}` continues it");
             std::process::exit(130);
         }
-        eprintln!("\nstopping after the current step (Ctrl-C again to quit at once)");
+        let waiting = match bars.under_way().join(", ") {
+            w if w.is_empty() => "the current step".to_string(),
+            w => w,
+        };
+        eprintln!("\nstopping: waiting for {waiting} to stop, a few seconds at most (Ctrl-C again to quit at once)");
         cancel.cancel();
     });
     if let Err(e) = handler {

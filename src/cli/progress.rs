@@ -28,6 +28,15 @@ impl Bars {
         }
     }
 
+    /// The phases started and not yet done: what a stop waits for.
+    pub fn under_way(&self) -> Vec<String> {
+        let mut phases: Vec<String> = self.bars.lock().expect("bars").keys().cloned().collect();
+        // A download's bar rides along its bracket's; the bracket is the step.
+        phases.retain(|p| !p.ends_with(": download"));
+        phases.sort();
+        phases
+    }
+
     fn line(&self, text: &str) {
         if self.multi.is_hidden() {
             // A reader that went away (`| head`) must not stop the capture with a panic.

@@ -4,7 +4,7 @@
 //!
 //! | method and path | answer |
 //! |---|---|
-//! | `GET /api/v1/openapi.json` | this API's OpenAPI 3.1 description ([`openapi`]); needs no token |
+//! | `GET /api/v1/openapi.json` | this API's OpenAPI 3.1 description ([`openapi()`]); needs no token |
 //! | `GET /api/v1/health` | `{"software", "rig": {"simulated"}, "busy": id or null}` |
 //! | `GET /api/v1/materials` | `{"presets": [...]}`: the material presets a capture can name |
 //! | `GET /api/v1/devices` | `[{"role", "selector", "state": "closed"/"open"/"lost", "identity", "last_error", "opened"}]` |

@@ -81,6 +81,11 @@ impl EventLog {
         matches!(h.last(), Some(Event::Finished { .. }))
     }
 
+    /// The phases under way ([`Event::under_way`]).
+    fn under_way(&self) -> Vec<String> {
+        Event::under_way(&self.history.lock().expect("event log"))
+    }
+
     /// The history so far and a receiver for every later event, with its id.
     pub fn subscribe(&self) -> (Vec<Event>, broadcast::Receiver<(usize, Event)>) {
         let h = self.history.lock().expect("event log");
@@ -542,7 +547,14 @@ impl Daemon {
         if let Some(r) = r {
             // A capture that finished earlier has nothing to cancel: say so only when one runs.
             if !r.over() {
-                tracing::info!(session = %r.id, "shutting down: cancelling the running capture");
+                let waiting = match r.log.under_way().join(", ") {
+                    w if w.is_empty() => "its current step".to_string(),
+                    w => w,
+                };
+                tracing::info!(
+                    session = %r.id,
+                    "shutting down: cancelling the running capture, and waiting for {waiting} to stop (a few seconds at most; what was captured is kept)"
+                );
             }
             r.cancel.cancel();
             let _ = r.thread.join();

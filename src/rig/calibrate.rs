@@ -416,5 +416,6 @@ fn grey_bench(scene: &SceneGeometry, yaw: f64, albedo: [f64; 3]) -> VirtualBench
         yaw,
         geometry: scene.clone(),
         cache: crate::bench::cache::RenderCache::user(),
+        stop: Default::default(),
     }
 }

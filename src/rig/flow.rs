@@ -404,7 +404,8 @@ fn place_sample(
         shape: cx.rig.bench_shape(s.scene.shape.as_ref()),
         ..s.scene.clone()
     };
-    let bench = simulated_bench(&s.plan, s.preset.as_ref(), &scene, s.yaw, basis)?;
+    let mut bench = simulated_bench(&s.plan, s.preset.as_ref(), &scene, s.yaw, basis)?;
+    bench.stop = cx.cancel.stop();
     rig.show_light(&bench);
     phases.end_as_device(p);
     let (w, h) = s.scene.camera.size();
@@ -554,7 +555,8 @@ fn shoot_views(
                 };
                 let p = phases.start(&format!("{step}: object bracket"), frames as u64);
                 if let (Some(rig), Some(sim)) = (&cx.devices.sim, sim.as_deref_mut()) {
-                    show_view(rig, sim, deg)?;
+                    // A render cut short by a cancel says so as every other step does.
+                    show_view(rig, sim, deg).or_else(|e| cx.cancel.check().and(Err(e)))?;
                 }
                 let mut using = using;
                 let files = object::shoot_view(

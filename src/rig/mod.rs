@@ -32,7 +32,6 @@ pub mod turning;
 pub mod worker;
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -40,6 +39,7 @@ use serde::{Deserialize, Serialize};
 
 use brdfd_core::estimate::Model;
 use brdfd_core::solve::{ColourChoice, Solver};
+use brdfd_core::stop::Stop;
 pub use devices::Devices;
 pub use worker::{Device, DeviceStatus, Worker};
 
@@ -276,6 +276,23 @@ pub enum Event {
     },
 }
 
+impl Event {
+    /// The phases `events` started and did not end, in the order they started: what a stop
+    /// waits for, said to the operator who asked for it.
+    pub fn under_way(events: &[Event]) -> Vec<String> {
+        let mut open: Vec<String> = Vec::new();
+        for e in events {
+            match e {
+                Event::PhaseStarted { phase, .. } => open.push(phase.clone()),
+                Event::PhaseDone { phase, .. } => open.retain(|p| p != phase),
+                Event::Finished { .. } => open.clear(),
+                _ => {}
+            }
+        }
+        open
+    }
+}
+
 /// A finished estimate in brief, as the `finished` event carries it: the model, its columns
 /// and coefficients, and how it fits (the whole record is `result/coefficients.json`).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
@@ -339,21 +356,26 @@ impl<F: Fn(Event) + Send + Sync> Progress for F {
     }
 }
 
-/// Asks a running capture to stop at its next frame boundary. What was captured is kept,
-/// and the session can be resumed.
+/// Asks a running capture to stop at its next frame boundary, or at the core's next check
+/// in an estimate ([`Cancel::stop`]). What was captured is kept, and the session can be
+/// resumed.
 #[derive(Clone, Default)]
-pub struct Cancel(Arc<AtomicBool>);
+pub struct Cancel(Stop);
 
 impl Cancel {
     pub fn cancel(&self) {
-        self.0.store(true, Ordering::SeqCst);
+        self.0.request();
     }
     pub fn is_cancelled(&self) -> bool {
-        self.0.load(Ordering::SeqCst)
+        self.0.requested()
     }
     pub fn check(&self) -> anyhow::Result<()> {
         anyhow::ensure!(!self.is_cancelled(), "cancelled");
         Ok(())
+    }
+    /// The same request, as the estimation core and the exports see it.
+    pub fn stop(&self) -> Stop {
+        self.0.clone()
     }
 }
 

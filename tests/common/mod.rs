@@ -261,6 +261,30 @@ impl Daemon {
         out
     }
 
+    /// Follows the session's event stream until `phase` starts.
+    pub fn wait_for_phase(&self, id: &str, phase: &str) {
+        // No overall timeout: the stream stays open for as long as the capture takes to get
+        // there.
+        let http = reqwest::blocking::Client::builder()
+            .timeout(None)
+            .build()
+            .expect("a client");
+        let r = http
+            .get(self.url(&format!("/sessions/{id}/events")))
+            .send()
+            .expect("GET events");
+        for line in BufReader::new(r).lines().map_while(Result::ok) {
+            if let Some(d) = line.strip_prefix("data:") {
+                let e: serde_json::Value = serde_json::from_str(d.trim()).expect("JSON");
+                if e["type"] == "phase_started" && e["phase"] == phase {
+                    return;
+                }
+                assert!(e["type"] != "finished", "{phase} never started: {e}");
+            }
+        }
+        panic!("the event stream ended before {phase} started");
+    }
+
     /// Waits until the session's manifest says `step` is complete.
     pub fn wait_for_step(&self, id: &str, step: &str) {
         let start = std::time::Instant::now();

@@ -30,6 +30,7 @@ use super::geometry::GeomPixel;
 use super::merl;
 use super::nnls::nnls;
 use super::render::{RenderingMatrix, PASS_COLUMNS};
+use super::stop::Stop;
 use super::uncertainty::{
     band, image_spread, spread_sphere, std_of, Uncertainty, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED,
 };
@@ -519,6 +520,8 @@ struct Search<'v, 'a> {
     /// shares Lambert and its fixed lobes with every other set, so only a new α costs a pass
     /// over the (pixel, light) pairs.
     columns: SearchColumns,
+    /// Checked before each pass over the pixels, the search's unit of work.
+    stop: Stop,
 }
 
 /// Rendered columns of the search pixels: Lambert, and (F₀, F₉₀) per α, each as rows
@@ -533,7 +536,7 @@ struct SearchColumns {
 impl Search<'_, '_> {
     /// Renders the columns of the αs not rendered yet (and Lambert, the first time), as many
     /// per pass over the pixels as [`PASS_COLUMNS`] allows, the passes evenly filled.
-    fn render(&mut self, alphas: &[f64]) {
+    fn render(&mut self, alphas: &[f64]) -> Result<()> {
         let mut missing: Vec<f64> = Vec::new();
         for a in alphas {
             if !self.columns.lobes.contains_key(&a.to_bits())
@@ -545,6 +548,7 @@ impl Search<'_, '_> {
         let need_lambert = self.columns.lambert.is_empty();
         let mut rest = missing.as_slice();
         for (k, count) in passes(missing.len(), need_lambert).into_iter().enumerate() {
+            self.stop.check()?;
             let (chunk, after) = rest.split_at(count);
             rest = after;
             let lambert = need_lambert && k == 0;
@@ -571,6 +575,7 @@ impl Search<'_, '_> {
                 self.columns.lobes.insert(a.to_bits(), pair);
             }
         }
+        Ok(())
     }
 
     /// The search pixels' matrix of the model with these lobes: Lambert, then (F₀, F₉₀) of
@@ -594,10 +599,10 @@ impl Search<'_, '_> {
     }
 
     /// The misfit of each candidate α as one more lobe beside the `fixed` ones.
-    fn misfits(&mut self, fixed: &[f64], candidates: &[f64]) -> Vec<f64> {
-        self.render(&[fixed, candidates].concat());
+    fn misfits(&mut self, fixed: &[f64], candidates: &[f64]) -> Result<Vec<f64>> {
+        self.render(&[fixed, candidates].concat())?;
         let cols: Vec<usize> = (0..1 + 2 * (fixed.len() + 1)).collect();
-        candidates
+        Ok(candidates
             .iter()
             .map(|alpha| {
                 let mut set = fixed.to_vec();
@@ -606,17 +611,17 @@ impl Search<'_, '_> {
                 self.tried.push((set, misfit));
                 misfit
             })
-            .collect()
+            .collect())
     }
 
     /// The best α for one more lobe beside `fixed`: the coarse grid, then the refinement
     /// ([`Search::refine`]) between the best grid point's neighbours.
-    fn best_lobe(&mut self, fixed: &[f64]) -> f64 {
+    fn best_lobe(&mut self, fixed: &[f64]) -> Result<f64> {
         let log_span = (ALPHA_MAX / ALPHA_MIN).ln();
         let coarse: Vec<f64> = (0..COARSE_ALPHAS)
             .map(|i| ALPHA_MIN * (log_span * i as f64 / (COARSE_ALPHAS - 1) as f64).exp())
             .collect();
-        let misfits = self.misfits(fixed, &coarse);
+        let misfits = self.misfits(fixed, &coarse)?;
         let best = (0..coarse.len())
             .min_by(|&i, &j| misfits[i].total_cmp(&misfits[j]))
             .expect("a coarse grid");
@@ -633,7 +638,7 @@ impl Search<'_, '_> {
     /// neighbours. A round's points share one matrix build, which costs far more than the
     /// solves, so this is three builds where a golden-section search of the same precision
     /// takes ten. Never returns worse than `start` (an α and its misfit).
-    fn refine(&mut self, fixed: &[f64], lo: f64, hi: f64, start: (f64, f64)) -> f64 {
+    fn refine(&mut self, fixed: &[f64], lo: f64, hi: f64, start: (f64, f64)) -> Result<f64> {
         let mut best = start;
         let (mut lo, mut hi) = (lo.ln(), hi.ln());
         for _ in 0..REFINE_ROUNDS {
@@ -641,7 +646,7 @@ impl Search<'_, '_> {
             let points: Vec<f64> = (1..=REFINE_POINTS)
                 .map(|i| (lo + step * i as f64).exp())
                 .collect();
-            let misfits = self.misfits(fixed, &points);
+            let misfits = self.misfits(fixed, &points)?;
             for (alpha, misfit) in points.into_iter().zip(misfits) {
                 if misfit < best.1 {
                     best = (alpha, misfit);
@@ -654,7 +659,7 @@ impl Search<'_, '_> {
                 (best.0.ln() + step).min(ALPHA_MAX.ln()),
             );
         }
-        best.0
+        Ok(best.0)
     }
 }
 
@@ -669,6 +674,7 @@ fn search_roughness<'v, 'a>(
     grid: Grid,
     lobes: usize,
     score: Option<Scorer<'v>>,
+    stop: &Stop,
 ) -> Result<(Search<'v, 'a>, Vec<f64>)> {
     if views.iter().all(|v| v.pixels.is_empty()) {
         return Err(CoreError::Invalid(
@@ -695,17 +701,18 @@ fn search_roughness<'v, 'a>(
         pixels: view_pixels.concat(),
         view_pixels,
         columns: SearchColumns::default(),
+        stop: stop.clone(),
     };
-    let mut alphas = vec![search.best_lobe(&[])];
+    let mut alphas = vec![search.best_lobe(&[])?];
     if lobes == 2 {
-        let second = search.best_lobe(&alphas);
-        let current = search.misfits(&[second], &[alphas[0]])[0];
+        let second = search.best_lobe(&alphas)?;
+        let current = search.misfits(&[second], &[alphas[0]])?[0];
         let first = search.refine(
             &[second],
             (alphas[0] / RESEARCH_SPAN).max(ALPHA_MIN),
             (alphas[0] * RESEARCH_SPAN).min(ALPHA_MAX),
             (alphas[0], current),
-        );
+        )?;
         alphas = vec![first, second];
         alphas.sort_by(f64::total_cmp);
     }
@@ -750,11 +757,12 @@ pub fn roughnesses<'v>(
     grid: Grid,
     lobes: usize,
     score: Option<Scorer<'v>>,
+    stop: &Stop,
 ) -> Result<Vec<(f64, f64)>> {
-    let (mut search, alphas) = search_roughness(views, grid, lobes, score)?;
-    Ok((0..alphas.len())
-        .map(|l| (alphas[l], profile_std(&mut search, &alphas, l)))
-        .collect())
+    let (mut search, alphas) = search_roughness(views, grid, lobes, score, stop)?;
+    (0..alphas.len())
+        .map(|l| Ok((alphas[l], profile_std(&mut search, &alphas, l)?)))
+        .collect()
 }
 
 /// Fits the model with `lobes` lobes (1 or 2) to the candidates of every view, by variable
@@ -762,10 +770,11 @@ pub fn roughnesses<'v>(
 /// and a refinement around the best; then the second lobe's the same way beside it, and the
 /// first searched again beside the second. The weights of the best roughnesses then come from
 /// every candidate.
-pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize) -> Result<AnalyticFit> {
-    let (mut search, alphas) = search_roughness(views, grid, lobes, None)?;
+pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize, stop: &Stop) -> Result<AnalyticFit> {
+    let (mut search, alphas) = search_roughness(views, grid, lobes, None, stop)?;
     let observed = observed_of(views, false);
     let matrix = matrix_for(views, grid, &alphas);
+    stop.check()?;
     let cols = lobe_columns(&(0..alphas.len()).collect::<Vec<_>>());
     let (w, _) = solve_weights(&matrix, &observed, &cols);
     let systems = channel_systems(&matrix, &observed, &cols);
@@ -775,7 +784,7 @@ pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize) -> Result<AnalyticFit
         .fold(0.0, f64::max);
     let alpha_std: Vec<f64> = (0..alphas.len())
         .map(|l| profile_std(&mut search, &alphas, l))
-        .collect();
+        .collect::<Result<_>>()?;
     let lobes: Vec<(f64, f64)> = alphas.iter().copied().zip(alpha_std).collect();
     let uncertainty = uncertainty(
         &matrix,
@@ -801,7 +810,7 @@ pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize) -> Result<AnalyticFit
 /// search pixels, the other lobes fixed: RSS(u) ≈ RSS* + a (u − u*)², σᵤ = √(σ² / a). It is
 /// measured on the [`SEARCH_PIXELS`] search pixels, not every candidate, so it is the wider of
 /// the two (by up to √(candidates / search pixels)): a bound, not a tight figure.
-fn profile_std(search: &mut Search, alphas: &[f64], l: usize) -> f64 {
+fn profile_std(search: &mut Search, alphas: &[f64], l: usize) -> Result<f64> {
     let fixed: Vec<f64> = alphas
         .iter()
         .enumerate()
@@ -812,7 +821,7 @@ fn profile_std(search: &mut Search, alphas: &[f64], l: usize) -> f64 {
     let m = search.misfits(
         &fixed,
         &[a * (-PROFILE_STEP).exp(), a, a * PROFILE_STEP.exp()],
-    );
+    )?;
     let y2: f64 = search.observed.iter().flatten().map(|v| v * v).sum();
     let rss: Vec<f64> = m.iter().map(|m| m * m * y2).collect();
     let curvature = (rss[0] - 2.0 * rss[1] + rss[2]) / (2.0 * PROFILE_STEP * PROFILE_STEP);
@@ -821,12 +830,12 @@ fn profile_std(search: &mut Search, alphas: &[f64], l: usize) -> f64 {
         .saturating_sub(3 + 7 * alphas.len())
         .max(1);
     let variance = rss[1] / dof as f64;
-    if curvature > 0.0 {
+    Ok(if curvature > 0.0 {
         a * (variance / curvature).sqrt()
     } else {
         // Flat or concave: the photo does not pin this roughness down.
         f64::INFINITY
-    }
+    })
 }
 
 /// The analytic fit's [`Uncertainty`]: the weights' covariance at the fitted roughnesses,

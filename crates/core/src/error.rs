@@ -29,6 +29,9 @@ pub enum CoreError {
     /// A parameter is out of its allowed range; the message names it.
     #[error("{0}")]
     Invalid(String),
+    /// The caller asked the work to stop ([`crate::stop::Stop`]); nothing is wrong with it.
+    #[error("cancelled")]
+    Stopped,
 }
 
 impl CoreError {

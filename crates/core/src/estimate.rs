@@ -17,6 +17,7 @@ use super::raster::Raster;
 use super::render::RenderingMatrix;
 use super::select::{self, Blocks, Selection, SwapParams};
 use super::solve::{channel_coefficients, Colour, ColourChoice, Solution, Solver};
+use super::stop::Stop;
 use super::uncertainty::{self, Uncertainty};
 
 /// Chosen pixels whose rows are rebuilt with the view's finer lights at most (see
@@ -95,6 +96,9 @@ pub struct EstimateOptions {
     /// the paper's method exactly as published (`--allow-negative`), whose least squares can
     /// leave cells negative. The other models are non-negative by construction.
     pub nonnegative: bool,
+    /// Checked in the estimate's long loops: once requested, the estimate ends with
+    /// [`CoreError::Stopped`] within about a second.
+    pub stop: Stop,
 }
 
 impl Default for EstimateOptions {
@@ -110,6 +114,7 @@ impl Default for EstimateOptions {
             colour: ColourChoice::default(),
             white: None,
             nonnegative: true,
+            stop: Stop::default(),
         }
     }
 }
@@ -655,8 +660,8 @@ pub fn estimate_views_shared(
     }
     let mut estimate = match options.model {
         Model::Basis => basis_estimate(basis, &candidates, options, shared)?,
-        Model::Analytic => analytic_estimate(basis, &candidates, options.lobes)?,
-        Model::Hybrid => hybrid_estimate(basis, &candidates, options.lobes)?,
+        Model::Analytic => analytic_estimate(basis, &candidates, options.lobes, &options.stop)?,
+        Model::Hybrid => hybrid_estimate(basis, &candidates, options.lobes, &options.stop)?,
     };
     estimate.clipped = clipped;
     Ok(estimate)
@@ -674,9 +679,14 @@ fn view_pixels<'c>(candidates: &'c [Candidates]) -> Vec<ViewPixels<'c>> {
 }
 
 /// The hybrid model ([`hybrid::fit`]) on every candidate.
-fn hybrid_estimate(basis: &Basis, candidates: &[Candidates], lobes: usize) -> Result<Estimate> {
+fn hybrid_estimate(
+    basis: &Basis,
+    candidates: &[Candidates],
+    lobes: usize,
+    stop: &Stop,
+) -> Result<Estimate> {
     let t = Instant::now();
-    let fit = hybrid::fit(&view_pixels(candidates), basis, lobes)?;
+    let fit = hybrid::fit(&view_pixels(candidates), basis, lobes, stop)?;
     let n = fit.candidates;
     Ok(Estimate {
         model: Model::Hybrid,
@@ -724,10 +734,15 @@ fn hybrid_estimate(basis: &Basis, candidates: &[Candidates], lobes: usize) -> Re
 }
 
 /// The analytic model ([`analytic::fit`]) on every candidate.
-fn analytic_estimate(basis: &Basis, candidates: &[Candidates], lobes: usize) -> Result<Estimate> {
+fn analytic_estimate(
+    basis: &Basis,
+    candidates: &[Candidates],
+    lobes: usize,
+    stop: &Stop,
+) -> Result<Estimate> {
     let t = Instant::now();
     let grid = basis.header.grid;
-    let fit = analytic::fit(&view_pixels(candidates), grid, lobes)?;
+    let fit = analytic::fit(&view_pixels(candidates), grid, lobes, stop)?;
     let predicted = fit.predicted();
     let fit_error = relative_misfit(&predicted, &fit.observed);
     let n = fit.observed.len();
@@ -788,7 +803,9 @@ fn basis_estimate(
         view_of_pixel.extend(std::iter::repeat_n(i, c.pixels.len()));
         observed.extend_from_slice(&c.observed);
     }
-    let (matrix, a) = shared.matrix(basis, candidates, || stacked_matrix(basis, candidates))?;
+    let (matrix, a) = shared.matrix(basis, candidates, || {
+        stacked_matrix(basis, candidates, &options.stop)
+    })?;
     let matrix_s = secs(t.elapsed());
     // Each model the choice names, fewer unknowns first, keeping the one that re-renders the
     // photo best ([`keep_better_fit`]). A model that cannot solve (say, least squares per channel
@@ -802,6 +819,7 @@ fn basis_estimate(
     let mut colour_fits = Vec::new();
     let mut failure = None;
     for &colour in options.colour.models() {
+        options.stop.check()?;
         let lights = candidates[0].view.lights;
         let tried = estimate_from_matrix(
             basis,
@@ -873,9 +891,14 @@ fn basis_estimate(
 }
 
 /// The basis's rendering matrix over every view's candidates, stacked in view order.
-fn stacked_matrix(basis: &Basis, candidates: &[Candidates]) -> Result<RenderingMatrix> {
+fn stacked_matrix(
+    basis: &Basis,
+    candidates: &[Candidates],
+    stop: &Stop,
+) -> Result<RenderingMatrix> {
     let mut stacked: Option<RenderingMatrix> = None;
     for c in candidates {
+        stop.check()?;
         let a = basis.rendering_matrix(&c.pixels, c.view.lights);
         stacked = Some(match stacked {
             None => a,

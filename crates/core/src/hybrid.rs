@@ -31,6 +31,7 @@ use super::geometry::GeomPixel;
 use super::nnls::nnls;
 use super::render::{RenderingMatrix, PASS_COLUMNS};
 use super::solve::CHANNELS;
+use super::stop::Stop;
 use super::uncertainty::{
     band, image_spread, spread_sphere, std_of, Uncertainty, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED,
 };
@@ -108,10 +109,17 @@ impl HybridFit {
 
 /// Dense rows of the rendering matrix of `columns` for `pixels`, built [`PASS_COLUMNS`] at a
 /// time: row (3·p + c) holds every column's value for pixel p, channel c.
-fn dense_rows(pixels: &[GeomPixel], lights: &LightSet, columns: &[&[f64]], grid: Grid) -> Vec<f64> {
+fn dense_rows(
+    pixels: &[GeomPixel],
+    lights: &LightSet,
+    columns: &[&[f64]],
+    grid: Grid,
+    stop: &Stop,
+) -> Result<Vec<f64>> {
     let n = columns.len();
     let mut rows = vec![0.0; 3 * pixels.len() * n];
     for (k, chunk) in columns.chunks(PASS_COLUMNS).enumerate() {
+        stop.check()?;
         let a = RenderingMatrix::build(pixels, lights, chunk, None, grid.theta_h_binning);
         for r in 0..3 * pixels.len() {
             for (j, v) in a.row(r).iter().enumerate() {
@@ -119,7 +127,7 @@ fn dense_rows(pixels: &[GeomPixel], lights: &LightSet, columns: &[&[f64]], grid:
             }
         }
     }
-    rows
+    Ok(rows)
 }
 
 /// Per channel, the Gram matrix and right-hand side of the columns `cols` over the pixels
@@ -241,7 +249,7 @@ impl Mix {
 /// columns, and every candidate of a 16-megapixel photo would cost a hundred matrix passes,
 /// while 4,000 pixels still give about 40 equations per unknown): its roughness search (`lobes` lobes), with every weight, the lobes' and
 /// the materials', solved for each roughness set tried; then the weights of the best.
-pub fn fit(views: &[ViewPixels], basis: &Basis, lobes: usize) -> Result<HybridFit> {
+pub fn fit(views: &[ViewPixels], basis: &Basis, lobes: usize, stop: &Stop) -> Result<HybridFit> {
     if basis.atoms.is_empty() {
         return Err(CoreError::Invalid(format!(
             "the basis {} holds no measured materials, which the hybrid model mixes; rebuild it with this brdfd's `basis build`, or use --model analytic",
@@ -258,8 +266,9 @@ pub fn fit(views: &[ViewPixels], basis: &Basis, lobes: usize) -> Result<HybridFi
     let atom_rows: Vec<f64> = pixel_sets
         .iter()
         .zip(views)
-        .flat_map(|(px, v)| dense_rows(px, v.lights, &atom_columns, grid))
-        .collect();
+        .map(|(px, v)| dense_rows(px, v.lights, &atom_columns, grid, stop))
+        .collect::<Result<Vec<_>>>()?
+        .concat();
     let mix = Mix::new(atom_rows, atom_columns.len(), &observed);
     // Variable projection over the whole model: each roughness set is scored with every weight
     // (lobes and materials) solved, so a lobe need not cover what a material does.
@@ -272,7 +281,7 @@ pub fn fit(views: &[ViewPixels], basis: &Basis, lobes: usize) -> Result<HybridFi
             .collect();
         mix.solve(&rows, cols.len()).1
     });
-    let found = analytic::roughnesses(views, grid, lobes, Some(score))?;
+    let found = analytic::roughnesses(views, grid, lobes, Some(score), stop)?;
     let alphas: Vec<f64> = found.iter().map(|(alpha, _)| *alpha).collect();
     let alpha_std: Vec<f64> = found.iter().map(|(_, std)| *std).collect();
     let lobe_cols: Vec<[Vec<f64>; 3]> =
@@ -281,8 +290,9 @@ pub fn fit(views: &[ViewPixels], basis: &Basis, lobes: usize) -> Result<HybridFi
     let lobe_rows: Vec<f64> = pixel_sets
         .iter()
         .zip(views)
-        .flat_map(|(px, v)| dense_rows(px, v.lights, &columns, grid))
-        .collect();
+        .map(|(px, v)| dense_rows(px, v.lights, &columns, grid, stop))
+        .collect::<Result<Vec<_>>>()?
+        .concat();
     let (weights, solved_misfit) = mix.solve(&lobe_rows, columns.len());
     let analytic_cols = columns.len();
     columns.extend(&atom_columns);
@@ -295,6 +305,7 @@ pub fn fit(views: &[ViewPixels], basis: &Basis, lobes: usize) -> Result<HybridFi
     let mut predicted = Vec::new();
     let mut all_observed = Vec::new();
     for v in views {
+        stop.check()?;
         let a = RenderingMatrix::build(
             v.pixels,
             v.lights,
@@ -346,6 +357,7 @@ pub fn fit(views: &[ViewPixels], basis: &Basis, lobes: usize) -> Result<HybridFi
             alpha_std: &alpha_std,
             grid,
             lights: views[0].lights,
+            stop,
         },
         &kept_systems,
     )?;
@@ -397,6 +409,7 @@ struct Inputs<'a> {
     alpha_std: &'a [f64],
     grid: Grid,
     lights: &'a LightSet,
+    stop: &'a Stop,
 }
 
 /// The hybrid fit's [`Uncertainty`]: the kept weights' linearised covariance σ²(XᵀX)⁻¹ per
@@ -444,7 +457,7 @@ fn uncertainty(
     // resample re-weighs the mix the photo chose, which is what its steadiness is about, at the
     // cost of a dozen columns instead of a hundred.
     let kept_columns: Vec<&[f64]> = i.kept.iter().map(|&j| i.columns[j]).collect();
-    let sphere = dense_rows(&spread_sphere()?, i.lights, &kept_columns, i.grid);
+    let sphere = dense_rows(&spread_sphere()?, i.lights, &kept_columns, i.grid, i.stop)?;
     let image = |w: &[DVector<f64>; 3]| -> Vec<f64> {
         sphere
             .chunks(k)

@@ -25,6 +25,7 @@ pub mod raster;
 pub mod render;
 pub mod select;
 pub mod solve;
+pub mod stop;
 pub mod uncertainty;
 pub mod visibility;
 

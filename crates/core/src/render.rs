@@ -19,9 +19,11 @@ use super::bivariate::{
 };
 use super::brdf::IsotropicBrdf;
 use super::envmap::LightSet;
+use super::error::Result;
 use super::geometry::{GeomPixel, PixelGeometry};
 use super::merl::{self, MerlBrdf};
 use super::raster::Raster;
+use super::stop::Stop;
 use super::visibility::{is_seen, Seen};
 
 /// Pixels per rayon task: large enough to amortise scheduling, small enough to balance 2 cores.
@@ -735,6 +737,17 @@ impl SpherePicture {
 /// Renders a full (θh, θd, φd) MERL table: the ground truth path, where φd matters.
 /// φd is the azimuth of ωᵢ about h, measured from the plane of n and h (Rusinkiewicz).
 pub fn render_merl(geom: &PixelGeometry, lights: &LightSet, brdf: &MerlBrdf) -> Raster {
+    render_merl_until(geom, lights, brdf, &Stop::default()).expect("nobody can stop a fresh Stop")
+}
+
+/// [`render_merl`], ended early with [`crate::CoreError::Stopped`] once `stop` is requested: a
+/// simulated camera's photo takes seconds, and a cancelled capture must not wait for it.
+pub fn render_merl_until(
+    geom: &PixelGeometry,
+    lights: &LightSet,
+    brdf: &MerlBrdf,
+    stop: &Stop,
+) -> Result<Raster> {
     // Interleaved f32 RGB: one cache line per lookup instead of three f64 planes; unmeasured
     // cells become 0 (they contribute nothing). One table per footprint level, each with the
     // θh footprint average of the rendering matrix applied per (θd, φd) column.
@@ -794,7 +807,7 @@ pub fn render_merl(geom: &PixelGeometry, lights: &LightSet, brdf: &MerlBrdf) -> 
         });
         acc.map(|x| x as f32)
     };
-    shade_pixels(geom, lights, shade)
+    shade_pixels_until(geom, lights, stop, shade)
 }
 
 /// atan2(y, x) taken modulo π, in [0, π]: the φd of reciprocity. A polynomial arctangent
@@ -917,18 +930,35 @@ fn shade_pixels(
     lights: &LightSet,
     shade: impl Fn(&GeomPixel, Option<&[u64]>) -> [f32; 3] + Sync + Send,
 ) -> Raster {
+    shade_pixels_until(geom, lights, &Stop::default(), shade).expect("nobody can stop a fresh Stop")
+}
+
+/// [`shade_pixels`], whose pixels are skipped once `stop` is requested, and then
+/// [`crate::CoreError::Stopped`].
+fn shade_pixels_until(
+    geom: &PixelGeometry,
+    lights: &LightSet,
+    stop: &Stop,
+    shade: impl Fn(&GeomPixel, Option<&[u64]>) -> [f32; 3] + Sync + Send,
+) -> Result<Raster> {
     let seen = Seen::new(&geom.pixels, lights);
     let values: Vec<[f32; 3]> = geom
         .pixels
         .par_iter()
         .with_min_len(PIXELS_PER_TASK / 4)
-        .map(|px| shade(px, seen.fresh(px).as_deref()))
+        .map(|px| {
+            if stop.requested() {
+                return [0.0; 3];
+            }
+            shade(px, seen.fresh(px).as_deref())
+        })
         .collect();
+    stop.check()?;
     let mut img = Raster::black(geom.width, geom.height);
     for (px, v) in geom.pixels.iter().zip(values) {
         img.set(px.x as usize, px.y as usize, v);
     }
-    img
+    Ok(img)
 }
 
 #[cfg(test)]
