@@ -82,7 +82,9 @@ impl Board {
         Ok(b)
     }
 
-    /// The board as a board file, with comments for the person printing it.
+    /// The board as a board file, with comments for the person printing it. Numbers are
+    /// written as Rust's `{:?}` writes them, which TOML reads back to the same value: `{}`
+    /// wrote 1e300 as 301 digits without a point, an integer too large for TOML.
     pub fn to_toml(&self) -> String {
         let [x, y, z] = self.placement.position;
         let [rx, ry, rz] = self.placement.rotation_deg;
@@ -92,8 +94,8 @@ impl Board {
              # flat to stiff card, measure one square and put its side here if it is not {sq} mm.\n\
              rows = {rows}\n\
              cols = {cols}\n\
-             square_mm = {sq}\n\
-             marker = {marker}\n\
+             square_mm = {sq:?}\n\
+             marker = {marker:?}\n\
              dictionary = \"{dict}\"\n\
              \n\
              # Where the board stands in the rig's world when it is photographed: its centre\n\
@@ -101,8 +103,8 @@ impl Board {
              # where the object goes, its centre on the turntable's axis at the object's\n\
              # centre, facing the camera's side (+Z), its rows level.\n\
              [placement]\n\
-             position = [{x}, {y}, {z}]\n\
-             rotation_deg = [{rx}, {ry}, {rz}]\n",
+             position = [{x:?}, {y:?}, {z:?}]\n\
+             rotation_deg = [{rx:?}, {ry:?}, {rz:?}]\n",
             rows = self.rows,
             cols = self.cols,
             sq = self.square_mm,
@@ -129,6 +131,17 @@ impl Board {
             bail!(
                 "marker is a marker's side over its square's, between 0 and 1, not {}",
                 self.marker
+            );
+        }
+        // Read from a board file, a NaN or infinite placement would put every corner of the
+        // board nowhere, and the pose solved from them with it.
+        let BoardPlacement {
+            position,
+            rotation_deg,
+        } = self.placement;
+        if !position.iter().chain(&rotation_deg).all(|v| v.is_finite()) {
+            bail!(
+                "the board's placement must be numbers: position {position:?}, rotation_deg {rotation_deg:?}"
             );
         }
         let dictionary = builtin_dictionary(&self.dictionary).ok_or_else(|| {
@@ -389,6 +402,12 @@ mod tests {
         b.placement.position = [0.0, 0.01, 0.0];
         let back: Board = toml::from_str(&b.to_toml()).unwrap();
         assert_eq!(back, b);
+        // Issue 40 (fuzzing board_files): 1e300 was written as 301 digits, which TOML
+        // refuses.
+        b.square_mm = 1e300;
+        b.placement.position = [1e300, -1e-300, 0.0];
+        let back: Board = toml::from_str(&b.to_toml()).unwrap();
+        assert_eq!(back, b);
     }
 
     #[test]
@@ -427,6 +446,8 @@ mod tests {
         assert!(bad(&|b| b.dictionary = "DICT_9X9_1".into()).contains("not one brdfd knows"));
         assert!(bad(&|b| b.marker = 1.2).contains("between 0 and 1"));
         assert!(bad(&|b| b.square_mm = f64::NAN).contains("positive"));
+        assert!(bad(&|b| b.placement.position[2] = f64::NAN).contains("placement"));
+        assert!(bad(&|b| b.placement.rotation_deg[0] = f64::INFINITY).contains("placement"));
         assert!(bad(&|b| {
             b.rows = 12;
             b.cols = 12
