@@ -945,12 +945,13 @@ impl Rig {
                 "must be a number of degrees",
             )));
         }
-        check(
-            r.geometry
-                .check()
-                .map_err(|e| invalid(file, geometry_field("geometry", &e), e)),
-        );
-        if let Some(truth) = r.simulation.as_ref().and_then(|s| s.camera.as_ref()) {
+        let geometry = r.geometry.check();
+        let geometry_ok = geometry.is_ok();
+        check(geometry.map_err(|e| invalid(file, geometry_field("geometry", &e), e)));
+        // The simulated truths are checked as the geometry with a part replaced: a mistake in
+        // the geometry itself would be reported again under their names.
+        let truth_camera = r.simulation.as_ref().and_then(|s| s.camera.as_ref());
+        if let Some(truth) = truth_camera.filter(|_| geometry_ok) {
             let believed = SceneGeometry {
                 camera: truth.clone(),
                 ..r.geometry.clone()
@@ -961,7 +962,8 @@ impl Rig {
                     .map_err(|e| invalid(file, "simulation.camera", e)),
             );
             let ((tw, th), (w, h)) = (truth.size(), r.geometry.camera.size());
-            if tw * h != th * w {
+            // In u128: the sizes may be any the file gives, checked or not.
+            if tw as u128 * h as u128 != th as u128 * w as u128 {
                 check(Err(invalid(
                     file,
                     "simulation.camera",
@@ -970,7 +972,9 @@ impl Rig {
             }
         }
         if let Some(truth) = r.simulation.as_ref().and_then(|s| s.shape.as_ref()) {
-            check(check_true_shape(file, &r.geometry, truth));
+            if geometry_ok {
+                check(check_true_shape(file, &r.geometry, truth));
+            }
         }
         if let Some(t) = &r.turntable {
             if !(1..=crate::rig::MAX_VIEWS).contains(&t.views) || !t.step_deg.is_finite() {

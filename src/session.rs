@@ -84,6 +84,12 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 /// A file name a device chose, made safe to create in a folder of ours: letters, digits,
 /// `.`, `-` and `_` only (so no separator, `..` component or absolute path survives), not
 /// hidden, not empty. A camera's ObjectInfo name is whatever the camera says.
+/// Whether `id` has the shape of a session's id (the name rule), whether or not one exists:
+/// what is not one names no session.
+pub fn is_session_id(id: &str) -> bool {
+    validate_name("session id", id).is_ok()
+}
+
 pub fn safe_file_name(device_name: &str) -> String {
     let safe: String = device_name
         .chars()

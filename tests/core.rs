@@ -35,7 +35,7 @@ fn shared_data() -> Option<std::path::PathBuf> {
 /// Gold's projection onto the basis: coefficients whose BRDF the basis holds exactly.
 fn in_span_gold(basis: &Basis) -> Vec<f64> {
     let truth = Bivariate::reduce(
-        embedded_materials().get("nickel").unwrap(),
+        embedded_materials().get("gold-metallic-paint").unwrap(),
         basis.header.grid,
     );
     basis.project(&truth)
@@ -88,7 +88,7 @@ fn sphere(size: usize) -> PixelGeometry {
 
 #[test]
 fn merl_round_trip_through_file() {
-    let gold = MerlBrdf::tabulate(embedded_materials().get("nickel").unwrap());
+    let gold = MerlBrdf::tabulate(embedded_materials().get("gold-metallic-paint").unwrap());
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("gold.binary");
     gold.write(&path).unwrap();
@@ -1113,7 +1113,7 @@ fn a_requested_stop_ends_every_models_estimate_and_the_render() {
     use brdfd_core::CoreError;
     let g = sphere(32);
     let lights = studio_envmap(128).compressed(512, 0.0);
-    let table = MerlBrdf::tabulate(embedded_materials().get("nickel").unwrap());
+    let table = MerlBrdf::tabulate(embedded_materials().get("gold-metallic-paint").unwrap());
     let photo = render_merl(&g, &lights, &table);
     let basis = Basis::embedded();
     for model in [Model::Basis, Model::Analytic, Model::Hybrid] {
@@ -1130,6 +1130,25 @@ fn a_requested_stop_ends_every_models_estimate_and_the_render() {
         );
         assert_eq!(CoreError::Stopped.to_string(), "cancelled");
     }
+    // Requested from another thread while the estimate runs (the hybrid fit of a 48² sphere
+    // under 2,048 lights takes far longer than the 50 ms it is given).
+    let big = sphere(48);
+    let many = studio_envmap(256).compressed(2048, 0.0);
+    let big_photo = render_merl(&big, &many, &table);
+    let options = EstimateOptions::default();
+    let stop = options.stop.clone();
+    let asking = std::thread::spawn(move || {
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        stop.request();
+    });
+    let stopped = estimate(&basis, one_view(&big, &many, &big_photo), &options);
+    asking.join().unwrap();
+    assert!(
+        matches!(stopped, Err(CoreError::Stopped)),
+        "stopped part-way: {:?}",
+        stopped.map(|e| e.fit_error)
+    );
+
     let stop = Stop::default();
     let done = render_merl_until(&g, &lights, &table, &stop).unwrap();
     assert_eq!(done.pixels, photo.pixels);

@@ -172,6 +172,9 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
         .any(|e| e["type"] == "progress" && e["phase"] == "view1: object bracket"));
     let (status, body) = daemon.post(&format!("/sessions/{id}/cancel"), json!({}));
     assert_eq!((status, body["error"].as_str()), (409, Some("not_running")));
+    // No such session: not found, as for a resume.
+    let (status, body) = daemon.post("/sessions/20000101-000000-gold-abcdef/cancel", json!({}));
+    assert_eq!((status, body["error"].as_str()), (404, Some("not_found")));
     let (status, body) = daemon.get(&format!("/sessions/{id}/result"));
     assert_eq!((status, body["error"].as_str()), (409, Some("not_done")));
 

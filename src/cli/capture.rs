@@ -5,6 +5,7 @@
 //! devices it opens for the one capture. Either way the operator sees the same progress and
 //! the same lines, and is told which happened.
 
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -273,26 +274,49 @@ fn in_process(
 }
 
 /// Ctrl-C, SIGTERM or SIGHUP stops the capture at its next check (a frame, a pass of the
-/// estimate: within seconds), which records the session as interrupted; a second one quits
-/// at once.
+/// estimate: within seconds), which records the session as interrupted; another one a second
+/// or more later quits at once.
 fn interrupt_cancels(cancel: &Cancel, id: &str, bars: Arc<Bars>) {
     let (cancel, id) = (cancel.clone(), id.to_string());
+    let first = std::sync::OnceLock::new();
     let handler = ctrlc::set_handler(move || {
-        if cancel.is_cancelled() {
-            eprintln!("\nquitting now; session {id} may still say it is capturing: `brdfd session resume {id}` continues it");
-            std::process::exit(130);
+        // The cancel before any word: after a hang-up the terminal is gone, and what is said
+        // can fail. A panic here would end the handler's thread, and with it every later
+        // signal's handling.
+        if !cancel.is_cancelled() {
+            cancel.cancel();
+            first.get_or_init(std::time::Instant::now);
+            let waiting = match bars.under_way().join(", ") {
+                w if w.is_empty() => "the current step".to_string(),
+                w => w,
+            };
+            let _ = writeln!(
+                std::io::stderr(),
+                "\nstopping: waiting for {waiting} to stop, a few seconds at most (Ctrl-C again to quit at once)"
+            );
+            return;
         }
-        let waiting = match bars.under_way().join(", ") {
-            w if w.is_empty() => "the current step".to_string(),
-            w => w,
-        };
-        eprintln!("\nstopping: waiting for {waiting} to stop, a few seconds at most (Ctrl-C again to quit at once)");
-        cancel.cancel();
+        // A closed terminal sends SIGHUP twice in a moment (the shell, then the kernel): only
+        // a later signal is someone asking again.
+        if first
+            .get()
+            .is_some_and(|t| t.elapsed() < REPEAT_MEANS_QUIT_AFTER)
+        {
+            return;
+        }
+        let _ = writeln!(
+            std::io::stderr(),
+            "\nquitting now; session {id} may still say it is capturing: `brdfd session resume {id}` continues it"
+        );
+        std::process::exit(130);
     });
     if let Err(e) = handler {
         tracing::warn!("Ctrl-C will not stop the capture cleanly: {e}");
     }
 }
+
+/// How long after the first signal a second one is taken as "quit now".
+const REPEAT_MEANS_QUIT_AFTER: std::time::Duration = std::time::Duration::from_secs(1);
 
 /// The bars of a capture in the daemon, and this terminal's operator: a capture that waits
 /// for the object to be turned by hand is told so once Enter is pressed.
@@ -343,7 +367,8 @@ pub fn follow(d: &Daemon, id: &str, out: Option<&Path>, verbose: bool) -> anyhow
     let detach = {
         let id = id.to_string();
         ctrlc::set_handler(move || {
-            eprintln!("\nstopped following; the capture continues in the daemon. `brdfd session follow {id}` watches it again, `brdfd session cancel {id}` stops it");
+            // Said as it can be: after a hang-up the terminal is gone.
+            let _ = writeln!(std::io::stderr(), "\nstopped following; the capture continues in the daemon. `brdfd session follow {id}` watches it again, `brdfd session cancel {id}` stops it");
             std::process::exit(130);
         })
     };

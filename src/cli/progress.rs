@@ -30,7 +30,11 @@ impl Bars {
 
     /// The phases started and not yet done: what a stop waits for.
     pub fn under_way(&self) -> Vec<String> {
-        let mut phases: Vec<String> = self.bars.lock().expect("bars").keys().cloned().collect();
+        // Called from a signal's handler, which must not panic: a poisoned lock gives none.
+        let Ok(bars) = self.bars.lock() else {
+            return Vec::new();
+        };
+        let mut phases: Vec<String> = bars.keys().cloned().collect();
         // A download's bar rides along its bracket's; the bracket is the step.
         phases.retain(|p| !p.ends_with(": download"));
         phases.sort();

@@ -56,6 +56,23 @@ pub struct PasswordArgs {
     pub password_file: Option<PathBuf>,
 }
 
+/// The most of a password file read: a password is its first line.
+const PASSWORD_FILE_BYTES: u64 = 4096;
+
+/// A password file others can read is no secret: said, as ssh does of a key.
+fn warn_if_others_can_read(path: &std::path::Path, f: &std::fs::File) {
+    use std::os::unix::fs::PermissionsExt;
+    if let Ok(m) = f.metadata() {
+        if m.is_file() && m.permissions().mode() & 0o077 != 0 {
+            tracing::warn!(
+                "{}: others can read this password file (mode {:o}); `chmod 600` it",
+                path.display(),
+                m.permissions().mode() & 0o777
+            );
+        }
+    }
+}
+
 impl PasswordArgs {
     /// The password given, and whether it was asked for on the command line (a password
     /// from the environment is there for whichever command needs one, so it is no mistake
@@ -65,16 +82,26 @@ impl PasswordArgs {
             return Ok((Some(p.clone()), true));
         }
         if let Some(file) = &self.password_file {
-            let text = if file.as_os_str() == "-" {
-                let mut line = String::new();
+            use std::io::{IsTerminal, Read};
+            // The first line is all that is read, and never more than a password's worth: a
+            // device or a huge file given by mistake must not hang the command.
+            let mut text = String::new();
+            if file.as_os_str() == "-" {
+                if std::io::stdin().is_terminal() {
+                    bail!("--password-file -: standard input is a terminal, which would show the password as it is typed; pipe it in, or name a file");
+                }
                 std::io::stdin()
-                    .read_line(&mut line)
+                    .take(PASSWORD_FILE_BYTES)
+                    .read_to_string(&mut text)
                     .context("reading the password from standard input")?;
-                line
             } else {
-                std::fs::read_to_string(file)
-                    .with_context(|| format!("reading the password from {}", file.display()))?
-            };
+                let f = std::fs::File::open(file)
+                    .with_context(|| format!("reading the password from {}", file.display()))?;
+                warn_if_others_can_read(file, &f);
+                f.take(PASSWORD_FILE_BYTES)
+                    .read_to_string(&mut text)
+                    .with_context(|| format!("reading the password from {}", file.display()))?;
+            }
             let first = text.lines().next().unwrap_or("").to_string();
             if first.is_empty() {
                 bail!("no password in {}: its first line is empty", file.display());

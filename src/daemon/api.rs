@@ -510,7 +510,11 @@ async fn resume(
 /// The session `id`; 404 if there is none (an id that is not a session's name names none).
 fn open(d: &Daemon, id: &str) -> ApiResult<Session> {
     Session::open(&d.state_dir, id).map_err(|e| match e {
-        SessionError::NotFound { .. } | SessionError::Invalid(_) => {
+        SessionError::NotFound { .. } => {
+            not_found(format!("no session {id:?}; GET {API}/sessions lists them"))
+        }
+        // Not an id at all names no session; a session whose manifest is wrong is there.
+        SessionError::Invalid(_) if !crate::session::is_session_id(id) => {
             not_found(format!("no session {id:?}; GET {API}/sessions lists them"))
         }
         e => ApiError(
@@ -636,6 +640,7 @@ async fn continue_capture(
         (status = 202, description = "the capture stops at its next step", body = Cancelling),
         (status = 400, description = "`bad_request`: the body is not `{}`", body = ErrorBody),
         (status = 408, description = "`request_timeout`: the body did not arrive in time", body = ErrorBody),
+        (status = 404, description = "`not_found`: there is no such session", body = ErrorBody),
         (status = 409, description = "`not_running`: the session is not capturing now", body = ErrorBody),
     )
 )]
@@ -652,6 +657,9 @@ async fn cancel(
         };
         Ok((StatusCode::ACCEPTED, Json(body)).into_response())
     } else {
+        // A session that does not exist is not found, as for a resume; one that does is not
+        // running.
+        open(&d, &id)?;
         Err(ApiError(
             StatusCode::CONFLICT,
             "not_running",
@@ -876,7 +884,13 @@ async fn serve_result(
     let tag = entity_tag(length, meta.modified().ok());
     let tag_header = HeaderValue::from_str(&tag).expect("an entity tag is ASCII");
     let given = |name: header::HeaderName| headers.get(name).and_then(|v| v.to_str().ok());
-    if given(header::IF_NONE_MATCH).is_some_and(|list| none_match_fails(list, &tag)) {
+    // A list may come in several field lines; each is part of it.
+    let none_match: Vec<&str> = headers
+        .get_all(header::IF_NONE_MATCH)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .collect();
+    if !none_match.is_empty() && none_match_fails(&none_match.join(","), &tag) {
         return Ok((StatusCode::NOT_MODIFIED, [(header::ETAG, tag_header)]).into_response());
     }
     // A range of another version of the file would splice two files: the whole file then.
@@ -1059,6 +1073,7 @@ async fn events(
             let s = open(&d, &id)?;
             let log = super::EventLog::new();
             let reason = s.manifest.history.last().and_then(|t| t.reason.clone());
+            let reason = reason.map(|r| d.relative(&r));
             log.push(Event::Finished {
                 session: id.clone(),
                 state: s.manifest.state,

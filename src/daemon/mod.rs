@@ -201,6 +201,44 @@ fn scene_names(plan: &Plan) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `text` with `state_dir`'s path (as given, and resolved) left out of the paths in it: what
+/// the API says names no folder of the server's.
+fn relative_to(state_dir: &std::path::Path, text: &str) -> String {
+    let given = state_dir.display().to_string();
+    let resolved = std::fs::canonicalize(state_dir)
+        .map(|p| p.display().to_string())
+        .unwrap_or_else(|_| given.clone());
+    let mut text = text.to_string();
+    for dir in [resolved, given] {
+        if !dir.is_empty() && dir != "/" {
+            text = text
+                .replace(&format!("{dir}/"), "")
+                .replace(&dir, "the state directory");
+        }
+    }
+    text
+}
+
+/// `e` as a client may see it: a failure's words name no folder of the server's.
+fn private_event(state_dir: &std::path::Path, e: Event) -> Event {
+    match e {
+        Event::Finished {
+            session,
+            state,
+            result,
+            error,
+            cancelled,
+        } => Event::Finished {
+            session,
+            state,
+            result,
+            error: error.map(|x| relative_to(state_dir, &x)),
+            cancelled,
+        },
+        e => e,
+    }
+}
+
 type Unrecorded = Arc<Mutex<std::collections::BTreeMap<String, flow::Unrecorded>>>;
 
 /// How often a failure the manifest could not record is tried again.
@@ -321,19 +359,7 @@ impl Daemon {
     /// `text` with the state directory's path (as given, and resolved) left out of the paths
     /// in it.
     pub fn relative(&self, text: &str) -> String {
-        let given = self.state_dir.display().to_string();
-        let resolved = std::fs::canonicalize(&self.state_dir)
-            .map(|p| p.display().to_string())
-            .unwrap_or_else(|_| given.clone());
-        let mut text = text.to_string();
-        for dir in [resolved, given] {
-            if !dir.is_empty() && dir != "/" {
-                text = text
-                    .replace(&format!("{dir}/"), "")
-                    .replace(&dir, "the state directory");
-            }
-        }
-        text
+        relative_to(&self.state_dir, text)
     }
 
     pub fn devices(&self) -> Vec<crate::rig::DeviceStatus> {
@@ -359,6 +385,10 @@ impl Daemon {
 
     /// The manifest as the API shows it: with a failure it could not record yet.
     pub fn shown(&self, mut m: crate::session::Manifest) -> crate::session::Manifest {
+        // The reasons recorded are the flow's words, which may name a file by its full path.
+        for t in &mut m.history {
+            t.reason = t.reason.take().map(|r| self.relative(&r));
+        }
         if let Some(u) = self.unrecorded.lock().expect("unrecorded").get(&m.id) {
             m.state = State::Failed;
             m.history.push(crate::session::Transition {
@@ -410,7 +440,9 @@ impl Daemon {
         // state, and no retry may write the manifest while `resumable` does.
         self.unrecorded.lock().expect("unrecorded").remove(id);
         let mut s = Session::open(&self.state_dir, id).map_err(|e| match e {
-            SessionError::NotFound { .. } | SessionError::Invalid(_) => {
+            SessionError::NotFound { .. } => StartError::NotFound(id.to_string()),
+            // Not an id at all names no session; a session whose manifest is wrong is there.
+            SessionError::Invalid(_) if !crate::session::is_session_id(id) => {
                 StartError::NotFound(id.to_string())
             }
             e => StartError::Storage(self.private(e.into())),
@@ -478,7 +510,10 @@ impl Daemon {
                 let cx = Context {
                     rig: &rig,
                     devices: &devices,
-                    progress: Arc::new(move |e: Event| progress.push(e)),
+                    progress: {
+                        let dir = state_dir.clone();
+                        Arc::new(move |e: Event| progress.push(private_event(&dir, e)))
+                    },
                     cancel: c,
                     operator,
                 };

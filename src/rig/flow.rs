@@ -323,6 +323,8 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
         Some(sim) => Some(relight_against_truth(&est, sim, &mut phases)?),
         None => None,
     };
+    // The last point to stop at: once written, the results are the session's.
+    cx.cancel.check()?;
     let p = phases.start("write results", 1);
     env.write_exr(&session.dir.join("derived/panorama.exr"))?;
     // The simulator knows the material: the report overlays it on the estimate's slices.
