@@ -491,9 +491,11 @@ fn export_flat(session: &Session, out: &Path) -> anyhow::Result<()> {
     };
     std::fs::create_dir_all(out.join("raw"))
         .with_context(|| format!("creating {}", out.display()))?;
+    let mut results = Vec::new();
     for e in std::fs::read_dir(session.dir.join("result"))? {
         let e = e?;
         copy(e.path(), out.join(e.file_name()))?;
+        results.push(e.file_name().to_string_lossy().into_owned());
     }
     copy(
         session.dir.join("derived/photo-view1.exr"),
@@ -509,6 +511,7 @@ fn export_flat(session: &Session, out: &Path) -> anyhow::Result<()> {
         .iter()
         .filter(|s| s.complete && s.name.starts_with("view"))
         .count();
+    let mut raw = 0;
     for step in session.manifest.steps.iter().filter(|s| s.complete) {
         for (k, f) in step.files.iter().enumerate() {
             let name = safe_file_name(f.device_name(step));
@@ -518,8 +521,16 @@ fn export_flat(session: &Session, out: &Path) -> anyhow::Result<()> {
                 _ => format!("dslr-{:02}-{name}", k + 1),
             };
             std::fs::write(out.join("raw").join(flat), session.read_raw(f)?)?;
+            raw += 1;
         }
     }
-    println!("wrote {}", out.join("coefficients.json").display());
+    // The report first: it is where a reader starts.
+    results.sort_by_key(|n| (n != "report.html", n.clone()));
+    println!(
+        "wrote {} files in {}: {}, photo.exr, panorama.exr, and {raw} camera files in raw/",
+        results.len() + 2 + raw,
+        out.display(),
+        results.join(", ")
+    );
     Ok(())
 }
