@@ -106,14 +106,17 @@ fn guarded(
 ) -> utoipa_axum::router::UtoipaMethodRouter<Shared> {
     let methods = methods
         .route_layer(axum::middleware::from_fn(require_json_posts))
-        .fallback(|method: axum::http::Method| async move {
-            ApiError(
-                StatusCode::METHOD_NOT_ALLOWED,
-                "method_not_allowed",
-                format!("this route does not answer {method}; `Allow` lists what it answers"),
-            )
-        });
+        .fallback(method_not_allowed);
     (schemas, paths, methods)
+}
+
+/// 405 as a problem, for a method a route lacks (axum adds `Allow`).
+async fn method_not_allowed(method: axum::http::Method) -> ApiError {
+    ApiError(
+        StatusCode::METHOD_NOT_ALLOWED,
+        "method_not_allowed",
+        format!("this route does not answer {method}; `Allow` lists what it answers"),
+    )
 }
 
 /// The OpenAPI description of everything under `/api/v1`, as `GET /api/v1/openapi.json`
@@ -151,12 +154,14 @@ pub fn router(daemon: Shared) -> Router {
     let page = Router::new()
         .route(
             &format!("{API}/openapi.json"),
+            // Part of the API, so its errors are problems too.
             get(move || async move {
                 (
                     [(header::CONTENT_TYPE, "application/json")],
                     description.to_string(),
                 )
-            }),
+            })
+            .fallback(method_not_allowed),
         )
         .route("/", get(web::index))
         .route("/app.js", get(web::script))
