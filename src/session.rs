@@ -41,6 +41,19 @@ pub enum SessionError {
     },
 }
 
+impl SessionError {
+    /// Whether this error, from opening session `id`, means there is no such session: none
+    /// stored under it, or `id` has a shape no session's id has. A session whose manifest is
+    /// wrong is there, and is no such case.
+    pub fn names_no_session(&self, id: &str) -> bool {
+        match self {
+            SessionError::NotFound { .. } => true,
+            SessionError::Invalid(_) => validate_name("session id", id).is_err(),
+            _ => false,
+        }
+    }
+}
+
 pub type Result<T> = std::result::Result<T, SessionError>;
 
 fn io(path: &Path, e: std::io::Error) -> SessionError {
@@ -84,12 +97,6 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 /// A file name a device chose, made safe to create in a folder of ours: letters, digits,
 /// `.`, `-` and `_` only (so no separator, `..` component or absolute path survives), not
 /// hidden, not empty. A camera's ObjectInfo name is whatever the camera says.
-/// Whether `id` has the shape of a session's id (the name rule), whether or not one exists:
-/// what is not one names no session.
-pub fn is_session_id(id: &str) -> bool {
-    validate_name("session id", id).is_ok()
-}
-
 pub fn safe_file_name(device_name: &str) -> String {
     let safe: String = device_name
         .chars()

@@ -11,24 +11,7 @@ use std::process::Command;
 
 use brdfd::radiometry::raw::{decode_raw, WhiteBalance};
 use brdfd_core::raster::Raster;
-use common::{brdfd, text, Simulator};
-
-fn tools_present() -> bool {
-    let present = ["exiftool", "dcraw"].iter().all(|t| {
-        Command::new("sh")
-            .args(["-c", &format!("command -v {t}")])
-            .output()
-            .is_ok_and(|o| o.status.success())
-    });
-    if !present {
-        assert!(
-            std::env::var_os("BRDFD_REQUIRE_RAW_TOOLS").is_none(),
-            "exiftool and dcraw are required here but not installed"
-        );
-        eprintln!("skipping: apt-get install libimage-exiftool-perl dcraw");
-    }
-    present
-}
+use common::{brdfd, text, tools_present, Simulator};
 
 /// Shoots one RAW + JPEG frame at 1/60 s on a simulated D5100 writing `raw`, and returns
 /// the files `brdfd ptp capture` saved.
@@ -105,7 +88,11 @@ fn dcraw(file: &Path) -> Raster {
 
 #[test]
 fn exiftool_and_dcraw_read_the_simulated_nef_and_dng() {
-    if !tools_present() {
+    if !tools_present(
+        &["exiftool", "dcraw"],
+        "BRDFD_REQUIRE_RAW_TOOLS",
+        "apt-get install libimage-exiftool-perl dcraw",
+    ) {
         return;
     }
     for raw in ["nef", "dng"] {

@@ -43,7 +43,7 @@ use super::openapi::{
 };
 use super::{web, Daemon, StartError};
 use crate::rig::{Event, Plan};
-use crate::session::{Session, SessionError, State as SessionState};
+use crate::session::{Session, State as SessionState};
 
 pub type Shared = Arc<Daemon>;
 
@@ -515,11 +515,7 @@ async fn resume(
 /// The session `id`; 404 if there is none (an id that is not a session's name names none).
 fn open(d: &Daemon, id: &str) -> ApiResult<Session> {
     Session::open(&d.state_dir, id).map_err(|e| match e {
-        SessionError::NotFound { .. } => {
-            not_found(format!("no session {id:?}; GET {API}/sessions lists them"))
-        }
-        // Not an id at all names no session; a session whose manifest is wrong is there.
-        SessionError::Invalid(_) if !crate::session::is_session_id(id) => {
+        e if e.names_no_session(id) => {
             not_found(format!("no session {id:?}; GET {API}/sessions lists them"))
         }
         e => ApiError(
@@ -890,12 +886,11 @@ async fn serve_result(
     let tag_header = HeaderValue::from_str(&tag).expect("an entity tag is ASCII");
     let given = |name: header::HeaderName| headers.get(name).and_then(|v| v.to_str().ok());
     // A list may come in several field lines; each is part of it.
-    let none_match: Vec<&str> = headers
+    let mut none_match = headers
         .get_all(header::IF_NONE_MATCH)
         .iter()
-        .filter_map(|v| v.to_str().ok())
-        .collect();
-    if !none_match.is_empty() && none_match_fails(&none_match.join(","), &tag) {
+        .filter_map(|v| v.to_str().ok());
+    if none_match.any(|list| none_match_fails(list, &tag)) {
         return Ok((StatusCode::NOT_MODIFIED, [(header::ETAG, tag_header)]).into_response());
     }
     // A range of another version of the file would splice two files: the whole file then.

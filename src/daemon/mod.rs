@@ -23,7 +23,7 @@ use crate::config::Rig;
 use crate::rig::flow::{self, Context};
 use crate::rig::settings::CaptureSettings;
 use crate::rig::{Cancel, Devices, Event, GoAhead, Plan};
-use crate::session::{Session, SessionError, State};
+use crate::session::{Session, State};
 
 /// Events of one session: everything so far, and a channel for what comes next. A client
 /// that connects late gets the history first, so no event is missed. An event's id is
@@ -117,6 +117,8 @@ pub struct Daemon {
     rig_text: String,
     devices: Arc<Devices>,
     pub state_dir: PathBuf,
+    /// The state directory's paths, as the API's words leave them out.
+    hidden: Hidden,
     pub token: Option<String>,
     /// Host names the API answers to besides IP addresses and `localhost` (brdfd.toml's
     /// `hosts`).
@@ -201,26 +203,40 @@ fn scene_names(plan: &Plan) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `text` with `state_dir`'s path (as given, and resolved) left out of the paths in it: what
-/// the API says names no folder of the server's.
-fn relative_to(state_dir: &std::path::Path, text: &str) -> String {
-    let given = state_dir.display().to_string();
-    let resolved = std::fs::canonicalize(state_dir)
-        .map(|p| p.display().to_string())
-        .unwrap_or_else(|_| given.clone());
-    let mut text = text.to_string();
-    for dir in [resolved, given] {
-        if !dir.is_empty() && dir != "/" {
-            text = text
-                .replace(&format!("{dir}/"), "")
-                .replace(&dir, "the state directory");
-        }
+/// The state directory's path as given and as resolved, which what the API says leaves out:
+/// no answer tells a client where this machine keeps its files. Resolved once, when the daemon
+/// starts.
+#[derive(Clone, Debug)]
+struct Hidden {
+    given: String,
+    resolved: String,
+}
+
+impl Hidden {
+    fn of(state_dir: &std::path::Path) -> Hidden {
+        let given = state_dir.display().to_string();
+        let resolved = std::fs::canonicalize(state_dir)
+            .map(|p| p.display().to_string())
+            .unwrap_or_else(|_| given.clone());
+        Hidden { given, resolved }
     }
-    text
+
+    /// `text` with the paths in the state directory relative to it.
+    fn strip(&self, text: &str) -> String {
+        let mut text = text.to_string();
+        for dir in [&self.resolved, &self.given] {
+            if !dir.is_empty() && dir != "/" {
+                text = text
+                    .replace(&format!("{dir}/"), "")
+                    .replace(dir.as_str(), "the state directory");
+            }
+        }
+        text
+    }
 }
 
 /// `e` as a client may see it: a failure's words name no folder of the server's.
-fn private_event(state_dir: &std::path::Path, e: Event) -> Event {
+fn private_event(hidden: &Hidden, e: Event) -> Event {
     match e {
         Event::Finished {
             session,
@@ -232,7 +248,7 @@ fn private_event(state_dir: &std::path::Path, e: Event) -> Event {
             session,
             state,
             result,
-            error: error.map(|x| relative_to(state_dir, &x)),
+            error: error.map(|x| hidden.strip(&x)),
             cancelled,
         },
         e => e,
@@ -326,6 +342,10 @@ impl Daemon {
         token: Option<String>,
         keep_alive: std::time::Duration,
     ) -> anyhow::Result<Daemon> {
+        // Made now, so that its resolved path is known from the start (and a folder that
+        // cannot be made fails the daemon here, not the first capture).
+        std::fs::create_dir_all(&state_dir)
+            .with_context(|| format!("creating the state directory {}", state_dir.display()))?;
         for m in Session::list(&state_dir)? {
             let mut s = Session::open(&state_dir, &m.id)?;
             if s.mark_if_interrupted()? {
@@ -337,6 +357,7 @@ impl Daemon {
             rig,
             rig_text,
             devices,
+            hidden: Hidden::of(&state_dir),
             state_dir,
             token,
             hosts: Vec::new(),
@@ -359,7 +380,7 @@ impl Daemon {
     /// `text` with the state directory's path (as given, and resolved) left out of the paths
     /// in it.
     pub fn relative(&self, text: &str) -> String {
-        relative_to(&self.state_dir, text)
+        self.hidden.strip(text)
     }
 
     pub fn devices(&self) -> Vec<crate::rig::DeviceStatus> {
@@ -440,11 +461,7 @@ impl Daemon {
         // state, and no retry may write the manifest while `resumable` does.
         self.unrecorded.lock().expect("unrecorded").remove(id);
         let mut s = Session::open(&self.state_dir, id).map_err(|e| match e {
-            SessionError::NotFound { .. } => StartError::NotFound(id.to_string()),
-            // Not an id at all names no session; a session whose manifest is wrong is there.
-            SessionError::Invalid(_) if !crate::session::is_session_id(id) => {
-                StartError::NotFound(id.to_string())
-            }
+            e if e.names_no_session(id) => StartError::NotFound(id.to_string()),
             e => StartError::Storage(self.private(e.into())),
         })?;
         if s.manifest.state == State::Done {
@@ -499,6 +516,7 @@ impl Daemon {
         let thread_log = log.clone();
         let (devices, rig, c) = (self.devices.clone(), self.rig.clone(), cancel.clone());
         let (state_dir, pending) = (self.state_dir.clone(), self.unrecorded.clone());
+        let hidden = self.hidden.clone();
         let stopping = self.stopping.clone();
         // A resumed session records its own state.
         pending.lock().expect("unrecorded").remove(&id);
@@ -510,10 +528,7 @@ impl Daemon {
                 let cx = Context {
                     rig: &rig,
                     devices: &devices,
-                    progress: {
-                        let dir = state_dir.clone();
-                        Arc::new(move |e: Event| progress.push(private_event(&dir, e)))
-                    },
+                    progress: Arc::new(move |e: Event| progress.push(private_event(&hidden, e))),
                     cancel: c,
                     operator,
                 };

@@ -345,6 +345,26 @@ impl Drop for Daemon {
     }
 }
 
+/// Whether every program in `tools` is on PATH. If not, the test skips with how to install
+/// them, unless the environment variable `required` is set (CI sets it where it installs them).
+pub fn tools_present(tools: &[&str], required: &str, install: &str) -> bool {
+    let present = tools.iter().all(|t| {
+        Command::new("sh")
+            .args(["-c", &format!("command -v {t}")])
+            .output()
+            .is_ok_and(|o| o.status.success())
+    });
+    if !present {
+        assert!(
+            std::env::var_os(required).is_none(),
+            "{} required here ({required}) but not installed",
+            tools.join(", ")
+        );
+        eprintln!("skipping: {install}");
+    }
+    present
+}
+
 /// The coefficients printed under `title:` (`  name = +value` lines).
 pub fn printed_coefficients(out: &str, title: &str) -> Vec<f64> {
     out.lines()

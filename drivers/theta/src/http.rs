@@ -524,12 +524,7 @@ impl OscClient {
     fn no_connection(&self, what: &str, e: &reqwest::Error) -> ThetaError {
         // The innermost cause says it ("Connection refused (os error 111)"); reqwest's own
         // layers ("error sending request for url ...", "client error (Connect)") do not.
-        let mut reason = e.to_string();
-        let mut source = std::error::Error::source(e);
-        while let Some(s) = source {
-            reason = s.to_string();
-            source = s.source();
-        }
+        let mut reason = causes(e).pop().unwrap_or_default();
         if reason.is_empty() || e.is_timeout() {
             let after = self.timeouts.request.min(CONNECT_TIMEOUT);
             reason = format!("no answer within {after:?}");
@@ -544,13 +539,18 @@ impl OscClient {
 
 /// reqwest's Display hides the cause (connection refused, reset, ...): the whole chain.
 fn chain(e: &reqwest::Error) -> String {
-    let mut reason = e.to_string();
+    causes(e).join(": ")
+}
+
+/// `e`'s words, then each of its causes', outermost first.
+fn causes(e: &reqwest::Error) -> Vec<String> {
+    let mut all = vec![e.to_string()];
     let mut source = std::error::Error::source(e);
     while let Some(s) = source {
-        reason = format!("{reason}: {s}");
+        all.push(s.to_string());
         source = s.source();
     }
-    reason
+    all
 }
 
 /// A `WWW-Authenticate` Digest challenge, as bytes off the network. digest_auth 0.3 panics on
