@@ -13,6 +13,7 @@ use brdfd_core::raster::Raster;
 use brdfd_core::render::{render_bivariate, render_full, render_merl, RenderingMatrix};
 use brdfd_core::select::{self, Blocks, SwapParams};
 use brdfd_core::solve::{Colour, ColourChoice, Solver};
+use brdfd_core::stop::Stop;
 use brdfd_eval::paper::brdf_error;
 
 /// The embedded basis's rendering matrix for a sphere under the studio map.
@@ -144,7 +145,7 @@ fn the_nonnegative_solve_keeps_every_cell_and_is_optimal() {
         a.predict(c).chunks(3).map(|c| [c[0], c[1], c[2]]).collect()
     };
     let blocks = Blocks::scaled(&a, &basis.column_scales());
-    let sel = select::fast_exchange(&blocks, 20);
+    let sel = select::fast_exchange(&blocks, 20, &Stop::default()).unwrap();
     let c_true = in_span_nonnegative(&basis);
     for solver in [Solver::LeastSquares, Solver::Prior] {
         let sol = solver
@@ -222,7 +223,7 @@ fn coefficients_inside_the_span_are_recovered() {
         .collect();
     let blocks = Blocks::scaled(&a, &basis.column_scales());
     for sel in [
-        select::fast_exchange(&blocks, 20),
+        select::fast_exchange(&blocks, 20, &Stop::default()).unwrap(),
         select::paper_swap(
             &blocks,
             20,
@@ -231,7 +232,9 @@ fn coefficients_inside_the_span_are_recovered() {
                 seed: 3,
                 max_evaluations: 20_000,
             },
-        ),
+            &Stop::default(),
+        )
+        .unwrap(),
         select::all_pixels(&blocks),
     ] {
         for solver in [Solver::LeastSquares, Solver::Prior] {
@@ -613,6 +616,51 @@ fn compression_keeps_renders_unchanged() {
     assert_eq!(levels[2].len(), 16_384);
 }
 
+/// A stop requested while a selection runs ends it with `Stopped`, within a pass over the
+/// candidates: the paper's search, left to itself here, takes far longer than the bound.
+#[test]
+fn a_stop_ends_either_pixel_selection_promptly() {
+    let basis = Basis::embedded();
+    let a = studio_matrix(&basis, 64);
+    let blocks = Blocks::scaled(&a, &basis.column_scales());
+    let endless = SwapParams {
+        restarts: 1_000,
+        seed: 7,
+        max_evaluations: u64::MAX,
+    };
+    let stopped_within = |search: &dyn Fn(&Stop) -> brdfd_core::Result<select::Selection>| {
+        let stop = Stop::default();
+        let asker = stop.clone();
+        let started = std::time::Instant::now();
+        let (result, asked_at) = std::thread::scope(|s| {
+            let asked = s.spawn(move || {
+                std::thread::sleep(std::time::Duration::from_millis(50));
+                asker.request();
+                started.elapsed()
+            });
+            (search(&stop), asked.join().unwrap())
+        });
+        let lag = started.elapsed().saturating_sub(asked_at);
+        assert!(
+            matches!(result, Err(brdfd_core::CoreError::Stopped)),
+            "the search ended without seeing the stop"
+        );
+        lag
+    };
+    let paper = stopped_within(&|stop| select::paper_swap(&blocks, 20, &endless, stop));
+    assert!(
+        paper.as_secs_f64() < 1.0,
+        "paper's search stopped {paper:?} after the request"
+    );
+    // The fast search is over in well under a second, so it is stopped before it starts.
+    let stop = Stop::default();
+    stop.request();
+    assert!(matches!(
+        select::fast_exchange(&blocks, 20, &stop),
+        Err(brdfd_core::CoreError::Stopped)
+    ));
+}
+
 #[test]
 fn selection_beats_random_and_fast_matches_paper() {
     let basis = Basis::embedded();
@@ -630,8 +678,10 @@ fn selection_beats_random_and_fast_matches_paper() {
             seed: 7,
             max_evaluations: 200_000,
         },
-    );
-    let fast = select::fast_exchange(&blocks, 20);
+        &Stop::default(),
+    )
+    .unwrap();
+    let fast = select::fast_exchange(&blocks, 20, &Stop::default()).unwrap();
     assert!(
         paper.condition < random[10] && fast.condition < random[10],
         "paper {} fast {} random median {}",
@@ -659,8 +709,8 @@ fn per_channel_selection_conditions_each_channel() {
     let scales = basis.column_scales();
     let joint = Blocks::scaled(&a, &scales);
     let channels = Blocks::per_channel(&a, &scales);
-    let for_joint = select::fast_exchange(&joint, 20);
-    let for_channels = select::fast_exchange(&channels, 20);
+    let for_joint = select::fast_exchange(&joint, 20, &Stop::default()).unwrap();
+    let for_channels = select::fast_exchange(&channels, 20, &Stop::default()).unwrap();
     let paper = select::paper_swap(
         &channels,
         20,
@@ -669,7 +719,9 @@ fn per_channel_selection_conditions_each_channel() {
             seed: 7,
             max_evaluations: 100_000,
         },
-    );
+        &Stop::default(),
+    )
+    .unwrap();
     // The reported κ is the worst channel's, recomputed from the set.
     let worst = channels.condition(&for_channels.pixels);
     assert!((worst - for_channels.condition).abs() < 1e-12 * worst);
@@ -689,8 +741,13 @@ fn per_channel_selection_conditions_each_channel() {
     );
     // With fewer rows per channel than unknowns (5 pixels, 6 columns) every set is singular in
     // each channel, so the joint κ guides the choice, and the report says the truth.
-    let five = select::fast_exchange(&channels, 5);
-    assert_eq!(five.pixels, select::fast_exchange(&joint, 5).pixels);
+    let five = select::fast_exchange(&channels, 5, &Stop::default()).unwrap();
+    assert_eq!(
+        five.pixels,
+        select::fast_exchange(&joint, 5, &Stop::default())
+            .unwrap()
+            .pixels
+    );
     assert!(five.condition.is_infinite(), "{}", five.condition);
     assert!(five
         .condition_text()

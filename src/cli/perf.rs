@@ -10,6 +10,7 @@ use brdfd_core::envmap::{write_exr, DEFAULT_LIGHTS};
 use brdfd_core::geometry::{Camera, PixelGeometry, Pose, Shape};
 use brdfd_core::render::RenderingMatrix;
 use brdfd_core::select::{self, Blocks, SwapParams};
+use brdfd_core::stop::Stop;
 
 #[derive(clap::Args)]
 pub struct BenchArgs {
@@ -124,11 +125,15 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
         std::hint::black_box(Blocks::scaled(&am, &basis.column_scales()));
     });
     let blocks = Blocks::scaled(&am, &basis.column_scales());
+    // The bench is a foreground command that Ctrl-C ends at once; nobody asks it to stop.
+    let unstopped = Stop::default();
     let mut fast = None;
-    let fast_s = median_secs(a.runs, || fast = Some(select::fast_exchange(&blocks, 20)));
+    let fast_s = median_secs(a.runs, || {
+        fast = Some(select::fast_exchange(&blocks, 20, &unstopped).expect("nobody stops it"))
+    });
     let fast = fast.expect("ran");
     println!("  per-pixel Gram blocks: {blocks_s:.3} s; fast exchange: {fast_s:.3} s, κ = {:.2} ({} κ evaluations)", fast.condition, fast.evaluations);
-    let paper = select::paper_swap(&blocks, 20, &SwapParams::default());
+    let paper = select::paper_swap(&blocks, 20, &SwapParams::default(), &unstopped)?;
     println!(
         "  paper's swap search (8 restarts, ≤ {} κ per restart): {:.2} s, κ = {:.2} ({} κ evaluations); time ratio paper/fast {:.0}×, κ ratio paper/fast {:.3}",
         SwapParams::default().max_evaluations,
@@ -147,7 +152,8 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
     let channels = Blocks::per_channel(&am, &basis.column_scales());
     let mut per_channel = None;
     let per_channel_s = median_secs(a.runs, || {
-        per_channel = Some(select::fast_exchange(&channels, 20))
+        per_channel =
+            Some(select::fast_exchange(&channels, 20, &unstopped).expect("nobody stops it"))
     });
     let per_channel = per_channel.expect("ran");
     println!(

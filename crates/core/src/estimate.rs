@@ -298,13 +298,13 @@ pub(crate) fn select_pixels(
     a: &RenderingMatrix,
     options: &EstimateOptions,
     colour: Colour,
-) -> Selection {
+) -> Result<Selection> {
     let blocks = Blocks::for_colour(a, &basis.column_scales(), colour);
     match options.pixel_count {
-        None => select::all_pixels(&blocks),
+        None => Ok(select::all_pixels(&blocks)),
         Some(l) => match options.method {
-            SelectionMethod::Paper => select::paper_swap(&blocks, l, &options.swap),
-            SelectionMethod::Fast => select::fast_exchange(&blocks, l),
+            SelectionMethod::Paper => select::paper_swap(&blocks, l, &options.swap, &options.stop),
+            SelectionMethod::Fast => select::fast_exchange(&blocks, l, &options.stop),
         },
     }
 }
@@ -363,11 +363,11 @@ fn estimate_from_matrix<'l>(
     colour: Colour,
     lights: &LightSet,
     lights_of: impl Fn(usize) -> Option<&'l LightSet>,
-    select: impl FnOnce() -> Selection,
+    select: impl FnOnce() -> Result<Selection>,
 ) -> Result<(Selection, Solution, Uncertainty, Timings)> {
     let mut timings = Timings::default();
     let t = Instant::now();
-    let selection = select();
+    let selection = select()?;
     timings.selection_s = secs(t.elapsed());
     let t = Instant::now();
     let rows = chosen_rows(basis, a, &selection.pixels, lights_of);
@@ -593,7 +593,7 @@ impl Shared {
         a: &RenderingMatrix,
         options: &EstimateOptions,
         colour: Colour,
-    ) -> Selection {
+    ) -> Result<Selection> {
         let key = SelectionKey {
             matrix,
             colour,
@@ -604,15 +604,15 @@ impl Shared {
         {
             let selections = self.selections.lock().expect("not poisoned");
             if let Some((_, s)) = selections.iter().find(|(k, _)| *k == key) {
-                return s.clone();
+                return Ok(s.clone());
             }
         }
-        let s = select_pixels(basis, a, options, colour);
+        let s = select_pixels(basis, a, options, colour)?;
         self.selections
             .lock()
             .expect("not poisoned")
             .push((key, s.clone()));
-        s
+        Ok(s)
     }
 }
 
@@ -833,6 +833,7 @@ fn basis_estimate(
         );
         let (selection, solution, uncertainty, t) = match tried {
             Ok(done) => done,
+            Err(CoreError::Stopped) => return Err(CoreError::Stopped),
             Err(e) => {
                 if options.colour.models().len() > 1 {
                     tracing::warn!(colour = colour.name(), "colour model left out: {e}");

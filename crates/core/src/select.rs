@@ -18,6 +18,9 @@
 //!   D-optimal pass picks L of the top ones, and a first-improvement exchange on exact κ
 //!   polishes the set. Every κ
 //!   it compares is computed exactly; only the candidate pool is narrowed.
+//!
+//! Both check their [`Stop`] once per chosen position (a pass over the candidates, well under
+//! a second on the largest matrices), so a stop ends them with [`CoreError::Stopped`].
 
 use std::time::{Duration, Instant};
 
@@ -27,6 +30,8 @@ use rayon::prelude::*;
 
 use super::render::{RenderingMatrix, MAX_COLUMNS};
 use super::solve::Colour;
+use super::stop::Stop;
+use crate::error::Result;
 
 type Sym = [[f64; MAX_COLUMNS]; MAX_COLUMNS];
 
@@ -348,7 +353,12 @@ fn check_count(blocks: &Blocks, count: usize) -> usize {
 }
 
 /// The paper's procedure (steps I–VI).
-pub fn paper_swap(blocks: &Blocks, count: usize, params: &SwapParams) -> Selection {
+pub fn paper_swap(
+    blocks: &Blocks,
+    count: usize,
+    params: &SwapParams,
+    stop: &Stop,
+) -> Result<Selection> {
     let start = Instant::now();
     let count = check_count(blocks, count);
     let guided = guide(blocks, count);
@@ -375,6 +385,7 @@ pub fn paper_swap(blocks: &Blocks, count: usize, params: &SwapParams) -> Selecti
             let mut outside: Vec<usize> = (0..n).filter(|p| !in_set[*p]).collect();
             outside.shuffle(&mut rng);
             for &pos in &positions {
+                stop.check()?;
                 for &cand in &outside {
                     if in_set[cand] {
                         continue;
@@ -411,12 +422,12 @@ pub fn paper_swap(blocks: &Blocks, count: usize, params: &SwapParams) -> Selecti
     }
     let (mut pixels, _) = best.expect("at least one restart");
     pixels.sort_unstable();
-    Selection {
+    Ok(Selection {
         condition: reported.condition(&pixels),
         pixels,
         evaluations,
         elapsed: start.elapsed(),
-    }
+    })
 }
 
 /// Inverse of a symmetric positive definite m × m matrix by Cholesky; None if not SPD.
@@ -547,7 +558,7 @@ impl RitzBound {
 const MIN_GAIN_PER_CHANNEL: f64 = 1e-3;
 
 /// Our faster search (see the module notes).
-pub fn fast_exchange(blocks: &Blocks, count: usize) -> Selection {
+pub fn fast_exchange(blocks: &Blocks, count: usize, stop: &Stop) -> Result<Selection> {
     let start = Instant::now();
     let count = check_count(blocks, count);
     let guided = guide(blocks, count);
@@ -601,6 +612,7 @@ pub fn fast_exchange(blocks: &Blocks, count: usize) -> Selection {
     let mut used = vec![false; pool_size];
     let mut evaluations = 0u64;
     while chosen.len() < count {
+        stop.check()?;
         let inv: Vec<Sym> = (0..systems)
             .map(|s| spd_inverse(&g[s], m).unwrap_or(g[s]))
             .collect();
@@ -628,6 +640,7 @@ pub fn fast_exchange(blocks: &Blocks, count: usize) -> Selection {
     while improved {
         improved = false;
         for pos in 0..chosen.len() {
+            stop.check()?;
             let target = score
                 * (1.0
                     - if systems > 1 {
@@ -685,12 +698,12 @@ pub fn fast_exchange(blocks: &Blocks, count: usize) -> Selection {
     }
     let mut chosen: Vec<usize> = chosen.iter().map(|&i| pool[i]).collect();
     chosen.sort_unstable();
-    Selection {
+    Ok(Selection {
         condition: reported.condition(&chosen),
         pixels: chosen,
         evaluations,
         elapsed: start.elapsed(),
-    }
+    })
 }
 
 /// Every pixel, for the "all pixels" estimate.

@@ -3,8 +3,8 @@
 //! A capture's estimate runs for seconds to minutes; Ctrl-C, SIGTERM and the API's cancel
 //! must end it within seconds, not when it finishes. The caller keeps a clone and calls
 //! [`Stop::request`]; the core checks at its loops' natural steps (a view's matrix, a pass of
-//! rendering columns, a colour model tried, a block of pixels rendered) and returns
-//! [`CoreError::Stopped`]. The basis model's pixel selection has no check of its own yet.
+//! rendering columns, a colour model tried, a block of pixels rendered, a position of the
+//! pixel selection) and returns [`CoreError::Stopped`].
 //! A check is one relaxed atomic load, cheap beside any step it guards.
 
 use std::sync::atomic::{AtomicBool, Ordering};
