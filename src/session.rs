@@ -39,6 +39,9 @@ pub enum SessionError {
         expected: String,
         found: String,
     },
+    /// A change of state the session's life does not have (see [`State::may_become`]).
+    #[error("session {id} is {from}, and cannot become {to}")]
+    Transition { id: String, from: State, to: State },
 }
 
 impl SessionError {
@@ -146,6 +149,42 @@ pub enum State {
     Estimating,
     Done,
     Failed,
+}
+
+impl State {
+    /// Whether a session in this state may go to `next`. A session is captured, then
+    /// estimated, then done; any step before done may fail, and a failed session is resumed
+    /// by capturing again (its complete steps are kept). A failed session may record another
+    /// failure (a resume that fails before it starts). Done is final.
+    pub fn may_become(self, next: State) -> bool {
+        use State::*;
+        matches!(
+            (self, next),
+            (Created | Failed, Capturing)
+                | (Capturing, Captured)
+                | (Captured, Estimating)
+                | (Estimating, Done)
+                | (Created | Capturing | Captured | Estimating | Failed, Failed)
+        )
+    }
+
+    /// The state's name as the manifest and the API write it.
+    pub fn name(self) -> &'static str {
+        match self {
+            State::Created => "created",
+            State::Capturing => "capturing",
+            State::Captured => "captured",
+            State::Estimating => "estimating",
+            State::Done => "done",
+            State::Failed => "failed",
+        }
+    }
+}
+
+impl std::fmt::Display for State {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.pad(self.name())
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -383,7 +422,7 @@ impl Session {
         let id = self.manifest.id.clone();
         let marked = self.fail_unless_running(|was| {
             format!(
-                "interrupted while {was:?}: the process running it stopped; `brdfd session resume {id}` continues it"
+                "interrupted while {was}: the process running it stopped; `brdfd session resume {id}` continues it"
             )
         })?;
         Ok(marked == Marked::Failed)
@@ -428,14 +467,28 @@ impl Session {
         write_atomic(&self.dir.join("manifest.json"), &json)
     }
 
+    /// Moves the session to `state` and records why, if the move is one a session's life has
+    /// ([`State::may_become`]); otherwise nothing changes. If the manifest cannot be written,
+    /// the session keeps its state in memory too, so that what it says stays what is stored.
     pub fn set_state(&mut self, state: State, reason: Option<String>) -> Result<()> {
+        let from = self.manifest.state;
+        if !from.may_become(state) {
+            return Err(SessionError::Transition {
+                id: self.manifest.id.clone(),
+                from,
+                to: state,
+            });
+        }
         self.manifest.state = state;
         self.manifest.history.push(Transition {
             state,
             at: now(),
             reason,
         });
-        self.save()
+        self.save().inspect_err(|_| {
+            self.manifest.history.pop();
+            self.manifest.state = from;
+        })
     }
 
     /// The complete attempt of a step, if there is one.
@@ -610,6 +663,51 @@ mod tests {
         assert!(
             e.contains("\"../../../../etc/passwd\" is not a plain file name"),
             "{e}"
+        );
+    }
+
+    /// A session's life: created, capturing, captured, estimating, done; any step before done
+    /// may fail, and a failed one captures again. Any other move is refused with both states
+    /// named, and leaves the manifest, on disk and in memory, as it was.
+    #[test]
+    fn a_session_moves_only_along_its_life() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut s = Session::create(dir.path(), "gold", "", None, serde_json::json!({})).unwrap();
+        let id = s.manifest.id.clone();
+        let refused = |s: &mut Session, to: State| {
+            let (from, entries) = (s.manifest.state, s.manifest.history.len());
+            let e = s.set_state(to, None).unwrap_err().to_string();
+            assert_eq!(e, format!("session {id} is {from}, and cannot become {to}"));
+            let stored = Session::open(dir.path(), &id).unwrap().manifest;
+            for m in [&s.manifest, &stored] {
+                assert_eq!((m.state, m.history.len()), (from, entries));
+            }
+        };
+        refused(&mut s, State::Done);
+        refused(&mut s, State::Captured);
+        s.set_state(State::Capturing, None).unwrap();
+        refused(&mut s, State::Capturing);
+        refused(&mut s, State::Estimating);
+        s.set_state(State::Captured, None).unwrap();
+        refused(&mut s, State::Capturing);
+        s.set_state(State::Failed, Some("the camera vanished".into()))
+            .unwrap();
+        // Resumed: failed, then capturing again; a resume that fails at once fails again.
+        s.set_state(State::Failed, Some("still gone".into()))
+            .unwrap();
+        refused(&mut s, State::Estimating);
+        s.set_state(State::Capturing, None).unwrap();
+        s.set_state(State::Captured, None).unwrap();
+        s.set_state(State::Estimating, None).unwrap();
+        s.set_state(State::Done, None).unwrap();
+        for to in [State::Failed, State::Capturing, State::Done] {
+            refused(&mut s, to);
+        }
+        let states: Vec<State> = s.manifest.history.iter().map(|t| t.state).collect();
+        use State::*;
+        assert_eq!(
+            states,
+            [Created, Capturing, Captured, Failed, Failed, Capturing, Captured, Estimating, Done]
         );
     }
 

@@ -434,7 +434,7 @@ pub fn resume(state: &Path, id: &str, daemon: &DaemonArgs) -> anyhow::Result<()>
     }
     let settings = CaptureSettings::resolve(&plan, &rig)?;
     println!(
-        "resuming session {} (was {:?})",
+        "resuming session {} (was {})",
         session.manifest.id, session.manifest.state
     );
     in_process(&mut session, &settings, &rig, None, false)

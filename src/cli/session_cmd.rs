@@ -108,10 +108,7 @@ pub fn run(a: SessionArgs) -> anyhow::Result<()> {
             let s = Session::open(&state, &id)?;
             let n = s.verify()?;
             if s.manifest.state != State::Done {
-                eprintln!(
-                    "note: session {id} is {}, not done",
-                    state_name(s.manifest.state)
-                );
+                eprintln!("note: session {id} is {}, not done", s.manifest.state);
             }
             let dest = to.join(&id);
             copy_dir(&s.dir, &dest)?;
@@ -236,7 +233,7 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
         println!(
             "{:<width$}  {:<10}  {:<12}  {:<8}  {:>6}  {}",
             m.id,
-            state_name(m.state),
+            m.state.name(),
             m.material,
             model,
             fit,
@@ -246,14 +243,6 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A state as the manifest and the API spell it (`done`, `capturing`, ...).
-fn state_name(state: State) -> String {
-    serde_json::to_value(state)
-        .ok()
-        .and_then(|v| v.as_str().map(str::to_string))
-        .unwrap_or_else(|| format!("{state:?}"))
-}
-
 /// What a person wants first: where the session stands, why, and what it found.
 fn summary(s: &Session) -> Vec<String> {
     let m = &s.manifest;
@@ -261,7 +250,7 @@ fn summary(s: &Session) -> Vec<String> {
         format!(
             "session {}: {}, material {}",
             m.id,
-            state_name(m.state),
+            m.state.name(),
             m.material
         ),
         format!("created {} by {}", m.created, m.software),
@@ -296,7 +285,7 @@ fn cancel(state: &Path, id: &str, daemon: &super::capture::DaemonArgs) -> anyhow
     }
     let mut s = Session::open(state, id)?;
     if matches!(s.manifest.state, State::Done | State::Failed) {
-        println!("session {id} is already {}", state_name(s.manifest.state));
+        println!("session {id} is already {}", s.manifest.state);
         return Ok(());
     }
     // Another process capturing it holds the claim: only it can stop cleanly.

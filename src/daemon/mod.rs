@@ -618,6 +618,9 @@ pub fn resumable(s: &mut Session) -> anyhow::Result<Plan> {
     if s.manifest.state == State::Done {
         anyhow::bail!("session {} is already done", s.manifest.id);
     }
+    // Left capturing or estimating by a process that is gone: recorded as what it is, so
+    // that the resumed run starts from a failed session, as every resume does.
+    s.mark_if_interrupted()?;
     let adopted = s.adopt_orphans()?;
     if adopted > 0 {
         tracing::info!("{adopted} raw files were stored but not yet listed; listed now");

@@ -291,10 +291,9 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
         done: Vec::new(),
     };
     // Capturing from the first step: a list of sessions must not show a running capture as
-    // "created", nor offer to resume it.
-    if matches!(session.manifest.state, State::Created | State::Failed) {
-        session.set_state(State::Capturing, None)?;
-    }
+    // "created", nor offer to resume it. A session starts new or resumes failed (an
+    // interrupted one is recorded as failed first, by `resumable`).
+    session.set_state(State::Capturing, None)?;
     let p = phases.start("load the basis", 1);
     let basis = Basis::embedded();
     phases.end(p);
