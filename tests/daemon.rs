@@ -1181,3 +1181,142 @@ fn the_cli_follows_a_dropped_event_stream_from_its_last_event() {
         .expect("the second asks with Last-Event-ID");
     assert!(resumed.ends_with("-2"), "{resumed}");
 }
+
+/// The server in this test's own process, on port 0, as mini-redis tests its server: beside
+/// the tests of the binary, this one sees both sides at once. Through a session's whole life
+/// the API says what the session's files say, the state moves along its life and no other
+/// way, and the server stops when its shutdown future resolves, with nothing left running.
+#[test]
+fn the_server_in_process_agrees_with_the_stored_session_and_stops_cleanly() {
+    use brdfd::config::Rig;
+    use brdfd::daemon::{api, server, Daemon as Core};
+    use brdfd::session::{Session, State};
+    use serde_json::Value;
+    use std::sync::Arc;
+
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let (started, bound) = std::sync::mpsc::channel();
+    let state_dir = state.clone();
+    let server = std::thread::spawn(move || {
+        runtime.block_on(async move {
+            let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+            let daemon = tokio::task::block_in_place(|| {
+                Core::start(
+                    Rig::simulated(),
+                    include_str!("../config/rigs/simulated.toml").into(),
+                    state_dir,
+                    None,
+                    Duration::from_secs(30),
+                )
+            })
+            .map_err(std::io::Error::other)?;
+            let daemon = Arc::new(daemon);
+            started
+                .send((listener.local_addr()?, daemon.clone()))
+                .unwrap();
+            let shutting = daemon.clone();
+            let app = api::router(daemon);
+            server::serve(listener, app, server::Limits::default(), async move {
+                let _ = stopped.await;
+                let _ = tokio::task::spawn_blocking(move || shutting.shut_down()).await;
+            })
+            .await
+        })
+    });
+    let (addr, daemon) = bound.recv_timeout(Duration::from_secs(60)).unwrap();
+    let api = format!("http://{addr}/api/v1");
+    let http = reqwest::blocking::Client::new();
+    let get = |path: &str| -> (u16, Value) {
+        let r = http.get(format!("{api}{path}")).send().unwrap();
+        (r.status().as_u16(), r.json().unwrap())
+    };
+    let post = |path: &str, body: Value| -> (u16, Value) {
+        let r = http
+            .post(format!("{api}{path}"))
+            .json(&body)
+            .send()
+            .unwrap();
+        (r.status().as_u16(), r.json().unwrap())
+    };
+
+    assert_eq!(get("/health").0, 200);
+    let (status, body) = post("/sessions", json!({ "material": "gold", "size": 64 }));
+    assert_eq!(status, 202, "{body}");
+    let id = body["id"].as_str().unwrap().to_string();
+    // Polled, not followed: each answer is compared with the files as they are then.
+    let deadline = Instant::now() + Duration::from_secs(600);
+    let shown = loop {
+        let (status, body) = get(&format!("/sessions/{id}"));
+        assert_eq!(status, 200, "{body}");
+        let stored = Session::open(&state, &id).unwrap().manifest;
+        let said: State = serde_json::from_value(body["manifest"]["state"].clone()).unwrap();
+        // The answer was read first; the capture may have moved on since, never back.
+        let order = |s: State| {
+            [
+                State::Created,
+                State::Capturing,
+                State::Captured,
+                State::Estimating,
+                State::Done,
+            ]
+            .iter()
+            .position(|x| *x == s)
+            .unwrap_or_else(|| panic!("{id} went {s}: {body}"))
+        };
+        assert!(
+            order(said) <= order(stored.state),
+            "API {said}, files {}",
+            stored.state
+        );
+        if said == State::Done && daemon.busy().is_none() {
+            break body;
+        }
+        assert!(Instant::now() < deadline, "not done in time: {body}");
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let stored = Session::open(&state, &id).unwrap().manifest;
+    let life: Vec<State> = stored.history.iter().map(|t| t.state).collect();
+    assert_eq!(
+        life,
+        [
+            State::Created,
+            State::Capturing,
+            State::Captured,
+            State::Estimating,
+            State::Done
+        ]
+    );
+    assert_eq!(
+        shown["manifest"]["history"].as_array().unwrap().len(),
+        life.len()
+    );
+    // Done is final: the API refuses to resume it, and the files do not change.
+    let (status, body) = post(&format!("/sessions/{id}/resume"), json!({}));
+    assert_eq!(
+        (status, body["error"].as_str()),
+        (409, Some("already_done")),
+        "{body}"
+    );
+    assert_eq!(
+        Session::open(&state, &id).unwrap().manifest.history.len(),
+        life.len()
+    );
+
+    stop.send(()).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !server.is_finished() {
+        assert!(Instant::now() < deadline, "the server did not stop");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    server.join().unwrap().unwrap();
+    assert!(http.get(format!("{api}/health")).send().is_err());
+    // The daemon's last holder is this test: nothing inside it still runs.
+    assert_eq!(Arc::strong_count(&daemon), 1);
+}
