@@ -41,6 +41,10 @@ pub struct BenchArgs {
     /// that part against the same on a sphere.
     #[arg(long)]
     pub occlusion: bool,
+    /// Only the preview benchmark: `preview.png`'s render, a 512² sphere under 512 lights with
+    /// its white sphere, for a sharp material and a broad one.
+    #[arg(long)]
+    pub preview: bool,
 }
 
 fn median_secs(runs: usize, mut f: impl FnMut()) -> f64 {
@@ -80,6 +84,9 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
     }
     if a.occlusion {
         return occlusion_bench(a.runs);
+    }
+    if a.preview {
+        return preview_bench(a.runs);
     }
     let basis = Basis::embedded();
     let model = basis.model();
@@ -175,8 +182,38 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
     });
     println!("  reduction of 10 NBRDF materials: {reduce_s:.2} s (× 10 for the 100-material build; `brdfd basis build` prints its own total)");
 
+    preview_bench(a.runs)?;
     if !a.no_estimate {
         estimate_end_to_end(a.runs.min(3))?;
+    }
+    Ok(())
+}
+
+/// `preview.png`'s render, as the results write it: the estimate on a 512² sphere under the
+/// capture's map compressed to 512 lights, with the white sphere that sets its scale. A sharp
+/// material and a broad one: the render's cost does not depend on the BRDF's shape, which
+/// this shows.
+fn preview_bench(runs: usize) -> anyhow::Result<()> {
+    use brdfd::results::{PREVIEW_LIGHTS, PREVIEW_SIZE};
+    use brdfd_core::render::SpherePicture;
+    println!(
+        "
+the preview ({PREVIEW_SIZE}² sphere, {PREVIEW_LIGHTS} lights, and its white sphere):"
+    );
+    let lights = studio_envmap(2048).compressed(PREVIEW_LIGHTS, 0.0);
+    let set = embedded_materials();
+    for name in ["gold-metallic-paint", "black-soft-plastic"] {
+        let brdf = Bivariate::reduce(set.get(name)?, Grid::default());
+        let mut failed = None;
+        let s = median_secs(runs, || {
+            if let Err(e) = SpherePicture::render(&brdf, &lights, PREVIEW_SIZE) {
+                failed = Some(e);
+            }
+        });
+        if let Some(e) = failed {
+            return Err(e.into());
+        }
+        println!("  {name}: {s:.3} s");
     }
     Ok(())
 }
