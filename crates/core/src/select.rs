@@ -20,7 +20,7 @@
 //!   it compares is computed exactly; only the candidate pool is narrowed.
 //!
 //! Both check their [`Stop`] once per chosen position (a pass over the candidates, well under
-//! a second on the largest matrices), so a stop ends them with [`CoreError::Stopped`].
+//! a second on the largest matrices), so a stop ends them with [`CoreError::Stopped`](crate::error::CoreError::Stopped).
 
 use std::time::{Duration, Instant};
 
