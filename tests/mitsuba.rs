@@ -84,14 +84,15 @@ fn brdfd_renders_a_sphere_under_a_map_as_mitsuba_does() {
     )
     .unwrap();
     // The limit each case is held to. Issue 38 asks for 0.05; the figures measured (256²,
-    // 4,096 lights) are 0.039, 0.057, 0.042 and 0.072, of which Mitsuba's own sampling noise
-    // is about 0.04 (two seeds against each other). The limits are those figures with room
-    // for that noise, so that a real change in either renderer shows.
+    // 4,096 lights) are 0.039, 0.057, 0.042 and 0.042, of which Mitsuba's own sampling noise
+    // is about 0.04 (two seeds against each other). The near mirror was 0.072 with the lights
+    // alone; the cap (`brdfd_core::sharp`) reads the map itself there, and it is held to the
+    // issue's figure. The others keep room for the reference's noise.
     let cases = [
         ("diffuse", 0.05),
         ("mirror-0.3", 0.07),
         ("mirror-0.1", 0.06),
-        ("mirror-0.02", 0.09),
+        ("mirror-0.02", 0.05),
     ];
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/mitsuba-reference.py");
     let o = Command::new(&python)

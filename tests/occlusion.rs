@@ -40,6 +40,7 @@ fn uniform_sky(n: usize) -> LightSet {
         radiance: vec![[1.0; 3]; n],
         solid_angle: vec![omega as f32; n],
         spread: vec![(omega / std::f64::consts::PI).sqrt() as f32; n],
+        map: None,
     }
 }
 

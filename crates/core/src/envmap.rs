@@ -11,8 +11,10 @@
 //! Radiance is linear RGB; nothing here applies a camera response.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use super::error::{CoreError, Result};
+use super::sharp::SkyMap;
 
 /// Negative radiance smaller than this (relative to the map's mean) is resampling ringing and is
 /// clamped to zero with a warning; anything more negative is an error.
@@ -50,6 +52,9 @@ pub struct LightSet {
     /// does: √(Δω/π) for one map pixel, less for a cell whose power sits in a small bright
     /// patch. The renderers average the BRDF over this footprint.
     pub spread: Vec<f32>,
+    /// The map the lights were made from, which the renderers read directly where a lobe is
+    /// sharper than the lights (`crate::sharp`); `None` for lights placed by hand.
+    pub map: Option<Arc<SkyMap>>,
 }
 
 impl LightSet {
@@ -243,7 +248,10 @@ impl EnvMap {
 
     /// Every pixel as a light, rotated by `yaw` radians.
     pub fn lights(&self, yaw: f64) -> LightSet {
-        let mut set = LightSet::default();
+        let mut set = LightSet {
+            map: Some(Arc::new(SkyMap::new(self, yaw))),
+            ..LightSet::default()
+        };
         for y in 0..self.height {
             let dw = self.pixel_solid_angle(y) as f32;
             for x in 0..self.width {
@@ -338,6 +346,7 @@ impl EnvMap {
             return counts.iter().map(|_| self.lights(yaw)).collect();
         }
         let sums = CellSums::new(self, yaw);
+        let sky = Arc::new(SkyMap::new(self, yaw));
         let (cols, rows) = (
             COARSE_COLUMNS.min(self.width),
             (COARSE_COLUMNS / 2).min(self.height),
@@ -369,7 +378,10 @@ impl EnvMap {
                 heap.push(sums.cell(a));
                 heap.push(sums.cell(b));
             }
-            let mut set = LightSet::default();
+            let mut set = LightSet {
+                map: Some(sky.clone()),
+                ..LightSet::default()
+            };
             // The last level can take the heap; coarser ones leave it to be split further.
             let cells = if i + 1 == counts.len() {
                 std::mem::take(&mut heap)

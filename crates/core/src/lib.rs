@@ -24,6 +24,7 @@ pub mod nnls;
 pub mod raster;
 pub mod render;
 pub mod select;
+pub mod sharp;
 pub mod solve;
 pub mod stop;
 pub mod uncertainty;

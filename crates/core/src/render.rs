@@ -23,6 +23,7 @@ use super::error::Result;
 use super::geometry::{GeomPixel, PixelGeometry};
 use super::merl::{self, MerlBrdf};
 use super::raster::Raster;
+use super::sharp::{to_cap_edge, Cap};
 use super::stop::Stop;
 use super::visibility::{is_seen, Seen};
 
@@ -149,6 +150,24 @@ pub(crate) fn theta_h_smoothing(binning: ThetaHBinning, rho: f64) -> Vec<Vec<(us
 }
 
 /// Applies [`theta_h_smoothing`] to one channel-planar bivariate vector.
+/// Whether a pixel sees its mirror direction: on a mesh, the cap's light comes only from
+/// where the pixel's own object does not hide the sky, told by the light nearest that
+/// direction.
+fn sees_mirror(px: &GeomPixel, lights: &[PackedLight], seen: Option<&[u64]>) -> bool {
+    let Some(row) = seen else { return true };
+    let (n, v) = (px.normal, px.view);
+    let nv = dot3(n, v);
+    let r = [
+        2.0 * nv * n[0] - v[0],
+        2.0 * nv * n[1] - v[1],
+        2.0 * nv * n[2] - v[2],
+    ];
+    lights
+        .iter()
+        .max_by(|a, b| dot3(a.dir, r).total_cmp(&dot3(b.dir, r)))
+        .is_none_or(|l| is_seen(row, l.index))
+}
+
 fn smooth_bivariate(values: &[f64], smoothing: &[Vec<(usize, f64)>]) -> Vec<f64> {
     let mut out = vec![0.0; values.len()];
     for c in 0..3 {
@@ -777,29 +796,7 @@ pub fn render_merl_until(
         let n = px.normal;
         let mut acc = [0f64; 3];
         each_light(px, &packed, seen, &luts, |l, Pair { cos, h, bh, bd }| {
-            // e2 = n × h / |n × h|, e1 = e2 × h; at θh ≈ 0 any frame serves (isotropy).
-            let mut e2 = [
-                n[1] * h[2] - n[2] * h[1],
-                n[2] * h[0] - n[0] * h[2],
-                n[0] * h[1] - n[1] * h[0],
-            ];
-            let s = dot3(e2, e2);
-            if s < 1e-14 {
-                e2 = if n[1].abs() < 0.9 {
-                    [n[2], 0.0, -n[0]]
-                } else {
-                    [0.0, n[2], -n[1]]
-                };
-            }
-            let e1 = [
-                e2[1] * h[2] - e2[2] * h[1],
-                e2[2] * h[0] - e2[0] * h[2],
-                e2[0] * h[1] - e2[1] * h[0],
-            ];
-            // φd over [0, π) with reciprocity, as merl::phi_d_bin, in f32.
-            let p = phi_mod_pi(dot3(l.dir, e2), dot3(l.dir, e1));
-            let kp = ((p * (merl::PHI_D_BINS as f32 / std::f32::consts::PI)) as usize)
-                .min(merl::PHI_D_BINS - 1);
+            let kp = phi_d_bin(n, h, l.dir);
             let f = table[l.base + merl::cell_index(bh, bd, kp)];
             for c in 0..3 {
                 acc[c] += (f[c] * l.power[c] * cos) as f64;
@@ -808,6 +805,33 @@ pub fn render_merl_until(
         acc.map(|x| x as f32)
     };
     shade_pixels_until(geom, lights, stop, shade)
+}
+
+/// The MERL φd bin of a light from `dir` at half vector `h` on normal `n`: the azimuth of ωᵢ
+/// about h from the plane of n and h, over [0, π) with reciprocity, as `merl::phi_d_bin`, in
+/// f32.
+#[inline(always)]
+fn phi_d_bin(n: [f32; 3], h: [f32; 3], dir: [f32; 3]) -> usize {
+    // e2 = n × h / |n × h|, e1 = e2 × h; at θh ≈ 0 any frame serves (isotropy).
+    let mut e2 = [
+        n[1] * h[2] - n[2] * h[1],
+        n[2] * h[0] - n[0] * h[2],
+        n[0] * h[1] - n[1] * h[0],
+    ];
+    if dot3(e2, e2) < 1e-14 {
+        e2 = if n[1].abs() < 0.9 {
+            [n[2], 0.0, -n[0]]
+        } else {
+            [0.0, n[2], -n[1]]
+        };
+    }
+    let e1 = [
+        e2[1] * h[2] - e2[2] * h[1],
+        e2[2] * h[0] - e2[0] * h[2],
+        e2[0] * h[1] - e2[1] * h[0],
+    ];
+    let p = phi_mod_pi(dot3(dir, e2), dot3(dir, e1));
+    ((p * (merl::PHI_D_BINS as f32 / std::f32::consts::PI)) as usize).min(merl::PHI_D_BINS - 1)
 }
 
 /// atan2(y, x) taken modulo π, in [0, π]: the φd of reciprocity. A polynomial arctangent
@@ -844,9 +868,16 @@ fn phi_mod_pi(y: f32, x: f32) -> f32 {
 /// independent of the binning shortcuts above.
 pub fn render_full(geom: &PixelGeometry, lights: &LightSet, brdf: &dyn IsotropicBrdf) -> Raster {
     use super::brdf::tangent_frame;
-    // Point lights: this renderer is the independent check, so it takes no footprint.
+    // Point lights: this renderer is the independent check, so it takes no footprint. It
+    // still splits off the cap ([`crate::sharp`]): f′ reads f at the cap's edge.
     let packed = pack(lights, &Footprints::of(lights), 0);
     let luts = Luts::new(ThetaHBinning::Sqrt);
+    let cap = Cap::of(lights, ThetaHBinning::Sqrt);
+    let theta_c = cap.as_ref().map_or(0.0, |c| c.edge(ThetaHBinning::Sqrt));
+    let flat = |wi: [f64; 3], wo: [f64; 3]| match to_cap_edge(wi, wo, theta_c) {
+        Some((a, b)) => brdf.eval_dirs(a, b),
+        None => brdf.eval_dirs(wi, wo),
+    };
     let shade = |px: &GeomPixel, seen: Option<&[u64]>| -> [f32; 3] {
         let n = px.normal.map(|c| c as f64);
         let (t, b) = tangent_frame(n);
@@ -866,11 +897,20 @@ pub fn render_full(geom: &PixelGeometry, lights: &LightSet, brdf: &dyn Isotropic
             if wi[2] <= 0.0 {
                 return;
             }
-            let f = brdf.eval_dirs(wi, wo);
+            let f = flat(wi, wo);
             for c in 0..3 {
                 acc[c] += f[c] * l.power[c] as f64 * wi[2];
             }
         });
+        if let Some(cap) = cap.as_ref().filter(|_| sees_mirror(px, &packed, seen)) {
+            cap.each_sample(px, |s| {
+                let wi = local(s.dir);
+                let (f, f_flat) = (brdf.eval_dirs(wi, wo), flat(wi, wo));
+                for c in 0..3 {
+                    acc[c] += (f[c] - f_flat[c]) * s.weight[c] as f64;
+                }
+            });
+        }
         acc.map(|x| x as f32)
     };
     shade_pixels(geom, lights, shade)
@@ -964,6 +1004,7 @@ fn shade_pixels_until(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::{Camera, Shape};
 
     #[test]
     fn the_polynomial_phi_matches_atan2_modulo_pi() {
@@ -1037,6 +1078,81 @@ mod tests {
 
     /// The preview's scale: a white Lambertian sphere reaches full white, a grey one its
     /// albedo, and neither depends on how bright the room was.
+    /// A map with structure at every scale: smooth bands, and a small bright lamp.
+    fn textured_map() -> crate::envmap::EnvMap {
+        let (w, h) = (128, 64);
+        let pixels = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                let lamp = if (x - 40.0).abs() < 2.0 && (y - 20.0).abs() < 2.0 {
+                    30.0
+                } else {
+                    0.0
+                };
+                let band = 1.0 + 0.8 * (x * 0.3).sin() * (y * 0.2).cos();
+                [band + lamp, 0.6 * band + lamp, 0.3 + lamp]
+            })
+            .collect();
+        crate::envmap::EnvMap::from_pixels(w, h, pixels, "test map").unwrap()
+    }
+
+    fn sharp_mirror(alpha: f64) -> crate::analytic::Microfacet {
+        crate::analytic::Microfacet::one_lobe([0.0; 3], [1.0; 3], [1.0; 3], alpha)
+    }
+
+    /// Under a uniform sky a mirror-like lobe returns its directional albedo, whatever the
+    /// lights: the cap's samples carry the right solid angles.
+    #[test]
+    fn a_sharp_lobe_under_a_uniform_sky_returns_its_albedo() {
+        let sky =
+            crate::envmap::EnvMap::from_pixels(64, 32, vec![[1.0; 3]; 64 * 32], "sky").unwrap();
+        let geometry =
+            PixelGeometry::rasterize(&Camera::eval_orthographic(16), &Shape::unit_sphere())
+                .unwrap();
+        for alpha in [0.005, 0.02] {
+            let brdf = sharp_mirror(alpha);
+            let albedo = crate::brdf::directional_albedo(&brdf, 0.0)[0];
+            for count in [128, 1024] {
+                let lights = sky.compressed(count, 0.0);
+                assert!(Cap::of(&lights, ThetaHBinning::Sqrt).is_some());
+                let centre = render_full(&geometry, &lights, &brdf).get(8, 8)[0] as f64;
+                assert!(
+                    (centre / albedo - 1.0).abs() < 0.03,
+                    "α {alpha}, {count} lights: {centre} against {albedo}"
+                );
+            }
+        }
+    }
+
+    /// A mirror-like lobe renders alike under 256 lights and under 4,096 once the cap reads
+    /// the map itself; with the lights alone (a set without its map) the two differ by the
+    /// light grid, several times as much.
+    #[test]
+    fn a_sharp_lobe_shows_no_light_grid() {
+        let map = textured_map();
+        let geometry =
+            PixelGeometry::rasterize(&Camera::eval_orthographic(48), &Shape::unit_sphere())
+                .unwrap();
+        let brdf = sharp_mirror(0.01);
+        let render = |count: usize, with_map: bool| {
+            let mut lights = map.compressed(count, 0.0);
+            if !with_map {
+                lights.map = None;
+            }
+            render_full(&geometry, &lights, &brdf)
+        };
+        let with_cap = render(256, true).relative_rmse(&render(4096, true));
+        let lights_alone = render(256, false).relative_rmse(&render(4096, false));
+        eprintln!(
+            "256 against 4,096 lights: {with_cap:.4} with the cap, {lights_alone:.4} without"
+        );
+        assert!(with_cap < 0.05, "{with_cap}");
+        assert!(
+            with_cap * 3.0 < lights_alone,
+            "{with_cap} against {lights_alone}"
+        );
+    }
+
     #[test]
     fn sphere_pictures_are_on_the_white_spheres_scale() {
         use crate::analytic::lambert_column;

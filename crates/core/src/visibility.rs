@@ -859,6 +859,7 @@ mod tests {
             solid_angle: vec![(4.0 * std::f64::consts::PI / n as f64) as f32; n],
             spread: Vec::new(),
             directions,
+            map: None,
         }
     }
 
