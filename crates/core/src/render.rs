@@ -23,7 +23,7 @@ use super::error::Result;
 use super::geometry::{GeomPixel, PixelGeometry};
 use super::merl::{self, MerlBrdf};
 use super::raster::Raster;
-use super::sharp::{to_cap_edge, Cap};
+use super::sharp::{fast_atan2, to_cap_edge, Cap};
 use super::stop::Stop;
 use super::visibility::{is_seen, Seen};
 
@@ -840,25 +840,9 @@ fn phi_d_bin(n: [f32; 3], h: [f32; 3], dir: [f32; 3]) -> usize {
 #[inline(always)]
 fn phi_mod_pi(y: f32, x: f32) -> f32 {
     // Adding π turns (x, y) into (−x, −y): the upper half plane holds every class.
-    let (y, x) = if y < 0.0 { (-y, -x) } else { (y, x) };
-    let ax = x.abs();
-    let atan01 = |z: f32| {
-        // atan on [0, 1]: Abramowitz & Stegun 4.4.49, |error| ≤ 1e-5.
-        let z2 = z * z;
-        z * (0.999_866
-            + z2 * (-0.330_299_5 + z2 * (0.180_141 + z2 * (-0.085_133 + z2 * 0.020_835_1))))
-    };
-    let a = if ax >= y {
-        if ax == 0.0 {
-            0.0
-        } else {
-            atan01(y / ax)
-        }
-    } else {
-        std::f32::consts::FRAC_PI_2 - atan01(ax / y)
-    };
-    if x < 0.0 {
-        std::f32::consts::PI - a
+    let a = fast_atan2(y, x);
+    if a < 0.0 {
+        a + std::f32::consts::PI
     } else {
         a
     }

@@ -115,7 +115,7 @@ impl SkyMap {
 /// a thousandth of a texel of a 4k map): the map lookups are most of the cap's cost, and
 /// `atan2` and `acos` were most of theirs.
 #[inline(always)]
-fn fast_atan2(y: f32, x: f32) -> f32 {
+pub(crate) fn fast_atan2(y: f32, x: f32) -> f32 {
     let (ax, ay) = (x.abs(), y.abs());
     let atan01 = |z: f32| {
         let z2 = z * z;
