@@ -107,7 +107,10 @@ fn a_v_groove_sees_the_sky_its_closed_form_gives() {
     let (width, length, depth) = (0.4, 4.0, 0.1);
     let mesh: Mesh = grooved_plate(width, length, 1, depth, 96, 240);
     let (size, extent) = (96, 0.4);
-    let g = PixelGeometry::of_mesh(&from_above(size, extent), &mesh).unwrap();
+    let mut g = PixelGeometry::of_mesh(&from_above(size, extent), &mesh).unwrap();
+    // Only the band across the middle is checked: the rest would only cost time.
+    g.pixels
+        .retain(|px| ground(px, size, extent).1.abs() <= 0.05);
     let sky = uniform_sky(32_768);
     let images = renders(&g, &sky);
     let half = width / 4.0; // the groove's half width
@@ -165,18 +168,18 @@ fn a_v_groove_sees_the_sky_its_closed_form_gives() {
 fn a_hemispherical_bowl_sees_half_its_sky_everywhere() {
     let mesh = bowl(0.1, 96, 192);
     let (size, extent) = (96, 0.22);
-    let g = PixelGeometry::of_mesh(&from_above(size, extent), &mesh).unwrap();
+    let mut g = PixelGeometry::of_mesh(&from_above(size, extent), &mesh).unwrap();
+    // Clear of the rim, where the walls stand up and the interpolated normal tilts most: the
+    // pixels outside are not checked, so not rendered.
+    g.pixels.retain(|px| {
+        let (x, y) = ground(px, size, extent);
+        x.hypot(y) <= 0.09
+    });
     let sky = uniform_sky(32_768);
     let images = renders(&g, &sky);
     let mut worst = [0f64; 4];
-    let mut inside = 0;
+    let inside = g.pixels.len();
     for px in &g.pixels {
-        let (x, y) = ground(px, size, extent);
-        // Clear of the rim, where the walls stand up and the interpolated normal tilts most.
-        if x.hypot(y) > 0.09 {
-            continue;
-        }
-        inside += 1;
         for (k, (_, img)) in images.iter().enumerate() {
             worst[k] = worst[k].max((at(img, px) - 0.5).abs());
         }
