@@ -456,8 +456,10 @@ pub struct Simulation {
     pub dslr: SimulatedPresence,
     /// The simulated DSLR powers off when asked for the frame after this many.
     pub dslr_powers_off_after: Option<u32>,
-    /// `present` (the default) or `absent`: views are then turned by hand.
-    pub turntable: SimulatedPresence,
+    /// `present` (the default: a box that speaks the brdfd rig protocol), `grbl` (a GRBL 1.1
+    /// G-code controller turning the table on its A axis) or `absent`: views are then turned
+    /// by hand.
+    pub turntable: SimulatedTurntable,
     /// The RAW files the simulated DSLR writes: `nef` (the default; 14-bit, a D5100's),
     /// `dng` (14-bit) or `dng12` (12-bit).
     pub dslr_raw: Option<crate::bench::raw_file::RawFormat>,
@@ -491,7 +493,7 @@ impl Default for Simulation {
         Simulation {
             dslr: SimulatedPresence::Present,
             dslr_powers_off_after: None,
-            turntable: SimulatedPresence::Present,
+            turntable: SimulatedTurntable::Present,
             dslr_raw: None,
             dslr_raw_damage: None,
             dslr_reuses_file_names: false,
@@ -508,6 +510,17 @@ impl Default for Simulation {
 pub enum SimulatedPresence {
     #[default]
     Present,
+    Absent,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SimulatedTurntable {
+    /// A box that speaks the brdfd rig protocol (and is the shutter's box, if there is one).
+    #[default]
+    Present,
+    /// A GRBL G-code controller, the table on its A axis.
+    Grbl,
     Absent,
 }
 

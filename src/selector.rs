@@ -8,6 +8,7 @@
 //! | `osc:http://HOST[:PORT]` (or a bare `http://...`) | a THETA on the THETA Web API |
 //! | `v4l:/dev/videoN` | a V4L2 camera |
 //! | `serial:/dev/ttyUSB0` | a brdfd rig-protocol device (trigger box, turntable) |
+//! | `grbl:/dev/ttyUSB0`, `grbl:x:/dev/ttyUSB0` | a turntable on a GRBL G-code controller's A axis (or the axis named) |
 //! | `cable:dtr:/dev/ttyUSB0`, `cable:rts:...` | a remote-release cable on a modem line |
 
 use std::fmt;
@@ -23,6 +24,11 @@ pub enum Selector {
     Osc(String),
     V4l(String),
     Serial(String),
+    /// A turntable on a GRBL controller: the axis it is on (upper case), and the port.
+    Grbl {
+        axis: char,
+        path: String,
+    },
     Cable {
         rts: bool,
         path: String,
@@ -30,7 +36,7 @@ pub enum Selector {
 }
 
 #[derive(Debug, thiserror::Error)]
-#[error("device selector {given:?}: {reason}; use usb[:VVVV[:PPPP]], ptpip:HOST[:PORT], osc:http://HOST, v4l:/dev/videoN, serial:/dev/ttyX or cable:dtr|rts:/dev/ttyX")]
+#[error("device selector {given:?}: {reason}; use usb[:VVVV[:PPPP]], ptpip:HOST[:PORT], osc:http://HOST, v4l:/dev/videoN, serial:/dev/ttyX, grbl:[AXIS:]/dev/ttyX or cable:dtr|rts:/dev/ttyX")]
 pub struct SelectorError {
     pub given: String,
     pub reason: String,
@@ -90,6 +96,26 @@ impl FromStr for Selector {
         if let Some(path) = s.strip_prefix("serial:") {
             return Ok(Selector::Serial(nonempty(path, "port path")?));
         }
+        if let Some(rest) = s.strip_prefix("grbl:") {
+            // An axis is one letter before a colon; a port path starts with `/` (or is a
+            // name such as COM3).
+            let (axis, path) = match rest.split_once(':') {
+                Some((a, path)) if a.len() == 1 => {
+                    let axis = a.chars().next().unwrap_or('A').to_ascii_uppercase();
+                    if !"XYZABC".contains(axis) {
+                        return Err(err(&format!(
+                            "{a:?} is not a GRBL axis (X, Y, Z, A, B or C)"
+                        )));
+                    }
+                    (axis, path)
+                }
+                _ => ('A', rest),
+            };
+            return Ok(Selector::Grbl {
+                axis,
+                path: nonempty(path, "port path")?,
+            });
+        }
         if let Some(rest) = s.strip_prefix("cable:") {
             let (line, path) = rest
                 .split_once(':')
@@ -127,6 +153,8 @@ impl fmt::Display for Selector {
             Selector::Osc(u) => write!(f, "osc:{u}"),
             Selector::V4l(p) => write!(f, "v4l:{p}"),
             Selector::Serial(p) => write!(f, "serial:{p}"),
+            Selector::Grbl { axis: 'A', path } => write!(f, "grbl:{path}"),
+            Selector::Grbl { axis, path } => write!(f, "grbl:{}:{path}", axis.to_ascii_lowercase()),
             Selector::Cable { rts, path } => {
                 write!(f, "cable:{}:{path}", if *rts { "rts" } else { "dtr" })
             }

@@ -68,6 +68,46 @@ fn serial_commands_drive_a_simulated_turntable_on_a_pseudo_terminal() {
 }
 
 #[test]
+fn serial_commands_drive_a_simulated_grbl_turntable() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = Simulator::start(&["sim", "grbl", "--homing", "--rate", "180"]);
+    let port = sim.addr.clone();
+    assert!(port.starts_with("grbl:/dev/"), "{port}");
+    // Locked in Alarm at start (homing enabled): the first client homes it.
+    let info = brdfd(&["serial", "info", "--port", &port], dir.path());
+    let rot = brdfd(
+        &["serial", "rotate", "--port", &port, "--deg", "-30"],
+        dir.path(),
+    );
+    let json = brdfd(&["serial", "info", "--port", &port, "--json"], dir.path());
+    let home = brdfd(&["serial", "home", "--port", &port], dir.path());
+    let fire = brdfd(&["serial", "fire", "--port", &port], dir.path());
+    drop(sim);
+    assert!(info.status.success(), "{}", out(&info));
+    assert!(
+        out(&info).contains("Grbl 1.1h, turntable on the A axis; state Idle; position 0.00°"),
+        "{}",
+        out(&info)
+    );
+    assert!(out(&rot).contains("at 330.00°"), "{}", out(&rot));
+    let parsed: serde_json::Value = serde_json::from_str(&out(&json)).expect("JSON");
+    assert_eq!(
+        parsed["position_deg"].as_f64(),
+        Some(330.0),
+        "{}",
+        out(&json)
+    );
+    assert_eq!(parsed["axis"], "A");
+    assert!(out(&home).contains("at 0.00°"), "{}", out(&home));
+    assert!(!fire.status.success());
+    assert!(
+        out(&fire).contains("a GRBL controller turns the table only"),
+        "{}",
+        out(&fire)
+    );
+}
+
+#[test]
 fn devices_lists_every_kind_and_finds_a_theta_on_the_network() {
     let dir = tempfile::tempdir().unwrap();
     let sim = Simulator::start(&["sim", "theta", "--http", "127.0.0.1:0", "--width", "64"]);

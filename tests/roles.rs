@@ -154,7 +154,7 @@ fn fits(field: &str, selector: &str) -> bool {
         "dslr" => matches!(kind, "usb" | "ptpip"),
         "theta" => matches!(kind, "osc" | "usb" | "ptpip"),
         "fallback_camera" => kind == "v4l",
-        "turntable" => kind == "serial",
+        "turntable" => matches!(kind, "serial" | "grbl"),
         _ => matches!(kind, "serial" | "cable"),
     }
 }
@@ -173,6 +173,7 @@ fn each_field_takes_the_devices_that_can_play_its_role_and_names_the_rest() {
         "v4l:/dev/video4",
         "serial:/dev/ttyUSB3",
         "cable:rts:/dev/ttyUSB4",
+        "grbl:/dev/ttyACM0",
     ];
     let fields = [
         ("dslr", "dslr = \"usb:04b0:0429\""),
@@ -203,7 +204,7 @@ fn each_field_takes_the_devices_that_can_play_its_role_and_names_the_rest() {
             checked += 1;
         }
     }
-    assert_eq!(checked, 30);
+    assert_eq!(checked, 35);
     // The roles a capture needs, and a shutter with nothing to fire.
     for (change, says) in [
         (
@@ -223,6 +224,24 @@ fn each_field_takes_the_devices_that_can_play_its_role_and_names_the_rest() {
         assert!(!o.status.success());
         assert!(out(&o).contains(says), "{}", out(&o));
     }
+    // One port, one device: a trigger box cannot share a GRBL controller's port.
+    let rig = bench
+        .replace(
+            "turntable = \"serial:/dev/ttyUSB0\"",
+            "turntable = \"grbl:x:/dev/ttyUSB0\"",
+        )
+        .replace(
+            "# shutter = \"serial:/dev/ttyUSB0\"",
+            "shutter = \"serial:/dev/ttyUSB0\"",
+        );
+    std::fs::write(dir.path().join("rig.toml"), &rig).unwrap();
+    let o = brdfd(&["config", "check", "rig.toml"], dir.path());
+    assert!(!o.status.success());
+    assert!(
+        out(&o).contains("field `devices.shutter`: serial:/dev/ttyUSB0 is on the turntable's port (grbl:x:/dev/ttyUSB0)"),
+        "{}",
+        out(&o)
+    );
     // A simulated rig's devices are its simulators: a selector in one is refused by field.
     let rig = SIMULATED_RIG.replace(
         "[devices]\n",
@@ -236,4 +255,50 @@ fn each_field_takes_the_devices_that_can_play_its_role_and_names_the_rest() {
         "{}",
         out(&o)
     );
+}
+
+/// A turntable on a GRBL controller (the simulated GRBL 1.1 on a pseudo-terminal, opened
+/// through the `grbl:` selector a bench gives) turns the views, beside a trigger box of its own
+/// that fires the DSLR.
+#[test]
+fn a_grbl_turntable_turns_the_views_beside_a_trigger_box() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = Combination {
+        dslr: "present",
+        fallback: false,
+        turntable: true,
+        theta: "http",
+        shutter: true,
+    }
+    .rig()
+    .replace("turntable = \"present\"", "turntable = \"grbl\"");
+    std::fs::write(dir.path().join("rig.toml"), rig).unwrap();
+    let (ok, text) = answering(
+        dir.path(),
+        &[
+            "capture",
+            "--rig",
+            "rig.toml",
+            "--material",
+            "gold",
+            "--size",
+            "16",
+            "--views",
+            "3",
+            "--turn",
+            "45",
+            "--state-dir",
+            "state",
+        ],
+        0,
+    );
+    assert!(ok, "{text}");
+    for says in [
+        "turntable: Grbl 1.1h (A axis) on grbl:/dev/pts/",
+        "view 2 of 3: turntable at 45.00°",
+        "view 3 of 3: turntable at 90.00°",
+        "DSLR: fired by the shutter",
+    ] {
+        assert!(text.contains(says), "{says:?} in\n{text}");
+    }
 }

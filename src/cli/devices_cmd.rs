@@ -205,6 +205,18 @@ fn serial_ports(l: &mut Listing, timeout: Duration) {
                 );
                 l.device(sel, true, text);
             }
+            // A G-code controller, which a turntable may be on: it printed its banner, or
+            // took the `?` in `ID?` for its real-time status question.
+            Err(SerialError::Protocol { line, .. }) if brdfd_serial::looks_like_grbl(&line) => {
+                l.device(
+                    format!("grbl:{}", p.path),
+                    true,
+                    format!(
+                        "{}: a GRBL G-code controller ({line}); as a turntable: grbl:{} (its A axis) or grbl:x:{}",
+                        p.kind, p.path, p.path
+                    ),
+                )
+            }
             // Opens, but nothing speaks the rig protocol: a bare adapter, or an Arduino
             // still booting (opening the port resets most of them).
             Err(SerialError::Timeout { .. } | SerialError::Protocol { .. }) => l.device(

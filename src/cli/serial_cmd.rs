@@ -3,7 +3,7 @@
 
 use anyhow::bail;
 use brdfd::selector::Selector;
-use brdfd_serial::{ControlLine, RigController, ShutterCable};
+use brdfd_serial::{ControlLine, GrblTurntable, RigController, ShutterCable};
 
 #[derive(clap::Subcommand)]
 pub enum SerialCommand {
@@ -37,7 +37,8 @@ pub enum SerialCommand {
 
 #[derive(clap::Args)]
 pub struct SerialPort {
-    /// `serial:/dev/ttyUSB0` (rig protocol) or `cable:dtr:/dev/ttyUSB0` / `cable:rts:...`.
+    /// `serial:/dev/ttyUSB0` (rig protocol), `grbl:[AXIS:]/dev/ttyUSB0` (a GRBL controller's
+    /// turntable) or `cable:dtr:/dev/ttyUSB0` / `cable:rts:...`.
     #[arg(short, long)]
     pub port: String,
 }
@@ -45,12 +46,51 @@ pub struct SerialPort {
 fn rig(port: &str) -> anyhow::Result<RigController> {
     match port.parse::<Selector>()? {
         Selector::Serial(path) => brdfd::rig::open::turntable(&path),
+        Selector::Grbl { .. } => {
+            bail!("a GRBL controller turns the table only: it has no shutter output brdfd fires")
+        }
         other => bail!("{other} is not a rig-protocol device; use serial:/dev/ttyX"),
+    }
+}
+
+/// The GRBL controller a selector names, if it names one.
+fn grbl(port: &str) -> anyhow::Result<Option<GrblTurntable>> {
+    match port.parse::<Selector>()? {
+        Selector::Grbl { axis, path } => Ok(Some(brdfd::rig::open::grbl(&path, axis)?)),
+        _ => Ok(None),
     }
 }
 
 pub fn run(cmd: SerialCommand) -> anyhow::Result<()> {
     match cmd {
+        SerialCommand::Info { port, json } if port.port.starts_with("grbl:") => {
+            let Some(mut g) = grbl(&port.port)? else {
+                bail!("{} is not a GRBL controller", port.port);
+            };
+            let status = g.status()?;
+            let id = g.identity.clone();
+            if json {
+                let info = serde_json::json!({
+                    "port": g.port_name(),
+                    "name": id.banner,
+                    "axis": id.axis.to_string(),
+                    "state": status.state,
+                    "can_fire": false,
+                    "can_rotate": true,
+                    "position_deg": status.position.rem_euclid(360.0),
+                });
+                println!("{}", serde_json::to_string_pretty(&info)?);
+                return Ok(());
+            }
+            println!(
+                "{}: {}, turntable on the {} axis; state {}; position {:.2}°",
+                g.port_name(),
+                id.banner,
+                id.axis,
+                status.state,
+                status.position.rem_euclid(360.0)
+            );
+        }
         SerialCommand::Info { port, json } => {
             let mut r = rig(&port.port)?;
             let id = r.identity.clone();
@@ -99,10 +139,18 @@ pub fn run(cmd: SerialCommand) -> anyhow::Result<()> {
             }
         },
         SerialCommand::Rotate { port, deg } => {
-            println!("at {:.2}°", rig(&port.port)?.rotate(deg)?);
+            let at = match grbl(&port.port)? {
+                Some(mut g) => g.rotate(deg)?,
+                None => rig(&port.port)?.rotate(deg)?,
+            };
+            println!("at {at:.2}°");
         }
         SerialCommand::Home(p) => {
-            println!("at {:.2}°", rig(&p.port)?.home()?);
+            let at = match grbl(&p.port)? {
+                Some(mut g) => g.home()?,
+                None => rig(&p.port)?.home()?,
+            };
+            println!("at {at:.2}°");
         }
     }
     Ok(())

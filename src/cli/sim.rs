@@ -24,6 +24,15 @@ pub enum SimCommand {
     Theta(ThetaArgs),
     /// A trigger box and turntable on a pseudo-terminal, speaking the brdfd rig protocol.
     Serial,
+    /// A GRBL 1.1 G-code controller on a pseudo-terminal, a turntable on its A axis.
+    Grbl {
+        /// Homing enabled ($22=1): it starts locked in Alarm until homed.
+        #[arg(long)]
+        homing: bool,
+        /// The axes' maximum rate, degrees per second.
+        #[arg(long, default_value_t = 90.0)]
+        rate: f64,
+    },
 }
 
 #[derive(clap::Args)]
@@ -196,6 +205,25 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
             println!("simulated turntable: serial:{}", peer.path);
             // Holding our own handle on the terminal keeps it open between clients: when the
             // last one closes a pseudo-terminal, the peer would read a hang-up.
+            let _keep = client_end;
+            loop {
+                std::thread::park();
+            }
+        }
+        SimCommand::Grbl { homing, rate } => {
+            if !(rate.is_finite() && rate > 0.0) {
+                anyhow::bail!(
+                    "--rate {rate}: the rate must be a positive number of degrees per second"
+                );
+            }
+            let config = brdfd_sim::grbl::GrblConfig {
+                homing,
+                rate_per_s: rate,
+                ..Default::default()
+            };
+            let (peer, client_end) = brdfd_sim::grbl::GrblPeer::start(config)?;
+            // Scripts wait for this line, then open the path with `brdfd serial --port`.
+            println!("simulated GRBL turntable: grbl:{}", peer.path);
             let _keep = client_end;
             loop {
                 std::thread::park();

@@ -8,7 +8,7 @@ use brdfd_ptp::transport::ptpip::{Initiator, PtpIpTransport, DEFAULT_PORT};
 use brdfd_ptp::transport::usb::{open_usb, UsbTransport};
 use brdfd_ptp::transport::Transport;
 use brdfd_ptp::{Camera, Timeouts};
-use brdfd_serial::{ControlLine, RigController, RigTimeouts, ShutterCable};
+use brdfd_serial::{ControlLine, GrblTurntable, RigController, RigTimeouts, ShutterCable};
 use brdfd_theta::{Credentials, HttpTimeouts, Theta};
 
 use super::devices::video::VideoCamera;
@@ -85,6 +85,11 @@ pub fn cable(rts: bool, path: &str) -> anyhow::Result<ShutterCable> {
 /// Opens a turntable or trigger box that speaks the brdfd rig protocol.
 pub fn turntable(path: &str) -> anyhow::Result<RigController> {
     Ok(RigController::open(path, RigTimeouts::default())?)
+}
+
+/// Opens a GRBL controller whose `axis` turns the table.
+pub fn grbl(path: &str, axis: char) -> anyhow::Result<GrblTurntable> {
+    Ok(GrblTurntable::open(path, axis, RigTimeouts::default())?)
 }
 
 /// Timeouts for a simulated THETA on loopback: the real defaults, with faster polling.

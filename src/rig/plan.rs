@@ -8,7 +8,8 @@
 //! business (the fallback camera, a clear error).
 
 use crate::config::{
-    invalid, ConfigError, DslrFiles, Rig, RigDevices, SimulatedPresence, GAIN_FIELDS,
+    invalid, ConfigError, DslrFiles, Rig, RigDevices, SimulatedPresence, SimulatedTurntable,
+    GAIN_FIELDS,
 };
 use crate::selector::Selector;
 
@@ -103,8 +104,8 @@ fn kinds(field: &str) -> (fn(&Selector) -> bool, &'static str) {
             "a V4L2 camera: v4l:/dev/videoN",
         ),
         TURNTABLE => (
-            |s| matches!(s, Selector::Serial(_)),
-            "a turntable that speaks the brdfd rig protocol: serial:/dev/ttyUSB0 (a release cable, cable:..., cannot turn the object; name it as `shutter` to fire the DSLR)",
+            |s| matches!(s, Selector::Serial(_) | Selector::Grbl { .. }),
+            "a turntable: serial:/dev/ttyUSB0 (the brdfd rig protocol) or grbl:[AXIS:]/dev/ttyUSB0 (a GRBL G-code controller) (a release cable, cable:..., cannot turn the object; name it as `shutter` to fire the DSLR)",
         ),
         _ => (
             |s| matches!(s, Selector::Serial(_) | Selector::Cable { .. }),
@@ -129,6 +130,16 @@ pub fn named(d: &RigDevices) -> [(&'static str, &Option<Selector>); 5] {
 /// plain `usb` for the THETA means the first RICOH camera.)
 pub fn shared(a: &str, b: &str, s: &Selector) -> bool {
     matches!(s, Selector::Serial(_)) && [a, b].contains(&TURNTABLE) && [a, b].contains(&SHUTTER)
+}
+
+/// The serial port a device is on, if it is on one.
+fn port_path(s: &Selector) -> Option<&str> {
+    match s {
+        Selector::Serial(p) | Selector::Grbl { path: p, .. } | Selector::Cable { path: p, .. } => {
+            Some(p)
+        }
+        _ => None,
+    }
 }
 
 fn hardware(rig: &Rig, found: &mut Vec<ConfigError>) -> Roles {
@@ -162,17 +173,16 @@ fn hardware(rig: &Rig, found: &mut Vec<ConfigError>) -> Roles {
                 format!("{s} fires a DSLR, and the rig names no `dslr` (the fallback camera streams: it has no shutter to fire)"),
             ));
         }
-        // One port is one device: a box that turns and fires serves both roles, a cable on
-        // the turntable's port would fight it for the line.
-        if let (Selector::Cable { path, .. }, Some(Selector::Serial(turntable))) = (s, &d.turntable)
-        {
-            if path == turntable {
+        // One port is one device: a box that turns and fires serves both roles; a cable, or
+        // a box, on a GRBL controller's port, or a cable on a box's, would fight it for the
+        // line.
+        if let (Some(path), Some(t)) = (port_path(s), &d.turntable) {
+            let one_box = matches!((s, t), (Selector::Serial(_), Selector::Serial(_)));
+            if port_path(t) == Some(path) && !one_box {
                 found.push(invalid(
                     file,
                     SHUTTER,
-                    format!(
-                        "{s} is on the turntable's port: a release cable needs a port of its own"
-                    ),
+                    format!("{s} is on the turntable's port ({t}): it needs a port of its own"),
                 ));
             }
         }
@@ -214,7 +224,7 @@ fn simulated(rig: &Rig, found: &mut Vec<ConfigError>) -> Roles {
         // An absent simulated DSLR is one that is named and does not answer.
         dslr: true,
         fallback: d.fallback_camera.is_some(),
-        turntable: sim.turntable == SimulatedPresence::Present,
+        turntable: sim.turntable != SimulatedTurntable::Absent,
         shutter: sim.shutter == SimulatedPresence::Present,
     }
 }

@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 
 use brdfd_ptp::transport::usb::UsbTransport;
 use brdfd_ptp::{Camera, Timeouts};
+use brdfd_sim::grbl::{GrblConfig, GrblPeer};
 use brdfd_sim::ptp::{ptpip::Server, Profile, Responder, SharedResponder};
 use brdfd_sim::serial::{PeerConfig, SerialPeer, Wire};
 use brdfd_sim::theta::{OscServer, ThetaConfig};
@@ -23,7 +24,7 @@ use crate::bench::camera::BenchCamera;
 use crate::bench::panorama::BenchPanorama;
 use crate::bench::raw_file::{RawDamage, RawFormat};
 use crate::bench::VirtualBench;
-use crate::config::{Rig, SimulatedLink, SimulatedPresence};
+use crate::config::{Rig, SimulatedLink, SimulatedPresence, SimulatedTurntable};
 use crate::selector::Selector;
 use brdfd_sim::v4l::SimV4l;
 
@@ -63,6 +64,8 @@ pub struct SimulatedRig {
     serial: Option<(SerialPeer, Vec<&'static str>)>,
     /// Our own handle on the pseudo-terminal keeps it open while no client has it.
     _serial_end: Option<serialport::TTYPort>,
+    /// A GRBL controller turning the table, and our handle on its pseudo-terminal.
+    grbl: Option<(GrblPeer, serialport::TTYPort)>,
 }
 
 impl SimulatedRig {
@@ -98,9 +101,19 @@ impl SimulatedRig {
             }
         };
         let mut roles = Vec::new();
-        if simulation.turntable == SimulatedPresence::Present {
+        if simulation.turntable == SimulatedTurntable::Present {
             roles.push(plan::TURNTABLE);
         }
+        let grbl = if simulation.turntable == SimulatedTurntable::Grbl {
+            // A desktop turntable's rate: 15 turns a minute ($113=5400).
+            let (peer, end) = GrblPeer::start(GrblConfig {
+                rate_per_s: 90.0,
+                ..GrblConfig::default()
+            })?;
+            Some((peer, end))
+        } else {
+            None
+        };
         if simulation.shutter == SimulatedPresence::Present {
             roles.push(plan::SHUTTER);
         }
@@ -140,6 +153,7 @@ impl SimulatedRig {
             theta,
             serial,
             _serial_end: end,
+            grbl,
         })
     }
 
@@ -178,6 +192,13 @@ impl SimulatedRig {
                     )))) as Box<dyn RigDevice>)
                 }),
             });
+        }
+        if let Some((peer, _)) = &self.grbl {
+            let grbl = Selector::Grbl {
+                axis: 'A',
+                path: peer.path.clone(),
+            };
+            v.push(Planned::from_selector(plan::TURNTABLE, grbl, true));
         }
         if let Some((peer, roles)) = &self.serial {
             let mut p = Planned::from_selector(roles[0], Selector::Serial(peer.path.clone()), true);

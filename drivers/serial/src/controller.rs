@@ -378,7 +378,7 @@ impl RigController {
 
 /// An I/O error that means the device is no longer there: EIO (5), ENXIO (6), ENODEV (19),
 /// or a broken connection.
-fn gone(e: &std::io::Error) -> bool {
+pub(crate) fn gone(e: &std::io::Error) -> bool {
     matches!(e.raw_os_error(), Some(5 | 6 | 19))
         || matches!(
             e.kind(),

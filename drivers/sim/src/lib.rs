@@ -3,6 +3,7 @@
 //! (the virtual bench renderer in `brdfd::bench`), so a simulated capture is a physically
 //! rendered image of a known material.
 
+pub mod grbl;
 pub mod ptp;
 pub mod serial;
 pub mod theta;

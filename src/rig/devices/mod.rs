@@ -54,6 +54,7 @@ impl Planned {
                     }
                     (_, Selector::V4l(_)) => Box::new(super::open::video_camera(&s)?),
                     (_, Selector::Serial(path)) => Box::new(super::open::turntable(path)?),
+                    (_, Selector::Grbl { axis, path }) => Box::new(super::open::grbl(path, *axis)?),
                     (_, Selector::Cable { rts, path }) => Box::new(super::open::cable(*rts, path)?),
                     (_, Selector::Osc(_)) => anyhow::bail!("{s} is a THETA, not a {field}"),
                 })

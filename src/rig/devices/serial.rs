@@ -1,10 +1,11 @@
 //! Serial devices in their roles: a box that speaks the brdfd rig protocol is a turntable if
 //! its `ID?` lists ROT and a shutter if it lists FIRE (one device, both roles, when it lists
-//! both); a release cable on a modem line is a shutter.
+//! both); a release cable on a modem line is a shutter; a GRBL G-code controller is a
+//! turntable.
 
 use std::time::Duration;
 
-use brdfd_serial::{RigController, ShutterCable};
+use brdfd_serial::{GrblTurntable, RigController, ShutterCable};
 
 use crate::rig::roles::{RigDevice, Shutter, Turntable};
 use crate::rig::Device;
@@ -78,5 +79,42 @@ impl RigDevice for ShutterCable {
 impl Shutter for ShutterCable {
     fn fire(&mut self, hold: Duration) -> anyhow::Result<()> {
         Ok(ShutterCable::fire(self, hold.as_millis().max(1) as u32)?)
+    }
+}
+
+impl Device for GrblTurntable {
+    fn identity(&self) -> String {
+        format!(
+            "{} ({} axis) on grbl:{}",
+            self.identity.banner,
+            self.identity.axis,
+            self.port_name()
+        )
+    }
+    fn keep_alive(&mut self) -> anyhow::Result<()> {
+        // `?` is GRBL's real-time question: it moves nothing and is answered at once.
+        self.status()?;
+        Ok(())
+    }
+}
+
+impl RigDevice for GrblTurntable {
+    fn turntable(&mut self) -> Option<&mut (dyn Turntable + 'static)> {
+        Some(self)
+    }
+    fn cannot(&self, role: &str) -> String {
+        format!(
+            "{} cannot be the rig's {role}: a GRBL controller turns the table only",
+            Device::identity(self)
+        )
+    }
+}
+
+impl Turntable for GrblTurntable {
+    fn position(&mut self) -> anyhow::Result<f64> {
+        Ok(GrblTurntable::position(self)?)
+    }
+    fn rotate(&mut self, degrees: f64) -> anyhow::Result<f64> {
+        Ok(GrblTurntable::rotate(self, degrees)?)
     }
 }
