@@ -1,13 +1,15 @@
 //! Serial devices at the bench: a trigger box and turntable that speak the line protocol
-//! below ([`RigController`]), and a remote-release cable driven by the DTR or RTS line
-//! ([`ShutterCable`]), which needs no firmware.
+//! below ([`RigController`]), a turntable on a GRBL G-code controller ([`GrblTurntable`]),
+//! and a remote-release cable driven by the DTR or RTS line ([`ShutterCable`]), which needs
+//! no firmware.
 //!
 //! Both run on the `serialport` crate. Tests and the simulator use a pseudo-terminal pair, so
 //! the same serial code path runs there as on a USB serial adapter.
 //!
 //! # The brdfd rig protocol (version 1)
 //!
-//! A lab can flash any microcontroller with a UART (an Arduino, a Pico) to speak it.
+//! A lab can flash any microcontroller with a UART (an Arduino, a Pico) to speak it;
+//! `firmware/` holds firmware for an ATmega328P (Arduino Uno or Nano) with a stepper driver.
 //!
 //! - 115200 baud, 8 data bits, no parity, 1 stop bit, no flow control.
 //! - The host sends one command per line, in ASCII, ended by LF (CR LF is accepted).
@@ -29,10 +31,12 @@
 mod cable;
 mod controller;
 mod error;
+mod grbl;
 
 pub use cable::{ControlLine, ShutterCable};
 pub use controller::{Identity, RigController, RigTimeouts};
 pub use error::{Result, SerialError};
+pub use grbl::{looks_like_grbl, GrblIdentity, GrblStatus, GrblTurntable, GRBL_BAUD_RATE};
 
 /// Default line settings of the protocol.
 pub const BAUD_RATE: u32 = 115_200;
