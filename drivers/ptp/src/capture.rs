@@ -70,6 +70,29 @@ impl Camera {
                 || self.info.supports(op::NIKON_INITIATE_CAPTURE_REC_IN_MEDIA))
     }
 
+    /// What a camera without InitiateCapture lacks, and what to do: Canon EOS and Sony Alpha
+    /// bodies capture through their vendor's own flows, which brdfd does not speak yet.
+    fn missing_capture(&self) -> String {
+        let maker = &self.info.manufacturer;
+        let canon = self.info.vendor_extension_id == vendor::CANON || maker.starts_with("Canon");
+        let flow = if canon {
+            Some("Canon's EOS remote release")
+        } else if maker.starts_with("Sony") {
+            Some("Sony's control-device protocol")
+        } else {
+            None
+        };
+        match flow {
+            Some(flow) => format!(
+                "remote capture (InitiateCapture): {} {} captures through {flow}, which brdfd \
+                 does not speak yet (docs/devices.md lists the cameras it drives)",
+                maker.trim_end_matches('.'),
+                self.info.model
+            ),
+            None => "remote capture (InitiateCapture)".into(),
+        }
+    }
+
     /// Triggers one exposure and downloads its first file: for cameras set to make one file
     /// per shot (the THETA, a JPEG-only DSLR). [`Camera::capture_all`] keeps every file.
     pub fn capture(
@@ -95,9 +118,7 @@ impl Camera {
         } else if self.info.supports(op::INITIATE_CAPTURE) {
             self.trigger_generic(progress)?
         } else {
-            return Err(PtpError::Unsupported(
-                "remote capture (InitiateCapture)".into(),
-            ));
+            return Err(PtpError::Unsupported(self.missing_capture()));
         };
         let mut files = Vec::new();
         for handle in handles {
