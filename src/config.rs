@@ -160,7 +160,7 @@ pub struct RigDevices {
     /// V4L2 camera, which sees what the simulated DSLR sees.
     #[serde(default)]
     pub fallback_camera: Option<Selector>,
-    /// A turntable that speaks the brdfd rig protocol.
+    /// A turntable: a box that speaks the brdfd rig protocol, or a GRBL controller.
     #[serde(default)]
     pub turntable: Option<Selector>,
     /// What fires the DSLR, when the camera is not fired over PTP: a rig-protocol trigger

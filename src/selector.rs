@@ -177,9 +177,26 @@ mod tests {
             "v4l:/dev/video0",
             "serial:/dev/ttyUSB0",
             "cable:rts:/dev/ttyACM0",
+            "grbl:/dev/ttyUSB1",
+            "grbl:x:/dev/ttyUSB1",
+            "grbl:COM3",
         ] {
             let parsed: Selector = s.parse().unwrap();
             assert_eq!(parsed.to_string(), s);
+        }
+        // The A axis is the default, named or not; an axis letter may be upper case.
+        for s in [
+            "grbl:/dev/ttyACM0",
+            "grbl:a:/dev/ttyACM0",
+            "grbl:A:/dev/ttyACM0",
+        ] {
+            assert_eq!(
+                s.parse::<Selector>().unwrap(),
+                Selector::Grbl {
+                    axis: 'A',
+                    path: "/dev/ttyACM0".into()
+                }
+            );
         }
         assert_eq!(
             "http://127.0.0.1:8080".parse::<Selector>().unwrap(),
@@ -195,6 +212,8 @@ mod tests {
             ("cable:dsr:/dev/ttyUSB0", "\"dsr\" is not a modem line"),
             ("v4l:", "no device path"),
             ("firewire:0", "unknown kind"),
+            ("grbl:q:/dev/ttyUSB0", "\"q\" is not a GRBL axis"),
+            ("grbl:", "no port path"),
         ] {
             let e = s.parse::<Selector>().unwrap_err().to_string();
             assert!(e.contains(why), "{s}: {e}");
