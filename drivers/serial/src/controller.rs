@@ -1,17 +1,15 @@
 //! The host side of the brdfd rig protocol (see the crate docs): one command, one answer,
 //! each with its own timeout, every answer checked.
 
-use std::io::{ErrorKind, Read, Write};
 use std::time::{Duration, Instant};
 
 use serialport::SerialPort;
 
 use crate::error::{Result, SerialError};
+use crate::line::LinePort;
 
 /// Reads wait at most this long at a time, so that deadlines are kept to about this precision.
 pub(crate) const READ_SLICE: Duration = Duration::from_millis(50);
-/// Longest answer line accepted; a device that sends more is not speaking the protocol.
-const MAX_LINE: usize = 256;
 /// Longest shutter pulse the protocol allows, in milliseconds.
 pub const MAX_FIRE_MS: u32 = 60_000;
 /// How far (degrees) a turntable may stop from where it was asked before it is an error.
@@ -50,11 +48,9 @@ pub struct Identity {
 
 /// A trigger box and/or turntable on a serial port.
 pub struct RigController {
-    port: Box<dyn SerialPort>,
-    name: String,
+    link: LinePort,
     pub identity: Identity,
     pub timeouts: RigTimeouts,
-    pending: Vec<u8>,
     /// What the device answered to `ID?`, to recognise it when resynchronising.
     id_answer: String,
     /// A command ended without its answer (a timeout, or a line that was not one): the answer
@@ -74,8 +70,7 @@ impl RigController {
         // read as the answer to our first command.
         let _ = port.clear(serialport::ClearBuffer::Input);
         let mut rig = RigController {
-            port,
-            name,
+            link: LinePort::new(port, name),
             identity: Identity {
                 name: String::new(),
                 version: String::new(),
@@ -83,7 +78,6 @@ impl RigController {
                 can_rotate: false,
             },
             timeouts,
-            pending: Vec::new(),
             id_answer: String::new(),
             out_of_step: false,
         };
@@ -92,7 +86,7 @@ impl RigController {
         let mut words = id.split_whitespace();
         let (Some(name), Some(version)) = (words.next(), words.next()) else {
             return Err(SerialError::Protocol {
-                port: rig.name.clone(),
+                port: rig.link.name.clone(),
                 command: "ID?".into(),
                 line: format!("OK {id}"),
             });
@@ -104,7 +98,7 @@ impl RigController {
             can_fire: caps.contains(&"FIRE"),
             can_rotate: caps.contains(&"ROT"),
         };
-        tracing::info!(port = %rig.name, device = %name, version, ?caps, "rig controller");
+        tracing::info!(port = %rig.link.name, device = %name, version, ?caps, "rig controller");
         Ok(rig)
     }
 
@@ -114,11 +108,11 @@ impl RigController {
     }
 
     pub fn port_name(&self) -> &str {
-        &self.name
+        &self.link.name
     }
 
     /// Holds the shutter line for `ms` milliseconds; returns when the device has released it.
-    #[tracing::instrument(skip(self), fields(port = %self.name))]
+    #[tracing::instrument(skip(self), fields(port = %self.link.name))]
     pub fn fire(&mut self, ms: u32) -> Result<()> {
         self.require(self.identity.can_fire, "shutter output (FIRE)")?;
         if !(1..=MAX_FIRE_MS).contains(&ms) {
@@ -135,7 +129,7 @@ impl RigController {
 
     /// Turns by `deg` (positive is the device's positive direction); returns the position at
     /// rest, checked against where it should be.
-    #[tracing::instrument(skip(self), fields(port = %self.name))]
+    #[tracing::instrument(skip(self), fields(port = %self.link.name))]
     pub fn rotate(&mut self, deg: f64) -> Result<f64> {
         self.require(self.identity.can_rotate, "turntable (ROT)")?;
         if !deg.is_finite() || deg.abs() > 3600.0 {
@@ -152,7 +146,7 @@ impl RigController {
         let off = ((pos - expected + 180.0).rem_euclid(360.0) - 180.0).abs();
         if off > POSITION_TOLERANCE_DEG {
             return Err(SerialError::Device {
-                port: self.name.clone(),
+                port: self.link.name.clone(),
                 command: cmd,
                 reason: format!(
                     "stopped at {pos:.2}° instead of {expected:.2}° (missed steps or a slipping belt?)"
@@ -190,7 +184,7 @@ impl RigController {
             Ok(())
         } else {
             Err(SerialError::Unsupported {
-                port: self.name.clone(),
+                port: self.link.name.clone(),
                 name: self.identity.name.clone(),
                 capability: what.into(),
             })
@@ -216,7 +210,7 @@ impl RigController {
 
     fn protocol(&self, cmd: &str, line: &str) -> SerialError {
         SerialError::Protocol {
-            port: self.name.clone(),
+            port: self.link.name.clone(),
             command: cmd.into(),
             line: line.into(),
         }
@@ -231,8 +225,7 @@ impl RigController {
         } else {
             // Nothing is owed between commands: a line that came since the last answer was
             // said out of turn, and would be read as this command's answer.
-            self.pending.clear();
-            let _ = self.port.clear(serialport::ClearBuffer::Input);
+            self.link.discard_input();
         }
         let answer = self.exchange(cmd, timeout);
         if matches!(
@@ -250,55 +243,25 @@ impl RigController {
     /// it, and is dropped rather than read as `cmd`'s. It may take as long as the slowest
     /// command (a homing run).
     fn resync(&mut self, cmd: &str) -> Result<()> {
-        tracing::debug!(port = %self.name, "resynchronising before `{cmd}`");
-        self.pending.clear();
-        let _ = self.port.clear(serialport::ClearBuffer::Input);
+        tracing::debug!(port = %self.link.name, "resynchronising before `{cmd}`");
+        self.link.discard_input();
         self.send("ID?")?;
         let wait = self.timeouts.home.max(self.timeouts.answer);
         let deadline = Instant::now() + wait;
         loop {
-            let line = self.read_line(cmd, deadline, wait)?;
+            let line = self.link.read_line(cmd, deadline, wait)?;
             if line.strip_prefix("OK ").map(str::trim) == Some(self.id_answer.as_str()) {
                 self.out_of_step = false;
                 return Ok(());
             }
-            tracing::debug!(port = %self.name, "skipped while resynchronising: {line}");
+            tracing::debug!(port = %self.link.name, "skipped while resynchronising: {line}");
         }
     }
 
     /// Writes one command line.
     fn send(&mut self, cmd: &str) -> Result<()> {
-        tracing::debug!(port = %self.name, "> {cmd}");
-        let unplugged = || SerialError::Unplugged {
-            port: self.name.clone(),
-            command: cmd.into(),
-        };
-        self.port
-            .write_all(format!("{cmd}\n").as_bytes())
-            .map_err(|e| {
-                // EIO, ENXIO, ENODEV: the adapter (or the far end of a pseudo-terminal) is gone.
-                if gone(&e) {
-                    unplugged()
-                } else {
-                    SerialError::Io {
-                        port: self.name.clone(),
-                        reason: format!("`{cmd}`: {e}"),
-                    }
-                }
-            })?;
-        // serialport reports a failed tcdrain without its errno; apart from being interrupted
-        // (which it retries, then calls a timeout), tcdrain fails only when the terminal has
-        // gone away.
-        self.port.flush().map_err(|e| {
-            if e.kind() == ErrorKind::TimedOut {
-                SerialError::Io {
-                    port: self.name.clone(),
-                    reason: format!("`{cmd}`: {e}"),
-                }
-            } else {
-                unplugged()
-            }
-        })
+        tracing::debug!(port = %self.link.name, "> {cmd}");
+        self.link.write(format!("{cmd}\n").as_bytes(), cmd)
     }
 
     /// Sends `cmd` and reads its answer.
@@ -306,8 +269,8 @@ impl RigController {
         self.send(cmd)?;
         let deadline = Instant::now() + timeout;
         loop {
-            let line = self.read_line(cmd, deadline, timeout)?;
-            tracing::debug!(port = %self.name, "< {line}");
+            let line = self.link.read_line(cmd, deadline, timeout)?;
+            tracing::debug!(port = %self.link.name, "< {line}");
             if line.starts_with('#') || line.is_empty() {
                 continue;
             }
@@ -319,7 +282,7 @@ impl RigController {
             }
             if let Some(reason) = line.strip_prefix("ERR") {
                 return Err(SerialError::Device {
-                    port: self.name.clone(),
+                    port: self.link.name.clone(),
                     command: cmd.into(),
                     reason: reason.trim().to_string(),
                 });
@@ -327,61 +290,4 @@ impl RigController {
             return Err(self.protocol(cmd, &line));
         }
     }
-
-    fn read_line(&mut self, cmd: &str, deadline: Instant, timeout: Duration) -> Result<String> {
-        let mut buf = [0u8; 64];
-        loop {
-            if let Some(end) = self.pending.iter().position(|&b| b == b'\n') {
-                let line: Vec<u8> = self.pending.drain(..=end).collect();
-                let text = String::from_utf8_lossy(&line);
-                return Ok(text.trim_end_matches(['\r', '\n']).to_string());
-            }
-            if self.pending.len() > MAX_LINE {
-                let line = String::from_utf8_lossy(&self.pending).into_owned();
-                self.pending.clear();
-                return Err(self.protocol(cmd, &line));
-            }
-            if Instant::now() >= deadline {
-                return Err(SerialError::Timeout {
-                    port: self.name.clone(),
-                    command: cmd.into(),
-                    after: timeout,
-                });
-            }
-            match self.port.read(&mut buf) {
-                Ok(0) => {
-                    return Err(SerialError::Unplugged {
-                        port: self.name.clone(),
-                        command: cmd.into(),
-                    })
-                }
-                Ok(n) => self.pending.extend_from_slice(&buf[..n]),
-                Err(e) if e.kind() == ErrorKind::TimedOut || e.kind() == ErrorKind::Interrupted => {
-                }
-                // A USB adapter pulled out, or the other end of a pseudo-terminal closed.
-                Err(e) if gone(&e) => {
-                    return Err(SerialError::Unplugged {
-                        port: self.name.clone(),
-                        command: cmd.into(),
-                    })
-                }
-                Err(e) => {
-                    return Err(SerialError::Io {
-                        port: self.name.clone(),
-                        reason: format!("`{cmd}`: {e}"),
-                    })
-                }
-            }
-        }
-    }
-}
-
-/// An I/O error that means the device is no longer there: EIO (5), ENXIO (6), ENODEV (19),
-/// or a broken connection.
-pub(crate) fn gone(e: &std::io::Error) -> bool {
-    matches!(e.raw_os_error(), Some(5 | 6 | 19))
-        || matches!(
-            e.kind(),
-            ErrorKind::BrokenPipe | ErrorKind::NotConnected | ErrorKind::UnexpectedEof
-        )
 }

@@ -19,21 +19,19 @@
 //! stalled motor is not seen (the rig protocol's firmware cannot see it either). The position
 //! check catches a controller that moved less than asked (an alarm, a reset, a limit).
 
-use std::io::{ErrorKind, Read, Write};
 use std::time::{Duration, Instant};
 
 use serialport::SerialPort;
 
-use crate::controller::{gone, RigTimeouts, POSITION_TOLERANCE_DEG, READ_SLICE};
+use crate::controller::{RigTimeouts, POSITION_TOLERANCE_DEG, READ_SLICE};
 use crate::error::{Result, SerialError};
+use crate::line::LinePort;
 
 /// GRBL's own default baud rate (1.1; 0.8 and older used 9600).
 pub const GRBL_BAUD_RATE: u32 = 115_200;
 /// How long a controller has to print its banner after a reset: an Arduino that the port's
 /// opening reset spends up to about 2 s in its bootloader first.
 const BANNER_WAIT: Duration = Duration::from_secs(5);
-/// Longest line accepted from the controller.
-const MAX_LINE: usize = 256;
 /// The dwell that waits for every queued move to finish.
 const SYNC: &str = "G4 P0.01";
 
@@ -60,11 +58,9 @@ pub struct GrblStatus {
 
 /// A turntable on a GRBL controller.
 pub struct GrblTurntable {
-    port: Box<dyn SerialPort>,
-    name: String,
+    link: LinePort,
     pub identity: GrblIdentity,
     pub timeouts: RigTimeouts,
-    pending: Vec<u8>,
     /// The last work coordinate offset a status report gave (`WPos = MPos − WCO`).
     wco: Option<Vec<f64>>,
 }
@@ -88,18 +84,16 @@ impl GrblTurntable {
             port: name.clone(),
             reason: e.to_string(),
         })?;
-        let _ = port.clear(serialport::ClearBuffer::Input);
         let mut table = GrblTurntable {
-            port,
-            name,
+            link: LinePort::new(port, name),
             identity: GrblIdentity {
                 banner: String::new(),
                 axis,
             },
             timeouts,
-            pending: Vec::new(),
             wco: None,
         };
+        table.link.discard_input();
         // A soft reset makes any GRBL print its banner now, whether or not opening the port
         // reset the board; one that is still in its bootloader prints it when it starts.
         table.write(b"\x18", "reset (Ctrl-X)")?;
@@ -107,10 +101,10 @@ impl GrblTurntable {
         table.settle()?;
         let status = table.status()?;
         if status.state == "Alarm" {
-            tracing::info!(port = %table.name, "GRBL starts in Alarm: homing ($H)");
+            tracing::info!(port = %table.link.name, "GRBL starts in Alarm: homing ($H)");
             table.home_cycle()?;
         }
-        tracing::info!(port = %table.name, banner = %table.identity.banner, axis = %axis, "GRBL turntable");
+        tracing::info!(port = %table.link.name, banner = %table.identity.banner, axis = %axis, "GRBL turntable");
         Ok(table)
     }
 
@@ -124,12 +118,12 @@ impl GrblTurntable {
     }
 
     pub fn port_name(&self) -> &str {
-        &self.name
+        &self.link.name
     }
 
     /// Asks for a status report (`?`).
     pub fn status(&mut self) -> Result<GrblStatus> {
-        self.pending.clear();
+        self.link.discard_input();
         self.write(b"?", "?")?;
         let deadline = Instant::now() + self.timeouts.answer;
         loop {
@@ -149,7 +143,7 @@ impl GrblTurntable {
     /// Turns by `deg` (positive is the axis's positive direction) with a rapid move, waits
     /// for the table to stop, and returns the position at rest, checked against where it
     /// should be.
-    #[tracing::instrument(skip(self), fields(port = %self.name))]
+    #[tracing::instrument(skip(self), fields(port = %self.link.name))]
     pub fn rotate(&mut self, deg: f64) -> Result<f64> {
         if !deg.is_finite() || deg.abs() > 3600.0 {
             return Err(SerialError::InvalidArgument(format!(
@@ -172,7 +166,7 @@ impl GrblTurntable {
         let expected = start.position + deg;
         if (end.position - expected).abs() > POSITION_TOLERANCE_DEG || end.state != "Idle" {
             return Err(SerialError::Device {
-                port: self.name.clone(),
+                port: self.link.name.clone(),
                 command: cmd,
                 reason: format!(
                     "the controller stopped at {:.2}° ({}) instead of {:.2}°",
@@ -195,7 +189,7 @@ impl GrblTurntable {
         match self.command("$H", self.timeouts.home) {
             Err(SerialError::Device { reason, .. }) if reason.starts_with("error:5") => {
                 Err(SerialError::Device {
-                    port: self.name.clone(),
+                    port: self.link.name.clone(),
                     command: "$H".into(),
                     reason: "the controller is locked in its Alarm state and homing is not \
                              enabled ($22=0): find why it raised the alarm, then unlock it \
@@ -216,7 +210,7 @@ impl GrblTurntable {
             _ => "wait for it to finish, or reset it",
         };
         SerialError::Device {
-            port: self.name.clone(),
+            port: self.link.name.clone(),
             command: what.into(),
             reason: format!("the controller is in state {state}, not Idle: {hint}"),
         }
@@ -242,7 +236,7 @@ impl GrblTurntable {
             if let Some(banner) = grbl_banner(&line) {
                 return Ok(banner);
             }
-            tracing::debug!(port = %self.name, "before the banner: {line}");
+            tracing::debug!(port = %self.link.name, "before the banner: {line}");
         }
     }
 
@@ -253,9 +247,9 @@ impl GrblTurntable {
         let quiet = Duration::from_millis(250);
         loop {
             match self.read_line("reset (Ctrl-X)", Instant::now() + quiet, quiet) {
-                Ok(line) => tracing::debug!(port = %self.name, "after the banner: {line}"),
+                Ok(line) => tracing::debug!(port = %self.link.name, "after the banner: {line}"),
                 Err(SerialError::Timeout { .. }) => {
-                    self.pending.clear();
+                    self.link.discard_input();
                     return Ok(());
                 }
                 Err(e) => return Err(e),
@@ -266,19 +260,19 @@ impl GrblTurntable {
     /// Sends one line and waits for its `ok`; `error:N` and `ALARM:N` are errors that say
     /// what GRBL means by them.
     fn command(&mut self, cmd: &str, timeout: Duration) -> Result<()> {
-        self.pending.clear();
-        tracing::debug!(port = %self.name, "> {cmd}");
+        self.link.discard_input();
+        tracing::debug!(port = %self.link.name, "> {cmd}");
         self.write(format!("{cmd}\n").as_bytes(), cmd)?;
         let deadline = Instant::now() + timeout;
         loop {
             let line = self.read_line(cmd, deadline, timeout)?;
-            tracing::debug!(port = %self.name, "< {line}");
+            tracing::debug!(port = %self.link.name, "< {line}");
             if line == "ok" {
                 return Ok(());
             }
             if let Some(code) = line.strip_prefix("error:") {
                 return Err(SerialError::Device {
-                    port: self.name.clone(),
+                    port: self.link.name.clone(),
                     command: cmd.into(),
                     reason: format!("error:{code} ({})", error_meaning(code)),
                 });
@@ -292,14 +286,14 @@ impl GrblTurntable {
     fn unasked(&mut self, cmd: &str, line: &str) -> Result<()> {
         if let Some(code) = line.strip_prefix("ALARM:") {
             return Err(SerialError::Device {
-                port: self.name.clone(),
+                port: self.link.name.clone(),
                 command: cmd.into(),
                 reason: format!("ALARM:{code} ({})", alarm_meaning(code)),
             });
         }
         if grbl_banner(line).is_some() {
             return Err(SerialError::Unplugged {
-                port: self.name.clone(),
+                port: self.link.name.clone(),
                 command: cmd.into(),
             });
         }
@@ -307,7 +301,7 @@ impl GrblTurntable {
             return Ok(());
         }
         Err(SerialError::Protocol {
-            port: self.name.clone(),
+            port: self.link.name.clone(),
             command: cmd.into(),
             line: line.into(),
         })
@@ -315,7 +309,7 @@ impl GrblTurntable {
 
     fn parse_status(&mut self, line: &str) -> Result<GrblStatus> {
         let bad = || SerialError::Protocol {
-            port: self.name.clone(),
+            port: self.link.name.clone(),
             command: "?".into(),
             line: line.into(),
         };
@@ -356,11 +350,11 @@ impl GrblTurntable {
         };
         let Some(position) = position else {
             return Err(SerialError::Unsupported {
-                port: self.name.clone(),
+                port: self.link.name.clone(),
                 name: self.identity.banner.clone(),
                 capability: format!(
                     "{} axis in its status report ({line}); name the axis the turntable is on, as in grbl:x:{}",
-                    self.identity.axis, self.name
+                    self.identity.axis, self.link.name
                 ),
             });
         };
@@ -371,78 +365,17 @@ impl GrblTurntable {
     }
 
     fn write(&mut self, bytes: &[u8], what: &str) -> Result<()> {
-        let unplugged = || SerialError::Unplugged {
-            port: self.name.clone(),
-            command: what.into(),
-        };
-        let io = |e: std::io::Error| SerialError::Io {
-            port: self.name.clone(),
-            reason: format!("`{what}`: {e}"),
-        };
-        self.port
-            .write_all(bytes)
-            .map_err(|e| if gone(&e) { unplugged() } else { io(e) })?;
-        // As in the rig protocol's controller: a failed drain, other than a timeout, is a
-        // terminal that has gone away.
-        self.port.flush().map_err(|e| {
-            if e.kind() == ErrorKind::TimedOut {
-                io(e)
-            } else {
-                unplugged()
-            }
-        })
+        self.link.write(bytes, what)
     }
 
+    /// The next line that says something: GRBL ends its lines with CR LF, and a reset's
+    /// banner starts with an empty line.
     fn read_line(&mut self, cmd: &str, deadline: Instant, timeout: Duration) -> Result<String> {
-        let mut buf = [0u8; 64];
         loop {
-            if let Some(end) = self.pending.iter().position(|&b| b == b'\n') {
-                let line: Vec<u8> = self.pending.drain(..=end).collect();
-                let text = String::from_utf8_lossy(&line);
-                let text = text.trim_matches(['\r', '\n', ' ']);
-                if text.is_empty() {
-                    continue;
-                }
-                return Ok(text.to_string());
-            }
-            if self.pending.len() > MAX_LINE {
-                let line = String::from_utf8_lossy(&self.pending).into_owned();
-                self.pending.clear();
-                return Err(SerialError::Protocol {
-                    port: self.name.clone(),
-                    command: cmd.into(),
-                    line,
-                });
-            }
-            if Instant::now() >= deadline {
-                return Err(SerialError::Timeout {
-                    port: self.name.clone(),
-                    command: cmd.into(),
-                    after: timeout,
-                });
-            }
-            match self.port.read(&mut buf) {
-                Ok(0) => {
-                    return Err(SerialError::Unplugged {
-                        port: self.name.clone(),
-                        command: cmd.into(),
-                    })
-                }
-                Ok(n) => self.pending.extend_from_slice(&buf[..n]),
-                Err(e) if e.kind() == ErrorKind::TimedOut || e.kind() == ErrorKind::Interrupted => {
-                }
-                Err(e) if gone(&e) => {
-                    return Err(SerialError::Unplugged {
-                        port: self.name.clone(),
-                        command: cmd.into(),
-                    })
-                }
-                Err(e) => {
-                    return Err(SerialError::Io {
-                        port: self.name.clone(),
-                        reason: format!("`{cmd}`: {e}"),
-                    })
-                }
+            let line = self.link.read_line(cmd, deadline, timeout)?;
+            let line = line.trim();
+            if !line.is_empty() {
+                return Ok(line.to_string());
             }
         }
     }

@@ -32,6 +32,7 @@ mod cable;
 mod controller;
 mod error;
 mod grbl;
+mod line;
 
 pub use cable::{ControlLine, ShutterCable};
 pub use controller::{Identity, RigController, RigTimeouts};
