@@ -207,7 +207,12 @@ static uint8_t home(void) {
         i++;
     }
     PORTB &= (uint8_t)~_BV(LED_BIT);
-    if (!at_home()) return 0;
+    if (!at_home()) {
+        /* Not found: the table has still turned, and the position says where to. */
+        position = (position - i % STEPS_PER_TURN) % STEPS_PER_TURN;
+        if (position < 0) position += STEPS_PER_TURN;
+        return 0;
+    }
     position = 0;
     return 1;
 }

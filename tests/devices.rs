@@ -73,8 +73,14 @@ fn serial_commands_drive_a_simulated_grbl_turntable() {
     let sim = Simulator::start(&["sim", "grbl", "--homing", "--rate", "180"]);
     let port = sim.addr.clone();
     assert!(port.starts_with("grbl:/dev/"), "{port}");
-    // Locked in Alarm at start (homing enabled): the first client homes it.
+    // Locked in Alarm at start (homing enabled): `info` says so without homing it, a turn
+    // is refused with what to do, and `home` homes it.
     let info = brdfd(&["serial", "info", "--port", &port], dir.path());
+    let locked = brdfd(
+        &["serial", "rotate", "--port", &port, "--deg", "10"],
+        dir.path(),
+    );
+    let homed = brdfd(&["serial", "home", "--port", &port], dir.path());
     let rot = brdfd(
         &["serial", "rotate", "--port", &port, "--deg", "-30"],
         dir.path(),
@@ -85,10 +91,17 @@ fn serial_commands_drive_a_simulated_grbl_turntable() {
     drop(sim);
     assert!(info.status.success(), "{}", out(&info));
     assert!(
-        out(&info).contains("Grbl 1.1h, turntable on the A axis; state Idle; position 0.00°"),
+        out(&info).contains("Grbl 1.1h, turntable on the A axis; state Alarm; position 0.00°"),
         "{}",
         out(&info)
     );
+    assert!(!locked.status.success());
+    assert!(
+        out(&locked).contains("state Alarm") && out(&locked).contains("brdfd serial home"),
+        "{}",
+        out(&locked)
+    );
+    assert!(out(&homed).contains("at 0.00°"), "{}", out(&homed));
     assert!(out(&rot).contains("at 330.00°"), "{}", out(&rot));
     let parsed: serde_json::Value = serde_json::from_str(&out(&json)).expect("JSON");
     assert_eq!(

@@ -21,6 +21,9 @@ fn build(dir: &Path) {
     let o = Command::new("make")
         .args(["-C", "firmware", "all", "sim"])
         .arg(format!("BUILD={}", dir.display()))
+        // The mechanics the test counts with, whatever the environment says.
+        .arg(format!("STEPS_PER_TURN={STEPS_PER_TURN}"))
+        .arg("STEP_HZ=1600")
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap();
@@ -52,14 +55,27 @@ impl Bench {
             .unwrap();
         let ask = child.stdin.take().unwrap();
         let mut answers = BufReader::new(child.stdout.take().unwrap());
-        // simavr prints its own lines first.
-        let pty = loop {
-            let mut line = String::new();
-            assert!(answers.read_line(&mut line).unwrap() > 0, "the bench ended");
-            if let Some(p) = line.trim().strip_prefix("pty ") {
-                break p.to_string();
-            }
-        };
+        // simavr prints its own lines first. A bench that never connects its UART fails the
+        // test in a minute rather than hanging it.
+        let (tx, rx) = std::sync::mpsc::channel();
+        let reader = std::thread::spawn(move || {
+            let pty = loop {
+                let mut line = String::new();
+                if answers.read_line(&mut line).unwrap_or(0) == 0 {
+                    break None;
+                }
+                if let Some(p) = line.trim().strip_prefix("pty ") {
+                    break Some(p.to_string());
+                }
+            };
+            let _ = tx.send(pty);
+            answers
+        });
+        let pty = rx
+            .recv_timeout(Duration::from_secs(60))
+            .expect("the bench printed no pty within 60 s")
+            .expect("the bench ended before connecting its UART");
+        let answers = reader.join().unwrap();
         Bench {
             child,
             ask,
@@ -117,11 +133,26 @@ fn steps_for(hundredths: i64) -> i64 {
 
 #[test]
 fn the_firmware_in_simavr_turns_homes_and_fires_as_asked() {
+    let install =
+        "install make, gcc-avr, avr-libc, simavr and libsimavr-dev (Debian) to test the firmware";
     if !common::tools_present(
         &["avr-gcc", "make", "cc", "simavr"],
         "BRDFD_REQUIRE_FIRMWARE",
-        "install gcc-avr, avr-libc, simavr and libsimavr-dev (Debian) to test the firmware",
+        install,
     ) {
+        return;
+    }
+    // The headers the two builds need, which no program on PATH stands for.
+    let headers = [
+        "/usr/lib/avr/include/avr/io.h",
+        "/usr/include/simavr/sim_avr.h",
+    ];
+    if let Some(missing) = headers.iter().find(|h| !Path::new(h).exists()) {
+        assert!(
+            std::env::var_os("BRDFD_REQUIRE_FIRMWARE").is_none(),
+            "{missing} is missing: {install}"
+        );
+        eprintln!("skipping: {missing} is missing: {install}");
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -169,7 +200,8 @@ fn the_firmware_in_simavr_turns_homes_and_fires_as_asked() {
     }
     eprintln!("100 turns: {expect_total} step pulses, each turn's count as asked");
 
-    // Shutter pulses: each width within 1 ms of the request, in simulated time.
+    // Shutter pulses: each width as asked, in simulated time. The issue allows 1 ms; the
+    // timer holds it to the microsecond, and a firmware a tick off fails here.
     let asked = [1u32, 7, 50, 200, 333];
     for ms in asked {
         rig.fire(ms).unwrap();
@@ -177,8 +209,8 @@ fn the_firmware_in_simavr_turns_homes_and_fires_as_asked() {
     let (_, _, widths) = bench.counts();
     assert_eq!(widths.len(), asked.len(), "{widths:?}");
     for (ms, us) in asked.iter().zip(&widths) {
-        let off = (*us as f64 / 1000.0 - *ms as f64).abs();
-        assert!(off <= 1.0, "asked {ms} ms, held {us} µs");
+        let off = (*us as f64 - *ms as f64 * 1000.0).abs();
+        assert!(off <= 20.0, "asked {ms} ms, held {us} µs");
     }
     eprintln!("shutter pulses asked {asked:?} ms, held {widths:?} µs");
 

@@ -159,6 +159,7 @@ fuzz_target!(|data: &[u8]| {
         answer: Duration::from_micros(100),
         min_speed_deg_s: 1e6,
         home: Duration::from_micros(100),
+        boot: Duration::from_micros(100),
     };
     let Ok(mut rig) = RigController::new(Box::new(device), timeouts) else {
         return;

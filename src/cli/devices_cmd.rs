@@ -186,8 +186,11 @@ fn serial_ports(l: &mut Listing, timeout: Duration) {
     if ports.is_empty() {
         l.note("none found".into());
     }
+    // A survey waits no longer than asked: a board that is still booting is said to be
+    // silent (the capture waits for it).
     let timeouts = RigTimeouts {
         answer: timeout,
+        boot: timeout,
         ..RigTimeouts::default()
     };
     for p in ports {
@@ -212,7 +215,7 @@ fn serial_ports(l: &mut Listing, timeout: Duration) {
                     format!("grbl:{}", p.path),
                     true,
                     format!(
-                        "{}: a GRBL G-code controller ({line}); as a turntable: grbl:{} (its A axis) or grbl:x:{}",
+                        "{}: a GRBL G-code controller ({line}); as a turntable: grbl:AXIS:{}, AXIS the one the table is on (grbl:{} for A, on a four-axis build)",
                         p.kind, p.path, p.path
                     ),
                 )

@@ -56,7 +56,12 @@ fn rig(port: &str) -> anyhow::Result<RigController> {
 /// The GRBL controller a selector names, if it names one.
 fn grbl(port: &str) -> anyhow::Result<Option<GrblTurntable>> {
     match port.parse::<Selector>()? {
-        Selector::Grbl { axis, path } => Ok(Some(brdfd::rig::open::grbl(&path, axis)?)),
+        // As it is: `serial info` looks without homing, `serial home` homes.
+        Selector::Grbl { axis, path } => Ok(Some(GrblTurntable::open(
+            &path,
+            axis,
+            brdfd_serial::RigTimeouts::default(),
+        )?)),
         _ => Ok(None),
     }
 }

@@ -87,9 +87,12 @@ pub fn turntable(path: &str) -> anyhow::Result<RigController> {
     Ok(RigController::open(path, RigTimeouts::default())?)
 }
 
-/// Opens a GRBL controller whose `axis` turns the table.
+/// Opens a GRBL controller whose `axis` turns the table, homed if it is locked in Alarm (as
+/// one with homing enabled is after power-up): the rig needs it to turn.
 pub fn grbl(path: &str, axis: char) -> anyhow::Result<GrblTurntable> {
-    Ok(GrblTurntable::open(path, axis, RigTimeouts::default())?)
+    let mut table = GrblTurntable::open(path, axis, RigTimeouts::default())?;
+    table.unlock_by_homing()?;
+    Ok(table)
 }
 
 /// Timeouts for a simulated THETA on loopback: the real defaults, with faster polling.

@@ -25,6 +25,10 @@ pub struct RigTimeouts {
     pub min_speed_deg_s: f64,
     /// A full homing run.
     pub home: Duration,
+    /// How long a board has to start answering after the port is opened: opening the port
+    /// resets an Arduino (its DTR line), and its bootloader, not the firmware, reads what
+    /// comes in the first second or two.
+    pub boot: Duration,
 }
 
 impl Default for RigTimeouts {
@@ -33,6 +37,7 @@ impl Default for RigTimeouts {
             answer: Duration::from_secs(1),
             min_speed_deg_s: 10.0,
             home: Duration::from_secs(60),
+            boot: Duration::from_secs(4),
         }
     }
 }
@@ -81,7 +86,7 @@ impl RigController {
             id_answer: String::new(),
             out_of_step: false,
         };
-        let id = rig.command("ID?", timeouts.answer)?;
+        let id = rig.first_identity()?;
         rig.id_answer = id.clone();
         let mut words = id.split_whitespace();
         let (Some(name), Some(version)) = (words.next(), words.next()) else {
@@ -100,6 +105,21 @@ impl RigController {
         };
         tracing::info!(port = %rig.link.name, device = %name, version, ?caps, "rig controller");
         Ok(rig)
+    }
+
+    /// The first `ID?`'s answer, asked again until the board has booted: a question sent
+    /// while an Arduino's bootloader runs is lost.
+    fn first_identity(&mut self) -> Result<String> {
+        let start = Instant::now();
+        loop {
+            match self.exchange("ID?", self.timeouts.answer) {
+                Err(SerialError::Timeout { .. }) if start.elapsed() < self.timeouts.boot => {
+                    tracing::debug!(port = %self.link.name, "no answer to ID? yet: asking again");
+                    self.link.discard_input();
+                }
+                other => return other,
+            }
+        }
     }
 
     /// Opens `path` and identifies the device.

@@ -46,6 +46,20 @@ pub enum SerialError {
         name: String,
         capability: String,
     },
+    /// A GRBL controller refused a line, raised an alarm, or is not where or how it should be.
+    #[error("`{command}` on {port} (GRBL): {reason}")]
+    Grbl {
+        port: String,
+        command: String,
+        reason: String,
+    },
+    /// No answer from a GRBL controller in time.
+    #[error("`{command}` on {port}: no answer within {after:?}; check that the controller runs GRBL 1.1 at 115200 baud and that the axis turns")]
+    GrblTimeout {
+        port: String,
+        command: String,
+        after: Duration,
+    },
     /// A value out of the protocol's range, refused before sending.
     #[error("{0}")]
     InvalidArgument(String),

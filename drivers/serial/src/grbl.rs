@@ -29,9 +29,6 @@ use crate::line::LinePort;
 
 /// GRBL's own default baud rate (1.1; 0.8 and older used 9600).
 pub const GRBL_BAUD_RATE: u32 = 115_200;
-/// How long a controller has to print its banner after a reset: an Arduino that the port's
-/// opening reset spends up to about 2 s in its bootloader first.
-const BANNER_WAIT: Duration = Duration::from_secs(5);
 /// The dwell that waits for every queued move to finish.
 const SYNC: &str = "G4 P0.01";
 
@@ -66,8 +63,9 @@ pub struct GrblTurntable {
 }
 
 impl GrblTurntable {
-    /// Talks to the controller on `port` (already open): resets it, reads its banner, and
-    /// runs a homing cycle if it starts locked in its Alarm state (homing enabled).
+    /// Talks to the controller on `port` (already open): resets it and reads its banner.
+    /// A controller locked in its Alarm state stays locked: [`GrblTurntable::unlock_by_homing`]
+    /// is for a capture that needs it to turn.
     pub fn new(
         mut port: Box<dyn SerialPort>,
         axis: char,
@@ -94,16 +92,9 @@ impl GrblTurntable {
             wco: None,
         };
         table.link.discard_input();
-        // A soft reset makes any GRBL print its banner now, whether or not opening the port
-        // reset the board; one that is still in its bootloader prints it when it starts.
-        table.write(b"\x18", "reset (Ctrl-X)")?;
-        table.identity.banner = table.banner()?;
-        table.settle()?;
-        let status = table.status()?;
-        if status.state == "Alarm" {
-            tracing::info!(port = %table.link.name, "GRBL starts in Alarm: homing ($H)");
-            table.home_cycle()?;
-        }
+        table.identity.banner = table.reset()?;
+        // The axis must be in the status report.
+        table.status()?;
         tracing::info!(port = %table.link.name, banner = %table.identity.banner, axis = %axis, "GRBL turntable");
         Ok(table)
     }
@@ -121,9 +112,20 @@ impl GrblTurntable {
         &self.link.name
     }
 
+    /// Homes a controller that is locked in its Alarm state (as one with homing enabled is
+    /// after power-up), so that it turns; whether it was locked.
+    pub fn unlock_by_homing(&mut self) -> Result<bool> {
+        if self.status()?.state != "Alarm" {
+            return Ok(false);
+        }
+        tracing::info!(port = %self.link.name, "GRBL is locked in Alarm: homing ($H)");
+        self.home_cycle()?;
+        Ok(true)
+    }
+
     /// Asks for a status report (`?`).
     pub fn status(&mut self) -> Result<GrblStatus> {
-        self.link.discard_input();
+        self.drain()?;
         self.write(b"?", "?")?;
         let deadline = Instant::now() + self.timeouts.answer;
         loop {
@@ -154,27 +156,27 @@ impl GrblTurntable {
         if start.state != "Idle" {
             return Err(self.not_idle("turn", &start.state));
         }
-        let travel = Duration::from_secs_f64(deg.abs() / self.timeouts.min_speed_deg_s);
         let axis = self.identity.axis;
-        // Relative for this block only: the controller is left in absolute mode, as a user's
-        // own G-code expects it.
-        let cmd = format!("G91 G0 {axis}{deg:.3}");
+        // In the axis's own units (G21: a startup line may have set G20, inches, which would
+        // scale the turn by 25.4), relative for this block only: the controller is left in
+        // absolute mode, as a user's own G-code expects it.
+        let cmd = format!("G21 G91 G0 {axis}{deg:.3}");
         self.command(&cmd, self.timeouts.answer)?;
         self.command("G90", self.timeouts.answer)?;
-        self.command(SYNC, travel + self.timeouts.answer)?;
+        let travel = Duration::from_secs_f64(deg.abs() / self.timeouts.min_speed_deg_s);
+        self.wait_for_motion(travel)?;
         let end = self.status()?;
         let expected = start.position + deg;
         if (end.position - expected).abs() > POSITION_TOLERANCE_DEG || end.state != "Idle" {
-            return Err(SerialError::Device {
-                port: self.link.name.clone(),
-                command: cmd,
-                reason: format!(
+            return Err(self.refused(
+                &cmd,
+                format!(
                     "the controller stopped at {:.2}° ({}) instead of {:.2}°",
                     end.position.rem_euclid(360.0),
                     end.state,
                     expected.rem_euclid(360.0)
                 ),
-            });
+            ));
         }
         Ok(end.position.rem_euclid(360.0))
     }
@@ -187,48 +189,71 @@ impl GrblTurntable {
 
     fn home_cycle(&mut self) -> Result<()> {
         match self.command("$H", self.timeouts.home) {
-            Err(SerialError::Device { reason, .. }) if reason.starts_with("error:5") => {
-                Err(SerialError::Device {
-                    port: self.link.name.clone(),
-                    command: "$H".into(),
-                    reason: "the controller is locked in its Alarm state and homing is not \
-                             enabled ($22=0): find why it raised the alarm, then unlock it \
-                             with $X in a serial terminal"
+            Err(SerialError::Grbl { reason, .. })
+                if reason.split_whitespace().next() == Some("error:5") =>
+            {
+                Err(self.refused(
+                    "$H",
+                    "error:5: homing is not enabled ($22=0); if the controller is locked in \
+                     its Alarm state, find why it raised the alarm, then unlock it with $X in \
+                     a serial terminal"
                         .into(),
-                })
+                ))
             }
             other => other,
         }
     }
 
+    fn refused(&self, command: &str, reason: String) -> SerialError {
+        SerialError::Grbl {
+            port: self.link.name.clone(),
+            command: command.into(),
+            reason,
+        }
+    }
+
     fn not_idle(&self, what: &str, state: &str) -> SerialError {
         let hint = match state.split(':').next().unwrap_or(state) {
-            "Alarm" => "unlock it ($H to home, or $X) after finding what raised the alarm",
+            "Alarm" => {
+                "after finding what raised the alarm, home it (`brdfd serial home`, $H) or \
+                 unlock it ($X)"
+            }
             "Door" => "the safety door input is open",
             "Hold" => "it is in a feed hold: resume it with ~",
             "Sleep" => "it is asleep: reset it",
             _ => "wait for it to finish, or reset it",
         };
-        SerialError::Device {
-            port: self.link.name.clone(),
-            command: what.into(),
-            reason: format!("the controller is in state {state}, not Idle: {hint}"),
-        }
+        self.refused(
+            what,
+            format!("the controller is in state {state}, not Idle: {hint}"),
+        )
+    }
+
+    /// Resets the controller (Ctrl-X) and returns its banner ("Grbl 1.1h"), once the line
+    /// has gone quiet.
+    fn reset(&mut self) -> Result<String> {
+        // A soft reset makes any GRBL print its banner now, whether or not opening the port
+        // reset the board; one that is still in its bootloader prints it when it starts.
+        self.write(b"\x18", "reset (Ctrl-X)")?;
+        let banner = self.banner()?;
+        self.settle()?;
+        Ok(banner)
     }
 
     /// Waits for the banner that follows a reset.
     fn banner(&mut self) -> Result<String> {
         let what = "reset (Ctrl-X)";
-        let deadline = Instant::now() + BANNER_WAIT;
+        let wait = self.timeouts.boot.max(self.timeouts.answer);
+        let deadline = Instant::now() + wait;
         loop {
-            let line = match self.read_line(what, deadline, BANNER_WAIT) {
-                Err(SerialError::Timeout { port, .. }) => {
-                    return Err(SerialError::Timeout {
+            let line = match self.read_line(what, deadline, wait) {
+                Err(SerialError::GrblTimeout { port, .. }) => {
+                    return Err(SerialError::GrblTimeout {
                         port,
                         command: format!(
                             "{what}: no GRBL banner (\"Grbl 1.1h ['$' for help]\"); is this a GRBL controller at {GRBL_BAUD_RATE} baud?"
                         ),
-                        after: BANNER_WAIT,
+                        after: wait,
                     })
                 }
                 other => other?,
@@ -242,16 +267,30 @@ impl GrblTurntable {
 
     /// Reads until the line has been quiet for a moment: a controller that had booted by
     /// itself before the reset printed its banner twice, and the second must not be read
-    /// as a reset during the first command.
+    /// as a reset during the first command. Startup lines and the lock's message come here.
     fn settle(&mut self) -> Result<()> {
-        let quiet = Duration::from_millis(250);
+        let quiet = Duration::from_millis(250).min(self.timeouts.boot);
         loop {
             match self.read_line("reset (Ctrl-X)", Instant::now() + quiet, quiet) {
                 Ok(line) => tracing::debug!(port = %self.link.name, "after the banner: {line}"),
-                Err(SerialError::Timeout { .. }) => {
-                    self.link.discard_input();
-                    return Ok(());
+                Err(SerialError::GrblTimeout { .. }) => return Ok(()),
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
+    /// Reads what came since the last exchange, whole lines only: an alarm pushed in between
+    /// is reported, not thrown away, and a late `ok` is dropped.
+    fn drain(&mut self) -> Result<()> {
+        self.link.take_available();
+        let now = Instant::now();
+        loop {
+            match self.read_line("(between commands)", now, Duration::ZERO) {
+                Ok(line) if line == "ok" => {
+                    tracing::debug!(port = %self.link.name, "a late ok, dropped")
                 }
+                Ok(line) => self.unasked("(between commands)", &line)?,
+                Err(SerialError::GrblTimeout { .. }) => return Ok(()),
                 Err(e) => return Err(e),
             }
         }
@@ -260,7 +299,7 @@ impl GrblTurntable {
     /// Sends one line and waits for its `ok`; `error:N` and `ALARM:N` are errors that say
     /// what GRBL means by them.
     fn command(&mut self, cmd: &str, timeout: Duration) -> Result<()> {
-        self.link.discard_input();
+        self.drain()?;
         tracing::debug!(port = %self.link.name, "> {cmd}");
         self.write(format!("{cmd}\n").as_bytes(), cmd)?;
         let deadline = Instant::now() + timeout;
@@ -271,25 +310,65 @@ impl GrblTurntable {
                 return Ok(());
             }
             if let Some(code) = line.strip_prefix("error:") {
-                return Err(SerialError::Device {
-                    port: self.link.name.clone(),
-                    command: cmd.into(),
-                    reason: format!("error:{code} ({})", error_meaning(code)),
-                });
+                return Err(self.refused(cmd, format!("error:{code} ({})", error_meaning(code))));
             }
             self.unasked(cmd, &line)?;
         }
     }
 
-    /// A line that does not answer `cmd`: feedback and status reports are skipped; an alarm
-    /// or a reset ends the command.
+    /// Waits for every queued move to end: `G4 P0.01` is answered only then. The time
+    /// allowed is the turn at the slowest speed expected; when it runs out, a status report
+    /// says whether the table is still turning (a controller slower than that, or
+    /// accelerating), and the wait goes on while it is.
+    fn wait_for_motion(&mut self, travel: Duration) -> Result<()> {
+        self.drain()?;
+        self.write(format!("{SYNC}\n").as_bytes(), SYNC)?;
+        let mut deadline = Instant::now() + travel + self.timeouts.answer;
+        let mut asked = false;
+        let mut last: Option<f64> = None;
+        loop {
+            let line = match self.read_line(SYNC, deadline, travel + self.timeouts.answer) {
+                Err(SerialError::GrblTimeout { .. }) if !asked => {
+                    self.write(b"?", "?")?;
+                    asked = true;
+                    deadline = Instant::now() + self.timeouts.answer;
+                    continue;
+                }
+                other => other?,
+            };
+            if line == "ok" {
+                return Ok(());
+            }
+            if let Some(code) = line.strip_prefix("error:") {
+                return Err(self.refused(SYNC, format!("error:{code} ({})", error_meaning(code))));
+            }
+            if line.starts_with('<') {
+                let status = self.parse_status(&line)?;
+                let moved = last.is_some_and(|p| (p - status.position).abs() > 1e-6);
+                if matches!(status.state.as_str(), "Run" | "Jog" | "Home") || moved {
+                    // Still turning: wait as long again for the next sign of it.
+                    asked = false;
+                    deadline = Instant::now() + self.timeouts.answer;
+                }
+                last = Some(status.position);
+                continue;
+            }
+            self.unasked(SYNC, &line)?;
+        }
+    }
+
+    /// A line that does not answer `cmd`: feedback, status reports and startup lines that
+    /// ran are skipped; an alarm or a reset ends the command.
     fn unasked(&mut self, cmd: &str, line: &str) -> Result<()> {
         if let Some(code) = line.strip_prefix("ALARM:") {
-            return Err(SerialError::Device {
-                port: self.link.name.clone(),
-                command: cmd.into(),
-                reason: format!("ALARM:{code} ({})", alarm_meaning(code)),
-            });
+            let mut reason = format!("ALARM:{code} ({})", alarm_meaning(code));
+            // A limit is a critical alarm: GRBL then ignores every line until it is reset.
+            // The reset releases it into its (answering) Alarm lock.
+            if matches!(code.trim(), "1" | "2") {
+                self.reset()?;
+                reason.push_str("; brdfd reset the controller, which stays locked until homed");
+            }
+            return Err(self.refused(cmd, reason));
         }
         if grbl_banner(line).is_some() {
             return Err(SerialError::Unplugged {
@@ -297,21 +376,31 @@ impl GrblTurntable {
                 command: cmd.into(),
             });
         }
-        if line.is_empty() || line.starts_with('[') || line.starts_with('<') {
+        // A startup line ($N0, $N1) GRBL runs after homing: `>G21:ok`, or `>…:error:N`.
+        if let Some(startup) = line.strip_prefix('>') {
+            if let Some((block, code)) = startup.split_once(":error:") {
+                return Err(self.refused(
+                    cmd,
+                    format!(
+                        "its startup line {block:?} failed with error:{code} ({}); fix it with $N0= or $N1=",
+                        error_meaning(code)
+                    ),
+                ));
+            }
             return Ok(());
         }
-        Err(SerialError::Protocol {
-            port: self.link.name.clone(),
-            command: cmd.into(),
-            line: line.into(),
-        })
+        if line.starts_with('[') || line.starts_with('<') {
+            return Ok(());
+        }
+        tracing::debug!(port = %self.link.name, "not GRBL's, skipped: {line:?}");
+        Ok(())
     }
 
     fn parse_status(&mut self, line: &str) -> Result<GrblStatus> {
-        let bad = || SerialError::Protocol {
+        let bad = || SerialError::Grbl {
             port: self.link.name.clone(),
             command: "?".into(),
-            line: line.into(),
+            reason: format!("a status report brdfd cannot read: {line:?}"),
         };
         let inner = line
             .strip_prefix('<')
@@ -369,10 +458,34 @@ impl GrblTurntable {
     }
 
     /// The next line that says something: GRBL ends its lines with CR LF, and a reset's
-    /// banner starts with an empty line.
+    /// banner starts with an empty line. A timeout is GRBL's, told as such.
     fn read_line(&mut self, cmd: &str, deadline: Instant, timeout: Duration) -> Result<String> {
         loop {
-            let line = self.link.read_line(cmd, deadline, timeout)?;
+            let line = match self.link.read_line(cmd, deadline, timeout) {
+                Err(SerialError::Timeout {
+                    port,
+                    command,
+                    after,
+                }) => {
+                    return Err(SerialError::GrblTimeout {
+                        port,
+                        command,
+                        after,
+                    })
+                }
+                Err(SerialError::Protocol {
+                    port,
+                    command,
+                    line,
+                }) => {
+                    return Err(SerialError::Grbl {
+                        port,
+                        command,
+                        reason: format!("a line longer than GRBL sends: {line:?}"),
+                    })
+                }
+                other => other?,
+            };
             let line = line.trim();
             if !line.is_empty() {
                 return Ok(line.to_string());

@@ -34,6 +34,19 @@ impl LinePort {
         let _ = self.port.clear(serialport::ClearBuffer::Input);
     }
 
+    /// Reads what the system holds already, without waiting.
+    pub fn take_available(&mut self) {
+        let mut buf = [0u8; 256];
+        // At most a few lines: a device that floods the port is read by read_line, which
+        // refuses an overlong line.
+        while self.pending.len() <= MAX_LINE && self.port.bytes_to_read().is_ok_and(|n| n > 0) {
+            match self.port.read(&mut buf) {
+                Ok(n) if n > 0 => self.pending.extend_from_slice(&buf[..n]),
+                _ => return,
+            }
+        }
+    }
+
     /// Writes `bytes` (for `what`, named in errors) and waits until they are sent.
     pub fn write(&mut self, bytes: &[u8], what: &str) -> Result<()> {
         let unplugged = || SerialError::Unplugged {

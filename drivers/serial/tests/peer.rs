@@ -12,6 +12,7 @@ fn quick() -> RigTimeouts {
         answer: Duration::from_millis(300),
         min_speed_deg_s: 100.0,
         home: Duration::from_secs(5),
+        boot: Duration::from_millis(300),
     }
 }
 

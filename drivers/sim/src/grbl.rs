@@ -13,7 +13,8 @@
 //! - a reset while moving raises `ALARM:3` and loses the position.
 //!
 //! [`GrblFaults`] adds what goes wrong at a bench: a limit switch hit during a move
-//! (`ALARM:1`), a controller that resets by itself mid-move (a brown-out), and a cable pulled.
+//! (`ALARM:1`, after which GRBL ignores every line until reset), a board that resets by itself
+//! mid-move (a brown-out: only its banner says so), and a cable pulled.
 
 use std::io::{Read, Write};
 use std::sync::{Arc, Mutex};
@@ -40,6 +41,8 @@ pub struct GrblConfig {
     pub work_positions: bool,
     /// The work coordinate offset (G54's, as a user's own jobs may have set it).
     pub work_offset: [f64; 4],
+    /// A startup line (`$N0`), which GRBL runs, and reports as `>BLOCK:ok`, after homing.
+    pub startup_line: Option<String>,
 }
 
 impl Default for GrblConfig {
@@ -50,6 +53,7 @@ impl Default for GrblConfig {
             home_axis: 'A',
             work_positions: false,
             work_offset: [0.0; 4],
+            startup_line: None,
         }
     }
 }
@@ -58,10 +62,11 @@ impl Default for GrblConfig {
 #[derive(Debug, Clone, Default)]
 pub struct GrblFaults {
     /// The next move hits a hard limit this far along: the controller stops there, pushes
-    /// `ALARM:1` and locks.
+    /// `ALARM:1`, and ignores every line (answering only `?`) until it is reset (Ctrl-X),
+    /// after which it is locked in Alarm.
     pub limit_after: Option<f64>,
-    /// The controller resets by itself this far along the next move: it pushes `ALARM:3`,
-    /// prints its banner again, and has lost its position.
+    /// The board resets this far along the next move (a brown-out, a DTR pulse): it prints
+    /// its banner again and starts from position 0, as after power-up.
     pub reset_after: Option<f64>,
     /// Close the port on the next line, as if the USB cable were pulled.
     pub unplug_next: bool,
@@ -105,6 +110,8 @@ struct State {
     alarm: bool,
     /// A homing cycle is under way (its move is the queue's).
     homing: bool,
+    /// A critical alarm (a limit): lines are ignored until a reset.
+    critical: bool,
     relative: bool,
     /// The modal motion: G0 (rapid) or G1 (at the feed rate).
     feed_motion: bool,
@@ -189,6 +196,7 @@ impl GrblPeer {
             moves: Default::default(),
             alarm: config.homing,
             homing: false,
+            critical: false,
             relative: false,
             feed_motion: false,
             feed: None,
@@ -280,6 +288,7 @@ fn serve(port: &mut TTYPort, config: &GrblConfig, state: &Mutex<State>) {
                     // The state outlives a reset (an Idle controller stays Idle, its
                     // position kept); the modes go back to their defaults.
                     s.halt(now);
+                    s.critical = false;
                     s.relative = false;
                     s.feed_motion = false;
                     let locked = s.alarm;
@@ -297,7 +306,7 @@ fn serve(port: &mut TTYPort, config: &GrblConfig, state: &Mutex<State>) {
                 _ => line.push(b),
             }
         }
-        strike(&mut lock(), now, &mut out, &mut queued);
+        strike(&mut lock(), config.homing, now, &mut out, &mut queued);
         lock().settle(now);
         // A dwell (or a homing cycle) holds the lines after it, as GRBL's serial buffer does.
         loop {
@@ -313,6 +322,10 @@ fn serve(port: &mut TTYPort, config: &GrblConfig, state: &Mutex<State>) {
                         s.homing = false;
                         s.alarm = false;
                         s.homings += 1;
+                        // The startup lines run after a successful homing cycle.
+                        if let Some(block) = &config.startup_line {
+                            out.push_str(&format!(">{block}:ok\r\n"));
+                        }
                     }
                     out.push_str("ok\r\n");
                 }
@@ -320,6 +333,10 @@ fn serve(port: &mut TTYPort, config: &GrblConfig, state: &Mutex<State>) {
             let Some(l) = queued.pop_front() else { break };
             if lock().faults.unplug_next {
                 return;
+            }
+            if lock().critical {
+                // Not even an error: GRBL waits for its reset.
+                continue;
             }
             lock().log.push(l.clone());
             out.push_str(&execute(&l, config, &mut lock()));
@@ -330,6 +347,7 @@ fn serve(port: &mut TTYPort, config: &GrblConfig, state: &Mutex<State>) {
 /// The faults that strike during a move.
 fn strike(
     s: &mut State,
+    config_homing: bool,
     now: Instant,
     out: &mut String,
     queued: &mut std::collections::VecDeque<String>,
@@ -346,15 +364,18 @@ fn strike(
         s.faults.limit_after = None;
         s.halt(now);
         s.alarm = true;
+        s.critical = true;
         queued.clear();
         out.push_str("ALARM:1\r\n[MSG:Reset to continue]\r\n");
     } else if s.faults.reset_after.is_some_and(|a| along >= a) {
         s.faults.reset_after = None;
         s.halt(now);
-        s.alarm = true;
+        s.position = [0.0; 4];
+        s.alarm = config_homing;
+        s.relative = false;
+        s.feed_motion = false;
         queued.clear();
-        out.push_str("ALARM:3\r\n");
-        boot(out, true);
+        boot(out, config_homing);
     }
 }
 
