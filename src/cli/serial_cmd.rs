@@ -68,35 +68,10 @@ fn grbl(port: &str) -> anyhow::Result<Option<GrblTurntable>> {
 
 pub fn run(cmd: SerialCommand) -> anyhow::Result<()> {
     match cmd {
-        SerialCommand::Info { port, json } if port.port.starts_with("grbl:") => {
-            let Some(mut g) = grbl(&port.port)? else {
-                bail!("{} is not a GRBL controller", port.port);
-            };
-            let status = g.status()?;
-            let id = g.identity.clone();
-            if json {
-                let info = serde_json::json!({
-                    "port": g.port_name(),
-                    "name": id.banner,
-                    "axis": id.axis.to_string(),
-                    "state": status.state,
-                    "can_fire": false,
-                    "can_rotate": true,
-                    "position_deg": status.position.rem_euclid(360.0),
-                });
-                println!("{}", serde_json::to_string_pretty(&info)?);
-                return Ok(());
-            }
-            println!(
-                "{}: {}, turntable on the {} axis; state {}; position {:.2}°",
-                g.port_name(),
-                id.banner,
-                id.axis,
-                status.state,
-                status.position.rem_euclid(360.0)
-            );
-        }
         SerialCommand::Info { port, json } => {
+            if let Some(mut g) = grbl(&port.port)? {
+                return grbl_info(&mut g, json);
+            }
             let mut r = rig(&port.port)?;
             let id = r.identity.clone();
             if json {
@@ -158,5 +133,33 @@ pub fn run(cmd: SerialCommand) -> anyhow::Result<()> {
             println!("at {at:.2}°");
         }
     }
+    Ok(())
+}
+
+/// `serial info` for a GRBL controller: its state and where the table stands, as it is.
+fn grbl_info(g: &mut GrblTurntable, json: bool) -> anyhow::Result<()> {
+    let status = g.status()?;
+    let id = g.identity.clone();
+    if json {
+        let info = serde_json::json!({
+            "port": g.port_name(),
+            "name": id.banner,
+            "axis": id.axis.to_string(),
+            "state": status.state,
+            "can_fire": false,
+            "can_rotate": true,
+            "position_deg": status.position.rem_euclid(360.0),
+        });
+        println!("{}", serde_json::to_string_pretty(&info)?);
+        return Ok(());
+    }
+    println!(
+        "{}: {}, turntable on the {} axis; state {}; position {:.2}°",
+        g.port_name(),
+        id.banner,
+        id.axis,
+        status.state,
+        status.position.rem_euclid(360.0)
+    );
     Ok(())
 }

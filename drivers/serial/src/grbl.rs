@@ -126,7 +126,7 @@ impl GrblTurntable {
     /// Asks for a status report (`?`).
     pub fn status(&mut self) -> Result<GrblStatus> {
         self.drain()?;
-        self.write(b"?", "?")?;
+        self.link.write(b"?", "?")?;
         let deadline = Instant::now() + self.timeouts.answer;
         loop {
             let line = self.read_line("?", deadline, self.timeouts.answer)?;
@@ -212,6 +212,11 @@ impl GrblTurntable {
         }
     }
 
+    /// `error:N` in answer to `cmd`, with what GRBL means by it.
+    fn error_code(&self, cmd: &str, code: &str) -> SerialError {
+        self.refused(cmd, format!("error:{code} ({})", error_meaning(code)))
+    }
+
     fn not_idle(&self, what: &str, state: &str) -> SerialError {
         let hint = match state.split(':').next().unwrap_or(state) {
             "Alarm" => {
@@ -234,7 +239,7 @@ impl GrblTurntable {
     fn reset(&mut self) -> Result<String> {
         // A soft reset makes any GRBL print its banner now, whether or not opening the port
         // reset the board; one that is still in its bootloader prints it when it starts.
-        self.write(b"\x18", "reset (Ctrl-X)")?;
+        self.link.write(b"\x18", "reset (Ctrl-X)")?;
         let banner = self.banner()?;
         self.settle()?;
         Ok(banner)
@@ -301,7 +306,7 @@ impl GrblTurntable {
     fn command(&mut self, cmd: &str, timeout: Duration) -> Result<()> {
         self.drain()?;
         tracing::debug!(port = %self.link.name, "> {cmd}");
-        self.write(format!("{cmd}\n").as_bytes(), cmd)?;
+        self.link.write(format!("{cmd}\n").as_bytes(), cmd)?;
         let deadline = Instant::now() + timeout;
         loop {
             let line = self.read_line(cmd, deadline, timeout)?;
@@ -310,7 +315,7 @@ impl GrblTurntable {
                 return Ok(());
             }
             if let Some(code) = line.strip_prefix("error:") {
-                return Err(self.refused(cmd, format!("error:{code} ({})", error_meaning(code))));
+                return Err(self.error_code(cmd, code));
             }
             self.unasked(cmd, &line)?;
         }
@@ -322,14 +327,14 @@ impl GrblTurntable {
     /// accelerating), and the wait goes on while it is.
     fn wait_for_motion(&mut self, travel: Duration) -> Result<()> {
         self.drain()?;
-        self.write(format!("{SYNC}\n").as_bytes(), SYNC)?;
+        self.link.write(format!("{SYNC}\n").as_bytes(), SYNC)?;
         let mut deadline = Instant::now() + travel + self.timeouts.answer;
         let mut asked = false;
         let mut last: Option<f64> = None;
         loop {
             let line = match self.read_line(SYNC, deadline, travel + self.timeouts.answer) {
                 Err(SerialError::GrblTimeout { .. }) if !asked => {
-                    self.write(b"?", "?")?;
+                    self.link.write(b"?", "?")?;
                     asked = true;
                     deadline = Instant::now() + self.timeouts.answer;
                     continue;
@@ -340,7 +345,7 @@ impl GrblTurntable {
                 return Ok(());
             }
             if let Some(code) = line.strip_prefix("error:") {
-                return Err(self.refused(SYNC, format!("error:{code} ({})", error_meaning(code))));
+                return Err(self.error_code(SYNC, code));
             }
             if line.starts_with('<') {
                 let status = self.parse_status(&line)?;
@@ -451,10 +456,6 @@ impl GrblTurntable {
             state: state.to_string(),
             position,
         })
-    }
-
-    fn write(&mut self, bytes: &[u8], what: &str) -> Result<()> {
-        self.link.write(bytes, what)
     }
 
     /// The next line that says something: GRBL ends its lines with CR LF, and a reset's

@@ -83,16 +83,19 @@ struct Move {
 
 impl Move {
     /// How far along the move is at `now`, in machine units.
-    fn along(&self, now: Instant) -> f64 {
-        let f = (now.saturating_duration_since(self.start)).as_secs_f64()
+    /// The share of the move done at `now`, in [0, 1].
+    fn done(&self, now: Instant) -> f64 {
+        let f = now.saturating_duration_since(self.start).as_secs_f64()
             / (self.end - self.start).as_secs_f64().max(1e-9);
-        distance(&self.from, &self.to) * f.min(1.0)
+        f.min(1.0)
+    }
+
+    fn along(&self, now: Instant) -> f64 {
+        distance(&self.from, &self.to) * self.done(now)
     }
 
     fn at(&self, now: Instant) -> [f64; 4] {
-        let f = (now.saturating_duration_since(self.start)).as_secs_f64()
-            / (self.end - self.start).as_secs_f64().max(1e-9);
-        let f = f.min(1.0);
+        let f = self.done(now);
         std::array::from_fn(|i| self.from[i] + (self.to[i] - self.from[i]) * f)
     }
 }
