@@ -3,30 +3,39 @@
 //! The target is the estimate itself (analytic lobes and measured mix together), rendered on a
 //! sphere under several maps; the fitted material is the one whose own BRDF, rendered the same
 //! way, comes closest in relative RMSE, each map counting alike. Both formats brdfd writes
-//! share one structure (glTF 2.0 appendix B with `KHR_materials_specular`/`KHR_materials_ior`;
-//! OpenPBR's base layer), per colour channel k:
+//! share one structure (glTF 2.0 appendix B with `KHR_materials_specular`,
+//! `KHR_materials_ior` and `KHR_materials_clearcoat`; OpenPBR's base and coat), per colour
+//! channel k:
 //!
 //! ```text
-//! f_k = (1 − m)·[(1 − q·F)·c_k/π + q·Fr_k·S]  +  m·(c_k + (1 − c_k)·w)·S
+//! f_k = (1 − k_c·Fc)·base_k + k_c·Fc·S_c
+//! base_k = (1 − m)·[(1 − q·F)·c_k/π + q·Fr_k·S]  +  m·(c_k + (1 − c_k)·w)·S
 //! Fr_k = F₀_k + (1 − F₀_k)·w,   F = max over k of Fr_k,   w = (1 − cos θd)⁵,
-//! S = D·V (GGX/Smith, roughness α)
+//! Fc = 0.04 + 0.96·(1 − N·V)⁵,   S = D·V (GGX/Smith, roughness α), S_c the same at α_c
 //! ```
 //!
-//! with base colour c, metalness m, specular weight q and the dielectric's F₀ per channel (the
-//! largest from the IOR, the others through the specular colour). Rendering is linear in the
-//! BRDF, so a render is a sum of four images per α: Lambert `L`, Lambert·w `Lw`, `S(1 − w)`
-//! and `S·w`. For fixed (α, m, q, largest F₀) the render is linear in each channel's c_k and
-//! F₀_k, which are solved exactly on their box; (m, q, largest F₀) are searched on a grid and
-//! refined, all through the 5 × 5 Gram matrix of the four images and the target (no image is
-//! formed in the search). α is searched on a log grid, then by golden section with new
-//! renders.
+//! with base colour c, metalness m, specular weight q, the dielectric's F₀ per channel (the
+//! largest from the IOR, the others through the specular colour), and a clear coat of weight
+//! k_c and roughness α_c. The coat holds what one lobe cannot: a sharp varnish over a broad
+//! metallic paint, or a haze around a mirror.
+//!
+//! Rendering is linear in the BRDF, so a render is a sum of nine images per pair of
+//! roughnesses: Lambert `L`, Lambert·w `Lw`, `S(1 − w)` and `S·w`; the same four seen through
+//! the coat's Fresnel; and the coat's lobe. Fc hangs on N·V, which a pixel fixes whatever the
+//! light, so an image seen through it is the image times each pixel's Fc: only the lobes are
+//! rendered, and the Gram matrix weighs their inner products by Fc and Fc². For fixed (α, α_c, m, q, largest F₀, k_c) the
+//! render is linear in each channel's c_k and F₀_k, which are solved exactly on their box;
+//! (m, q, largest F₀) are searched on a grid and refined, all through the 10 × 10 Gram matrix
+//! of the nine images and the target (no image is formed in the search). The roughnesses are
+//! searched on a log grid (every pair for a coat, its weight refined from the uncoated best),
+//! then on finer grids with new renders.
 //!
 //! Not here: the formats' writers ([`super::gltf`], [`super::openpbr`]), and measuring the
 //! result under maps the fit did not see ([`super::write_exports`]).
 
 use rayon::prelude::*;
 
-use brdfd_core::analytic::{columns, lambert_column, schlick_weight};
+use brdfd_core::analytic::{coat_fresnel, columns, lambert_column, schlick_weight};
 use brdfd_core::bivariate::{Bivariate, Grid, GRID_CELLS, N_THETA_D};
 use brdfd_core::envmap::LightSet;
 use brdfd_core::geometry::GeomPixel;
@@ -40,9 +49,10 @@ pub const ALPHA_MIN: f64 = 4e-4;
 pub const ALPHA_MAX: f64 = 1.0;
 /// Log-spaced α of the coarse search: neighbours differ by 1.36×.
 const COARSE_ALPHAS: usize = 26;
-/// Golden-section steps on log α after the coarse grid: the bracket of two grid steps
-/// shrinks to 0.618⁸ = 2% of itself, about 1% in α.
-const GOLDEN_STEPS: usize = 8;
+/// Finer grids of α after the coarse grid, each of this many points rendered in one pass
+/// ([`finer`]).
+const FINER_GRIDS: usize = 2;
+const FINER_POINTS: usize = 6;
 /// The dielectric F₀ values the grid search starts from (IOR 1.0 to 5.8): plastics and
 /// paints sit near 0.04, coatings and glazes up to 0.1, the rest lets a dim metal-like
 /// dielectric (black obsidian) be expressed.
@@ -54,11 +64,14 @@ const UNIT_STEPS: usize = 10;
 /// Pattern-search refinement of (m, q, F): the first step and the smallest.
 const REFINE_FIRST_STEP: f64 = 0.05;
 const REFINE_LAST_STEP: f64 = 1e-4;
-
-/// The four terms and the target, in the Gram matrix's order.
-const TERMS: usize = 4;
-const TARGET: usize = 4;
-type Gram = [[f64; 5]; 5];
+/// The coarse grid's pairs of roughnesses stop refining sooner: they only pick the pair the
+/// finer grids start from.
+const COARSE_LAST_STEP: f64 = 2e-3;
+/// A coat's weight where its search starts, from the uncoated best at the base's roughness.
+const COAT_START: f64 = 0.5;
+/// A coat is kept only when it lowers the squared misfit by this share (its relative RMSE by
+/// 1%): a coat that changes nothing visible is one more extension for a renderer to get wrong.
+const COAT_GAIN: f64 = 0.02;
 
 /// The shared model's parameters: what every format holds in its own fields.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -74,6 +87,10 @@ pub struct Fitted {
     pub f0: [f64; 3],
     /// GGX α.
     pub alpha: f64,
+    /// The clear coat's weight in [0, 1] (glTF's `clearcoatFactor`; 0 is no coat).
+    pub coat: f64,
+    /// The coat's GGX α.
+    pub coat_alpha: f64,
     /// The relative RMSE of the fit over the fit maps (each counting alike).
     pub fit_error: f64,
 }
@@ -96,28 +113,67 @@ impl Fitted {
     }
 }
 
-/// The (m, q, F) part of the search; F bounds every channel's F₀ and is the largest of them.
+/// The terms in the Gram matrix's order: the base's four (L, Lw, S0, S1), the same four seen
+/// through the coat's Fresnel, the coat's lobe, then the target.
+const TERMS: usize = 9;
+const TARGET: usize = 9;
+type Gram = [[f64; 10]; 10];
+
+/// An image the Gram matrix is made of: the α-free ones (L, Lw, the target), the base lobe's
+/// (S0, S1), or the coat's lobe (S), with the power of the coat's Fresnel it is seen through.
+#[derive(Clone, Copy)]
+enum Source {
+    Fixed(usize),
+    Base(usize),
+    Coat,
+}
+const SOURCES: [(Source, usize); TERMS + 1] = [
+    (Source::Fixed(0), 0),
+    (Source::Fixed(1), 0),
+    (Source::Base(0), 0),
+    (Source::Base(1), 0),
+    (Source::Fixed(0), 1),
+    (Source::Fixed(1), 1),
+    (Source::Base(0), 1),
+    (Source::Base(1), 1),
+    (Source::Coat, 1),
+    (Source::Fixed(2), 0),
+];
+
+/// Weights of the terms in an image.
+type Terms = [f64; TERMS];
+
+/// The (m, q, F, k) part of the search; F bounds every channel's F₀ and is the largest of
+/// them, k is the clear coat's weight.
 #[derive(Clone, Copy, Debug)]
 struct Shape {
     m: f64,
     q: f64,
     f: f64,
+    k: f64,
 }
 
-/// Weights of (L, Lw, S0, S1) in an image.
-type Terms = [f64; TERMS];
-
 impl Shape {
-    /// The weights of (L, Lw, S0, S1) that multiply c (A), that multiply the channel's F₀
-    /// (P), and the rest (B). The diffuse's weight uses F, the largest F₀ (the ratified
-    /// `KHR_materials_specular` takes the maximum over the channels there).
+    /// The weights of the terms that multiply c (A), that multiply the channel's F₀ (P), and
+    /// the rest (B). The diffuse's weight uses F, the largest F₀ (the ratified
+    /// `KHR_materials_specular` takes the maximum over the channels there). Under a coat of
+    /// weight k the base loses k·Fc of itself and the coat's lobe adds k·Fc·S.
     fn weights(self) -> (Terms, Terms, Terms) {
-        let Shape { m, q, f } = self;
+        let Shape { m, q, f, k } = self;
         let d = 1.0 - m;
+        let coated = |base: [f64; 4], coat: f64| -> Terms {
+            let mut t = [0.0; TERMS];
+            for i in 0..4 {
+                t[i] = base[i];
+                t[4 + i] = -k * base[i];
+            }
+            t[8] = coat;
+            t
+        };
         (
-            [d * (1.0 - q * f), -d * q * (1.0 - f), m, 0.0],
-            [0.0, 0.0, d * q, 0.0],
-            [0.0, 0.0, 0.0, d * q + m],
+            coated([d * (1.0 - q * f), -d * q * (1.0 - f), m, 0.0], 0.0),
+            coated([0.0, 0.0, d * q, 0.0], 0.0),
+            coated([0.0, 0.0, 0.0, d * q + m], k),
         )
     }
 
@@ -126,20 +182,21 @@ impl Shape {
             m: self.m.clamp(0.0, 1.0),
             q: self.q.clamp(0.0, 1.0),
             f: self.f.clamp(0.0, 0.99),
+            k: self.k.clamp(0.0, 1.0),
         }
     }
 }
 
 fn quad(g: &Gram, a: &Terms, b: &Terms) -> f64 {
     (0..TERMS)
-        .map(|i| (0..TERMS).map(|j| a[i] * g[i][j] * b[j]).sum::<f64>())
+        .filter(|i| a[*i] != 0.0)
+        .map(|i| a[i] * (0..TERMS).map(|j| g[i][j] * b[j]).sum::<f64>())
         .sum()
 }
 
 fn with_target(g: &Gram, a: &Terms) -> f64 {
     (0..TERMS).map(|i| a[i] * g[i][TARGET]).sum()
 }
-
 /// ‖x·u + y·v + b − t‖² for one channel, from its Gram matrix, as a quadratic in (x, y).
 struct Quadratic {
     uu: f64,
@@ -233,7 +290,8 @@ fn cost(grams: &[Gram; 3], shape: Shape) -> (f64, [f64; 3], [f64; 3]) {
     (total, colour, f0)
 }
 
-/// The best shape at one α: the grid, then a pattern search from its best point.
+/// The best shape without a coat: the grid of (m, q, F), then a pattern search from its best
+/// point.
 fn best_shape(grams: &[Gram; 3]) -> (Shape, f64) {
     let steps = (0..=UNIT_STEPS).map(|i| i as f64 / UNIT_STEPS as f64);
     let mut best = (
@@ -241,13 +299,14 @@ fn best_shape(grams: &[Gram; 3]) -> (Shape, f64) {
             m: 0.0,
             q: 0.0,
             f: 0.0,
+            k: 0.0,
         },
         f64::INFINITY,
     );
     for m in steps.clone() {
         for q in steps.clone() {
             for f in F0_GRID {
-                let s = Shape { m, q, f };
+                let s = Shape { m, q, f, k: 0.0 };
                 let (e, ..) = cost(grams, s);
                 if e < best.1 {
                     best = (s, e);
@@ -255,29 +314,40 @@ fn best_shape(grams: &[Gram; 3]) -> (Shape, f64) {
             }
         }
     }
+    refine(grams, best.0, false, REFINE_LAST_STEP)
+}
+
+/// A pattern search over (m, q, F), and the coat's weight when `coat`, from `start`, until
+/// its step is below `last_step`.
+fn refine(grams: &[Gram; 3], start: Shape, coat: bool, last_step: f64) -> (Shape, f64) {
+    let mut best = (start, cost(grams, start).0);
+    let axes: &[[f64; 4]] = &[
+        [1.0, 0.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0, 0.0],
+        // F₀ moves on a finer scale: it lives near 0.04.
+        [0.0, 0.0, 0.2, 0.0],
+        [0.0, 0.0, 0.0, 1.0],
+    ];
+    let axes = if coat { axes } else { &axes[..3] };
     let mut step = REFINE_FIRST_STEP;
-    while step >= REFINE_LAST_STEP {
+    while step >= last_step {
         let mut moved = false;
-        for (dm, dq, df) in [
-            (1.0, 0.0, 0.0),
-            (-1.0, 0.0, 0.0),
-            (0.0, 1.0, 0.0),
-            (0.0, -1.0, 0.0),
-            (0.0, 0.0, 1.0),
-            (0.0, 0.0, -1.0),
-        ] {
-            let (s, _) = best;
-            let t = Shape {
-                m: s.m + dm * step,
-                q: s.q + dq * step,
-                // F₀ moves on a finer scale: it lives near 0.04.
-                f: s.f + df * step * 0.2,
-            }
-            .clamped();
-            let (e, ..) = cost(grams, t);
-            if e < best.1 {
-                best = (t, e);
-                moved = true;
+        for axis in axes {
+            for sign in [1.0, -1.0] {
+                let s = best.0;
+                let d = axis.map(|a| a * sign * step);
+                let t = Shape {
+                    m: s.m + d[0],
+                    q: s.q + d[1],
+                    f: s.f + d[2],
+                    k: s.k + d[3],
+                }
+                .clamped();
+                let (e, ..) = cost(grams, t);
+                if e < best.1 {
+                    best = (t, e);
+                    moved = true;
+                }
             }
         }
         if !moved {
@@ -287,14 +357,52 @@ fn best_shape(grams: &[Gram; 3]) -> (Shape, f64) {
     best
 }
 
-/// The images a fit compares: the target and the α-free terms (L, Lw) per map, each map's
-/// rows scaled so that the target has unit norm there.
+/// Per-channel inner products of two images (rows of 3 channels per pixel), weighted by the
+/// coat's Fresnel of each row's pixel to the powers 0, 1 and 2.
+fn dots(a: &[f64], b: &[f64], fresnel: &[f64]) -> Dots {
+    let mut s = [[0.0; 3]; 3];
+    for ((x, y), f) in a
+        .chunks_exact(3)
+        .zip(b.chunks_exact(3))
+        .zip(fresnel.iter().cycle())
+    {
+        for c in 0..3 {
+            let v = x[c] * y[c];
+            s[0][c] += v;
+            s[1][c] += v * f;
+            s[2][c] += v * f * f;
+        }
+    }
+    s
+}
+
+/// Inner products per power of the coat's Fresnel (0, 1, 2), then per channel.
+type Dots = [[f64; 3]; 3];
+
+/// One roughness's lobe images under every fit map, S0, S1 and their sum S (the lobe as a
+/// coat), with their inner products with the α-free images and with each other.
+struct Lobe {
+    alpha: f64,
+    images: [Vec<f64>; 3],
+    with_fixed: [[Dots; 3]; 3],
+    own: [[Dots; 3]; 3],
+}
+
+/// The images a fit compares: the target and the α-free terms (L, Lw), each map's rows scaled
+/// so that the target has unit norm there, every map's rows one after another.
+///
+/// glTF's coat hangs on N·V, which a pixel fixes whatever the light: the render of a term seen
+/// through the coat's Fresnel is the term's render times the pixel's Fresnel, exactly. So no
+/// image is rendered for the coat; the Gram matrix weighs the inner products by the Fresnel.
 pub struct Scenes<'a> {
     pixels: &'a [GeomPixel],
     maps: &'a [LightSet],
     grid: Grid,
-    /// Per map: rows (3 per pixel) of L, Lw and the target, each scaled by the map's weight.
-    fixed: Vec<[Vec<f64>; 3]>,
+    /// L, Lw and the target.
+    fixed: [Vec<f64>; 3],
+    fixed_dots: [[Dots; 3]; 3],
+    /// The coat's Fresnel at each pixel's N·V.
+    fresnel: Vec<f64>,
     scale: Vec<f64>,
 }
 
@@ -315,15 +423,15 @@ impl<'a> Scenes<'a> {
         let lambert = lambert_column(grid);
         let lambert_w = lambert_w_column(grid);
         let cols: [&[f64]; 3] = [&lambert, &lambert_w, &target.values];
-        let mut fixed = Vec::with_capacity(maps.len());
+        let mut fixed: [Vec<f64>; 3] = Default::default();
         let mut scale = Vec::with_capacity(maps.len());
         for lights in maps {
             let a = RenderingMatrix::build(pixels, lights, &cols, None, grid.theta_h_binning);
-            let column = |j: usize| -> Vec<f64> {
-                (0..pixels.len() * 3).map(|r| a.row(r)[j] as f64).collect()
-            };
-            let t = column(2);
-            let norm = t.iter().map(|v| v * v).sum::<f64>().sqrt();
+            let rows = pixels.len() * 3;
+            let norm = (0..rows)
+                .map(|r| (a.row(r)[2] as f64).powi(2))
+                .sum::<f64>()
+                .sqrt();
             if !(norm.is_finite() && norm > 0.0) {
                 return Err(CoreError::Invalid(
                     "the estimate renders black (or not a number) under a reference map: \
@@ -332,26 +440,35 @@ impl<'a> Scenes<'a> {
                 ));
             }
             let s = 1.0 / norm;
-            fixed.push([column(0), column(1), t].map(|v| v.into_iter().map(|x| x * s).collect()));
+            for (j, image) in fixed.iter_mut().enumerate() {
+                image.extend((0..rows).map(|r| a.row(r)[j] as f64 * s));
+            }
             scale.push(s);
         }
+        let fresnel: Vec<f64> = pixels.iter().map(coat_fresnel_at).collect();
+        let fixed_dots =
+            std::array::from_fn(|i| std::array::from_fn(|j| dots(&fixed[i], &fixed[j], &fresnel)));
         Ok(Scenes {
             pixels,
             maps,
             grid,
             fixed,
+            fixed_dots,
+            fresnel,
             scale,
         })
     }
 
-    /// The per-channel Gram matrices of (L, Lw, S0, S1, target) at each of `alphas`, summed
-    /// over the maps.
-    fn grams(&self, alphas: &[f64]) -> Vec<[Gram; 3]> {
+    /// The lobe images at each of `alphas`.
+    fn lobes(&self, alphas: &[f64]) -> Vec<Lobe> {
         let cols: Vec<[Vec<f64>; 3]> = alphas.par_iter().map(|a| columns(self.grid, *a)).collect();
-        let mut out = vec![[[[0.0; 5]; 5]; 3]; alphas.len()];
+        let rows = self.pixels.len() * 3;
+        let mut images: Vec<[Vec<f64>; 3]> = (0..alphas.len())
+            .map(|_| std::array::from_fn(|_| Vec::with_capacity(rows * self.maps.len())))
+            .collect();
         let per_pass = PASS_COLUMNS / 2;
         for (m, lights) in self.maps.iter().enumerate() {
-            let [l, lw, t] = &self.fixed[m];
+            let s = self.scale[m];
             for (p, chunk) in cols.chunks(per_pass).enumerate() {
                 let refs: Vec<&[f64]> = chunk.iter().flat_map(|c| [&c[1][..], &c[2][..]]).collect();
                 let a = RenderingMatrix::build(
@@ -361,107 +478,223 @@ impl<'a> Scenes<'a> {
                     None,
                     self.grid.theta_h_binning,
                 );
-                let s = self.scale[m];
-                for (i, g) in out[p * per_pass..p * per_pass + chunk.len()]
+                for (i, lobe) in images[p * per_pass..p * per_pass + chunk.len()]
                     .iter_mut()
                     .enumerate()
                 {
-                    for r in 0..self.pixels.len() * 3 {
+                    for r in 0..rows {
                         let row = a.row(r);
-                        let v = [
-                            l[r],
-                            lw[r],
-                            row[2 * i] as f64 * s,
-                            row[2 * i + 1] as f64 * s,
-                            t[r],
-                        ];
-                        let k = &mut g[r % 3];
-                        for x in 0..5 {
-                            for y in x..5 {
-                                k[x][y] += v[x] * v[y];
-                            }
-                        }
+                        let (s0, s1) = (row[2 * i] as f64 * s, row[2 * i + 1] as f64 * s);
+                        lobe[0].push(s0);
+                        lobe[1].push(s1);
+                        lobe[2].push(s0 + s1);
                     }
                 }
             }
         }
-        for g in out.iter_mut().flatten() {
-            for x in 0..5 {
-                for y in 0..x {
-                    g[x][y] = g[y][x];
+        alphas
+            .par_iter()
+            .zip(images)
+            .map(|(alpha, images)| {
+                let d = |x: &[f64], y: &[f64]| dots(x, y, &self.fresnel);
+                Lobe {
+                    alpha: *alpha,
+                    with_fixed: std::array::from_fn(|i| {
+                        std::array::from_fn(|j| d(&images[i], &self.fixed[j]))
+                    }),
+                    own: std::array::from_fn(|i| {
+                        std::array::from_fn(|j| d(&images[i], &images[j]))
+                    }),
+                    images,
+                }
+            })
+            .collect()
+    }
+
+    /// The per-channel Gram matrices of the terms and the target with `base` as the base's
+    /// lobe and `coat` as the coat's.
+    fn gram(&self, base: &Lobe, coat: &Lobe) -> [Gram; 3] {
+        let same = std::ptr::eq(base, coat);
+        let cross: [Dots; 2] = std::array::from_fn(|i| {
+            if same {
+                base.own[i][2]
+            } else {
+                dots(&base.images[i], &coat.images[2], &self.fresnel)
+            }
+        });
+        let dot = |x: Source, y: Source| -> Dots {
+            use Source::*;
+            match (x, y) {
+                (Fixed(i), Fixed(j)) => self.fixed_dots[i][j],
+                (Fixed(j), Base(i)) | (Base(i), Fixed(j)) => base.with_fixed[i][j],
+                (Base(i), Base(j)) => base.own[i][j],
+                (Fixed(j), Coat) | (Coat, Fixed(j)) => coat.with_fixed[2][j],
+                (Base(i), Coat) | (Coat, Base(i)) => cross[i],
+                (Coat, Coat) => coat.own[2][2],
+            }
+        };
+        let mut out = [[[0.0; TERMS + 1]; TERMS + 1]; 3];
+        for (x, (sx, px)) in SOURCES.iter().enumerate() {
+            for (y, (sy, py)) in SOURCES.iter().enumerate().skip(x) {
+                let d = dot(*sx, *sy)[px + py];
+                for c in 0..3 {
+                    out[c][x][y] = d[c];
+                    out[c][y][x] = d[c];
                 }
             }
         }
         out
     }
 
-    /// The best shape and base colour at one α, and its squared misfit.
-    fn at(&self, alpha: f64) -> Candidate {
-        let grams = self.grams(&[alpha]).remove(0);
-        Candidate::of(alpha, &grams, best_shape(&grams).0)
+    /// The best material without a coat at the base's roughness.
+    fn plain(&self, base: &Lobe) -> Candidate {
+        let grams = self.gram(base, base);
+        Candidate::of(base.alpha, 0.0, &grams, best_shape(&grams).0)
     }
 
-    /// Fits the shared model to the target.
+    /// The best coated material from `start` with these lobes.
+    fn coated(&self, base: &Lobe, coat: &Lobe, start: Shape, last_step: f64) -> Candidate {
+        let grams = self.gram(base, coat);
+        let (shape, _) = refine(&grams, start, true, last_step);
+        Candidate::of(base.alpha, coat.alpha, &grams, shape)
+    }
+
+    /// Fits the shared model to the target: every coarse roughness without a coat, and every
+    /// pair of them with one; then finer grids about the best's roughnesses.
     pub fn fit(&self) -> Fitted {
         let ratio = (ALPHA_MAX / ALPHA_MIN).powf(1.0 / (COARSE_ALPHAS - 1) as f64);
         let alphas: Vec<f64> = (0..COARSE_ALPHAS)
             .map(|i| ALPHA_MIN * ratio.powi(i as i32))
             .collect();
-        let grams = self.grams(&alphas);
-        let coarse: Vec<Candidate> = grams
-            .par_iter()
-            .zip(&alphas)
-            .map(|(g, a)| Candidate::of(*a, g, best_shape(g).0))
+        let lobes = self.lobes(&alphas);
+        let plain: Vec<Candidate> = lobes.par_iter().map(|l| self.plain(l)).collect();
+        let pairs: Vec<(usize, usize)> = (0..COARSE_ALPHAS)
+            .flat_map(|b| (0..COARSE_ALPHAS).map(move |c| (b, c)))
             .collect();
-        let best = (0..COARSE_ALPHAS)
-            .min_by(|a, b| coarse[*a].misfit.total_cmp(&coarse[*b].misfit))
-            .unwrap_or(0);
-        let mut found = coarse[best];
-        // Golden section on log α over the two grid steps around the best.
-        let (mut lo, mut hi) = (
-            alphas[best.saturating_sub(1)].ln(),
-            alphas[(best + 1).min(COARSE_ALPHAS - 1)].ln(),
+        let coated: Vec<Candidate> = pairs
+            .par_iter()
+            .map(|&(b, c)| {
+                let start = Shape {
+                    k: COAT_START,
+                    ..plain[b].shape
+                };
+                self.coated(&lobes[b], &lobes[c], start, COARSE_LAST_STEP)
+            })
+            .collect();
+        let best = |c: &[Candidate]| {
+            (0..c.len())
+                .min_by(|a, b| c[*a].misfit.total_cmp(&c[*b].misfit))
+                .unwrap_or(0)
+        };
+        let (best_plain, best_coated) = (best(&plain), best(&coated));
+        let bracket = |i: usize| {
+            (
+                alphas[i.saturating_sub(1)],
+                alphas[(i + 1).min(COARSE_ALPHAS - 1)],
+            )
+        };
+        let plain = finer(
+            bracket(best_plain),
+            plain[best_plain],
+            |c| c.alpha,
+            |alphas| {
+                self.lobes(alphas)
+                    .par_iter()
+                    .map(|l| self.plain(l))
+                    .collect()
+            },
         );
-        let phi = (5f64.sqrt() - 1.0) / 2.0;
-        let mut x1 = hi - phi * (hi - lo);
-        let mut x2 = lo + phi * (hi - lo);
-        let mut f1 = self.at(x1.exp());
-        let mut f2 = self.at(x2.exp());
-        for _ in 0..GOLDEN_STEPS {
-            if f1.misfit < f2.misfit {
-                hi = x2;
-                x2 = x1;
-                f2 = f1;
-                x1 = hi - phi * (hi - lo);
-                f1 = self.at(x1.exp());
+        let found = if coated[best_coated].misfit < plain.misfit * (1.0 - COAT_GAIN) {
+            let (b, c) = pairs[best_coated];
+            let start = coated[best_coated];
+            let coat = &lobes[c];
+            let found = finer(
+                bracket(b),
+                start,
+                |c| c.alpha,
+                |alphas| {
+                    let lobes = self.lobes(alphas);
+                    lobes
+                        .par_iter()
+                        .map(|l| self.coated(l, coat, start.shape, REFINE_LAST_STEP))
+                        .collect()
+                },
+            );
+            let base = self.lobes(&[found.alpha]).remove(0);
+            let found = finer(
+                bracket(c),
+                found,
+                |c| c.coat_alpha,
+                |alphas| {
+                    let lobes = self.lobes(alphas);
+                    lobes
+                        .par_iter()
+                        .map(|l| self.coated(&base, l, found.shape, REFINE_LAST_STEP))
+                        .collect()
+                },
+            );
+            // The finer grids may have found a coat that no longer pays for itself.
+            if found.misfit < plain.misfit * (1.0 - COAT_GAIN) {
+                found
             } else {
-                lo = x1;
-                x1 = x2;
-                f1 = f2;
-                x2 = lo + phi * (hi - lo);
-                f2 = self.at(x2.exp());
+                plain
             }
-        }
-        for f in [f1, f2] {
-            if f.misfit < found.misfit {
-                found = f;
-            }
-        }
+        } else {
+            plain
+        };
         Fitted {
             base_color: found.colour,
             metallic: found.shape.m,
             specular: found.shape.q,
             f0: found.f0,
             alpha: found.alpha,
+            coat: found.shape.k,
+            coat_alpha: found.coat_alpha,
             fit_error: (found.misfit / self.maps.len() as f64).sqrt(),
         }
     }
 }
 
-/// One roughness's best material and its squared misfit.
+/// The best of `start` and of finer grids of one roughness within `bracket`: each grid's
+/// points, evenly spaced in log α and rendered in one pass by `at`, then a grid between the
+/// best point's neighbours. Two grids of [`FINER_POINTS`] place α within 1.3% of the best.
+/// `of` reads the roughness searched from a candidate.
+fn finer(
+    bracket: (f64, f64),
+    start: Candidate,
+    of: fn(&Candidate) -> f64,
+    at: impl Fn(&[f64]) -> Vec<Candidate>,
+) -> Candidate {
+    let bounds = (bracket.0.ln(), bracket.1.ln());
+    let (mut lo, mut hi) = bounds;
+    let mut found = start;
+    for _ in 0..FINER_GRIDS {
+        let step = (hi - lo) / (FINER_POINTS + 1) as f64;
+        let alphas: Vec<f64> = (1..=FINER_POINTS)
+            .map(|i| (lo + step * i as f64).exp())
+            .collect();
+        for c in at(&alphas) {
+            if c.misfit < found.misfit {
+                found = c;
+            }
+        }
+        let centre = of(&found).ln();
+        (lo, hi) = ((centre - step).max(bounds.0), (centre + step).min(bounds.1));
+    }
+    found
+}
+
+/// The coat's Fresnel at a pixel: at its N·V.
+pub fn coat_fresnel_at(px: &GeomPixel) -> f64 {
+    let d: f32 = (0..3).map(|k| px.normal[k] * px.view[k]).sum();
+    coat_fresnel(f64::from(d).clamp(0.0, 1.0))
+}
+
+/// One material's roughnesses, shape, colours and squared misfit.
 #[derive(Clone, Copy)]
 struct Candidate {
     alpha: f64,
+    coat_alpha: f64,
     shape: Shape,
     colour: [f64; 3],
     f0: [f64; 3],
@@ -469,10 +702,11 @@ struct Candidate {
 }
 
 impl Candidate {
-    fn of(alpha: f64, grams: &[Gram; 3], shape: Shape) -> Candidate {
+    fn of(alpha: f64, coat_alpha: f64, grams: &[Gram; 3], shape: Shape) -> Candidate {
         let (misfit, colour, f0) = cost(grams, shape);
         Candidate {
             alpha,
+            coat_alpha,
             shape,
             colour,
             f0,
@@ -488,18 +722,19 @@ mod tests {
     #[test]
     fn a_channel_recovers_a_known_colour_and_f0_from_its_gram() {
         // Terms as orthonormal images and a target made of them with c = 0.3 and F₀ = 0.04
-        // under a dielectric (m = 0.2, q = 0.8, F = 0.05): the closed form returns both and a
-        // zero misfit.
+        // under a coated dielectric (m = 0.2, q = 0.8, F = 0.05, coat 0.3): the closed form
+        // returns both and a zero misfit.
         let shape = Shape {
             m: 0.2,
             q: 0.8,
             f: 0.05,
+            k: 0.3,
         };
         let (a, p, b) = shape.weights();
         let target: Vec<f64> = (0..TERMS)
             .map(|i| 0.3 * a[i] + 0.04 * p[i] + b[i])
             .collect();
-        let mut g = [[0.0; 5]; 5];
+        let mut g = [[0.0; TERMS + 1]; TERMS + 1];
         for i in 0..TERMS {
             g[i][i] = 1.0;
             g[i][TARGET] = target[i];

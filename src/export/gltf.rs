@@ -1,27 +1,33 @@
 //! `material.gltf`: the fitted material as glTF 2.0 metallic-roughness with
-//! `KHR_materials_specular` and `KHR_materials_ior`, on a sphere, so that every viewer shows
-//! it (three.js's `scene.add(gltf.scene)`, Blender's default import).
+//! `KHR_materials_specular`, `KHR_materials_ior` and (when the fit found one)
+//! `KHR_materials_clearcoat`, on a sphere, so that every viewer shows it (three.js's
+//! `scene.add(gltf.scene)`, Blender's default import).
 //!
 //! The BRDF is glTF's own ([`GltfBrdf`]: appendix B, with the ratified
-//! `KHR_materials_specular`'s `fresnel_mix` and `KHR_materials_ior`'s F₀). The IOR carries the
-//! largest channel's F₀ and the specular colour the others' relative to it, so every factor
-//! stays within [0, 1].
+//! `KHR_materials_specular`'s `fresnel_mix`, `KHR_materials_ior`'s F₀ and
+//! `KHR_materials_clearcoat`'s `fresnel_coat`). The IOR carries the largest channel's F₀ and
+//! the specular colour the others' relative to it, so every factor stays within [0, 1].
 
 use base64::Engine as _;
 
-use brdfd_core::analytic::{schlick_weight, Microfacet};
+use brdfd_core::analytic::{coat_fresnel, schlick_weight, Microfacet};
+use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::brdf::{from_rusinkiewicz, IsotropicBrdf};
+use brdfd_core::envmap::LightSet;
+use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::mesh::Mesh;
+use brdfd_core::raster::Raster;
+use brdfd_core::render::render_bivariate;
 use brdfd_core::{CoreError, Result};
 
-use super::fit::Fitted;
+use super::fit::{coat_fresnel_at, Fitted};
 
 /// The sphere's tessellation: a UV sphere whose facets are under 6°, finer than any viewer's
 /// shading shows.
 const SEGMENTS: usize = 64;
 const RINGS: usize = 32;
 
-/// A glTF metallic-roughness material with the specular and IOR extensions.
+/// A glTF metallic-roughness material with the specular, IOR and clear coat extensions.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct GltfMaterial {
     pub base_color: [f64; 3],
@@ -35,6 +41,10 @@ pub struct GltfMaterial {
     pub specular_color: [f64; 3],
     /// `KHR_materials_ior`'s `ior`.
     pub ior: f64,
+    /// `KHR_materials_clearcoat`'s `clearcoatFactor` (0: no coat, and no extension written).
+    pub clearcoat: f64,
+    /// `KHR_materials_clearcoat`'s `clearcoatRoughnessFactor`: √α of the coat.
+    pub clearcoat_roughness: f64,
 }
 
 impl GltfMaterial {
@@ -46,13 +56,39 @@ impl GltfMaterial {
             specular: f.specular,
             specular_color: f.specular_color(),
             ior: f.ior(),
+            clearcoat: f.coat,
+            clearcoat_roughness: f.coat_alpha.sqrt().clamp(0.0, 1.0),
         }
     }
 
+    /// The material rendered on `geometry` under `lights`, as a conforming renderer shows it:
+    /// the base as a bivariate table on `grid`, and the coat's lobe, mixed at each pixel by
+    /// the coat's Fresnel at its N·V (`fresnel_coat`).
+    pub fn render(&self, geometry: &PixelGeometry, lights: &LightSet, grid: Grid) -> Raster {
+        let base = GltfMaterial {
+            clearcoat: 0.0,
+            ..*self
+        };
+        let mut image =
+            render_bivariate(geometry, lights, &Bivariate::reduce(&GltfBrdf(base), grid));
+        if self.clearcoat > 0.0 {
+            let alpha = self.clearcoat_roughness * self.clearcoat_roughness;
+            let lobe = Microfacet::one_lobe([0.0; 3], [1.0; 3], [1.0; 3], alpha).bivariate(grid);
+            let coat = render_bivariate(geometry, lights, &lobe);
+            for px in &geometry.pixels {
+                let i = px.y as usize * image.width + px.x as usize;
+                let k = (self.clearcoat * coat_fresnel_at(px)) as f32;
+                image.pixels[i] =
+                    std::array::from_fn(|c| image.pixels[i][c] * (1.0 - k) + coat.pixels[i][c] * k);
+            }
+        }
+        image
+    }
+
     /// The first material of a glTF file (`.gltf`, JSON): its metallic-roughness factors and
-    /// the specular and IOR extensions, with glTF's defaults for what it leaves out. What else
-    /// a material can hold (textures, emission, transparency, other extensions) is refused by
-    /// name: brdfd would render something else than the file says.
+    /// the specular, IOR and clear coat extensions, with glTF's defaults for what it leaves
+    /// out. What else a material can hold (textures, emission, transparency, other
+    /// extensions) is refused by name: brdfd would render something else than the file says.
     pub fn read(path: &std::path::Path) -> Result<GltfMaterial> {
         let what = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|e| CoreError::io(path, e))?;
@@ -64,11 +100,12 @@ impl GltfMaterial {
         if let Some(field) = unrendered(m, "materials[0]") {
             return Err(CoreError::format(
                 &what,
-                format!("{field} is not rendered: brdfd renders glTF's metallic-roughness BRDF with the specular and IOR extensions, from factors alone"),
+                format!("{field} is not rendered: brdfd renders glTF's metallic-roughness BRDF with the specular, IOR and clear coat extensions, from factors alone"),
             ));
         }
         let pbr = &m["pbrMetallicRoughness"];
         let spec = &m["extensions"]["KHR_materials_specular"];
+        let coat = &m["extensions"]["KHR_materials_clearcoat"];
         let number = |v: &serde_json::Value, field: &str, default: f64, range: (f64, f64)| {
             if v.is_null() {
                 return Ok(default);
@@ -114,6 +151,18 @@ impl GltfMaterial {
                 "KHR_materials_ior.ior",
                 1.5,
                 (1.0, f64::MAX),
+            )?,
+            clearcoat: number(
+                &coat["clearcoatFactor"],
+                "KHR_materials_clearcoat.clearcoatFactor",
+                0.0,
+                unit,
+            )?,
+            clearcoat_roughness: number(
+                &coat["clearcoatRoughnessFactor"],
+                "KHR_materials_clearcoat.clearcoatRoughnessFactor",
+                0.0,
+                unit,
             )?,
         })
     }
@@ -163,9 +212,24 @@ impl GltfMaterial {
                                            "byteLength": indices * 2, "target": 34963 }),
             );
         }
+        let mut used = vec!["KHR_materials_specular", "KHR_materials_ior"];
+        let mut extensions = serde_json::json!({
+            "KHR_materials_specular": {
+                "specularFactor": self.specular,
+                "specularColorFactor": self.specular_color,
+            },
+            "KHR_materials_ior": { "ior": self.ior },
+        });
+        if self.clearcoat > 0.0 {
+            used.push("KHR_materials_clearcoat");
+            extensions["KHR_materials_clearcoat"] = serde_json::json!({
+                "clearcoatFactor": self.clearcoat,
+                "clearcoatRoughnessFactor": self.clearcoat_roughness,
+            });
+        }
         let json = serde_json::json!({
             "asset": { "version": "2.0", "generator": concat!("brdfd ", env!("CARGO_PKG_VERSION")) },
-            "extensionsUsed": ["KHR_materials_specular", "KHR_materials_ior"],
+            "extensionsUsed": used,
             "scene": 0,
             "scenes": [{ "name": name, "nodes": [0] }],
             "nodes": [{ "name": shape, "mesh": 0 }],
@@ -186,13 +250,7 @@ impl GltfMaterial {
                     "metallicFactor": self.metallic,
                     "roughnessFactor": self.roughness,
                 },
-                "extensions": {
-                    "KHR_materials_specular": {
-                        "specularFactor": self.specular,
-                        "specularColorFactor": self.specular_color,
-                    },
-                    "KHR_materials_ior": { "ior": self.ior },
-                },
+                "extensions": extensions,
             }],
         });
         serde_json::to_string_pretty(&json).expect("a material serialises")
@@ -200,7 +258,8 @@ impl GltfMaterial {
 }
 
 /// The first part of a glTF material (`at` names where) that [`GltfBrdf`] does not render:
-/// a texture, emission, transparency, or an extension other than the specular and IOR ones.
+/// a texture, emission, transparency, or an extension other than the specular, IOR and clear
+/// coat ones.
 fn unrendered(v: &serde_json::Value, at: &str) -> Option<String> {
     let object = v.as_object()?;
     for (key, value) in object {
@@ -214,7 +273,11 @@ fn unrendered(v: &serde_json::Value, at: &str) -> Option<String> {
             return Some(here);
         }
         if key == "extensions" {
-            let known = ["KHR_materials_specular", "KHR_materials_ior"];
+            let known = [
+                "KHR_materials_specular",
+                "KHR_materials_ior",
+                "KHR_materials_clearcoat",
+            ];
             if let Some(other) = value
                 .as_object()?
                 .keys()
@@ -332,11 +395,13 @@ fn mesh_buffer(mesh: &Mesh) -> Geometry {
     Geometry::new(&points, &normals, None)
 }
 
-/// glTF's metallic-roughness BRDF with the specular and IOR extensions, white specular colour:
+/// glTF's metallic-roughness BRDF with the specular, IOR and clear coat extensions:
 /// `material = mix(dielectric, metal, metallic)` with
 /// `metal = (c + (1 − c)·w)·S` and
 /// `dielectric = (1 − q·max Fr)·c/π + q·Fr·S`, `Fr = F₀ + (1 − F₀)·w` per channel,
-/// F₀ = ((η − 1)/(η + 1))² × specular colour.
+/// F₀ = ((η − 1)/(η + 1))² × specular colour; then
+/// `coated = mix(material, S_c, k·Fc)`, `Fc = 0.04 + 0.96·(1 − N·V)⁵` (`fresnel_coat`), where
+/// the view is the second direction.
 pub struct GltfBrdf(pub GltfMaterial);
 
 impl IsotropicBrdf for GltfBrdf {
@@ -355,13 +420,22 @@ impl IsotropicBrdf for GltfBrdf {
             let f0 = (ior_f0 * m.specular_color[c]).min(1.0);
             f0 + (1.0 - f0) * w
         });
+        let (coat, coat_lobe) = if m.clearcoat > 0.0 {
+            let alpha = m.clearcoat_roughness * m.clearcoat_roughness;
+            let lobe = Microfacet::one_lobe([0.0; 3], [1.0; 3], [1.0; 3], alpha)
+                .eval_angles(theta_h, theta_d, phi_d)[0];
+            (m.clearcoat * coat_fresnel(wo[2]), lobe)
+        } else {
+            (0.0, 0.0)
+        };
         // `fresnel_mix` weighs the base by 1 − weight · max(fr).
         let diffuse_weight = 1.0 - m.specular * fr.iter().copied().fold(0.0, f64::max);
         std::array::from_fn(|c| {
             let dielectric = diffuse_weight * m.base_color[c] / std::f64::consts::PI
                 + m.specular * fr[c] * specular;
             let metal = (m.base_color[c] + (1.0 - m.base_color[c]) * w) * specular;
-            (1.0 - m.metallic) * dielectric + m.metallic * metal
+            let base = (1.0 - m.metallic) * dielectric + m.metallic * metal;
+            base * (1.0 - coat) + coat * coat_lobe
         })
     }
 }
@@ -379,6 +453,8 @@ mod tests {
             specular: 0.5,
             specular_color: [1.0, 0.8, 0.6],
             ior: 1.7,
+            clearcoat: 0.4,
+            clearcoat_roughness: 0.1,
         };
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("m.gltf");

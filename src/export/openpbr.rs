@@ -1,10 +1,12 @@
 //! `material.mtlx`: the fitted material as an OpenPBR Surface (MaterialX 1.39).
 //!
 //! The shared model's parameters go into OpenPBR's nearest inputs: base colour and
-//! metalness, specular weight, white specular colour, roughness (√α) and IOR. OpenPBR's own
-//! BRDF differs from glTF's in its details (the dielectric's exact Fresnel instead of
-//! Schlick's, albedo-scaled layering of the specular over the diffuse, F82 tint), so the
-//! relight error written beside the file is the glTF material's, and says so.
+//! metalness, specular weight, white specular colour, roughness (√α) and IOR, and the clear
+//! coat's weight, roughness and IOR (1.5, glTF's). OpenPBR's own BRDF differs from glTF's in
+//! its details (the dielectric's exact Fresnel instead of Schlick's, albedo-scaled layering of
+//! the specular over the diffuse and of the coat over the base, F82 tint), so the relight error
+//! written beside the file is the glTF material's, and says so. `coat_darkening` is 0: glTF's
+//! coat dims the base by its Fresnel alone, not by light trapped inside the coat.
 
 use std::fmt::Write as _;
 
@@ -18,7 +20,12 @@ pub struct OpenPbrMaterial {
     pub specular_weight: f64,
     pub specular_roughness: f64,
     pub specular_ior: f64,
+    pub coat_weight: f64,
+    pub coat_roughness: f64,
 }
+
+/// The coat's IOR: glTF's `KHR_materials_clearcoat` fixes 1.5 (F₀ 0.04).
+const COAT_IOR: f64 = 1.5;
 
 impl OpenPbrMaterial {
     pub fn from_fit(f: &Fitted) -> OpenPbrMaterial {
@@ -28,6 +35,8 @@ impl OpenPbrMaterial {
             specular_weight: f.specular,
             specular_roughness: f.alpha.sqrt().clamp(0.0, 1.0),
             specular_ior: f.ior(),
+            coat_weight: f.coat,
+            coat_roughness: f.coat_alpha.sqrt().clamp(0.0, 1.0),
         }
     }
 
@@ -41,7 +50,7 @@ impl OpenPbrMaterial {
             s,
             "  <open_pbr_surface name=\"SR_{name}\" type=\"surfaceshader\">"
         );
-        let inputs = [
+        let mut inputs = vec![
             ("base_weight", "float", "1.0".to_string()),
             ("base_color", "color3", c3(self.base_color)),
             (
@@ -62,6 +71,18 @@ impl OpenPbrMaterial {
             ),
             ("specular_ior", "float", format!("{:.6}", self.specular_ior)),
         ];
+        if self.coat_weight > 0.0 {
+            inputs.extend([
+                ("coat_weight", "float", format!("{:.6}", self.coat_weight)),
+                (
+                    "coat_roughness",
+                    "float",
+                    format!("{:.6}", self.coat_roughness),
+                ),
+                ("coat_ior", "float", format!("{COAT_IOR:.6}")),
+                ("coat_darkening", "float", "0.0".to_string()),
+            ]);
+        }
         for (n, t, v) in inputs {
             let _ = writeln!(s, "    <input name=\"{n}\" type=\"{t}\" value=\"{v}\" />");
         }

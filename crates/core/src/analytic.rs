@@ -233,6 +233,17 @@ fn cell_angles(grid: Grid, g: usize) -> (f64, f64) {
     (grid.theta_h_binning.center(ih), merl::theta_d_center(jd))
 }
 
+/// The normal-incidence reflectance of a clear coat of IOR 1.5, as glTF's
+/// `KHR_materials_clearcoat` fixes it.
+pub const COAT_F0: f64 = 0.04;
+
+/// Schlick's Fresnel of that coat at a view with cosine `cos_v` to the normal. glTF hangs the
+/// coat's weight (and the base's loss under it) on N·V, not on θd: a coated material is not a
+/// function of (θh, θd) alone, but on an image a pixel fixes N·V whatever the light.
+pub fn coat_fresnel(cos_v: f64) -> f64 {
+    COAT_F0 + (1.0 - COAT_F0) * schlick_weight(cos_v)
+}
+
 /// Lambert's column (1/π where the grid has a cell), the first of [`columns`].
 pub fn lambert_column(grid: Grid) -> Vec<f64> {
     let s = cell_samples(grid);
