@@ -526,19 +526,74 @@ fn the_viewer_shows_the_export_as_brdfd_renders_it() {
     let last = daemon.events(&id).last().cloned().unwrap();
     assert_eq!(last["state"], "done", "{last}");
 
-    // The export and a reference map, fetched as the viewer fetches them; brdfd's own render
-    // of that file under that map, with the viewer's orthographic view.
-    let (status, gltf) = daemon.get_bytes(&format!("/sessions/{id}/result/material.gltf"));
-    assert_eq!(status, 200);
-    std::fs::write(dir.path().join("material.gltf"), gltf).unwrap();
     let map = reqwest::blocking::get(format!("http://{}/maps/courtyard.hdr", daemon.addr)).unwrap();
     assert_eq!(map.status().as_u16(), 200);
     std::fs::write(dir.path().join("courtyard.hdr"), map.bytes().unwrap()).unwrap();
+    let browser = Browser::start();
+
+    // The export, fetched as the viewer fetches it. At 0° the viewer's map is where brdfd's
+    // is; ±90° are the wrong quarter turns, which the figure must tell apart.
+    let (status, gltf) = daemon.get_bytes(&format!("/sessions/{id}/result/material.gltf"));
+    assert_eq!(status, 200);
+    let errors = viewer_against_render(&browser, &daemon, &id, dir.path(), &gltf, &[0, 90, -90]);
+    // Issue 38 asks for 0.10. The viewer integrates the map for glTF's BRDF itself (GGX
+    // samples with filtered lookups, the map's peaks as lights, exact irradiance). Measured:
+    // 0.023 for gold (brightness 1.01), 0.017 paint, 0.045 fabric; 0.93–1.07 a quarter turn
+    // off. three.js's own image-based lighting was 0.35, 0.23 and 0.50.
+    assert!(
+        errors[0] <= 0.05,
+        "the viewer is {:.4} from brdfd's render",
+        errors[0]
+    );
+    assert!(
+        errors[1..].iter().all(|e| *e > 10.0 * errors[0]),
+        "a quarter turn of the light matches as well: {errors:?}"
+    );
+
+    // A clear coat, which a capture's fit takes only for some materials: the same session's
+    // export replaced by a varnished metal, so that the viewer's coat is checked whatever gold
+    // came to.
+    let coated = brdfd::export::GltfMaterial {
+        base_color: [0.9, 0.6, 0.2],
+        metallic: 1.0,
+        roughness: 0.6,
+        specular: 1.0,
+        specular_color: [1.0; 3],
+        ior: 1.5,
+        clearcoat: 1.0,
+        clearcoat_roughness: 0.15,
+    }
+    .document("coated");
+    let stored = dir
+        .path()
+        .join(format!("state/sessions/{id}/result/material.gltf"));
+    assert!(stored.exists(), "{}", stored.display());
+    std::fs::write(&stored, &coated).unwrap();
+    let errors = viewer_against_render(&browser, &daemon, &id, dir.path(), coated.as_bytes(), &[0]);
+    assert!(
+        errors[0] <= 0.05,
+        "the viewer is {:.4} from brdfd's render of a coated metal",
+        errors[0]
+    );
+}
+
+/// The viewer's picture of `gltf` (the session's `material.gltf`) under the courtyard map,
+/// turned by each of `turns` degrees, against brdfd's render of the same file under the map
+/// unturned, with the viewer's orthographic view: the relative RMSE of each.
+fn viewer_against_render(
+    browser: &Browser,
+    daemon: &Daemon,
+    id: &str,
+    dir: &std::path::Path,
+    gltf: &[u8],
+    turns: &[i32],
+) -> Vec<f64> {
+    std::fs::write(dir.join("material.gltf"), gltf).unwrap();
     const SIZE: usize = 256;
     // 4,096 lights: within 0.04–0.07 of Mitsuba (tests/mitsuba.rs), 4 times faster than
     // the default.
     let o = common::render_gltf(
-        dir.path(),
+        dir,
         "material.gltf",
         "courtyard.hdr",
         SIZE,
@@ -546,7 +601,7 @@ fn the_viewer_shows_the_export_as_brdfd_renders_it() {
         "ours.exr",
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let ours = brdfd_core::raster::Raster::read(&dir.path().join("ours.exr")).unwrap();
+    let ours = brdfd_core::raster::Raster::read(&dir.join("ours.exr")).unwrap();
     // The sphere's inside, away from its silhouette, where a mesh's facets and antialiasing
     // differ from a ray-cast sphere.
     let inside = |x: usize, y: usize| {
@@ -562,17 +617,13 @@ fn the_viewer_shows_the_export_as_brdfd_renders_it() {
         .fold(0f32, f32::max) as f64;
     // White a little above the brightest pixel: nothing clips, and 8 bits keep the detail.
     let exposure = 0.9 / peak;
-
-    let browser = Browser::start();
-    // At 0° the viewer's map is where brdfd's is; ±90° are the wrong quarter turns, which the
-    // figure must tell apart.
     let mut errors = Vec::new();
-    for turn in [0, 90, -90] {
+    for turn in turns {
         browser.go(&format!(
             "http://{}/viewer.html?session={id}&map=courtyard&camera=orthographic&background=off&size={SIZE}&exposure={exposure}&turn={turn}",
             daemon.addr
         ));
-        let theirs = viewer_frame(&browser);
+        let theirs = viewer_frame(browser);
         assert_eq!(theirs.dimensions(), (SIZE as u32, SIZE as u32));
         let (mut diff, mut norm, mut ab) = (0.0, 0.0, 0.0);
         for y in 0..SIZE {
@@ -598,23 +649,11 @@ fn the_viewer_shows_the_export_as_brdfd_renders_it() {
             ab / norm
         );
         errors.push(error);
-        if turn == 0 {
+        if *turn == 0 && errors.len() == 1 {
             browser.screenshot("viewer.png");
         }
     }
-    // Issue 38 asks for 0.10. The viewer integrates the map for glTF's BRDF itself (GGX
-    // samples with filtered lookups, the map's peaks as lights, exact irradiance). Measured:
-    // 0.023 for gold (brightness 1.01), 0.017 paint, 0.045 fabric; 0.93–1.07 a quarter turn
-    // off. three.js's own image-based lighting was 0.35, 0.23 and 0.50.
-    assert!(
-        errors[0] <= 0.05,
-        "the viewer is {:.4} from brdfd's render",
-        errors[0]
-    );
-    assert!(
-        errors[1..].iter().all(|e| *e > 10.0 * errors[0]),
-        "a quarter turn of the light matches as well: {errors:?}"
-    );
+    errors
 }
 
 /// On a mesh, the viewer offers the export on the object (`object.gltf`) and draws it: the

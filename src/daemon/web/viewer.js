@@ -293,6 +293,9 @@ const SPHERE_FRAGMENT = /* glsl */ `
   uniform float diffuseLossA;
   uniform float diffuseLossB;
   uniform float alpha;
+  // KHR_materials_clearcoat: the coat's weight and GGX α.
+  uniform float clearcoat;
+  uniform float clearcoatAlpha;
   uniform float fresnelMean[FRESNEL_STEPS];
   varying vec3 vNormal;
   varying vec3 vPosition;
@@ -318,16 +321,9 @@ const SPHERE_FRAGMENT = /* glsl */ `
     return a2 / (PI * k * k);
   }
 
-  void main() {
-    // Shaded in the map's frame, where the lights are.
-    vec3 n = toMap(normalize(vNormal));
-    vec3 v = toMap(isOrthographic
-      ? normalize(vec3(viewMatrix[0][2], viewMatrix[1][2], viewMatrix[2][2]))
-      : normalize(cameraPosition - vPosition));
-    // Where interpolated normals turn from the camera at the silhouette.
-    float nv = max(dot(n, v), 1e-4);
-    vec3 t = normalize(cross(abs(n.y) < 0.999 ? vec3(0.0, 1.0, 0.0) : vec3(1.0, 0.0, 0.0), n));
-    vec3 b = cross(n, t);
+  // The map's light through one GGX lobe of roughness α: ∫ (A + B·w)·D·V·cos θi·L dωi, with
+  // w = (1 − cos θd)⁵, at the pixel of normal n (tangents t, b) and view v.
+  vec3 lobe(vec3 n, vec3 v, vec3 t, vec3 b, float nv, float alpha, vec3 A, vec3 B) {
     float a2 = alpha * alpha;
     float lv = lambda(nv, a2);
     // Solid angle of a level-0 texel at the equator; a row's shrinks with sin θ.
@@ -363,26 +359,46 @@ const SPHERE_FRAGMENT = /* glsl */ `
       float lod = 0.5 * log2(1.0 / (float(SAMPLES) * pdf * texel * sinL));
       vec3 radiance = textureLod(envMap, mapUv(l), clamp(lod, 0.0, envLevels - 1.0)).rgb;
       float w = pow(1.0 - cosD, 5.0);
-      specular += radiance * (specularA + specularB * w) * (1.0 + lv) / (1.0 + lv + lambda(nl, a2));
+      specular += radiance * (A + B * w) * (1.0 + lv) / (1.0 + lv + lambda(nl, a2));
     }
     specular /= float(SAMPLES);
 
     // The lights: the BRDF at each one's direction, its lobe widened by the light's size.
-    // Their share of the diffuse part's Fresnel loss is exact, the rest's is the mean.
+    for (int i = 0; i < PEAKS; i++) {
+      vec3 l = peaks[2 * i].xyz;
+      float nl = dot(n, l);
+      if (nl <= 0.0) continue;
+      vec3 h = normalize(v + l);
+      float w = pow(1.0 - max(dot(v, h), 0.0), 5.0);
+      // D·V·cos θi, V's cos θi cancelled.
+      float d = ggx(max(dot(n, h), 0.0), a2 + peaks[2 * i].w)
+        / ((1.0 + lv + lambda(nl, a2)) * 4.0 * nv);
+      specular += peaks[2 * i + 1].rgb * (A + B * w) * d;
+    }
+    return specular;
+  }
+
+  void main() {
+    // Shaded in the map's frame, where the lights are.
+    vec3 n = toMap(normalize(vNormal));
+    vec3 v = toMap(isOrthographic
+      ? normalize(vec3(viewMatrix[0][2], viewMatrix[1][2], viewMatrix[2][2]))
+      : normalize(cameraPosition - vPosition));
+    // Where interpolated normals turn from the camera at the silhouette.
+    float nv = max(dot(n, v), 1e-4);
+    vec3 t = normalize(cross(abs(n.y) < 0.999 ? vec3(0.0, 1.0, 0.0) : vec3(1.0, 0.0, 0.0), n));
+    vec3 b = cross(n, t);
+    vec3 specular = lobe(n, v, t, b, nv, alpha, specularA, specularB);
+
+    // The lights' share of the diffuse part's Fresnel loss is exact, the rest's is the mean.
     vec3 peakIrradiance = vec3(0.0);
     vec3 peakLoss = vec3(0.0);
     for (int i = 0; i < PEAKS; i++) {
       vec3 l = peaks[2 * i].xyz;
       float nl = dot(n, l);
       if (nl <= 0.0) continue;
-      vec3 h = normalize(v + l);
-      float cosD = max(dot(v, h), 0.0);
-      float w = pow(1.0 - cosD, 5.0);
+      float w = pow(1.0 - max(dot(v, normalize(v + l)), 0.0), 5.0);
       vec3 power = peaks[2 * i + 1].rgb;
-      // D·V·cos θi, V's cos θi cancelled.
-      float lobe = ggx(max(dot(n, h), 0.0), a2 + peaks[2 * i].w)
-        / ((1.0 + lv + lambda(nl, a2)) * 4.0 * nv);
-      specular += power * (specularA + specularB * w) * lobe;
       peakIrradiance += power * nl;
       peakLoss += power * nl * w;
     }
@@ -394,7 +410,15 @@ const SPHERE_FRAGMENT = /* glsl */ `
     vec3 diffuse = diffuseColor / PI * ((1.0 - diffuseLossA) * irradiance
       - diffuseLossB * (mean * max(irradiance - peakIrradiance, 0.0) + peakLoss));
 
-    gl_FragColor = vec4(diffuse + specular, 1.0);
+    // KHR_materials_clearcoat's fresnel_coat: the coat's lobe (no Fresnel of its own) mixed
+    // over the base by its weight × Schlick's Fresnel of F₀ 0.04 at N·V.
+    vec3 colour = diffuse + specular;
+    if (clearcoat > 0.0) {
+      float k = clearcoat * (0.04 + 0.96 * pow(1.0 - nv, 5.0));
+      vec3 coat = lobe(n, v, t, b, nv, clearcoatAlpha, vec3(1.0), vec3(0.0));
+      colour = mix(colour, coat, k);
+    }
+    gl_FragColor = vec4(colour, 1.0);
     #include <tonemapping_fragment>
     #include <colorspace_fragment>
   }
@@ -425,11 +449,13 @@ const BACKGROUND_FRAGMENT = /* glsl */ `
 `;
 
 // The glTF BRDF's factors, from what the loader made of the material: base colour, metallic,
-// roughness, and KHR_materials_specular and _ior where present (glTF's defaults otherwise).
+// roughness, and KHR_materials_specular, _ior and _clearcoat where present (glTF's defaults
+// otherwise).
 // The mixes are folded here so that the shader evaluates
 //   f = (1 − m)·(1 − s·max Fr)·c/π + [(1 − m)·s·Fr + m·(c + (1 − c)·w)]·D·V,
 // Fr = F₀ + (1 − F₀)·w, F₀ = min(((η − 1)/(η + 1))² × specular colour, 1), w = (1 − cos θd)⁵,
-// as `GltfBrdf::eval_angles` does.
+// then mix(f, coat lobe, clearcoat × (0.04 + 0.96·(1 − N·V)⁵)), as `GltfBrdf::eval_angles`
+// does.
 function brdfUniforms(material) {
   const c = material.color ? material.color.toArray() : [1, 1, 1];
   const m = material.metalness ?? 1;
@@ -446,6 +472,8 @@ function brdfUniforms(material) {
     diffuseLossA: { value: s * f0max },
     diffuseLossB: { value: s * (1 - f0max) },
     alpha: { value: Math.max((material.roughness ?? 1) ** 2, 1e-4) },
+    clearcoat: { value: material.clearcoat ?? 0 },
+    clearcoatAlpha: { value: Math.max((material.clearcoatRoughness ?? 0) ** 2, 1e-4) },
   };
 }
 
