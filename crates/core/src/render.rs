@@ -150,6 +150,39 @@ pub(crate) fn theta_h_smoothing(binning: ThetaHBinning, rho: f64) -> Vec<Vec<(us
 }
 
 /// Applies [`theta_h_smoothing`] to one channel-planar bivariate vector.
+/// f′ of a bivariate vector: bins below `cap_bins` take bin `cap_bins`' value, per θd.
+fn cut_flat(values: &[f64], cap_bins: usize) -> Vec<f64> {
+    let mut out = values.to_vec();
+    for c in 0..3 {
+        let plane = &mut out[c * GRID_CELLS..(c + 1) * GRID_CELLS];
+        for ih in 0..cap_bins.min(N_THETA_H) {
+            for jd in 0..N_THETA_D {
+                plane[ih * N_THETA_D + jd] = values[c * GRID_CELLS + cap_bins * N_THETA_D + jd];
+            }
+        }
+    }
+    out
+}
+
+/// Adds what the cap holds of each column, Σ over the cap's samples of (f − f′)·L·cos·Δω,
+/// to one pixel's `out[c·m + j]` ([`crate::sharp`]).
+fn add_cap(cap: &Cap, px: &GeomPixel, columns: &[&[f64]], luts: &Luts, out: &mut [f32]) {
+    let m = columns.len();
+    cap.each_spoke(px, |s| {
+        let bd = luts.d.bin(dist2(s.dir, s.h));
+        let edge = cap.bins * N_THETA_D + bd;
+        for band in s.bands {
+            let cell = band.bin * N_THETA_D + bd;
+            for c in 0..3 {
+                let (plane, w) = (c * GRID_CELLS, s.weight[c] * band.share);
+                for (j, col) in columns.iter().enumerate() {
+                    out[c * m + j] += (col[plane + cell] - col[plane + edge]) as f32 * w;
+                }
+            }
+        }
+    });
+}
+
 /// Whether a pixel sees its mirror direction: on a mesh, the cap's light comes only from
 /// where the pixel's own object does not hide the sky, told by the light nearest that
 /// direction.
@@ -424,14 +457,22 @@ struct ColumnTable {
 }
 
 impl ColumnTable {
-    fn new(columns: &[&[f64]], binning: ThetaHBinning, footprints: &Footprints) -> ColumnTable {
+    /// The lights' tables hold f′: each column cut flat in its first `cap_bins` θh bins
+    /// ([`crate::sharp`]), then smoothed for each footprint.
+    fn new(
+        columns: &[&[f64]],
+        binning: ThetaHBinning,
+        footprints: &Footprints,
+        cap_bins: usize,
+    ) -> ColumnTable {
         let m = columns.len();
         assert!(m <= PASS_COLUMNS, "at most {PASS_COLUMNS} columns");
         let stride = Self::stride(m);
         let mut data = vec![0f32; stride * footprints.radii.len()];
+        let flat: Vec<Vec<f64>> = columns.iter().map(|c| cut_flat(c, cap_bins)).collect();
         for (level, rho) in footprints.radii.iter().enumerate() {
             let smoothing = theta_h_smoothing(binning, *rho);
-            let smoothed: Vec<Vec<f64>> = columns
+            let smoothed: Vec<Vec<f64>> = flat
                 .iter()
                 .map(|c| smooth_bivariate(c, &smoothing))
                 .collect();
@@ -584,7 +625,9 @@ impl RenderingMatrix {
             all.push(o);
         }
         let footprints = Footprints::of(lights);
-        let table = ColumnTable::new(&all, binning, &footprints);
+        let cap = Cap::of(lights, binning).filter(|cap| cap.needed_by(&all));
+        let cap_bins = cap.as_ref().map_or(0, |c| c.bins);
+        let table = ColumnTable::new(&all, binning, &footprints, cap_bins);
         let m = all.len();
         let packed = pack(lights, &footprints, ColumnTable::stride(m));
         let mut raw = vec![0f32; pixels.len() * 3 * m];
@@ -597,9 +640,13 @@ impl RenderingMatrix {
             .zip(pixels.par_chunks(PIXELS_PER_TASK))
             .for_each(|(out, px)| {
                 for (o, p) in out.chunks_mut(3 * m).zip(px) {
+                    let row = seen.row(p);
                     match &shared {
-                        Some(lights) => table.pixel(p, lights, seen.row(p), o),
-                        None => table.pixel(p, &packed, seen.row(p), o),
+                        Some(lights) => table.pixel(p, lights, row, o),
+                        None => table.pixel(p, &packed, row, o),
+                    }
+                    if let Some(cap) = cap.as_ref().filter(|_| sees_mirror(p, &packed, row)) {
+                        add_cap(cap, p, &all, &table.luts, o);
                     }
                 }
             });
@@ -772,6 +819,17 @@ pub fn render_merl_until(
     // θh footprint average of the rendering matrix applied per (θd, φd) column.
     let cells = merl::CELLS;
     let footprints = Footprints::of(lights);
+    // Whether the cap is needed is judged on the φd = 90° slice, which holds the peak.
+    let slice: Vec<f64> = (0..3)
+        .flat_map(|c| {
+            (0..GRID_CELLS).map(move |g| {
+                let (ih, jd) = (g / N_THETA_D, g % N_THETA_D);
+                brdf.cell(c, ih, jd, merl::PHI_D_BINS / 2).max(0.0)
+            })
+        })
+        .collect();
+    let cap = Cap::of(lights, ThetaHBinning::Sqrt).filter(|cap| cap.needed_by(&[&slice]));
+    let cap_bins = cap.as_ref().map_or(0, |c| c.bins);
     let mut table = vec![[0f32; 3]; cells * footprints.radii.len()];
     for (level, rho) in footprints.radii.iter().enumerate() {
         let smoothing = theta_h_smoothing(ThetaHBinning::Sqrt, *rho);
@@ -784,7 +842,7 @@ pub fn render_merl_until(
                     for (c, v) in t.iter_mut().enumerate() {
                         *v = smoothing[ih]
                             .iter()
-                            .map(|(k, w)| w * brdf.cell(c, *k, jd, kp).max(0.0))
+                            .map(|(k, w)| w * brdf.cell(c, (*k).max(cap_bins), jd, kp).max(0.0))
                             .sum::<f64>() as f32;
                     }
                 }
@@ -802,6 +860,19 @@ pub fn render_merl_until(
                 acc[c] += (f[c] * l.power[c] * cos) as f64;
             }
         });
+        if let Some(cap) = cap.as_ref().filter(|_| sees_mirror(px, &packed, seen)) {
+            cap.each_spoke(px, |s| {
+                let bd = luts.d.bin(dist2(s.dir, s.h));
+                let kp = phi_d_bin(n, s.h, s.dir);
+                for band in s.bands {
+                    for c in 0..3 {
+                        let f = brdf.cell(c, band.bin, bd, kp).max(0.0)
+                            - brdf.cell(c, cap.bins, bd, kp).max(0.0);
+                        acc[c] += f * (s.weight[c] * band.share) as f64;
+                    }
+                }
+            });
+        }
         acc.map(|x| x as f32)
     };
     shade_pixels_until(geom, lights, stop, shade)
@@ -1045,7 +1116,7 @@ mod tests {
                 .collect();
             let refs: Vec<&[f64]> = columns.iter().map(|c| c.as_slice()).collect();
             let footprints = Footprints::of(&lights);
-            let table = ColumnTable::new(&refs, ThetaHBinning::Sqrt, &footprints);
+            let table = ColumnTable::new(&refs, ThetaHBinning::Sqrt, &footprints, 0);
             let packed = pack(&lights, &footprints, ColumnTable::stride(m));
             let shared = table.shared_view(geometry.pixels[0].view, &packed);
             let (mut fast, mut portable) = (vec![0f32; 3 * m], vec![0f32; 3 * m]);
@@ -1088,6 +1159,7 @@ mod tests {
     /// lights: the cap's samples carry the right solid angles.
     #[test]
     fn a_sharp_lobe_under_a_uniform_sky_returns_its_albedo() {
+        use crate::bivariate::Grid;
         let sky =
             crate::envmap::EnvMap::from_pixels(64, 32, vec![[1.0; 3]; 64 * 32], "sky").unwrap();
         let geometry =
@@ -1096,14 +1168,20 @@ mod tests {
         for alpha in [0.005, 0.02] {
             let brdf = sharp_mirror(alpha);
             let albedo = crate::brdf::directional_albedo(&brdf, 0.0)[0];
+            let table = Bivariate::reduce(&brdf, Grid::default());
             for count in [128, 1024] {
                 let lights = sky.compressed(count, 0.0);
                 assert!(Cap::of(&lights, ThetaHBinning::Sqrt).is_some());
-                let centre = render_full(&geometry, &lights, &brdf).get(8, 8)[0] as f64;
-                assert!(
-                    (centre / albedo - 1.0).abs() < 0.03,
-                    "α {alpha}, {count} lights: {centre} against {albedo}"
-                );
+                for (name, image) in [
+                    ("full", render_full(&geometry, &lights, &brdf)),
+                    ("bivariate", render_bivariate(&geometry, &lights, &table)),
+                ] {
+                    let centre = image.get(8, 8)[0] as f64;
+                    assert!(
+                        (centre / albedo - 1.0).abs() < 0.03,
+                        "α {alpha}, {count} lights, {name}: {centre} against {albedo}"
+                    );
+                }
             }
         }
     }
@@ -1113,17 +1191,18 @@ mod tests {
     /// light grid, several times as much.
     #[test]
     fn a_sharp_lobe_shows_no_light_grid() {
+        use crate::bivariate::Grid;
         let map = textured_map();
         let geometry =
             PixelGeometry::rasterize(&Camera::eval_orthographic(48), &Shape::unit_sphere())
                 .unwrap();
-        let brdf = sharp_mirror(0.01);
+        let table = Bivariate::reduce(&sharp_mirror(0.01), Grid::default());
         let render = |count: usize, with_map: bool| {
             let mut lights = map.compressed(count, 0.0);
             if !with_map {
                 lights.map = None;
             }
-            render_full(&geometry, &lights, &brdf)
+            render_bivariate(&geometry, &lights, &table)
         };
         let with_cap = render(256, true).relative_rmse(&render(4096, true));
         let lights_alone = render(256, false).relative_rmse(&render(4096, false));

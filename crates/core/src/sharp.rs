@@ -35,11 +35,14 @@ const SPACING_QUANTILE: f64 = 0.9;
 /// the lights, but its rings, at a fixed number of samples, read ever coarser levels of the
 /// map: measured against Mitsuba 3, a cap of a whole GGX lobe of α 0.1 was worse than this.
 const CAP_PER_SPACING: f64 = 0.75;
+/// The share of a lobe's light inside the cap, above its value at the cap's edge, below
+/// which the lights render it well enough alone ([`Cap::needed_by`]).
+const NEEDED: f64 = 0.002;
 /// The widest cap, in θh: a very coarse light set would otherwise make the per-pixel part as
 /// costly as the lights.
 const MAX_CAP: f64 = 0.2;
 /// Most samples on one ring of the cap.
-const MAX_SPOKES: usize = 12;
+const MAX_SPOKES: usize = 8;
 
 /// An equirectangular map as a mip pyramid, in a light set's frame (its yaw).
 pub struct SkyMap {
@@ -95,12 +98,13 @@ impl SkyMap {
     pub fn radiance(&self, d: [f32; 3], footprint: f32) -> [f32; 3] {
         let pi = std::f32::consts::PI;
         let phi = fast_atan2(d[0], -d[2]);
-        let u = ((phi + self.yaw) / (2.0 * pi) + 0.5).rem_euclid(1.0);
+        let u = fract((phi + self.yaw) / (2.0 * pi) + 0.5);
         let y = d[1].clamp(-1.0, 1.0);
         let v = fast_atan2((1.0 - y * y).max(0.0).sqrt(), y) / pi;
         let top = (self.levels.len() - 1) as f32;
         let level = (0.5 * fast_log2((footprint / self.texel_sr).max(1.0))).min(top);
-        let l0 = level.floor() as usize;
+        // Not negative: `as` truncates, which is the floor here.
+        let l0 = level as usize;
         let t = level - l0 as f32;
         let a = bilinear(&self.levels[l0], u, v);
         if t <= 0.0 {
@@ -108,6 +112,19 @@ impl SkyMap {
         }
         let b = bilinear(&self.levels[(l0 + 1).min(self.levels.len() - 1)], u, v);
         std::array::from_fn(|c| a[c] + t * (b[c] - a[c]))
+    }
+}
+
+/// x − ⌊x⌋, in [0, 1), without libm's `fmodf` (what `rem_euclid` calls).
+#[inline(always)]
+fn fract(x: f32) -> f32 {
+    let f = x - (x as i64) as f32;
+    if f < 0.0 {
+        f + 1.0
+    } else if f >= 1.0 {
+        0.0
+    } else {
+        f
     }
 }
 
@@ -151,12 +168,18 @@ fn fast_log2(x: f32) -> f32 {
 
 /// A map read between texel centres: around in u, clamped at the poles.
 fn bilinear(map: &EnvMap, u: f32, v: f32) -> [f32; 3] {
+    // u in [0, 1), so x ≥ −0.5 and y ≥ 0: truncation and a step back give the floors without
+    // libm's `floorf`, a call per lookup in the cap's innermost loop.
     let x = u * map.width as f32 - 0.5;
     let y = (v * map.height as f32 - 0.5).clamp(0.0, (map.height - 1) as f32);
-    let (x0, y0) = (x.floor(), y.floor());
+    let x0 = if x < 0.0 { -1.0 } else { (x as i64) as f32 };
+    let y0 = (y as usize) as f32;
     let (tx, ty) = (x - x0, y - y0);
-    let w = map.width as i64;
-    let xa = (x0 as i64).rem_euclid(w) as usize;
+    let xa = if x0 < 0.0 {
+        map.width - 1
+    } else {
+        (x0 as usize).min(map.width - 1)
+    };
     let xb = (xa + 1) % map.width;
     let ya = y0 as usize;
     let yb = (ya + 1).min(map.height - 1);
@@ -169,20 +192,33 @@ fn bilinear(map: &EnvMap, u: f32, v: f32) -> [f32; 3] {
     })
 }
 
-/// One ring of half vectors: θh inside one bin of the cap, spokes evenly around it.
+/// One bin of a ring: its θh (the middle of its solid angle) and its share of the ring.
+pub struct Band {
+    /// The θh bin (below [`Cap::bins`]).
+    pub bin: usize,
+    cos: f32,
+    sin: f32,
+    /// The half-vector solid angle of the bin, per spoke.
+    pub share: f32,
+}
+
+/// One ring of half vectors: spokes evenly around the cap's normal, each read from the map
+/// once at the ring's middle θh, and that light given to each θh bin the ring spans, at the
+/// bin's own θh (the map is as good as constant across a ring, f need not be).
 struct Ring {
-    bin: usize,
     cos: f32,
     sin: f32,
     spokes: Vec<(f32, f32)>,
-    /// The half-vector solid angle each spoke stands for.
+    /// The whole ring's half-vector solid angle per spoke: the map's filter.
     share: f32,
+    bands: Vec<Band>,
 }
 
 /// The cap of a light set: its θh bins, and the rings that integrate them over the map.
 pub struct Cap {
     /// Bins `0..bins` are the cap; f′ takes bin `bins`' value there.
     pub bins: usize,
+    binning: ThetaHBinning,
     rings: Vec<Ring>,
     map: Arc<SkyMap>,
 }
@@ -199,44 +235,124 @@ pub struct CapSample {
     pub weight: [f32; 3],
 }
 
+/// One spoke of a ring for one pixel, as the table renderers take it: the direction, half
+/// vector, cosine and light at the ring's middle θh, and the bins the ring spans. A table's
+/// cell differs across a ring only in θh; its θd and φd move by less than the ring is wide
+/// (a degree or two), so they are read once per spoke, and the bins take their own θh.
+pub struct Spoke<'a> {
+    /// The incoming direction ωi at the ring's middle (unit, world frame).
+    pub dir: [f32; 3],
+    /// The half vector there.
+    pub h: [f32; 3],
+    /// The map's radiance × n·ωi × 4 (h·v) (dωi per unit of half-vector solid angle), per
+    /// channel: times a band's share it is that band's weight.
+    pub weight: [f32; 3],
+    pub bands: &'a [Band],
+}
+
 impl Cap {
     /// The cap for `lights` on `binning`'s θh bins, or `None` for a set made without a map
     /// (a few lights placed by hand), whose lights are all there is.
+    ///
+    /// Its samples are about square: a ring spans as many θh bins as it takes to be as wide
+    /// as its spokes are apart, and never narrower than a texel of the map. MERL's bins are
+    /// far finer than a map near the peak, and a ring per bin cost the preview 2.7 s.
     pub fn of(lights: &LightSet, binning: ThetaHBinning) -> Option<Cap> {
         let map = lights.map.clone()?;
         let theta_c = CAP_PER_SPACING * light_spacing(lights);
         let bins = (1..N_THETA_H)
             .find(|b| binning.lower_edge(*b) >= theta_c.min(MAX_CAP))
             .unwrap_or(N_THETA_H - 1);
-        // Spokes about as far apart as the ring is wide, or as a texel of the map where that
-        // is wider: the filtered lookups cover the rest.
         let texel = 2.0 * std::f64::consts::PI / map.levels[0].width as f64;
-        let rings = (0..bins)
-            .map(|bin| {
-                let (lo, hi) = (binning.lower_edge(bin), binning.lower_edge(bin + 1));
-                let theta = ((lo * lo + hi * hi) / 2.0).sqrt();
-                // In ωi the ring has twice the half vector's radius and width.
-                let spacing = (2.0 * (hi - lo)).max(texel);
-                let spokes = ((4.0 * std::f64::consts::PI * theta.sin() / spacing).ceil() as usize)
-                    .clamp(1, MAX_SPOKES);
-                // A phase per ring, so that spokes of neighbouring rings do not line up.
-                let phase = (bin as f64 * 0.618_034).fract();
-                Ring {
-                    bin,
-                    cos: theta.cos() as f32,
-                    sin: theta.sin() as f32,
-                    spokes: (0..spokes)
-                        .map(|k| {
-                            let a = 2.0 * std::f64::consts::PI * (k as f64 + phase) / spokes as f64;
-                            (a.cos() as f32, a.sin() as f32)
-                        })
-                        .collect(),
-                    share: (2.0 * std::f64::consts::PI * (lo.cos() - hi.cos()) / spokes as f64)
-                        as f32,
+        let tau = 2.0 * std::f64::consts::PI;
+        let mut rings = Vec::new();
+        let mut first = 0;
+        while first < bins {
+            let lo = binning.lower_edge(first);
+            // In ωi a ring has twice the half vector's radius and width.
+            let mut last = first + 1;
+            while last < bins {
+                let hi = binning.lower_edge(last);
+                let mid = ((lo * lo + hi * hi) / 2.0).sqrt();
+                let apart = (2.0 * tau * mid.sin() / MAX_SPOKES as f64).max(texel);
+                if 2.0 * (hi - lo) >= apart {
+                    break;
                 }
+                last += 1;
+            }
+            let hi = binning.lower_edge(last);
+            let theta = ((lo * lo + hi * hi) / 2.0).sqrt();
+            let spacing = (2.0 * (hi - lo)).max(texel);
+            let spokes = ((2.0 * tau * theta.sin() / spacing).ceil() as usize).clamp(1, MAX_SPOKES);
+            // A phase per ring, so that spokes of neighbouring rings do not line up.
+            let phase = (rings.len() as f64 * 0.618_034).fract();
+            let bands = (first..last)
+                .map(|bin| {
+                    let (a, b) = (binning.lower_edge(bin), binning.lower_edge(bin + 1));
+                    let mid = ((a * a + b * b) / 2.0).sqrt();
+                    Band {
+                        bin,
+                        cos: mid.cos() as f32,
+                        sin: mid.sin() as f32,
+                        share: (tau * (a.cos() - b.cos()) / spokes as f64) as f32,
+                    }
+                })
+                .collect();
+            rings.push(Ring {
+                cos: theta.cos() as f32,
+                sin: theta.sin() as f32,
+                spokes: (0..spokes)
+                    .map(|k| {
+                        let a = tau * (k as f64 + phase) / spokes as f64;
+                        (a.cos() as f32, a.sin() as f32)
+                    })
+                    .collect(),
+                share: (tau * (lo.cos() - hi.cos()) / spokes as f64) as f32,
+                bands,
+            });
+            first = last;
+        }
+        Some(Cap {
+            bins,
+            binning,
+            rings,
+            map,
+        })
+    }
+
+    /// Whether any of bivariate `columns` (channel-planar, as
+    /// [`crate::bivariate::Bivariate::values`]) has a peak inside the cap worth its cost:
+    /// what the cap holds of f − f′, against all of f, weighted by each θh bin's solid angle,
+    /// is above [`NEEDED`] in some θd column up to 80°. A broad lobe's render then costs what
+    /// it did.
+    pub fn needed_by(&self, columns: &[&[f64]]) -> bool {
+        use super::bivariate::{GRID_CELLS, N_THETA_D};
+        let area = |ih: usize| {
+            let (lo, hi) = (
+                self.binning.lower_edge(ih),
+                if ih + 1 < N_THETA_H {
+                    self.binning.lower_edge(ih + 1)
+                } else {
+                    std::f64::consts::FRAC_PI_2
+                },
+            );
+            lo.cos() - hi.cos()
+        };
+        let areas: Vec<f64> = (0..N_THETA_H).map(area).collect();
+        columns.iter().any(|col| {
+            (0..3).any(|c| {
+                let plane = &col[c * GRID_CELLS..(c + 1) * GRID_CELLS];
+                (0..N_THETA_D * 8 / 9).any(|jd| {
+                    let f = |ih: usize| plane[ih * N_THETA_D + jd];
+                    let edge = f(self.bins);
+                    let peak: f64 = (0..self.bins)
+                        .map(|ih| (f(ih) - edge).abs() * areas[ih])
+                        .sum();
+                    let all: f64 = (0..N_THETA_H).map(|ih| f(ih).abs() * areas[ih]).sum();
+                    peak > NEEDED * all
+                })
             })
-            .collect();
-        Some(Cap { bins, rings, map })
+        })
     }
 
     /// The cap's edge θc: the lower edge of bin [`Cap::bins`].
@@ -249,9 +365,10 @@ impl Cap {
         self.rings.iter().map(|r| r.spokes.len()).sum()
     }
 
-    /// The cap's samples for a pixel (normal n, view v), those above its horizon.
+    /// The cap's spokes for a pixel (normal n, view v), those above its horizon: what the
+    /// table renderers read ([`Spoke`]).
     #[inline]
-    pub fn each_sample(&self, px: &GeomPixel, mut f: impl FnMut(CapSample)) {
+    pub fn each_spoke(&self, px: &GeomPixel, mut f: impl FnMut(&Spoke)) {
         let (n, v) = (px.normal, px.view);
         let (t, b) = frame(n);
         for ring in &self.rings {
@@ -259,23 +376,58 @@ impl Cap {
                 let h: [f32; 3] =
                     std::array::from_fn(|k| ring.cos * n[k] + ring.sin * (c * t[k] + s * b[k]));
                 let hv = dot(h, v);
-                if hv <= 0.0 {
-                    continue;
-                }
                 let dir: [f32; 3] = std::array::from_fn(|k| 2.0 * hv * h[k] - v[k]);
                 let cos = dot(n, dir);
-                if cos <= 0.0 {
+                if hv <= 0.0 || cos <= 0.0 {
                     continue;
                 }
                 // dωi = 4 (h·v) dωh.
-                let solid_angle = 4.0 * hv * ring.share;
-                let l = self.map.radiance(dir, solid_angle);
-                f(CapSample {
+                let l = self.map.radiance(dir, 4.0 * hv * ring.share);
+                f(&Spoke {
                     dir,
                     h,
-                    bh: ring.bin,
-                    weight: l.map(|x| x * cos * solid_angle),
+                    weight: l.map(|x| x * cos * 4.0 * hv),
+                    bands: &ring.bands,
                 });
+            }
+        }
+    }
+
+    /// The cap's samples for a pixel (normal n, view v), those above its horizon, each band
+    /// of a ring at its own θh: what the renderer that evaluates a BRDF itself reads.
+    #[inline]
+    pub fn each_sample(&self, px: &GeomPixel, mut f: impl FnMut(CapSample)) {
+        let (n, v) = (px.normal, px.view);
+        let (t, b) = frame(n);
+        for ring in &self.rings {
+            for (c, s) in &ring.spokes {
+                let toward: [f32; 3] = std::array::from_fn(|k| c * t[k] + s * b[k]);
+                let reflect = |cos: f32, sin: f32| {
+                    let h: [f32; 3] = std::array::from_fn(|k| cos * n[k] + sin * toward[k]);
+                    let hv = dot(h, v);
+                    let dir: [f32; 3] = std::array::from_fn(|k| 2.0 * hv * h[k] - v[k]);
+                    (h, hv, dir)
+                };
+                let (_, hv, dir) = reflect(ring.cos, ring.sin);
+                if hv <= 0.0 {
+                    continue;
+                }
+                // dωi = 4 (h·v) dωh.
+                let l = self.map.radiance(dir, 4.0 * hv * ring.share);
+                for band in &ring.bands {
+                    let (h, hv, dir) = reflect(band.cos, band.sin);
+                    let cos = dot(n, dir);
+                    if hv <= 0.0 || cos <= 0.0 {
+                        continue;
+                    }
+                    let solid_angle = 4.0 * hv * band.share;
+                    f(CapSample {
+                        dir,
+                        h,
+                        bh: band.bin,
+                        weight: l.map(|x| x * cos * solid_angle),
+                    });
+                }
             }
         }
     }
