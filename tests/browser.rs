@@ -408,12 +408,18 @@ fn the_page_shows_errors_a_running_capture_its_wait_and_a_cancel_at_once() {
            .find(r => r.cells[0].textContent === {});",
         json!(id)
     );
+    // The daemon counts the capture as running from the moment its thread starts, and the
+    // thread's first step records "capturing": a list fetched in between (a few milliseconds,
+    // longer on a loaded machine) shows "created…", running and without buttons, until the
+    // page's next refresh. The state the list settles on is what is checked.
     let listed = browser.wait_for(
-        "the running session in the list",
+        "the running session in the list, past its first step",
         &format!(
             "{row}
              if (!row || !row.querySelector('.state-running')) return null;
-             return {{ state: row.cells[1].textContent, buttons: row.querySelectorAll('button').length }};"
+             const buttons = row.querySelectorAll('button').length;
+             if (row.cells[1].textContent === 'created…' && buttons === 0) return null;
+             return {{ state: row.cells[1].textContent, buttons }};"
         ),
         Duration::from_secs(30),
     );

@@ -293,8 +293,10 @@ fn per_channel_colour_recovers_what_the_joint_basis_cannot() {
             "{pixels:?} pixels: per-channel coefficient error {err:.1e}, fit {:.1e}; joint fit {:.3}",
             per_channel.fit_error, joint.fit_error
         );
-        // f32 renders: 1e-4 is generous.
-        assert!(err < 1e-4, "{pixels:?} pixels: per-channel error {err}");
+        // f32 renders, and the 20 chosen rows rebuilt under 65,536 lights where the photo had
+        // 2,048: the cap that reads the map inside a sharp lobe sits at each set's own light
+        // spacing, so the two quadratures differ a little (measured 1.2e-4 with 20 pixels).
+        assert!(err < 5e-4, "{pixels:?} pixels: per-channel error {err}");
         assert!(per_channel.fit_error < 1e-5, "{}", per_channel.fit_error);
         assert!(joint.fit_error > 0.05, "joint fit {}", joint.fit_error);
         // The automatic choice tries both and keeps per channel, the better fit: the same
@@ -725,16 +727,17 @@ fn per_channel_selection_conditions_each_channel() {
     // The reported κ is the worst channel's, recomputed from the set.
     let worst = channels.condition(&for_channels.pixels);
     assert!((worst - for_channels.condition).abs() < 1e-12 * worst);
-    // Measured (studio map, 48² sphere): the joint choice leaves its worst channel at κ 80.2,
-    // the channels' choice at 49.3, and the paper's search on the same blocks at 62.3. The
-    // search is deterministic; the margins allow for rounding.
+    // Measured (studio map, 48² sphere, the rows read through the cap): the joint choice
+    // leaves its worst channel at κ 51.4, the channels' choice at 38.9, and the paper's search
+    // on the same blocks at 38.5 (80.2, 49.3 and 62.3 with the lights alone). The search is
+    // deterministic; the margins allow for rounding.
     let joint_choice = channels.condition(&for_joint.pixels);
     eprintln!(
         "worst channel's κ: joint choice {joint_choice:.1}, per-channel fast {:.1}, paper {:.1}",
         for_channels.condition, paper.condition
     );
     assert!(
-        for_channels.condition < 0.7 * joint_choice && paper.condition < 0.9 * joint_choice,
+        for_channels.condition < 0.8 * joint_choice && paper.condition < 0.8 * joint_choice,
         "per channel: fast {} paper {}; the joint choice {joint_choice}",
         for_channels.condition,
         paper.condition

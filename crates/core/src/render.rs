@@ -164,9 +164,16 @@ fn cut_flat(values: &[f64], cap_bins: usize) -> Vec<f64> {
     out
 }
 
-/// Adds what the cap holds of each column, Σ over the cap's samples of (f − f′)·L·cos·Δω,
-/// to one pixel's `out[c·m + j]` ([`crate::sharp`]).
-fn add_cap(cap: &Cap, px: &GeomPixel, columns: &[&[f64]], luts: &Luts, out: &mut [f32]) {
+/// Adds what the cap holds of each column that takes it (`capped`, by index), Σ over the
+/// cap's samples of (f − f′)·L·cos·Δω, to one pixel's `out[c·m + j]` ([`crate::sharp`]).
+fn add_cap(
+    cap: &Cap,
+    px: &GeomPixel,
+    columns: &[&[f64]],
+    capped: &[usize],
+    luts: &Luts,
+    out: &mut [f32],
+) {
     let m = columns.len();
     cap.each_spoke(px, |s| {
         let bd = luts.d.bin(dist2(s.dir, s.h));
@@ -175,7 +182,8 @@ fn add_cap(cap: &Cap, px: &GeomPixel, columns: &[&[f64]], luts: &Luts, out: &mut
             let cell = band.bin * N_THETA_D + bd;
             for c in 0..3 {
                 let (plane, w) = (c * GRID_CELLS, s.weight[c] * band.share);
-                for (j, col) in columns.iter().enumerate() {
+                for &j in capped {
+                    let col = columns[j];
                     out[c * m + j] += (col[plane + cell] - col[plane + edge]) as f32 * w;
                 }
             }
@@ -457,19 +465,24 @@ struct ColumnTable {
 }
 
 impl ColumnTable {
-    /// The lights' tables hold f′: each column cut flat in its first `cap_bins` θh bins
-    /// ([`crate::sharp`]), then smoothed for each footprint.
+    /// The lights' tables hold f′ for the columns that take the cap: each cut flat in its
+    /// first `cap_bins[j]` θh bins ([`crate::sharp`]; 0 for a column without it), then
+    /// smoothed for each footprint.
     fn new(
         columns: &[&[f64]],
         binning: ThetaHBinning,
         footprints: &Footprints,
-        cap_bins: usize,
+        cap_bins: &[usize],
     ) -> ColumnTable {
         let m = columns.len();
         assert!(m <= PASS_COLUMNS, "at most {PASS_COLUMNS} columns");
         let stride = Self::stride(m);
         let mut data = vec![0f32; stride * footprints.radii.len()];
-        let flat: Vec<Vec<f64>> = columns.iter().map(|c| cut_flat(c, cap_bins)).collect();
+        let flat: Vec<Vec<f64>> = columns
+            .iter()
+            .zip(cap_bins)
+            .map(|(c, bins)| cut_flat(c, *bins))
+            .collect();
         for (level, rho) in footprints.radii.iter().enumerate() {
             let smoothing = theta_h_smoothing(binning, *rho);
             let smoothed: Vec<Vec<f64>> = flat
@@ -625,9 +638,23 @@ impl RenderingMatrix {
             all.push(o);
         }
         let footprints = Footprints::of(lights);
-        let cap = Cap::of(lights, binning).filter(|cap| cap.needed_by(&all));
-        let cap_bins = cap.as_ref().map_or(0, |c| c.bins);
-        let table = ColumnTable::new(&all, binning, &footprints, cap_bins);
+        // Each column takes the cap or not by its own shape, so that its render does not
+        // depend on which columns share its pass (a photo rendered alone and the same BRDF
+        // among a fit's columns must agree).
+        let cap = Cap::of(lights, binning);
+        let capped: Vec<usize> = cap.as_ref().map_or_else(Vec::new, |cap| {
+            (0..all.len())
+                .filter(|j| cap.needed_by(&[all[*j]]))
+                .collect()
+        });
+        let cap = cap.filter(|_| !capped.is_empty());
+        let cap_bins: Vec<usize> = (0..all.len())
+            .map(|j| match &cap {
+                Some(c) if capped.contains(&j) => c.bins,
+                _ => 0,
+            })
+            .collect();
+        let table = ColumnTable::new(&all, binning, &footprints, &cap_bins);
         let m = all.len();
         let packed = pack(lights, &footprints, ColumnTable::stride(m));
         let mut raw = vec![0f32; pixels.len() * 3 * m];
@@ -646,7 +673,7 @@ impl RenderingMatrix {
                         None => table.pixel(p, &packed, row, o),
                     }
                     if let Some(cap) = cap.as_ref().filter(|_| sees_mirror(p, &packed, row)) {
-                        add_cap(cap, p, &all, &table.luts, o);
+                        add_cap(cap, p, &all, &capped, &table.luts, o);
                     }
                 }
             });
@@ -1116,7 +1143,7 @@ mod tests {
                 .collect();
             let refs: Vec<&[f64]> = columns.iter().map(|c| c.as_slice()).collect();
             let footprints = Footprints::of(&lights);
-            let table = ColumnTable::new(&refs, ThetaHBinning::Sqrt, &footprints, 0);
+            let table = ColumnTable::new(&refs, ThetaHBinning::Sqrt, &footprints, &vec![0; m]);
             let packed = pack(&lights, &footprints, ColumnTable::stride(m));
             let shared = table.shared_view(geometry.pixels[0].view, &packed);
             let (mut fast, mut portable) = (vec![0f32; 3 * m], vec![0f32; 3 * m]);
