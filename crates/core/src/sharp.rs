@@ -323,8 +323,8 @@ impl Cap {
     /// Whether any of bivariate `columns` (channel-planar, as
     /// [`crate::bivariate::Bivariate::values`]) has a peak inside the cap worth its cost:
     /// what the cap holds of f − f′, against all of f, weighted by each θh bin's solid angle,
-    /// is above [`NEEDED`] in some θd column up to 80°. A broad lobe's render then costs what
-    /// it did.
+    /// is above 0.2% (`NEEDED`) in some θd column up to 80°. A broad lobe's render then costs
+    /// what it did.
     pub fn needed_by(&self, columns: &[&[f64]]) -> bool {
         use super::bivariate::{GRID_CELLS, N_THETA_D};
         let area = |ih: usize| {
