@@ -191,22 +191,72 @@ fn add_cap(
     });
 }
 
-/// Whether a pixel sees its mirror direction: on a mesh, the cap's light comes only from
-/// where the pixel's own object does not hide the sky, told by the light nearest that
-/// direction.
-fn sees_mirror(px: &GeomPixel, lights: &[PackedLight], seen: Option<&[u64]>) -> bool {
-    let Some(row) = seen else { return true };
-    let (n, v) = (px.normal, px.view);
-    let nv = dot3(n, v);
-    let r = [
-        2.0 * nv * n[0] - v[0],
-        2.0 * nv * n[1] - v[1],
-        2.0 * nv * n[2] - v[2],
-    ];
-    lights
-        .iter()
-        .max_by(|a, b| dot3(a.dir, r).total_cmp(&dot3(b.dir, r)))
-        .is_none_or(|l| is_seen(row, l.index))
+/// The lights ordered by height (their y), to find the one nearest a direction without visiting
+/// all: a light nearer than the best so far lies within the best's chord of it, so within
+/// that chord of it in y. Asked once per pixel of a mesh in every build with a cap, a scan of
+/// every light cost pixels × lights; the same answer comes from a narrow band of heights
+/// (the gold part's estimate, 2.5 s → 2.2 s, results identical to the last digit).
+struct Mirrors<'a> {
+    lights: &'a [PackedLight],
+    /// Indices into `lights`, by ascending y.
+    by_height: Vec<usize>,
+}
+
+impl<'a> Mirrors<'a> {
+    fn new(lights: &'a [PackedLight]) -> Mirrors<'a> {
+        let mut by_height: Vec<usize> = (0..lights.len()).collect();
+        by_height.sort_by(|a, b| lights[*a].dir[1].total_cmp(&lights[*b].dir[1]));
+        Mirrors { lights, by_height }
+    }
+
+    /// The light whose direction is nearest unit `r`.
+    fn nearest(&self, r: [f32; 3]) -> Option<&PackedLight> {
+        let y = |i: usize| self.lights[self.by_height[i]].dir[1];
+        let start = self
+            .by_height
+            .partition_point(|j| self.lights[*j].dir[1] < r[1]);
+        let mut best: Option<(f32, usize)> = None;
+        // |d − r|² = 2 − 2 d·r: the chord of the best so far, squared.
+        let reach = |best: Option<(f32, usize)>| best.map_or(f32::INFINITY, |(d, _)| 2.0 - 2.0 * d);
+        let visit = |i: usize, best: &mut Option<(f32, usize)>| -> bool {
+            let dy = y(i) - r[1];
+            if dy * dy > reach(*best) {
+                return false;
+            }
+            let j = self.by_height[i];
+            let d = dot3(self.lights[j].dir, r);
+            if best.is_none_or(|(b, _)| d > b) {
+                *best = Some((d, j));
+            }
+            true
+        };
+        for i in start..self.by_height.len() {
+            if !visit(i, &mut best) {
+                break;
+            }
+        }
+        for i in (0..start).rev() {
+            if !visit(i, &mut best) {
+                break;
+            }
+        }
+        best.map(|(_, j)| &self.lights[j])
+    }
+
+    /// Whether a pixel sees its mirror direction: on a mesh, the cap's light comes only from
+    /// where the pixel's own object does not hide the sky, told by the light nearest that
+    /// direction.
+    fn seen_by(&self, px: &GeomPixel, seen: Option<&[u64]>) -> bool {
+        let Some(row) = seen else { return true };
+        let (n, v) = (px.normal, px.view);
+        let nv = dot3(n, v);
+        let r = [
+            2.0 * nv * n[0] - v[0],
+            2.0 * nv * n[1] - v[1],
+            2.0 * nv * n[2] - v[2],
+        ];
+        self.nearest(r).is_none_or(|l| is_seen(row, l.index))
+    }
 }
 
 fn smooth_bivariate(values: &[f64], smoothing: &[Vec<(usize, f64)>]) -> Vec<f64> {
@@ -657,6 +707,7 @@ impl RenderingMatrix {
         let table = ColumnTable::new(&all, binning, &footprints, &cap_bins);
         let m = all.len();
         let packed = pack(lights, &footprints, ColumnTable::stride(m));
+        let mirrors = Mirrors::new(&packed);
         let mut raw = vec![0f32; pixels.len() * 3 * m];
         let shared = pixels
             .first()
@@ -672,7 +723,7 @@ impl RenderingMatrix {
                         Some(lights) => table.pixel(p, lights, row, o),
                         None => table.pixel(p, &packed, row, o),
                     }
-                    if let Some(cap) = cap.as_ref().filter(|_| sees_mirror(p, &packed, row)) {
+                    if let Some(cap) = cap.as_ref().filter(|_| mirrors.seen_by(p, row)) {
                         add_cap(cap, p, &all, &capped, &table.luts, o);
                     }
                 }
@@ -877,6 +928,7 @@ pub fn render_merl_until(
     }
     let luts = Luts::new(ThetaHBinning::Sqrt);
     let packed = pack(lights, &footprints, cells);
+    let mirrors = Mirrors::new(&packed);
     let shade = |px: &GeomPixel, seen: Option<&[u64]>| -> [f32; 3] {
         let n = px.normal;
         let mut acc = [0f64; 3];
@@ -887,7 +939,7 @@ pub fn render_merl_until(
                 acc[c] += (f[c] * l.power[c] * cos) as f64;
             }
         });
-        if let Some(cap) = cap.as_ref().filter(|_| sees_mirror(px, &packed, seen)) {
+        if let Some(cap) = cap.as_ref().filter(|_| mirrors.seen_by(px, seen)) {
             cap.each_spoke(px, |s| {
                 let bd = luts.d.bin(dist2(s.dir, s.h));
                 let kp = phi_d_bin(n, s.h, s.dir);
@@ -953,6 +1005,7 @@ pub fn render_full(geom: &PixelGeometry, lights: &LightSet, brdf: &dyn Isotropic
     // Point lights: this renderer is the independent check, so it takes no footprint. It
     // still splits off the cap ([`crate::sharp`]): f′ reads f at the cap's edge.
     let packed = pack(lights, &Footprints::of(lights), 0);
+    let mirrors = Mirrors::new(&packed);
     let luts = Luts::new(ThetaHBinning::Sqrt);
     let cap = Cap::of(lights, ThetaHBinning::Sqrt);
     let theta_c = cap.as_ref().map_or(0.0, |c| c.edge(ThetaHBinning::Sqrt));
@@ -984,7 +1037,7 @@ pub fn render_full(geom: &PixelGeometry, lights: &LightSet, brdf: &dyn Isotropic
                 acc[c] += f[c] * l.power[c] as f64 * wi[2];
             }
         });
-        if let Some(cap) = cap.as_ref().filter(|_| sees_mirror(px, &packed, seen)) {
+        if let Some(cap) = cap.as_ref().filter(|_| mirrors.seen_by(px, seen)) {
             cap.each_sample(px, |s| {
                 let wi = local(s.dir);
                 let (f, f_flat) = (brdf.eval_dirs(wi, wo), flat(wi, wo));
