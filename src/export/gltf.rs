@@ -61,28 +61,21 @@ impl GltfMaterial {
         }
     }
 
-    /// The material rendered on `geometry` under `lights`, as a conforming renderer shows it:
-    /// the base as a bivariate table on `grid`, and the coat's lobe, mixed at each pixel by
-    /// the coat's Fresnel at its N·V (`fresnel_coat`).
-    pub fn render(&self, geometry: &PixelGeometry, lights: &LightSet, grid: Grid) -> Raster {
+    /// The material as tables on `grid`, ready to render under any light: its base, and its
+    /// coat's lobe when it has one.
+    pub fn tables(&self, grid: Grid) -> GltfTables {
         let base = GltfMaterial {
             clearcoat: 0.0,
             ..*self
         };
-        let mut image =
-            render_bivariate(geometry, lights, &Bivariate::reduce(&GltfBrdf(base), grid));
-        if self.clearcoat > 0.0 {
-            let alpha = self.clearcoat_roughness * self.clearcoat_roughness;
-            let lobe = Microfacet::one_lobe([0.0; 3], [1.0; 3], [1.0; 3], alpha).bivariate(grid);
-            let coat = render_bivariate(geometry, lights, &lobe);
-            for px in &geometry.pixels {
-                let i = px.y as usize * image.width + px.x as usize;
-                let k = (self.clearcoat * coat_fresnel_at(px)) as f32;
-                image.pixels[i] =
-                    std::array::from_fn(|c| image.pixels[i][c] * (1.0 - k) + coat.pixels[i][c] * k);
-            }
+        GltfTables {
+            base: Bivariate::reduce(&GltfBrdf(base), grid),
+            coat: (self.clearcoat > 0.0).then(|| {
+                let alpha = self.clearcoat_roughness * self.clearcoat_roughness;
+                let lobe = Microfacet::one_lobe([0.0; 3], [1.0; 3], [1.0; 3], alpha);
+                (self.clearcoat, lobe.bivariate(grid))
+            }),
         }
-        image
     }
 
     /// The first material of a glTF file (`.gltf`, JSON): its metallic-roughness factors and
@@ -393,6 +386,33 @@ fn mesh_buffer(mesh: &Mesh) -> Geometry {
         }
     }
     Geometry::new(&points, &normals, None)
+}
+
+/// A material reduced to bivariate tables, once for every render: glTF's coat hangs on N·V and
+/// so is no table of (θh, θd) itself, but a pixel fixes N·V whatever the light.
+pub struct GltfTables {
+    base: Bivariate,
+    /// The coat's weight and its lobe (no Fresnel of its own).
+    coat: Option<(f64, Bivariate)>,
+}
+
+impl GltfTables {
+    /// The material rendered on `geometry` under `lights`, as a conforming renderer shows it:
+    /// the base's render and the coat's mixed at each pixel by the coat's weight × its
+    /// Fresnel at the pixel's N·V (`fresnel_coat`).
+    pub fn render(&self, geometry: &PixelGeometry, lights: &LightSet) -> Raster {
+        let mut image = render_bivariate(geometry, lights, &self.base);
+        if let Some((weight, lobe)) = &self.coat {
+            let coat = render_bivariate(geometry, lights, lobe);
+            for px in &geometry.pixels {
+                let i = px.y as usize * image.width + px.x as usize;
+                let k = (weight * coat_fresnel_at(px)) as f32;
+                image.pixels[i] =
+                    std::array::from_fn(|c| image.pixels[i][c] * (1.0 - k) + coat.pixels[i][c] * k);
+            }
+        }
+        image
+    }
 }
 
 /// glTF's metallic-roughness BRDF with the specular, IOR and clear coat extensions:

@@ -154,6 +154,7 @@ pub fn write_exports(
     let openpbr = OpenPbrMaterial::from_fit(&fitted);
 
     let check_sphere = sphere(CHECK_SIZE)?;
+    let exported = material.tables(estimate.grid);
     let checks: Vec<Lit> = references
         .iter()
         .map(|(name, map)| reference(map, name, CHECK_YAW_DEG, CHECK_LIGHTS))
@@ -162,8 +163,8 @@ pub fn write_exports(
         .iter()
         .map(|c| {
             let reference = render_bivariate(&check_sphere, &c.lights, estimate);
-            material
-                .render(&check_sphere, &c.lights, estimate.grid)
+            exported
+                .render(&check_sphere, &c.lights)
                 .relative_rmse(&reference)
         })
         .collect();
@@ -306,13 +307,14 @@ mod tests {
         let lights = maps[0].1.compressed(1024, 0.0);
         let grid = Grid::default();
         let geometry = sphere(48).unwrap();
-        let mixed = coated.render(&geometry, &lights, grid);
+        let mixed = coated.tables(grid).render(&geometry, &lights);
         let full = brdfd_core::render::render_full(&geometry, &lights, &GltfBrdf(coated));
         let bare = GltfMaterial {
             clearcoat: 0.0,
             ..coated
         }
-        .render(&geometry, &lights, grid);
+        .tables(grid)
+        .render(&geometry, &lights);
         let (agree, coat) = (mixed.relative_rmse(&full), bare.relative_rmse(&full));
         assert!(agree < 0.03 && coat > 5.0 * agree, "{agree} {coat}");
     }
@@ -367,7 +369,7 @@ mod figures {
             let fitted = fit::Scenes::new(&fit_sphere.pixels, &fit_lights, &target)
                 .unwrap()
                 .fit();
-            let material = GltfMaterial::from_fit(&fitted);
+            let exported = GltfMaterial::from_fit(&fitted).tables(Grid::default());
             let mut line = format!(
                 "{name:22} fit {:.3} coat {:.2} at α {:.4}, base α {:.4}:",
                 fitted.fit_error, fitted.coat, fitted.coat_alpha, fitted.alpha
@@ -375,8 +377,8 @@ mod figures {
             for (n, map) in names.iter().zip(&maps).skip(1) {
                 let lights = map.compressed(CHECK_LIGHTS, 0.0);
                 let reference = render_bivariate(&check_sphere, &lights, &target);
-                let e = material
-                    .render(&check_sphere, &lights, Grid::default())
+                let e = exported
+                    .render(&check_sphere, &lights)
                     .relative_rmse(&reference);
                 all.push(e);
                 line += &format!(" {n} {e:.3}");
