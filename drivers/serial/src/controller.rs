@@ -108,13 +108,24 @@ impl RigController {
     }
 
     /// The first `ID?`'s answer, asked again until the board has booted: a question sent
-    /// while an Arduino's bootloader runs is lost.
+    /// while an Arduino's bootloader runs is lost. One line that is no answer is asked past
+    /// too: clearing the input may cut a line the booting firmware was printing (its
+    /// `# … ready` without the `#`), and its rest then arrives first. A second is the
+    /// device's answer: another protocol's, say.
     fn first_identity(&mut self) -> Result<String> {
         let start = Instant::now();
+        let mut cut_line = true;
         loop {
             match self.exchange("ID?", self.timeouts.answer) {
                 Err(SerialError::Timeout { .. }) if start.elapsed() < self.timeouts.boot => {
                     tracing::debug!(port = %self.link.name, "no answer to ID? yet: asking again");
+                    self.link.discard_input();
+                }
+                Err(SerialError::Protocol { line, .. })
+                    if cut_line && start.elapsed() < self.timeouts.boot =>
+                {
+                    tracing::debug!(port = %self.link.name, "{line:?} is no answer to ID?: asking again");
+                    cut_line = false;
                     self.link.discard_input();
                 }
                 other => return other,
