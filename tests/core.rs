@@ -719,7 +719,11 @@ fn per_channel_selection_conditions_each_channel() {
         &SwapParams {
             restarts: 2,
             seed: 7,
-            max_evaluations: 100_000,
+            // Enough to converge (it spends about 880,000). The search minimises a guided score
+            // and reports the channels' κ, which a truncated search leaves to where it was
+            // cut: at 100,000 evaluations, matrices that differ in the map's filtering gave
+            // 38.5 or 107.8; converged, both give 39.0.
+            max_evaluations: 2_000_000,
         },
         &Stop::default(),
     )
@@ -729,12 +733,13 @@ fn per_channel_selection_conditions_each_channel() {
     assert!((worst - for_channels.condition).abs() < 1e-12 * worst);
     // Measured (studio map, 48² sphere, the rows read through the cap): the joint choice
     // leaves its worst channel at κ 51.4, the channels' choice at 38.9, and the paper's search
-    // on the same blocks at 38.5 (80.2, 49.3 and 62.3 with the lights alone). The search is
+    // on the same blocks at 39.0 (80.2, 49.3 and 62.3 with the lights alone, a budget of
+    // 100,000 evaluations). The search is
     // deterministic; the margins allow for rounding.
     let joint_choice = channels.condition(&for_joint.pixels);
     eprintln!(
-        "worst channel's κ: joint choice {joint_choice:.1}, per-channel fast {:.1}, paper {:.1}",
-        for_channels.condition, paper.condition
+        "worst channel's κ: joint choice {joint_choice:.1}, per-channel fast {:.1}, paper {:.1} ({} evaluations)",
+        for_channels.condition, paper.condition, paper.evaluations
     );
     assert!(
         for_channels.condition < 0.8 * joint_choice && paper.condition < 0.8 * joint_choice,

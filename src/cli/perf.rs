@@ -42,7 +42,7 @@ pub struct BenchArgs {
     #[arg(long)]
     pub occlusion: bool,
     /// Only the preview benchmark: `preview.png`'s render, a 512² sphere under 512 lights with
-    /// its white sphere, for a sharp material and a broad one.
+    /// its white sphere, for a sharp material, a mirror-like one and a broad one.
     #[arg(long)]
     pub preview: bool,
 }
@@ -190,9 +190,10 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
 }
 
 /// `preview.png`'s render, as the results write it: the estimate on a 512² sphere under the
-/// capture's map compressed to 512 lights, with the white sphere that sets its scale. A sharp
-/// material and a broad one: the render's cost does not depend on the BRDF's shape, which
-/// this shows.
+/// capture's map compressed to 512 lights, with the white sphere that sets its scale. A
+/// sharp material, a mirror-like one and a broad one: a lobe narrower than the lights'
+/// spacing also reads the map itself in a cap about its peak ([`brdfd_core::sharp`]), at a
+/// cost that grows with how much of the lobe is inside it; a broad lobe does not.
 fn preview_bench(runs: usize) -> anyhow::Result<()> {
     use brdfd::results::{PREVIEW_LIGHTS, PREVIEW_SIZE};
     use brdfd_core::render::SpherePicture;
@@ -202,7 +203,7 @@ the preview ({PREVIEW_SIZE}² sphere, {PREVIEW_LIGHTS} lights, and its white sph
     );
     let lights = studio_envmap(2048).compressed(PREVIEW_LIGHTS, 0.0);
     let set = embedded_materials();
-    for name in ["gold-metallic-paint", "black-soft-plastic"] {
+    for name in ["gold-metallic-paint", "chrome-steel", "black-soft-plastic"] {
         let brdf = Bivariate::reduce(set.get(name)?, Grid::default());
         let mut failed = None;
         let s = median_secs(runs, || {

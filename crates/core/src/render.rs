@@ -164,31 +164,40 @@ fn cut_flat(values: &[f64], cap_bins: usize) -> Vec<f64> {
     out
 }
 
-/// Adds what the cap holds of each column that takes it (`capped`, by index), Σ over the
-/// cap's samples of (f − f′)·L·cos·Δω, to one pixel's `out[c·m + j]` ([`crate::sharp`]).
-fn add_cap(
-    cap: &Cap,
-    px: &GeomPixel,
-    columns: &[&[f64]],
-    capped: &[usize],
-    luts: &Luts,
-    out: &mut [f32],
-) {
-    let m = columns.len();
-    cap.each_spoke(px, |s| {
-        let bd = luts.d.bin(dist2(s.dir, s.h));
-        let edge = cap.bins * N_THETA_D + bd;
-        for band in s.bands {
-            let cell = band.bin * N_THETA_D + bd;
-            for c in 0..3 {
-                let (plane, w) = (c * GRID_CELLS, s.weight[c] * band.share);
-                for &j in capped {
-                    let col = columns[j];
-                    out[c * m + j] += (col[plane + cell] - col[plane + edge]) as f32 * w;
-                }
+/// What the cap adds to the columns that take it ([`crate::sharp`]): each one's
+/// [`Cap::ring_sums`], laid out `[(ring·N_THETA_D + θd bin)·3 + channel]·k + i` for the i-th
+/// of its k capped columns.
+struct CapColumns {
+    capped: Vec<usize>,
+    sums: Vec<f32>,
+}
+
+impl CapColumns {
+    fn new(cap: &Cap, columns: &[&[f64]], capped: Vec<usize>) -> CapColumns {
+        let k = capped.len();
+        let mut sums = vec![0f32; cap.rings() * N_THETA_D * 3 * k];
+        for (i, j) in capped.iter().enumerate() {
+            for (cell, value) in cap.ring_sums(columns[*j]).into_iter().enumerate() {
+                sums[cell * k + i] = value;
             }
         }
-    });
+        CapColumns { capped, sums }
+    }
+
+    /// Adds Σ over the cap's samples of (f − f′)·L·cos·Δω to one pixel's `out[c·m + j]`.
+    fn add(&self, cap: &Cap, px: &GeomPixel, m: usize, luts: &Luts, out: &mut [f32]) {
+        let k = self.capped.len();
+        cap.each_spoke(px, |s| {
+            let bd = luts.d.bin(dist2(s.dir, s.h));
+            let at = (s.ring * N_THETA_D + bd) * 3 * k;
+            for c in 0..3 {
+                let sums = &self.sums[at + c * k..at + (c + 1) * k];
+                for (&j, sum) in self.capped.iter().zip(sums) {
+                    out[c * m + j] += sum * s.weight[c];
+                }
+            }
+        });
+    }
 }
 
 /// The lights ordered by height (their y), to find the one nearest a direction without visiting
@@ -561,27 +570,42 @@ impl ColumnTable {
 
     /// Σⱼ over lights of column values × L·Δω·cos, for one pixel: out[c·m + col].
     fn pixel<L: Lit>(&self, px: &GeomPixel, lights: &[L], seen: Option<&[u64]>, out: &mut [f32]) {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { self.pixel_avx2(px, lights, seen, out) };
-        }
-        by_columns!(self.m, self.pixel_m(px, lights, seen, out))
+        by_columns!(self.m, self.pixel_on_cpu(px, lights, seen, out))
     }
 
-    /// [`ColumnTable::pixel`] compiled for AVX2: the columns' accumulation runs eight lanes
-    /// wide instead of SSE's four. Without FMA the sums round exactly as the SSE build's do,
-    /// so both give the same matrix bit for bit.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn pixel_avx2<L: Lit>(
+    /// [`ColumnTable::pixel`] for `M` columns, in the widest build the CPU runs.
+    #[inline(always)]
+    fn pixel_on_cpu<const M: usize, L: Lit>(
         &self,
         px: &GeomPixel,
         lights: &[L],
         seen: Option<&[u64]>,
         out: &mut [f32],
     ) {
-        by_columns!(self.m, self.pixel_m(px, lights, seen, out))
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2, checked just above.
+            return unsafe { self.pixel_avx2::<M, L>(px, lights, seen, out) };
+        }
+        self.pixel_m::<M, L>(px, lights, seen, out)
+    }
+
+    /// [`ColumnTable::pixel`] compiled for AVX2: the columns' accumulation runs eight lanes
+    /// wide instead of SSE's four. Without FMA the sums round exactly as the SSE build's do,
+    /// so both give the same matrix bit for bit. One function per column count: compiled as
+    /// one function for all 24, it grew so large that the compiler stopped inlining the
+    /// per-light step into some of them, which then ran out of line, in SSE, as a call per
+    /// light (a fifth of the README's main command).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn pixel_avx2<const M: usize, L: Lit>(
+        &self,
+        px: &GeomPixel,
+        lights: &[L],
+        seen: Option<&[u64]>,
+        out: &mut [f32],
+    ) {
+        self.pixel_m::<M, L>(px, lights, seen, out)
     }
 
     #[inline(always)]
@@ -605,16 +629,24 @@ impl ColumnTable {
         out: &mut [f32],
     ) {
         let mut acc = [[0f32; M]; 3];
-        each_light(
-            px,
-            lights,
-            seen,
-            &self.luts,
-            |l, Pair { cos, bh, bd, .. }| {
-                let w = [l.power[0] * cos, l.power[1] * cos, l.power[2] * cos];
-                self.accumulate::<M>(&mut acc, l.base + (bh * N_THETA_D + bd) * 3 * M, w);
-            },
-        );
+        // `each_light`'s loop, written out: passed to it as a closure, the step below was
+        // compiled out of line (without AVX2, a call per light) for every column count.
+        let (n, v) = (px.normal, px.view);
+        for l in lights {
+            let light = l.packed();
+            if seen.is_some_and(|row| !is_seen(row, light.index)) {
+                continue;
+            }
+            if let Some(Pair { cos, bh, bd, .. }) = l.pair(n, v, &self.luts) {
+                let w = [
+                    light.power[0] * cos,
+                    light.power[1] * cos,
+                    light.power[2] * cos,
+                ];
+                let start = light.base + (bh * N_THETA_D + bd) * 3 * M;
+                self.accumulate::<M>(&mut acc, start, w);
+            }
+        }
         for c in 0..3 {
             out[c * M..(c + 1) * M].copy_from_slice(&acc[c]);
         }
@@ -705,6 +737,11 @@ impl RenderingMatrix {
             })
             .collect();
         let table = ColumnTable::new(&all, binning, &footprints, &cap_bins);
+        let cap = cap.map(|cap| {
+            let cap = cap.pruned_for(&capped.iter().map(|j| all[*j]).collect::<Vec<_>>());
+            let columns = CapColumns::new(&cap, &all, capped);
+            (cap, columns)
+        });
         let m = all.len();
         let packed = pack(lights, &footprints, ColumnTable::stride(m));
         let mirrors = Mirrors::new(&packed);
@@ -723,8 +760,8 @@ impl RenderingMatrix {
                         Some(lights) => table.pixel(p, lights, row, o),
                         None => table.pixel(p, &packed, row, o),
                     }
-                    if let Some(cap) = cap.as_ref().filter(|_| mirrors.seen_by(p, row)) {
-                        add_cap(cap, p, &all, &capped, &table.luts, o);
+                    if let Some((cap, columns)) = cap.as_ref().filter(|_| mirrors.seen_by(p, row)) {
+                        columns.add(cap, p, m, &table.luts, o);
                     }
                 }
             });
@@ -897,7 +934,8 @@ pub fn render_merl_until(
     // θh footprint average of the rendering matrix applied per (θd, φd) column.
     let cells = merl::CELLS;
     let footprints = Footprints::of(lights);
-    // Whether the cap is needed is judged on the φd = 90° slice, which holds the peak.
+    // Whether the cap and which of its rings are needed is judged on the φd = 90° slice,
+    // which holds the peak.
     let slice: Vec<f64> = (0..3)
         .flat_map(|c| {
             (0..GRID_CELLS).map(move |g| {
@@ -906,7 +944,9 @@ pub fn render_merl_until(
             })
         })
         .collect();
-    let cap = Cap::of(lights, ThetaHBinning::Sqrt).filter(|cap| cap.needed_by(&[&slice]));
+    let cap = Cap::of(lights, ThetaHBinning::Sqrt)
+        .filter(|cap| cap.needed_by(&[&slice]))
+        .map(|cap| cap.pruned_for(&[&slice]));
     let cap_bins = cap.as_ref().map_or(0, |c| c.bins);
     let mut table = vec![[0f32; 3]; cells * footprints.radii.len()];
     for (level, rho) in footprints.radii.iter().enumerate() {

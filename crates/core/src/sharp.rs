@@ -10,15 +10,18 @@
 //! ```
 //!
 //! The lights render f′, which varies no faster than they can follow. f − f′ is zero outside
-//! the cap, and is integrated per pixel over the map itself: one ring of half vectors per θh
-//! bin of the cap, each sample read from the level of a mip pyramid whose texel is the
-//! sample's share of the ring (filtered importance sampling, Colbert and Křivánek 2007), and
-//! bilinearly within the level, as Mitsuba and the web page's viewer read a map. The split is
+//! the cap, and is integrated per pixel over the map itself: rings of half vectors, each a few
+//! θh bins wide, each sample read from the level of a mip pyramid nearest the sample's share
+//! of the ring (filtered importance sampling, Colbert and Křivánek 2007), and bilinearly
+//! within the level. The split is
 //! exact (both parts integrate the same map); only the quadrature of each part differs.
 //!
-//! `render_full` (`brdfd render --gltf`, the renderer checked against Mitsuba) splits so.
-//! The table renderers and the fitting matrix do not yet: at a ring per θh bin, the cap cost
-//! the 512² preview 2.7 s where its budget is 0.3 s (docs/evaluation.md).
+//! Every renderer splits so: `render_full` (`brdfd render --gltf`, checked against Mitsuba)
+//! at each band's own θh ([`Cap::each_sample`]); the table renderers (the fitting matrix,
+//! previews, the simulated photos) once per spoke, with θd and φd read at the ring's middle
+//! ([`Cap::each_spoke`]). The rings a lobe holds next to nothing in are left out
+//! ([`Cap::pruned_for`]), and a lobe that holds next to nothing in the whole cap is rendered by
+//! the lights alone ([`Cap::needed_by`]).
 
 use std::sync::Arc;
 
@@ -103,15 +106,11 @@ impl SkyMap {
         let v = fast_atan2((1.0 - y * y).max(0.0).sqrt(), y) / pi;
         let top = (self.levels.len() - 1) as f32;
         let level = (0.5 * fast_log2((footprint / self.texel_sr).max(1.0))).min(top);
-        // Not negative: `as` truncates, which is the floor here.
-        let l0 = level as usize;
-        let t = level - l0 as f32;
-        let a = bilinear(&self.levels[l0], u, v);
-        if t <= 0.0 {
-            return a;
-        }
-        let b = bilinear(&self.levels[(l0 + 1).min(self.levels.len() - 1)], u, v);
-        std::array::from_fn(|c| a[c] + t * (b[c] - a[c]))
+        // The nearest level, not a blend of two: the blend cost a fifth of the preview's
+        // time, and chrome's 512² preview against a 16,384-light render was 0.0705 with it,
+        // 0.0684 without. Not negative: `as` truncates, so this rounds.
+        let l0 = (level + 0.5) as usize;
+        bilinear(&self.levels[l0.min(self.levels.len() - 1)], u, v)
     }
 }
 
@@ -180,7 +179,8 @@ fn bilinear(map: &EnvMap, u: f32, v: f32) -> [f32; 3] {
     } else {
         (x0 as usize).min(map.width - 1)
     };
-    let xb = (xa + 1) % map.width;
+    // Around without `%`, an integer division per lookup.
+    let xb = if xa + 1 == map.width { 0 } else { xa + 1 };
     let ya = y0 as usize;
     let yb = (ya + 1).min(map.height - 1);
     let p = |x: usize, y: usize| map.pixels[y * map.width + x];
@@ -193,6 +193,7 @@ fn bilinear(map: &EnvMap, u: f32, v: f32) -> [f32; 3] {
 }
 
 /// One bin of a ring: its θh (the middle of its solid angle) and its share of the ring.
+#[derive(Clone)]
 pub struct Band {
     /// The θh bin (below [`Cap::bins`]).
     pub bin: usize,
@@ -205,6 +206,7 @@ pub struct Band {
 /// One ring of half vectors: spokes evenly around the cap's normal, each read from the map
 /// once at the ring's middle θh, and that light given to each θh bin the ring spans, at the
 /// bin's own θh (the map is as good as constant across a ring, f need not be).
+#[derive(Clone)]
 struct Ring {
     cos: f32,
     sin: f32,
@@ -240,6 +242,8 @@ pub struct CapSample {
 /// cell differs across a ring only in θh; its θd and φd move by less than the ring is wide
 /// (a degree or two), so they are read once per spoke, and the bins take their own θh.
 pub struct Spoke<'a> {
+    /// The ring's index, for [`Cap::ring_sums`].
+    pub ring: usize,
     /// The incoming direction ωi at the ring's middle (unit, world frame).
     pub dir: [f32; 3],
     /// The half vector there.
@@ -326,33 +330,107 @@ impl Cap {
     /// is above 0.2% (`NEEDED`) in some θd column up to 80°. A broad lobe's render then costs
     /// what it did.
     pub fn needed_by(&self, columns: &[&[f64]]) -> bool {
-        use super::bivariate::{GRID_CELLS, N_THETA_D};
-        let area = |ih: usize| {
-            let (lo, hi) = (
-                self.binning.lower_edge(ih),
-                if ih + 1 < N_THETA_H {
+        let areas = self.areas();
+        columns.iter().any(|col| {
+            any_theta_d_column(col, |f| {
+                let edge = f(self.bins);
+                let peak: f64 = (0..self.bins)
+                    .map(|ih| (f(ih) - edge).abs() * areas[ih])
+                    .sum();
+                let all: f64 = (0..N_THETA_H).map(|ih| f(ih).abs() * areas[ih]).sum();
+                peak > NEEDED * all
+            })
+        })
+    }
+
+    /// The cap without the rings that hold next to nothing of `columns`' peaks: each ring's
+    /// largest share of a θd column's light (as [`Cap::needed_by`] weighs them), and the
+    /// least of them left out while together they stay below `NEEDED`. A lobe that needs the
+    /// cap but is wider than its middle (a metallic paint under the preview's 512 lights)
+    /// left a third of its samples reading the map for less than 0.1% of its light.
+    pub fn pruned_for(&self, columns: &[&[f64]]) -> Cap {
+        let areas = self.areas();
+        let mut shares = vec![0f64; self.rings.len()];
+        for col in columns {
+            any_theta_d_column(col, |f| {
+                let edge = f(self.bins);
+                let all: f64 = (0..N_THETA_H).map(|ih| f(ih).abs() * areas[ih]).sum();
+                for (ring, share) in self.rings.iter().zip(shares.iter_mut()) {
+                    let peak: f64 = ring
+                        .bands
+                        .iter()
+                        .map(|band| (f(band.bin) - edge) * areas[band.bin])
+                        .sum();
+                    *share = share.max(peak.abs() / all.max(f64::MIN_POSITIVE));
+                }
+                false
+            });
+        }
+        let mut order: Vec<usize> = (0..self.rings.len()).collect();
+        order.sort_by(|a, b| shares[*a].total_cmp(&shares[*b]));
+        let mut left_out = vec![false; self.rings.len()];
+        let mut dropped = 0.0;
+        for r in order {
+            dropped += shares[r];
+            if dropped >= NEEDED {
+                break;
+            }
+            left_out[r] = true;
+        }
+        Cap {
+            bins: self.bins,
+            binning: self.binning,
+            rings: self
+                .rings
+                .iter()
+                .zip(&left_out)
+                .filter(|(_, out)| !**out)
+                .map(|(ring, _)| ring.clone())
+                .collect(),
+            map: self.map.clone(),
+        }
+    }
+
+    /// Each θh bin's solid angle over 2π (the cap's rings span whole bins).
+    fn areas(&self) -> Vec<f64> {
+        (0..N_THETA_H)
+            .map(|ih| {
+                let hi = if ih + 1 < N_THETA_H {
                     self.binning.lower_edge(ih + 1)
                 } else {
                     std::f64::consts::FRAC_PI_2
-                },
-            );
-            lo.cos() - hi.cos()
-        };
-        let areas: Vec<f64> = (0..N_THETA_H).map(area).collect();
-        columns.iter().any(|col| {
-            (0..3).any(|c| {
-                let plane = &col[c * GRID_CELLS..(c + 1) * GRID_CELLS];
-                (0..N_THETA_D * 8 / 9).any(|jd| {
-                    let f = |ih: usize| plane[ih * N_THETA_D + jd];
-                    let edge = f(self.bins);
-                    let peak: f64 = (0..self.bins)
-                        .map(|ih| (f(ih) - edge).abs() * areas[ih])
-                        .sum();
-                    let all: f64 = (0..N_THETA_H).map(|ih| f(ih).abs() * areas[ih]).sum();
-                    peak > NEEDED * all
-                })
+                };
+                self.binning.lower_edge(ih).cos() - hi.cos()
             })
-        })
+            .collect()
+    }
+
+    /// How many rings the cap has.
+    pub fn rings(&self) -> usize {
+        self.rings.len()
+    }
+
+    /// A bivariate vector's peak above its cap edge, f − f′, summed over each ring's bands
+    /// with their shares: `sums[(ring·N_THETA_D + θd bin)·3 + channel]`. A spoke reads θd once
+    /// for all its ring's bands, so times the spoke's weight this is its whole share of the
+    /// cap, one read where the bands took one each (a third of the sharp preview's time).
+    pub fn ring_sums(&self, values: &[f64]) -> Vec<f32> {
+        use super::bivariate::{GRID_CELLS, N_THETA_D};
+        let mut sums = vec![0f32; self.rings.len() * N_THETA_D * 3];
+        for (r, ring) in self.rings.iter().enumerate() {
+            for jd in 0..N_THETA_D {
+                for c in 0..3 {
+                    let f = |ih: usize| values[c * GRID_CELLS + ih * N_THETA_D + jd];
+                    let edge = f(self.bins);
+                    sums[(r * N_THETA_D + jd) * 3 + c] =
+                        ring.bands
+                            .iter()
+                            .map(|band| (f(band.bin) - edge) * band.share as f64)
+                            .sum::<f64>() as f32;
+                }
+            }
+        }
+        sums
     }
 
     /// The cap's edge θc: the lower edge of bin [`Cap::bins`].
@@ -371,7 +449,7 @@ impl Cap {
     pub fn each_spoke(&self, px: &GeomPixel, mut f: impl FnMut(&Spoke)) {
         let (n, v) = (px.normal, px.view);
         let (t, b) = frame(n);
-        for ring in &self.rings {
+        for (index, ring) in self.rings.iter().enumerate() {
             for (c, s) in &ring.spokes {
                 let h: [f32; 3] =
                     std::array::from_fn(|k| ring.cos * n[k] + ring.sin * (c * t[k] + s * b[k]));
@@ -384,6 +462,7 @@ impl Cap {
                 // dωi = 4 (h·v) dωh.
                 let l = self.map.radiance(dir, 4.0 * hv * ring.share);
                 f(&Spoke {
+                    ring: index,
                     dir,
                     h,
                     weight: l.map(|x| x * cos * 4.0 * hv),
@@ -431,6 +510,17 @@ impl Cap {
             }
         }
     }
+}
+
+/// Whether `test` holds for any θd column up to 80° of any channel of bivariate `values`
+/// (channel-planar), given that column's f by θh bin. Beyond 80° a column is grazing light
+/// the renders weigh by almost nothing.
+fn any_theta_d_column(values: &[f64], mut test: impl FnMut(&dyn Fn(usize) -> f64) -> bool) -> bool {
+    use super::bivariate::{GRID_CELLS, N_THETA_D};
+    (0..3).any(|c| {
+        let plane = &values[c * GRID_CELLS..(c + 1) * GRID_CELLS];
+        (0..N_THETA_D * 8 / 9).any(|jd| test(&|ih: usize| plane[ih * N_THETA_D + jd]))
+    })
 }
 
 /// How far apart a set's lights are, in θh: a light of angular radius R moves the half
