@@ -367,3 +367,137 @@ fn theta_passwords_need_not_be_on_the_command_line() {
     );
     drop(sim);
 }
+
+/// Issue 41: the THETAs on sale. A Z1 left at RAW+ with its self-timer function, and an X left
+/// at its smaller JPEG in "my setting", as a user may leave them: brdfd's preparation puts
+/// each in the normal shooting function at its largest JPEG (the V, which has no
+/// `_function`, says it skipped it), and a bracket that starts at the V's and Z1's 1/25000 s
+/// is shot on the X at its own fastest, 1/16000 s, as the simulated X refuses the other.
+#[test]
+fn the_theta_z1_and_x_are_prepared_and_shot_as_their_options_allow() {
+    use brdfd_sim::theta::ThetaModel;
+    use brdfd_theta::OscClient;
+    use serde_json::json;
+    let map = brdfd::bench::studio_envmap(256);
+    let timeouts = HttpTimeouts {
+        poll: Duration::from_millis(5),
+        ..HttpTimeouts::default()
+    };
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    for (model, left_at) in [
+        (ThetaModel::V, json!({})),
+        (
+            ThetaModel::Z1,
+            json!({"_function": "selfTimer", "fileFormat": {"type": "raw+", "width": 6720, "height": 3360}}),
+        ),
+        (
+            ThetaModel::X,
+            json!({"_function": "mySetting", "fileFormat": {"type": "jpeg", "width": 5504, "height": 2752}}),
+        ),
+    ] {
+        let source = Arc::new(BenchPanorama::new(&map, 256, model.name()));
+        let server = OscServer::start(
+            "127.0.0.1:0",
+            source,
+            ThetaConfig {
+                shot_time: Duration::from_millis(5),
+                ..ThetaConfig::of(model)
+            },
+        )
+        .unwrap();
+        let client = OscClient::new(&server.url(), None, timeouts.clone()).unwrap();
+        runtime.block_on(client.set_options(left_at)).unwrap();
+        if model.functions().is_some() {
+            // RICOH's reference: `_function` and exposureDelay in one setOptions is an error.
+            let both = json!({"_function": "normal", "exposureDelay": 0});
+            assert!(runtime.block_on(client.set_options(both)).is_err());
+        }
+
+        let mut theta = Theta::connect_http(&server.url(), None, timeouts.clone()).unwrap();
+        assert_eq!(theta.model, model.name());
+        let report = theta.prepare().unwrap().join("\n");
+        let largest = model.image_formats()[0].clone();
+        assert_eq!(
+            server.option("fileFormat"),
+            Some(largest.clone()),
+            "{model:?}"
+        );
+        match model.functions() {
+            Some(_) => assert_eq!(
+                server.option("_function"),
+                Some(json!("normal")),
+                "{model:?}"
+            ),
+            None => assert!(
+                report.contains("skipped (not on this model): normal shooting function"),
+                "{report}"
+            ),
+        }
+        let plan = BracketPlan {
+            shots: [1.0 / 25000.0, 1.0 / 1000.0, 1.0 / 30.0]
+                .map(|shutter_s| Exposure {
+                    shutter_s,
+                    iso: 100,
+                })
+                .to_vec(),
+        };
+        let frames = theta.capture(&plan, &mut |_, _| {}).unwrap();
+        assert_eq!(frames.len(), 3, "{model:?}");
+        let fastest = frames[0].asked.shutter_s;
+        let expected = if model == ThetaModel::X {
+            1.0 / 16000.0
+        } else {
+            1.0 / 25000.0
+        };
+        assert!(
+            (fastest / expected - 1.0).abs() < 1e-6,
+            "{model:?}: {fastest}"
+        );
+        // The frames carry the body's aperture in their EXIF.
+        let exif = brdfd::radiometry::exif_exposure(&frames[0].data, &frames[0].name).unwrap();
+        assert!(
+            (exif.f_number - model.aperture()).abs() < 0.05,
+            "{model:?}: f/{}",
+            exif.f_number
+        );
+    }
+}
+
+/// The simulated Z1 and X answer `/osc/info` as the recorded bodies did (RICOH's theta-client
+/// test fixtures): the same model, firmware, GPS and gyro, API level and endpoints list.
+/// Serial numbers, MAC addresses, uptime and ports are the body's own.
+#[test]
+fn the_simulated_z1_and_x_answer_info_as_the_recorded_bodies() {
+    use brdfd_sim::theta::ThetaModel;
+    let Some(data) = shared_data() else { return };
+    let map = brdfd::bench::studio_envmap(64);
+    for (model, file) in [
+        (ThetaModel::Z1, "info_z1.json"),
+        (ThetaModel::X, "info_x.json"),
+    ] {
+        let path = data.join("theta/osc-fixtures/info").join(file);
+        let recorded: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        let source = Arc::new(BenchPanorama::new(&map, 64, model.name()));
+        let server = OscServer::start("127.0.0.1:0", source, ThetaConfig::of(model)).unwrap();
+        let answer: serde_json::Value =
+            reqwest::blocking::get(format!("{}/osc/info", server.url()))
+                .unwrap()
+                .json()
+                .unwrap();
+        for key in [
+            "manufacturer",
+            "model",
+            "firmwareVersion",
+            "gps",
+            "gyro",
+            "apiLevel",
+            "api",
+        ] {
+            assert_eq!(answer[key], recorded[key], "{file}: {key}");
+        }
+    }
+}

@@ -13,7 +13,7 @@ use brdfd::bench::panorama::BenchPanorama;
 use brdfd::bench::raw_file::RawFormat;
 use brdfd::bench::VirtualBench;
 use brdfd_sim::ptp::{ptpip::Server, Profile, Responder};
-use brdfd_sim::theta::{OscServer, ThetaConfig};
+use brdfd_sim::theta::{OscServer, ThetaConfig, ThetaModel};
 use brdfd_sim::{ImageSource, SizedPayload};
 
 #[derive(clap::Subcommand)]
@@ -40,7 +40,7 @@ pub struct CameraArgs {
     /// Address to listen on (PTP/IP's port is 15740).
     #[arg(long, default_value = "127.0.0.1:15740")]
     pub ptpip: String,
-    /// Camera profile: generic, nikon-d5100, theta-v (the THETA serves panoramas).
+    /// Camera profile: generic, nikon-d5100, theta-v or theta-z1 (the THETAs serve panoramas).
     #[arg(long, default_value = "nikon-d5100")]
     pub profile: String,
     /// Material on the virtual bench (name or alias).
@@ -88,6 +88,14 @@ pub struct ThetaArgs {
     /// Time to expose and stitch one frame, in milliseconds.
     #[arg(long, default_value_t = 500)]
     pub shot_ms: u64,
+    /// The model: v, z1 or x (their options, shutter speeds, ISOs, apertures, file formats
+    /// and bracket limits differ; docs/devices.md).
+    #[arg(long, default_value = "v", value_parser = parse_theta_model)]
+    pub model: ThetaModel,
+}
+
+fn parse_theta_model(name: &str) -> Result<ThetaModel, String> {
+    ThetaModel::parse(name).ok_or_else(|| format!("{name}: a THETA model is v, z1 or x"))
 }
 
 fn bench_env(env: &Option<PathBuf>) -> anyhow::Result<brdfd_core::envmap::EnvMap> {
@@ -156,10 +164,10 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
             let mut rendering: Option<Arc<BenchCamera>> = None;
             let source: Arc<dyn ImageSource> = match (a.payload_bytes, profile) {
                 (Some(bytes), _) => Arc::new(SizedPayload { bytes }),
-                (None, Profile::ThetaV) => Arc::new(BenchPanorama::new(
+                (None, p) if p.is_theta() => Arc::new(BenchPanorama::new(
                     &bench_env(&None)?,
                     1024,
-                    "RICOH THETA V",
+                    p.theta_model().unwrap_or_default(),
                 )),
                 (None, _) => {
                     let bench = VirtualBench::embedded(&a.material, a.size)?
@@ -231,16 +239,17 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
         }
         SimCommand::Theta(a) => {
             let credentials = a.password.credentials(a.user.as_deref())?;
-            let source = BenchPanorama::new(&bench_env(&a.env)?, a.width, "RICOH THETA V");
+            let name = a.model.name();
+            let source = BenchPanorama::new(&bench_env(&a.env)?, a.width, name);
             let config = ThetaConfig {
                 credentials,
                 shot_time: Duration::from_millis(a.shot_ms),
-                ..ThetaConfig::default()
+                ..ThetaConfig::of(a.model)
             };
             let server = OscServer::start(&a.http, Arc::new(source), config)
                 .with_context(|| format!("listening on {}", a.http))?;
             // Scripts wait for this line before connecting.
-            println!("simulated RICOH THETA V: THETA Web API on {}", server.url());
+            println!("simulated {name}: THETA Web API on {}", server.url());
             loop {
                 std::thread::park();
             }

@@ -314,6 +314,13 @@ fn light_measurement_options() -> Vec<(&'static str, serde_json::Value, bool)> {
             false,
         ),
         ("filter off", json!({ "_filter": "off" }), false),
+        // The Z1 and X only: their self-timer and "my setting" functions shoot otherwise
+        // than asked. Never in the same setOptions as exposureDelay, which they refuse.
+        (
+            "normal shooting function",
+            json!({ "_function": "normal" }),
+            false,
+        ),
         ("self-timer off", json!({ "exposureDelay": 0 }), false),
         (
             "fixed white balance",
@@ -333,6 +340,19 @@ async fn prepare_http(client: &OscClient) -> Result<(Vec<String>, Vec<f64>, Vec<
             {
                 tracing::warn!("THETA does not take {name}: {code}");
                 report.push(format!("skipped (not on this model): {name}"));
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    if let Some(format) = largest_jpeg(client).await? {
+        match client.set_options(json!({ "fileFormat": format })).await {
+            Ok(()) => report.push(format!(
+                "JPEG {}×{}",
+                format["width"].as_u64().unwrap_or(0),
+                format["height"].as_u64().unwrap_or(0)
+            )),
+            Err(ThetaError::Command { code, .. }) if code.starts_with("invalidParameter") => {
+                report.push("skipped (not on this model): JPEG file format".into())
             }
             Err(e) => return Err(e),
         }
@@ -358,6 +378,29 @@ async fn prepare_http(client: &OscClient) -> Result<(Vec<String>, Vec<f64>, Vec<
         ));
     }
     Ok((report, shutters, isos))
+}
+
+/// The camera's largest JPEG still format, from `fileFormatSupport`: the HDR merge reads
+/// JPEGs, a Z1 left at RAW+ writes a DNG beside each, and an X may be at its smaller size.
+/// None where the camera lists no formats.
+async fn largest_jpeg(client: &OscClient) -> Result<Option<serde_json::Value>> {
+    let support = match client.get_options(&["fileFormatSupport"]).await {
+        Ok(support) => support,
+        Err(ThetaError::Command { code, .. }) if code.starts_with("invalidParameter") => {
+            return Ok(None)
+        }
+        Err(e) => return Err(e),
+    };
+    Ok(support
+        .get("fileFormatSupport")
+        .and_then(|s| s.as_array())
+        .and_then(|formats| {
+            formats
+                .iter()
+                .filter(|f| f["type"] == "jpeg")
+                .max_by_key(|f| f["width"].as_u64().unwrap_or(0))
+                .cloned()
+        }))
 }
 
 fn bracket_shot(e: &Exposure) -> osc::BracketShot {

@@ -73,7 +73,13 @@ fn prepare_sets_the_camera_up_for_light_measurement() {
     let mut t = connect(&s);
     assert!(t.describe().starts_with("RICOH THETA V (serial 00165759"));
     let report = t.prepare().unwrap();
-    assert_eq!(report.len(), 6, "{report:?}");
+    // Seven settings and the JPEG format; the V has no `_function`, which is reported.
+    assert_eq!(report.len(), 8, "{report:?}");
+    assert!(report.contains(&"skipped (not on this model): normal shooting function".into()));
+    assert_eq!(
+        s.option("fileFormat"),
+        Some(json!({"type": "jpeg", "width": 5376, "height": 2688}))
+    );
     assert_eq!(s.option("exposureProgram"), Some(json!(1)));
     assert_eq!(s.option("offDelay"), Some(json!(65535)));
     assert_eq!(s.option("sleepDelay"), Some(json!(65535)));
@@ -591,4 +597,33 @@ fn usb_recovers_from_a_theta_that_drops_off_mid_download() {
     let count = |code: u16| log.iter().filter(|&&op| op == code).count();
     assert_eq!(count(brdfd_ptp::codes::op::GET_OBJECT), 4, "{log:x?}");
     assert_eq!(count(brdfd_ptp::codes::op::OPEN_SESSION), 2, "{log:x?}");
+}
+
+/// Issue 41: a THETA Z1 on USB (its own product id, ISOs from 80 and three apertures, as the
+/// simulated profile gives them) is found, prepared and shot like the V: a plan at ISO 64,
+/// which the Z1 lacks, is shot at its lowest, 80, and the frames carry its aperture.
+#[test]
+fn usb_drives_a_theta_z1() {
+    let r = Responder::new(Profile::ThetaZ1, Arc::new(Labelled)).shared();
+    assert_eq!(Profile::ThetaZ1.usb_ids(), (0x05ca, 0x036d));
+    let mut t = usb_theta(&r);
+    assert!(t.describe().contains("RICOH THETA Z1"), "{}", t.describe());
+    t.prepare().unwrap();
+    let plan = BracketPlan {
+        shots: [1.0 / 25000.0, 1.0 / 250.0]
+            .iter()
+            .map(|&shutter_s| Exposure { shutter_s, iso: 64 })
+            .collect(),
+    };
+    let frames = t.capture(&plan, &mut no_progress()).unwrap();
+    assert_eq!(frames.len(), 2);
+    for (i, (f, e)) in frames.iter().zip(&plan.shots).enumerate() {
+        assert_eq!(f.name, format!("R{:07}.JPG", 10_001 + i));
+        assert_eq!(f.asked.iso, 80);
+        assert_eq!(
+            label(&f.data),
+            format!("shutter={:.8} iso=80 f=2.1 seq={}", e.shutter_s, i + 1)
+        );
+    }
+    t.close().unwrap();
 }

@@ -1,6 +1,8 @@
-//! What the simulated cameras report about themselves. The Nikon D5100 and the THETA V follow
-//! the real cameras' dumps published by libgphoto2 (`shared/data/ptp/device-dumps/`): vendor
-//! extension, model strings, properties with their types, ranges and values.
+//! What the simulated cameras report about themselves. The Nikon D5100 and the THETA V and Z1
+//! follow the real cameras' dumps published by libgphoto2 (`shared/data/ptp/device-dumps/`):
+//! vendor extension, model strings, properties with their types, ranges and values. The Z1's
+//! dump answered "device busy" for most properties (it was asleep); those follow the V's,
+//! with the Z1's ISOs and apertures from RICOH's API reference.
 
 use brdfd_ptp::codes::{datatype as dt, event, format, op, prop, vendor};
 use brdfd_ptp::dataset::{DeviceInfo, DevicePropDesc, Form, StorageInfo, Value};
@@ -16,6 +18,8 @@ pub enum Profile {
     NikonD5100,
     /// RICOH THETA V on USB.
     ThetaV,
+    /// RICOH THETA Z1 on USB: the V's RICOH properties, its own ISOs, and three apertures.
+    ThetaZ1,
 }
 
 impl Profile {
@@ -24,17 +28,42 @@ impl Profile {
             "generic" => Profile::Generic,
             "nikon-d5100" | "d5100" => Profile::NikonD5100,
             "theta-v" => Profile::ThetaV,
+            "theta-z1" => Profile::ThetaZ1,
             _ => return None,
         })
     }
 
-    pub const NAMES: [&'static str; 3] = ["generic", "nikon-d5100", "theta-v"];
+    pub const NAMES: [&'static str; 4] = ["generic", "nikon-d5100", "theta-v", "theta-z1"];
+
+    /// Whether the profile is a RICOH THETA (RICOH's properties, `R00nnnnn.JPG` names).
+    pub fn is_theta(self) -> bool {
+        self.theta_model().is_some()
+    }
+
+    /// A THETA's model string, as its DeviceInfo gives it.
+    pub fn theta_model(self) -> Option<&'static str> {
+        match self {
+            Profile::ThetaV => Some("RICOH THETA V"),
+            Profile::ThetaZ1 => Some("RICOH THETA Z1"),
+            _ => None,
+        }
+    }
+
+    /// The simulated THETA's aperture in hundredths (F-Number, 0x5007), for a profile that
+    /// has the property; the V's is fixed at f/2.0.
+    pub fn theta_apertures(self) -> &'static [u16] {
+        match self {
+            Profile::ThetaZ1 => &[210, 350, 560],
+            _ => &[],
+        }
+    }
 
     pub fn usb_ids(self) -> (u16, u16) {
         match self {
             Profile::Generic => (0x1d6b, 0x0104),
             Profile::NikonD5100 => (0x04b0, 0x0429),
             Profile::ThetaV => (0x05ca, 0x0368),
+            Profile::ThetaZ1 => (0x05ca, 0x036d),
         }
     }
 }
@@ -123,9 +152,33 @@ pub fn device_info(p: Profile) -> DeviceInfo {
             capture_formats: vec![format::EXIF_JPEG],
             image_formats: vec![format::EXIF_JPEG, format::ASSOCIATION],
             manufacturer: "Ricoh Company, Ltd.".into(),
-            model: "RICOH THETA V".into(),
+            model: p.theta_model().unwrap_or_default().into(),
             device_version: "3.50.1".into(),
             serial_number: "00165759".into(),
+            ..Default::default()
+        },
+        // As its dump: no capture format listed, and DNG, MP4 and firmware files besides
+        // JPEGs.
+        Profile::ThetaZ1 => DeviceInfo {
+            standard_version: 100,
+            vendor_extension_id: vendor::MICROSOFT,
+            vendor_extension_version: 110,
+            vendor_extension_desc: String::new(),
+            operations: ops,
+            events,
+            properties: props,
+            capture_formats: Vec::new(),
+            image_formats: vec![
+                format::ASSOCIATION,
+                format::EXIF_JPEG,
+                FORMAT_MP4,
+                format::DNG,
+                FORMAT_FIRMWARE,
+            ],
+            manufacturer: "Ricoh Company, Ltd.".into(),
+            model: p.theta_model().unwrap_or_default().into(),
+            device_version: "1.50.1".into(),
+            serial_number: "10010065".into(),
             ..Default::default()
         },
     }
@@ -134,6 +187,7 @@ pub fn device_info(p: Profile) -> DeviceInfo {
 pub fn storage_info(p: Profile, used: u64) -> StorageInfo {
     let max = match p {
         Profile::ThetaV => 21_088_788_480,
+        Profile::ThetaZ1 => 21_055_815_680,
         _ => 16_298_016_768,
     };
     StorageInfo {
@@ -277,64 +331,78 @@ pub fn properties(p: Profile) -> Vec<DevicePropDesc> {
             range(prop::BURST_NUMBER, dt::UINT16, true, 1, 1, 100),
             range(prop::NIKON_RECORDING_MEDIA, dt::UINT8, true, 1, 0, 2),
         ],
-        Profile::ThetaV => vec![
-            range(prop::BATTERY_LEVEL, dt::UINT8, false, 98, 0, 100),
-            e(
-                prop::WHITE_BALANCE,
-                dt::UINT16,
-                true,
-                2,
-                &[
-                    2, 4, 32769, 32770, 6, 32800, 32771, 32772, 32773, 32774, 32775, 32776,
-                ],
-            ),
-            e(
-                prop::EXPOSURE_PROGRAM_MODE,
-                dt::UINT16,
-                true,
-                2,
-                &[1, 2, 4, 32771],
-            ),
-            e(
-                prop::EXPOSURE_INDEX,
-                dt::UINT16,
-                true,
-                100,
-                &[
-                    64, 80, 100, 125, 160, 200, 250, 320, 400, 500, 640, 800, 1000, 1250, 1600,
-                    2000, 2500, 3200,
-                ],
-            ),
-            e(
-                prop::STILL_CAPTURE_MODE,
-                dt::UINT16,
-                true,
-                1,
-                &[1, 3, 32770, 32772, 32773, 32774, 32775],
-            ),
-            // Sleep: 1 while asleep; writing 0 wakes the camera.
-            e(prop::RICOH_SLEEP, dt::UINT8, true, 0, &[0, 1]),
-            theta_shutter_speed(),
-            e(ricoh::FILTER, dt::UINT8, true, 0, &[0, 1, 2, 3, 4]),
-            range(ricoh::SLEEP_DELAY, dt::UINT16, true, 180, 0, 65534),
-            range(
-                ricoh::AUTO_POWER_OFF_DELAY_SEC,
-                dt::UINT32,
-                true,
-                64800,
-                0,
-                2_592_000,
-            ),
-            range(
-                ricoh::COLOR_TEMPERATURE,
-                dt::UINT16,
-                true,
-                5000,
-                2500,
-                10000,
-            ),
-        ],
+        Profile::ThetaV => theta_properties(p, &THETA_V_ISOS),
+        Profile::ThetaZ1 => theta_properties(p, &THETA_Z1_ISOS),
     }
+}
+
+/// The ISOs of manual exposure, in RICOH's USB API reference.
+const THETA_V_ISOS: [i64; 18] = [
+    64, 80, 100, 125, 160, 200, 250, 320, 400, 500, 640, 800, 1000, 1250, 1600, 2000, 2500, 3200,
+];
+const THETA_Z1_ISOS: [i64; 20] = [
+    80, 100, 125, 160, 200, 250, 320, 400, 500, 640, 800, 1000, 1250, 1600, 2000, 2500, 3200, 4000,
+    5000, 6400,
+];
+/// Object formats of the Z1's dump that PTP's table leaves to vendors.
+const FORMAT_MP4: u16 = 0xB982;
+const FORMAT_FIRMWARE: u16 = 0xB802;
+
+/// A THETA's properties on USB: RICOH's, with the model's ISOs and, on the Z1, its apertures.
+fn theta_properties(p: Profile, isos: &[i64]) -> Vec<DevicePropDesc> {
+    let mut props = vec![
+        range(prop::BATTERY_LEVEL, dt::UINT8, false, 98, 0, 100),
+        e(
+            prop::WHITE_BALANCE,
+            dt::UINT16,
+            true,
+            2,
+            &[
+                2, 4, 32769, 32770, 6, 32800, 32771, 32772, 32773, 32774, 32775, 32776,
+            ],
+        ),
+        e(
+            prop::EXPOSURE_PROGRAM_MODE,
+            dt::UINT16,
+            true,
+            2,
+            &[1, 2, 4, 32771],
+        ),
+        e(prop::EXPOSURE_INDEX, dt::UINT16, true, 100, isos),
+        e(
+            prop::STILL_CAPTURE_MODE,
+            dt::UINT16,
+            true,
+            1,
+            &[1, 3, 32770, 32772, 32773, 32774, 32775],
+        ),
+        // Sleep: 1 while asleep; writing 0 wakes the camera.
+        e(prop::RICOH_SLEEP, dt::UINT8, true, 0, &[0, 1]),
+        theta_shutter_speed(),
+        e(ricoh::FILTER, dt::UINT8, true, 0, &[0, 1, 2, 3, 4]),
+        range(ricoh::SLEEP_DELAY, dt::UINT16, true, 180, 0, 65534),
+        range(
+            ricoh::AUTO_POWER_OFF_DELAY_SEC,
+            dt::UINT32,
+            true,
+            64800,
+            0,
+            2_592_000,
+        ),
+        range(
+            ricoh::COLOR_TEMPERATURE,
+            dt::UINT16,
+            true,
+            5000,
+            2500,
+            10000,
+        ),
+    ];
+    let apertures: Vec<i64> = p.theta_apertures().iter().map(|a| *a as i64).collect();
+    if let Some(first) = apertures.first() {
+        props.push(e(prop::F_NUMBER, dt::UINT16, true, *first, &apertures));
+    }
+    props
 }
 
 /// RICOH's shutter speed (0xD00F, UINT64 rationals; 0 is automatic), as the THETA V lists it.

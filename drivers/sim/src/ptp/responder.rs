@@ -439,8 +439,9 @@ impl Responder {
 
     /// The current exposure, as the camera would shoot it.
     pub fn shot_settings(&self) -> Shot {
-        if self.profile == Profile::ThetaV {
-            // RICOH's rational shutter; automatic exposure shoots 1/100 s. Fixed f/2.0.
+        if self.profile.is_theta() {
+            // RICOH's rational shutter; automatic exposure shoots 1/100 s. The V's aperture
+            // is fixed at f/2.0; the Z1's is its F-Number.
             let shutter = self
                 .props
                 .get(&brdfd_theta::usb::code::SHUTTER_SPEED)
@@ -450,7 +451,10 @@ impl Responder {
                 });
             return Shot {
                 shutter_s: shutter.unwrap_or(0.01),
-                f_number: crate::theta::THETA_V_F_NUMBER,
+                f_number: match self.profile.theta_apertures() {
+                    [] => crate::theta::THETA_V_F_NUMBER,
+                    [first, ..] => self.int_prop(prop::F_NUMBER, *first as i64) as f64 / 100.0,
+                },
                 iso: self.int_prop(prop::EXPOSURE_INDEX, 100) as u32,
                 raw: false,
                 sequence: self.shots + 1,
@@ -515,7 +519,7 @@ impl Responder {
                 height: h,
                 bit_depth: if format == format::EXIF_JPEG { 24 } else { 16 },
                 filename: match self.profile {
-                    Profile::ThetaV => format!("R{:07}.{ext}", 10_000 + self.shots),
+                    p if p.is_theta() => format!("R{:07}.{ext}", 10_000 + self.shots),
                     _ if self.faults.same_file_names => format!("DSC_0001.{ext}"),
                     _ => format!("DSC_{:04}.{ext}", self.shots % 10_000),
                 },

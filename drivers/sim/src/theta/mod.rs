@@ -1,5 +1,5 @@
-//! A simulated RICOH THETA V on the THETA Web API (OSC v2.1): a real HTTP server on loopback
-//! with the camera's state machine, as the recorded responses in
+//! A simulated RICOH THETA (a V, Z1 or X: [`ThetaModel`]) on the THETA Web API (OSC v2.1): a
+//! real HTTP server on loopback with the camera's state machine, as the recorded responses in
 //! `shared/data/theta/osc-fixtures/` show it:
 //!
 //! - `/osc/info`, `/osc/state`, `/osc/checkForUpdates`, `/osc/commands/execute`,
@@ -15,6 +15,9 @@
 //! on a bench: 503s, slow answers, a connection dropped mid-download, a camera asleep.
 
 mod digest;
+mod models;
+
+pub use models::ThetaModel;
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
@@ -95,14 +98,8 @@ pub const THETA_V_SHUTTERS: [(u32, u32); 61] = [
     (30, 1),
     (60, 1),
 ];
-/// The THETA V's ISO settings in manual exposure.
-pub const THETA_V_ISOS: [u32; 18] = [
-    64, 80, 100, 125, 160, 200, 250, 320, 400, 500, 640, 800, 1000, 1250, 1600, 2000, 2500, 3200,
-];
 /// The THETA V's fixed aperture.
 pub const THETA_V_F_NUMBER: f64 = 2.0;
-/// Most shots in one `_autoBracket`.
-const MAX_BRACKET_SHOTS: u64 = 13;
 const STORAGE: &str = "744a605553442020104b8a2304010a01";
 /// Nonces the camera accepts at once (a new one per challenge).
 const NONCES_KEPT: usize = 16;
@@ -110,7 +107,7 @@ const NONCES_KEPT: usize = 16;
 /// Identity and timing of the simulated camera.
 #[derive(Debug, Clone)]
 pub struct ThetaConfig {
-    pub model: String,
+    pub model: ThetaModel,
     pub serial: String,
     pub firmware: String,
     /// (user, password) for HTTP Digest; None answers without authentication (access-point
@@ -120,15 +117,23 @@ pub struct ThetaConfig {
     pub shot_time: Duration,
 }
 
-impl Default for ThetaConfig {
-    fn default() -> Self {
+impl ThetaConfig {
+    /// A `model` with its firmware.
+    pub fn of(model: ThetaModel) -> ThetaConfig {
         ThetaConfig {
-            model: "RICOH THETA V".into(),
+            model,
             serial: "00165759".into(),
-            firmware: "3.50.1".into(),
+            firmware: model.firmware().into(),
             credentials: None,
             shot_time: Duration::from_millis(150),
         }
+    }
+}
+
+impl Default for ThetaConfig {
+    /// A THETA V.
+    fn default() -> Self {
+        ThetaConfig::of(ThetaModel::V)
     }
 }
 
@@ -204,7 +209,7 @@ impl OscServer {
         listener.set_nonblocking(true)?;
         let addr = listener.local_addr()?;
         let shared = Arc::new(Shared {
-            camera: Mutex::new(CameraState::new()),
+            camera: Mutex::new(CameraState::new(config.model)),
             source,
             config,
             addr,
@@ -292,12 +297,14 @@ impl Drop for OscServer {
 }
 
 impl CameraState {
-    fn new() -> CameraState {
-        let shutters: Vec<f64> = THETA_V_SHUTTERS
+    fn new(model: ThetaModel) -> CameraState {
+        let shutters: Vec<f64> = model
+            .shutters()
             .iter()
             .map(|&(n, d)| n as f64 / d as f64)
             .collect();
-        let options = json!({
+        let formats = model.image_formats();
+        let mut options = json!({
             "captureMode": "image",
             "captureModeSupport": ["image", "_video", "_liveStreaming"],
             "exposureProgram": 2,
@@ -305,9 +312,9 @@ impl CameraState {
             "shutterSpeed": 0.0,
             "shutterSpeedSupport": shutters,
             "iso": 0,
-            "isoSupport": THETA_V_ISOS,
-            "aperture": THETA_V_F_NUMBER,
-            "apertureSupport": [THETA_V_F_NUMBER],
+            "isoSupport": model.isos(),
+            "aperture": model.aperture(),
+            "apertureSupport": model.apertures(),
             "whiteBalance": "auto",
             "_colorTemperature": 5000,
             "exposureCompensation": 0.0,
@@ -315,6 +322,7 @@ impl CameraState {
             "offDelay": 600,
             "sleepDelay": 180,
             "_filter": "off",
+            "_filterSupport": model.filters(),
             "_autoBracket": {
                 "_bracketNumber": 3,
                 "_bracketParameters": [
@@ -324,8 +332,13 @@ impl CameraState {
                 ]
             },
             "remainingPictures": 4883,
-            "fileFormat": {"type": "jpeg", "width": 5376, "height": 2688},
+            "fileFormat": formats[0],
+            "fileFormatSupport": formats,
         });
+        if let Some(functions) = model.functions() {
+            options["_function"] = json!("normal");
+            options["_functionSupport"] = json!(functions);
+        }
         CameraState {
             options: options.as_object().cloned().unwrap_or_default(),
             files: BTreeMap::new(),
@@ -437,7 +450,7 @@ async fn handle(
 
 fn check_auth(sh: &Shared, method: &Method, uri: &Uri, headers: &HeaderMap) -> Option<Response> {
     let (user, password) = sh.config.credentials.as_ref()?;
-    let realm = sh.config.model.clone();
+    let realm = sh.config.model.name();
     let mut cam = sh.lock();
     let given = headers
         .get("authorization")
@@ -450,7 +463,7 @@ fn check_auth(sh: &Shared, method: &Method, uri: &Uri, headers: &HeaderMap) -> O
     if let Some(f) = &given {
         let nonce = f.get("nonce").cloned().unwrap_or_default();
         if cam.nonces.contains(&nonce) {
-            match digest::verify(f, method.as_str(), &target, &realm, user, password, &nonce) {
+            match digest::verify(f, method.as_str(), &target, realm, user, password, &nonce) {
                 Ok(()) => return None,
                 Err(why) => tracing::info!("simulated THETA: Digest refused: {why}"),
             }
@@ -484,7 +497,7 @@ fn info(sh: &Shared) -> Response {
     let c = &sh.config;
     json_response(osc::Info {
         manufacturer: "RICOH".into(),
-        model: c.model.clone(),
+        model: c.model.name().into(),
         serial_number: c.serial.clone(),
         firmware_version: c.firmware.clone(),
         support_url: "https://theta360.com/en/support/".into(),
@@ -493,7 +506,7 @@ fn info(sh: &Shared) -> Response {
             http_port: sh.addr.port(),
             http_updates_port: sh.addr.port(),
         },
-        gps: false,
+        gps: c.model.gps(),
         gyro: true,
         uptime,
         api: [
@@ -565,7 +578,7 @@ fn execute(sh: &Arc<Shared>, body: &[u8]) -> Response {
             if cam.busy.is_some() {
                 return error_response(&name, ec::DISABLED_COMMAND, "shooting");
             }
-            cam.options = CameraState::new().options;
+            cam.options = CameraState::new(sh.config.model).options;
             cam.fingerprint += 1;
             json_response(Command::done(&name, None))
         }
@@ -594,7 +607,12 @@ fn get_options(sh: &Shared, name: &str, params: &Value) -> Response {
 
 /// Checks one option value the way the camera does; Err is the message of an
 /// invalidParameterValue.
-fn validate_option(key: &str, v: &Value, options: &Map<String, Value>) -> Result<(), String> {
+fn validate_option(
+    model: ThetaModel,
+    key: &str,
+    v: &Value,
+    options: &Map<String, Value>,
+) -> Result<(), String> {
     let in_support = |support: &str, x: f64| {
         options[support].as_array().is_some_and(|a| {
             a.iter().any(|s| {
@@ -622,22 +640,29 @@ fn validate_option(key: &str, v: &Value, options: &Map<String, Value>) -> Result
             Some(65535) | Some(60..=65534) => Ok(()),
             _ => Err(format!("{key} {v}")),
         },
-        "_filter" => matches!(
-            v.as_str(),
-            Some("off" | "DR Comp" | "Noise Reduction" | "hdr" | "Hh hdr")
-        )
-        .then_some(())
-        .ok_or(format!("_filter {v}")),
+        "_filter" | "_function" | "fileFormat" => options[&format!("{key}Support")]
+            .as_array()
+            .is_some_and(|a| a.contains(v))
+            .then_some(())
+            .ok_or(format!("{key} {v} (not on a {})", model.name())),
+        "aperture" => match v.as_f64() {
+            Some(a) if a == 0.0 || in_support("apertureSupport", a) => Ok(()),
+            _ => Err(format!("aperture {v} (not on a {})", model.name())),
+        },
+        "exposureDelay" => match v.as_u64() {
+            Some(0..=10) => Ok(()),
+            _ => Err(format!("exposureDelay {v}")),
+        },
         "_autoBracket" => {
             let b: osc::AutoBracket =
                 serde_json::from_value(v.clone()).map_err(|e| format!("_autoBracket: {e}"))?;
-            if !(2..=MAX_BRACKET_SHOTS).contains(&(b.number as u64))
-                || b.parameters.len() != b.number as usize
-            {
+            let most = model.max_bracket();
+            if !(2..=most).contains(&(b.number as u64)) || b.parameters.len() != b.number as usize {
                 return Err(format!(
-                    "_autoBracket: {} shots with {} parameter sets (2 to {MAX_BRACKET_SHOTS})",
+                    "_autoBracket: {} shots with {} parameter sets (2 to {most} on a {})",
                     b.number,
-                    b.parameters.len()
+                    b.parameters.len(),
+                    model.name()
                 ));
             }
             for p in &b.parameters {
@@ -648,6 +673,15 @@ fn validate_option(key: &str, v: &Value, options: &Map<String, Value>) -> Result
                         "_autoBracket: shutterSpeed {} iso {} not supported",
                         p.shutter_speed, p.iso
                     ));
+                }
+                // The X's bracket shoots in manual exposure only.
+                if model == ThetaModel::X && p.exposure_program.is_some_and(|e| e != 1) {
+                    return Err("_autoBracket: exposureProgram other than 1 on a THETA X".into());
+                }
+                if p.aperture
+                    .is_some_and(|a| !in_support("apertureSupport", a))
+                {
+                    return Err(format!("_autoBracket: aperture {:?}", p.aperture));
                 }
             }
             Ok(())
@@ -664,11 +698,19 @@ fn set_options(sh: &Shared, name: &str, params: &Value) -> Response {
     if cam.busy.is_some() {
         return error_response(name, ec::DISABLED_COMMAND, "the camera is shooting");
     }
+    // RICOH's reference: setting `_function` together with exposureDelay is an error.
+    if opts.contains_key("_function") && opts.contains_key("exposureDelay") {
+        return error_response(
+            name,
+            ec::INVALID_PARAMETER_VALUE,
+            "_function and exposureDelay in one setOptions",
+        );
+    }
     for (key, v) in opts {
         if !cam.options.contains_key(key) || key.ends_with("Support") {
             return error_response(name, ec::INVALID_PARAMETER_NAME, &format!("option {key}"));
         }
-        if let Err(m) = validate_option(key, v, &cam.options) {
+        if let Err(m) = validate_option(sh.config.model, key, v, &cam.options) {
             return error_response(name, ec::INVALID_PARAMETER_VALUE, &m);
         }
     }
@@ -747,12 +789,16 @@ fn start_capture_job(sh: &Arc<Shared>, name: &str, n: usize) -> Response {
 /// progress; the job is done when the last frame is stored.
 fn run_capture(sh: &Shared, id: &str, name: &str, shots: &[(f64, u32)]) {
     let mut urls = Vec::new();
+    let f_number = sh.lock().options["aperture"]
+        .as_f64()
+        .filter(|a| *a > 0.0)
+        .unwrap_or(sh.config.model.aperture());
     for (i, &(shutter_s, iso)) in shots.iter().enumerate() {
         std::thread::sleep(sh.config.shot_time);
         let sequence = sh.lock().shots + 1;
         let shot = Shot {
             shutter_s,
-            f_number: THETA_V_F_NUMBER,
+            f_number,
             iso,
             raw: false,
             sequence,
