@@ -719,7 +719,7 @@ fn per_channel_selection_conditions_each_channel() {
         &SwapParams {
             restarts: 2,
             seed: 7,
-            // Enough to converge (it spends about 880,000). The search minimises a guided score
+            // Enough to converge (it spends under 1M). The search minimises a guided score
             // and reports the channels' κ, which a truncated search leaves to where it was
             // cut: at 100,000 evaluations, matrices that differ in the map's filtering gave
             // 38.5 or 107.8; converged, both give 39.0.

@@ -969,32 +969,44 @@ pub fn render_merl_until(
     let luts = Luts::new(ThetaHBinning::Sqrt);
     let packed = pack(lights, &footprints, cells);
     let mirrors = Mirrors::new(&packed);
-    let shade = |px: &GeomPixel, seen: Option<&[u64]>| -> [f32; 3] {
-        let n = px.normal;
-        let mut acc = [0f64; 3];
-        each_light(px, &packed, seen, &luts, |l, Pair { cos, h, bh, bd }| {
-            let kp = phi_d_bin(n, h, l.dir);
-            let f = table[l.base + merl::cell_index(bh, bd, kp)];
-            for c in 0..3 {
-                acc[c] += (f[c] * l.power[c] * cos) as f64;
-            }
-        });
-        if let Some(cap) = cap.as_ref().filter(|_| mirrors.seen_by(px, seen)) {
-            cap.each_spoke(px, |s| {
-                let bd = luts.d.bin(dist2(s.dir, s.h));
-                let kp = phi_d_bin(n, s.h, s.dir);
-                for band in s.bands {
-                    for c in 0..3 {
-                        let f = brdf.cell(c, band.bin, bd, kp).max(0.0)
-                            - brdf.cell(c, cap.bins, bd, kp).max(0.0);
-                        acc[c] += f * (s.weight[c] * band.share) as f64;
-                    }
+    // Light by light over a tile of neighbouring pixels, not pixel by pixel over the lights:
+    // neighbours read nearby cells of a light's table, which is tens of megabytes, so the
+    // reads stay in the cache. Each pixel still sums its lights in the same order.
+    let shade = |tile: &[GeomPixel], rows: &[Option<Box<[u64]>>], out: &mut [[f32; 3]]| {
+        let mut acc = vec![[0f64; 3]; tile.len()];
+        for l in &packed {
+            for ((px, row), acc) in tile.iter().zip(rows).zip(acc.iter_mut()) {
+                if row.as_deref().is_some_and(|row| !is_seen(row, l.index)) {
+                    continue;
                 }
-            });
+                let Some(Pair { cos, h, bh, bd }) = l.pair(px.normal, px.view, &luts) else {
+                    continue;
+                };
+                let kp = phi_d_bin(px.normal, h, l.dir);
+                let f = table[l.base + merl::cell_index(bh, bd, kp)];
+                for c in 0..3 {
+                    acc[c] += (f[c] * l.power[c] * cos) as f64;
+                }
+            }
         }
-        acc.map(|x| x as f32)
+        for (((px, row), acc), out) in tile.iter().zip(rows).zip(&mut acc).zip(out) {
+            if let Some(cap) = cap.as_ref().filter(|_| mirrors.seen_by(px, row.as_deref())) {
+                cap.each_spoke(px, |s| {
+                    let bd = luts.d.bin(dist2(s.dir, s.h));
+                    let kp = phi_d_bin(px.normal, s.h, s.dir);
+                    for band in s.bands {
+                        for c in 0..3 {
+                            let f = brdf.cell(c, band.bin, bd, kp).max(0.0)
+                                - brdf.cell(c, cap.bins, bd, kp).max(0.0);
+                            acc[c] += f * (s.weight[c] * band.share) as f64;
+                        }
+                    }
+                });
+            }
+            *out = acc.map(|x| x as f32);
+        }
     };
-    shade_pixels_until(geom, lights, stop, shade)
+    shade_tiles_until(geom, lights, stop, shade)
 }
 
 /// The MERL φd bin of a light from `dir` at half vector `h` on normal `n`: the azimuth of ωᵢ
@@ -1156,18 +1168,33 @@ fn shade_pixels_until(
     stop: &Stop,
     shade: impl Fn(&GeomPixel, Option<&[u64]>) -> [f32; 3] + Sync + Send,
 ) -> Result<Raster> {
+    shade_tiles_until(geom, lights, stop, |tile, rows, out| {
+        for ((px, row), out) in tile.iter().zip(rows).zip(out) {
+            *out = shade(px, row.as_deref());
+        }
+    })
+}
+
+/// Pixels shaded a tile at a time, each tile with its pixels' visibility rows (None off a
+/// mesh), on every core; ended early once `stop` is requested.
+fn shade_tiles_until(
+    geom: &PixelGeometry,
+    lights: &LightSet,
+    stop: &Stop,
+    shade: impl Fn(&[GeomPixel], &[Option<Box<[u64]>>], &mut [[f32; 3]]) + Sync + Send,
+) -> Result<Raster> {
     let seen = Seen::new(&geom.pixels, lights);
-    let values: Vec<[f32; 3]> = geom
-        .pixels
-        .par_iter()
-        .with_min_len(PIXELS_PER_TASK / 4)
-        .map(|px| {
+    let mut values = vec![[0f32; 3]; geom.pixels.len()];
+    values
+        .par_chunks_mut(PIXELS_PER_TASK / 4)
+        .zip(geom.pixels.par_chunks(PIXELS_PER_TASK / 4))
+        .for_each(|(out, tile)| {
             if stop.requested() {
-                return [0.0; 3];
+                return;
             }
-            shade(px, seen.fresh(px).as_deref())
-        })
-        .collect();
+            let rows: Vec<Option<Box<[u64]>>> = tile.iter().map(|px| seen.fresh(px)).collect();
+            shade(tile, &rows, out);
+        });
     stop.check()?;
     let mut img = Raster::black(geom.width, geom.height);
     for (px, v) in geom.pixels.iter().zip(values) {

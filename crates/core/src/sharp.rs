@@ -11,9 +11,9 @@
 //!
 //! The lights render f′, which varies no faster than they can follow. f − f′ is zero outside
 //! the cap, and is integrated per pixel over the map itself: rings of half vectors, each a few
-//! θh bins wide, each sample read from the level of a mip pyramid nearest the sample's share
-//! of the ring (filtered importance sampling, Colbert and Křivánek 2007), and bilinearly
-//! within the level. The split is
+//! θh bins wide, each sample read from a mip pyramid at the level whose texel is the sample's
+//! share of the ring (filtered importance sampling, Colbert and Křivánek 2007), bilinearly
+//! within the two nearest levels and blended between them. The split is
 //! exact (both parts integrate the same map); only the quadrature of each part differs.
 //!
 //! Every renderer splits so: `render_full` (`brdfd render --gltf`, checked against Mitsuba)
@@ -106,11 +106,18 @@ impl SkyMap {
         let v = fast_atan2((1.0 - y * y).max(0.0).sqrt(), y) / pi;
         let top = (self.levels.len() - 1) as f32;
         let level = (0.5 * fast_log2((footprint / self.texel_sr).max(1.0))).min(top);
-        // The nearest level, not a blend of two: the blend cost a fifth of the preview's
-        // time, and chrome's 512² preview against a 16,384-light render was 0.0705 with it,
-        // 0.0684 without. Not negative: `as` truncates, so this rounds.
-        let l0 = (level + 0.5) as usize;
-        bilinear(&self.levels[l0.min(self.levels.len() - 1)], u, v)
+        // A blend of the two nearest levels, not the nearest alone: that cost a fifth less
+        // of the preview's time, but moved the evaluation's relight medians from 0.1092 to
+        // 0.1110 (MERL) and from 0.019 to 0.023 (GGX). Not negative: `as` truncates, which is
+        // the floor here.
+        let l0 = level as usize;
+        let t = level - l0 as f32;
+        let a = bilinear(&self.levels[l0], u, v);
+        if t <= 0.0 {
+            return a;
+        }
+        let b = bilinear(&self.levels[(l0 + 1).min(self.levels.len() - 1)], u, v);
+        std::array::from_fn(|c| a[c] + t * (b[c] - a[c]))
     }
 }
 
@@ -166,6 +173,7 @@ fn fast_log2(x: f32) -> f32 {
 }
 
 /// A map read between texel centres: around in u, clamped at the poles.
+#[inline(always)]
 fn bilinear(map: &EnvMap, u: f32, v: f32) -> [f32; 3] {
     // u in [0, 1), so x ≥ −0.5 and y ≥ 0: truncation and a step back give the floors without
     // libm's `floorf`, a call per lookup in the cap's innermost loop.
