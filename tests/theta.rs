@@ -408,7 +408,7 @@ fn the_theta_z1_and_x_are_prepared_and_shot_as_their_options_allow() {
             },
         )
         .unwrap();
-        let client = OscClient::new(&server.url(), None, timeouts.clone()).unwrap();
+        let client = OscClient::new(&server.url(), None, timeouts).unwrap();
         runtime.block_on(client.set_options(left_at)).unwrap();
         if model.functions().is_some() {
             // RICOH's reference: `_function` and exposureDelay in one setOptions is an error.
@@ -416,7 +416,7 @@ fn the_theta_z1_and_x_are_prepared_and_shot_as_their_options_allow() {
             assert!(runtime.block_on(client.set_options(both)).is_err());
         }
 
-        let mut theta = Theta::connect_http(&server.url(), None, timeouts.clone()).unwrap();
+        let mut theta = Theta::connect_http(&server.url(), None, timeouts).unwrap();
         assert_eq!(theta.model, model.name());
         let report = theta.prepare().unwrap().join("\n");
         let largest = model.image_formats()[0].clone();
