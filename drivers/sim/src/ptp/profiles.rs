@@ -141,46 +141,46 @@ pub fn device_info(p: Profile) -> DeviceInfo {
                 ..Default::default()
             }
         }
-        Profile::ThetaV => DeviceInfo {
-            standard_version: 100,
-            vendor_extension_id: vendor::MICROSOFT,
-            vendor_extension_version: 110,
-            vendor_extension_desc: String::new(),
-            operations: ops,
-            events,
-            properties: props,
-            capture_formats: vec![format::EXIF_JPEG],
-            image_formats: vec![format::EXIF_JPEG, format::ASSOCIATION],
-            manufacturer: "Ricoh Company, Ltd.".into(),
-            model: p.theta_model().unwrap_or_default().into(),
-            device_version: "3.50.1".into(),
-            serial_number: "00165759".into(),
-            ..Default::default()
-        },
-        // As its dump: no capture format listed, and DNG, MP4 and firmware files besides
-        // JPEGs.
-        Profile::ThetaZ1 => DeviceInfo {
-            standard_version: 100,
-            vendor_extension_id: vendor::MICROSOFT,
-            vendor_extension_version: 110,
-            vendor_extension_desc: String::new(),
-            operations: ops,
-            events,
-            properties: props,
-            capture_formats: Vec::new(),
-            image_formats: vec![
-                format::ASSOCIATION,
-                format::EXIF_JPEG,
-                FORMAT_MP4,
-                format::DNG,
-                FORMAT_FIRMWARE,
-            ],
-            manufacturer: "Ricoh Company, Ltd.".into(),
-            model: p.theta_model().unwrap_or_default().into(),
-            device_version: "1.50.1".into(),
-            serial_number: "10010065".into(),
-            ..Default::default()
-        },
+        Profile::ThetaV | Profile::ThetaZ1 => {
+            // As the dumps: the Z1 lists no capture format, and DNG, MP4 and firmware files
+            // besides JPEGs.
+            let (capture_formats, image_formats, version, serial) = match p {
+                Profile::ThetaZ1 => (
+                    Vec::new(),
+                    vec![
+                        format::ASSOCIATION,
+                        format::EXIF_JPEG,
+                        FORMAT_MP4,
+                        format::DNG,
+                        FORMAT_FIRMWARE,
+                    ],
+                    "1.50.1",
+                    "10010065",
+                ),
+                _ => (
+                    vec![format::EXIF_JPEG],
+                    vec![format::EXIF_JPEG, format::ASSOCIATION],
+                    "3.50.1",
+                    "00165759",
+                ),
+            };
+            DeviceInfo {
+                standard_version: 100,
+                vendor_extension_id: vendor::MICROSOFT,
+                vendor_extension_version: 110,
+                vendor_extension_desc: String::new(),
+                operations: ops,
+                events,
+                properties: props,
+                capture_formats,
+                image_formats,
+                manufacturer: "Ricoh Company, Ltd.".into(),
+                model: p.theta_model().unwrap_or_default().into(),
+                device_version: version.into(),
+                serial_number: serial.into(),
+                ..Default::default()
+            }
+        }
     }
 }
 
