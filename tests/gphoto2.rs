@@ -1,7 +1,7 @@
 //! Debian's gphoto2 as an outside check of the simulated camera: it must recognise the
-//! simulated cameras (generic and D5100) over PTP/IP, capture and download from them, and get
-//! byte for byte the file our own client gets. CI installs gphoto2 and sets BRDFD_REQUIRE_GPHOTO2=1, so there the test
-//! cannot skip.
+//! simulated cameras (generic, D5100 and THETA Z1) over PTP/IP, capture and download from
+//! them, and get byte for byte the file our own client gets. CI installs gphoto2 and sets
+//! BRDFD_REQUIRE_GPHOTO2=1, so there the test cannot skip.
 
 mod common;
 
@@ -73,7 +73,7 @@ fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
     if !gphoto2_present() {
         return;
     }
-    for profile in ["generic", "nikon-d5100"] {
+    for profile in ["generic", "nikon-d5100", "theta-z1"] {
         let (_sim, mut lines, addr) = start_sim(profile);
 
         let home = tempfile::tempdir().unwrap();
@@ -82,17 +82,29 @@ fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
         let port = format!("ptpip:127.0.0.1:{tcp_port}:{tcp_port}");
         let summary = gphoto2(home.path(), &["--port", &port, "--summary"]);
         let text = String::from_utf8_lossy(&summary.stdout);
-        let want = if profile == "generic" {
-            "Model: Simulated still camera"
-        } else {
-            "Model: D5100"
+        let want = match profile {
+            "generic" => "Model: Simulated still camera",
+            "nikon-d5100" => "Model: D5100",
+            _ => "Model: RICOH THETA Z1",
         };
         assert!(
             text.contains(want),
             "{profile}: {text}\n{}",
             String::from_utf8_lossy(&summary.stderr)
         );
-        assert!(text.contains("Exposure Time(0x500d):(readwrite)"), "{text}");
+        match profile {
+            // The Z1's formats as its own dump lists them, and RICOH's F-Number.
+            "theta-z1" => {
+                assert!(
+                    text.contains(
+                        "Display Formats: Association/Directory, JPEG, MP4, DNG, Firmware"
+                    ),
+                    "{text}"
+                );
+                assert!(text.contains("F-Number(0x5007):(readwrite)"), "{text}");
+            }
+            _ => assert!(text.contains("Exposure Time(0x500d):(readwrite)"), "{text}"),
+        }
         if profile == "nikon-d5100" {
             assert!(text.contains("Vendor Extension ID: 0xa"), "{text}");
         }
