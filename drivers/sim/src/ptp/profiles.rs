@@ -191,7 +191,8 @@ pub fn storage_info(p: Profile, used: u64) -> StorageInfo {
         _ => 16_298_016_768,
     };
     StorageInfo {
-        storage_type: 4,
+        // The THETAs' dumps: built-in memory (fixed RAM); a DSLR's card is removable RAM.
+        storage_type: if p.is_theta() { 3 } else { 4 },
         filesystem_type: 2,
         access_capability: 2,
         max_capacity: max,
