@@ -338,7 +338,7 @@ async fn prepare_http(client: &OscClient) -> Result<(Vec<String>, Vec<f64>, Vec<
             Err(ThetaError::Command { code, .. })
                 if !required && code.starts_with("invalidParameter") =>
             {
-                tracing::warn!("THETA does not take {name}: {code}");
+                tracing::info!("THETA does not take {name}: {code}");
                 report.push(format!("skipped (not on this model): {name}"));
             }
             Err(e) => return Err(e),
