@@ -561,3 +561,26 @@ fn an_object_larger_than_brdfd_accepts_is_refused_before_its_download() {
         );
     }
 }
+
+/// Each simulated body lists the store its real counterpart's dump lists (`store_XXXXXXXX`
+/// in libgphoto2's summary): the THETAs' built-in memory is not a DSLR's card.
+#[test]
+fn each_body_lists_the_store_its_dump_lists() {
+    let dumps = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/ptp/device-dumps");
+    for (profile, dump) in [
+        (Profile::NikonD5100, "nikon-d5100.txt"),
+        (Profile::ThetaV, "ricoh-theta-v.txt"),
+        (Profile::ThetaZ1, "ricoh-theta-z1.txt"),
+    ] {
+        let text = std::fs::read_to_string(dumps.join(dump)).unwrap();
+        let listed: Vec<u32> = text
+            .lines()
+            .filter_map(|l| l.trim().strip_prefix("store_")?.strip_suffix(':'))
+            .map(|id| u32::from_str_radix(id, 16).unwrap())
+            .collect();
+        let r = responder(profile, 5000);
+        let mut cam = usb_camera(&r);
+        assert_eq!(cam.storage_ids().unwrap(), listed, "{dump}");
+    }
+}

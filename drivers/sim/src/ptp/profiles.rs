@@ -58,6 +58,16 @@ impl Profile {
         }
     }
 
+    /// The one store's ID, as the dumps list it: a DSLR's card is 0x00010001, the THETAs'
+    /// built-in memory 0x00020001.
+    pub fn storage_id(self) -> u32 {
+        if self.is_theta() {
+            0x0002_0001
+        } else {
+            0x0001_0001
+        }
+    }
+
     pub fn usb_ids(self) -> (u16, u16) {
         match self {
             Profile::Generic => (0x1d6b, 0x0104),

@@ -13,7 +13,6 @@ use brdfd_ptp::wire::Writer;
 use super::profiles::{self, Profile};
 use crate::{ImageSource, Shot};
 
-const STORAGE_ID: u32 = 0x0001_0001;
 const SDRAM_HANDLE: u32 = 0xFFFF_0001;
 const INVALID_DEVICE_PROP_VALUE: u16 = 0x201C;
 
@@ -250,10 +249,14 @@ impl Responder {
             }
             op::CLOSE_SESSION => self.session = None,
             op::GET_STORAGE_IDS => {
-                reply.data = Some(Writer::new().u32_array(&[STORAGE_ID]).finish())
+                reply.data = Some(
+                    Writer::new()
+                        .u32_array(&[self.profile.storage_id()])
+                        .finish(),
+                )
             }
             op::GET_STORAGE_INFO => {
-                if p(0) != STORAGE_ID {
+                if p(0) != self.profile.storage_id() {
                     return rc::INVALID_STORAGE_ID;
                 }
                 let used = self.objects.values().map(|o| o.data.len() as u64).sum();
@@ -511,7 +514,7 @@ impl Responder {
         let mut handles = Vec::new();
         for (format, ext, data) in files {
             let info = ObjectInfo {
-                storage_id: if sdram { 0 } else { STORAGE_ID },
+                storage_id: if sdram { 0 } else { self.profile.storage_id() },
                 format,
                 compressed_size: data.len().min(u32::MAX as usize) as u32,
                 thumb_format: format::EXIF_JPEG,
