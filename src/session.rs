@@ -271,7 +271,9 @@ pub struct SessionLock(#[allow(dead_code)] std::fs::File);
 #[derive(Debug, Clone)]
 pub struct Session {
     pub dir: PathBuf,
-    pub manifest: Manifest,
+    /// Private: its state changes only through [`Session::set_state`], which checks the move
+    /// and saves it.
+    manifest: Manifest,
 }
 
 /// The state directory: `--state-dir`, else `BRDFD_STATE_DIR`, else the daemon config's,
@@ -459,6 +461,27 @@ impl Session {
         }
         out.sort_by(|a, b| a.id.cmp(&b.id));
         Ok(out)
+    }
+    /// The session's manifest as it stands.
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// The manifest, without the session.
+    pub fn into_manifest(self) -> Manifest {
+        self.manifest
+    }
+
+    /// Records how long each phase of the run took; saved with the next save.
+    pub fn set_phases(&mut self, phases: Vec<PhaseTime>) {
+        self.manifest.phases = phases;
+    }
+
+    /// Records a device the session used, by its identity, once; saved with the next save.
+    pub fn note_device(&mut self, identity: String) {
+        if !self.manifest.devices.contains(&identity) {
+            self.manifest.devices.push(identity);
+        }
     }
 
     pub fn save(&self) -> Result<()> {

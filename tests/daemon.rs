@@ -1257,7 +1257,7 @@ fn the_server_in_process_agrees_with_the_stored_session_and_stops_cleanly() {
     let shown = loop {
         let (status, body) = get(&format!("/sessions/{id}"));
         assert_eq!(status, 200, "{body}");
-        let stored = Session::open(&state, &id).unwrap().manifest;
+        let stored = Session::open(&state, &id).unwrap().into_manifest();
         let said: State = serde_json::from_value(body["manifest"]["state"].clone()).unwrap();
         // The answer was read first; the capture may have moved on since, never back.
         let order = |s: State| {
@@ -1283,7 +1283,7 @@ fn the_server_in_process_agrees_with_the_stored_session_and_stops_cleanly() {
         assert!(Instant::now() < deadline, "not done in time: {body}");
         std::thread::sleep(Duration::from_millis(200));
     };
-    let stored = Session::open(&state, &id).unwrap().manifest;
+    let stored = Session::open(&state, &id).unwrap().into_manifest();
     let life: Vec<State> = stored.history.iter().map(|t| t.state).collect();
     assert_eq!(
         life,
@@ -1307,7 +1307,11 @@ fn the_server_in_process_agrees_with_the_stored_session_and_stops_cleanly() {
         "{body}"
     );
     assert_eq!(
-        Session::open(&state, &id).unwrap().manifest.history.len(),
+        Session::open(&state, &id)
+            .unwrap()
+            .into_manifest()
+            .history
+            .len(),
         life.len()
     );
 

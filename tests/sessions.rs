@@ -221,8 +221,9 @@ fn a_unique_prefix_names_a_session() {
         .map(|m| {
             brdfd::session::Session::create(&state, m, "simulated", None, serde_json::json!({}))
                 .unwrap()
-                .manifest
+                .manifest()
                 .id
+                .clone()
         })
         .collect();
     let state = state.to_str().unwrap();
@@ -355,7 +356,7 @@ fn cancel_records_a_session_left_capturing_as_interrupted() {
     let state = dir.path().join("state");
     let mut s = Session::create(&state, "gold", "", None, serde_json::json!({})).unwrap();
     s.set_state(State::Capturing, None).unwrap();
-    let id = s.manifest.id.clone();
+    let id = s.manifest().id.clone();
     let state_arg = state.to_str().unwrap();
     let cancel = ["session", "cancel", "latest", "--state-dir", state_arg];
 
@@ -374,7 +375,7 @@ fn cancel_records_a_session_left_capturing_as_interrupted() {
         out(&o)
     );
     let after = Session::open(&state, &id).unwrap();
-    assert_eq!(after.manifest.state, State::Failed);
+    assert_eq!(after.manifest().state, State::Failed);
     let o = brdfd(&cancel, dir.path());
     assert!(out(&o).contains("is already failed"), "{}", out(&o));
 }

@@ -226,7 +226,7 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
     let mut session = settings.new_session(&state, &rig_text)?;
     println!(
         "session {} in {}",
-        session.manifest.id,
+        session.manifest().id,
         session.dir.display()
     );
     in_process(&mut session, &settings, &rig, a.out.as_deref(), a.verbose)
@@ -243,7 +243,7 @@ fn in_process(
     let devices = Devices::start(rig, KEEP_ALIVE)?;
     let bars = Arc::new(Bars::new());
     let cancel = Cancel::default();
-    interrupt_cancels(&cancel, &session.manifest.id, bars.clone());
+    interrupt_cancels(&cancel, &session.manifest().id, bars.clone());
     let cx = Context {
         rig,
         devices: &devices,
@@ -254,17 +254,17 @@ fn in_process(
     if let Err(e) = flow::execute(session, settings, &cx) {
         // Stopped by Ctrl-C, not by a failure of its own (which is reported as it is).
         if cancel.is_cancelled() && e.chain().any(|c| c.to_string() == "cancelled") {
-            let id = &session.manifest.id;
+            let id = &session.manifest().id;
             bail!("session {id} interrupted; what was captured is kept: `brdfd session resume {id}` continues it");
         }
         return Err(e);
     }
     if verbose {
-        print_details(&session.dir, &session.manifest.phases)?;
+        print_details(&session.dir, &session.manifest().phases)?;
     }
     println!(
         "session {} done: {}",
-        session.manifest.id,
+        session.manifest().id,
         session.dir.display()
     );
     if let Some(out) = out {
@@ -426,7 +426,7 @@ pub fn resume(state: &Path, id: &str, daemon: &DaemonArgs) -> anyhow::Result<()>
     let plan = brdfd::daemon::resumable(&mut session)?;
     let mut rig = Rig::parse(
         &format!("the rig stored in session {id}"),
-        &session.manifest.rig,
+        &session.manifest().rig,
     )?;
     // Captured before each camera had its gain: resumed as it was captured.
     if let Some(note) = rig.calibration.adopt_ratios() {
@@ -435,7 +435,8 @@ pub fn resume(state: &Path, id: &str, daemon: &DaemonArgs) -> anyhow::Result<()>
     let settings = CaptureSettings::resolve(&plan, &rig)?;
     println!(
         "resuming session {} (was {})",
-        session.manifest.id, session.manifest.state
+        session.manifest().id,
+        session.manifest().state
     );
     in_process(&mut session, &settings, &rig, None, false)
 }
@@ -506,13 +507,13 @@ fn export_flat(session: &Session, out: &Path) -> anyhow::Result<()> {
         out.join("panorama.exr"),
     )?;
     let views = session
-        .manifest
+        .manifest()
         .steps
         .iter()
         .filter(|s| s.complete && s.name.starts_with("view"))
         .count();
     let mut raw = 0;
-    for step in session.manifest.steps.iter().filter(|s| s.complete) {
+    for step in session.manifest().steps.iter().filter(|s| s.complete) {
         for (k, f) in step.files.iter().enumerate() {
             let name = safe_file_name(f.device_name(step));
             let flat = match step.name.as_str() {

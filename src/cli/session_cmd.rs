@@ -87,7 +87,7 @@ pub fn run(a: SessionArgs) -> anyhow::Result<()> {
             }
             println!(
                 "\nmanifest:\n{}",
-                serde_json::to_string_pretty(&s.manifest)?
+                serde_json::to_string_pretty(&s.manifest())?
             );
             let n = s.verify()?;
             println!("{n} raw files verified (sha256)");
@@ -107,8 +107,8 @@ pub fn run(a: SessionArgs) -> anyhow::Result<()> {
             let id = id(&i)?;
             let s = Session::open(&state, &id)?;
             let n = s.verify()?;
-            if s.manifest.state != State::Done {
-                eprintln!("note: session {id} is {}, not done", s.manifest.state);
+            if s.manifest().state != State::Done {
+                eprintln!("note: session {id} is {}, not done", s.manifest().state);
             }
             let dest = to.join(&id);
             copy_dir(&s.dir, &dest)?;
@@ -245,7 +245,7 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
 
 /// What a person wants first: where the session stands, why, and what it found.
 fn summary(s: &Session) -> Vec<String> {
-    let m = &s.manifest;
+    let m = &s.manifest();
     let mut lines = vec![
         format!(
             "session {}: {}, material {}",
@@ -284,8 +284,8 @@ fn cancel(state: &Path, id: &str, daemon: &super::capture::DaemonArgs) -> anyhow
         return Ok(());
     }
     let mut s = Session::open(state, id)?;
-    if matches!(s.manifest.state, State::Done | State::Failed) {
-        println!("session {id} is already {}", s.manifest.state);
+    if matches!(s.manifest().state, State::Done | State::Failed) {
+        println!("session {id} is already {}", s.manifest().state);
         return Ok(());
     }
     // Another process capturing it holds the claim: only it can stop cleanly.

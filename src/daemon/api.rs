@@ -419,7 +419,7 @@ async fn list(State(d): State<Shared>) -> ApiResult<Json<Vec<SessionItem>>> {
 /// 202 for a capture started or resumed, with the session's address in `Location` (the
 /// resource that tells how it goes, RFC 9110 §15.3.3).
 fn started(s: Session) -> Response {
-    let id = s.manifest.id;
+    let id = s.manifest().id.clone();
     let events = format!("{API}/sessions/{id}/events");
     let location = format!("{API}/sessions/{id}");
     let dir = s.dir.display().to_string();
@@ -542,7 +542,7 @@ async fn show(State(d): State<Shared>, Path(id): Path<String>) -> ApiResult<Json
     Ok(Json(SessionDetail {
         id,
         dir: s.dir.display().to_string(),
-        manifest: d.shown(s.manifest),
+        manifest: d.shown(s.into_manifest()),
         waiting_for_view,
     }))
 }
@@ -671,11 +671,11 @@ async fn cancel(
 
 fn done(d: &Daemon, id: &str) -> ApiResult<Session> {
     let s = open(d, id)?;
-    if s.manifest.state != SessionState::Done {
+    if s.manifest().state != SessionState::Done {
         return Err(ApiError(
             StatusCode::CONFLICT,
             "not_done",
-            format!("session {id} is {:?}, not done", s.manifest.state),
+            format!("session {id} is {:?}, not done", s.manifest().state),
         ));
     }
     Ok(s)
@@ -1072,16 +1072,16 @@ async fn events(
             // Not run by this daemon: a stored session's stream is its outcome alone.
             let s = open(&d, &id)?;
             let log = super::EventLog::new();
-            let reason = s.manifest.history.last().and_then(|t| t.reason.clone());
+            let reason = s.manifest().history.last().and_then(|t| t.reason.clone());
             let reason = reason.map(|r| d.relative(&r));
             log.push(Event::Finished {
                 session: id.clone(),
-                state: s.manifest.state,
-                result: (s.manifest.state == crate::session::State::Done)
+                state: s.manifest().state,
+                result: (s.manifest().state == crate::session::State::Done)
                     .then(|| crate::rig::Summary::read(&s.dir.join("result/coefficients.json")))
                     .flatten()
                     .map(Box::new),
-                cancelled: s.manifest.state == crate::session::State::Failed
+                cancelled: s.manifest().state == crate::session::State::Failed
                     && reason.as_deref() == Some(crate::rig::flow::CANCELLED),
                 error: reason,
             });

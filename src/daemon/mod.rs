@@ -464,7 +464,7 @@ impl Daemon {
             e if e.names_no_session(id) => StartError::NotFound(id.to_string()),
             e => StartError::Storage(self.private(e.into())),
         })?;
-        if s.manifest.state == State::Done {
+        if s.manifest().state == State::Done {
             return Err(StartError::Done(id.to_string()));
         }
         let unresumable =
@@ -500,7 +500,7 @@ impl Daemon {
         session: Session,
         settings: CaptureSettings,
     ) -> Result<Session, StartError> {
-        let id = session.manifest.id.clone();
+        let id = session.manifest().id.clone();
         let log = EventLog::new();
         {
             let mut logs = self.events.lock().expect("events");
@@ -532,7 +532,7 @@ impl Daemon {
                     cancel: c,
                     operator,
                 };
-                let id = session.manifest.id.clone();
+                let id = session.manifest().id.clone();
                 match flow::execute(&mut session, &settings, &cx) {
                     Ok(_) => tracing::info!(session = %id, "capture done"),
                     Err(e) => {
@@ -615,8 +615,8 @@ impl Daemon {
 /// The plan of a stored session, after adopting files stored but not yet listed and checking
 /// every checksum: what a resume needs before it continues.
 pub fn resumable(s: &mut Session) -> anyhow::Result<Plan> {
-    if s.manifest.state == State::Done {
-        anyhow::bail!("session {} is already done", s.manifest.id);
+    if s.manifest().state == State::Done {
+        anyhow::bail!("session {} is already done", s.manifest().id);
     }
     // Left capturing or estimating by a process that is gone: recorded as what it is, so
     // that the resumed run starts from a failed session, as every resume does.
@@ -627,5 +627,5 @@ pub fn resumable(s: &mut Session) -> anyhow::Result<Plan> {
     }
     s.verify()
         .context("checking what the session already holds")?;
-    serde_json::from_value(s.manifest.options.clone()).context("the manifest's capture options")
+    serde_json::from_value(s.manifest().options.clone()).context("the manifest's capture options")
 }

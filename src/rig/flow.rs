@@ -147,7 +147,7 @@ pub fn execute(
                 // A derived map or a result, written by the core, says only ENOSPC.
                 format!(
                     "{e:#}: the disk is full; free space, then `brdfd session resume {}` continues it (what was captured is kept)",
-                    session.manifest.id
+                    session.manifest().id
                 )
             } else {
                 format!("{e:#}")
@@ -166,7 +166,7 @@ pub fn execute(
         });
         (result, reason)
     };
-    let id = session.manifest.id.clone();
+    let id = session.manifest().id.clone();
     cx.progress.event(Event::Finished {
         session: id.clone(),
         state: if result.is_ok() {
@@ -343,7 +343,7 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
     let exports = write_result(session, &basis, &est, &captured.views[0].lights, &report)?;
     phases.end(p);
     say_result(cx, session, &est, captured.views.len(), relight, &exports);
-    session.manifest.phases = phases.done;
+    session.set_phases(phases.done);
     session.set_state(State::Done, None)?;
     let fit = est.fit_error;
     Ok(Outcome {
@@ -526,7 +526,7 @@ fn shoot_views(
     // capture that fell back stays on the fallback, resumed or not, even if the view it fell
     // back in was not finished.
     let mut camera: Option<CameraRole> = session
-        .manifest
+        .manifest()
         .steps
         .iter()
         .any(|st| CameraRole::of_step(&st.meta) == CameraRole::Fallback)
@@ -720,7 +720,7 @@ fn report_context<'a>(
     truth: Option<&'a Bivariate>,
     relight: Option<f64>,
 ) -> ReportContext<'a> {
-    let m = &session.manifest;
+    let m = &session.manifest();
     let mut report = ReportContext {
         title: format!("session {} ({})", m.id, m.material),
         session: Some(m.id.clone()),
@@ -765,7 +765,7 @@ fn say_result(
         export: Some(exports),
         report: Some(&report),
     };
-    let lines = crate::summary::lines(&session.manifest.material, est, &extras);
+    let lines = crate::summary::lines(&session.manifest().material, est, &extras);
     if lines[0].contains("do not trust") {
         cx.warn(lines[0].clone());
         cx.say(lines[1..].join("\n"));
@@ -875,8 +875,6 @@ fn save_exr(session: &Session, name: &str, r: &Raster, white: Option<f32>) -> an
 
 pub(super) fn note_device(session: &mut Session, identity: Option<String>) {
     if let Some(id) = identity {
-        if !session.manifest.devices.contains(&id) {
-            session.manifest.devices.push(id);
-        }
+        session.note_device(id);
     }
 }
