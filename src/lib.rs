@@ -30,7 +30,9 @@ pub mod daemon;
 pub mod export;
 pub mod panorama;
 pub mod pose;
-pub mod radiometry;
+/// Camera files to linear values: its own crate, re-exported where the library's modules
+/// have always found it.
+pub use brdfd_radiometry as radiometry;
 pub mod report;
 pub mod results;
 pub mod rig;

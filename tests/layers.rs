@@ -88,3 +88,26 @@ fn the_evaluation_sits_on_the_core_alone() {
     }
     assert!(eval.iter().any(|e| e == "brdfd-core"));
 }
+
+#[test]
+fn radiometry_sits_on_the_core_and_the_fallback_s_frame_type() {
+    let radiometry = packages("brdfd-radiometry", &[]);
+    for p in [
+        "brdfd",
+        "tokio",
+        "axum",
+        "hyper",
+        "utoipa",
+        "brdfd-ptp",
+        "brdfd-theta",
+        "brdfd-serial",
+        "brdfd-sim",
+        "brdfd-eval",
+    ] {
+        assert!(
+            !radiometry.iter().any(|e| e == p),
+            "brdfd-radiometry depends on {p}"
+        );
+    }
+    assert!(radiometry.iter().any(|e| e == "brdfd-core"));
+}

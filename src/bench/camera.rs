@@ -221,3 +221,28 @@ fn lens_tags(focal_mm: Option<f64>) -> Vec<(u16, Value)> {
         ),
     ]
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The EXIF the simulated cameras write is what radiometry reads back.
+    #[test]
+    fn exif_we_write_is_read_back_and_missing_exif_is_named() {
+        let shot = brdfd_sim::Shot {
+            shutter_s: 1.0 / 60.0,
+            f_number: 5.6,
+            iso: 400,
+            raw: false,
+            sequence: 1,
+        };
+        let jpeg = [0xFF, 0xD8, 0xFF, 0xD9];
+        let with = insert_exif(&jpeg, "NIKON CORPORATION", "NIKON D5100", &shot);
+        let e = crate::radiometry::exif_exposure(&with, "a.jpg").unwrap();
+        assert!((e.shutter_s - 1.0 / 60.0).abs() < 1e-9 && e.f_number == 5.6 && e.iso == 400.0);
+        let err = crate::radiometry::exif_exposure(&jpeg, "b.jpg")
+            .unwrap_err()
+            .to_string();
+        assert!(err.starts_with("b.jpg: EXIF"), "{err}");
+    }
+}

@@ -18,19 +18,12 @@ use super::roles::{ObjectCamera, Output, Role};
 use super::settings::Bracket;
 use super::Event;
 use crate::config::{Calibration, CameraGain};
+use crate::radiometry::averaged::averaged_exr;
+pub use crate::radiometry::averaged::FallbackBracket;
 use crate::radiometry::raw::{decode_raw, is_raw_name, WhiteBalance};
-use crate::radiometry::{
-    average_frames, averaging_noise, decode_jpeg, merge_hdr, merged_white_level, with_gain, Frame,
-};
+use crate::radiometry::{decode_jpeg, merge_hdr, merged_white_level, with_gain, Frame};
 use crate::session::Session;
-use brdfd_core::envmap::{exr_bytes, read_exr_rgb_bytes, ExrAttribute};
 use brdfd_core::raster::Raster;
-
-/// EXR attributes of a fallback exposure: the exposure time the camera applied, seconds; the
-/// frames averaged; and their noise (the median relative standard error of the average).
-const EXPOSURE_ATTRIBUTE: &str = "brdfdExposureSeconds";
-const FRAMES_ATTRIBUTE: &str = "brdfdFramesAveraged";
-const NOISE_ATTRIBUTE: &str = "brdfdRelativeNoise";
 
 /// How long the rig's shutter holds the DSLR's release. The camera exposes for the time it
 /// was set to (never bulb), so the press only has to be one the camera sees: remote sockets
@@ -351,31 +344,6 @@ pub fn bracket(
     Ok(files.files)
 }
 
-/// One exposure's frames averaged in linear light, as the EXR the session stores: with its
-/// exposure time, the frames averaged and their noise in its header.
-fn averaged_exr(
-    frames: &[brdfd_v4l::Rgb8Frame],
-    applied_s: f64,
-    name: &str,
-) -> anyhow::Result<(Vec<u8>, Option<f32>)> {
-    let exposure = crate::radiometry::Exposure {
-        shutter_s: applied_s,
-        f_number: 1.0,
-        iso: 100.0,
-    };
-    let average = average_frames(frames, exposure, name)?;
-    let noise = averaging_noise(frames);
-    let v = &average.values;
-    let mut attributes = vec![
-        (EXPOSURE_ATTRIBUTE, ExrAttribute::F32(applied_s as f32)),
-        (FRAMES_ATTRIBUTE, ExrAttribute::F32(frames.len() as f32)),
-    ];
-    if let Some(n) = noise {
-        attributes.push((NOISE_ATTRIBUTE, ExrAttribute::F32(n)));
-    }
-    Ok((exr_bytes(v.width, v.height, &v.pixels, &attributes)?, noise))
-}
-
 /// A bracket's files as they arrive: each stored in the session at once, said, and counted
 /// on the step's bar (by shot: a RAW + JPEG shot is two files).
 struct Arriving<'a> {
@@ -483,56 +451,6 @@ pub fn merge_view(cx: &Context, camera: CameraRole, files: &RawFiles) -> anyhow:
                 demosaiced: false,
             })
         }
-    }
-}
-
-/// A fallback bracket as stored: its averages (values per second of exposure), the frames
-/// each averaged, and the median of their recorded noise.
-pub struct FallbackBracket {
-    pub frames: Vec<Frame>,
-    pub averaged: usize,
-    pub noise: Option<f32>,
-}
-
-impl FallbackBracket {
-    pub fn read(files: &RawFiles) -> anyhow::Result<FallbackBracket> {
-        let (mut noise, mut averaged) = (Vec::new(), 0);
-        let frames = files
-            .iter()
-            .map(|(name, bytes)| {
-                let (rgb, attributes) = read_exr_rgb_bytes(bytes, name)?;
-                let shutter_s = attributes
-                    .get(EXPOSURE_ATTRIBUTE)
-                    .copied()
-                    .filter(|t| t.is_finite() && *t > 0.0)
-                    .with_context(|| {
-                        format!("{name}: no exposure time ({EXPOSURE_ATTRIBUTE}) in its header")
-                    })?;
-                noise.extend(attributes.get(NOISE_ATTRIBUTE).copied());
-                averaged = attributes
-                    .get(FRAMES_ATTRIBUTE)
-                    .map_or(averaged, |n| *n as usize);
-                Ok(Frame {
-                    values: Raster {
-                        width: rgb.width,
-                        height: rgb.height,
-                        pixels: rgb.pixels,
-                    },
-                    exposure: crate::radiometry::Exposure {
-                        shutter_s: shutter_s as f64,
-                        f_number: 1.0,
-                        iso: 100.0,
-                    },
-                    white_balance: [1.0; 3],
-                })
-            })
-            .collect::<anyhow::Result<Vec<_>>>()?;
-        noise.sort_by(f32::total_cmp);
-        Ok(FallbackBracket {
-            frames,
-            averaged,
-            noise: noise.get(noise.len() / 2).copied(),
-        })
     }
 }
 

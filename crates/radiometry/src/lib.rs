@@ -2,6 +2,7 @@
 //! exposure from EXIF, and the HDR merge of an exposure bracket. JPEG is decoded here (its
 //! tone curve assumed sRGB), RAW files in [`raw`]; both give a [`Frame`].
 
+pub mod averaged;
 pub mod isolated;
 pub mod raw;
 pub mod tiff;
@@ -395,24 +396,6 @@ mod tests {
             },
             white_balance: [1.0; 3],
         }
-    }
-
-    #[test]
-    fn exif_we_write_is_read_back_and_missing_exif_is_named() {
-        let shot = brdfd_sim::Shot {
-            shutter_s: 1.0 / 60.0,
-            f_number: 5.6,
-            iso: 400,
-            raw: false,
-            sequence: 1,
-        };
-        let jpeg = [0xFF, 0xD8, 0xFF, 0xD9];
-        let with =
-            crate::bench::camera::insert_exif(&jpeg, "NIKON CORPORATION", "NIKON D5100", &shot);
-        let e = exif_exposure(&with, "a.jpg").unwrap();
-        assert!((e.shutter_s - 1.0 / 60.0).abs() < 1e-9 && e.f_number == 5.6 && e.iso == 400.0);
-        let err = exif_exposure(&jpeg, "b.jpg").unwrap_err().to_string();
-        assert!(err.starts_with("b.jpg: EXIF"), "{err}");
     }
 
     #[test]
