@@ -20,8 +20,8 @@ pub struct BenchArgs {
     /// Skip the end-to-end estimate on a 4928 × 3264 photo (writes ~200 MB of temporary files).
     #[arg(long)]
     pub no_estimate: bool,
-    /// Only the PTP/IP benchmark: a 25 MB capture-and-download from the simulated camera,
-    /// with brdfd's client and with gphoto2.
+    /// Only the PTP/IP benchmark: a 25 MB capture-and-download from each simulated body
+    /// (generic, Nikon D5100, THETA V, THETA Z1), with brdfd's client and with gphoto2.
     #[arg(long)]
     pub ptp: bool,
     /// Only the capture benchmark: `brdfd capture --simulate --material gold` as a process,

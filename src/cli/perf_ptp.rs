@@ -1,5 +1,5 @@
-//! PTP/IP benchmark: capture and download a 25 MB file from the simulated camera on
-//! loopback, with our client and with gphoto2 in the same run.
+//! PTP/IP benchmark: capture and download a 25 MB file from each simulated body on loopback,
+//! with our client and with gphoto2 in the same run.
 
 use std::process::Command;
 use std::sync::Arc;
@@ -17,12 +17,48 @@ fn median(mut t: Vec<f64>) -> f64 {
     t[t.len() / 2]
 }
 
+/// The simulated bodies measured, each with the capture flow it speaks: the standard
+/// InitiateCapture, Nikon's capture to SDRAM with GetEvent polling, and the THETAs' RICOH
+/// properties over the standard flow.
+const BODIES: [Profile; 4] = [
+    Profile::Generic,
+    Profile::NikonD5100,
+    Profile::ThetaV,
+    Profile::ThetaZ1,
+];
+
 pub fn run(runs: usize) -> anyhow::Result<()> {
-    let responder = Responder::new(
-        Profile::Generic,
-        Arc::new(SizedPayload { bytes: FILE_BYTES }),
-    )
-    .shared();
+    println!(
+        "\nPTP/IP capture + download of a {} MB file on loopback, per simulated body (medians of {} runs):",
+        FILE_BYTES / 1_000_000,
+        runs.max(1)
+    );
+    println!("  body          brdfd    gphoto2   ratio (below 1: less overhead than gphoto2)");
+    for profile in BODIES {
+        let name = Profile::NAMES
+            .into_iter()
+            .find(|n| Profile::parse(n) == Some(profile))
+            .unwrap_or("?");
+        let (ours, theirs) = body(profile, runs)?;
+        match theirs {
+            Some(t) => println!("  {name:12}  {ours:.3} s  {t:.3} s   {:.2}", ours / t),
+            None => {
+                println!(
+                    "  {name:12}  {ours:.3} s  gphoto2 not installed (apt-get install gphoto2)"
+                )
+            }
+        }
+    }
+    println!(
+        "  brdfd: connect, session, capture, download, delete; gphoto2: the same, as a process"
+    );
+    Ok(())
+}
+
+/// brdfd's and gphoto2's median seconds for one body; `None` for gphoto2 when it is not
+/// installed.
+fn body(profile: Profile, runs: usize) -> anyhow::Result<(f64, Option<f64>)> {
+    let responder = Responder::new(profile, Arc::new(SizedPayload { bytes: FILE_BYTES })).shared();
     let server = Server::start("127.0.0.1:0", responder)?;
     let host = server.addr.to_string();
     // gphoto2's port syntax is HOST:COMMANDPORT:EVENTPORT; the simulator takes both on one.
@@ -31,10 +67,6 @@ pub fn run(runs: usize) -> anyhow::Result<()> {
         target: Target::Card,
         delete_after: true,
     };
-    println!(
-        "\nPTP/IP capture + download of a {} MB file on loopback ({host}):",
-        FILE_BYTES / 1_000_000
-    );
     let mut ours = Vec::new();
     for _ in 0..runs.max(1) {
         let s = Instant::now();
@@ -46,10 +78,6 @@ pub fn run(runs: usize) -> anyhow::Result<()> {
         ours.push(s.elapsed().as_secs_f64());
     }
     let ours = median(ours);
-    println!(
-        "  brdfd (connect, session, capture, download, delete): {:.3} s median",
-        ours
-    );
 
     let dir = tempfile::tempdir()?;
     let mut theirs = Vec::new();
@@ -66,33 +94,20 @@ pub fn run(runs: usize) -> anyhow::Result<()> {
             .arg("--filename")
             .arg(&file)
             .output();
-        let out = match out {
-            Ok(o) => o,
-            Err(_) => {
-                println!("  gphoto2: not installed (apt-get install gphoto2), no comparison");
-                return Ok(());
-            }
+        let Ok(out) = out else {
+            return Ok((ours, None));
         };
         let t = s.elapsed().as_secs_f64();
         anyhow::ensure!(
             out.status.success(),
-            "gphoto2 failed: {}",
+            "gphoto2 failed on the simulated {profile:?}: {}",
             String::from_utf8_lossy(&out.stderr)
         );
         anyhow::ensure!(
             std::fs::metadata(&file)?.len() as usize == FILE_BYTES,
-            "gphoto2 got a short file"
+            "gphoto2 got a short file from the simulated {profile:?}"
         );
         theirs.push(t);
     }
-    let theirs = median(theirs);
-    println!(
-        "  gphoto2 (the same, as a process):                   {:.3} s median",
-        theirs
-    );
-    println!(
-        "  ratio brdfd / gphoto2: {:.2} (below 1 means less overhead than gphoto2)",
-        ours / theirs
-    );
-    Ok(())
+    Ok((ours, Some(median(theirs))))
 }
