@@ -462,13 +462,18 @@ impl Lit for ViewLight {
 
 #[inline(always)]
 fn half_vector(l: [f32; 3], v: [f32; 3]) -> Option<[f32; 3]> {
+    let (h, len2) = half_vector_unchecked(l, v);
+    (len2 >= 1e-12).then_some(h)
+}
+
+/// The half vector of `l` and `v`, with |l + v|²: not finite where l and v are opposite,
+/// which [`half_vector`] refuses and the SIMD lanes mask out ([`LightGeometry`]).
+#[inline(always)]
+fn half_vector_unchecked(l: [f32; 3], v: [f32; 3]) -> ([f32; 3], f32) {
     let hs = [l[0] + v[0], l[1] + v[1], l[2] + v[2]];
     let len2 = dot3(hs, hs);
-    if len2 < 1e-12 {
-        return None;
-    }
     let inv = 1.0 / len2.sqrt();
-    Some([hs[0] * inv, hs[1] * inv, hs[2] * inv])
+    ([hs[0] * inv, hs[1] * inv, hs[2] * inv], len2)
 }
 
 /// The loop every renderer runs over one pixel's lights: `f` gets each light that is above
@@ -1090,11 +1095,8 @@ impl LightGeometry {
             let n = [lanes.n[0][i], lanes.n[1][i], lanes.n[2][i]];
             let v = [lanes.v[0][i], lanes.v[1][i], lanes.v[2][i]];
             let cos = dot3(n, dir);
-            // `half_vector`, with its test folded into `lit` instead of an early return.
-            let hs = [dir[0] + v[0], dir[1] + v[1], dir[2] + v[2]];
-            let len2 = dot3(hs, hs);
-            let inv = 1.0 / len2.sqrt();
-            let h = [hs[0] * inv, hs[1] * inv, hs[2] * inv];
+            // `half_vector`'s test is folded into `lit` instead of an early return.
+            let (h, len2) = half_vector_unchecked(dir, v);
             self.lit[i] = (cos > 0.0) & (len2 >= 1e-12);
             self.cos[i] = cos;
             self.uh[i] = dist2(n, h);
@@ -1291,8 +1293,8 @@ fn shade_tiles_until(
     let seen = Seen::new(&geom.pixels, lights);
     let mut values = vec![[0f32; 3]; geom.pixels.len()];
     values
-        .par_chunks_mut(PIXELS_PER_TASK / 4)
-        .zip(geom.pixels.par_chunks(PIXELS_PER_TASK / 4))
+        .par_chunks_mut(TILE)
+        .zip(geom.pixels.par_chunks(TILE))
         .for_each(|(out, tile)| {
             if stop.requested() {
                 return;
@@ -1450,8 +1452,6 @@ mod tests {
         assert!(checked > 10_000, "only {checked} lit pairs compared");
     }
 
-    /// The preview's scale: a white Lambertian sphere reaches full white, a grey one its
-    /// albedo, and neither depends on how bright the room was.
     /// A map with structure at every scale: smooth bands, and a small bright lamp.
     fn textured_map() -> crate::envmap::EnvMap {
         let (w, h) = (128, 64);
@@ -1535,6 +1535,8 @@ mod tests {
         );
     }
 
+    /// The preview's scale: a white Lambertian sphere reaches full white, a grey one its
+    /// albedo, and neither depends on how bright the room was.
     #[test]
     fn sphere_pictures_are_on_the_white_spheres_scale() {
         use crate::analytic::lambert_column;

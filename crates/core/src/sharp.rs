@@ -233,9 +233,10 @@ pub struct Band {
 struct Ring {
     cos: f32,
     sin: f32,
-    spokes: Vec<(f32, f32)>,
-    /// The spokes' (cos, sin) again, as two columns padded to [`MAX_SPOKES`], for
-    /// [`SpokeLanes`].
+    /// How many spokes the ring has (at most [`MAX_SPOKES`]).
+    spokes: usize,
+    /// The spokes' directions about the cap's normal, (cos, sin) as two columns padded to
+    /// [`MAX_SPOKES`], so that [`SpokeLanes`] reads a whole ring at once.
     spoke_cos: [f32; MAX_SPOKES],
     spoke_sin: [f32; MAX_SPOKES],
     /// The whole ring's half-vector solid angle per spoke: the map's filter.
@@ -329,20 +330,15 @@ impl Cap {
                     }
                 })
                 .collect();
-            let angles: Vec<(f32, f32)> = (0..spokes)
-                .map(|k| {
-                    let a = tau * (k as f64 + phase) / spokes as f64;
-                    (a.cos() as f32, a.sin() as f32)
-                })
-                .collect();
             let (mut spoke_cos, mut spoke_sin) = ([0.0; MAX_SPOKES], [0.0; MAX_SPOKES]);
-            for (k, (c, s)) in angles.iter().enumerate() {
-                (spoke_cos[k], spoke_sin[k]) = (*c, *s);
+            for k in 0..spokes {
+                let a = tau * (k as f64 + phase) / spokes as f64;
+                (spoke_cos[k], spoke_sin[k]) = (a.cos() as f32, a.sin() as f32);
             }
             rings.push(Ring {
                 cos: theta.cos() as f32,
                 sin: theta.sin() as f32,
-                spokes: angles,
+                spokes,
                 spoke_cos,
                 spoke_sin,
                 share: (tau * (lo.cos() - hi.cos()) / spokes as f64) as f32,
@@ -474,7 +470,7 @@ impl Cap {
 
     /// How many map samples one pixel takes.
     pub fn samples(&self) -> usize {
-        self.rings.iter().map(|r| r.spokes.len()).sum()
+        self.rings.iter().map(|r| r.spokes).sum()
     }
 
     /// The cap's spokes for a pixel (normal n, view v), those above its horizon: what the
@@ -486,7 +482,7 @@ impl Cap {
         let mut lanes = SpokeLanes::default();
         for (index, ring) in self.rings.iter().enumerate() {
             lanes.compute(ring, &self.map, [n, v, t, b]);
-            for k in 0..ring.spokes.len() {
+            for k in 0..ring.spokes {
                 let (hv, cos) = (lanes.hv[k], lanes.cos[k]);
                 if hv <= 0.0 || cos <= 0.0 {
                     continue;
@@ -510,7 +506,8 @@ impl Cap {
         let (n, v) = (px.normal, px.view);
         let (t, b) = frame(n);
         for ring in &self.rings {
-            for (c, s) in &ring.spokes {
+            for k in 0..ring.spokes {
+                let (c, s) = (ring.spoke_cos[k], ring.spoke_sin[k]);
                 let toward: [f32; 3] = std::array::from_fn(|k| c * t[k] + s * b[k]);
                 let reflect = |cos: f32, sin: f32| {
                     let h: [f32; 3] = std::array::from_fn(|k| cos * n[k] + sin * toward[k]);
@@ -548,6 +545,7 @@ impl Cap {
 /// ([`MAX_SPOKES`]), and this is arithmetic alone, so the compiler works out a ring at once;
 /// the map's texels are then read spoke by spoke. The same operations as one spoke at a time
 /// (no FMA), so the same numbers to the bit; padding lanes are computed and never read.
+#[derive(Default)]
 struct SpokeLanes {
     h: [[f32; MAX_SPOKES]; 3],
     dir: [[f32; MAX_SPOKES]; 3],
@@ -556,21 +554,6 @@ struct SpokeLanes {
     u: [f32; MAX_SPOKES],
     v: [f32; MAX_SPOKES],
     level: [f32; MAX_SPOKES],
-}
-
-impl Default for SpokeLanes {
-    fn default() -> Self {
-        let zero = [0.0; MAX_SPOKES];
-        SpokeLanes {
-            h: [zero; 3],
-            dir: [zero; 3],
-            hv: zero,
-            cos: zero,
-            u: zero,
-            v: zero,
-            level: zero,
-        }
-    }
 }
 
 impl SpokeLanes {
@@ -794,7 +777,7 @@ mod tests {
             let mut expected = Vec::new();
             let (t, b) = frame(normal);
             for (index, ring) in cap.rings.iter().enumerate() {
-                for (c, s) in &ring.spokes {
+                for (c, s) in ring.spoke_cos.iter().zip(&ring.spoke_sin).take(ring.spokes) {
                     let h: [f32; 3] = std::array::from_fn(|k| {
                         ring.cos * normal[k] + ring.sin * (c * t[k] + s * b[k])
                     });
