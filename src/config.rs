@@ -454,6 +454,9 @@ const RATIO_DSLR_GAIN: f64 = 1000.0;
 pub struct Simulation {
     /// `present` (the default) or `absent` (nothing answers at its address).
     pub dslr: SimulatedPresence,
+    /// Which body the simulated DSLR is: `nikon-d5100` (the default: Nikon's capture to
+    /// SDRAM) or `canon-eos-r6` (Canon's EOS remote release; JPEG files only).
+    pub dslr_body: SimulatedBody,
     /// The simulated DSLR powers off when asked for the frame after this many.
     pub dslr_powers_off_after: Option<u32>,
     /// `present` (the default: a box that speaks the brdfd rig protocol), `grbl` (a GRBL 1.1
@@ -492,6 +495,7 @@ impl Default for Simulation {
     fn default() -> Self {
         Simulation {
             dslr: SimulatedPresence::Present,
+            dslr_body: SimulatedBody::NikonD5100,
             dslr_powers_off_after: None,
             turntable: SimulatedTurntable::Present,
             dslr_raw: None,
@@ -503,6 +507,15 @@ impl Default for Simulation {
             shape: None,
         }
     }
+}
+
+/// The simulated DSLR's body, by its `sim camera --profile` name.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SimulatedBody {
+    #[default]
+    NikonD5100,
+    CanonEosR6,
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]

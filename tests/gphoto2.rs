@@ -1,5 +1,5 @@
 //! Debian's gphoto2 as an outside check of the simulated camera: it must recognise the
-//! simulated cameras (generic, D5100 and THETA Z1) over PTP/IP, capture and download from
+//! simulated cameras (generic, D5100, THETA Z1 and Canon EOS R6) over PTP/IP, capture and download from
 //! them, and get byte for byte the file our own client gets. CI installs gphoto2 and sets
 //! BRDFD_REQUIRE_GPHOTO2=1, so there the test cannot skip.
 
@@ -73,7 +73,7 @@ fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
     if !gphoto2_present() {
         return;
     }
-    for profile in ["generic", "nikon-d5100", "theta-z1"] {
+    for profile in ["generic", "nikon-d5100", "theta-z1", "canon-eos-r6"] {
         let (_sim, mut lines, addr) = start_sim(profile);
 
         let home = tempfile::tempdir().unwrap();
@@ -85,6 +85,7 @@ fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
         let want = match profile {
             "generic" => "Model: Simulated still camera",
             "nikon-d5100" => "Model: D5100",
+            "canon-eos-r6" => "Model: Canon EOS R6",
             _ => "Model: RICOH THETA Z1",
         };
         assert!(
@@ -102,6 +103,15 @@ fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
                     "{text}"
                 );
                 assert!(text.contains("F-Number(0x5007):(readwrite)"), "{text}");
+            }
+            // gphoto2 reads the R6 as its dump does: Canon's extension, no standard capture,
+            // the EOS one.
+            "canon-eos-r6" => {
+                assert!(text.contains("Vendor Extension ID: 0xb"), "{text}");
+                assert!(
+                    text.contains("No Image Capture, No Open Capture, Canon EOS Capture"),
+                    "{text}"
+                );
             }
             _ => assert!(text.contains("Exposure Time(0x500d):(readwrite)"), "{text}"),
         }

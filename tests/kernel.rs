@@ -555,6 +555,14 @@ const THETA_V: UsbIdentity = UsbIdentity {
     serial: "00165759",
 };
 
+const EOS_R6: UsbIdentity = UsbIdentity {
+    profile: "canon-eos-r6",
+    ids: (0x04a9, 0x32f5),
+    manufacturer: "Canon Inc.",
+    product: "Canon Digital Camera",
+    serial: "0000000000000000000000000000e0r6",
+};
+
 /// The script that makes the simulated D5100 a USB gadget (the camera's flags after `sim
 /// camera`), binds it, and waits for the host side to enumerate it; `$g` names the gadget.
 fn gadget(camera: &str) -> String {
@@ -810,4 +818,51 @@ fn brdfd_reaches_the_simulated_theta_as_a_usb_gadget_on_a_real_kernel() {
     let capture = section(&console, "capture");
     assert!(capture.contains("exit 0"), "{capture}");
     assert!(capture.contains("panorama.exr"), "{capture}");
+}
+
+/// The simulated Canon EOS R6 as a USB gadget: brdfd finds the EOS flow in its DeviceInfo and
+/// captures through the remote release, and Debian's gphoto2 recognises it by its ids and
+/// captures from it the same way, over libusb on the same kernel.
+#[test]
+fn the_simulated_eos_r6_captures_as_a_usb_gadget_on_a_real_kernel() {
+    let Some(m) = machine_or_skip() else {
+        return;
+    };
+    let gphoto2 = gphoto2_files();
+    let mut script = [
+        usb_camera(&EOS_R6, "--size 48"),
+        step("info", "brdfd ptp info --port usb --json"),
+        step(
+            "capture",
+            "brdfd ptp capture --port usb --out /tmp/shots && od -A n -t x1 -N 3 /tmp/shots/IMG_0001.JPG",
+        ),
+    ]
+    .concat();
+    if gphoto2.is_some() {
+        script += &step("gphoto2-detect", "gphoto2 --auto-detect");
+        script += &step(
+            "gphoto2-capture",
+            "gphoto2 --capture-image-and-download --filename /tmp/gphoto2.jpg && od -A n -t x1 -N 3 /tmp/gphoto2.jpg",
+        );
+    }
+    let console = boot(
+        &m,
+        GADGET_MODULES,
+        &gphoto2.clone().unwrap_or_default(),
+        &script,
+    );
+    let info = section(&console, "info");
+    assert!(info.contains("exit 0"), "{info}");
+    assert!(info.contains("\"capture_flow\": \"canon-eos\""), "{info}");
+    assert!(info.contains("on usb:04a9:32f5"), "{info}");
+    let capture = section(&console, "capture");
+    assert!(capture.contains("exit 0"), "{capture}");
+    assert!(capture.contains("ff d8 ff"), "not a JPEG: {capture}");
+    if gphoto2.is_some() {
+        let detect = section(&console, "gphoto2-detect");
+        assert!(detect.contains("Canon EOS R6"), "{detect}");
+        let capture = section(&console, "gphoto2-capture");
+        assert!(capture.contains("exit 0"), "{capture}");
+        assert!(capture.contains("ff d8 ff"), "{capture}");
+    }
 }

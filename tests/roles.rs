@@ -146,6 +146,63 @@ fn every_simulated_rig_that_config_check_accepts_runs() {
     });
 }
 
+/// A simulated Canon EOS R6 as the rig's DSLR: it shoots every frame of a capture through
+/// its remote release (to the computer), or, with a trigger box, fired from outside to its
+/// card; its image format is left as set on the body, and the operator is told.
+#[test]
+fn a_canon_eos_body_shoots_the_capture_fired_over_ptp_or_by_the_shutter() {
+    for shutter in [false, true] {
+        let c = Combination {
+            dslr: "present",
+            fallback: false,
+            turntable: true,
+            theta: "http",
+            shutter,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let rig = c.rig() + "dslr_body = \"canon-eos-r6\"\n";
+        std::fs::write(dir.path().join("rig.toml"), rig).unwrap();
+        let (ok, text) = answering(
+            dir.path(),
+            &[
+                "capture",
+                "--rig",
+                "rig.toml",
+                "--material",
+                "gold",
+                "--size",
+                "16",
+                "--views",
+                "2",
+                "--bracket",
+                "0.001,0.0166",
+                "--state-dir",
+                "state",
+            ],
+            1,
+        );
+        assert!(ok, "shutter {shutter}: {text}");
+        for says in [
+            "DSLR: simulated Canon EOS R6 on ptpip:",
+            "DSLR: Canon.Inc Canon EOS R6 on ptpip:",
+            "of a Canon EOS from the computer is not offered; it shoots as set on its body",
+            // Canon's 1/60 s, the nearest to 0.0166 s on its list.
+            "IMG_0004.JPG: JPEG, EXIF 0.0167 s f/8 ISO 100",
+            "(camera applied 0.01667 s)",
+        ] {
+            assert!(
+                text.contains(says),
+                "shutter {shutter}: {says:?} in\n{text}"
+            );
+        }
+        assert_eq!(
+            text.contains("DSLR: fired by the shutter"),
+            shutter,
+            "{text}"
+        );
+    }
+}
+
 /// What each field may name, written apart from the code that checks it: the device kinds
 /// that can play the field's role.
 fn fits(field: &str, selector: &str) -> bool {

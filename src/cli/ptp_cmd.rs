@@ -41,7 +41,8 @@ pub struct CaptureArgs {
     /// ISO sensitivity; the camera's current one if absent.
     #[arg(long)]
     pub iso: Option<u32>,
-    /// Save to the card and keep the file there (Nikon: the default keeps it in RAM only).
+    /// Save to the card and keep the file there (Nikon and Canon EOS: the default keeps it in
+    /// the camera's RAM only, for the computer).
     #[arg(long)]
     pub card: bool,
     /// The files each shot makes: jpeg, raw, or raw+jpeg; as the camera is set if not given.
@@ -135,12 +136,16 @@ struct CameraInfo {
 }
 
 #[derive(serde::Serialize)]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "kebab-case")]
 enum CaptureFlow {
     /// SDRAM or card, GetEvent polling.
     Nikon,
+    /// Remote release, GetEvent records, to the host or the card.
+    CanonEos,
     /// InitiateCapture, events.
     Generic,
+    /// No remote capture brdfd speaks yet (a Sony Alpha's, a Canon PowerShot's).
+    None,
 }
 
 #[derive(serde::Serialize)]
@@ -176,8 +181,12 @@ fn camera_info(cam: &mut Camera) -> anyhow::Result<CameraInfo> {
         link: cam.describe(),
         capture_flow: if cam.is_nikon() {
             CaptureFlow::Nikon
-        } else {
+        } else if cam.is_canon_eos() {
+            CaptureFlow::CanonEos
+        } else if i.supports(brdfd_ptp::codes::op::INITIATE_CAPTURE) {
             CaptureFlow::Generic
+        } else {
+            CaptureFlow::None
         },
         operations: i.operations.iter().map(|o| format!("{o:04x}")).collect(),
         manufacturer: i.manufacturer,
@@ -204,7 +213,9 @@ fn print_info(i: &CameraInfo) {
         "capture flow: {}",
         match i.capture_flow {
             CaptureFlow::Nikon => "Nikon (SDRAM or card, GetEvent polling)",
+            CaptureFlow::CanonEos => "Canon EOS (remote release, GetEvent records)",
             CaptureFlow::Generic => "generic (InitiateCapture, events)",
+            CaptureFlow::None => "none that brdfd speaks yet",
         }
     );
     for s in &i.storage {

@@ -176,6 +176,7 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
                     // sensor's layout and levels by make and model.
                     let (make, model): (String, String) = match profile {
                         Profile::NikonD5100 => ("NIKON CORPORATION".into(), "NIKON D5100".into()),
+                        Profile::CanonEosR6 => ("Canon".into(), "Canon EOS R6".into()),
                         _ => ("brdfd".into(), format!("simulated {}", a.profile)),
                     };
                     rendering = Some(Arc::new(

@@ -411,12 +411,13 @@ fn place_sample(
     phases.end_as_device(p);
     let (w, h) = s.scene.camera.size();
     cx.say(format!(
-        "simulated rig: {} on {}; DSLR: simulated Nikon D5100 on {}, {w}×{h}",
+        "simulated rig: {} on {}; DSLR: simulated {} on {}, {w}×{h}",
         bench.material_name,
         s.scene
             .shape
             .as_ref()
             .map_or("the normal map's object".to_string(), |s| s.describe()),
+        rig.dslr_model(),
         cx.devices
             .dslr
             .as_ref()

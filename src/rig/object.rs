@@ -319,8 +319,9 @@ pub fn bracket(
                 last_of_shot,
             } => {
                 let said = format!(
-                    "  {name}: {} bytes (camera applied {applied_s} s)",
-                    bytes.len()
+                    "  {name}: {} bytes (camera applied {} s)",
+                    bytes.len(),
+                    four_digits(applied_s)
                 );
                 files.keep(keep, name, bytes, said, last_of_shot)?;
             }
@@ -530,5 +531,19 @@ fn raw_white_balance(c: &Calibration) -> WhiteBalance {
     match c.raw_white_balance {
         Some(m) => WhiteBalance::Fixed(m),
         None => WhiteBalance::AsShot,
+    }
+}
+
+/// A shutter speed to four significant digits, without trailing zeros: a Canon's 1/60 s reads
+/// 0.01667, a Nikon's 0.0166 as it is.
+fn four_digits(seconds: f64) -> String {
+    if !(seconds.is_finite() && seconds > 0.0) {
+        return seconds.to_string();
+    }
+    let decimals = (3 - seconds.log10().floor() as i32).max(0) as usize;
+    let text = format!("{seconds:.decimals$}");
+    match text.contains('.') {
+        true => text.trim_end_matches('0').trim_end_matches('.').to_string(),
+        false => text,
     }
 }

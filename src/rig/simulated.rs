@@ -1,4 +1,4 @@
-//! The simulated rig: a Nikon D5100 over PTP/IP, a RICOH THETA V over the THETA Web API (or
+//! The simulated rig: a Nikon D5100 (or a Canon EOS R6) over PTP/IP, a RICOH THETA V over the THETA Web API (or
 //! PTP over an in-memory USB pipe), a turntable with a shutter line on a pseudo-terminal, and
 //! a V4L2 webcam, all speaking the real protocols. The rig's workers open them through the
 //! same code as hardware; only the scene in front of the cameras is set from here (the
@@ -24,7 +24,7 @@ use crate::bench::camera::BenchCamera;
 use crate::bench::panorama::BenchPanorama;
 use crate::bench::raw_file::{RawDamage, RawFormat};
 use crate::bench::VirtualBench;
-use crate::config::{Rig, SimulatedLink, SimulatedPresence, SimulatedTurntable};
+use crate::config::{Rig, SimulatedBody, SimulatedLink, SimulatedPresence, SimulatedTurntable};
 use crate::selector::Selector;
 use brdfd_sim::v4l::SimV4l;
 
@@ -53,6 +53,8 @@ pub struct SimulatedRig {
     raw_damage: Option<RawDamage>,
     dslr_scene: Arc<Stage>,
     dslr_time: Arc<Timed>,
+    /// The DSLR's make and model, as its photos' EXIF names them, and as people do.
+    dslr_names: (&'static str, &'static str, &'static str),
     dslr: SharedResponder,
     theta_scene: Arc<Stage>,
     theta_time: Arc<Timed>,
@@ -75,7 +77,17 @@ impl SimulatedRig {
         let simulation = rig.simulation.clone().unwrap_or_default();
         let dslr_scene = Arc::new(Stage::new((256, 256)));
         let dslr_time = Arc::new(Timed::new(dslr_scene.clone()));
-        let dslr = Responder::new(Profile::NikonD5100, dslr_time.clone()).shared();
+        let (body, dslr_names) = match simulation.dslr_body {
+            SimulatedBody::NikonD5100 => (
+                Profile::NikonD5100,
+                ("NIKON CORPORATION", "NIKON D5100", "Nikon D5100"),
+            ),
+            SimulatedBody::CanonEosR6 => (
+                Profile::CanonEosR6,
+                ("Canon", "Canon EOS R6", "Canon EOS R6"),
+            ),
+        };
+        let dslr = Responder::new(body, dslr_time.clone()).shared();
         lock(&dslr).faults.power_off_after_captures = simulation.dslr_powers_off_after;
         lock(&dslr).faults.same_file_names = simulation.dslr_reuses_file_names;
         let ptpip = Server::start("127.0.0.1:0", dslr.clone())?;
@@ -145,6 +157,7 @@ impl SimulatedRig {
             raw_damage: simulation.dslr_raw_damage,
             dslr_scene,
             dslr_time,
+            dslr_names,
             dslr,
             theta_scene,
             theta_time,
@@ -159,6 +172,11 @@ impl SimulatedRig {
 
     /// The simulators as the rig's devices: each opened by the code that opens hardware,
     /// through the selector a bench would give it.
+    /// The simulated DSLR's model, as it names itself.
+    pub fn dslr_model(&self) -> &'static str {
+        self.dslr_names.2
+    }
+
     pub fn devices(&self) -> Vec<Planned> {
         let dslr = Selector::PtpIp(self.ptpip.addr.to_string());
         let mut v = vec![Planned::from_selector(plan::DSLR, dslr, true)];
@@ -223,7 +241,8 @@ impl SimulatedRig {
     /// rendered at once, as a real scene simply exists.
     pub fn show_object(&self, bench: &VirtualBench) -> anyhow::Result<()> {
         let t = Instant::now();
-        let camera = BenchCamera::new(bench.clone(), "NIKON CORPORATION", "NIKON D5100")
+        let (make, model, _) = self.dslr_names;
+        let camera = BenchCamera::new(bench.clone(), make, model)
             .with_raw(self.raw)
             .with_raw_damage(self.raw_damage);
         camera
@@ -241,7 +260,8 @@ impl SimulatedRig {
         radiance: brdfd_core::raster::Raster,
         camera: &brdfd_core::geometry::Camera,
     ) -> anyhow::Result<()> {
-        let camera = BenchCamera::of_radiance(radiance, camera, "NIKON CORPORATION", "NIKON D5100")
+        let (make, model, _) = self.dslr_names;
+        let camera = BenchCamera::of_radiance(radiance, camera, make, model)
             .with_raw(self.raw)
             .with_raw_damage(self.raw_damage);
         self.dslr_scene.show(Arc::new(camera));

@@ -58,6 +58,8 @@ pub struct Camera {
     /// Files per shot, if brdfd set the camera's image format ([`Camera::set_format`]): two
     /// for RAW + JPEG.
     pub(crate) files_per_shot: Option<usize>,
+    /// A Canon EOS body's properties and announced files, once brdfd has taken it over.
+    pub(crate) eos: Option<crate::canon::EosState>,
 }
 
 impl Camera {
@@ -71,6 +73,7 @@ impl Camera {
             info: DeviceInfo::default(),
             events: VecDeque::new(),
             files_per_shot: None,
+            eos: None,
         };
         cam.open_session()?;
         cam.info = DeviceInfo::decode(&cam.data_in(op::GET_DEVICE_INFO, &[])?)?;
@@ -284,15 +287,39 @@ impl Camera {
         size: u64,
         progress: &mut dyn FnMut(u64, u64),
     ) -> Result<Vec<u8>> {
+        let partial = self.info.supports(op::GET_PARTIAL_OBJECT) && size > PARTIAL_CHUNK as u64;
+        let chunk = partial.then_some(PARTIAL_CHUNK);
+        self.download_with(handle, size, chunk, progress)
+    }
+
+    /// Downloads an object in GetPartialObject requests of `chunk` bytes whatever its size:
+    /// the way a Canon EOS body gives the files it holds for the host.
+    pub fn download_in_chunks(
+        &mut self,
+        handle: u32,
+        size: u64,
+        chunk: u32,
+        progress: &mut dyn FnMut(u64, u64),
+    ) -> Result<Vec<u8>> {
+        self.download_with(handle, size, Some(chunk.max(1)), progress)
+    }
+
+    /// [`Camera::download`], whole (GetObject) or in chunks of the size given.
+    fn download_with(
+        &mut self,
+        handle: u32,
+        size: u64,
+        chunk: Option<u32>,
+        progress: &mut dyn FnMut(u64, u64),
+    ) -> Result<Vec<u8>> {
         // Refused before any transfer, however it would be fetched (whole, or in chunks each
         // within the data-phase limit).
         crate::check_object_size(size, &format!("the object info of {handle:#010x}"))?;
-        let partial = self.info.supports(op::GET_PARTIAL_OBJECT) && size > PARTIAL_CHUNK as u64;
         let mut out = Vec::with_capacity((size as usize).min(crate::PREALLOCATE_MAX));
         let mut attempt = 0;
         loop {
-            let r = if partial {
-                self.download_partial(handle, size, &mut out, progress)
+            let r = if let Some(chunk) = chunk {
+                self.download_partial(handle, size, chunk, &mut out, progress)
             } else {
                 let t = self.timeouts.data;
                 self.call_with(op::GET_OBJECT, &[handle], None, t, progress)
@@ -321,6 +348,7 @@ impl Camera {
         &mut self,
         handle: u32,
         size: u64,
+        chunk: u32,
         out: &mut Vec<u8>,
         progress: &mut dyn FnMut(u64, u64),
     ) -> Result<()> {
@@ -336,7 +364,7 @@ impl Camera {
                 });
             }
             let offset = out.len() as u64;
-            let n = PARTIAL_CHUNK.min((size - offset) as u32);
+            let n = chunk.min((size - offset) as u32);
             let t = self.timeouts.data;
             let (data, _) = self.call_with(
                 op::GET_PARTIAL_OBJECT,

@@ -1,5 +1,5 @@
-//! Capture flows: the generic still-image path and Nikon's, exposure settings, and
-//! exposure-bracketed series for HDR.
+//! Capture flows: the generic still-image path and Nikon's (Canon's EOS flow is in
+//! [`crate::canon`]), exposure settings, and exposure-bracketed series for HDR.
 
 use std::time::{Duration, Instant};
 
@@ -21,7 +21,8 @@ const EXPOSURE_TIME_BULB: i64 = 0xFFFF_FFFF;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Target {
-    /// Keep the image in the camera's RAM and download it (Nikon only; others use Card).
+    /// Keep the image in the camera's RAM and download it (Nikon, and Canon EOS with the
+    /// capture destination set to the computer; others use Card).
     #[default]
     Sdram,
     Card,
@@ -70,13 +71,13 @@ impl Camera {
                 || self.info.supports(op::NIKON_INITIATE_CAPTURE_REC_IN_MEDIA))
     }
 
-    /// What a camera without InitiateCapture lacks, and what to do: Canon EOS and Sony Alpha
-    /// bodies capture through their vendor's own flows, which brdfd does not speak yet.
+    /// What a camera without InitiateCapture lacks, and what to do: Canon PowerShots and Sony
+    /// Alpha bodies capture through their vendor's own flows, which brdfd does not speak yet.
     fn missing_capture(&self) -> String {
         let maker = &self.info.manufacturer;
         let canon = self.info.vendor_extension_id == vendor::CANON || maker.starts_with("Canon");
         let flow = if canon {
-            Some("Canon's EOS remote release")
+            Some("Canon's PowerShot release control")
         } else if maker.starts_with("Sony") {
             Some("Sony's control-device protocol")
         } else {
@@ -112,6 +113,9 @@ impl Camera {
         opts: &CaptureOptions,
         progress: CaptureProgress,
     ) -> Result<Vec<Captured>> {
+        if self.is_canon_eos() {
+            return self.capture_canon_eos(opts, progress);
+        }
         let nikon = self.is_nikon();
         let handles = if nikon {
             self.trigger_nikon(opts.target, progress)?
@@ -217,6 +221,9 @@ impl Camera {
     /// Reads the events waiting (Nikon's GetEvent queue, or the event channel), so that an
     /// ObjectAdded of a shot fired from outside is not taken for the next shot's.
     fn set_events_aside(&mut self) -> Result<()> {
+        if self.is_canon_eos() {
+            return self.eos_set_events_aside();
+        }
         if self.is_nikon() {
             let mut ignored = Vec::new();
             return self.nikon_added(Target::Sdram, &mut ignored);
@@ -247,7 +254,7 @@ impl Camera {
     }
 
     /// Downloads one object whose ObjectInfo is known, deleting it after if asked.
-    fn fetch(
+    pub(crate) fn fetch(
         &mut self,
         handle: u32,
         info: ObjectInfo,
@@ -471,6 +478,10 @@ impl Camera {
 
     /// Shutter speed in seconds; returns the speed applied.
     pub fn set_shutter(&mut self, seconds: f64) -> Result<f64> {
+        if self.is_canon_eos() {
+            let code = prop::CANON_EOS_SHUTTER_SPEED;
+            return self.eos_set_nearest(code, crate::canon::shutter_seconds, seconds);
+        }
         let v = self.set_nearest(prop::EXPOSURE_TIME, |v| {
             ((v as f64 / 1e4) / seconds).ln().abs()
         })?;
@@ -479,11 +490,19 @@ impl Camera {
 
     /// Aperture as an f-number; returns the f-number applied.
     pub fn set_f_number(&mut self, f: f64) -> Result<f64> {
+        if self.is_canon_eos() {
+            return self.eos_set_nearest(prop::CANON_EOS_APERTURE, crate::canon::f_number, f);
+        }
         let v = self.set_nearest(prop::F_NUMBER, |v| ((v as f64 / 100.0) / f).ln().abs())?;
         Ok(v as f64 / 100.0)
     }
 
     pub fn set_iso(&mut self, iso: u32) -> Result<u32> {
+        if self.is_canon_eos() {
+            let iso_of = |c| crate::canon::iso(c).map(f64::from);
+            let applied = self.eos_set_nearest(prop::CANON_EOS_ISO_SPEED, iso_of, iso as f64)?;
+            return Ok(applied as u32);
+        }
         let v = self.set_nearest(prop::EXPOSURE_INDEX, |v| (v as f64 / iso as f64).ln().abs())?;
         Ok(v as u32)
     }
@@ -491,6 +510,13 @@ impl Camera {
     /// JPEG or RAW through the compression setting. Nikon's values: 0-2 JPEG basic to fine,
     /// 4 RAW, 5-7 RAW + JPEG; other vendors keep JPEG qualities only.
     pub fn set_format(&mut self, f: ImageFormat) -> Result<ImageFormat> {
+        if self.is_canon_eos() {
+            // An EOS body's image format (0xD120) is a list of file descriptions of its own,
+            // which brdfd does not write yet.
+            return Err(PtpError::Unsupported(format!(
+                "setting the image format ({f:?}) of a Canon EOS from the computer"
+            )));
+        }
         let want = match f {
             ImageFormat::Jpeg => 2,
             ImageFormat::Raw => 4,

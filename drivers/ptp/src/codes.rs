@@ -1,5 +1,5 @@
-//! Operation, response, event, property and data-type codes (ISO 15740, plus the Nikon and
-//! Ricoh vendor codes we use). Numbers only; their meaning is in the names.
+//! Operation, response, event, property and data-type codes (ISO 15740, plus the Nikon, Canon
+//! and Ricoh vendor codes we use). Numbers only; their meaning is in the names.
 
 pub mod op {
     pub const GET_DEVICE_INFO: u16 = 0x1001;
@@ -26,6 +26,20 @@ pub mod op {
     pub const NIKON_DEVICE_READY: u16 = 0x90C8;
     pub const NIKON_GET_VENDOR_PROP_CODES: u16 = 0x90CA;
     pub const NIKON_INITIATE_CAPTURE_REC_IN_MEDIA: u16 = 0x9207;
+
+    pub const CANON_EOS_GET_STORAGE_IDS: u16 = 0x9101;
+    pub const CANON_EOS_GET_STORAGE_INFO: u16 = 0x9102;
+    pub const CANON_EOS_SET_DEVICE_PROP_VALUE_EX: u16 = 0x9110;
+    pub const CANON_EOS_SET_REMOTE_MODE: u16 = 0x9114;
+    pub const CANON_EOS_SET_EVENT_MODE: u16 = 0x9115;
+    pub const CANON_EOS_GET_EVENT: u16 = 0x9116;
+    pub const CANON_EOS_TRANSFER_COMPLETE: u16 = 0x9117;
+    pub const CANON_EOS_PC_HDD_CAPACITY: u16 = 0x911A;
+    pub const CANON_EOS_SET_UI_LOCK: u16 = 0x911B;
+    pub const CANON_EOS_RESET_UI_LOCK: u16 = 0x911C;
+    pub const CANON_EOS_KEEP_DEVICE_ON: u16 = 0x911D;
+    pub const CANON_EOS_REMOTE_RELEASE_ON: u16 = 0x9128;
+    pub const CANON_EOS_REMOTE_RELEASE_OFF: u16 = 0x9129;
 }
 
 pub mod rc {
@@ -88,6 +102,12 @@ pub mod event {
     pub const CAPTURE_COMPLETE: u16 = 0x400D;
     pub const NIKON_OBJECT_ADDED_IN_SDRAM: u16 = 0xC101;
     pub const NIKON_CAPTURE_COMPLETE_REC_IN_SDRAM: u16 = 0xC102;
+    // Canon EOS event records (GetEvent's list, not the event channel): 32-bit codes.
+    pub const CANON_EOS_OBJECT_ADDED_EX: u32 = 0xC181;
+    pub const CANON_EOS_REQUEST_OBJECT_TRANSFER: u32 = 0xC186;
+    pub const CANON_EOS_PROP_VALUE_CHANGED: u32 = 0xC189;
+    pub const CANON_EOS_AVAIL_LIST_CHANGED: u32 = 0xC18A;
+    pub const CANON_EOS_CAMERA_STATUS_CHANGED: u32 = 0xC18B;
 }
 
 pub mod prop {
@@ -106,6 +126,13 @@ pub mod prop {
     pub const BURST_NUMBER: u16 = 0x5018;
     pub const NIKON_RECORDING_MEDIA: u16 = 0xD10B;
     pub const RICOH_SLEEP: u16 = 0xD80E;
+    // Canon EOS properties: read from GetEvent's records, set with SetDevicePropValueEx.
+    pub const CANON_EOS_APERTURE: u16 = 0xD101;
+    pub const CANON_EOS_SHUTTER_SPEED: u16 = 0xD102;
+    pub const CANON_EOS_ISO_SPEED: u16 = 0xD103;
+    pub const CANON_EOS_AVAILABLE_SHOTS: u16 = 0xD11B;
+    pub const CANON_EOS_CAPTURE_DESTINATION: u16 = 0xD11C;
+    pub const CANON_EOS_EVF_OUTPUT_DEVICE: u16 = 0xD1B0;
 }
 
 /// Object format codes.
@@ -118,6 +145,9 @@ pub mod format {
     pub const DNG: u16 = 0x3811;
     /// Nikon NEF files are reported as "undefined" by most bodies.
     pub const RAW: u16 = 0xB101;
+    /// Canon's CR2 and CR3 RAW files.
+    pub const CANON_CR2: u16 = 0xB103;
+    pub const CANON_CR3: u16 = 0xB108;
 }
 
 /// Vendor extension ids from DeviceInfo.

@@ -6,6 +6,7 @@
 //! - [`transport`]: USB (rusb), PTP/IP over TCP, and an in-memory USB pipe for tests.
 //! - [`camera`]: the transaction engine (sessions, busy retries, timeouts, recovery).
 //! - [`capture`]: generic and Nikon capture, exposure settings, brackets.
+//! - [`canon`]: Canon EOS remote release, its GetEvent records and exposure codes.
 //!
 //! Behaviour follows ISO 15740, CIPA DC-005 (PTP/IP) and what libgphoto2's `camlibs/ptp2`
 //! documents about real cameras; no code is taken from either.
@@ -44,6 +45,7 @@ pub(crate) fn check_object_size(bytes: u64, during: &str) -> Result<()> {
 }
 
 pub mod camera;
+pub mod canon;
 pub mod capture;
 pub mod codes;
 pub mod container;

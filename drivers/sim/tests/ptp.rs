@@ -50,6 +50,70 @@ fn ops(r: &SharedResponder) -> Vec<u16> {
     r.lock().unwrap().log.clone()
 }
 
+/// A Canon EOS body refuses InitiateCapture, as the R6 does; brdfd drives it through the
+/// EOS remote release: exposure set with Canon's codes, the shot held for the host and read
+/// in chunks, or written to the card and found from its record.
+#[test]
+fn canon_eos_capture_through_the_remote_release_over_usb() {
+    let r = responder(Profile::CanonEosR6, 2_500_000);
+    let mut cam = usb_camera(&r);
+    assert!(cam.is_canon_eos() && !cam.is_nikon());
+    assert!(!cam.info.supports(op::INITIATE_CAPTURE));
+    let refused = cam.call(op::INITIATE_CAPTURE, &[0, 0]).unwrap_err();
+    assert_eq!(refused.response_code(), Some(0x2005), "{refused}");
+
+    // Canon's codes: 1/60 s is 0x68, f/8 0x38, ISO 160 0x4D; 1/55 s is nearest 1/60.
+    let s = cam.set_shutter(1.0 / 55.0).unwrap();
+    assert_eq!(s, 1.0 / 60.0);
+    assert_eq!(cam.set_f_number(8.0).unwrap(), 8.0);
+    assert_eq!(cam.set_iso(170).unwrap(), 160);
+    assert!(matches!(
+        cam.set_format(brdfd_ptp::ImageFormat::Raw),
+        Err(PtpError::Unsupported(_))
+    ));
+
+    // To the host (brdfd's default): the file is read in 1 MiB chunks, then let go.
+    let mut phases = Vec::new();
+    let shot = cam
+        .capture(&CaptureOptions::default(), &mut |p, _, _| {
+            if phases.last().map(String::as_str) != Some(p) {
+                phases.push(p.to_string())
+            }
+        })
+        .unwrap();
+    assert_eq!(phases, ["exposure", "download"]);
+    assert_eq!(shot.info.filename, "IMG_0001.JPG");
+    assert_eq!(shot.data, expected(2_500_000, 1));
+    let log = ops(&r);
+    let count = |c| log.iter().filter(|&&o| o == c).count();
+    assert_eq!(count(op::GET_PARTIAL_OBJECT), 3, "2.5 MB in 1 MiB chunks");
+    assert_eq!(count(op::CANON_EOS_TRANSFER_COMPLETE), 1);
+    assert_eq!(count(op::CANON_EOS_PC_HDD_CAPACITY), 1);
+    assert_eq!(count(op::CANON_EOS_REMOTE_RELEASE_ON), 2, "half, then full");
+    assert_eq!(count(op::CANON_EOS_REMOTE_RELEASE_OFF), 2);
+    assert!(
+        cam.object_handles(0xFFFF_FFFF).unwrap().is_empty(),
+        "nothing written to the card"
+    );
+    let settings = r.lock().unwrap().shot_settings();
+    assert_eq!(
+        (settings.shutter_s, settings.f_number, settings.iso),
+        (1.0 / 60.0, 8.0, 160)
+    );
+
+    // To the card, found from its ObjectAddedEx record, and deleted after the download as
+    // asked.
+    let opts = CaptureOptions {
+        target: Target::Card,
+        delete_after: true,
+    };
+    let shot = cam.capture(&opts, &mut |_, _, _| {}).unwrap();
+    assert_eq!(shot.info.filename, "IMG_0002.JPG");
+    assert_eq!(shot.info.storage_id, 0x0001_0001);
+    assert_eq!(shot.data, expected(2_500_000, 2));
+    assert!(cam.object_handles(0xFFFF_FFFF).unwrap().is_empty());
+}
+
 #[test]
 fn generic_capture_over_usb_downloads_and_deletes() {
     let r = responder(Profile::Generic, 300_000);

@@ -1,7 +1,8 @@
 //! A simulated PTP camera: [`Responder`] holds the camera's state and answers operations;
 //! [`usb`] serves it over the in-memory USB pipe, `functionfs` as a real USB gadget (Linux),
-//! and [`ptpip`] as a PTP/IP server.
+//! and [`ptpip`] as a PTP/IP server. `canon` is the simulated EOS body's own state.
 
+mod canon;
 #[cfg(target_os = "linux")]
 pub mod functionfs;
 mod profiles;

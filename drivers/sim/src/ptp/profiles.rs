@@ -1,5 +1,5 @@
-//! What the simulated cameras report about themselves. The Nikon D5100 and the THETA V and Z1
-//! follow the real cameras' dumps published by libgphoto2 (`shared/data/ptp/device-dumps/`):
+//! What the simulated cameras report about themselves. The Nikon D5100, the Canon EOS R6 and
+//! the THETA V and Z1 follow the real cameras' dumps published by libgphoto2 (`shared/data/ptp/device-dumps/`):
 //! vendor extension, model strings, properties with their types, ranges and values. The Z1's
 //! dump answered "device busy" for most properties (it was asleep); those follow the V's,
 //! with the Z1's ISOs and apertures from RICOH's API reference.
@@ -20,6 +20,9 @@ pub enum Profile {
     ThetaV,
     /// RICOH THETA Z1 on USB: the V's RICOH properties, its own ISOs, and three apertures.
     ThetaZ1,
+    /// Canon EOS R6: Canon's vendor extension, no InitiateCapture, the EOS remote release
+    /// with its properties and files reported through GetEvent.
+    CanonEosR6,
 }
 
 impl Profile {
@@ -29,11 +32,23 @@ impl Profile {
             "nikon-d5100" | "d5100" => Profile::NikonD5100,
             "theta-v" => Profile::ThetaV,
             "theta-z1" => Profile::ThetaZ1,
+            "canon-eos-r6" => Profile::CanonEosR6,
             _ => return None,
         })
     }
 
-    pub const NAMES: [&'static str; 4] = ["generic", "nikon-d5100", "theta-v", "theta-z1"];
+    pub const NAMES: [&'static str; 5] = [
+        "generic",
+        "nikon-d5100",
+        "theta-v",
+        "theta-z1",
+        "canon-eos-r6",
+    ];
+
+    /// Whether the profile is a Canon EOS body (the remote release, GetEvent's records).
+    pub fn is_canon_eos(self) -> bool {
+        self == Profile::CanonEosR6
+    }
 
     /// Whether the profile is a RICOH THETA (RICOH's properties, `R00nnnnn.JPG` names).
     pub fn is_theta(self) -> bool {
@@ -74,6 +89,7 @@ impl Profile {
             Profile::NikonD5100 => (0x04b0, 0x0429),
             Profile::ThetaV => (0x05ca, 0x0368),
             Profile::ThetaZ1 => (0x05ca, 0x036d),
+            Profile::CanonEosR6 => (0x04a9, 0x32f5),
         }
     }
 }
@@ -95,6 +111,23 @@ const STANDARD_OPS: [u16; 16] = [
     op::GET_DEVICE_PROP_VALUE,
     op::SET_DEVICE_PROP_VALUE,
     op::GET_PARTIAL_OBJECT,
+];
+
+/// The Canon operations the simulated EOS body answers, of the 182 its dump lists.
+const CANON_EOS_OPS: [u16; 13] = [
+    op::CANON_EOS_GET_STORAGE_IDS,
+    op::CANON_EOS_GET_STORAGE_INFO,
+    op::CANON_EOS_SET_DEVICE_PROP_VALUE_EX,
+    op::CANON_EOS_SET_REMOTE_MODE,
+    op::CANON_EOS_SET_EVENT_MODE,
+    op::CANON_EOS_GET_EVENT,
+    op::CANON_EOS_TRANSFER_COMPLETE,
+    op::CANON_EOS_PC_HDD_CAPACITY,
+    op::CANON_EOS_SET_UI_LOCK,
+    op::CANON_EOS_RESET_UI_LOCK,
+    op::CANON_EOS_KEEP_DEVICE_ON,
+    op::CANON_EOS_REMOTE_RELEASE_ON,
+    op::CANON_EOS_REMOTE_RELEASE_OFF,
 ];
 
 pub fn device_info(p: Profile) -> DeviceInfo {
@@ -151,6 +184,36 @@ pub fn device_info(p: Profile) -> DeviceInfo {
                 ..Default::default()
             }
         }
+        Profile::CanonEosR6 => {
+            // As the dump: no InitiateCapture ("No Image Capture … Canon EOS Capture").
+            ops.retain(|&o| o != op::INITIATE_CAPTURE);
+            ops.extend(CANON_EOS_OPS);
+            DeviceInfo {
+                standard_version: 100,
+                vendor_extension_id: vendor::CANON,
+                vendor_extension_version: 100,
+                vendor_extension_desc: String::new(),
+                operations: ops,
+                events: vec![
+                    event::OBJECT_ADDED,
+                    event::OBJECT_REMOVED,
+                    event::DEVICE_PROP_CHANGED,
+                ],
+                properties: props,
+                capture_formats: vec![format::EXIF_JPEG],
+                image_formats: vec![
+                    format::ASSOCIATION,
+                    format::EXIF_JPEG,
+                    format::CANON_CR2,
+                    format::CANON_CR3,
+                ],
+                manufacturer: "Canon.Inc".into(),
+                model: "Canon EOS R6".into(),
+                device_version: "3-1.0.0".into(),
+                serial_number: "0000000000000000000000000000e0r6".into(),
+                ..Default::default()
+            }
+        }
         Profile::ThetaV | Profile::ThetaZ1 => {
             // As the dumps: the Z1 lists no capture format, and DNG, MP4 and firmware files
             // besides JPEGs.
@@ -198,17 +261,27 @@ pub fn storage_info(p: Profile, used: u64) -> StorageInfo {
     let max = match p {
         Profile::ThetaV => 21_088_788_480,
         Profile::ThetaZ1 => 21_055_815_680,
+        Profile::CanonEosR6 => 64_054_362_112,
         _ => 16_298_016_768,
     };
     StorageInfo {
         // The THETAs' dumps: built-in memory (fixed RAM); a DSLR's card is removable RAM.
         storage_type: if p.is_theta() { 3 } else { 4 },
-        filesystem_type: 2,
-        access_capability: 2,
+        // The camera layout (DCIM), as every dump reads.
+        filesystem_type: 3,
+        // Read-write, as the dumps read, but for the D5100's "Read Only with Object deletion".
+        access_capability: if p == Profile::NikonD5100 { 2 } else { 0 },
         max_capacity: max,
         free_space_bytes: max.saturating_sub(used),
-        free_space_images: (max.saturating_sub(used) / 9_000_000) as u32,
-        description: String::new(),
+        // The R6 does not count images (its dump reads -1).
+        free_space_images: match p {
+            Profile::CanonEosR6 => u32::MAX,
+            _ => (max.saturating_sub(used) / 9_000_000) as u32,
+        },
+        description: match p {
+            Profile::CanonEosR6 => "SD1".into(),
+            _ => String::new(),
+        },
         volume_label: match p {
             Profile::NikonD5100 => "NIKON D5100".into(),
             _ => String::new(),
@@ -342,6 +415,15 @@ pub fn properties(p: Profile) -> Vec<DevicePropDesc> {
             range(prop::BURST_NUMBER, dt::UINT16, true, 1, 1, 100),
             range(prop::NIKON_RECORDING_MEDIA, dt::UINT8, true, 1, 0, 2),
         ],
+        // The R6's standard properties, as its dump lists them (its exposure settings are
+        // Canon's own, reported through GetEvent: `crate::ptp::canon`).
+        Profile::CanonEosR6 => vec![e(
+            prop::BATTERY_LEVEL,
+            dt::UINT8,
+            false,
+            28,
+            &[100, 0, 75, 0, 50],
+        )],
         Profile::ThetaV => theta_properties(p, &THETA_V_ISOS),
         Profile::ThetaZ1 => theta_properties(p, &THETA_Z1_ISOS),
     }

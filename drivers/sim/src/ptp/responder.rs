@@ -10,6 +10,7 @@ use brdfd_ptp::container::Message;
 use brdfd_ptp::dataset::{encode_nikon_events, DevicePropDesc, Form, ObjectInfo, Value};
 use brdfd_ptp::wire::Writer;
 
+use super::canon::EosBody;
 use super::profiles::{self, Profile};
 use crate::{ImageSource, Shot};
 
@@ -79,10 +80,10 @@ struct Object {
     data: Vec<u8>,
 }
 
-/// How long the simulated Nikon stays busy processing a frame after the exposure. A real
-/// D5100 takes about half a second for a JPEG; the simulation keeps the client's polling
-/// real but short.
-const NIKON_PROCESSING: std::time::Duration = std::time::Duration::from_millis(100);
+/// How long a simulated body stays busy processing a frame after the exposure. A real D5100
+/// takes about half a second for a JPEG; the simulation keeps the client's polling real but
+/// short.
+const PROCESSING: std::time::Duration = std::time::Duration::from_millis(100);
 
 pub struct Responder {
     profile: Profile,
@@ -103,6 +104,8 @@ pub struct Responder {
     device_ready_busy: u32,
     /// Time the camera has spent busy with exposures so far: the device's own time.
     busy_total: std::time::Duration,
+    /// A Canon EOS body's remote release, properties and records.
+    eos: Option<EosBody>,
     pub faults: Faults,
     /// Off ([`Faults::power_off_after_captures`]): nothing is answered any more.
     pub powered_off: bool,
@@ -131,6 +134,7 @@ impl Responder {
             busy_until: None,
             device_ready_busy: 0,
             busy_total: std::time::Duration::ZERO,
+            eos: profile.is_canon_eos().then(EosBody::default),
             faults: Faults::default(),
             powered_off: false,
             log: Vec::new(),
@@ -152,6 +156,9 @@ impl Responder {
         self.busy_until = None;
         self.exposed_at = None;
         self.device_ready_busy = 0;
+        if let Some(eos) = &mut self.eos {
+            eos.end_session();
+        }
     }
 
     /// Seconds the camera has spent exposing and processing shots (Nikon profile).
@@ -165,7 +172,10 @@ impl Responder {
 
     /// Host-to-device data phases the device expects for an operation.
     pub fn expects_data_out(code: u16) -> bool {
-        code == op::SET_DEVICE_PROP_VALUE
+        matches!(
+            code,
+            op::SET_DEVICE_PROP_VALUE | op::CANON_EOS_SET_DEVICE_PROP_VALUE_EX
+        )
     }
 
     pub fn handle(&mut self, m: &Message, data_out: Option<&[u8]>) -> Reply {
@@ -182,6 +192,7 @@ impl Responder {
             op::INITIATE_CAPTURE
                 | op::NIKON_INITIATE_CAPTURE_REC_IN_SDRAM
                 | op::NIKON_INITIATE_CAPTURE_REC_IN_MEDIA
+                | op::CANON_EOS_REMOTE_RELEASE_ON
         );
         if capture
             && self
@@ -233,6 +244,9 @@ impl Responder {
     }
 
     fn dispatch(&mut self, m: &Message, data_out: Option<&[u8]>, reply: &mut Reply) -> u16 {
+        if let Some(code) = self.dispatch_canon_eos(m, data_out, reply) {
+            return code;
+        }
         let p = |i| m.param(i);
         match m.code {
             op::GET_DEVICE_INFO => {
@@ -247,7 +261,12 @@ impl Responder {
                 }
                 self.session = Some(p(0));
             }
-            op::CLOSE_SESSION => self.session = None,
+            op::CLOSE_SESSION => {
+                self.session = None;
+                if let Some(eos) = &mut self.eos {
+                    eos.end_session();
+                }
+            }
             op::GET_STORAGE_IDS => {
                 reply.data = Some(
                     Writer::new()
@@ -317,7 +336,8 @@ impl Responder {
             op::SET_DEVICE_PROP_VALUE => {
                 return self.set_prop(p(0) as u16, data_out.unwrap_or(&[]), reply)
             }
-            op::INITIATE_CAPTURE => {
+            // An EOS body refuses it, as its DeviceInfo says.
+            op::INITIATE_CAPTURE if self.eos.is_none() => {
                 if self.int_prop(prop::RICOH_SLEEP, 0) == 1 {
                     // A sleeping THETA takes no pictures until a client wakes it.
                     return rc::DEVICE_BUSY;
@@ -344,11 +364,7 @@ impl Responder {
                     Err(c) => return c,
                 };
                 // The exposure takes its time, and then the camera processes the frame.
-                let busy =
-                    std::time::Duration::from_secs_f64(self.shot_settings().shutter_s.max(0.0))
-                        + NIKON_PROCESSING;
-                self.busy_until = Some(std::time::Instant::now() + busy);
-                self.busy_total += busy;
+                self.start_busy();
                 if sdram {
                     self.nikon_events
                         .push((event::NIKON_OBJECT_ADDED_IN_SDRAM, SDRAM_HANDLE));
@@ -390,6 +406,104 @@ impl Responder {
         rc::OK
     }
 
+    /// A Canon EOS body's own operations; `None` for the others (and for other profiles).
+    fn dispatch_canon_eos(
+        &mut self,
+        m: &Message,
+        data_out: Option<&[u8]>,
+        reply: &mut Reply,
+    ) -> Option<u16> {
+        let exposing = Responder::before(self.busy_until);
+        let eos = self.eos.as_mut()?;
+        let p = |i| m.param(i);
+        Some(match m.code {
+            op::CANON_EOS_SET_REMOTE_MODE => {
+                eos.set_remote_mode(p(0));
+                rc::OK
+            }
+            op::CANON_EOS_SET_EVENT_MODE => {
+                eos.set_event_mode(p(0));
+                rc::OK
+            }
+            op::CANON_EOS_GET_EVENT => {
+                reply.data = Some(eos.get_event(exposing));
+                rc::OK
+            }
+            op::CANON_EOS_SET_DEVICE_PROP_VALUE_EX => eos.set_value(data_out.unwrap_or(&[])),
+            // The body's buttons locked and unlocked: nothing to lock here.
+            op::CANON_EOS_PC_HDD_CAPACITY
+            | op::CANON_EOS_SET_UI_LOCK
+            | op::CANON_EOS_RESET_UI_LOCK
+            | op::CANON_EOS_KEEP_DEVICE_ON
+            | op::CANON_EOS_REMOTE_RELEASE_OFF => rc::OK,
+            op::CANON_EOS_GET_STORAGE_IDS => {
+                let ids = [self.profile.storage_id()];
+                reply.data = Some(Writer::new().u32_array(&ids).finish());
+                rc::OK
+            }
+            op::CANON_EOS_GET_STORAGE_INFO if p(0) != self.profile.storage_id() => {
+                rc::INVALID_STORAGE_ID
+            }
+            op::CANON_EOS_GET_STORAGE_INFO => {
+                let used = self.objects.values().map(|o| o.data.len() as u64).sum();
+                reply.data = Some(profiles::storage_info(self.profile, used).encode());
+                rc::OK
+            }
+            op::CANON_EOS_TRANSFER_COMPLETE => match self.objects.get(&p(0)) {
+                // Only a file held for the host is let go; a card's file stays on the card.
+                Some(o) if o.info.storage_id == 0 => {
+                    self.objects.remove(&p(0));
+                    rc::OK
+                }
+                _ => rc::INVALID_OBJECT_HANDLE,
+            },
+            op::CANON_EOS_REMOTE_RELEASE_ON if exposing => rc::DEVICE_BUSY,
+            // Half way (1) focuses, which a lens at MF skips; fully (2, or 3 for both at
+            // once) shoots.
+            op::CANON_EOS_REMOTE_RELEASE_ON if p(0) & 2 == 0 => rc::OK,
+            op::CANON_EOS_REMOTE_RELEASE_ON if !eos.in_remote_mode() => rc::GENERAL_ERROR,
+            op::CANON_EOS_REMOTE_RELEASE_ON => self.eos_shoot().err().unwrap_or(rc::OK),
+            _ => return None,
+        })
+    }
+
+    /// A shot on the EOS body: its files on the card, or held for the host, and the records
+    /// that announce them once the exposure and processing are over.
+    fn eos_shoot(&mut self) -> Result<(), u16> {
+        let to_host = self.eos.as_ref().is_some_and(EosBody::to_host);
+        let handles = self.shoot(false)?;
+        let mut files = Vec::new();
+        for h in handles {
+            let Some(o) = self.objects.get_mut(&h) else {
+                continue;
+            };
+            if to_host {
+                o.info.storage_id = 0;
+            }
+            files.push(brdfd_ptp::canon::EosObject {
+                handle: h,
+                storage_id: o.info.storage_id,
+                format: o.info.format,
+                size: o.info.compressed_size,
+                parent: o.info.parent,
+                name: o.info.filename.clone(),
+            });
+        }
+        self.start_busy();
+        if let Some(eos) = &mut self.eos {
+            eos.shot(files);
+        }
+        Ok(())
+    }
+
+    /// The camera busy for the exposure and then processing the frame.
+    fn start_busy(&mut self) {
+        let busy = std::time::Duration::from_secs_f64(self.shot_settings().shutter_s.max(0.0))
+            + PROCESSING;
+        self.busy_until = Some(std::time::Instant::now() + busy);
+        self.busy_total += busy;
+    }
+
     /// The release pressed from outside (a trigger box or a cable on the remote socket): the
     /// camera shoots with its current settings and stores the files on its card, where a
     /// client finds them listed; a Nikon also queues ObjectAdded for GetEvent. Returns
@@ -409,13 +523,26 @@ impl Responder {
         let Ok(handles) = self.shoot(false) else {
             return false;
         };
-        let busy = std::time::Duration::from_secs_f64(self.shot_settings().shutter_s.max(0.0))
-            + NIKON_PROCESSING;
-        self.busy_until = Some(std::time::Instant::now() + busy);
-        self.busy_total += busy;
+        self.start_busy();
         if self.is_nikon() {
             for h in handles {
                 self.nikon_events.push((event::OBJECT_ADDED, h));
+            }
+        } else if self.eos.is_some() {
+            let files = handles
+                .iter()
+                .filter_map(|h| self.objects.get(h).map(|o| (h, o)))
+                .map(|(&handle, o)| brdfd_ptp::canon::EosObject {
+                    handle,
+                    storage_id: o.info.storage_id,
+                    format: o.info.format,
+                    size: o.info.compressed_size,
+                    parent: o.info.parent,
+                    name: o.info.filename.clone(),
+                })
+                .collect();
+            if let Some(eos) = &mut self.eos {
+                eos.shot(files);
             }
         }
         true
@@ -425,11 +552,12 @@ impl Responder {
         self.profile == Profile::NikonD5100
     }
 
+    /// The files on the card: not those in a Nikon's SDRAM or held for an EOS body's host.
     fn card_handles(&self) -> Vec<u32> {
         self.objects
-            .keys()
-            .copied()
-            .filter(|&h| h != SDRAM_HANDLE)
+            .iter()
+            .filter(|(&h, o)| h != SDRAM_HANDLE && o.info.storage_id != 0)
+            .map(|(&h, _)| h)
             .collect()
     }
 
@@ -459,6 +587,16 @@ impl Responder {
                     [first, ..] => self.int_prop(prop::F_NUMBER, *first as i64) as f64 / 100.0,
                 },
                 iso: self.int_prop(prop::EXPOSURE_INDEX, 100) as u32,
+                raw: false,
+                sequence: self.shots + 1,
+            };
+        }
+        if let Some(eos) = &self.eos {
+            let (shutter_s, f_number, iso) = eos.exposure();
+            return Shot {
+                shutter_s,
+                f_number,
+                iso,
                 raw: false,
                 sequence: self.shots + 1,
             };
@@ -523,6 +661,7 @@ impl Responder {
                 bit_depth: if format == format::EXIF_JPEG { 24 } else { 16 },
                 filename: match self.profile {
                     p if p.is_theta() => format!("R{:07}.{ext}", 10_000 + self.shots),
+                    p if p.is_canon_eos() => format!("IMG_{:04}.{ext}", self.shots % 10_000),
                     _ if self.faults.same_file_names => format!("DSC_0001.{ext}"),
                     _ => format!("DSC_{:04}.{ext}", self.shots % 10_000),
                 },
