@@ -455,7 +455,8 @@ pub struct Simulation {
     /// `present` (the default) or `absent` (nothing answers at its address).
     pub dslr: SimulatedPresence,
     /// Which body the simulated DSLR is: `nikon-d5100` (the default: Nikon's capture to
-    /// SDRAM) or `canon-eos-r6` (Canon's EOS remote release; JPEG files only).
+    /// SDRAM), `canon-eos-r6` (Canon's EOS remote release) or `sony-a7m4` (Sony's shutter
+    /// button, the shot in its memory; not with a `shutter`); the last two write JPEG files.
     pub dslr_body: SimulatedBody,
     /// The simulated DSLR powers off when asked for the frame after this many.
     pub dslr_powers_off_after: Option<u32>,
@@ -516,6 +517,7 @@ pub enum SimulatedBody {
     #[default]
     NikonD5100,
     CanonEosR6,
+    SonyA7m4,
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
@@ -962,6 +964,17 @@ impl Rig {
                 file,
                 "simulation",
                 "is for simulated rigs (`simulated = true`)",
+            )));
+        }
+        let fired_sony = r.simulation.as_ref().is_some_and(|s| {
+            s.dslr_body == SimulatedBody::SonyA7m4 && s.shutter == SimulatedPresence::Present
+        });
+        if fired_sony {
+            check(Err(invalid(
+                file,
+                "simulation.dslr_body",
+                "a Sony in PC remote mode cannot be fired from outside here (it lists no card): \
+                 leave `shutter` out",
             )));
         }
         if !r.theta_yaw_deg.is_finite() {

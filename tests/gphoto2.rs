@@ -1,5 +1,5 @@
 //! Debian's gphoto2 as an outside check of the simulated camera: it must recognise the
-//! simulated cameras (generic, D5100, THETA Z1 and Canon EOS R6) over PTP/IP, capture and download from
+//! simulated cameras (generic, D5100, THETA Z1, Canon EOS R6 and Sony a7 IV) over PTP/IP, capture and download from
 //! them, and get byte for byte the file our own client gets. CI installs gphoto2 and sets
 //! BRDFD_REQUIRE_GPHOTO2=1, so there the test cannot skip.
 
@@ -73,7 +73,13 @@ fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
     if !gphoto2_present() {
         return;
     }
-    for profile in ["generic", "nikon-d5100", "theta-z1", "canon-eos-r6"] {
+    for profile in [
+        "generic",
+        "nikon-d5100",
+        "theta-z1",
+        "canon-eos-r6",
+        "sony-a7m4",
+    ] {
         let (_sim, mut lines, addr) = start_sim(profile);
 
         let home = tempfile::tempdir().unwrap();
@@ -86,6 +92,7 @@ fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
             "generic" => "Model: Simulated still camera",
             "nikon-d5100" => "Model: D5100",
             "canon-eos-r6" => "Model: Canon EOS R6",
+            "sony-a7m4" => "Model: ILCE-7M4",
             _ => "Model: RICOH THETA Z1",
         };
         assert!(
@@ -110,6 +117,23 @@ fn gphoto2_captures_from_the_simulated_cameras_over_ptpip() {
                 assert!(text.contains("Vendor Extension ID: 0xb"), "{text}");
                 assert!(
                     text.contains("No Image Capture, No Open Capture, Canon EOS Capture"),
+                    "{text}"
+                );
+            }
+            // And the a7 IV as its dump: Sony's extension and capture, its properties read
+            // through Sony's list, its buttons not readable.
+            "sony-a7m4" => {
+                assert!(text.contains("Vendor Extension ID: 0x11"), "{text}");
+                assert!(
+                    text.contains("No Image Capture, No Open Capture, Sony Capture"),
+                    "{text}"
+                );
+                assert!(
+                    text.contains("Shutter speed(0xd20d):(readwrite) (type=0x6) Range [73536 - 1966081, step 1]"),
+                    "{text}"
+                );
+                assert!(
+                    text.contains("Capture(0xd2c2): error 2002 on query."),
                     "{text}"
                 );
             }

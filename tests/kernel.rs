@@ -563,6 +563,14 @@ const EOS_R6: UsbIdentity = UsbIdentity {
     serial: "0000000000000000000000000000e0r6",
 };
 
+const SONY_A7M4: UsbIdentity = UsbIdentity {
+    profile: "sony-a7m4",
+    ids: (0x054c, 0x0da7),
+    manufacturer: "Sony",
+    product: "ILCE-7M4",
+    serial: "00000000000000001234567891234567",
+};
+
 /// The script that makes the simulated D5100 a USB gadget (the camera's flags after `sim
 /// camera`), binds it, and waits for the host side to enumerate it; `$g` names the gadget.
 fn gadget(camera: &str) -> String {
@@ -820,49 +828,69 @@ fn brdfd_reaches_the_simulated_theta_as_a_usb_gadget_on_a_real_kernel() {
     assert!(capture.contains("panorama.exr"), "{capture}");
 }
 
-/// The simulated Canon EOS R6 as a USB gadget: brdfd finds the EOS flow in its DeviceInfo and
-/// captures through the remote release, and Debian's gphoto2 recognises it by its ids and
-/// captures from it the same way, over libusb on the same kernel.
+/// The simulated Canon EOS R6 and Sony a7 IV as USB gadgets, one machine each: brdfd finds
+/// the vendor's flow in the DeviceInfo and captures through it (Canon's remote release, Sony's
+/// shutter button), and Debian's gphoto2 recognises each by its ids and captures from it the
+/// same way, over libusb on the same kernel.
 #[test]
-fn the_simulated_eos_r6_captures_as_a_usb_gadget_on_a_real_kernel() {
+fn the_simulated_canon_and_sony_capture_as_usb_gadgets_on_a_real_kernel() {
     let Some(m) = machine_or_skip() else {
         return;
     };
     let gphoto2 = gphoto2_files();
-    let mut script = [
-        usb_camera(&EOS_R6, "--size 48"),
-        step("info", "brdfd ptp info --port usb --json"),
-        step(
-            "capture",
-            "brdfd ptp capture --port usb --out /tmp/shots && od -A n -t x1 -N 3 /tmp/shots/IMG_0001.JPG",
+    // (identity, the first file's name, the capture flow, gphoto2's name for it)
+    let bodies = [
+        (&EOS_R6, "IMG_0001.JPG", "canon-eos", "Canon EOS R6"),
+        (
+            &SONY_A7M4,
+            "DSC00001.JPG",
+            "sony",
+            "Sony Alpha-A7 IV (PC Control)",
         ),
-    ]
-    .concat();
-    if gphoto2.is_some() {
-        script += &step("gphoto2-detect", "gphoto2 --auto-detect");
-        script += &step(
-            "gphoto2-capture",
-            "gphoto2 --capture-image-and-download --filename /tmp/gphoto2.jpg && od -A n -t x1 -N 3 /tmp/gphoto2.jpg",
+    ];
+    for (id, first, flow, detected) in bodies {
+        let mut script = [
+            usb_camera(id, "--size 48"),
+            step("info", "brdfd ptp info --port usb --json"),
+            step(
+                "capture",
+                &format!("brdfd ptp capture --port usb --out /tmp/shots && od -A n -t x1 -N 3 /tmp/shots/{first}"),
+            ),
+        ]
+        .concat();
+        if gphoto2.is_some() {
+            script += &step("gphoto2-detect", "gphoto2 --auto-detect");
+            script += &step(
+                "gphoto2-capture",
+                "gphoto2 --capture-image-and-download --filename /tmp/gphoto2.jpg && od -A n -t x1 -N 3 /tmp/gphoto2.jpg",
+            );
+        }
+        let console = boot(
+            &m,
+            GADGET_MODULES,
+            &gphoto2.clone().unwrap_or_default(),
+            &script,
         );
-    }
-    let console = boot(
-        &m,
-        GADGET_MODULES,
-        &gphoto2.clone().unwrap_or_default(),
-        &script,
-    );
-    let info = section(&console, "info");
-    assert!(info.contains("exit 0"), "{info}");
-    assert!(info.contains("\"capture_flow\": \"canon-eos\""), "{info}");
-    assert!(info.contains("on usb:04a9:32f5"), "{info}");
-    let capture = section(&console, "capture");
-    assert!(capture.contains("exit 0"), "{capture}");
-    assert!(capture.contains("ff d8 ff"), "not a JPEG: {capture}");
-    if gphoto2.is_some() {
-        let detect = section(&console, "gphoto2-detect");
-        assert!(detect.contains("Canon EOS R6"), "{detect}");
-        let capture = section(&console, "gphoto2-capture");
+        let info = section(&console, "info");
+        assert!(info.contains("exit 0"), "{info}");
+        assert!(
+            info.contains(&format!("\"capture_flow\": \"{flow}\"")),
+            "{info}"
+        );
+        let (vendor, product) = id.ids;
+        assert!(
+            info.contains(&format!("on usb:{vendor:04x}:{product:04x}")),
+            "{info}"
+        );
+        let capture = section(&console, "capture");
         assert!(capture.contains("exit 0"), "{capture}");
-        assert!(capture.contains("ff d8 ff"), "{capture}");
+        assert!(capture.contains("ff d8 ff"), "not a JPEG: {capture}");
+        if gphoto2.is_some() {
+            let detect = section(&console, "gphoto2-detect");
+            assert!(detect.contains(detected), "{detect}");
+            let capture = section(&console, "gphoto2-capture");
+            assert!(capture.contains("exit 0"), "{capture}");
+            assert!(capture.contains("ff d8 ff"), "{capture}");
+        }
     }
 }

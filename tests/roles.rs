@@ -146,12 +146,37 @@ fn every_simulated_rig_that_config_check_accepts_runs() {
     });
 }
 
-/// A simulated Canon EOS R6 as the rig's DSLR: it shoots every frame of a capture through
-/// its remote release (to the computer), or, with a trigger box, fired from outside to its
-/// card; its image format is left as set on the body, and the operator is told.
+/// A simulated Canon EOS R6 or Sony a7 IV as the rig's DSLR: each shoots every frame of a
+/// capture through its own flow (Canon's remote release to the computer, Sony's shutter button
+/// to its memory), and the EOS also fired from outside to its card by a trigger box; its image
+/// format is left as set on the body, and the operator is told. A Sony with a trigger box is
+/// refused by `config check`, with the reason.
 #[test]
-fn a_canon_eos_body_shoots_the_capture_fired_over_ptp_or_by_the_shutter() {
-    for shutter in [false, true] {
+fn canon_and_sony_bodies_shoot_the_capture_through_their_own_flows() {
+    let cases = [
+        (
+            "canon-eos-r6",
+            false,
+            "Canon EOS R6",
+            "Canon.Inc Canon EOS R6",
+            "IMG_0004.JPG",
+        ),
+        (
+            "canon-eos-r6",
+            true,
+            "Canon EOS R6",
+            "Canon.Inc Canon EOS R6",
+            "IMG_0004.JPG",
+        ),
+        (
+            "sony-a7m4",
+            false,
+            "Sony a7 IV",
+            "Sony Corporation ILCE-7M4",
+            "DSC00004.JPG",
+        ),
+    ];
+    for (body, shutter, simulated, named, last) in cases {
         let c = Combination {
             dslr: "present",
             fallback: false,
@@ -160,7 +185,7 @@ fn a_canon_eos_body_shoots_the_capture_fired_over_ptp_or_by_the_shutter() {
             shutter,
         };
         let dir = tempfile::tempdir().unwrap();
-        let rig = c.rig() + "dslr_body = \"canon-eos-r6\"\n";
+        let rig = c.rig() + &format!("dslr_body = \"{body}\"\n");
         std::fs::write(dir.path().join("rig.toml"), rig).unwrap();
         let (ok, text) = answering(
             dir.path(),
@@ -181,18 +206,25 @@ fn a_canon_eos_body_shoots_the_capture_fired_over_ptp_or_by_the_shutter() {
             ],
             1,
         );
-        assert!(ok, "shutter {shutter}: {text}");
+        assert!(ok, "{body}, shutter {shutter}: {text}");
+        let from_computer = if body == "sony-a7m4" {
+            "a Sony"
+        } else {
+            "a Canon EOS"
+        };
         for says in [
-            "DSLR: simulated Canon EOS R6 on ptpip:",
-            "DSLR: Canon.Inc Canon EOS R6 on ptpip:",
-            "of a Canon EOS from the computer is not offered; it shoots as set on its body",
-            // Canon's 1/60 s, the nearest to 0.0166 s on its list.
-            "IMG_0004.JPG: JPEG, EXIF 0.0167 s f/8 ISO 100",
-            "(camera applied 0.01667 s)",
+            format!("DSLR: simulated {simulated} on ptpip:"),
+            format!("DSLR: {named} on ptpip:"),
+            format!(
+                "of {from_computer} from the computer is not offered; it shoots as set on its body"
+            ),
+            // 1/60 s, the nearest to 0.0166 s on either body's list.
+            format!("{last}: JPEG, EXIF 0.0167 s f/8 ISO 100"),
+            "(camera applied 0.01667 s)".to_string(),
         ] {
             assert!(
-                text.contains(says),
-                "shutter {shutter}: {says:?} in\n{text}"
+                text.contains(&says),
+                "{body}, shutter {shutter}: {says:?} in\n{text}"
             );
         }
         assert_eq!(
@@ -201,6 +233,25 @@ fn a_canon_eos_body_shoots_the_capture_fired_over_ptp_or_by_the_shutter() {
             "{text}"
         );
     }
+    let dir = tempfile::tempdir().unwrap();
+    let fired = Combination {
+        dslr: "present",
+        fallback: false,
+        turntable: true,
+        theta: "http",
+        shutter: true,
+    };
+    let rig = fired.rig() + "dslr_body = \"sony-a7m4\"\n";
+    std::fs::write(dir.path().join("rig.toml"), rig).unwrap();
+    let check = brdfd(&["config", "check", "rig.toml"], dir.path());
+    assert!(!check.status.success());
+    assert!(
+        out(&check).contains(
+            "simulation.dslr_body`: a Sony in PC remote mode cannot be fired from outside"
+        ),
+        "{}",
+        out(&check)
+    );
 }
 
 /// What each field may name, written apart from the code that checks it: the device kinds

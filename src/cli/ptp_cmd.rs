@@ -142,9 +142,11 @@ enum CaptureFlow {
     Nikon,
     /// Remote release, GetEvent records, to the host or the card.
     CanonEos,
+    /// SDIO connection, shutter buttons, the shot in the camera's memory.
+    Sony,
     /// InitiateCapture, events.
     Generic,
-    /// No remote capture brdfd speaks yet (a Sony Alpha's, a Canon PowerShot's).
+    /// No remote capture brdfd speaks yet (a Canon PowerShot's, an older Sony's).
     None,
 }
 
@@ -183,6 +185,8 @@ fn camera_info(cam: &mut Camera) -> anyhow::Result<CameraInfo> {
             CaptureFlow::Nikon
         } else if cam.is_canon_eos() {
             CaptureFlow::CanonEos
+        } else if cam.is_sony() {
+            CaptureFlow::Sony
         } else if i.supports(brdfd_ptp::codes::op::INITIATE_CAPTURE) {
             CaptureFlow::Generic
         } else {
@@ -214,6 +218,7 @@ fn print_info(i: &CameraInfo) {
         match i.capture_flow {
             CaptureFlow::Nikon => "Nikon (SDRAM or card, GetEvent polling)",
             CaptureFlow::CanonEos => "Canon EOS (remote release, GetEvent records)",
+            CaptureFlow::Sony => "Sony (SDIO control, shutter buttons, the shot in memory)",
             CaptureFlow::Generic => "generic (InitiateCapture, events)",
             CaptureFlow::None => "none that brdfd speaks yet",
         }

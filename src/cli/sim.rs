@@ -177,6 +177,7 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
                     let (make, model): (String, String) = match profile {
                         Profile::NikonD5100 => ("NIKON CORPORATION".into(), "NIKON D5100".into()),
                         Profile::CanonEosR6 => ("Canon".into(), "Canon EOS R6".into()),
+                        Profile::SonyA7M4 => ("SONY".into(), "ILCE-7M4".into()),
                         _ => ("brdfd".into(), format!("simulated {}", a.profile)),
                     };
                     rendering = Some(Arc::new(

@@ -86,6 +86,7 @@ impl SimulatedRig {
                 Profile::CanonEosR6,
                 ("Canon", "Canon EOS R6", "Canon EOS R6"),
             ),
+            SimulatedBody::SonyA7m4 => (Profile::SonyA7M4, ("SONY", "ILCE-7M4", "Sony a7 IV")),
         };
         let dslr = Responder::new(body, dslr_time.clone()).shared();
         lock(&dslr).faults.power_off_after_captures = simulation.dslr_powers_off_after;

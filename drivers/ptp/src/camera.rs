@@ -60,6 +60,8 @@ pub struct Camera {
     pub(crate) files_per_shot: Option<usize>,
     /// A Canon EOS body's properties and announced files, once brdfd has taken it over.
     pub(crate) eos: Option<crate::canon::EosState>,
+    /// A Sony body's properties, once brdfd has connected to it.
+    pub(crate) sony: Option<crate::sony::SonyState>,
 }
 
 impl Camera {
@@ -74,6 +76,7 @@ impl Camera {
             events: VecDeque::new(),
             files_per_shot: None,
             eos: None,
+            sony: None,
         };
         cam.open_session()?;
         cam.info = DeviceInfo::decode(&cam.data_in(op::GET_DEVICE_INFO, &[])?)?;

@@ -24,6 +24,7 @@ use crate::capture::{CaptureOptions, CaptureProgress, Captured, Target};
 use crate::codes::{event, format, op, prop, vendor};
 use crate::dataset::ObjectInfo;
 use crate::error::{PtpError, Result};
+use crate::exposure::{F_NUMBERS, ISO_SPEEDS, SHUTTER_SECONDS};
 use crate::wire::Writer;
 
 /// The capture destination that keeps the shot in the camera's memory for the host.
@@ -278,135 +279,51 @@ fn stops(code: u32, reference: u32) -> f64 {
     d.div_euclid(8) as f64 + frac
 }
 
-/// The nominal values a camera shows for whole and third stops, each `(code, value)`:
-/// shutter speeds (30 s to 1/8000 s), f-numbers (f/1.0 to f/32) and ISO speeds (100 to
-/// 102400, the EOS R6's list).
-const SHUTTERS: [(u32, f64); 55] = [
-    (0x10, 30.0),
-    (0x13, 25.0),
-    (0x15, 20.0),
-    (0x18, 15.0),
-    (0x1B, 13.0),
-    (0x1D, 10.0),
-    (0x20, 8.0),
-    (0x23, 6.0),
-    (0x25, 5.0),
-    (0x28, 4.0),
-    (0x2B, 3.2),
-    (0x2D, 2.5),
-    (0x30, 2.0),
-    (0x33, 1.6),
-    (0x35, 1.3),
-    (0x38, 1.0),
-    (0x3B, 0.8),
-    (0x3D, 0.6),
-    (0x40, 0.5),
-    (0x43, 0.4),
-    (0x45, 0.3),
-    (0x48, 1.0 / 4.0),
-    (0x4B, 1.0 / 5.0),
-    (0x4D, 1.0 / 6.0),
-    (0x50, 1.0 / 8.0),
-    (0x53, 1.0 / 10.0),
-    (0x55, 1.0 / 13.0),
-    (0x58, 1.0 / 15.0),
-    (0x5B, 1.0 / 20.0),
-    (0x5D, 1.0 / 25.0),
-    (0x60, 1.0 / 30.0),
-    (0x63, 1.0 / 40.0),
-    (0x65, 1.0 / 50.0),
-    (0x68, 1.0 / 60.0),
-    (0x6B, 1.0 / 80.0),
-    (0x6D, 1.0 / 100.0),
-    (0x70, 1.0 / 125.0),
-    (0x73, 1.0 / 160.0),
-    (0x75, 1.0 / 200.0),
-    (0x78, 1.0 / 250.0),
-    (0x7B, 1.0 / 320.0),
-    (0x7D, 1.0 / 400.0),
-    (0x80, 1.0 / 500.0),
-    (0x83, 1.0 / 640.0),
-    (0x85, 1.0 / 800.0),
-    (0x88, 1.0 / 1000.0),
-    (0x8B, 1.0 / 1250.0),
-    (0x8D, 1.0 / 1600.0),
-    (0x90, 1.0 / 2000.0),
-    (0x93, 1.0 / 2500.0),
-    (0x95, 1.0 / 3200.0),
-    (0x98, 1.0 / 4000.0),
-    (0x9B, 1.0 / 5000.0),
-    (0x9D, 1.0 / 6400.0),
-    (0xA0, 1.0 / 8000.0),
-];
-const F_NUMBERS: [(u32, f64); 31] = [
-    (0x08, 1.0),
-    (0x0B, 1.1),
-    (0x0D, 1.2),
-    (0x10, 1.4),
-    (0x13, 1.6),
-    (0x15, 1.8),
-    (0x18, 2.0),
-    (0x1B, 2.2),
-    (0x1D, 2.5),
-    (0x20, 2.8),
-    (0x23, 3.2),
-    (0x25, 3.5),
-    (0x28, 4.0),
-    (0x2B, 4.5),
-    (0x2D, 5.0),
-    (0x30, 5.6),
-    (0x33, 6.3),
-    (0x35, 7.1),
-    (0x38, 8.0),
-    (0x3B, 9.0),
-    (0x3D, 10.0),
-    (0x40, 11.0),
-    (0x43, 13.0),
-    (0x45, 14.0),
-    (0x48, 16.0),
-    (0x4B, 18.0),
-    (0x4D, 20.0),
-    (0x50, 22.0),
-    (0x53, 25.0),
-    (0x55, 29.0),
-    (0x58, 32.0),
-];
-pub const ISO_SPEEDS: [(u32, u32); 31] = [
-    (0x48, 100),
-    (0x4B, 125),
-    (0x4D, 160),
-    (0x50, 200),
-    (0x53, 250),
-    (0x55, 320),
-    (0x58, 400),
-    (0x5B, 500),
-    (0x5D, 640),
-    (0x60, 800),
-    (0x63, 1000),
-    (0x65, 1250),
-    (0x68, 1600),
-    (0x6B, 2000),
-    (0x6D, 2500),
-    (0x70, 3200),
-    (0x73, 4000),
-    (0x75, 5000),
-    (0x78, 6400),
-    (0x7B, 8000),
-    (0x7D, 10000),
-    (0x80, 12800),
-    (0x83, 16000),
-    (0x85, 20000),
-    (0x88, 25600),
-    (0x8B, 32000),
-    (0x8D, 40000),
-    (0x90, 51200),
-    (0x93, 64000),
-    (0x95, 80000),
-    (0x98, 102400),
-];
+/// The index in a series of whole and third stops of the code `code`, for a series whose
+/// first code is `first` (Canon's codes step 3, 5, 8 eighths through each stop).
+fn third_index(code: u32, first: u32, len: usize) -> Option<usize> {
+    let d = code.checked_sub(first)? as usize;
+    let third = match d % 8 {
+        0 => 0,
+        3 => 1,
+        5 => 2,
+        _ => return None,
+    };
+    Some(d / 8 * 3 + third).filter(|&i| i < len)
+}
 
-fn nominal<T: Copy>(table: &[(u32, T)], code: u32) -> Option<T> {
-    table.iter().find(|(c, _)| *c == code).map(|(_, v)| *v)
+/// The first code of each series: 30 s, f/1.0 and ISO 100.
+const FIRST_SHUTTER: u32 = 0x10;
+const FIRST_F_NUMBER: u32 = 0x08;
+const FIRST_ISO: u32 = 0x48;
+
+/// The code of the `index`th value of a series that starts at `first`.
+fn third_code(first: u32, index: usize) -> u32 {
+    first + (index / 3 * 8) as u32 + [0, 3, 5][index % 3]
+}
+
+/// The codes of the R6's ISO speeds, 100 to 102400 (its dump's list).
+pub fn iso_codes() -> impl Iterator<Item = u32> {
+    (0..ISO_SPEEDS.len()).map(|i| third_code(FIRST_ISO, i))
+}
+
+/// The codes of the shutter speeds from `slowest` to `fastest` seconds, in whole and third
+/// stops (a body's list in manual mode).
+pub fn shutter_codes(slowest: f64, fastest: f64) -> impl Iterator<Item = u32> {
+    SHUTTER_SECONDS
+        .iter()
+        .enumerate()
+        .filter(move |(_, &s)| s <= slowest && s >= fastest)
+        .map(|(i, _)| third_code(FIRST_SHUTTER, i))
+}
+
+/// The codes of the f-numbers from `widest` to `narrowest` (a lens's range).
+pub fn f_number_codes(widest: f64, narrowest: f64) -> impl Iterator<Item = u32> {
+    F_NUMBERS
+        .iter()
+        .enumerate()
+        .filter(move |(_, &f)| f >= widest && f <= narrowest)
+        .map(|(i, _)| third_code(FIRST_F_NUMBER, i))
 }
 
 /// The shutter speed of a code (property 0xD102), in seconds; none for automatic (0) and
@@ -414,7 +331,10 @@ fn nominal<T: Copy>(table: &[(u32, T)], code: u32) -> Option<T> {
 pub fn shutter_seconds(code: u32) -> Option<f64> {
     match code {
         0 | 0x0C => None,
-        c => Some(nominal(&SHUTTERS, c).unwrap_or_else(|| 2f64.powf(-stops(c, 0x38)))),
+        c => Some(match third_index(c, FIRST_SHUTTER, SHUTTER_SECONDS.len()) {
+            Some(i) => SHUTTER_SECONDS[i],
+            None => 2f64.powf(-stops(c, 0x38)),
+        }),
     }
 }
 
@@ -422,7 +342,10 @@ pub fn shutter_seconds(code: u32) -> Option<f64> {
 pub fn f_number(code: u32) -> Option<f64> {
     match code {
         0 | 0xFF => None,
-        c => Some(nominal(&F_NUMBERS, c).unwrap_or_else(|| 2f64.powf(stops(c, 0x08) / 2.0))),
+        c => Some(match third_index(c, FIRST_F_NUMBER, F_NUMBERS.len()) {
+            Some(i) => F_NUMBERS[i],
+            None => 2f64.powf(stops(c, 0x08) / 2.0),
+        }),
     }
 }
 
@@ -430,20 +353,11 @@ pub fn f_number(code: u32) -> Option<f64> {
 pub fn iso(code: u32) -> Option<u32> {
     match code {
         0 => None,
-        c => Some(
-            nominal(&ISO_SPEEDS, c)
-                .unwrap_or_else(|| (100.0 * 2f64.powf(stops(c, 0x48))).round() as u32),
-        ),
+        c => Some(match third_index(c, FIRST_ISO, ISO_SPEEDS.len()) {
+            Some(i) => ISO_SPEEDS[i],
+            None => (100.0 * 2f64.powf(stops(c, 0x48))).round() as u32,
+        }),
     }
-}
-
-/// The code of an exposure value, the inverse of [`shutter_seconds`], [`f_number`] and
-/// [`iso`] on their tables (the simulated body's side).
-pub fn shutter_code(seconds: f64) -> Option<u32> {
-    SHUTTERS
-        .iter()
-        .find(|(_, s)| (s / seconds - 1.0).abs() < 1e-6)
-        .map(|(c, _)| *c)
 }
 
 /// What an EOS body has said through GetEvent: its properties' values and allowed values,
@@ -750,14 +664,25 @@ mod tests {
         assert_eq!(iso(0x48), Some(100));
         assert_eq!(iso(0x65), Some(1250));
         assert_eq!(iso(0), None, "automatic");
-        for (code, s) in SHUTTERS {
-            assert_eq!(shutter_code(s), Some(code));
-            // The table's values are within a sixth of a stop of the codes' own stops.
+        let codes: Vec<u32> = shutter_codes(30.0, 1.0 / 8000.0).collect();
+        assert_eq!((codes[0], codes[codes.len() - 1]), (0x10, 0xA0));
+        for code in codes {
+            // The nominal values are within a sixth of a stop of the codes' own stops.
+            let s = shutter_seconds(code).unwrap();
             let true_s = 2f64.powf(-stops(code, 0x38));
             assert!(
                 (s / true_s).log2().abs() < 1.0 / 6.0,
                 "{code:#x}: {s} vs {true_s}"
             );
         }
+        let isos: Vec<u32> = iso_codes().collect();
+        assert_eq!(
+            (isos[0], isos[30], iso(isos[29])),
+            (0x48, 0x98, Some(80000))
+        );
+        assert_eq!(
+            f_number_codes(4.0, 22.0).collect::<Vec<_>>()[..2],
+            [0x28, 0x2B]
+        );
     }
 }

@@ -71,15 +71,16 @@ impl Camera {
                 || self.info.supports(op::NIKON_INITIATE_CAPTURE_REC_IN_MEDIA))
     }
 
-    /// What a camera without InitiateCapture lacks, and what to do: Canon PowerShots and Sony
-    /// Alpha bodies capture through their vendor's own flows, which brdfd does not speak yet.
+    /// What a camera without InitiateCapture lacks, and what to do: Canon PowerShots and Sony's
+    /// older and QX bodies capture through their vendor's own flows, which brdfd does not
+    /// speak yet.
     fn missing_capture(&self) -> String {
         let maker = &self.info.manufacturer;
         let canon = self.info.vendor_extension_id == vendor::CANON || maker.starts_with("Canon");
         let flow = if canon {
             Some("Canon's PowerShot release control")
         } else if maker.starts_with("Sony") {
-            Some("Sony's control-device protocol")
+            Some("an older Sony protocol than SDIO control")
         } else {
             None
         };
@@ -115,6 +116,9 @@ impl Camera {
     ) -> Result<Vec<Captured>> {
         if self.is_canon_eos() {
             return self.capture_canon_eos(opts, progress);
+        }
+        if self.is_sony() {
+            return self.capture_sony(opts, progress);
         }
         let nikon = self.is_nikon();
         let handles = if nikon {
@@ -154,6 +158,14 @@ impl Camera {
         opts: &CaptureOptions,
         progress: CaptureProgress,
     ) -> Result<Vec<Captured>> {
+        if self.is_sony() {
+            // In PC remote mode a Sony lists no card: a shot fired from outside is not found
+            // the way this flow finds it.
+            return Err(PtpError::Unsupported(
+                "a shot fired from outside on a Sony in PC remote mode (it lists no card);                  let brdfd fire it over USB or PTP/IP instead"
+                    .into(),
+            ));
+        }
         let before = self.card_objects()?;
         self.set_events_aside()?;
         progress("exposure", 0, 0);
@@ -478,6 +490,9 @@ impl Camera {
 
     /// Shutter speed in seconds; returns the speed applied.
     pub fn set_shutter(&mut self, seconds: f64) -> Result<f64> {
+        if self.is_sony() {
+            return self.sony_set_shutter(seconds);
+        }
         if self.is_canon_eos() {
             let code = prop::CANON_EOS_SHUTTER_SPEED;
             return self.eos_set_nearest(code, crate::canon::shutter_seconds, seconds);
@@ -490,6 +505,9 @@ impl Camera {
 
     /// Aperture as an f-number; returns the f-number applied.
     pub fn set_f_number(&mut self, f: f64) -> Result<f64> {
+        if self.is_sony() {
+            return self.sony_set_f_number(f);
+        }
         if self.is_canon_eos() {
             return self.eos_set_nearest(prop::CANON_EOS_APERTURE, crate::canon::f_number, f);
         }
@@ -498,6 +516,9 @@ impl Camera {
     }
 
     pub fn set_iso(&mut self, iso: u32) -> Result<u32> {
+        if self.is_sony() {
+            return self.sony_set_iso(iso);
+        }
         if self.is_canon_eos() {
             let iso_of = |c| crate::canon::iso(c).map(f64::from);
             let applied = self.eos_set_nearest(prop::CANON_EOS_ISO_SPEED, iso_of, iso as f64)?;
@@ -510,11 +531,12 @@ impl Camera {
     /// JPEG or RAW through the compression setting. Nikon's values: 0-2 JPEG basic to fine,
     /// 4 RAW, 5-7 RAW + JPEG; other vendors keep JPEG qualities only.
     pub fn set_format(&mut self, f: ImageFormat) -> Result<ImageFormat> {
-        if self.is_canon_eos() {
+        if self.is_canon_eos() || self.is_sony() {
             // An EOS body's image format (0xD120) is a list of file descriptions of its own,
-            // which brdfd does not write yet.
+            // and a Sony's compression setting has values of its own; brdfd writes neither yet.
             return Err(PtpError::Unsupported(format!(
-                "setting the image format ({f:?}) of a Canon EOS from the computer"
+                "setting the image format ({f:?}) of a {} from the computer",
+                if self.is_sony() { "Sony" } else { "Canon EOS" }
             )));
         }
         let want = match f {

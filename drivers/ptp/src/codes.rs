@@ -40,6 +40,12 @@ pub mod op {
     pub const CANON_EOS_KEEP_DEVICE_ON: u16 = 0x911D;
     pub const CANON_EOS_REMOTE_RELEASE_ON: u16 = 0x9128;
     pub const CANON_EOS_REMOTE_RELEASE_OFF: u16 = 0x9129;
+
+    pub const SONY_SDIO_CONNECT: u16 = 0x9201;
+    pub const SONY_SDIO_GET_EXT_DEVICE_INFO: u16 = 0x9202;
+    pub const SONY_SDIO_SET_EXT_DEVICE_PROP_VALUE: u16 = 0x9205;
+    pub const SONY_SDIO_CONTROL_DEVICE: u16 = 0x9207;
+    pub const SONY_SDIO_GET_ALL_EXT_DEVICE_PROP_INFO: u16 = 0x9209;
 }
 
 pub mod rc {
@@ -108,6 +114,8 @@ pub mod event {
     pub const CANON_EOS_PROP_VALUE_CHANGED: u32 = 0xC189;
     pub const CANON_EOS_AVAIL_LIST_CHANGED: u32 = 0xC18A;
     pub const CANON_EOS_CAMERA_STATUS_CHANGED: u32 = 0xC18B;
+    pub const SONY_OBJECT_ADDED: u16 = 0xC201;
+    pub const SONY_DEVICE_PROP_CHANGED: u16 = 0xC203;
 }
 
 pub mod prop {
@@ -133,6 +141,17 @@ pub mod prop {
     pub const CANON_EOS_AVAILABLE_SHOTS: u16 = 0xD11B;
     pub const CANON_EOS_CAPTURE_DESTINATION: u16 = 0xD11C;
     pub const CANON_EOS_EVF_OUTPUT_DEVICE: u16 = 0xD1B0;
+    pub const FOCUS_MODE: u16 = 0x500A;
+    // Sony's, read all at once with GetAllExtDevicePropInfo.
+    pub const SONY_SHUTTER_SPEED: u16 = 0xD20D;
+    pub const SONY_FOCUS_FOUND: u16 = 0xD213;
+    pub const SONY_OBJECT_IN_MEMORY: u16 = 0xD215;
+    pub const SONY_ISO: u16 = 0xD21E;
+    pub const SONY_CAPTURE_TARGET: u16 = 0xD222;
+    pub const SONY_PRIORITY_MODE: u16 = 0xD25A;
+    /// Buttons, pressed (2) and let go (1) with ControlDevice.
+    pub const SONY_SHUTTER_HALF_RELEASE: u16 = 0xD2C1;
+    pub const SONY_SHUTTER_RELEASE: u16 = 0xD2C2;
 }
 
 /// Object format codes.
@@ -148,6 +167,7 @@ pub mod format {
     /// Canon's CR2 and CR3 RAW files.
     pub const CANON_CR2: u16 = 0xB103;
     pub const CANON_CR3: u16 = 0xB108;
+    pub const MPEG: u16 = 0x300B;
 }
 
 /// Vendor extension ids from DeviceInfo.
@@ -156,6 +176,7 @@ pub mod vendor {
     pub const MICROSOFT: u32 = 0x6;
     pub const NIKON: u32 = 0xA;
     pub const CANON: u32 = 0xB;
+    pub const SONY: u32 = 0x11;
 }
 
 /// Datatype codes of properties (ISO 15740 table 3).

@@ -324,20 +324,26 @@ impl DevicePropDesc {
         let code = r.u16()?;
         let datatype = r.u16()?;
         let writable = r.u8()? == 1;
-        let factory_default = Value::decode(&mut r, datatype)?;
-        let current = Value::decode(&mut r, datatype)?;
+        DevicePropDesc::decode_values(&mut r, code, datatype, writable)
+    }
+
+    /// A descriptor's values and form, after its header: the part every vendor's descriptors
+    /// share (Sony's header has a byte more).
+    pub fn decode_values(r: &mut Reader, code: u16, datatype: u16, writable: bool) -> Result<Self> {
+        let factory_default = Value::decode(r, datatype)?;
+        let current = Value::decode(r, datatype)?;
         let form = match r.u8()? {
             0 => Form::None,
             1 => Form::Range {
-                min: Value::decode(&mut r, datatype)?,
-                max: Value::decode(&mut r, datatype)?,
-                step: Value::decode(&mut r, datatype)?,
+                min: Value::decode(r, datatype)?,
+                max: Value::decode(r, datatype)?,
+                step: Value::decode(r, datatype)?,
             },
             2 => {
                 let n = r.u16()? as usize;
                 let mut v = Vec::with_capacity(n.min(r.remaining()));
                 for _ in 0..n {
-                    v.push(Value::decode(&mut r, datatype)?);
+                    v.push(Value::decode(r, datatype)?);
                 }
                 Form::Enum(v)
             }
@@ -356,26 +362,31 @@ impl DevicePropDesc {
     pub fn encode(&self) -> Vec<u8> {
         let mut w = Writer::new();
         w.u16(self.code).u16(self.datatype).u8(self.writable as u8);
-        self.factory_default.encode(&mut w, self.datatype);
-        self.current.encode(&mut w, self.datatype);
+        self.encode_values(&mut w);
+        w.finish()
+    }
+
+    /// [`DevicePropDesc::decode_values`]'s inverse.
+    pub fn encode_values(&self, w: &mut Writer) {
+        self.factory_default.encode(w, self.datatype);
+        self.current.encode(w, self.datatype);
         match &self.form {
             Form::None => {
                 w.u8(0);
             }
             Form::Range { min, max, step } => {
                 w.u8(1);
-                min.encode(&mut w, self.datatype);
-                max.encode(&mut w, self.datatype);
-                step.encode(&mut w, self.datatype);
+                min.encode(w, self.datatype);
+                max.encode(w, self.datatype);
+                step.encode(w, self.datatype);
             }
             Form::Enum(v) => {
                 w.u8(2).u16(v.len() as u16);
                 for x in v {
-                    x.encode(&mut w, self.datatype);
+                    x.encode(w, self.datatype);
                 }
             }
         }
-        w.finish()
     }
 
     /// The allowed integer values, for enumerations and ranges (ranges are expanded, so keep

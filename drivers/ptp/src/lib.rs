@@ -7,6 +7,8 @@
 //! - [`camera`]: the transaction engine (sessions, busy retries, timeouts, recovery).
 //! - [`capture`]: generic and Nikon capture, exposure settings, brackets.
 //! - [`canon`]: Canon EOS remote release, its GetEvent records and exposure codes.
+//! - [`sony`]: Sony Alpha's SDIO control: connection, property list, buttons, memory.
+//! - [`exposure`]: the nominal shutter speeds, f-numbers and ISOs vendors encode.
 //!
 //! Behaviour follows ISO 15740, CIPA DC-005 (PTP/IP) and what libgphoto2's `camlibs/ptp2`
 //! documents about real cameras; no code is taken from either.
@@ -51,6 +53,8 @@ pub mod codes;
 pub mod container;
 pub mod dataset;
 pub mod error;
+pub mod exposure;
+pub mod sony;
 pub mod transport;
 pub mod wire;
 

@@ -114,6 +114,60 @@ fn canon_eos_capture_through_the_remote_release_over_usb() {
     assert!(cam.object_handles(0xFFFF_FFFF).unwrap().is_empty());
 }
 
+/// A Sony a7 IV in PC remote mode refuses InitiateCapture and lists no store; brdfd connects
+/// in Sony's three steps, sets the exposure among its properties, presses the shutter button,
+/// and reads the shot from the camera's memory once it is there.
+#[test]
+fn sony_capture_through_the_shutter_button_over_usb() {
+    let r = responder(Profile::SonyA7M4, 300_000);
+    let mut cam = usb_camera(&r);
+    assert!(cam.is_sony() && !cam.is_nikon() && !cam.is_canon_eos());
+    let refused = cam.call(op::INITIATE_CAPTURE, &[0, 0]).unwrap_err();
+    assert_eq!(refused.response_code(), Some(0x2005), "{refused}");
+    assert!(cam.storage_ids().unwrap().is_empty());
+
+    // 1/55 s is nearest 1/60 (0x0001003C); f/8 is 800; ISO 170 is nearest 160.
+    assert_eq!(cam.set_shutter(1.0 / 55.0).unwrap(), 1.0 / 60.0);
+    assert_eq!(cam.set_f_number(8.2).unwrap(), 8.0);
+    assert_eq!(cam.set_iso(170).unwrap(), 160);
+    // A shutter speed beyond the body's range (30 s) is brought within it.
+    assert_eq!(cam.set_shutter(60.0).unwrap(), 30.0);
+    assert_eq!(cam.set_shutter(1.0 / 60.0).unwrap(), 1.0 / 60.0);
+
+    for shot in 1..=2 {
+        let mut phases = Vec::new();
+        let file = cam
+            .capture(&CaptureOptions::default(), &mut |p, _, _| {
+                if phases.last().map(String::as_str) != Some(p) {
+                    phases.push(p.to_string())
+                }
+            })
+            .unwrap();
+        assert_eq!(phases, ["exposure", "download"]);
+        assert_eq!(file.handle, 0xFFFF_C001);
+        assert_eq!(file.info.filename, format!("DSC{shot:05}.JPG"));
+        assert_eq!(file.data, expected(300_000, shot));
+    }
+    let log = ops(&r);
+    let count = |c| log.iter().filter(|&&o| o == c).count();
+    assert_eq!(
+        count(op::SONY_SDIO_CONNECT),
+        3,
+        "connected once, in three steps"
+    );
+    assert_eq!(
+        count(op::SONY_SDIO_CONTROL_DEVICE),
+        8,
+        "two presses and two releases a shot"
+    );
+    assert_eq!(count(op::DELETE_OBJECT), 0);
+    let settings = r.lock().unwrap().shot_settings();
+    assert_eq!(
+        (settings.shutter_s, settings.f_number, settings.iso),
+        (1.0 / 60.0, 8.0, 160)
+    );
+}
+
 #[test]
 fn generic_capture_over_usb_downloads_and_deletes() {
     let r = responder(Profile::Generic, 300_000);

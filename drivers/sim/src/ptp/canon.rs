@@ -26,17 +26,13 @@ pub struct EosBody {
     after_shot: Vec<EosEvent>,
 }
 
-/// Codes of whole and third stops between two codes (eighths of a stop: +3, +5, +8).
-fn thirds(from: u32, to: u32) -> Vec<u32> {
-    (from..=to).filter(|c| matches!(c % 8, 0 | 3 | 5)).collect()
-}
-
 impl Default for EosBody {
     fn default() -> Self {
-        let mut isos = vec![0];
-        isos.extend(canon::ISO_SPEEDS.iter().map(|(c, _)| *c));
-        let mut shutters = vec![0x0C];
-        shutters.extend(thirds(0x10, 0xA0));
+        // Automatic ISO, then the list; bulb, then 30 s to 1/8000 s.
+        let isos = std::iter::once(0).chain(canon::iso_codes()).collect();
+        let shutters = std::iter::once(0x0C)
+            .chain(canon::shutter_codes(30.0, 1.0 / 8000.0))
+            .collect();
         let values = BTreeMap::from([
             (prop::CANON_EOS_APERTURE, 0x30),
             (prop::CANON_EOS_SHUTTER_SPEED, 0x68),
@@ -47,7 +43,10 @@ impl Default for EosBody {
             (prop::CANON_EOS_EVF_OUTPUT_DEVICE, 1),
         ]);
         let allowed = BTreeMap::from([
-            (prop::CANON_EOS_APERTURE, thirds(0x28, 0x50)),
+            (
+                prop::CANON_EOS_APERTURE,
+                canon::f_number_codes(4.0, 22.0).collect(),
+            ),
             (prop::CANON_EOS_SHUTTER_SPEED, shutters),
             (prop::CANON_EOS_ISO_SPEED, isos),
             (

@@ -1,6 +1,7 @@
 //! A simulated PTP camera: [`Responder`] holds the camera's state and answers operations;
 //! [`usb`] serves it over the in-memory USB pipe, `functionfs` as a real USB gadget (Linux),
-//! and [`ptpip`] as a PTP/IP server. `canon` is the simulated EOS body's own state.
+//! and [`ptpip`] as a PTP/IP server. `canon` and `sony` are the simulated EOS and Alpha
+//! bodies' own state.
 
 mod canon;
 #[cfg(target_os = "linux")]
@@ -8,6 +9,7 @@ pub mod functionfs;
 mod profiles;
 pub mod ptpip;
 mod responder;
+mod sony;
 pub mod usb;
 
 pub use profiles::Profile;

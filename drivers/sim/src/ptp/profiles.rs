@@ -1,5 +1,5 @@
-//! What the simulated cameras report about themselves. The Nikon D5100, the Canon EOS R6 and
-//! the THETA V and Z1 follow the real cameras' dumps published by libgphoto2 (`shared/data/ptp/device-dumps/`):
+//! What the simulated cameras report about themselves. The Nikon D5100, the Canon EOS R6, the
+//! Sony a7 IV and the THETA V and Z1 follow the real cameras' dumps published by libgphoto2 (`shared/data/ptp/device-dumps/`):
 //! vendor extension, model strings, properties with their types, ranges and values. The Z1's
 //! dump answered "device busy" for most properties (it was asleep); those follow the V's,
 //! with the Z1's ISOs and apertures from RICOH's API reference.
@@ -23,6 +23,10 @@ pub enum Profile {
     /// Canon EOS R6: Canon's vendor extension, no InitiateCapture, the EOS remote release
     /// with its properties and files reported through GetEvent.
     CanonEosR6,
+    /// Sony a7 IV (ILCE-7M4) in PC remote mode: Sony's extension, no InitiateCapture and no
+    /// storage, the SDIO connection, its properties in one list, the shutter buttons, and
+    /// the shot in its memory.
+    SonyA7M4,
 }
 
 impl Profile {
@@ -33,17 +37,24 @@ impl Profile {
             "theta-v" => Profile::ThetaV,
             "theta-z1" => Profile::ThetaZ1,
             "canon-eos-r6" => Profile::CanonEosR6,
+            "sony-a7m4" => Profile::SonyA7M4,
             _ => return None,
         })
     }
 
-    pub const NAMES: [&'static str; 5] = [
+    pub const NAMES: [&'static str; 6] = [
         "generic",
         "nikon-d5100",
         "theta-v",
         "theta-z1",
         "canon-eos-r6",
+        "sony-a7m4",
     ];
+
+    /// Whether the profile is a Sony body in PC remote mode (SDIO control, no storage).
+    pub fn is_sony(self) -> bool {
+        self == Profile::SonyA7M4
+    }
 
     /// Whether the profile is a Canon EOS body (the remote release, GetEvent's records).
     pub fn is_canon_eos(self) -> bool {
@@ -90,6 +101,8 @@ impl Profile {
             Profile::ThetaV => (0x05ca, 0x0368),
             Profile::ThetaZ1 => (0x05ca, 0x036d),
             Profile::CanonEosR6 => (0x04a9, 0x32f5),
+            // "PC Control", the mode that captures (its "MTP mode" is 0x0da6).
+            Profile::SonyA7M4 => (0x054c, 0x0da7),
         }
     }
 }
@@ -128,6 +141,15 @@ const CANON_EOS_OPS: [u16; 13] = [
     op::CANON_EOS_KEEP_DEVICE_ON,
     op::CANON_EOS_REMOTE_RELEASE_ON,
     op::CANON_EOS_REMOTE_RELEASE_OFF,
+];
+
+/// The Sony operations the simulated a7 IV answers.
+const SONY_OPS: [u16; 5] = [
+    op::SONY_SDIO_CONNECT,
+    op::SONY_SDIO_GET_EXT_DEVICE_INFO,
+    op::SONY_SDIO_SET_EXT_DEVICE_PROP_VALUE,
+    op::SONY_SDIO_CONTROL_DEVICE,
+    op::SONY_SDIO_GET_ALL_EXT_DEVICE_PROP_INFO,
 ];
 
 pub fn device_info(p: Profile) -> DeviceInfo {
@@ -211,6 +233,35 @@ pub fn device_info(p: Profile) -> DeviceInfo {
                 model: "Canon EOS R6".into(),
                 device_version: "3-1.0.0".into(),
                 serial_number: "0000000000000000000000000000e0r6".into(),
+                ..Default::default()
+            }
+        }
+        Profile::SonyA7M4 => {
+            // As the dump: no InitiateCapture ("No Image Capture … Sony Capture"), no file
+            // deletion, no capture format; its properties are listed by GetExtDeviceInfo.
+            ops.retain(|&o| o != op::INITIATE_CAPTURE && o != op::DELETE_OBJECT);
+            ops.extend(SONY_OPS);
+            DeviceInfo {
+                standard_version: 100,
+                vendor_extension_id: vendor::SONY,
+                vendor_extension_version: 100,
+                vendor_extension_desc: "Sony PTP Extensions".into(),
+                operations: ops,
+                events: vec![event::SONY_OBJECT_ADDED, event::SONY_DEVICE_PROP_CHANGED],
+                properties: Vec::new(),
+                capture_formats: Vec::new(),
+                image_formats: vec![
+                    format::ASSOCIATION,
+                    format::EXIF_JPEG,
+                    format::RAW,
+                    format::MPEG,
+                    FORMAT_MP4,
+                    FORMAT_HEIF,
+                ],
+                manufacturer: "Sony Corporation".into(),
+                model: "ILCE-7M4".into(),
+                device_version: "1.00".into(),
+                serial_number: "00000000000000001234567891234567".into(),
                 ..Default::default()
             }
         }
@@ -424,6 +475,8 @@ pub fn properties(p: Profile) -> Vec<DevicePropDesc> {
             28,
             &[100, 0, 75, 0, 50],
         )],
+        // Sony's properties are its own list (`crate::ptp::sony`), not PTP's.
+        Profile::SonyA7M4 => Vec::new(),
         Profile::ThetaV => theta_properties(p, &THETA_V_ISOS),
         Profile::ThetaZ1 => theta_properties(p, &THETA_Z1_ISOS),
     }
@@ -440,6 +493,7 @@ const THETA_Z1_ISOS: [i64; 20] = [
 /// Object formats of the Z1's dump that PTP's table leaves to vendors.
 const FORMAT_MP4: u16 = 0xB982;
 const FORMAT_FIRMWARE: u16 = 0xB802;
+const FORMAT_HEIF: u16 = 0xB110;
 
 /// A THETA's properties on USB: RICOH's, with the model's ISOs and, on the Z1, its apertures.
 fn theta_properties(p: Profile, isos: &[i64]) -> Vec<DevicePropDesc> {

@@ -12,6 +12,7 @@ use brdfd_ptp::wire::Writer;
 
 use super::canon::EosBody;
 use super::profiles::{self, Profile};
+use super::sony::SonyBody;
 use crate::{ImageSource, Shot};
 
 const SDRAM_HANDLE: u32 = 0xFFFF_0001;
@@ -106,6 +107,13 @@ pub struct Responder {
     busy_total: std::time::Duration,
     /// A Canon EOS body's remote release, properties and records.
     eos: Option<EosBody>,
+    /// A Sony body's connection and properties.
+    sony: Option<SonyBody>,
+    /// The operations the body's DeviceInfo lists: the only ones it answers.
+    operations: Vec<u16>,
+    /// Events sent with the first reply after their time (a shot's ObjectAdded once it is
+    /// processed), for bodies that announce on the event channel.
+    due_events: Vec<(std::time::Instant, Message)>,
     pub faults: Faults,
     /// Off ([`Faults::power_off_after_captures`]): nothing is answered any more.
     pub powered_off: bool,
@@ -135,6 +143,9 @@ impl Responder {
             device_ready_busy: 0,
             busy_total: std::time::Duration::ZERO,
             eos: profile.is_canon_eos().then(EosBody::default),
+            sony: profile.is_sony().then(SonyBody::default),
+            due_events: Vec::new(),
+            operations: profiles::device_info(profile).operations,
             faults: Faults::default(),
             powered_off: false,
             log: Vec::new(),
@@ -159,6 +170,9 @@ impl Responder {
         if let Some(eos) = &mut self.eos {
             eos.end_session();
         }
+        if let Some(sony) = &mut self.sony {
+            sony.end_session();
+        }
     }
 
     /// Seconds the camera has spent exposing and processing shots (Nikon profile).
@@ -170,12 +184,18 @@ impl Responder {
         t.is_some_and(|t| std::time::Instant::now() < t)
     }
 
-    /// Host-to-device data phases the device expects for an operation.
-    pub fn expects_data_out(code: u16) -> bool {
-        matches!(
-            code,
-            op::SET_DEVICE_PROP_VALUE | op::CANON_EOS_SET_DEVICE_PROP_VALUE_EX
-        )
+    /// Host-to-device data phases the device expects for an operation. Vendors' codes
+    /// overlap (0x9207 is Nikon's InitiateCaptureRecInMedia and Sony's ControlDevice), so it
+    /// depends on the body.
+    pub fn expects_data_out(&self, code: u16) -> bool {
+        match code {
+            op::SET_DEVICE_PROP_VALUE => true,
+            op::CANON_EOS_SET_DEVICE_PROP_VALUE_EX => self.eos.is_some(),
+            op::SONY_SDIO_SET_EXT_DEVICE_PROP_VALUE | op::SONY_SDIO_CONTROL_DEVICE => {
+                self.sony.is_some()
+            }
+            _ => false,
+        }
     }
 
     pub fn handle(&mut self, m: &Message, data_out: Option<&[u8]>) -> Reply {
@@ -228,6 +248,14 @@ impl Responder {
         if code != rc::OK {
             reply.data = None;
         }
+        let now = std::time::Instant::now();
+        self.due_events.retain(|(at, e)| {
+            let due = *at <= now;
+            if due {
+                reply.events.push(e.clone());
+            }
+            !due
+        });
         tracing::debug!(
             "simulated {:?}: op {:#06x} {:x?} tid {} -> {:#06x}{}",
             self.profile,
@@ -244,7 +272,15 @@ impl Responder {
     }
 
     fn dispatch(&mut self, m: &Message, data_out: Option<&[u8]>, reply: &mut Reply) -> u16 {
+        // What the body's DeviceInfo does not list, it refuses (an EOS body or a Sony refuses
+        // InitiateCapture; the a7 IV, DeleteObject).
+        if !self.operations.contains(&m.code) {
+            return rc::OPERATION_NOT_SUPPORTED;
+        }
         if let Some(code) = self.dispatch_canon_eos(m, data_out, reply) {
+            return code;
+        }
+        if let Some(code) = self.dispatch_sony(m, data_out, reply) {
             return code;
         }
         let p = |i| m.param(i);
@@ -266,16 +302,20 @@ impl Responder {
                 if let Some(eos) = &mut self.eos {
                     eos.end_session();
                 }
+                if let Some(sony) = &mut self.sony {
+                    sony.end_session();
+                }
             }
             op::GET_STORAGE_IDS => {
-                reply.data = Some(
-                    Writer::new()
-                        .u32_array(&[self.profile.storage_id()])
-                        .finish(),
-                )
+                // A Sony in PC remote mode lists no store, as the a7 IV's dump shows.
+                let ids = match self.sony {
+                    Some(_) => Vec::new(),
+                    None => vec![self.profile.storage_id()],
+                };
+                reply.data = Some(Writer::new().u32_array(&ids).finish())
             }
             op::GET_STORAGE_INFO => {
-                if p(0) != self.profile.storage_id() {
+                if p(0) != self.profile.storage_id() || self.sony.is_some() {
                     return rc::INVALID_STORAGE_ID;
                 }
                 let used = self.objects.values().map(|o| o.data.len() as u64).sum();
@@ -309,7 +349,7 @@ impl Responder {
                     reply.fault = Some(WireFault::HaltBulkIn(n));
                 }
                 let read_to_end = start + len == o.data.len();
-                if p(0) == SDRAM_HANDLE && read_to_end && reply.fault.is_none() {
+                if p(0) == self.memory_handle() && read_to_end && reply.fault.is_none() {
                     // Nikon frees the SDRAM image once it has been read, and hands out the
                     // shot's next file on the same handle.
                     self.next_sdram_file();
@@ -319,7 +359,7 @@ impl Responder {
                 if !self.objects.contains_key(&p(0)) {
                     return rc::INVALID_OBJECT_HANDLE;
                 }
-                if p(0) == SDRAM_HANDLE {
+                if p(0) == self.memory_handle() {
                     self.next_sdram_file();
                 } else {
                     self.objects.remove(&p(0));
@@ -336,8 +376,7 @@ impl Responder {
             op::SET_DEVICE_PROP_VALUE => {
                 return self.set_prop(p(0) as u16, data_out.unwrap_or(&[]), reply)
             }
-            // An EOS body refuses it, as its DeviceInfo says.
-            op::INITIATE_CAPTURE if self.eos.is_none() => {
+            op::INITIATE_CAPTURE => {
                 if self.int_prop(prop::RICOH_SLEEP, 0) == 1 {
                     // A sleeping THETA takes no pictures until a client wakes it.
                     return rc::DEVICE_BUSY;
@@ -467,6 +506,70 @@ impl Responder {
         })
     }
 
+    /// A Sony body's own operations; `None` for the others (and for other profiles).
+    fn dispatch_sony(
+        &mut self,
+        m: &Message,
+        data_out: Option<&[u8]>,
+        reply: &mut Reply,
+    ) -> Option<u16> {
+        let files = self.files_in_memory();
+        let exposing = Responder::before(self.busy_until);
+        let sony = self.sony.as_mut()?;
+        let p = |i| m.param(i);
+        let data = data_out.unwrap_or(&[]);
+        Some(match m.code {
+            op::SONY_SDIO_CONNECT => {
+                // The step answers with a data phase, which hosts read and drop.
+                reply.data = Some(vec![0; 8]);
+                sony.connect(p(0))
+            }
+            op::SONY_SDIO_GET_EXT_DEVICE_INFO => {
+                reply.data = Some(sony.ext_device_info(p(0)));
+                rc::OK
+            }
+            op::SONY_SDIO_GET_ALL_EXT_DEVICE_PROP_INFO => {
+                reply.data = Some(sony.all_props(files));
+                rc::OK
+            }
+            op::SONY_SDIO_SET_EXT_DEVICE_PROP_VALUE => {
+                let code = sony.set(p(0) as u16, data);
+                if code == rc::OK {
+                    reply
+                        .events
+                        .push(Message::new(event::SONY_DEVICE_PROP_CHANGED, 0, &[p(0)]));
+                }
+                code
+            }
+            op::SONY_SDIO_CONTROL_DEVICE if !sony.connected() => rc::ACCESS_DENIED,
+            op::SONY_SDIO_CONTROL_DEVICE => {
+                let pressed = data.get(..2) == Some(&[2, 0]);
+                match p(0) as u16 {
+                    // The shutter button's full press shoots (a lens at MF needs no focus).
+                    prop::SONY_SHUTTER_RELEASE if pressed && exposing => rc::DEVICE_BUSY,
+                    prop::SONY_SHUTTER_RELEASE if pressed => {
+                        self.sony_shoot().err().unwrap_or(rc::OK)
+                    }
+                    prop::SONY_SHUTTER_RELEASE | prop::SONY_SHUTTER_HALF_RELEASE => rc::OK,
+                    _ => rc::PARAMETER_NOT_SUPPORTED,
+                }
+            }
+            _ => return None,
+        })
+    }
+
+    /// A shot on the Sony body: its files in memory, announced once it is processed.
+    fn sony_shoot(&mut self) -> Result<(), u16> {
+        self.shoot(true)?;
+        self.start_busy();
+        if let Some(at) = self.busy_until {
+            let handle = brdfd_ptp::sony::MEMORY_HANDLE;
+            let added = Message::new(event::SONY_OBJECT_ADDED, 0, &[handle]);
+            self.due_events.push((at, added));
+        }
+        Ok(())
+    }
+
     /// A shot on the EOS body: its files on the card, or held for the host, and the records
     /// that announce them once the exposure and processing are over.
     fn eos_shoot(&mut self) -> Result<(), u16> {
@@ -591,8 +694,12 @@ impl Responder {
                 sequence: self.shots + 1,
             };
         }
-        if let Some(eos) = &self.eos {
-            let (shutter_s, f_number, iso) = eos.exposure();
+        let vendor_exposure = match (&self.eos, &self.sony) {
+            (Some(eos), _) => Some(eos.exposure()),
+            (_, Some(sony)) => Some(sony.exposure()),
+            _ => None,
+        };
+        if let Some((shutter_s, f_number, iso)) = vendor_exposure {
             return Shot {
                 shutter_s,
                 f_number,
@@ -662,6 +769,7 @@ impl Responder {
                 filename: match self.profile {
                     p if p.is_theta() => format!("R{:07}.{ext}", 10_000 + self.shots),
                     p if p.is_canon_eos() => format!("IMG_{:04}.{ext}", self.shots % 10_000),
+                    p if p.is_sony() => format!("DSC{:05}.{ext}", self.shots % 100_000),
                     _ if self.faults.same_file_names => format!("DSC_0001.{ext}"),
                     _ => format!("DSC_{:04}.{ext}", self.shots % 10_000),
                 },
@@ -680,17 +788,35 @@ impl Responder {
         }
         if sdram {
             self.next_sdram_file();
-            handles.push(SDRAM_HANDLE);
+            handles.push(self.memory_handle());
         }
         Ok(handles)
     }
 
-    /// Nikon SDRAM: the shot's next file takes the SDRAM handle, or the handle is freed.
+    /// Where a shot kept in the camera's memory is read: Nikon's SDRAM handle, or Sony's.
+    fn memory_handle(&self) -> u32 {
+        match self.sony {
+            Some(_) => brdfd_ptp::sony::MEMORY_HANDLE,
+            None => SDRAM_HANDLE,
+        }
+    }
+
+    /// A shot in memory (Nikon's SDRAM, Sony's): its next file takes the memory handle, or
+    /// the handle is freed.
     fn next_sdram_file(&mut self) {
+        let handle = self.memory_handle();
         match self.sdram_queue.pop_front() {
-            Some(o) => self.objects.insert(SDRAM_HANDLE, o),
-            None => self.objects.remove(&SDRAM_HANDLE),
+            Some(o) => self.objects.insert(handle, o),
+            None => self.objects.remove(&handle),
         };
+    }
+
+    /// The files of a shot waiting in memory: none while it is being exposed and processed.
+    fn files_in_memory(&self) -> usize {
+        if Responder::before(self.busy_until) || !self.objects.contains_key(&self.memory_handle()) {
+            return 0;
+        }
+        1 + self.sdram_queue.len()
     }
 
     fn set_prop(&mut self, code: u16, data: &[u8], reply: &mut Reply) -> u16 {

@@ -6,7 +6,7 @@ use brdfd_ptp::container::{self, Header, Kind, HEADER_LEN};
 use brdfd_ptp::transport::memory::{self, DevicePipe, FromDevice, HostPipe, ToDevice};
 use brdfd_ptp::transport::usb::{class_request, PipeError};
 
-use super::{Reply, Responder, SharedResponder, WireFault};
+use super::{Reply, SharedResponder, WireFault};
 
 /// Bytes per simulated bulk-in transfer (a data phase spans several, as on a real bus).
 const TRANSFER: usize = 256 << 10;
@@ -131,7 +131,7 @@ impl Framing {
                     let Ok(m) = container::decode_message(&h, payload) else {
                         continue;
                     };
-                    if Responder::expects_data_out(m.code) {
+                    if responder.lock().unwrap().expects_data_out(m.code) {
                         self.pending_op = Some(m);
                         continue;
                     }
