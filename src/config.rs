@@ -787,6 +787,15 @@ pub fn parse<T: serde::de::DeserializeOwned>(file: &str, text: &str) -> Result<T
     })
 }
 
+/// A board file (`brdfd calibrate target` writes one), read and checked: the line of a
+/// mistake in its TOML, or what about the board cannot be drawn.
+pub fn read_board(path: &Path) -> anyhow::Result<crate::pose::board::Board> {
+    let (file, text) = read(path)?;
+    let board: crate::pose::board::Board = parse(&file, &text)?;
+    board.check().map_err(|e| anyhow::anyhow!("{file}: {e}"))?;
+    Ok(board)
+}
+
 fn read(path: &Path) -> Result<(String, String), ConfigError> {
     let file = path.display().to_string();
     let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {

@@ -29,7 +29,9 @@ pub mod config;
 pub mod daemon;
 pub mod export;
 pub mod panorama;
-pub mod pose;
+/// The camera's pose from a printed board, and an object's placement from its silhouettes:
+/// its own crate, re-exported where the library's modules have always found it.
+pub use brdfd_pose as pose;
 /// Camera files to linear values: its own crate, re-exported where the library's modules
 /// have always found it.
 pub use brdfd_radiometry as radiometry;

@@ -111,3 +111,27 @@ fn radiometry_sits_on_the_core_and_the_fallback_s_frame_type() {
     }
     assert!(radiometry.iter().any(|e| e == "brdfd-core"));
 }
+
+/// Pose needs a photo's pixels and the core's geometry, not how the photo's file was read: the
+/// lens's focal length comes in as numbers, not as EXIF.
+#[test]
+fn pose_sits_on_the_core_alone() {
+    let pose = packages("brdfd-pose", &[]);
+    for p in [
+        "brdfd",
+        "brdfd-radiometry",
+        "tokio",
+        "axum",
+        "hyper",
+        "utoipa",
+        "brdfd-ptp",
+        "brdfd-theta",
+        "brdfd-serial",
+        "brdfd-v4l",
+        "brdfd-sim",
+        "brdfd-eval",
+    ] {
+        assert!(!pose.iter().any(|e| e == p), "brdfd-pose depends on {p}");
+    }
+    assert!(pose.iter().any(|e| e == "brdfd-core"));
+}

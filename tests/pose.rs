@@ -84,7 +84,8 @@ fn placed_roughly(truth: &Camera, focal: f64) -> Camera {
 fn solve_photo(rig: &Camera, p: &Photo, focal: Focal) -> anyhow::Result<Calibrated> {
     let board = Board::default();
     let found = find(&board, &p.grey, &p.name, 0.0)?;
-    calibrate(rig, vec![found], [0.0; 3], p.exif, focal, None)
+    let lens = brdfd::rig::pose::lens_focal(p.exif, found.size.0, None);
+    calibrate(rig, vec![found], [0.0; 3], lens, focal)
 }
 
 struct Errors {

@@ -1,5 +1,5 @@
 //! The pose board's file (`brdfd calibrate pose --board`, written by `brdfd calibrate
-//! target`): its TOML read and checked as the CLI reads it (`Board::read`: the sizes, the
+//! target`): its TOML read and checked as the CLI reads it (`config::read_board`: the sizes, the
 //! marker ratio, the dictionary and the markers the board needs from it), then what
 //! `calibrate pose` and the virtual bench do with a board: its place in the world, its
 //! drawing, and a detection in a small photo. A board that reads must write back as read.
@@ -14,7 +14,7 @@ use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
     let path = input_file::write("toml", data);
-    let Ok(board) = Board::read(&path) else {
+    let Ok(board) = brdfd::config::read_board(&path) else {
         return;
     };
     let (w, h) = board.size_mm();

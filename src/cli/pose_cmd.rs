@@ -163,7 +163,7 @@ pub struct PoseArgs {
 pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
     let rig = Rig::read(&a.rig)?;
     let board = match &a.board {
-        Some(p) => Board::read(p)?,
+        Some(p) => brdfd::config::read_board(p)?,
         None => Board::default(),
     };
     if pinhole(&rig.geometry.camera).is_none() {

@@ -20,7 +20,7 @@ use crate::bench::object_photo;
 use crate::config::DslrFiles;
 use crate::pose::board::Board;
 use crate::pose::silhouette::{refine, Mask, Refined, View};
-use crate::pose::{calibrate, check_photo_size, find, Calibrated, Focal, Found};
+use crate::pose::{calibrate, check_photo_size, find, Calibrated, Focal, Found, LensFocal};
 use crate::radiometry::ExifFocal;
 use brdfd_core::geometry::{Camera, Shape};
 use brdfd_core::raster::linear_to_srgb;
@@ -369,7 +369,27 @@ pub fn solve(
         );
     }
     let centre = board.world([board.size_mm().0 / 2.0, board.size_mm().1 / 2.0]);
-    calibrate(rig_camera, chosen, centre, exif, focal, sensor_width_mm)
+    let width = chosen[0].size.0;
+    calibrate(
+        rig_camera,
+        chosen,
+        centre,
+        lens_focal(exif, width, sensor_width_mm),
+        focal,
+    )
+}
+
+/// The lens's focal length from a photo's EXIF, in pixels of a photo `width` wide where the
+/// file (or `sensor_width_mm`) says how large the sensor is.
+pub fn lens_focal(
+    exif: Option<ExifFocal>,
+    width: u32,
+    sensor_width_mm: Option<f64>,
+) -> Option<LensFocal> {
+    exif.map(|e| LensFocal {
+        mm: e.mm,
+        px: e.focal_px(width, sensor_width_mm),
+    })
 }
 
 /// The spread of a photo's grey levels, unclipped: the 95th percentile less the 5th, or 0

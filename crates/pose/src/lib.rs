@@ -536,18 +536,26 @@ pub struct Calibrated {
     pub views: Vec<Found>,
 }
 
+/// The lens's focal length as a photo's file gives it, for the solve to start from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LensFocal {
+    /// Millimetres, as the file says.
+    pub mm: f64,
+    /// Pixels of the photo, and how they were found; `None` where the file does not say how
+    /// large the sensor is.
+    pub px: Option<(f64, String)>,
+}
+
 /// The camera's pose from the board's corners in one or more views (one camera that did not
-/// move; the board turned between them), starting from the focal length of the photos' EXIF
-/// (with `sensor_width_mm` where the file does not give the focal plane's resolution) or
-/// else the rig's, and refining it if `focal` asks and the views allow. `look_at` is written
-/// where the camera's axis passes the board's centre.
+/// move; the board turned between them), starting from the lens's focal length (the photos'
+/// EXIF) or else the rig's, and refining it if `focal` asks and the views allow. `look_at`
+/// is written where the camera's axis passes the board's centre.
 pub fn calibrate(
     rig_camera: &Camera,
     views: Vec<Found>,
     board_centre: Vec3,
-    exif: Option<crate::radiometry::ExifFocal>,
+    lens: Option<LensFocal>,
     focal: Focal,
-    sensor_width_mm: Option<f64>,
 ) -> anyhow::Result<Calibrated> {
     let Some(first) = views.first() else {
         anyhow::bail!("no photo of the board to solve from");
@@ -574,18 +582,18 @@ pub fn calibrate(
     };
     let mut start_from = "the rig's fx".to_string();
     // With the focal length held, the rig's is kept; refined, it starts from the lens's.
-    if let (Focal::Refine, Some(exif)) = (focal, exif) {
-        if let Some((fx, how)) = exif.focal_px(pw, sensor_width_mm) {
+    if let (Focal::Refine, Some(lens)) = (focal, lens) {
+        if let Some((fx, how)) = lens.px {
             k = Intrinsics {
                 fx,
                 fy: fx * k.fy / k.fx,
                 ..k
             };
-            start_from = format!("EXIF: {} mm, {how}", exif.mm);
+            start_from = format!("EXIF: {} mm, {how}", lens.mm);
         } else {
             start_from = format!(
                 "the rig's fx: the EXIF gives {} mm but not the sensor's size (--sensor-width-mm gives it)",
-                exif.mm
+                lens.mm
             );
         }
     }
