@@ -85,7 +85,7 @@ fn solve_photo(rig: &Camera, p: &Photo, focal: Focal) -> anyhow::Result<Calibrat
     let board = Board::default();
     let found = find(&board, &p.grey, &p.name, 0.0)?;
     let lens = brdfd::rig::pose::lens_focal(p.exif, found.size.0, None);
-    calibrate(rig, vec![found], [0.0; 3], lens, focal)
+    Ok(calibrate(rig, vec![found], [0.0; 3], lens, focal)?)
 }
 
 struct Errors {

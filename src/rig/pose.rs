@@ -370,13 +370,8 @@ pub fn solve(
     }
     let centre = board.world([board.size_mm().0 / 2.0, board.size_mm().1 / 2.0]);
     let width = chosen[0].size.0;
-    calibrate(
-        rig_camera,
-        chosen,
-        centre,
-        lens_focal(exif, width, sensor_width_mm),
-        focal,
-    )
+    let lens = lens_focal(exif, width, sensor_width_mm);
+    Ok(calibrate(rig_camera, chosen, centre, lens, focal)?)
 }
 
 /// The lens's focal length from a photo's EXIF, in pixels of a photo `width` wide where the
@@ -461,5 +456,5 @@ pub fn refine_object(
             mask,
         });
     }
-    refine(&mesh, &views)
+    Ok(refine(&mesh, &views)?)
 }

@@ -7,7 +7,6 @@
 //! marker decoding, SVG and PNG output); what is ours is the board's place in the rig's
 //! world, and the conversion of its corners to [`Correspondence`]s.
 
-use anyhow::{anyhow, bail};
 use calib_targets::aruco::builtins::builtin_dictionary;
 use calib_targets::charuco::CharucoParams;
 use calib_targets::printable::{
@@ -17,6 +16,7 @@ use calib_targets::printable::{
 use serde::{Deserialize, Serialize};
 
 use super::Correspondence;
+use crate::error::{fail, PoseError, Result};
 use brdfd_core::brdf::Vec3;
 
 /// A board file: what was printed, and where it stands.
@@ -74,7 +74,7 @@ impl Default for Board {
 impl Board {
     /// Whether the board can be drawn and found: its size, marker share and dictionary agree
     /// (a board file's numbers are the user's).
-    pub fn check(&self) -> anyhow::Result<()> {
+    pub fn check(&self) -> Result<()> {
         self.spec().map(|_| ())
     }
 
@@ -109,22 +109,25 @@ impl Board {
         )
     }
 
-    fn spec(&self) -> anyhow::Result<CharucoTargetSpec> {
+    fn spec(&self) -> Result<CharucoTargetSpec> {
         if self.rows < 3 || self.cols < 3 {
-            bail!(
+            fail!(
+                Board,
                 "a board needs 3 squares each way at least, not {} × {}",
                 self.cols,
                 self.rows
             );
         }
         if !(self.square_mm.is_finite() && self.square_mm > 0.0) {
-            bail!(
+            fail!(
+                Board,
                 "square_mm must be a positive number, not {}",
                 self.square_mm
             );
         }
         if !(self.marker > 0.0 && self.marker < 1.0) {
-            bail!(
+            fail!(
+                Board,
                 "marker is a marker's side over its square's, between 0 and 1, not {}",
                 self.marker
             );
@@ -136,20 +139,22 @@ impl Board {
             rotation_deg,
         } = self.placement;
         if !position.iter().chain(&rotation_deg).all(|v| v.is_finite()) {
-            bail!(
+            fail!(
+                Board,
                 "the board's placement must be numbers: position {position:?}, rotation_deg {rotation_deg:?}"
             );
         }
         let dictionary = builtin_dictionary(&self.dictionary).ok_or_else(|| {
-            anyhow!(
+            PoseError::Board(format!(
                 "dictionary {:?} is not one brdfd knows (OpenCV's names, such as DICT_4X4_50)",
                 self.dictionary
-            )
+            ))
         })?;
         // Counted in u64: a board file's rows × cols can overflow u32.
         let markers = (self.rows as u64 * self.cols as u64 / 2) as usize;
         if markers > dictionary.codes().len() {
-            bail!(
+            fail!(
+                Board,
                 "{} × {} squares need {markers} markers, and {} has {}",
                 self.cols,
                 self.rows,
@@ -192,7 +197,7 @@ impl Board {
 
     /// The files to print: SVG and PNG (300 dpi) of the board on the smallest of A4 and A3
     /// (in landscape) that holds it.
-    pub fn printable(&self) -> anyhow::Result<(String, Vec<u8>)> {
+    pub fn printable(&self) -> Result<(String, Vec<u8>)> {
         let spec = self.spec()?;
         let (w, h) = self.size_mm();
         let mut doc = PrintableTargetDocument::new(TargetSpec::Charuco(spec));
@@ -205,25 +210,29 @@ impl Board {
                 height_mm: 420.0,
             }
         };
-        let bundle = calib_targets::printable::render_target_bundle(&doc)
-            .map_err(|e| anyhow!("the board does not fit an A3 page: {e}"))?;
+        let bundle = calib_targets::printable::render_target_bundle(&doc).map_err(|e| {
+            PoseError::Drawing {
+                what: "the board does not fit an A3 page",
+                reason: e.to_string(),
+            }
+        })?;
         Ok((bundle.svg_text, bundle.png_bytes))
     }
 
     /// The board's corners in a photo (8-bit grey), with their places in the world. A photo
     /// where no board is found is an error that says so.
-    pub fn detect(&self, photo: &image::GrayImage) -> anyhow::Result<Vec<Correspondence>> {
+    pub fn detect(&self, photo: &image::GrayImage) -> Result<Vec<Correspondence>> {
         let spec = self.spec()?.to_board_spec();
         let params = CharucoParams::for_board(spec);
         let found = calib_targets::detect::detect_charuco(photo, &params).map_err(|e| {
-            anyhow!(
+            PoseError::BoardNotFound(format!(
                 "no {} × {} ChArUco board ({}) found in the {}×{} photo ({e}): is the board in the frame, flat, lit evenly and in focus?",
                 self.cols,
                 self.rows,
                 self.dictionary,
                 photo.width(),
                 photo.height()
-            )
+            ))
         })?;
         let mut corners: Vec<Correspondence> = found
             .corners
@@ -239,10 +248,13 @@ impl Board {
     }
 
     /// The board's pattern as reflectance, for rendering photos of it.
-    pub fn pattern(&self) -> anyhow::Result<Pattern> {
+    pub fn pattern(&self) -> Result<Pattern> {
         let spec = self.spec()?;
-        let primitives = board_primitives(&TargetSpec::Charuco(spec))
-            .map_err(|e| anyhow!("drawing the board: {e}"))?;
+        let primitives =
+            board_primitives(&TargetSpec::Charuco(spec)).map_err(|e| PoseError::Drawing {
+                what: "drawing the board",
+                reason: e.to_string(),
+            })?;
         let mut cells = vec![Vec::new(); (self.rows * self.cols) as usize];
         let s = self.square_mm;
         for p in primitives {
@@ -254,7 +266,7 @@ impl Board {
                 fill,
             } = p
             else {
-                bail!("the board has a shape other than a rectangle: {p:?}");
+                fail!(Board, "the board has a shape other than a rectangle: {p:?}");
             };
             let rect = [x_mm, y_mm, x_mm + width_mm, y_mm + height_mm];
             let ink = matches!(fill, Fill::Black);

@@ -9,7 +9,11 @@
 //! OpenCV's: x right, y down, z forward.
 
 pub mod board;
+pub mod error;
 pub mod silhouette;
+
+use error::fail;
+pub use error::PoseError;
 
 use nalgebra::{DMatrix, Matrix3, Rotation3, Vector3};
 
@@ -483,11 +487,14 @@ pub fn find(
     photo: &image::GrayImage,
     name: &str,
     turn_deg: f64,
-) -> anyhow::Result<Found> {
+) -> error::Result<Found> {
     let (s, c) = turn_deg.to_radians().sin_cos();
     let corners = board
         .detect(photo)
-        .map_err(|e| anyhow::anyhow!("{name}: {e:#}"))?
+        .map_err(|e| PoseError::InPhoto {
+            photo: name.to_string(),
+            source: Box::new(e),
+        })?
         .into_iter()
         .map(|p| {
             let [x, y, z] = p.world;
@@ -510,11 +517,12 @@ pub fn check_photo_size(
     rig_camera: &Camera,
     (pw, ph): (u32, u32),
     name: &str,
-) -> anyhow::Result<()> {
+) -> error::Result<()> {
     let (w, h) = rig_camera.size();
     let (sx, sy) = (pw as f64 / w as f64, ph as f64 / h as f64);
     if (sx - sy).abs() > 0.01 * sx {
-        anyhow::bail!(
+        fail!(
+            Photos,
             "{name} is {pw}×{ph}, and the rig's camera is {w}×{h}: a photo of another shape is from another camera, cropped, or turned (portrait)"
         );
     }
@@ -556,15 +564,16 @@ pub fn calibrate(
     board_centre: Vec3,
     lens: Option<LensFocal>,
     focal: Focal,
-) -> anyhow::Result<Calibrated> {
+) -> error::Result<Calibrated> {
     let Some(first) = views.first() else {
-        anyhow::bail!("no photo of the board to solve from");
+        fail!(Photos, "no photo of the board to solve from");
     };
     let (pw, ph) = first.size;
     let (w, h) = rig_camera.size();
     for v in &views {
         if v.size != (pw, ph) {
-            anyhow::bail!(
+            fail!(
+                Photos,
                 "{} is {}×{}, and {} {pw}×{ph}: the views are of one camera",
                 v.name,
                 v.size.0,
@@ -576,7 +585,8 @@ pub fn calibrate(
     check_photo_size(rig_camera, first.size, &first.name)?;
     let at_photo = rig_camera.resized(pw as usize, ph as usize);
     let Some((mut k, _)) = pinhole(&at_photo) else {
-        anyhow::bail!(
+        fail!(
+            Camera,
             "the rig's camera is orthographic: a pose from a board needs a pinhole camera (type = \"pinhole\", with fx, fy, cx, cy)"
         );
     };
@@ -599,8 +609,7 @@ pub fn calibrate(
     }
     let start_fx = k.fx;
     let groups: Vec<Vec<Correspondence>> = views.iter().map(|v| v.corners.clone()).collect();
-    let fit = solve_views(&groups, k, focal)
-        .map_err(|e| anyhow::anyhow!("the board's corners give no pose: {e}"))?;
+    let fit = solve_views(&groups, k, focal).map_err(|e| PoseError::NoPose(e.to_string()))?;
     let centre = Vector3::from(board_centre);
     let distance = (fit.extrinsics.rotation * centre + fit.extrinsics.translation).z;
     let pose = fit.extrinsics.to_pose(distance.max(1e-3));
@@ -641,6 +650,33 @@ pub fn angle_between_deg(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A photo without the board fails as that, named, with the cause kept: a caller can
+    /// tell "retake the photo" from "fix the board file" without reading prose.
+    #[test]
+    fn a_photo_without_the_board_is_told_apart_from_a_bad_board() {
+        let blank = image::GrayImage::from_pixel(64, 48, image::Luma([128]));
+        let e = find(&board::Board::default(), &blank, "blank.jpg", 0.0).unwrap_err();
+        let PoseError::InPhoto { photo, source } = &e else {
+            panic!("{e:?}");
+        };
+        assert_eq!(photo, "blank.jpg");
+        assert!(
+            matches!(**source, PoseError::BoardNotFound(_)),
+            "{source:?}"
+        );
+        assert!(std::error::Error::source(&e).is_some());
+        assert!(
+            e.to_string()
+                .starts_with("blank.jpg: no 9 × 6 ChArUco board"),
+            "{e}"
+        );
+        let bad = board::Board {
+            rows: 2,
+            ..board::Board::default()
+        };
+        assert!(matches!(bad.check(), Err(PoseError::Board(_))));
+    }
 
     fn camera() -> (Intrinsics, Extrinsics) {
         let k = Intrinsics {

@@ -14,10 +14,10 @@
 //! single view pins the distance from the camera only through the outline's size, the
 //! turntable's slanted views pin it as well as the rest.
 
-use anyhow::bail;
 use nalgebra::Vector3;
 
 use super::{pinhole, Extrinsics, Intrinsics};
+use crate::error::{fail, Result};
 use brdfd_core::brdf::Vec3;
 use brdfd_core::geometry::{Camera, Shape};
 use brdfd_core::mesh::{rotation, Mesh};
@@ -56,9 +56,10 @@ impl Mask {
         empty: &image::GrayImage,
         object: &image::GrayImage,
         name: &str,
-    ) -> anyhow::Result<Mask> {
+    ) -> Result<Mask> {
         if empty.dimensions() != object.dimensions() {
-            bail!(
+            fail!(
+                Photos,
                 "{name}: the object's photo is {}×{} and the empty bench's {}×{}: they must be of one camera at one size",
                 object.width(),
                 object.height(),
@@ -88,7 +89,8 @@ impl Mask {
         let object_px = largest_piece(&seen, w, h);
         let count = object_px.iter().filter(|p| **p).count();
         if count < MIN_OBJECT_PIXELS {
-            bail!(
+            fail!(
+                Silhouette,
                 "{name}: no object found: the photo differs from the empty bench's by more than {threshold:.1} of 255 in linear light (5 σ of its noise, at least {floor:.1}) in {count} connected pixels; is the object in view, and was the empty photo taken without it?"
             );
         }
@@ -431,20 +433,24 @@ struct Prepared {
 }
 
 impl Prepared {
-    fn new(view: &View) -> anyhow::Result<Prepared> {
+    fn new(view: &View) -> Result<Prepared> {
         let Some((k, e)) = pinhole(&view.camera.turned_about_y(-view.turn_deg.to_radians())) else {
-            bail!("the object's silhouette is aligned through a pinhole camera");
+            fail!(
+                Camera,
+                "the object's silhouette is aligned through a pinhole camera"
+            );
         };
         let (cw, ch) = view.camera.size();
         if (cw, ch) != (view.mask.width, view.mask.height) {
-            bail!(
+            fail!(
+                Photos,
                 "the object's photo is {}×{}, and the camera {cw}×{ch}",
                 view.mask.width,
                 view.mask.height
             );
         }
         let Some((x0, y0, x1, y1)) = view.mask.bounds() else {
-            bail!("the object's mask is empty");
+            fail!(Silhouette, "the object's mask is empty");
         };
         let side = (x1 - x0).max(y1 - y0);
         // Room around the object for the search to move it.
@@ -601,14 +607,17 @@ fn iou(a: &[f32], b: &[f32]) -> (f64, f64) {
 
 /// Searches the offset from where the rig places `mesh` (as placed) that best aligns its
 /// outline with the views' masks.
-pub fn refine(mesh: &Mesh, views: &[View]) -> anyhow::Result<Refined> {
+pub fn refine(mesh: &Mesh, views: &[View]) -> Result<Refined> {
     if views.is_empty() {
-        bail!("no photo of the object to align its silhouette with");
+        fail!(
+            Photos,
+            "no photo of the object to align its silhouette with"
+        );
     }
     let prepared = views
         .iter()
         .map(Prepared::new)
-        .collect::<anyhow::Result<Vec<_>>>()?;
+        .collect::<Result<Vec<_>>>()?;
     let (lo, hi) = mesh.bounds();
     let pivot = [0, 1, 2].map(|i| (lo[i] + hi[i]) / 2.0);
     let mut samples = Vec::new();
@@ -634,10 +643,13 @@ pub fn refine(mesh: &Mesh, views: &[View]) -> anyhow::Result<Refined> {
     };
     let mut q = [0.0f64; 4];
     let Some((mut best, before)) = score(&q) else {
-        bail!("the mesh, where the rig places it, reaches behind the camera");
+        fail!(
+            Silhouette,
+            "the mesh, where the rig places it, reaches behind the camera"
+        );
     };
     if best <= 0.0 {
-        bail!("the mesh's outline, where the rig places it, does not overlap the object in the photo: check the shape's position and the object's place on the bench");
+        fail!(Silhouette, "the mesh's outline, where the rig places it, does not overlap the object in the photo: check the shape's position and the object's place on the bench");
     }
     // Steps in metres and degrees, halved until a tenth of a pixel's worth is reached.
     let mut step = [4e-3, 4e-3, 4e-3, 2.0];
@@ -680,7 +692,8 @@ pub fn refine(mesh: &Mesh, views: &[View]) -> anyhow::Result<Refined> {
     let (_, after) = score(&q).expect("the best offset was scored");
     let near_limit = (0..4).any(|i| q[i].abs() > 0.9 * limit[i]);
     if near_limit {
-        bail!(
+        fail!(
+            Silhouette,
             "the object's silhouette is best matched {:.1} mm and {:.1}° from where the rig places it, at the edge of the search: place the object as the rig's [geometry.shape] says (or correct its position and rotation_deg), then refine again",
             Vector3::new(q[0], q[1], q[2]).norm() * 1000.0,
             q[3]
