@@ -28,13 +28,15 @@ pub mod compare;
 pub mod config;
 pub mod daemon;
 pub mod export;
-pub mod panorama;
 /// The camera's pose from a printed board, and an object's placement from its silhouettes:
 /// its own crate, re-exported where the library's modules have always found it.
 pub use brdfd_pose as pose;
 /// Camera files to linear values: its own crate, re-exported where the library's modules
 /// have always found it.
 pub use brdfd_radiometry as radiometry;
+/// 360° camera files to environment maps: in the radiometry crate, re-exported where the
+/// library's modules have always found it.
+pub use brdfd_radiometry::panorama;
 pub mod report;
 pub mod results;
 pub mod rig;

@@ -83,3 +83,47 @@ pub fn gpano_xmp(width: usize, height: usize, model: &str) -> String {
 <?xpacket end="r"?>"#
     )
 }
+
+/// The GPano this module writes, read back as brdfd reads a THETA's: the reader lives in
+/// the radiometry crate, below the bench, so the round trip is checked here.
+#[cfg(test)]
+mod gpano_read_back {
+    use super::*;
+    use crate::bench::camera::insert_app1;
+    use crate::panorama::{check_projection, read_gpano};
+
+    #[test]
+    fn gpano_is_read_in_element_and_attribute_form() {
+        let jpeg = [0xFF, 0xD8, 0xFF, 0xD9];
+        let elem = insert_app1(
+            &jpeg,
+            XMP_HEADER,
+            gpano_xmp(1024, 512, "RICOH THETA V").as_bytes(),
+        );
+        let g = read_gpano(&elem).unwrap();
+        assert_eq!(
+            (g.projection.as_str(), g.full_width, g.cropped_height),
+            ("equirectangular", 1024, 512)
+        );
+        let attr = r#"<rdf:Description GPano:ProjectionType="cylindrical" GPano:FullPanoWidthPixels="800" GPano:CroppedAreaImageWidthPixels="400"/>"#;
+        let g = read_gpano(&insert_app1(&jpeg, XMP_HEADER, attr.as_bytes())).unwrap();
+        assert_eq!(
+            (g.projection.as_str(), g.full_width, g.cropped_width),
+            ("cylindrical", 800, 400)
+        );
+        assert!(read_gpano(&jpeg).is_none());
+        assert!(check_projection(
+            &insert_app1(&jpeg, XMP_HEADER, attr.as_bytes()),
+            "c.jpg",
+            400,
+            200
+        )
+        .unwrap_err()
+        .to_string()
+        .contains("must be equirectangular"));
+        assert!(check_projection(&jpeg, "d.jpg", 300, 200)
+            .unwrap_err()
+            .to_string()
+            .contains("not 2:1"));
+    }
+}

@@ -4,6 +4,7 @@
 
 pub mod averaged;
 pub mod isolated;
+pub mod panorama;
 pub mod raw;
 pub mod tiff;
 

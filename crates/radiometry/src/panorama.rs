@@ -7,9 +7,9 @@
 //! reported, not applied.
 //!
 //! Assumes the camera's JPEG tone curve is sRGB, as for the DSLR; a measured response curve
-//! would plug in where `radiometry::decode_jpeg` linearises.
+//! would plug in where [`crate::decode_jpeg`] linearises.
 
-use crate::radiometry::{decode_jpeg, merge_hdr, Frame, RadiometryError, SATURATED};
+use crate::{decode_jpeg, merge_hdr, Frame, RadiometryError, SATURATED};
 use brdfd_core::envmap::EnvMap;
 
 /// What GPano XMP says about a panorama (Google's Photo Sphere XMP metadata).
@@ -83,7 +83,7 @@ pub fn read_gpano(jpeg: &[u8]) -> Option<GPano> {
 /// Checks that a decoded frame is a full equirectangular panorama. GPano decides where it is
 /// present; without it, a 2:1 image is taken as equirectangular (with a warning), since
 /// some tools strip XMP.
-fn check_projection(
+pub fn check_projection(
     jpeg: &[u8],
     file: &str,
     width: usize,
@@ -163,7 +163,7 @@ pub fn merge_bracket(
         .iter()
         .map(|(name, bytes)| decode_frame(bytes, name))
         .collect::<Result<Vec<_>, _>>()?;
-    crate::radiometry::with_gain(&mut frames, gain);
+    crate::with_gain(&mut frames, gain);
     let merged = merge_hdr(&frames, 1.0)?;
     let source = match files {
         [(one, _)] => one.clone(),
@@ -225,46 +225,4 @@ pub fn load_envmap(path: &std::path::Path) -> Result<EnvMap, RadiometryError> {
         "jpg" | "jpeg" => load_jpeg(path)?,
         _ => EnvMap::load(path)?,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::bench::camera::insert_app1;
-    use crate::bench::panorama::{gpano_xmp, XMP_HEADER};
-
-    #[test]
-    fn gpano_is_read_in_element_and_attribute_form() {
-        let jpeg = [0xFF, 0xD8, 0xFF, 0xD9];
-        let elem = insert_app1(
-            &jpeg,
-            XMP_HEADER,
-            gpano_xmp(1024, 512, "RICOH THETA V").as_bytes(),
-        );
-        let g = read_gpano(&elem).unwrap();
-        assert_eq!(
-            (g.projection.as_str(), g.full_width, g.cropped_height),
-            ("equirectangular", 1024, 512)
-        );
-        let attr = r#"<rdf:Description GPano:ProjectionType="cylindrical" GPano:FullPanoWidthPixels="800" GPano:CroppedAreaImageWidthPixels="400"/>"#;
-        let g = read_gpano(&insert_app1(&jpeg, XMP_HEADER, attr.as_bytes())).unwrap();
-        assert_eq!(
-            (g.projection.as_str(), g.full_width, g.cropped_width),
-            ("cylindrical", 800, 400)
-        );
-        assert!(read_gpano(&jpeg).is_none());
-        assert!(check_projection(
-            &insert_app1(&jpeg, XMP_HEADER, attr.as_bytes()),
-            "c.jpg",
-            400,
-            200
-        )
-        .unwrap_err()
-        .to_string()
-        .contains("must be equirectangular"));
-        assert!(check_projection(&jpeg, "d.jpg", 300, 200)
-            .unwrap_err()
-            .to_string()
-            .contains("not 2:1"));
-    }
 }
