@@ -89,49 +89,40 @@ fn the_evaluation_sits_on_the_core_alone() {
     assert!(eval.iter().any(|e| e == "brdfd-core"));
 }
 
+/// Asserts that `package` builds none of `forbidden`, and builds the core.
+fn sits_on_the_core(package: &str, forbidden: &[&str]) {
+    let built = packages(package, &[]);
+    for p in forbidden {
+        assert!(!built.iter().any(|e| e == p), "{package} depends on {p}");
+    }
+    assert!(built.iter().any(|e| e == "brdfd-core"));
+}
+
+/// The layers above the drivers: none of them may build the binary's runtime or HTTP stack.
+const ABOVE_THE_CORE: [&str; 9] = [
+    "brdfd",
+    "tokio",
+    "axum",
+    "hyper",
+    "utoipa",
+    "brdfd-ptp",
+    "brdfd-theta",
+    "brdfd-serial",
+    "brdfd-sim",
+];
+
 #[test]
 fn radiometry_sits_on_the_core_and_the_fallback_s_frame_type() {
-    let radiometry = packages("brdfd-radiometry", &[]);
-    for p in [
-        "brdfd",
-        "tokio",
-        "axum",
-        "hyper",
-        "utoipa",
-        "brdfd-ptp",
-        "brdfd-theta",
-        "brdfd-serial",
-        "brdfd-sim",
-        "brdfd-eval",
-    ] {
-        assert!(
-            !radiometry.iter().any(|e| e == p),
-            "brdfd-radiometry depends on {p}"
-        );
-    }
-    assert!(radiometry.iter().any(|e| e == "brdfd-core"));
+    let mut forbidden = ABOVE_THE_CORE.to_vec();
+    forbidden.push("brdfd-eval");
+    sits_on_the_core("brdfd-radiometry", &forbidden);
 }
 
 /// Pose needs a photo's pixels and the core's geometry, not how the photo's file was read: the
 /// lens's focal length comes in as numbers, not as EXIF.
 #[test]
 fn pose_sits_on_the_core_alone() {
-    let pose = packages("brdfd-pose", &[]);
-    for p in [
-        "brdfd",
-        "brdfd-radiometry",
-        "tokio",
-        "axum",
-        "hyper",
-        "utoipa",
-        "brdfd-ptp",
-        "brdfd-theta",
-        "brdfd-serial",
-        "brdfd-v4l",
-        "brdfd-sim",
-        "brdfd-eval",
-    ] {
-        assert!(!pose.iter().any(|e| e == p), "brdfd-pose depends on {p}");
-    }
-    assert!(pose.iter().any(|e| e == "brdfd-core"));
+    let mut forbidden = ABOVE_THE_CORE.to_vec();
+    forbidden.extend(["brdfd-eval", "brdfd-radiometry", "brdfd-v4l"]);
+    sits_on_the_core("brdfd-pose", &forbidden);
 }

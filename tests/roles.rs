@@ -76,14 +76,11 @@ fn every_combination() -> Vec<Combination> {
     all
 }
 
-/// Checks one combination end to end: `config check`, then a capture of two views.
-fn run(c: Combination) {
-    let dir = tempfile::tempdir().unwrap();
-    std::fs::write(dir.path().join("rig.toml"), c.rig()).unwrap();
-    let check = brdfd(&["config", "check", "rig.toml"], dir.path());
-    assert!(check.status.success(), "{c:?}: {}", out(&check));
-    let (ok, text) = answering(
-        dir.path(),
+/// A capture of two views of gold with the rig in `dir` (`rig.toml`), answering the one
+/// question it asks: whether it succeeded, and what it said.
+fn capture_two_views(dir: &std::path::Path) -> (bool, String) {
+    answering(
+        dir,
         &[
             "capture",
             "--rig",
@@ -100,7 +97,16 @@ fn run(c: Combination) {
             "state",
         ],
         1,
-    );
+    )
+}
+
+/// Checks one combination end to end: `config check`, then a capture of two views.
+fn run(c: Combination) {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("rig.toml"), c.rig()).unwrap();
+    let check = brdfd(&["config", "check", "rig.toml"], dir.path());
+    assert!(check.status.success(), "{c:?}: {}", out(&check));
+    let (ok, text) = capture_two_views(dir.path());
     if !c.can_shoot() {
         assert!(!ok, "{c:?}: {text}");
         assert!(
@@ -187,25 +193,7 @@ fn canon_and_sony_bodies_shoot_the_capture_through_their_own_flows() {
         let dir = tempfile::tempdir().unwrap();
         let rig = c.rig() + &format!("dslr_body = \"{body}\"\n");
         std::fs::write(dir.path().join("rig.toml"), rig).unwrap();
-        let (ok, text) = answering(
-            dir.path(),
-            &[
-                "capture",
-                "--rig",
-                "rig.toml",
-                "--material",
-                "gold",
-                "--size",
-                "16",
-                "--views",
-                "2",
-                "--bracket",
-                "0.001,0.0166",
-                "--state-dir",
-                "state",
-            ],
-            1,
-        );
+        let (ok, text) = capture_two_views(dir.path());
         assert!(ok, "{body}, shutter {shutter}: {text}");
         let from_computer = if body == "sony-a7m4" {
             "a Sony"

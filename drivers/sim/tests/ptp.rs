@@ -46,6 +46,19 @@ fn expected(bytes: usize, sequence: u32) -> Vec<u8> {
     SizedPayload { bytes }.photo(&shot).unwrap()
 }
 
+/// One capture with the default options, and the phases its progress went through.
+fn capture_with_phases(cam: &mut Camera) -> (brdfd_ptp::Captured, Vec<String>) {
+    let mut phases: Vec<String> = Vec::new();
+    let shot = cam
+        .capture(&CaptureOptions::default(), &mut |p, _, _| {
+            if phases.last().map(String::as_str) != Some(p) {
+                phases.push(p.to_string())
+            }
+        })
+        .unwrap();
+    (shot, phases)
+}
+
 fn ops(r: &SharedResponder) -> Vec<u16> {
     r.lock().unwrap().log.clone()
 }
@@ -73,14 +86,7 @@ fn canon_eos_capture_through_the_remote_release_over_usb() {
     ));
 
     // To the host (brdfd's default): the file is read in 1 MiB chunks, then let go.
-    let mut phases = Vec::new();
-    let shot = cam
-        .capture(&CaptureOptions::default(), &mut |p, _, _| {
-            if phases.last().map(String::as_str) != Some(p) {
-                phases.push(p.to_string())
-            }
-        })
-        .unwrap();
+    let (shot, phases) = capture_with_phases(&mut cam);
     assert_eq!(phases, ["exposure", "download"]);
     assert_eq!(shot.info.filename, "IMG_0001.JPG");
     assert_eq!(shot.data, expected(2_500_000, 1));
@@ -135,14 +141,7 @@ fn sony_capture_through_the_shutter_button_over_usb() {
     assert_eq!(cam.set_shutter(1.0 / 60.0).unwrap(), 1.0 / 60.0);
 
     for shot in 1..=2 {
-        let mut phases = Vec::new();
-        let file = cam
-            .capture(&CaptureOptions::default(), &mut |p, _, _| {
-                if phases.last().map(String::as_str) != Some(p) {
-                    phases.push(p.to_string())
-                }
-            })
-            .unwrap();
+        let (file, phases) = capture_with_phases(&mut cam);
         assert_eq!(phases, ["exposure", "download"]);
         assert_eq!(file.handle, 0xFFFF_C001);
         assert_eq!(file.info.filename, format!("DSC{shot:05}.JPG"));
@@ -204,14 +203,7 @@ fn nikon_capture_to_sdram_with_exposure_over_usb() {
         cam.set_format(brdfd_ptp::ImageFormat::Raw).unwrap(),
         brdfd_ptp::ImageFormat::Raw
     );
-    let mut phases = Vec::new();
-    let shot = cam
-        .capture(&CaptureOptions::default(), &mut |p, _, _| {
-            if phases.last().map(String::as_str) != Some(p) {
-                phases.push(p.to_string())
-            }
-        })
-        .unwrap();
+    let (shot, phases) = capture_with_phases(&mut cam);
     assert_eq!(shot.handle, 0xFFFF_0001);
     assert_eq!(shot.data.len(), 1_325_014);
     assert_eq!(phases, ["exposure", "download"]);
