@@ -198,8 +198,8 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         _ => None,
     };
     if let Some(d) = daemon {
-        let health = d.json("/health")?;
-        let simulated = health["rig"]["simulated"].as_bool().unwrap_or(false);
+        let health: brdfd::daemon::openapi::Health = d.typed("/health")?;
+        let simulated = health.rig.simulated;
         match &rig {
             Some(_) if a.rig.is_some() => bail!(
                 "the daemon at {} owns the rig's devices: capture through it without --rig, or stop it and capture with --in-process",

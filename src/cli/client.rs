@@ -5,6 +5,7 @@ use std::io::{BufRead, BufReader};
 use std::time::Duration;
 
 use anyhow::{bail, Context};
+use brdfd::daemon::openapi::{ErrorBody, Started};
 use brdfd::rig::{Event, Plan, Progress};
 use reqwest::blocking::{Client, RequestBuilder, Response};
 use serde_json::Value;
@@ -66,26 +67,40 @@ impl Daemon {
             return Ok(r);
         }
         let status = r.status();
-        let body: Value = r.json().unwrap_or(Value::Null);
-        let message = body["message"].as_str().unwrap_or("no message").to_string();
-        if body["error"] == "busy" {
-            return Err(Busy(message).into());
+        let Ok(body) = r.json::<ErrorBody>() else {
+            bail!(
+                "the daemon at {} answered {status}, with no problem body",
+                self.base
+            )
+        };
+        if body.error == "busy" {
+            return Err(Busy(body.message).into());
         }
-        bail!("the daemon at {} answered {status}: {message}", self.base)
+        bail!(
+            "the daemon at {} answered {status}: {}",
+            self.base,
+            body.message
+        )
     }
 
     pub fn json(&self, path: &str) -> anyhow::Result<Value> {
-        Ok(self.check(self.get(path).send()?)?.json()?)
+        self.typed(path)
+    }
+
+    /// An answer read into the type the daemon writes it from (`brdfd::daemon::openapi`).
+    pub fn typed<T: serde::de::DeserializeOwned>(&self, path: &str) -> anyhow::Result<T> {
+        let r = self.check(self.get(path).send()?)?;
+        r.json()
+            .with_context(|| format!("the daemon at {} answered {path} otherwise", self.base))
     }
 
     /// Starts a capture; returns the session id.
     pub fn start(&self, plan: &Plan) -> anyhow::Result<String> {
         let r = self.check(self.post("/sessions").json(plan).send()?)?;
-        let v: Value = r.json()?;
-        Ok(v["id"]
-            .as_str()
-            .context("the daemon's answer has no id")?
-            .to_string())
+        let started: Started = r
+            .json()
+            .context("the daemon's answer is not a started capture")?;
+        Ok(started.id)
     }
 
     pub fn resume(&self, id: &str) -> anyhow::Result<String> {
@@ -95,11 +110,10 @@ impl Daemon {
                 .json(&serde_json::json!({}))
                 .send()?,
         )?;
-        let v: Value = r.json()?;
-        Ok(v["id"]
-            .as_str()
-            .context("the daemon's answer has no id")?
-            .to_string())
+        let started: Started = r
+            .json()
+            .context("the daemon's answer is not a resumed capture")?;
+        Ok(started.id)
     }
 
     /// Asks the daemon to stop a running capture.

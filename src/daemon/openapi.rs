@@ -19,8 +19,8 @@ use crate::session::State as SessionState;
 
 /// Every error: an RFC 9457 problem (`application/problem+json`), with brdfd's code for
 /// programs (`error`) and its sentence for people (`message`, the same as `detail`) as
-/// extension members, as before the standard members came.
-#[derive(Serialize, ToSchema)]
+/// extension members, as before the standard members came. The CLI reads it back.
+#[derive(Serialize, Deserialize, ToSchema)]
 pub struct ErrorBody {
     /// `about:blank`: a daemon on a bench has no stable address to name its problem types
     /// by, so the type is the status's own (RFC 9457 §4.2.1), and `error` says which problem
@@ -48,7 +48,7 @@ pub struct ErrorBody {
 pub const PROBLEM: &str = "application/problem+json";
 
 /// `GET /health`.
-#[derive(Serialize, ToSchema)]
+#[derive(Serialize, Deserialize, ToSchema)]
 pub struct Health {
     /// `brdfd <version>`.
     pub software: String,
@@ -57,7 +57,7 @@ pub struct Health {
     pub busy: Option<String>,
 }
 
-#[derive(Serialize, ToSchema)]
+#[derive(Serialize, Deserialize, ToSchema)]
 pub struct RigSummary {
     /// Whether the devices are brdfd's simulators (`brdfd serve --simulate`).
     pub simulated: bool,
@@ -83,7 +83,7 @@ pub struct SessionItem {
 }
 
 /// A capture that was started or resumed.
-#[derive(Serialize, ToSchema)]
+#[derive(Serialize, Deserialize, ToSchema)]
 pub struct Started {
     pub id: String,
     /// Where the session is stored on the daemon's machine.
