@@ -11,6 +11,7 @@ use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
 use brdfd::config::{DaemonConfig, Rig};
+use brdfd::daemon::openapi::SessionDetail;
 use brdfd::rig::flow::{self, Context};
 use brdfd::rig::settings::CaptureSettings;
 use brdfd::rig::{Cancel, Devices, Event, Plan, Progress, KEEP_ALIVE};
@@ -336,8 +337,8 @@ impl Progress for Answering<'_> {
         let Some(view) = view else { return };
         // The stream replays the capture's past: only a wait that is still on is asked.
         let waiting = || -> anyhow::Result<bool> {
-            let s = self.daemon.json(&format!("/sessions/{}", self.id))?;
-            Ok(s["waiting_for_view"].as_u64() == Some(view as u64))
+            let s: SessionDetail = self.daemon.typed(&format!("/sessions/{}", self.id))?;
+            Ok(s.waiting_for_view == Some(view))
         };
         let told = waiting().and_then(|on| {
             if !on {
@@ -383,22 +384,18 @@ pub fn follow(d: &Daemon, id: &str, out: Option<&Path>, verbose: bool) -> anyhow
             id,
         },
     )?;
-    let stored = d.json(&format!("/sessions/{id}"))?;
-    let phases: Vec<PhaseTime> = serde_json::from_value(stored["manifest"]["phases"].clone())?;
+    let stored: SessionDetail = d.typed(&format!("/sessions/{id}"))?;
+    let phases: Vec<PhaseTime> = stored.manifest.phases;
     match last {
         Event::Finished {
             state: State::Done, ..
         } => {
-            let dir = stored["dir"].as_str().map(PathBuf::from);
-            if let (true, Some(dir)) = (verbose, &dir) {
-                print_details(dir, &phases)?;
+            let dir = PathBuf::from(&stored.dir);
+            if verbose {
+                print_details(&dir, &phases)?;
             }
-            println!(
-                "session {id} done: {}",
-                dir.as_deref().unwrap_or(Path::new("?")).display()
-            );
+            println!("session {id} done: {}", dir.display());
             if let Some(out) = out {
-                let dir = dir.context("the daemon did not say where the session is stored")?;
                 let state = dir
                     .parent()
                     .and_then(Path::parent)

@@ -8,7 +8,6 @@ use anyhow::{bail, Context};
 use brdfd::daemon::openapi::{ErrorBody, Started};
 use brdfd::rig::{Event, Plan, Progress};
 use reqwest::blocking::{Client, RequestBuilder, Response};
-use serde_json::Value;
 
 pub struct Daemon {
     pub base: String,
@@ -81,10 +80,6 @@ impl Daemon {
             self.base,
             body.message
         )
-    }
-
-    pub fn json(&self, path: &str) -> anyhow::Result<Value> {
-        self.typed(path)
     }
 
     /// An answer read into the type the daemon writes it from (`brdfd::daemon::openapi`).

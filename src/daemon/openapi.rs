@@ -93,7 +93,7 @@ pub struct Started {
 }
 
 /// A session and its manifest (docs/formats.md).
-#[derive(Serialize, ToSchema)]
+#[derive(Serialize, Deserialize, ToSchema)]
 pub struct SessionDetail {
     pub id: String,
     pub dir: String,
