@@ -32,6 +32,8 @@ pub const DESTINATION_HOST: u32 = 4;
 /// Bytes per GetPartialObject request of a file held for the host: newer bodies (the EOS R)
 /// fail larger reads, libgphoto2 notes, and take 1 MiB.
 const HOST_CHUNK: u32 = 1 << 20;
+/// GetEvent lists read in one poll at most.
+const MAX_POLLS: usize = 64;
 /// The camera's status records: busy from the release until the shot's files are written.
 pub const STATUS_IDLE: u32 = 0;
 pub const STATUS_BUSY: u32 = 1;
@@ -395,9 +397,11 @@ impl Camera {
         self.eos.get_or_insert_with(Default::default)
     }
 
-    /// GetEvent until the list comes back empty, each record applied to what brdfd knows.
+    /// GetEvent until the list comes back empty (or for [`MAX_POLLS`] lists: a body that
+    /// never runs out of news is read again at the next poll), each record applied to what
+    /// brdfd knows.
     fn eos_poll(&mut self) -> Result<()> {
-        loop {
+        for _ in 0..MAX_POLLS {
             let records = decode_eos_events(&self.data_in(op::CANON_EOS_GET_EVENT, &[])?)?;
             if records.is_empty() {
                 return Ok(());
@@ -417,6 +421,7 @@ impl Camera {
                 }
             }
         }
+        Ok(())
     }
 
     /// Sets an EOS property with SetDevicePropValueEx and returns the value the camera

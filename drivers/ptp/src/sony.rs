@@ -36,6 +36,9 @@ pub const IN_MEMORY_READY: i64 = 0x8000;
 pub const ISO_AUTO: u32 = 0x00FF_FFFF;
 const PRESSED: u16 = 2;
 const LET_GO: u16 = 1;
+/// Files one shot leaves in memory at most (RAW + JPEG makes two): a camera that reports more
+/// after this many were read is not emptying its memory.
+const MAX_FILES_IN_MEMORY: usize = 8;
 /// PriorityMode: the computer's settings win over the body's dials.
 const PRIORITY_APPLICATION: i64 = 1;
 
@@ -280,7 +283,10 @@ impl Camera {
         progress: CaptureProgress,
     ) -> Result<Vec<Captured>> {
         self.sony_start()?;
-        while self.sony_files_waiting()? > 0 {
+        for _ in 0..MAX_FILES_IN_MEMORY {
+            if self.sony_files_waiting()? == 0 {
+                break;
+            }
             let info = self.object_info(MEMORY_HANDLE)?;
             tracing::warn!("{} was left in the camera's memory: dropped", info.filename);
             self.download(MEMORY_HANDLE, info.compressed_size as u64, &mut |_, _| {})?;
@@ -312,6 +318,12 @@ impl Camera {
         }
         let mut files = Vec::new();
         while self.sony_files_waiting()? > 0 {
+            if files.len() >= MAX_FILES_IN_MEMORY {
+                return Err(PtpError::Protocol(format!(
+                    "the camera still reports files in its memory after {} of this shot were read",
+                    files.len()
+                )));
+            }
             let info = self.object_info(MEMORY_HANDLE)?;
             // The camera's memory keeps no copy once read: nothing to delete.
             let no_delete = CaptureOptions {
