@@ -18,11 +18,14 @@ fn median(mut t: Vec<f64>) -> f64 {
 }
 
 /// The simulated bodies measured, each with the capture flow it speaks: the standard
-/// InitiateCapture, Nikon's capture to SDRAM with GetEvent polling, and the THETAs' RICOH
-/// properties over the standard flow.
-const BODIES: [Profile; 4] = [
+/// InitiateCapture, Nikon's capture to SDRAM with GetEvent polling, Canon's EOS remote release
+/// with its event records, Sony's SDIO control with the shot read from memory, and the THETAs'
+/// RICOH properties over the standard flow.
+const BODIES: [Profile; 6] = [
     Profile::Generic,
     Profile::NikonD5100,
+    Profile::CanonEosR6,
+    Profile::SonyA7M4,
     Profile::ThetaV,
     Profile::ThetaZ1,
 ];
