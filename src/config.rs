@@ -458,6 +458,10 @@ pub struct Simulation {
     /// SDRAM), `canon-eos-r6` (Canon's EOS remote release) or `sony-a7m4` (Sony's shutter
     /// button, the shot in its memory; not with a `shutter`); the last two write JPEG files.
     pub dslr_body: SimulatedBody,
+    /// What drives the simulated DSLR: `brdfd` (the default: brdfd's own PTP driver) or
+    /// `gphoto2` (the system's libgphoto2, in a brdfd built with the `gphoto2` feature), as
+    /// a bench names it `ptpip:HOST` or `gphoto2:ptpip:HOST`.
+    pub dslr_backend: DslrBackend,
     /// The simulated DSLR powers off when asked for the frame after this many.
     pub dslr_powers_off_after: Option<u32>,
     /// `present` (the default: a box that speaks the brdfd rig protocol), `grbl` (a GRBL 1.1
@@ -497,6 +501,7 @@ impl Default for Simulation {
         Simulation {
             dslr: SimulatedPresence::Present,
             dslr_body: SimulatedBody::NikonD5100,
+            dslr_backend: DslrBackend::Brdfd,
             dslr_powers_off_after: None,
             turntable: SimulatedTurntable::Present,
             dslr_raw: None,
@@ -518,6 +523,15 @@ pub enum SimulatedBody {
     NikonD5100,
     CanonEosR6,
     SonyA7m4,
+}
+
+/// What drives a DSLR: brdfd's own PTP driver, or the system's libgphoto2.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DslrBackend {
+    #[default]
+    Brdfd,
+    Gphoto2,
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
@@ -984,6 +998,18 @@ impl Rig {
                 "simulation.dslr_body",
                 "a Sony in PC remote mode cannot be fired from outside here (it lists no card): \
                  leave `shutter` out",
+            )));
+        }
+        let gphoto2 = r
+            .simulation
+            .as_ref()
+            .is_some_and(|s| s.dslr_backend == DslrBackend::Gphoto2);
+        if gphoto2 && !cfg!(feature = "gphoto2") {
+            check(Err(invalid(
+                file,
+                "simulation.dslr_backend",
+                "gphoto2 needs a brdfd built with the `gphoto2` feature (cargo install --path . \
+                 --features gphoto2), and this one was built without",
             )));
         }
         if !r.theta_yaw_deg.is_finite() {

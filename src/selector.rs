@@ -33,10 +33,13 @@ pub enum Selector {
         rts: bool,
         path: String,
     },
+    /// A camera driven through the system's libgphoto2 (brdfd's `gphoto2` feature): its port
+    /// as libgphoto2 writes it (`usb:001,004`, `ptpip:HOST`), or the first it detects.
+    Gphoto(Option<String>),
 }
 
 #[derive(Debug, thiserror::Error)]
-#[error("device selector {given:?}: {reason}; use usb[:VVVV[:PPPP]], ptpip:HOST[:PORT], osc:http://HOST, v4l:/dev/videoN, serial:/dev/ttyX, grbl:[AXIS:]/dev/ttyX or cable:dtr|rts:/dev/ttyX")]
+#[error("device selector {given:?}: {reason}; use usb[:VVVV[:PPPP]], ptpip:HOST[:PORT], osc:http://HOST, v4l:/dev/videoN, serial:/dev/ttyX, grbl:[AXIS:]/dev/ttyX, cable:dtr|rts:/dev/ttyX or gphoto2[:PORT]")]
 pub struct SelectorError {
     pub given: String,
     pub reason: String,
@@ -60,6 +63,12 @@ impl FromStr for Selector {
                 Ok(rest.to_string())
             }
         };
+        if s == "gphoto2" {
+            return Ok(Selector::Gphoto(None));
+        }
+        if let Some(port) = s.strip_prefix("gphoto2:") {
+            return Ok(Selector::Gphoto(Some(nonempty(port, "libgphoto2 port")?)));
+        }
         if s == "usb" {
             return Ok(Selector::Usb {
                 vendor: None,
@@ -158,6 +167,8 @@ impl fmt::Display for Selector {
             Selector::Cable { rts, path } => {
                 write!(f, "cable:{}:{path}", if *rts { "rts" } else { "dtr" })
             }
+            Selector::Gphoto(None) => write!(f, "gphoto2"),
+            Selector::Gphoto(Some(port)) => write!(f, "gphoto2:{port}"),
         }
     }
 }
@@ -180,6 +191,9 @@ mod tests {
             "grbl:/dev/ttyUSB1",
             "grbl:x:/dev/ttyUSB1",
             "grbl:COM3",
+            "gphoto2",
+            "gphoto2:usb:001,004",
+            "gphoto2:ptpip:192.0.2.7",
         ] {
             let parsed: Selector = s.parse().unwrap();
             assert_eq!(parsed.to_string(), s);
@@ -214,6 +228,7 @@ mod tests {
             ("firewire:0", "unknown kind"),
             ("grbl:q:/dev/ttyUSB0", "\"q\" is not a GRBL axis"),
             ("grbl:", "no port path"),
+            ("gphoto2:", "no libgphoto2 port"),
         ] {
             let e = s.parse::<Selector>().unwrap_err().to_string();
             assert!(e.contains(why), "{s}: {e}");

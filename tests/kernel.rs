@@ -650,14 +650,16 @@ fn brdfd_reaches_the_simulated_camera_as_a_usb_gadget_on_a_real_kernel() {
             .contains("on usb:04b0:0429 (bus 1"),
         "{json:#}"
     );
-    // `brdfd devices` lists it by vendor and product, with its model and serial.
+    // `brdfd devices` lists it by vendor and product, with its model and serial, and the
+    // driver and capture flow that will shoot it.
     let devices = section(&console, "devices");
     assert!(
         devices.contains("\"selector\": \"usb:04b0:0429\""),
         "{devices}"
     );
+    assert!(devices.contains("\"backend\": \"brdfd\""), "{devices}");
     assert!(
-        devices.contains("Nikon Corporation D5100 (serial 0000000000000000000000000005100): ok"),
+        devices.contains("Nikon Corporation D5100 (serial 0000000000000000000000000005100), brdfd's PTP driver, nikon capture: ok"),
         "{devices}"
     );
     // A capture (Nikon's, to the camera's RAM) downloads a JPEG.

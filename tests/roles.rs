@@ -242,6 +242,46 @@ fn canon_and_sony_bodies_shoot_the_capture_through_their_own_flows() {
     );
 }
 
+/// With the gphoto2 feature: the simulated Nikon and Canon EOS shoot the whole capture through
+/// the system's libgphoto2, at the exposures brdfd's own driver applies (each body's 1/60 s,
+/// which the Nikon's list holds as 0.0166 s), and the capture says which backend drove them.
+#[cfg(feature = "gphoto2")]
+#[test]
+fn bodies_driven_through_libgphoto2_shoot_the_capture() {
+    for (body, named) in [("nikon-d5100", "D5100"), ("canon-eos-r6", "Canon EOS R6")] {
+        let c = Combination {
+            dslr: "present",
+            fallback: false,
+            turntable: true,
+            theta: "http",
+            shutter: false,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let rig = c.rig() + &format!("dslr_body = \"{body}\"\ndslr_backend = \"gphoto2\"\n");
+        std::fs::write(dir.path().join("rig.toml"), rig).unwrap();
+        let (ok, text) = capture_two_views(dir.path());
+        assert!(ok, "{body}: {text}");
+        for says in [
+            "DSLR: simulated",
+            " on gphoto2:ptpip:127.0.0.1:",
+            named,
+            " through libgphoto2, f/8 ISO 100",
+            "through libgphoto2 it shoots as set on its body",
+            "(camera applied 0.0166",
+            ": JPEG, EXIF 0.016",
+            "gold: good estimate",
+        ] {
+            assert!(text.contains(says), "{body}: {says:?} in\n{text}");
+        }
+        // Two views of two exposures, each downloaded.
+        assert_eq!(
+            text.matches("(camera applied ").count(),
+            4,
+            "{body}: {text}"
+        );
+    }
+}
+
 /// What each field may name, written apart from the code that checks it: the device kinds
 /// that can play the field's role.
 fn fits(field: &str, selector: &str) -> bool {
@@ -301,6 +341,28 @@ fn each_field_takes_the_devices_that_can_play_its_role_and_names_the_rest() {
         }
     }
     assert_eq!(checked, 35);
+    // A camera through libgphoto2 is a DSLR, in a brdfd built with the gphoto2 feature; one
+    // built without says how to get it.
+    for (line, field, feature_needed) in [
+        ("dslr = \"usb:04b0:0429\"", "dslr", true),
+        ("theta = \"osc:http://192.168.1.1\"", "theta", false),
+    ] {
+        let rig = bench.replace(line, &format!("{field} = \"gphoto2:usb:001,004\""));
+        std::fs::write(dir.path().join("rig.toml"), &rig).unwrap();
+        let o = brdfd(&["config", "check", "rig.toml"], dir.path());
+        let text = out(&o);
+        match (feature_needed, cfg!(feature = "gphoto2")) {
+            (true, true) => assert!(o.status.success(), "{text}"),
+            (true, false) => assert!(
+                text.contains("field `devices.dslr`: gphoto2:usb:001,004 needs a brdfd built with the `gphoto2` feature"),
+                "{text}"
+            ),
+            (false, _) => assert!(
+                text.contains("field `devices.theta`: gphoto2:usb:001,004 cannot be used here"),
+                "{text}"
+            ),
+        }
+    }
     // The roles a capture needs, and a shutter with nothing to fire.
     for (change, says) in [
         (

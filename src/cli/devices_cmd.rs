@@ -29,6 +29,9 @@ struct Found {
     section: &'static str,
     selector: Option<String>,
     ok: bool,
+    /// What drives the device: `brdfd` (its own drivers) or `libgphoto2` (the `gphoto2`
+    /// feature); none on a note.
+    backend: Option<&'static str>,
     text: String,
 }
 
@@ -40,10 +43,15 @@ struct Listing {
 
 impl Listing {
     fn device(&mut self, selector: String, ok: bool, text: String) {
+        self.device_on("brdfd", selector, ok, text);
+    }
+
+    fn device_on(&mut self, backend: &'static str, selector: String, ok: bool, text: String) {
         self.rows.push(Found {
             section: self.section,
             selector: Some(selector),
             ok,
+            backend: Some(backend),
             text,
         });
     }
@@ -53,6 +61,7 @@ impl Listing {
             section: self.section,
             selector: None,
             ok: false,
+            backend: None,
             text,
         });
     }
@@ -65,6 +74,11 @@ pub fn run(a: DevicesArgs) -> anyhow::Result<()> {
         section: "PTP cameras on USB (DSLRs, THETAs)",
     };
     ptp_cameras(&mut l);
+    #[cfg(feature = "gphoto2")]
+    {
+        l.section = "Cameras libgphoto2 detects (the gphoto2 feature)";
+        gphoto_cameras(&mut l);
+    }
     if !a.no_theta_http {
         l.section = "THETA over Wi-Fi";
         theta_http(&mut l, &a.theta, timeout);
@@ -109,12 +123,15 @@ fn ptp_cameras(l: &mut Listing) {
         match super::ptp_cmd::open(&sel) {
             Ok(cam) => {
                 let i = &cam.info;
+                let flow = super::ptp_cmd::CaptureFlow::of(&cam);
+                let how = match flow {
+                    _ if theta => "THETA over USB".to_string(),
+                    super::ptp_cmd::CaptureFlow::None => "brdfd's PTP driver has no capture flow for it; a brdfd built with the gphoto2 feature drives it through libgphoto2 (gphoto2:PORT)".into(),
+                    f => format!("brdfd's PTP driver, {} capture", f.name()),
+                };
                 let text = format!(
-                    "{} {} (serial {}){}: ok",
-                    i.manufacturer,
-                    i.model,
-                    i.serial_number,
-                    if theta { ", THETA over USB" } else { "" }
+                    "{} {} (serial {}), {how}: ok",
+                    i.manufacturer, i.model, i.serial_number,
                 );
                 l.device(sel.to_string(), true, text);
                 let _ = cam.close();
@@ -134,6 +151,21 @@ fn ptp_cameras(l: &mut Listing) {
                 l.device(sel.to_string(), false, text);
             }
         }
+    }
+}
+
+/// The cameras the system's libgphoto2 detects, by the selector that drives them through it.
+/// They are not opened here: brdfd's own listing above has opened those it drives itself.
+#[cfg(feature = "gphoto2")]
+fn gphoto_cameras(l: &mut Listing) {
+    match brdfd_gphoto::detect() {
+        Ok(found) if found.is_empty() => l.note("none found".into()),
+        Ok(found) => {
+            for d in found {
+                l.device_on("libgphoto2", format!("gphoto2:{}", d.port), true, d.model);
+            }
+        }
+        Err(e) => l.note(e.to_string()),
     }
 }
 

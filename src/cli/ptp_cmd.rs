@@ -135,9 +135,9 @@ struct CameraInfo {
     operations: Vec<String>,
 }
 
-#[derive(serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
-enum CaptureFlow {
+pub enum CaptureFlow {
     /// SDRAM or card, GetEvent polling.
     Nikon,
     /// Remote release, GetEvent records, to the host or the card.
@@ -148,6 +148,34 @@ enum CaptureFlow {
     Generic,
     /// No remote capture brdfd speaks yet (a Canon PowerShot's, an older Sony's).
     None,
+}
+
+impl CaptureFlow {
+    /// The flow brdfd's PTP driver shoots `cam` with.
+    pub fn of(cam: &Camera) -> CaptureFlow {
+        if cam.is_nikon() {
+            CaptureFlow::Nikon
+        } else if cam.is_canon_eos() {
+            CaptureFlow::CanonEos
+        } else if cam.is_sony() {
+            CaptureFlow::Sony
+        } else if cam.info.supports(brdfd_ptp::codes::op::INITIATE_CAPTURE) {
+            CaptureFlow::Generic
+        } else {
+            CaptureFlow::None
+        }
+    }
+
+    /// Its name, as `ptp info` writes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            CaptureFlow::Nikon => "nikon",
+            CaptureFlow::CanonEos => "canon-eos",
+            CaptureFlow::Sony => "sony",
+            CaptureFlow::Generic => "generic",
+            CaptureFlow::None => "none",
+        }
+    }
 }
 
 #[derive(serde::Serialize)]
@@ -181,17 +209,7 @@ fn camera_info(cam: &mut Camera) -> anyhow::Result<CameraInfo> {
         .collect();
     Ok(CameraInfo {
         link: cam.describe(),
-        capture_flow: if cam.is_nikon() {
-            CaptureFlow::Nikon
-        } else if cam.is_canon_eos() {
-            CaptureFlow::CanonEos
-        } else if cam.is_sony() {
-            CaptureFlow::Sony
-        } else if i.supports(brdfd_ptp::codes::op::INITIATE_CAPTURE) {
-            CaptureFlow::Generic
-        } else {
-            CaptureFlow::None
-        },
+        capture_flow: CaptureFlow::of(cam),
         operations: i.operations.iter().map(|o| format!("{o:04x}")).collect(),
         manufacturer: i.manufacturer,
         model: i.model,

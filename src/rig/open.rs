@@ -12,6 +12,7 @@ use brdfd_serial::{ControlLine, GrblTurntable, RigController, RigTimeouts, Shutt
 use brdfd_theta::{Credentials, HttpTimeouts, Theta};
 
 use super::devices::video::VideoCamera;
+use super::roles::RigDevice;
 use crate::selector::Selector;
 
 /// How long a PTP/IP camera has to finish the handshake (the TCP connection itself has
@@ -42,6 +43,23 @@ pub fn ptp_camera(port: &Selector) -> anyhow::Result<Camera> {
         ),
     };
     Ok(Camera::open(link, Timeouts::default())?)
+}
+
+/// Opens a camera through the system's libgphoto2 (`gphoto2[:PORT]`), in a brdfd built with
+/// the `gphoto2` feature; in one built without, says how to get it.
+#[cfg(feature = "gphoto2")]
+pub fn gphoto_camera(port: Option<&str>) -> anyhow::Result<Box<dyn RigDevice>> {
+    Ok(Box::new(brdfd_gphoto::GphotoCamera::open(port)?))
+}
+
+/// Opens a camera through the system's libgphoto2 (`gphoto2[:PORT]`), in a brdfd built with
+/// the `gphoto2` feature; in one built without, says how to get it.
+#[cfg(not(feature = "gphoto2"))]
+pub fn gphoto_camera(port: Option<&str>) -> anyhow::Result<Box<dyn RigDevice>> {
+    bail!(
+        "gphoto2{}: this brdfd was built without libgphoto2; build it with `cargo install --path . --features gphoto2` (needs libgphoto2-dev, libclang-dev and pkg-config), or use brdfd's own PTP driver (usb, ptpip:HOST)",
+        port.map(|p| format!(":{p}")).unwrap_or_default()
+    )
 }
 
 /// Opens the THETA a selector names: over HTTP, or over PTP (plain `usb` means the first

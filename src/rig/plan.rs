@@ -90,8 +90,8 @@ fn device_problems(rig: &Rig) -> (Roles, Vec<ConfigError>) {
 fn kinds(field: &str) -> (fn(&Selector) -> bool, &'static str) {
     match field {
         DSLR => (
-            |s| matches!(s, Selector::Usb { .. } | Selector::PtpIp(_)),
-            "a PTP camera: usb, usb:VVVV[:PPPP] or ptpip:HOST[:PORT]",
+            |s| matches!(s, Selector::Usb { .. } | Selector::PtpIp(_) | Selector::Gphoto(_)),
+            "a PTP camera: usb, usb:VVVV[:PPPP] or ptpip:HOST[:PORT]; or a camera libgphoto2 drives, gphoto2[:PORT]",
         ),
         // A THETA's V4L2 (UVC) mode streams live video: it cannot shoot the bracket the
         // light needs.
@@ -154,6 +154,13 @@ fn hardware(rig: &Rig, found: &mut Vec<ConfigError>) -> Roles {
                 format!("{s} cannot be used here: it must be {what}"),
             ));
         }
+    }
+    if let (Some(s @ Selector::Gphoto(_)), false) = (&d.dslr, cfg!(feature = "gphoto2")) {
+        found.push(invalid(
+            file,
+            DSLR,
+            format!("{s} needs a brdfd built with the `gphoto2` feature (cargo install --path . --features gphoto2), and this one was built without; brdfd's own PTP driver is usb or ptpip:HOST"),
+        ));
     }
     if d.dslr.is_none() && d.fallback_camera.is_none() {
         found.push(invalid(

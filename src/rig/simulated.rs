@@ -24,7 +24,9 @@ use crate::bench::camera::BenchCamera;
 use crate::bench::panorama::BenchPanorama;
 use crate::bench::raw_file::{RawDamage, RawFormat};
 use crate::bench::VirtualBench;
-use crate::config::{Rig, SimulatedBody, SimulatedLink, SimulatedPresence, SimulatedTurntable};
+use crate::config::{
+    DslrBackend, Rig, SimulatedBody, SimulatedLink, SimulatedPresence, SimulatedTurntable,
+};
 use crate::selector::Selector;
 use brdfd_sim::v4l::SimV4l;
 
@@ -55,6 +57,7 @@ pub struct SimulatedRig {
     dslr_time: Arc<Timed>,
     /// The DSLR's make and model, as its photos' EXIF names them, and as people do.
     dslr_names: (&'static str, &'static str, &'static str),
+    dslr_backend: DslrBackend,
     dslr: SharedResponder,
     theta_scene: Arc<Stage>,
     theta_time: Arc<Timed>,
@@ -159,6 +162,7 @@ impl SimulatedRig {
             dslr_scene,
             dslr_time,
             dslr_names,
+            dslr_backend: simulation.dslr_backend,
             dslr,
             theta_scene,
             theta_time,
@@ -179,7 +183,13 @@ impl SimulatedRig {
     }
 
     pub fn devices(&self) -> Vec<Planned> {
-        let dslr = Selector::PtpIp(self.ptpip.addr.to_string());
+        let addr = self.ptpip.addr;
+        let dslr = match self.dslr_backend {
+            DslrBackend::Brdfd => Selector::PtpIp(addr.to_string()),
+            // libgphoto2's PTP/IP port is HOST:COMMANDPORT:EVENTPORT; the simulator takes
+            // both on one.
+            DslrBackend::Gphoto2 => Selector::Gphoto(Some(format!("ptpip:{addr}:{}", addr.port()))),
+        };
         let mut v = vec![Planned::from_selector(plan::DSLR, dslr, true)];
         v.push(match &self.theta {
             ThetaLink::Http(osc) => {

@@ -3,9 +3,11 @@
 //! device that plays two roles (a box that turns and fires) is one worker behind both.
 //!
 //! The role traits are implemented here for each kind of device: [`ptp`] (a DSLR), [`theta`]
-//! (a THETA on HTTP or USB), [`video`] (a V4L2 camera) and [`serial`] (a rig-protocol box, a
-//! release cable).
+//! (a THETA on HTTP or USB), [`video`] (a V4L2 camera), [`serial`] (a rig-protocol box, a
+//! release cable) and, with the `gphoto2` feature, `gphoto` (any camera libgphoto2 drives).
 
+#[cfg(feature = "gphoto2")]
+pub mod gphoto;
 pub mod ptp;
 pub mod serial;
 pub mod theta;
@@ -56,6 +58,7 @@ impl Planned {
                     (_, Selector::Serial(path)) => Box::new(super::open::turntable(path)?),
                     (_, Selector::Grbl { axis, path }) => Box::new(super::open::grbl(path, *axis)?),
                     (_, Selector::Cable { rts, path }) => Box::new(super::open::cable(*rts, path)?),
+                    (_, Selector::Gphoto(port)) => super::open::gphoto_camera(port.as_deref())?,
                     (_, Selector::Osc(_)) => anyhow::bail!("{s} is a THETA, not a {field}"),
                 })
             });
