@@ -32,6 +32,8 @@ pub const MEMORY_HANDLE: u32 = 0xFFFF_C001;
 pub const PROTOCOL_3: u16 = 0x012C;
 /// "Objects in memory" at or above this: the shot is ready; the low bits count its files.
 pub const IN_MEMORY_READY: i64 = 0x8000;
+/// Notches an exposure property may be moved in one setting: 30 s to 1/8000 s is 54.
+const MAX_NOTCHES: usize = 64;
 /// ISO value meaning automatic.
 pub const ISO_AUTO: u32 = 0x00FF_FFFF;
 const PRESSED: u16 = 2;
@@ -111,6 +113,8 @@ pub fn shutter_code(seconds: f64) -> i64 {
 /// What a Sony body has told brdfd: its protocol version and its properties.
 #[derive(Debug, Default)]
 pub(crate) struct SonyState {
+    /// The control protocol the body answered with (300: 3.00).
+    version: u16,
     props: BTreeMap<u16, SonyProp>,
 }
 
@@ -139,7 +143,10 @@ impl Camera {
             version % 100
         );
         self.call(op::SONY_SDIO_CONNECT, &[3, 0, 0])?;
-        self.sony = Some(SonyState::default());
+        self.sony = Some(SonyState {
+            version,
+            ..SonyState::default()
+        });
         self.sony_read_props()?;
         if self.sony_prop(prop::SONY_PRIORITY_MODE).is_some() {
             let v = Value::Int(PRIORITY_APPLICATION);
@@ -191,6 +198,7 @@ impl Camera {
         code: u16,
         nominal: &[i64],
         value_of: fn(i64) -> Option<f64>,
+        plus_is_larger: bool,
         want: f64,
     ) -> Result<f64> {
         self.sony_start()?;
@@ -227,7 +235,12 @@ impl Camera {
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .map(|(c, _)| c)
             .ok_or_else(|| PtpError::Protocol(format!("property {code:#06x} offers no values")))?;
-        let applied = self.sony_set(code, &Value::Int(best))?;
+        let absolute = self.sony.as_ref().is_some_and(|s| s.version >= PROTOCOL_3);
+        let applied = if absolute {
+            self.sony_set(code, &Value::Int(best))?
+        } else {
+            self.sony_step_to(code, best, value_of, plus_is_larger)?
+        };
         applied.as_i64().and_then(value_of).ok_or_else(|| {
             PtpError::Protocol(format!("property {code:#06x} read back as {applied:?}"))
         })
@@ -235,7 +248,14 @@ impl Camera {
 
     pub(crate) fn sony_set_shutter(&mut self, seconds: f64) -> Result<f64> {
         let nominal: Vec<i64> = SHUTTER_SECONDS.iter().map(|&s| shutter_code(s)).collect();
-        self.sony_set_nearest(prop::SONY_SHUTTER_SPEED, &nominal, shutter_seconds, seconds)
+        // A notch up is a shorter time.
+        self.sony_set_nearest(
+            prop::SONY_SHUTTER_SPEED,
+            &nominal,
+            shutter_seconds,
+            false,
+            seconds,
+        )
     }
 
     pub(crate) fn sony_set_f_number(&mut self, f: f64) -> Result<f64> {
@@ -244,7 +264,7 @@ impl Camera {
             .map(|f| (f * 100.0).round() as i64)
             .collect();
         let value_of = |v: i64| (v > 0).then_some(v as f64 / 100.0);
-        self.sony_set_nearest(prop::F_NUMBER, &nominal, value_of, f)
+        self.sony_set_nearest(prop::F_NUMBER, &nominal, value_of, true, f)
     }
 
     pub(crate) fn sony_set_iso(&mut self, iso: u32) -> Result<u32> {
@@ -254,8 +274,55 @@ impl Camera {
             let v = v & ISO_AUTO as i64;
             (v > 0 && v != ISO_AUTO as i64).then_some(v as f64)
         };
-        let applied = self.sony_set_nearest(prop::SONY_ISO, &nominal, value_of, iso as f64)?;
+        let applied =
+            self.sony_set_nearest(prop::SONY_ISO, &nominal, value_of, true, iso as f64)?;
         Ok(applied as u32)
+    }
+
+    /// Moves a property to `target` a notch at a time, as a body below protocol 3.00 takes
+    /// its exposure (ControlDevice with +1 or -1; +1 is a larger value when `plus_is_larger`).
+    /// It stops at the target, or where the next notch would pass it (the nearest the body
+    /// offers), and fails if a notch moves nothing. Returns the value the body reports.
+    fn sony_step_to(
+        &mut self,
+        code: u16,
+        target: i64,
+        value_of: fn(i64) -> Option<f64>,
+        plus_is_larger: bool,
+    ) -> Result<Value> {
+        let unreadable = |v: i64| PtpError::Protocol(format!("property {code:#06x} reads {v:#x}"));
+        let goal = value_of(target).ok_or_else(|| unreadable(target))?;
+        for _ in 0..MAX_NOTCHES {
+            let now = self.sony_value(code).unwrap_or(0);
+            if now == target {
+                break;
+            }
+            // A value that is not a number (automatic ISO, first in the body's list) is left
+            // a notch up.
+            let at = value_of(now);
+            let up = at.is_none_or(|at| (goal > at) == plus_is_larger);
+            self.data_out(
+                op::SONY_SDIO_CONTROL_DEVICE,
+                &[code as u32],
+                &[if up { 0x01 } else { 0xFF }],
+            )?;
+            self.sony_read_props()?;
+            let moved = self.sony_value(code).unwrap_or(0);
+            if moved == now {
+                return Err(PtpError::Protocol(format!(
+                    "property {code:#06x} did not move from {now:#x} toward {target:#x}"
+                )));
+            }
+            let passed = value_of(moved)
+                .zip(at)
+                .is_some_and(|(m, at)| (m - goal) * (at - goal) < 0.0);
+            if passed {
+                break;
+            }
+        }
+        Ok(self
+            .sony_prop(code)
+            .map_or(Value::Int(target), |p| p.desc.current.clone()))
     }
 
     fn sony_button(&mut self, code: u16, state: u16) -> Result<()> {

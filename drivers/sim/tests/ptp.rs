@@ -167,6 +167,38 @@ fn sony_capture_through_the_shutter_button_over_usb() {
     );
 }
 
+/// A Sony that answers protocol 2.00 refuses an exposure value and takes it in notches:
+/// brdfd moves each property a notch at a time (ControlDevice +1 or -1) to the value nearest
+/// what the rig asks, from automatic ISO too.
+#[test]
+fn an_older_sony_takes_its_exposure_a_notch_at_a_time() {
+    let r = responder(Profile::SonyA7M4, 300_000);
+    r.lock().unwrap().speak_sony_protocol_2();
+    let mut cam = usb_camera(&r);
+    assert_eq!(
+        cam.set_f_number(5.5).unwrap(),
+        5.6,
+        "f/8 down three notches"
+    );
+    assert_eq!(cam.set_iso(400).unwrap(), 400);
+    assert_eq!(cam.set_shutter(1.0 / 250.0).unwrap(), 1.0 / 250.0);
+    assert_eq!(cam.set_shutter(2.0).unwrap(), 2.0);
+    let settings = r.lock().unwrap().shot_settings();
+    assert_eq!(
+        (settings.shutter_s, settings.f_number, settings.iso),
+        (2.0, 5.6, 400)
+    );
+    let log = ops(&r);
+    let count = |c| log.iter().filter(|&&o| o == c).count();
+    // The one value set is the computer's priority, at the connection.
+    assert_eq!(count(op::SONY_SDIO_SET_EXT_DEVICE_PROP_VALUE), 1);
+    // In third stops: f/8 to 5.6 is 3 notches; ISO 100 to 400, 6; 1/60 s to 1/250, 6; 1/250 s
+    // to 2 s, 27.
+    assert_eq!(count(op::SONY_SDIO_CONTROL_DEVICE), 3 + 6 + 6 + 27);
+    let (file, _) = capture_with_phases(&mut cam);
+    assert_eq!(file.data, expected(300_000, 1));
+}
+
 #[test]
 fn generic_capture_over_usb_downloads_and_deletes() {
     let r = responder(Profile::Generic, 300_000);

@@ -44,6 +44,14 @@ pub struct Faults {
 }
 
 impl Responder {
+    /// A Sony body that speaks at most control protocol 2.00, as bodies before the a7 IV's
+    /// generation do: it then takes its exposure only in notches.
+    pub fn speak_sony_protocol_2(&mut self) {
+        if let Some(sony) = &mut self.sony {
+            sony.max_protocol = 200;
+        }
+    }
+
     /// Puts a THETA to sleep (property 0xD80E reads 1), as its sleep timer would.
     pub fn fall_asleep(&mut self) {
         if let Some(d) = self.props.get_mut(&prop::RICOH_SLEEP) {
@@ -551,7 +559,18 @@ impl Responder {
                         self.sony_shoot().err().unwrap_or(rc::OK)
                     }
                     prop::SONY_SHUTTER_RELEASE | prop::SONY_SHUTTER_HALF_RELEASE => rc::OK,
-                    _ => rc::PARAMETER_NOT_SUPPORTED,
+                    code => match sony.step(code, data) {
+                        Some(rc::OK) => {
+                            reply.events.push(Message::new(
+                                event::SONY_DEVICE_PROP_CHANGED,
+                                0,
+                                &[p(0)],
+                            ));
+                            rc::OK
+                        }
+                        Some(refused) => refused,
+                        None => rc::PARAMETER_NOT_SUPPORTED,
+                    },
                 }
             }
             _ => return None,

@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 
 use brdfd_ptp::codes::{datatype as dt, prop, rc};
 use brdfd_ptp::dataset::{DevicePropDesc, Form, Value};
-use brdfd_ptp::exposure::ISO_SPEEDS;
+use brdfd_ptp::exposure::{F_NUMBERS, ISO_SPEEDS, SHUTTER_SECONDS};
 use brdfd_ptp::sony::{self, SonyProp, IN_MEMORY_READY, ISO_AUTO, PROTOCOL_3};
 use brdfd_ptp::wire::Writer;
 
@@ -21,6 +21,10 @@ pub struct SonyBody {
     /// The last SDIOConnect phase done (3: connected).
     phase: u32,
     props: BTreeMap<u16, SonyProp>,
+    /// The newest control protocol the body speaks: 3.00 for the a7 IV; 2.00 to rehearse an
+    /// older body. Below 3.00 a host moves the exposure in notches (ControlDevice), as
+    /// libgphoto2 2.5 does, and may then set the value it reached, which the body takes too.
+    pub max_protocol: u16,
 }
 
 fn sony_prop(code: u16, datatype: u16, current: u64, form: Form) -> SonyProp {
@@ -101,8 +105,34 @@ impl Default for SonyBody {
         SonyBody {
             phase: 0,
             props: props.into_iter().map(|p| (p.desc.code, p)).collect(),
+            max_protocol: PROTOCOL_3,
         }
     }
+}
+
+/// The values an exposure property moves through a notch at a time, in the order +1 moves:
+/// the a7 IV's third stops within its ranges, and its ISO list (automatic first).
+fn notches(code: u16) -> Option<Vec<i64>> {
+    Some(match code {
+        prop::F_NUMBER => F_NUMBERS
+            .iter()
+            .map(|f| (f * 100.0).round() as i64)
+            .filter(|f| (560..=3200).contains(f))
+            .collect(),
+        prop::SONY_SHUTTER_SPEED => SHUTTER_SECONDS
+            .iter()
+            .map(|&s| sony::shutter_code(s))
+            .collect(),
+        prop::SONY_ISO => std::iter::once(ISO_AUTO as i64)
+            .chain(
+                ISO_SPEEDS
+                    .iter()
+                    .map(|&i| i64::from(i))
+                    .filter(|&i| i <= 51_200),
+            )
+            .collect(),
+        _ => return None,
+    })
 }
 
 impl SonyBody {
@@ -121,7 +151,7 @@ impl SonyBody {
     pub fn ext_device_info(&self, asked: u32) -> Vec<u8> {
         let codes: Vec<u16> = self.props.keys().copied().collect();
         Writer::new()
-            .u16(asked.min(PROTOCOL_3 as u32) as u16)
+            .u16(asked.min(u32::from(self.max_protocol)) as u16)
             .u16_array(&codes)
             .u16_array(&[prop::SONY_SHUTTER_HALF_RELEASE, prop::SONY_SHUTTER_RELEASE])
             .finish()
@@ -175,6 +205,22 @@ impl SonyBody {
         }
         p.desc.current = v;
         rc::OK
+    }
+
+    /// ControlDevice on an exposure property: `data`'s first byte, a signed count of notches
+    /// (+1 a larger f-number or ISO, or a shorter time; 0xFF one back), moves it along its
+    /// values, stopping at either end. `None` for a property that does not move so.
+    pub fn step(&mut self, code: u16, data: &[u8]) -> Option<u16> {
+        let values = notches(code)?;
+        let Some(&n) = data.first() else {
+            return Some(INVALID_DEVICE_PROP_VALUE);
+        };
+        let p = self.props.get_mut(&code)?;
+        let current = p.desc.current.as_i64().unwrap_or(0);
+        let at = values.iter().position(|&v| v == current).unwrap_or(0) as i64;
+        let to = (at + i64::from(n as i8)).clamp(0, values.len() as i64 - 1);
+        p.desc.current = Value::UInt(values[to as usize] as u64);
+        Some(rc::OK)
     }
 
     pub fn connected(&self) -> bool {
