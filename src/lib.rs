@@ -15,19 +15,17 @@
 //! - [`session`]: sessions on disk (manifest state machine, raw files with sha256, atomic
 //!   writes).
 //! - [`selector`]: the strings that name devices (`usb:04b0:0429`, `osc:http://...`, ...).
-//! - [`results`]: the files an estimate leaves behind; [`compare`]: its photo-against-estimate
-//!   picture; [`report`]: its `report.html`.
-//! - [`export`]: the estimate as a glTF material and an OpenPBR `.mtlx`, fitted to how it relights.
-//! - [`summary`]: the judged lines a finished estimate is reported in, the verdict first.
+//! - `brdfd-report` (`crates/report`), re-exported: [`results`], the files an estimate leaves
+//!   behind; [`export`], the estimate as a glTF material and an OpenPBR `.mtlx`, fitted to how
+//!   it relights; [`html`], its `report.html`; [`compare`], its photo-against-estimate picture;
+//!   [`summary`], the judged lines it is reported in.
 //! - [`rig`]: the devices on their worker threads, and the capture flow.
 //! - [`daemon`]: `brdfd serve`: the devices kept open, one capture at a time, the HTTP API.
 //! - `drivers/` (workspace crates, as they land): device protocols and their simulators.
 
 pub mod bench;
-pub mod compare;
 pub mod config;
 pub mod daemon;
-pub mod export;
 /// The camera's pose from a printed board, and an object's placement from its silhouettes:
 /// its own crate, re-exported where the library's modules have always found it.
 pub use brdfd_pose as pose;
@@ -37,9 +35,9 @@ pub use brdfd_radiometry as radiometry;
 /// 360° camera files to environment maps: in the radiometry crate, re-exported where the
 /// library's modules have always found it.
 pub use brdfd_radiometry::panorama;
-pub mod report;
-pub mod results;
+/// What an estimate is written as for people and renderers: its own crate, re-exported where
+/// the library's modules have always found it (the report itself is now `html`).
+pub use brdfd_report::{compare, export, html, results, summary};
 pub mod rig;
 pub mod selector;
 pub mod session;
-pub mod summary;

@@ -126,3 +126,12 @@ fn pose_sits_on_the_core_alone() {
     forbidden.extend(["brdfd-eval", "brdfd-radiometry", "brdfd-v4l"]);
     sits_on_the_core("brdfd-pose", &forbidden);
 }
+
+/// The exports, the report and its pictures need an estimate and the core's rendering, not how
+/// it was captured: nothing of the rig, the camera files or the evaluation.
+#[test]
+fn the_report_and_the_exports_sit_on_the_core_alone() {
+    let mut forbidden = ABOVE_THE_CORE.to_vec();
+    forbidden.extend(["brdfd-eval", "brdfd-radiometry", "brdfd-pose", "brdfd-v4l"]);
+    sits_on_the_core("brdfd-report", &forbidden);
+}

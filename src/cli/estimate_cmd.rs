@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
-use brdfd::report::{Context as ReportContext, Visibility};
+use brdfd::html::{Context as ReportContext, Visibility};
 use brdfd::results::write_results;
 use brdfd_core::analytic::{Microfacet, MAX_LOBES};
 use brdfd_core::basis::Basis;

@@ -11,7 +11,7 @@
 // their image-based lighting (prefiltered maps, the split-sum approximation, diffuse from a
 // blurred map) is 25–50% from the integral the export's BRDF defines, and this page exists to
 // show what that BRDF looks like. The BRDF is glTF's (spec Appendix B) exactly as brdfd
-// evaluates it (`GltfBrdf` in src/export/gltf.rs), and the light is integrated as a path tracer
+// evaluates it (`GltfBrdf` in crates/report/src/export/gltf.rs), and the light is integrated as a path tracer
 // would: the specular lobe by importance sampling with filtered lookups, the map's brightest
 // texels as lights, the diffuse part from the map's cosine-convolved irradiance. Under the
 // reference maps it is within 0.01–0.05 (relative RMSE) of `brdfd render --gltf`.

@@ -125,13 +125,13 @@ mod tests {
     }
 
     /// Writes `maps/*.hdr` from the reference data beside the repository
-    /// (`cargo test --release --lib export::maps -- --ignored`).
+    /// (`cargo test --release -p brdfd-report --lib export::maps -- --ignored`).
     #[test]
     #[ignore]
     fn regenerate_the_embedded_maps() {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
         for (name, _) in MAPS {
-            let source = root.join(format!("../shared/data/envmaps/{name}.hdr"));
+            let source = root.join(format!("../../../shared/data/envmaps/{name}.hdr"));
             let map = EnvMap::load(&source).unwrap().downsample(WIDTH, WIDTH / 2);
             let bytes = rgbe(&map.pixels, map.width, name).unwrap();
             std::fs::write(root.join(format!("src/export/maps/{name}.hdr")), bytes).unwrap();

@@ -337,10 +337,11 @@ mod tests {
     }
 }
 
-/// A measurement, not a check: run with `cargo test --release --lib export::figures --
-/// --ignored --nocapture` beside `../shared` (docs/evaluation.md quotes it). The test
-/// materials' truths stand in for their estimates: each is fitted under the five reference
-/// maps and relit under the four other than Grace Cathedral, the capture's map.
+/// A measurement, not a check: run with `cargo test --release -p brdfd-report --lib
+/// export::figures -- --ignored --nocapture` beside `../shared` (docs/evaluation.md quotes
+/// it). The evaluation's ten test materials' truths (their NBRDF fits) stand in for their
+/// estimates: each is fitted under the five reference maps and relit under the four other than
+/// Grace Cathedral, the capture's map.
 #[cfg(test)]
 mod figures {
     use super::*;
@@ -349,7 +350,7 @@ mod figures {
     #[test]
     #[ignore]
     fn gltf_export_of_the_test_materials_under_the_reference_maps() {
-        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/envmaps");
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/envmaps");
         let names = ["grace", "courtyard", "interior", "sunrise", "city"];
         let maps: Vec<EnvMap> = names
             .iter()
@@ -362,9 +363,14 @@ mod figures {
         let fit_lights: Vec<LightSet> =
             maps.iter().map(|m| m.compressed(FIT_LIGHTS, 0.0)).collect();
         let (fit_sphere, check_sphere) = (sphere(FIT_SIZE).unwrap(), sphere(CHECK_SIZE).unwrap());
-        let set = crate::bench::embedded_materials();
+        let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
+        let set = brdfd_core::nbrdf::NbrdfSet::from_json(
+            &std::fs::read_to_string(data.join("merl-nbrdf/merl_nbrdf.json")).unwrap(),
+            "merl_nbrdf.json",
+        )
+        .unwrap();
         let mut all = vec![];
-        for name in set.names() {
+        for name in brdfd_eval::paper::TEST_SET {
             let target = Bivariate::reduce(set.get(name).unwrap(), Grid::default());
             let fitted = fit::Scenes::new(&fit_sphere.pixels, &fit_lights, &target)
                 .unwrap()

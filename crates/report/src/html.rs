@@ -499,10 +499,10 @@ fn slice_svg(est: &Estimate, truth: Option<&Bivariate>, theta_d_deg: f64) -> Res
 const RELIT_SIZE: usize = 128;
 const RELIT_LIGHTS: usize = 512;
 
-/// The estimate on a sphere under each of [`crate::bench::reference_maps`], each on the fixed
+/// The estimate on a sphere under each of [`crate::lights::reference_maps`], each on the fixed
 /// scale of a white Lambertian sphere under the same map.
 fn relit_spheres(brdf: &Bivariate) -> Result<Vec<(&'static str, RgbImage)>> {
-    crate::bench::reference_maps()
+    crate::lights::reference_maps()
         .into_iter()
         .map(|(name, map)| {
             let lights = map.compressed(RELIT_LIGHTS, 0.0);

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::export::{write_exports, Export};
-use crate::report::Context;
+use crate::html::Context;
 use brdfd_core::analytic::Microfacet;
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::{Bivariate, Grid, ThetaHBinning, GRID_CELLS, N_THETA_D, N_THETA_H};
@@ -241,7 +241,7 @@ struct PreviewScale {
     meaning: &'static str,
 }
 
-/// Writes every result file into `dir`, `report.html` among them ([`crate::report`], with
+/// Writes every result file into `dir`, `report.html` among them ([`crate::html`], with
 /// what `cx` knows); with the first view's photo, also `compare.png` ([`crate::compare`]).
 pub fn write_results(
     dir: &Path,
@@ -380,7 +380,7 @@ pub fn write_results(
     std::thread::scope(|s| {
         let merl = s.spawn(|| brdf.to_merl().write(&files.merl));
         let preview = write_preview(dir, &files.preview_png, brdf, lights, cx)?;
-        crate::report::write(
+        crate::html::write(
             &files.report,
             estimate,
             basis_id,
