@@ -5,7 +5,7 @@ use std::io::{BufRead, BufReader};
 use std::time::Duration;
 
 use anyhow::{bail, Context};
-use brdfd::daemon::openapi::{ErrorBody, Started};
+use brdfd::daemon::openapi::{ErrorBody, ErrorCode, Started};
 use brdfd::rig::{Event, Plan, Progress};
 use reqwest::blocking::{Client, RequestBuilder, Response};
 
@@ -72,7 +72,7 @@ impl Daemon {
                 self.base
             )
         };
-        if body.error == "busy" {
+        if body.error == ErrorCode::Busy {
             return Err(Busy(body.message).into());
         }
         bail!(

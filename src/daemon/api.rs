@@ -38,8 +38,8 @@ use utoipa::{Modify as _, OpenApi as _};
 use utoipa_axum::{router::OpenApiRouter, routes};
 
 use super::openapi::{
-    self, ApiDoc, Cancelling, ContinueRequest, Continuing, Empty, ErrorBody, FileBytes, Guards,
-    Health, Materials, RigSummary, SessionDetail, SessionItem, Started, StreamEvent,
+    self, ApiDoc, Cancelling, ContinueRequest, Continuing, Empty, ErrorBody, ErrorCode, FileBytes,
+    Guards, Health, Materials, RigSummary, SessionDetail, SessionItem, Started, StreamEvent,
 };
 use super::{web, Daemon, StartError};
 use crate::rig::{Event, Plan};
@@ -48,7 +48,7 @@ use crate::session::{Session, State as SessionState};
 pub type Shared = Arc<Daemon>;
 
 /// An error answer: its status, code and message.
-struct ApiError(StatusCode, &'static str, String);
+struct ApiError(StatusCode, ErrorCode, String);
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
@@ -58,7 +58,7 @@ impl IntoResponse for ApiError {
             title: status.canonical_reason().unwrap_or("Error").into(),
             status: status.as_u16(),
             detail: message.clone(),
-            error: code.into(),
+            error: code,
             message,
         };
         let mut response = (status, Json(body)).into_response();
@@ -73,11 +73,15 @@ impl IntoResponse for ApiError {
 type ApiResult<T> = Result<T, ApiError>;
 
 fn not_found(e: impl std::fmt::Display) -> ApiError {
-    ApiError(StatusCode::NOT_FOUND, "not_found", e.to_string())
+    ApiError(StatusCode::NOT_FOUND, ErrorCode::NotFound, e.to_string())
 }
 
 fn bad_request(e: impl std::fmt::Display) -> ApiError {
-    ApiError(StatusCode::BAD_REQUEST, "bad_request", e.to_string())
+    ApiError(
+        StatusCode::BAD_REQUEST,
+        ErrorCode::BadRequest,
+        e.to_string(),
+    )
 }
 
 /// The API's routes, each registered with its OpenAPI description ([`openapi`]), and each
@@ -114,7 +118,7 @@ fn guarded(
 async fn method_not_allowed(method: axum::http::Method) -> ApiError {
     ApiError(
         StatusCode::METHOD_NOT_ALLOWED,
-        "method_not_allowed",
+        ErrorCode::MethodNotAllowed,
         format!("this route does not answer {method}; `Allow` lists what it answers"),
     )
 }
@@ -200,7 +204,7 @@ pub(crate) fn locked_out(wait: std::time::Duration) -> Response {
     let seconds = wait.as_secs_f64().ceil().max(1.0) as u64;
     let mut response = ApiError(
         StatusCode::TOO_MANY_REQUESTS,
-        "too_many_attempts",
+        ErrorCode::TooManyAttempts,
         format!(
             "too many wrong tokens from this address; try again in {seconds} s (the token is \
              the `token` in the daemon's brdfd.toml)"
@@ -240,7 +244,7 @@ async fn require_token(State(d): State<Shared>, req: Request, next: Next) -> Res
         if !ok {
             let mut response = ApiError(
                 StatusCode::UNAUTHORIZED,
-                "unauthorized",
+                ErrorCode::Unauthorized,
                 "this daemon requires `Authorization: Bearer <token>` (the token in its brdfd.toml), or, in a browser, signing in on its page at /"
                     .into(),
             )
@@ -267,7 +271,7 @@ async fn require_own_host(State(d): State<Shared>, req: Request, next: Next) -> 
         if !is_own_host(host, &d.hosts) {
             return ApiError(
                 StatusCode::MISDIRECTED_REQUEST,
-                "unknown_host",
+                ErrorCode::UnknownHost,
                 format!(
                     "this daemon does not answer to the host {host:?}: reach it by IP address or localhost, or add the name to `hosts` in its brdfd.toml"
                 ),
@@ -297,11 +301,11 @@ async fn problem_for_plain_errors(response: Response) -> Response {
         .map(|b| String::from_utf8_lossy(&b).trim().to_string())
         .unwrap_or_default();
     let code = if status == StatusCode::NOT_FOUND {
-        "not_found"
+        ErrorCode::NotFound
     } else if status.is_client_error() {
-        "bad_request"
+        ErrorCode::BadRequest
     } else {
-        "internal"
+        ErrorCode::Internal
     };
     let text = if text.is_empty() {
         status.canonical_reason().unwrap_or("error").to_string()
@@ -349,7 +353,7 @@ async fn require_json_posts(req: Request, next: Next) -> Response {
         if !json {
             return ApiError(
                 StatusCode::UNSUPPORTED_MEDIA_TYPE,
-                "unsupported_media_type",
+                ErrorCode::UnsupportedMediaType,
                 "every POST needs `Content-Type: application/json` (with a JSON body, `{}` if there is nothing to say), so that a web page cannot send one across sites".into(),
             )
             .into_response();
@@ -397,7 +401,7 @@ async fn list(State(d): State<Shared>) -> ApiResult<Json<Vec<SessionItem>>> {
     let all = Session::list(&d.state_dir).map_err(|e| {
         ApiError(
             StatusCode::INTERNAL_SERVER_ERROR,
-            "storage",
+            ErrorCode::Storage,
             d.relative(&e.to_string()),
         )
     })?;
@@ -433,15 +437,15 @@ fn started(s: Session) -> Response {
 
 fn start_error(e: StartError) -> ApiError {
     let (status, code) = match e {
-        StartError::Busy(_) => (StatusCode::CONFLICT, "busy"),
-        StartError::Invalid(_) => (StatusCode::BAD_REQUEST, "bad_request"),
+        StartError::Busy(_) => (StatusCode::CONFLICT, ErrorCode::Busy),
+        StartError::Invalid(_) => (StatusCode::BAD_REQUEST, ErrorCode::BadRequest),
         // RFC 9110 §15.5.21: the plan is well-formed, and names what this daemon cannot use.
-        StartError::Unusable(_) => (StatusCode::UNPROCESSABLE_ENTITY, "invalid_plan"),
-        StartError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
+        StartError::Unusable(_) => (StatusCode::UNPROCESSABLE_ENTITY, ErrorCode::InvalidPlan),
+        StartError::NotFound(_) => (StatusCode::NOT_FOUND, ErrorCode::NotFound),
         // The request is right; the session's state is what refuses it (RFC 9110 §15.5.10).
-        StartError::Done(_) => (StatusCode::CONFLICT, "already_done"),
-        StartError::NotResumable(..) => (StatusCode::CONFLICT, "not_resumable"),
-        StartError::Storage(_) => (StatusCode::INTERNAL_SERVER_ERROR, "storage"),
+        StartError::Done(_) => (StatusCode::CONFLICT, ErrorCode::AlreadyDone),
+        StartError::NotResumable(..) => (StatusCode::CONFLICT, ErrorCode::NotResumable),
+        StartError::Storage(_) => (StatusCode::INTERNAL_SERVER_ERROR, ErrorCode::Storage),
     };
     ApiError(status, code, e.to_string())
 }
@@ -481,7 +485,13 @@ async fn on_capture_thread(
 ) -> ApiResult<Response> {
     let s = tokio::task::spawn_blocking(launch)
         .await
-        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, "internal", e.to_string()))?
+        .map_err(|e| {
+            ApiError(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                ErrorCode::Internal,
+                e.to_string(),
+            )
+        })?
         .map_err(start_error)?;
     Ok(started(s))
 }
@@ -520,7 +530,7 @@ fn open(d: &Daemon, id: &str) -> ApiResult<Session> {
         }
         e => ApiError(
             StatusCode::INTERNAL_SERVER_ERROR,
-            "storage",
+            ErrorCode::Storage,
             d.relative(&e.to_string()),
         ),
     })
@@ -563,7 +573,7 @@ async fn json_body<T: serde::de::DeserializeOwned>(
     .map_err(|_| {
         ApiError(
             StatusCode::REQUEST_TIMEOUT,
-            "request_timeout",
+            ErrorCode::RequestTimeout,
             format!(
                 "{what} did not arrive within {} s",
                 PLAN_READ_TIMEOUT.as_secs()
@@ -622,7 +632,7 @@ async fn continue_capture(
     } else {
         Err(ApiError(
             StatusCode::CONFLICT,
-            "not_waiting",
+            ErrorCode::NotWaiting,
             match request.view {
                 Some(v) => format!("session {id} is not waiting for view {v} to be turned now"),
                 None => format!("session {id} is not waiting for the operator now"),
@@ -663,7 +673,7 @@ async fn cancel(
         open(&d, &id)?;
         Err(ApiError(
             StatusCode::CONFLICT,
-            "not_running",
+            ErrorCode::NotRunning,
             format!("session {id} is not capturing now"),
         ))
     }
@@ -674,7 +684,7 @@ fn done(d: &Daemon, id: &str) -> ApiResult<Session> {
     if s.manifest().state != SessionState::Done {
         return Err(ApiError(
             StatusCode::CONFLICT,
-            "not_done",
+            ErrorCode::NotDone,
             format!("session {id} is {:?}, not done", s.manifest().state),
         ));
     }
@@ -905,7 +915,7 @@ async fn serve_result(
         Ranged::Unsatisfiable => {
             let mut response = ApiError(
                 StatusCode::RANGE_NOT_SATISFIABLE,
-                "range_not_satisfiable",
+                ErrorCode::RangeNotSatisfiable,
                 format!(
                     "{} has {length} bytes; the range asked for starts past them",
                     file.name()
@@ -1092,7 +1102,7 @@ async fn events(
     let guard = StreamSlot::take(&d).ok_or_else(|| {
         ApiError(
             StatusCode::SERVICE_UNAVAILABLE,
-            "too_many_streams",
+            ErrorCode::TooManyStreams,
             format!(
                 "{} event streams are open, the most this daemon serves at once; close one, or \
                  poll GET /sessions/{id} instead",

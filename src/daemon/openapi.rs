@@ -35,13 +35,54 @@ pub struct ErrorBody {
     pub status: u16,
     /// What was wrong, and where.
     pub detail: String,
-    /// `not_found`, `bad_request`, `invalid_plan`, `busy`, `already_done`, `not_resumable`,
-    /// `not_done`, `not_running`, `not_waiting`, `unauthorized`, `unknown_host`,
-    /// `method_not_allowed`, `unsupported_media_type`, `range_not_satisfiable`,
-    /// `request_timeout`, `too_many_attempts`, `too_many_streams`, `storage`, `internal`.
-    pub error: String,
+    /// Which problem this is, for programs.
+    pub error: ErrorCode,
     /// `detail` again, under the name brdfd's clients have read since before RFC 9457.
     pub message: String,
+}
+
+/// brdfd's code for an error: what a program matches on (the HTTP status groups several).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ErrorCode {
+    /// No such session, file or route.
+    NotFound,
+    /// The request is malformed: its body, a parameter, a header.
+    BadRequest,
+    /// The plan is well formed but the rig cannot run it.
+    InvalidPlan,
+    /// Another capture is running.
+    Busy,
+    /// The session is done already.
+    AlreadyDone,
+    /// The session cannot be resumed (its state, or what it lacks).
+    NotResumable,
+    /// The session has no results yet.
+    NotDone,
+    /// The session is not the capture running now.
+    NotRunning,
+    /// The capture waits for no hand turn (of that view).
+    NotWaiting,
+    /// No token, or a wrong one.
+    Unauthorized,
+    /// The request names a host this daemon does not answer for.
+    UnknownHost,
+    /// The route does not answer that method.
+    MethodNotAllowed,
+    /// A body that is not JSON.
+    UnsupportedMediaType,
+    /// A byte range outside the file.
+    RangeNotSatisfiable,
+    /// The request took too long to arrive.
+    RequestTimeout,
+    /// Too many failed tokens from this address: wait.
+    TooManyAttempts,
+    /// Too many event streams are open.
+    TooManyStreams,
+    /// The daemon could not read or write its sessions.
+    Storage,
+    /// Anything else gone wrong in the daemon.
+    Internal,
 }
 
 /// The media type of every error answer.
