@@ -34,6 +34,9 @@ pub enum GphotoError {
         #[source]
         source: gphoto2::Error,
     },
+    /// A shot fired from outside that the camera announced no file for.
+    #[error("the {model} announced no file within {seconds:.0} s of being fired from outside")]
+    NoFile { model: String, seconds: f64 },
     /// The camera has no control for a setting the rig asks for.
     #[error("{0}")]
     Unsupported(String),
@@ -322,11 +325,10 @@ impl GphotoCamera {
         let mut paths = Vec::new();
         self.more_files(&mut paths, wait)?;
         if paths.is_empty() {
-            return Err(GphotoError::NotFound(format!(
-                "'s file: the {} announced none within {:.0} s of being fired",
-                self.model,
-                wait.as_secs_f64()
-            )));
+            return Err(GphotoError::NoFile {
+                model: self.model.clone(),
+                seconds: wait.as_secs_f64(),
+            });
         }
         self.more_files(&mut paths, MORE_FILES_WAIT)?;
         self.download(paths, progress)
@@ -353,7 +355,9 @@ impl GphotoCamera {
                     }
                     paths.push((p.folder().into_owned(), p.name().into_owned()));
                 }
-                CameraEvent::Timeout => break,
+                // libgphoto2 may say so before `left` is up; with no file yet, the shot is
+                // still to come.
+                CameraEvent::Timeout if paths.len() > had || had > 0 => break,
                 CameraEvent::CaptureComplete if paths.len() > had || had > 0 => break,
                 _ => {}
             }
