@@ -245,16 +245,21 @@ fn canon_and_sony_bodies_shoot_the_capture_through_their_own_flows() {
 /// With the gphoto2 feature: the simulated Nikon and Canon EOS shoot the whole capture through
 /// the system's libgphoto2, at the exposures brdfd's own driver applies (each body's 1/60 s,
 /// which the Nikon's list holds as 0.0166 s), and the capture says which backend drove them.
+/// The EOS is also fired by a trigger box, its files found from libgphoto2's events.
 #[cfg(feature = "gphoto2")]
 #[test]
 fn bodies_driven_through_libgphoto2_shoot_the_capture() {
-    for (body, named) in [("nikon-d5100", "D5100"), ("canon-eos-r6", "Canon EOS R6")] {
+    for (body, named, shutter) in [
+        ("nikon-d5100", "D5100", false),
+        ("canon-eos-r6", "Canon EOS R6", false),
+        ("canon-eos-r6", "Canon EOS R6", true),
+    ] {
         let c = Combination {
             dslr: "present",
             fallback: false,
             turntable: true,
             theta: "http",
-            shutter: false,
+            shutter,
         };
         let dir = tempfile::tempdir().unwrap();
         let rig = c.rig() + &format!("dslr_body = \"{body}\"\ndslr_backend = \"gphoto2\"\n");
@@ -277,6 +282,11 @@ fn bodies_driven_through_libgphoto2_shoot_the_capture() {
         assert_eq!(
             text.matches("(camera applied ").count(),
             4,
+            "{body}: {text}"
+        );
+        assert_eq!(
+            text.contains("DSLR: fired by the shutter"),
+            shutter,
             "{body}: {text}"
         );
     }
