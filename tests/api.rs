@@ -118,6 +118,19 @@ fn the_openapi_description_is_the_live_api() {
     assert_eq!(info["version"], env!("CARGO_PKG_VERSION"), "{info}");
     assert_eq!(info["license"]["identifier"], "MIT", "{info}");
     assert!(info["contact"].is_null(), "{info}");
+    // Every error code is listed, each with what it means.
+    let codes = &spec["components"]["schemas"]["ErrorCode"];
+    let listed = codes["enum"]
+        .as_array()
+        .expect("the error codes are listed");
+    let described = codes["description"].as_str().unwrap_or_default();
+    assert_eq!(listed.len(), 19, "{codes}");
+    for code in listed {
+        assert!(
+            described.contains(&format!("`{}`: ", code.as_str().unwrap())),
+            "{code} is not described in {described}"
+        );
+    }
     let files: Vec<String> = spec["components"]["schemas"]["ResultFile"]["enum"]
         .as_array()
         .expect("the result files are listed")

@@ -66,11 +66,25 @@ impl Daemon {
             return Ok(r);
         }
         let status = r.status();
-        let Ok(body) = r.json::<ErrorBody>() else {
-            bail!(
-                "the daemon at {} answered {status}, with no problem body",
-                self.base
-            )
+        let text = r.text().unwrap_or_default();
+        let Ok(body) = serde_json::from_str::<ErrorBody>(&text) else {
+            // A problem with a code this client does not know (a newer daemon's), or another
+            // server's: its message still says what went wrong.
+            #[derive(serde::Deserialize)]
+            struct Message {
+                message: String,
+            }
+            match serde_json::from_str::<Message>(&text) {
+                Ok(m) => bail!(
+                    "the daemon at {} answered {status}: {}",
+                    self.base,
+                    m.message
+                ),
+                Err(_) => bail!(
+                    "the daemon at {} answered {status}, with no problem body",
+                    self.base
+                ),
+            }
         };
         if body.error == ErrorCode::Busy {
             return Err(Busy(body.message).into());

@@ -42,6 +42,18 @@ pub struct ErrorBody {
 }
 
 /// brdfd's code for an error: what a program matches on (the HTTP status groups several).
+/// `not_found`: no such session, file or route. `bad_request`: the request is malformed (its
+/// body, a parameter, a header). `invalid_plan`: the plan is well formed but the rig cannot
+/// run it. `busy`: another capture is running. `already_done`: the session is done already.
+/// `not_resumable`: the session cannot be resumed. `not_done`: the session has no results
+/// yet. `not_running`: the session is not the capture running now. `not_waiting`: the capture
+/// waits for no hand turn (of that view). `unauthorized`: no token, or a wrong one.
+/// `unknown_host`: a host this daemon does not answer for. `method_not_allowed`: the route
+/// does not answer that method. `unsupported_media_type`: a body that is not JSON.
+/// `range_not_satisfiable`: a byte range outside the file. `request_timeout`: the request
+/// took too long to arrive. `too_many_attempts`: too many failed tokens from this address.
+/// `too_many_streams`: too many event streams are open. `storage`: the daemon could not read
+/// or write its sessions. `internal`: anything else gone wrong in the daemon.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum ErrorCode {

@@ -115,18 +115,19 @@ impl Drop for GphotoCamera {
 /// connection only Fuji's PTP/IP opens, which for every other camera still holds 0 from its
 /// zeroed set-up: it closes the process's fd 0. Left so, the next file or socket brdfd opens
 /// takes fd 0, and the next such disconnect would close it under its owner. So fd 0 is
-/// duplicated before the disconnect and put back after, if it went. (Another thread opening
-/// a file in the microseconds between the two would take fd 0 and lose it to the put-back:
-/// brdfd's own PTP/IP driver, `ptpip:HOST`, has no such window and is the one to use for a
-/// PTP/IP body.)
+/// duplicated before the disconnect and put back after, if it went. (If another thread opens
+/// a file in the microseconds between the two, that file takes fd 0 and keeps it, and it is
+/// fd 0's first owner, standard input, that is lost: brdfd's own PTP/IP driver, `ptpip:HOST`,
+/// has no such window and is the one to use for a PTP/IP body.)
 struct Fd0Guard(Option<std::os::fd::OwnedFd>);
 
 impl Fd0Guard {
     fn save() -> Fd0Guard {
-        // SAFETY: fd 0 is only borrowed for the duplicate; a closed fd 0 makes the duplicate
-        // fail, and nothing is then saved.
-        let fd0 = unsafe { std::os::fd::BorrowedFd::borrow_raw(0) };
-        Fd0Guard(fd0.try_clone_to_owned().ok())
+        use std::os::fd::FromRawFd;
+        // SAFETY: F_DUPFD_CLOEXEC duplicates fd 0 only if it is open (else it fails with EBADF
+        // and nothing is saved); the duplicate is a new descriptor that this guard owns.
+        let fd = unsafe { libc::fcntl(0, libc::F_DUPFD_CLOEXEC, 3) };
+        Fd0Guard((fd >= 0).then(|| unsafe { std::os::fd::OwnedFd::from_raw_fd(fd) }))
     }
 
     fn restore(self) {
@@ -137,7 +138,12 @@ impl Fd0Guard {
         unsafe {
             if libc::fcntl(0, libc::F_GETFD) == -1 {
                 tracing::debug!("libgphoto2's PTP/IP disconnect closed fd 0; putting it back");
-                libc::dup2(saved.as_raw_fd(), 0);
+                if libc::dup2(saved.as_raw_fd(), 0) == -1 {
+                    tracing::warn!(
+                        "fd 0 could not be put back after libgphoto2 closed it: {}",
+                        std::io::Error::last_os_error()
+                    );
+                }
             }
         }
     }
@@ -175,6 +181,14 @@ impl GphotoCamera {
             .get_camera(&descriptor)
             .wait()
             .step(|| format!("opening the {} at {}", descriptor.model, descriptor.port))?;
+        // libgphoto2 connects on the first call that needs the camera: one is made here, so
+        // that a busy or unreachable body fails to open rather than at its first shot.
+        camera.storages().wait().step(|| {
+            format!(
+                "connecting to the {} at {}",
+                descriptor.model, descriptor.port
+            )
+        })?;
         // A PTP/IP camera's model is only known once it answers.
         let model = match camera.abilities().model() {
             m if m == PTPIP_MODEL => text_setting(&camera, "cameramodel").unwrap_or(m.into()),
@@ -315,6 +329,23 @@ impl GphotoCamera {
         self.download(paths, progress)
     }
 
+    /// Forgets the events libgphoto2 still holds (a late file of an earlier shot), so that
+    /// what comes after a shot fired from outside is that shot's.
+    pub fn forget_pending_events(&self) -> Result<()> {
+        for _ in 0..MAX_FILES_PER_SHOT * 4 {
+            match self
+                .camera()
+                .wait_event(Duration::ZERO)
+                .wait()
+                .step(|| "reading the camera's pending events".into())?
+            {
+                CameraEvent::Timeout => break,
+                other => tracing::debug!(?other, "dropped before a fired shot"),
+            }
+        }
+        Ok(())
+    }
+
     /// The files of a shot fired from outside (a trigger box, a release cable), announced
     /// within `wait`, downloaded.
     pub fn files_of_fired_shot(
@@ -354,6 +385,11 @@ impl GphotoCamera {
                         )));
                     }
                     paths.push((p.folder().into_owned(), p.name().into_owned()));
+                    // Waiting for a fired shot's first file: it has come, and its others
+                    // get their own, shorter wait.
+                    if had == 0 {
+                        break;
+                    }
                 }
                 // libgphoto2 may say so before `left` is up; with no file yet, the shot is
                 // still to come.

@@ -34,6 +34,9 @@ pub const PROTOCOL_3: u16 = 0x012C;
 pub const IN_MEMORY_READY: i64 = 0x8000;
 /// Notches an exposure property may be moved in one setting: 30 s to 1/8000 s is 54.
 const MAX_NOTCHES: usize = 64;
+/// How long a notch may take to show in the body's value (libgphoto2 allows about a second).
+const NOTCH_SETTLE: std::time::Duration = std::time::Duration::from_secs(1);
+const NOTCH_POLL: std::time::Duration = std::time::Duration::from_millis(100);
 /// ISO value meaning automatic.
 pub const ISO_AUTO: u32 = 0x00FF_FFFF;
 const PRESSED: u16 = 2;
@@ -281,8 +284,9 @@ impl Camera {
 
     /// Moves a property to `target` a notch at a time, as a body below protocol 3.00 takes
     /// its exposure (ControlDevice with +1 or -1; +1 is a larger value when `plus_is_larger`).
-    /// It stops at the target, or where the next notch would pass it (the nearest the body
-    /// offers), and fails if a notch moves nothing. Returns the value the body reports.
+    /// It stops at the target, or at the first notch past it (the body offers nothing between),
+    /// and fails if a notch moves nothing within [`NOTCH_SETTLE`] or the target is not reached
+    /// in [`MAX_NOTCHES`]. Returns the value the body reports.
     fn sony_step_to(
         &mut self,
         code: u16,
@@ -292,10 +296,13 @@ impl Camera {
     ) -> Result<Value> {
         let unreadable = |v: i64| PtpError::Protocol(format!("property {code:#06x} reads {v:#x}"));
         let goal = value_of(target).ok_or_else(|| unreadable(target))?;
+        let reached = |v: i64| v == target || value_of(v).is_some_and(|v| v == goal);
         for _ in 0..MAX_NOTCHES {
             let now = self.sony_value(code).unwrap_or(0);
-            if now == target {
-                break;
+            if reached(now) {
+                return Ok(self
+                    .sony_prop(code)
+                    .map_or(Value::Int(target), |p| p.desc.current.clone()));
             }
             // A value that is not a number (automatic ISO, first in the body's list) is left
             // a notch up.
@@ -306,8 +313,17 @@ impl Camera {
                 &[code as u32],
                 &[if up { 0x01 } else { 0xFF }],
             )?;
-            self.sony_read_props()?;
-            let moved = self.sony_value(code).unwrap_or(0);
+            // A body applies a notch a moment after it is asked: its value is read until it
+            // moves, for a while.
+            let asked = std::time::Instant::now();
+            let moved = loop {
+                self.sony_read_props()?;
+                let moved = self.sony_value(code).unwrap_or(0);
+                if moved != now || asked.elapsed() >= NOTCH_SETTLE {
+                    break moved;
+                }
+                std::thread::sleep(NOTCH_POLL);
+            };
             if moved == now {
                 return Err(PtpError::Protocol(format!(
                     "property {code:#06x} did not move from {now:#x} toward {target:#x}"
@@ -317,12 +333,19 @@ impl Camera {
                 .zip(at)
                 .is_some_and(|(m, at)| (m - goal) * (at - goal) < 0.0);
             if passed {
-                break;
+                return Ok(self
+                    .sony_prop(code)
+                    .map_or(Value::Int(target), |p| p.desc.current.clone()));
             }
         }
-        Ok(self
-            .sony_prop(code)
-            .map_or(Value::Int(target), |p| p.desc.current.clone()))
+        if reached(self.sony_value(code).unwrap_or(0)) {
+            return Ok(self
+                .sony_prop(code)
+                .map_or(Value::Int(target), |p| p.desc.current.clone()));
+        }
+        Err(PtpError::Protocol(format!(
+            "property {code:#06x} did not reach {target:#x} in {MAX_NOTCHES} notches"
+        )))
     }
 
     fn sony_button(&mut self, code: u16, state: u16) -> Result<()> {

@@ -167,9 +167,8 @@ fn sony_capture_through_the_shutter_button_over_usb() {
     );
 }
 
-/// A Sony that answers protocol 2.00 refuses an exposure value and takes it in notches:
-/// brdfd moves each property a notch at a time (ControlDevice +1 or -1) to the value nearest
-/// what the rig asks, from automatic ISO too.
+/// A Sony that answers protocol 2.00 takes its exposure in notches: brdfd moves each property
+/// a notch at a time (ControlDevice +1 or -1) to the value nearest what the rig asks.
 #[test]
 fn an_older_sony_takes_its_exposure_a_notch_at_a_time() {
     let r = responder(Profile::SonyA7M4, 300_000);

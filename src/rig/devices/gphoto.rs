@@ -73,6 +73,7 @@ impl ObjectCamera for GphotoCamera {
     ) -> Option<anyhow::Result<Exposed>> {
         Some((|| {
             let applied_s = self.set_shutter(seconds)?;
+            self.forget_pending_events()?;
             fire()?;
             let files = self.files_of_fired_shot(
                 Duration::from_secs_f64(applied_s) + FIRED_FILES_WAIT,
