@@ -100,6 +100,22 @@ fn capture_two_views(dir: &std::path::Path) -> (bool, String) {
     )
 }
 
+/// A capture of two views on the simulated rig with its DSLR as `body`, fired by a trigger box
+/// if `shutter`, with `more` added to its `[simulation]` table.
+fn capture_with_body(body: &str, shutter: bool, more: &str) -> (bool, String) {
+    let c = Combination {
+        dslr: "present",
+        fallback: false,
+        turntable: true,
+        theta: "http",
+        shutter,
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let rig = c.rig() + &format!("dslr_body = \"{body}\"\n{more}");
+    std::fs::write(dir.path().join("rig.toml"), rig).unwrap();
+    capture_two_views(dir.path())
+}
+
 /// Checks one combination end to end: `config check`, then a capture of two views.
 fn run(c: Combination) {
     let dir = tempfile::tempdir().unwrap();
@@ -183,17 +199,7 @@ fn canon_and_sony_bodies_shoot_the_capture_through_their_own_flows() {
         ),
     ];
     for (body, shutter, simulated, named, last) in cases {
-        let c = Combination {
-            dslr: "present",
-            fallback: false,
-            turntable: true,
-            theta: "http",
-            shutter,
-        };
-        let dir = tempfile::tempdir().unwrap();
-        let rig = c.rig() + &format!("dslr_body = \"{body}\"\n");
-        std::fs::write(dir.path().join("rig.toml"), rig).unwrap();
-        let (ok, text) = capture_two_views(dir.path());
+        let (ok, text) = capture_with_body(body, shutter, "");
         assert!(ok, "{body}, shutter {shutter}: {text}");
         let from_computer = if body == "sony-a7m4" {
             "a Sony"
@@ -254,17 +260,7 @@ fn bodies_driven_through_libgphoto2_shoot_the_capture() {
         ("canon-eos-r6", "Canon EOS R6", false),
         ("canon-eos-r6", "Canon EOS R6", true),
     ] {
-        let c = Combination {
-            dslr: "present",
-            fallback: false,
-            turntable: true,
-            theta: "http",
-            shutter,
-        };
-        let dir = tempfile::tempdir().unwrap();
-        let rig = c.rig() + &format!("dslr_body = \"{body}\"\ndslr_backend = \"gphoto2\"\n");
-        std::fs::write(dir.path().join("rig.toml"), rig).unwrap();
-        let (ok, text) = capture_two_views(dir.path());
+        let (ok, text) = capture_with_body(body, shutter, "dslr_backend = \"gphoto2\"\n");
         assert!(ok, "{body}: {text}");
         for says in [
             "DSLR: simulated",

@@ -393,8 +393,7 @@ impl GphotoCamera {
                 }
                 // libgphoto2 may say so before `left` is up; with no file yet, the shot is
                 // still to come.
-                CameraEvent::Timeout if paths.len() > had || had > 0 => break,
-                CameraEvent::CaptureComplete if paths.len() > had || had > 0 => break,
+                CameraEvent::Timeout | CameraEvent::CaptureComplete if had > 0 => break,
                 _ => {}
             }
         }

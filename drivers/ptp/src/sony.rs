@@ -297,12 +297,12 @@ impl Camera {
         let unreadable = |v: i64| PtpError::Protocol(format!("property {code:#06x} reads {v:#x}"));
         let goal = value_of(target).ok_or_else(|| unreadable(target))?;
         let reached = |v: i64| v == target || value_of(v).is_some_and(|v| v == goal);
+        let mut settled = false;
         for _ in 0..MAX_NOTCHES {
             let now = self.sony_value(code).unwrap_or(0);
             if reached(now) {
-                return Ok(self
-                    .sony_prop(code)
-                    .map_or(Value::Int(target), |p| p.desc.current.clone()));
+                settled = true;
+                break;
             }
             // A value that is not a number (automatic ISO, first in the body's list) is left
             // a notch up.
@@ -329,23 +329,23 @@ impl Camera {
                     "property {code:#06x} did not move from {now:#x} toward {target:#x}"
                 )));
             }
-            let passed = value_of(moved)
+            // Past the target: the body offers nothing between.
+            if value_of(moved)
                 .zip(at)
-                .is_some_and(|(m, at)| (m - goal) * (at - goal) < 0.0);
-            if passed {
-                return Ok(self
-                    .sony_prop(code)
-                    .map_or(Value::Int(target), |p| p.desc.current.clone()));
+                .is_some_and(|(m, at)| (m - goal) * (at - goal) < 0.0)
+            {
+                settled = true;
+                break;
             }
         }
-        if reached(self.sony_value(code).unwrap_or(0)) {
-            return Ok(self
-                .sony_prop(code)
-                .map_or(Value::Int(target), |p| p.desc.current.clone()));
+        if !settled && !reached(self.sony_value(code).unwrap_or(0)) {
+            return Err(PtpError::Protocol(format!(
+                "property {code:#06x} did not reach {target:#x} in {MAX_NOTCHES} notches"
+            )));
         }
-        Err(PtpError::Protocol(format!(
-            "property {code:#06x} did not reach {target:#x} in {MAX_NOTCHES} notches"
-        )))
+        Ok(self
+            .sony_prop(code)
+            .map_or(Value::Int(target), |p| p.desc.current.clone()))
     }
 
     fn sony_button(&mut self, code: u16, state: u16) -> Result<()> {
