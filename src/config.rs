@@ -15,6 +15,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Deserializer};
 
+pub use brdfd_api::plan::{PixelCount, MAX_BRACKET, MAX_EXPOSURE_S};
+
 use crate::selector::Selector;
 use brdfd_core::estimate::Model;
 use brdfd_core::geometry::{Camera, SceneGeometry, Shape};
@@ -601,31 +603,6 @@ pub struct Rig {
     pub shipped: bool,
 }
 
-/// Pixels to estimate from: a count, or "all".
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum PixelCount {
-    Count(usize),
-    All,
-}
-
-impl<'de> Deserialize<'de> for PixelCount {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<PixelCount, D::Error> {
-        #[derive(Deserialize)]
-        #[serde(untagged)]
-        enum Raw {
-            N(usize),
-            S(String),
-        }
-        match Raw::deserialize(d)? {
-            Raw::N(n) => Ok(PixelCount::Count(n)),
-            Raw::S(s) if s == "all" => Ok(PixelCount::All),
-            Raw::S(s) => Err(serde::de::Error::custom(format!(
-                "pixels is a number or \"all\", not {s:?}"
-            ))),
-        }
-    }
-}
-
 /// `[simulation.shape]` is the rig's object placed elsewhere: the same mesh, its numbers
 /// checked as `[geometry.shape]`'s are.
 fn check_true_shape(
@@ -745,18 +722,10 @@ fn default_k() -> usize {
 /// Material and session names: lower-case letters, digits and dashes, 1 to 64 characters,
 /// so a name can never leave the state directory or clash with the file system.
 pub fn validate_name(kind: &str, name: &str) -> Result<(), String> {
-    let ok = !name.is_empty()
-        && name.len() <= 64
-        && !name.starts_with('-')
-        && name
-            .bytes()
-            .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-');
-    if ok {
+    if brdfd_api::plan::is_valid_name(name) {
         Ok(())
     } else {
-        Err(format!(
-            "{kind} {name:?} is not a valid name: use 1 to 64 lower-case letters, digits and dashes, not starting with a dash"
-        ))
+        Err(brdfd_api::plan::invalid_name(kind, name))
     }
 }
 
@@ -818,12 +787,6 @@ fn read(path: &Path) -> Result<(String, String), ConfigError> {
     })?;
     Ok((file, text))
 }
-
-/// Most exposures in one bracket. A bench brackets 3 to 9; a longer list is a mistake, and
-/// each exposure is a photo to shoot, download and keep.
-pub const MAX_BRACKET: usize = 32;
-/// Longest exposure accepted, seconds.
-pub const MAX_EXPOSURE_S: f64 = 60.0;
 
 fn check_exposures(file: &str, field: &str, values: &[f64]) -> Result<(), ConfigError> {
     if values.len() > MAX_BRACKET {
@@ -1152,7 +1115,7 @@ impl MaterialPreset {
         let m: MaterialPreset = parse(file, text).map_err(|e| vec![e])?;
         let mut found = Vec::new();
         if let PixelCount::Count(n) = m.pixels {
-            if n <= m.k {
+            if n.get() <= m.k {
                 found.push(invalid(
                     file,
                     "pixels",

@@ -135,3 +135,28 @@ fn the_report_and_the_exports_sit_on_the_core_alone() {
     forbidden.extend(["brdfd-eval", "brdfd-radiometry", "brdfd-pose", "brdfd-v4l"]);
     sits_on_the_core("brdfd-report", &forbidden);
 }
+
+/// The contract between the daemon and its clients is data: any client can build it without
+/// the daemon's runtime, HTTP stack or drivers, and without the rest of brdfd. With its schema
+/// feature (the daemon's OpenAPI description) it adds utoipa and nothing else of the daemon's.
+#[test]
+fn the_api_contract_sits_on_the_core_alone() {
+    let mut forbidden = ABOVE_THE_CORE.to_vec();
+    forbidden.extend([
+        "reqwest",
+        "brdfd-eval",
+        "brdfd-radiometry",
+        "brdfd-pose",
+        "brdfd-report",
+        "brdfd-v4l",
+    ]);
+    sits_on_the_core("brdfd-api", &forbidden);
+    let schema = packages("brdfd-api", &["schema"]);
+    assert!(schema.iter().any(|p| p == "utoipa"), "{schema:?}");
+    for p in ["brdfd", "tokio", "axum", "hyper"] {
+        assert!(
+            !schema.iter().any(|e| e == p),
+            "brdfd-api with its schema builds {p}"
+        );
+    }
+}

@@ -1,5 +1,5 @@
-//! JSON from outside: a capture plan as a client POSTs it, a session manifest read back from
-//! disk, and the THETA's answers (`/osc/info`, `/osc/state`, command results).
+//! JSON from outside: a capture plan as a client POSTs it, a session manifest and a result's
+//! `coefficients.json` read back from disk, and the THETA's answers (`/osc/info`, `/osc/state`, command results).
 #![no_main]
 #[path = "allocation_limit.rs"]
 mod allocation_limit;
@@ -10,6 +10,9 @@ fuzz_target!(|data: &[u8]| {
         let _ = plan.validate();
     }
     let _ = serde_json::from_slice::<brdfd::session::Manifest>(data);
+    if let Ok(result) = serde_json::from_slice::<brdfd::results::StoredResult>(data) {
+        let _ = result.coefficient_values();
+    }
     let _ = serde_json::from_slice::<brdfd_theta::osc::Info>(data);
     let _ = serde_json::from_slice::<brdfd_theta::osc::StateResponse>(data);
     if let Ok(command) = serde_json::from_slice::<brdfd_theta::osc::Command>(data) {

@@ -11,11 +11,11 @@ use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
 use brdfd::config::{DaemonConfig, Rig};
-use brdfd::daemon::openapi::SessionDetail;
 use brdfd::rig::flow::{self, Context};
 use brdfd::rig::settings::CaptureSettings;
 use brdfd::rig::{Cancel, Devices, Event, Plan, Progress, KEEP_ALIVE};
 use brdfd::session::{safe_file_name, PhaseTime, Session, State};
+use brdfd_api::answers::{Health, SessionDetail};
 
 use super::client::{Busy, Daemon};
 use super::estimate_cmd::{ColourArg, ModelArg, SolveArg};
@@ -48,7 +48,7 @@ pub struct CaptureArgs {
     pub in_span: bool,
     /// Pixels to estimate from (a number or `all`); the material preset's, else 20.
     #[arg(long)]
-    pub pixels: Option<String>,
+    pub pixels: Option<brdfd::rig::PixelCount>,
     /// The BRDF model; the material preset's, else `hybrid` (see `brdfd estimate --help`).
     #[arg(long, value_enum)]
     pub model: Option<ModelArg>,
@@ -199,7 +199,7 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         _ => None,
     };
     if let Some(d) = daemon {
-        let health: brdfd::daemon::openapi::Health = d.typed("/health")?;
+        let health: Health = d.typed("/health")?;
         let simulated = health.rig.simulated;
         match &rig {
             Some(_) if a.rig.is_some() => bail!(
@@ -440,19 +440,10 @@ pub fn resume(state: &Path, id: &str, daemon: &DaemonArgs) -> anyhow::Result<()>
 
 /// `--verbose`: the coefficients from the session's `result/coefficients.json`, and the phases.
 fn print_details(session_dir: &Path, phases: &[PhaseTime]) -> anyhow::Result<()> {
-    let path = session_dir.join("result/coefficients.json");
-    let text =
-        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-    let v: serde_json::Value =
-        serde_json::from_str(&text).with_context(|| format!("reading {}", path.display()))?;
-    let names: Vec<String> = serde_json::from_value(v["columns"].clone())
-        .with_context(|| format!("{}: field `columns`", path.display()))?;
-    let values: Vec<Option<f64>> = serde_json::from_value(v["coefficients"].clone())
-        .with_context(|| format!("{}: field `coefficients`", path.display()))?;
-    let values: Vec<f64> = values.into_iter().map(|c| c.unwrap_or(f64::NAN)).collect();
+    let r = brdfd::results::StoredResult::read(&session_dir.join("result/coefficients.json"))?;
     println!(
         "{}",
-        brdfd::results::coefficient_lines("coefficients", &names, &values)
+        brdfd::results::coefficient_lines("coefficients", &r.columns, &r.coefficient_values())
     );
     print_phases(phases);
     Ok(())

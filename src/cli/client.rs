@@ -5,8 +5,10 @@ use std::io::{BufRead, BufReader};
 use std::time::Duration;
 
 use anyhow::{bail, Context};
-use brdfd::daemon::openapi::{ErrorBody, ErrorCode, Started};
-use brdfd::rig::{Event, Plan, Progress};
+use brdfd::rig::Progress;
+use brdfd_api::answers::{ContinueRequest, Empty, ErrorBody, ErrorCode, Started};
+use brdfd_api::event::Event;
+use brdfd_api::plan::Plan;
 use reqwest::blocking::{Client, RequestBuilder, Response};
 
 pub struct Daemon {
@@ -96,7 +98,7 @@ impl Daemon {
         )
     }
 
-    /// An answer read into the type the daemon writes it from (`brdfd::daemon::openapi`).
+    /// An answer read into the type the daemon writes it from (`brdfd_api::answers`).
     pub fn typed<T: serde::de::DeserializeOwned>(&self, path: &str) -> anyhow::Result<T> {
         let r = self.check(self.get(path).send()?)?;
         r.json()
@@ -116,7 +118,7 @@ impl Daemon {
         // Every POST is JSON, a body or not (the daemon refuses others: docs/api.md).
         let r = self.check(
             self.post(&format!("/sessions/{id}/resume"))
-                .json(&serde_json::json!({}))
+                .json(&Empty {})
                 .send()?,
         )?;
         let started: Started = r
@@ -129,7 +131,7 @@ impl Daemon {
     pub fn cancel(&self, id: &str) -> anyhow::Result<()> {
         self.check(
             self.post(&format!("/sessions/{id}/cancel"))
-                .json(&serde_json::json!({}))
+                .json(&Empty {})
                 .send()?,
         )?;
         Ok(())
@@ -139,7 +141,7 @@ impl Daemon {
     pub fn proceed(&self, id: &str, view: usize) -> anyhow::Result<()> {
         self.check(
             self.post(&format!("/sessions/{id}/continue"))
-                .json(&serde_json::json!({ "view": view }))
+                .json(&ContinueRequest { view: Some(view) })
                 .send()?,
         )?;
         Ok(())

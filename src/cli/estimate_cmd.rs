@@ -50,7 +50,7 @@ pub struct EstimateArgs {
     pub lobes: u64,
     /// Basis model: pixels to use, a number or `all` [default: 20].
     #[arg(long)]
-    pub pixels: Option<String>,
+    pub pixels: Option<brdfd::rig::PixelCount>,
     /// Basis model: how pixels are selected [default: fast].
     #[arg(long, value_enum)]
     pub method: Option<MethodArg>,
@@ -154,8 +154,6 @@ pub enum MethodArg {
     Paper,
 }
 
-pub use brdfd::rig::flow::parse_pixels;
-
 /// An angle in degrees: any finite number (`inf` and `NaN` would turn every light into NaN).
 fn finite_degrees(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
@@ -220,7 +218,9 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
     let options = EstimateOptions {
         model,
         lobes: a.lobes as usize,
-        pixel_count: parse_pixels(a.pixels.as_deref().unwrap_or("20"))?,
+        pixel_count: a
+            .pixels
+            .map_or(Some(brdfd::rig::settings::DEFAULT_PIXELS), |p| p.limit()),
         method,
         swap: SwapParams {
             seed: a.seed,
@@ -376,25 +376,23 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
         render_full(&geometry, &lights, &brdfd::export::GltfBrdf(material))
     } else if let Some(p) = &a.coefficients {
         let basis = load_basis(&a.basis)?;
-        let text =
-            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-        let v: serde_json::Value =
-            serde_json::from_str(&text).with_context(|| format!("parsing {}", p.display()))?;
-        if v["model"] == "analytic" || v["model"] == "hybrid" {
-            let m: Microfacet = serde_json::from_value(v["analytic"].clone())
-                .with_context(|| format!("{}: field `analytic`", p.display()))?;
+        let r = brdfd::results::StoredResult::read(p)?;
+        if r.model == "analytic" || r.model == "hybrid" {
+            let m: Microfacet = r.analytic.with_context(|| {
+                format!(
+                    "{}: a {} estimate without its field `analytic`",
+                    p.display(),
+                    r.model
+                )
+            })?;
             m.check()
                 .map_err(|e| anyhow::anyhow!("{}: field `analytic`: {e}", p.display()))?;
-            let mixture: Vec<MixWeight> = match v.get("mixture") {
-                Some(mix) => serde_json::from_value(mix.clone())
-                    .with_context(|| format!("{}: field `mixture`", p.display()))?,
-                None => Vec::new(),
-            };
-            if !mixture.is_empty() && v["basis_id"].as_str() != Some(basis.header.id.as_str()) {
+            let mixture: Vec<MixWeight> = r.mixture.unwrap_or_default();
+            if !mixture.is_empty() && r.basis_id != basis.header.id {
                 bail!(
-                    "{} mixes the measured materials of basis {}, not {}; pass that basis with --basis",
+                    "{} mixes the measured materials of basis {:?}, not {}; pass that basis with --basis",
                     p.display(),
-                    v["basis_id"],
+                    r.basis_id,
                     basis.header.id
                 );
             }
@@ -402,13 +400,12 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
                 .map_err(|e| anyhow::anyhow!("{}: field `mixture`: {e}", p.display()))?;
             return finish_render(&a.out, render_bivariate(&geometry, &lights, &b));
         }
-        let coeffs: Vec<f64> = serde_json::from_value(v["coefficients"].clone())
-            .with_context(|| format!("{}: field `coefficients`", p.display()))?;
-        if v["basis_id"].as_str() != Some(basis.header.id.as_str()) {
+        let coeffs = r.coefficient_values();
+        if r.basis_id != basis.header.id {
             bail!(
-                "{} was estimated on basis {}, not {}; pass that basis with --basis",
+                "{} was estimated on basis {:?}, not {}; pass that basis with --basis",
                 p.display(),
-                v["basis_id"],
+                r.basis_id,
                 basis.header.id
             );
         }

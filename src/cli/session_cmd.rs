@@ -177,12 +177,8 @@ fn match_id<'a>(ids: &'a [String], prefix: &str) -> Result<&'a str, String> {
 
 /// The result a session wrote, if it got that far: its model and fit to the photo.
 fn result_of(dir: &Path) -> Option<(String, f64)> {
-    let text = std::fs::read_to_string(dir.join("result/coefficients.json")).ok()?;
-    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
-    Some((
-        v["model"].as_str().unwrap_or("basis").to_string(),
-        v["fit_error"].as_f64()?,
-    ))
+    let r = brdfd::results::StoredResult::read(&dir.join("result/coefficients.json")).ok()?;
+    Some((r.model, r.fit_error?))
 }
 
 fn list(state: &Path, json: bool) -> anyhow::Result<()> {

@@ -384,7 +384,10 @@ async fn devices(State(d): State<Shared>) -> Json<Vec<crate::rig::DeviceStatus>>
 #[utoipa::path(get, path = "/materials", responses((status = 200, description = "the presets", body = Materials)))]
 async fn materials() -> Json<Materials> {
     Json(Materials {
-        presets: crate::config::preset_names(),
+        presets: crate::config::preset_names()
+            .into_iter()
+            .map(str::to_string)
+            .collect(),
     })
 }
 
@@ -1088,7 +1091,7 @@ async fn events(
                 session: id.clone(),
                 state: s.manifest().state,
                 result: (s.manifest().state == crate::session::State::Done)
-                    .then(|| crate::rig::Summary::read(&s.dir.join("result/coefficients.json")))
+                    .then(|| crate::rig::stored_summary(&s.dir.join("result/coefficients.json")))
                     .flatten()
                     .map(Box::new),
                 cancelled: s.manifest().state == crate::session::State::Failed

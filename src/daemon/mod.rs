@@ -425,7 +425,7 @@ impl Daemon {
     pub fn start_capture(&self, plan: Plan) -> Result<Session, StartError> {
         // A malformed plan is refused as such whether or not a capture runs: the caller
         // learns what to fix, not only that it must wait.
-        plan.validate().map_err(StartError::Invalid)?;
+        plan.validate().map_err(|e| StartError::Invalid(e.into()))?;
         scene_names(&plan).map_err(StartError::Invalid)?;
         // The scene files by name first: every later step reads the files they resolve to,
         // never a path the client sent.

@@ -12,7 +12,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::{bail, Context as _};
+use anyhow::Context as _;
 use serde_json::json;
 
 use super::light::{light_bracket, report_panorama};
@@ -82,20 +82,6 @@ pub struct Outcome {
     pub condition: f64,
     /// How well the estimate re-renders the photos (see `Estimate::fit_error`).
     pub fit_error: f64,
-}
-
-/// `all` or a positive count.
-pub fn parse_pixels(s: &str) -> anyhow::Result<Option<usize>> {
-    if s == "all" {
-        return Ok(None);
-    }
-    let n: usize = s
-        .parse()
-        .with_context(|| format!("--pixels takes a number or `all`, got {s:?}"))?;
-    if n == 0 {
-        bail!("--pixels must be at least 1");
-    }
-    Ok(Some(n))
 }
 
 /// Everything a run of the flow works with.

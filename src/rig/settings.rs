@@ -11,7 +11,6 @@ use std::path::Path;
 use anyhow::bail;
 use brdfd_theta::BracketPlan;
 
-use super::flow::parse_pixels;
 use super::plan::{self, Roles};
 use super::roles::CameraSettings;
 use super::Plan;
@@ -159,7 +158,7 @@ impl CaptureSettings {
             }
         }
         if rig.simulated {
-            plan.check_simulated_material()?;
+            super::check_simulated_material(plan)?;
         }
         let p = preset.as_ref();
         let b = &rig.brackets;
@@ -170,12 +169,9 @@ impl CaptureSettings {
         } else {
             b.dslr_shutters.clone()
         };
-        let pixel_count = match (&plan.pixels, p) {
-            (Some(n), _) => parse_pixels(n)?,
-            (None, Some(p)) => match p.pixels {
-                PixelCount::All => None,
-                PixelCount::Count(n) => Some(n),
-            },
+        let pixel_count = match (plan.pixels, p) {
+            (Some(n), _) => n.limit(),
+            (None, Some(p)) => p.pixels.limit(),
             (None, None) => Some(DEFAULT_PIXELS),
         };
         let estimate = EstimateOptions {
@@ -373,9 +369,6 @@ mod tests {
             format!("{e:#}").contains("the simulator has no material"),
             "{e:#}"
         );
-        let mut p = plan("gold");
-        p.pixels = Some("0".into());
-        assert!(CaptureSettings::resolve(&p, &rig).is_err());
         // A rig whose webcam has no gain parses, and is refused here, naming the gain.
         let uncalibrated = Rig::parse(
             "rig.toml",

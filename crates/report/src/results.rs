@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::export::{write_exports, Export};
 use crate::html::Context;
@@ -116,6 +116,106 @@ pub struct CoefficientsFile<'a> {
     /// The estimate as a glTF material and an OpenPBR `.mtlx`, fitted to it, and how far they
     /// relight from the estimate itself.
     pub exports: Export,
+}
+
+/// What a reader takes back from `coefficients.json`: the model and its coefficients, how it
+/// fits, and its exports' verdict. Written as [`CoefficientsFile`]; fields a reader does not
+/// need are left unread, and fields an older version did not write are absent.
+#[derive(Debug, Clone, Deserialize)]
+pub struct StoredResult {
+    /// Absent in files written before the format was named.
+    #[serde(default)]
+    pub format: Option<String>,
+    #[serde(default)]
+    pub format_version: Option<u32>,
+    /// `basis`, `analytic` or `hybrid`; files written before the models had no field and
+    /// were the basis's.
+    #[serde(default = "basis_model")]
+    pub model: String,
+    #[serde(default)]
+    pub analytic: Option<Microfacet>,
+    #[serde(default)]
+    pub mixture: Option<Vec<MixWeight>>,
+    pub basis_id: String,
+    pub columns: Vec<String>,
+    /// `null` where a coefficient was not a number (JSON has no NaN).
+    pub coefficients: Vec<Option<f64>>,
+    pub fit_error: Option<f64>,
+    #[serde(default)]
+    pub relight_error: Option<f64>,
+    #[serde(default)]
+    pub fallback: Option<String>,
+    #[serde(default)]
+    pub exports: Option<StoredExports>,
+}
+
+/// `coefficients.json`'s `exports`, as far as a reader needs them.
+#[derive(Debug, Clone, Deserialize)]
+pub struct StoredExports {
+    pub relight_error: Option<f64>,
+    pub verdict: Option<String>,
+}
+
+fn basis_model() -> String {
+    "basis".into()
+}
+
+/// Why `coefficients.json` could not be read back.
+#[derive(Debug, thiserror::Error)]
+pub enum ReadResultError {
+    #[error("reading {path}: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// Not JSON, or a field of the wrong type (serde says which, with its line and column).
+    #[error("{path}: {source}")]
+    Parse {
+        path: String,
+        #[source]
+        source: serde_json::Error,
+    },
+    #[error("{path} is {format:?} version {version}, not {COEFFICIENTS_FORMAT} up to version {COEFFICIENTS_VERSION}: written by another program or a newer brdfd")]
+    Format {
+        path: String,
+        format: String,
+        version: u32,
+    },
+}
+
+impl StoredResult {
+    /// Reads `coefficients.json` at `path`, checking its format's name and version.
+    pub fn read(path: &Path) -> std::result::Result<StoredResult, ReadResultError> {
+        let shown = || path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| ReadResultError::Io {
+            path: shown(),
+            source,
+        })?;
+        let r: StoredResult =
+            serde_json::from_str(&text).map_err(|source| ReadResultError::Parse {
+                path: shown(),
+                source,
+            })?;
+        let format = r.format.as_deref().unwrap_or(COEFFICIENTS_FORMAT);
+        let version = r.format_version.unwrap_or(COEFFICIENTS_VERSION);
+        if format != COEFFICIENTS_FORMAT || version > COEFFICIENTS_VERSION {
+            return Err(ReadResultError::Format {
+                path: shown(),
+                format: format.to_string(),
+                version,
+            });
+        }
+        Ok(r)
+    }
+
+    /// The coefficients, `NaN` where the file holds `null`.
+    pub fn coefficient_values(&self) -> Vec<f64> {
+        self.coefficients
+            .iter()
+            .map(|c| c.unwrap_or(f64::NAN))
+            .collect()
+    }
 }
 
 /// Whether the estimated BRDF could be a real surface's (`coefficients.json`'s `plausibility`).
@@ -437,4 +537,49 @@ pub fn coefficient_lines(title: &str, names: &[String], coefficients: &[f64]) ->
         s.push_str(&format!("\n  {n:>5} = {c:+.6}"));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn read(text: &str) -> std::result::Result<StoredResult, ReadResultError> {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("coefficients.json");
+        std::fs::write(&path, text).unwrap();
+        StoredResult::read(&path)
+    }
+
+    const BASIS: &str = r#""basis_id": "b1", "columns": ["c0", "c1"], "coefficients": [0.5, null], "fit_error": 0.04"#;
+
+    #[test]
+    fn a_stored_result_is_read_back_typed_and_a_wrong_one_is_named() {
+        let r = read(&format!(
+            r#"{{"format": "{COEFFICIENTS_FORMAT}", "format_version": 1, "model": "basis", {BASIS}}}"#
+        ))
+        .unwrap();
+        assert_eq!(r.columns, ["c0", "c1"]);
+        assert_eq!(r.coefficients, [Some(0.5), None]);
+        assert!(r.coefficient_values()[1].is_nan());
+        assert_eq!(r.fit_error, Some(0.04));
+        assert!(r.exports.is_none());
+        // A file from before the format was named, or the models were, is the basis's.
+        assert_eq!(read(&format!("{{{BASIS}}}")).unwrap().model, "basis");
+        let other = read(&format!(r#"{{"format": "other", {BASIS}}}"#)).unwrap_err();
+        assert!(matches!(other, ReadResultError::Format { .. }), "{other}");
+        let newer = read(&format!(
+            r#"{{"format": "{COEFFICIENTS_FORMAT}", "format_version": 2, {BASIS}}}"#
+        ))
+        .unwrap_err();
+        assert!(newer.to_string().contains("version 2"), "{newer}");
+        // A field of the wrong type is named, with the file.
+        let bad = read(r#"{"basis_id": "b1", "columns": "c0", "coefficients": []}"#).unwrap_err();
+        assert!(
+            matches!(bad, ReadResultError::Parse { .. })
+                && bad.to_string().contains("coefficients.json"),
+            "{bad}"
+        );
+        let truncated = read(&format!("{{{BASIS}")).unwrap_err();
+        assert!(truncated.to_string().contains("EOF"), "{truncated}");
+    }
 }

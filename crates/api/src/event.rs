@@ -1,0 +1,102 @@
+//! What a running capture reports as it goes, ending with its result in brief.
+
+use serde::{Deserialize, Serialize};
+
+use crate::session::State;
+
+/// What the flow reports as it goes; the CLI draws progress bars from it, the daemon sends it
+/// to its event stream. Serialised as `{"type": "phase_started", ...}`.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum Event {
+    /// A phase began: `total` units (frames, or 1 for one piece of work).
+    PhaseStarted { phase: String, total: u64 },
+    /// Work done in a phase so far.
+    Progress {
+        phase: String,
+        done: u64,
+        total: u64,
+    },
+    /// A phase ended: its wall time, and of that the devices' own time.
+    PhaseDone {
+        phase: String,
+        seconds: f64,
+        device_seconds: f64,
+    },
+    /// A line for the operator.
+    Message { text: String },
+    /// The capture waits for the operator: turn the object by hand to `degrees` for view
+    /// `view` (from 1), then say so (the CLI's Enter, the API's `continue`).
+    WaitingForOperator {
+        text: String,
+        view: usize,
+        degrees: f64,
+    },
+    /// Something the operator should look at; the capture goes on.
+    Warning { text: String },
+    /// The end: the session's final state, with the result or the error.
+    Finished {
+        session: String,
+        state: State,
+        /// Boxed: the summary is most of the event's size, and the other events are small.
+        result: Option<Box<Summary>>,
+        error: Option<String>,
+        /// Failed because it was cancelled (what was captured is kept; a resume continues).
+        #[serde(default)]
+        cancelled: bool,
+    },
+}
+
+impl Event {
+    /// The phases `events` started and did not end, in the order they started: what a stop
+    /// waits for, said to the operator who asked for it.
+    pub fn under_way(events: &[Event]) -> Vec<String> {
+        let mut open: Vec<String> = Vec::new();
+        for e in events {
+            match e {
+                Event::PhaseStarted { phase, .. } => open.push(phase.clone()),
+                Event::PhaseDone { phase, .. } => open.retain(|p| p != phase),
+                Event::Finished { .. } => open.clear(),
+                _ => {}
+            }
+        }
+        open
+    }
+}
+
+/// A finished estimate in brief, as the `finished` event carries it: the model, its columns
+/// and coefficients, and how it fits (the whole record is `result/coefficients.json`).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub struct Summary {
+    /// `hybrid`, `analytic` or `basis`.
+    pub model: String,
+    /// Names of the coefficients, in their order.
+    pub columns: Vec<String>,
+    /// The coefficients; `null` for one that is not a number (JSON has no NaN).
+    pub coefficients: Vec<Option<f64>>,
+    /// How well the estimate re-renders the photo (relative RMSE; `null` if not a number).
+    pub fit_error: Option<f64>,
+    /// The fit in words: `good`, `fair` or `poor`, with its threshold.
+    pub fit_verdict: String,
+    /// A simulated capture's relit error against the truth, under light it was not fitted to.
+    pub relight_error: Option<f64>,
+    /// When the V4L2 fallback camera shot any view: which, and what averaging left of its
+    /// noise.
+    #[serde(default)]
+    pub fallback: Option<String>,
+    /// How far `material.gltf` relights from the estimate under light its fit did not see.
+    #[serde(default)]
+    pub export_relight_error: Option<f64>,
+    /// That figure in words (`faithful`, `close` or `approximate`), with its threshold.
+    #[serde(default)]
+    pub export_verdict: Option<String>,
+}
+
+impl Summary {
+    /// Coefficients as the summary carries them: a number, or `None` where there is none.
+    pub fn numbers(values: &[f64]) -> Vec<Option<f64>> {
+        values.iter().map(|v| v.is_finite().then_some(*v)).collect()
+    }
+}
