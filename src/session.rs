@@ -23,6 +23,7 @@ use std::time::SystemTime;
 use sha2::{Digest, Sha256};
 
 use crate::config::validate_name;
+pub use brdfd_api::event::FailureCode;
 pub use brdfd_api::session::{Manifest, PhaseTime, RawFile, State, Step, Transition};
 
 #[derive(Debug, thiserror::Error)]
@@ -225,6 +226,7 @@ impl Session {
                     state: State::Created,
                     at: created,
                     reason: None,
+                    code: None,
                 }],
                 rig: rig.into(),
                 preset: preset.map(String::from),
@@ -298,17 +300,25 @@ impl Session {
     /// what it is and `resume` continues it. Returns whether it was interrupted.
     pub fn mark_if_interrupted(&mut self) -> Result<bool> {
         let id = self.manifest.id.clone();
-        let marked = self.fail_unless_running(|was| {
-            format!(
-                "interrupted while {was}: the process running it stopped; `brdfd session resume {id}` continues it"
-            )
-        })?;
+        let marked = self.fail_unless_running(
+            |was| {
+                format!(
+                    "interrupted while {was}: the process running it stopped; `brdfd session resume {id}` continues it"
+                )
+            },
+            None,
+        )?;
         Ok(marked == Marked::Failed)
     }
 
     /// Records the session as failed, with the reason `why` gives for the state it was left
-    /// in, unless it already ended or a process runs it (holds its claim).
-    pub fn fail_unless_running(&mut self, why: impl FnOnce(State) -> String) -> Result<Marked> {
+    /// in and its code if known, unless it already ended or a process runs it (holds its
+    /// claim).
+    pub fn fail_unless_running(
+        &mut self,
+        why: impl FnOnce(State) -> String,
+        code: Option<FailureCode>,
+    ) -> Result<Marked> {
         if matches!(self.manifest.state, State::Done | State::Failed) {
             return Ok(Marked::Ended);
         }
@@ -316,7 +326,7 @@ impl Session {
             return Ok(Marked::Running);
         };
         let reason = why(self.manifest.state);
-        self.set_state(State::Failed, Some(reason))?;
+        self.record(State::Failed, Some(reason), code)?;
         Ok(Marked::Failed)
     }
 
@@ -370,6 +380,21 @@ impl Session {
     /// ([`State::may_become`]); otherwise nothing changes. If the manifest cannot be written,
     /// the session keeps its state in memory too, so that what it says stays what is stored.
     pub fn set_state(&mut self, state: State, reason: Option<String>) -> Result<()> {
+        self.record(state, reason, None)
+    }
+
+    /// Records the session as failed, with the reason for people and its code for programs
+    /// (the code reaches API clients in the stream's `finished` event).
+    pub fn fail(&mut self, reason: String, code: FailureCode) -> Result<()> {
+        self.record(State::Failed, Some(reason), Some(code))
+    }
+
+    fn record(
+        &mut self,
+        state: State,
+        reason: Option<String>,
+        code: Option<FailureCode>,
+    ) -> Result<()> {
         let from = self.manifest.state;
         if !from.may_become(state) {
             return Err(SessionError::Transition {
@@ -383,6 +408,7 @@ impl Session {
             state,
             at: now(),
             reason,
+            code,
         });
         self.save().inspect_err(|_| {
             self.manifest.history.pop();

@@ -131,6 +131,19 @@ fn the_openapi_description_is_the_live_api() {
             "{code} is not described in {described}"
         );
     }
+    // So is every code a failed capture's `finished` event can carry.
+    let failures = &spec["components"]["schemas"]["FailureCode"];
+    let described = failures["description"].as_str().unwrap_or_default();
+    let listed = failures["enum"]
+        .as_array()
+        .expect("the failure codes are listed");
+    assert_eq!(listed.len(), 8, "{failures}");
+    for code in listed {
+        assert!(
+            described.contains(&format!("`{}`: ", code.as_str().unwrap())),
+            "{code} is not described in {described}"
+        );
+    }
     let files: Vec<String> = spec["components"]["schemas"]["ResultFile"]["enum"]
         .as_array()
         .expect("the result files are listed")

@@ -165,6 +165,7 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
         "{last}"
     );
     assert_eq!(last["cancelled"], true, "{last}");
+    assert_eq!(last["code"], "cancelled", "{last}");
     // The stream showed the phases as they ran.
     assert!(events
         .iter()
@@ -179,6 +180,19 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
     assert_eq!((status, body["error"].as_str()), (404, Some("not_found")));
     let (status, body) = daemon.get(&format!("/sessions/{id}/result"));
     assert_eq!((status, body["error"].as_str()), (409, Some("not_done")));
+    // The manifest keeps the cancel's code beside its words.
+    let (status, detail) = daemon.get(&format!("/sessions/{id}"));
+    assert_eq!(status, 200, "{detail}");
+    let failed = detail["manifest"]["history"]
+        .as_array()
+        .unwrap()
+        .last()
+        .unwrap();
+    assert_eq!(
+        (&failed["state"], &failed["code"]),
+        (&json!("failed"), &json!("cancelled")),
+        "{failed}"
+    );
 
     let (status, body) = daemon.post(&format!("/sessions/{id}/resume"), json!({}));
     assert_eq!(status, 202, "{body}");

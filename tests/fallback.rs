@@ -22,6 +22,20 @@ fn rig_with(simulation: &str) -> String {
 /// Captures gold with `rig` (and extra arguments); the output and the session's
 /// `result/coefficients.json`, if it was written.
 fn capture(rig: &str, extra: &[&str]) -> (bool, String, Option<serde_json::Value>) {
+    let (ok, text, coefficients, _) = capture_with_manifest(rig, extra);
+    (ok, text, coefficients)
+}
+
+/// [`capture`], with the session's manifest.
+fn capture_with_manifest(
+    rig: &str,
+    extra: &[&str],
+) -> (
+    bool,
+    String,
+    Option<serde_json::Value>,
+    Option<serde_json::Value>,
+) {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("rig.toml"), rig).unwrap();
     let mut args = vec![
@@ -38,14 +52,16 @@ fn capture(rig: &str, extra: &[&str]) -> (bool, String, Option<serde_json::Value
     args.extend_from_slice(extra);
     let o = brdfd(&args, dir.path());
     let text = out(&o);
-    let coefficients = std::fs::read_dir(dir.path().join("state/sessions"))
+    let session = std::fs::read_dir(dir.path().join("state/sessions"))
         .ok()
         .and_then(|mut d| d.next())
-        .and_then(|e| {
-            std::fs::read_to_string(e.unwrap().path().join("result/coefficients.json")).ok()
-        })
-        .map(|t| serde_json::from_str(&t).unwrap());
-    (o.status.success(), text, coefficients)
+        .map(|e| e.unwrap().path());
+    let read = |name: &str| {
+        let text = std::fs::read_to_string(session.as_ref()?.join(name)).ok()?;
+        Some(serde_json::from_str(&text).unwrap())
+    };
+    let (coefficients, manifest) = (read("result/coefficients.json"), read("manifest.json"));
+    (o.status.success(), text, coefficients, manifest)
 }
 
 #[test]
@@ -96,14 +112,24 @@ fn a_dslr_that_powers_off_mid_capture_hands_over_to_the_fallback() {
 #[test]
 fn a_missing_dslr_without_a_fallback_is_a_clear_error() {
     let rig = rig_with("dslr = \"absent\"").replace("fallback_camera = \"v4l:simulated\"\n", "");
-    let (ok, text, _) = capture(&rig, &[]);
+    let (ok, text, _, manifest) = capture_with_manifest(&rig, &[]);
     assert!(!ok, "{text}");
     assert!(
         text.contains("the DSLR does not answer, and the rig names no fallback_camera"),
         "{text}"
     );
-    // With the DSLR's own error.
+    // With the DSLR's own error, and its code for programs in the manifest.
     assert!(text.contains("could not be opened"), "{text}");
+    let manifest = manifest.expect("the session was created");
+    let failed = manifest["history"].as_array().unwrap().last().unwrap();
+    assert_eq!(
+        (&failed["state"], &failed["code"]),
+        (
+            &serde_json::json!("failed"),
+            &serde_json::json!("device_missing")
+        ),
+        "{failed}"
+    );
 }
 
 #[test]

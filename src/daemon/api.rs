@@ -1085,8 +1085,15 @@ async fn events(
             // Not run by this daemon: a stored session's stream is its outcome alone.
             let s = open(&d, &id)?;
             let log = super::EventLog::new();
-            let reason = s.manifest().history.last().and_then(|t| t.reason.clone());
+            let last = s.manifest().history.last();
+            let reason = last.and_then(|t| t.reason.clone());
             let reason = reason.map(|r| d.relative(&r));
+            let failed = s.manifest().state == crate::session::State::Failed;
+            // Sessions that failed before codes were recorded: a cancel is told by its words.
+            let code = last.and_then(|t| t.code).filter(|_| failed).or_else(|| {
+                (failed && reason.as_deref() == Some(crate::rig::flow::CANCELLED))
+                    .then_some(crate::rig::failure::FailureCode::Cancelled)
+            });
             log.push(Event::Finished {
                 session: id.clone(),
                 state: s.manifest().state,
@@ -1094,8 +1101,8 @@ async fn events(
                     .then(|| crate::rig::stored_summary(&s.dir.join("result/coefficients.json")))
                     .flatten()
                     .map(Box::new),
-                cancelled: s.manifest().state == crate::session::State::Failed
-                    && reason.as_deref() == Some(crate::rig::flow::CANCELLED),
+                cancelled: code == Some(crate::rig::failure::FailureCode::Cancelled),
+                code,
                 error: reason,
             });
             log

@@ -244,12 +244,14 @@ fn private_event(hidden: &Hidden, e: Event) -> Event {
             result,
             error,
             cancelled,
+            code,
         } => Event::Finished {
             session,
             state,
             result,
             error: error.map(|x| hidden.strip(&x)),
             cancelled,
+            code,
         },
         e => e,
     }
@@ -291,7 +293,7 @@ fn record_when_possible(
         let Some(u) = pending.get(id).cloned() else {
             return;
         };
-        match flow::record_failure(state, id, &u.reason) {
+        match flow::record_failure(state, id, &u) {
             Ok(true) => {
                 tracing::info!(session = %id, "the failure is recorded in the manifest now");
                 pending.remove(id);
@@ -416,6 +418,7 @@ impl Daemon {
                 state: State::Failed,
                 at: m.history.last().map(|t| t.at.clone()).unwrap_or_default(),
                 reason: Some(format!("{} ({}; retried every second)", u.reason, u)),
+                code: Some(u.code),
             });
         }
         m

@@ -15,6 +15,7 @@ use std::time::Instant;
 use anyhow::Context as _;
 use serde_json::json;
 
+use super::failure::{disk_full, failure_code, FailureCode};
 use super::light::{light_bracket, report_panorama};
 use super::object::{self, CameraRole, FallbackUse};
 use super::settings::CaptureSettings;
@@ -121,13 +122,18 @@ pub fn execute(
     // (result, why it failed, and whether the manifest could not record it), with the failure
     // recorded while the session is still claimed.
     let mut unrecorded = None;
-    let (result, reason) = {
+    let (result, failure) = {
         // Refused before anything is written when another process runs this session. The
         // claim ends before `Finished` is sent: a client that saw it may resume at once.
         let _lock = session.claim()?;
         let result = run(session, settings, cx);
-        let reason = result.as_ref().err().map(|e| {
-            let reason = if cx.cancel.is_cancelled() {
+        let failure = result.as_ref().err().map(|e| {
+            let code = if cx.cancel.is_cancelled() {
+                FailureCode::Cancelled
+            } else {
+                failure_code(e)
+            };
+            let reason = if code == FailureCode::Cancelled {
                 CANCELLED.to_string()
             } else if disk_full(e) && !format!("{e:#}").contains("the disk is full") {
                 // A derived map or a result, written by the core, says only ENOSPC.
@@ -141,16 +147,17 @@ pub fn execute(
             // Half-written results are of no use, and on a full disk removing them is what
             // makes room to record the failure.
             let _ = std::fs::remove_dir_all(session.dir.join("result.partial"));
-            if let Err(record) = session.set_state(State::Failed, Some(reason.clone())) {
+            if let Err(record) = session.fail(reason.clone(), code) {
                 tracing::error!("could not record the failure in the manifest: {record}");
                 unrecorded = Some(Unrecorded {
                     reason: reason.clone(),
+                    code,
                     error: record.to_string(),
                 });
             }
-            reason
+            (reason, code)
         });
-        (result, reason)
+        (result, failure)
     };
     let id = session.manifest().id.clone();
     cx.progress.event(Event::Finished {
@@ -161,8 +168,9 @@ pub fn execute(
             State::Failed
         },
         result: result.as_ref().ok().map(|o| Box::new(o.summary.clone())),
-        cancelled: reason.as_deref() == Some(CANCELLED),
-        error: reason,
+        cancelled: failure.as_ref().map(|f| f.1) == Some(FailureCode::Cancelled),
+        code: failure.as_ref().map(|f| f.1),
+        error: failure.map(|f| f.0),
     });
     result.map_err(|e| {
         let e = match unrecorded {
@@ -181,6 +189,8 @@ pub fn execute(
 pub struct Unrecorded {
     /// What the manifest should say.
     pub reason: String,
+    /// Its code.
+    pub code: FailureCode,
     /// Why it could not.
     pub error: String,
 }
@@ -197,25 +207,10 @@ impl std::fmt::Display for Unrecorded {
 
 /// Records a failure that [`execute`] could not. `Ok(true)` once the manifest says it (or
 /// says the session ended by other means); `Ok(false)` while another process holds it.
-pub fn record_failure(state: &std::path::Path, id: &str, reason: &str) -> anyhow::Result<bool> {
-    let marked = Session::open(state, id)?.fail_unless_running(|_| reason.to_string())?;
+pub fn record_failure(state: &std::path::Path, id: &str, u: &Unrecorded) -> anyhow::Result<bool> {
+    let marked =
+        Session::open(state, id)?.fail_unless_running(|_| u.reason.clone(), Some(u.code))?;
     Ok(marked != crate::session::Marked::Running)
-}
-
-/// Whether a full disk (ENOSPC) caused `e`, wherever in its chain: a session file's error, a
-/// plain I/O error, or the core's (whose I/O error is a field, not a source).
-fn disk_full(e: &anyhow::Error) -> bool {
-    const ENOSPC: i32 = 28;
-    e.chain().any(|c| {
-        c.downcast_ref::<std::io::Error>()
-            .and_then(std::io::Error::raw_os_error)
-            == Some(ENOSPC)
-            || matches!(
-                c.downcast_ref::<brdfd_core::CoreError>(),
-                Some(brdfd_core::CoreError::Io { error, .. }) if error.raw_os_error() == Some(ENOSPC)
-            )
-            || c.to_string().contains("the disk is full")
-    })
 }
 
 /// Wall time per phase, with the devices' share; each phase is announced as it starts and

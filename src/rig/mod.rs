@@ -13,12 +13,13 @@
 //! - [`simulated`]: the simulated rig, whose devices speak the real protocols on loopback.
 //! - [`settings`]: a capture's settings, resolved from the plan, the preset and the rig
 //!   before a session exists.
-//! - [`flow`]: the capture itself, as resumable steps.
+//! - [`flow`]: the capture itself, as resumable steps; [`failure`]: why it failed, as a code.
 //! - [`light`]: the light probe's bracket; [`object`]: the object camera's views, shot on
 //!   the DSLR or the V4L2 fallback and merged; [`turning`]: the object turned between views.
 
 pub mod calibrate;
 pub mod devices;
+pub mod failure;
 pub mod flow;
 pub mod light;
 pub mod object;

@@ -10,6 +10,8 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
+use super::failure::{failure_code, DeviceUnavailable, FailureCode};
+
 /// What a worker needs of its device.
 pub trait Device: Send + 'static {
     /// "NIKON D5100 (serial 3000123)": for the device list and the session's manifest.
@@ -24,7 +26,14 @@ pub type Opener<D> = Box<dyn FnMut() -> anyhow::Result<D> + Send>;
 /// A job gets the device, or why it could not be opened. It returns whether it failed, and
 /// the delivery of its answer, which the worker makes after checking the device: a caller
 /// that hears of a failure then also sees the device's state after it.
-type Job<D> = Box<dyn FnOnce(Result<&mut D, String>) -> (bool, Deliver) + Send>;
+type Job<D> = Box<dyn FnOnce(Result<&mut D, OpenFailure>) -> (bool, Deliver) + Send>;
+
+/// Why the device could not be opened for a job: the opener's words and their code.
+#[derive(Clone)]
+struct OpenFailure {
+    message: String,
+    code: FailureCode,
+}
 type Deliver = Box<dyn FnOnce() + Send>;
 
 /// A device's state as the daemon reports it.
@@ -117,7 +126,14 @@ impl<D: Device> Worker<D> {
         let DeviceStatus { role, selector, .. } = self.status();
         let job: Job<D> = Box::new(move |d| {
             let r = d
-                .map_err(|e| anyhow::anyhow!("the {role} ({selector}) could not be opened: {e}"))
+                .map_err(|e| {
+                    anyhow::Error::new(DeviceUnavailable {
+                        role,
+                        selector,
+                        message: e.message,
+                        code: e.code,
+                    })
+                })
                 .and_then(f);
             let failed = r.is_err();
             (
@@ -163,7 +179,7 @@ fn run<D: Device>(
 ) {
     let set = |f: &dyn Fn(&mut DeviceStatus)| f(&mut status.lock().expect("status lock"));
     let mut device: Option<D> = None;
-    let mut try_open = |device: &mut Option<D>| -> Result<(), String> {
+    let mut try_open = |device: &mut Option<D>| -> Result<(), OpenFailure> {
         if device.is_some() {
             return Ok(());
         }
@@ -188,7 +204,10 @@ fn run<D: Device>(
                         s.state = Link::Lost;
                     }
                 });
-                Err(msg)
+                Err(OpenFailure {
+                    message: msg,
+                    code: opening_code(&e),
+                })
             }
         }
     };
@@ -242,6 +261,16 @@ fn run<D: Device>(
             }
             Err(RecvTimeoutError::Disconnected) => return,
         }
+    }
+}
+
+/// The code of a device that could not be opened. A device that hangs up while it is being
+/// opened (a camera switched off, whose network stack still accepts the connection) was never
+/// there for this capture: missing, not lost.
+fn opening_code(e: &anyhow::Error) -> FailureCode {
+    match failure_code(e) {
+        FailureCode::DeviceLost => FailureCode::DeviceMissing,
+        code => code,
     }
 }
 
@@ -342,5 +371,31 @@ mod tests {
         assert_eq!(w.status().state, Link::Lost);
         plugged.store(true, Ordering::SeqCst);
         assert_eq!(w.call(|d| Ok(d.serial)).unwrap(), 1);
+    }
+
+    #[test]
+    fn a_device_that_cannot_be_opened_fails_its_jobs_with_the_openers_code() {
+        let open: Opener<Fake> = Box::new(|| {
+            Err(brdfd_serial::SerialError::Busy {
+                port: "/dev/ttyACM0".into(),
+            })
+            .map_err(anyhow::Error::from)
+        });
+        let w = Worker::spawn(
+            "turntable",
+            "serial:/dev/ttyACM0",
+            open,
+            Duration::from_secs(60),
+        );
+        let e = w.call(|d| Ok(d.serial)).unwrap_err();
+        let unavailable = e
+            .downcast_ref::<DeviceUnavailable>()
+            .expect("a typed error");
+        assert_eq!(unavailable.code, FailureCode::DeviceBusy);
+        assert!(e.to_string().contains("in use by another program"), "{e}");
+        assert_eq!(
+            failure_code(&e.context("turning to view 2")),
+            FailureCode::DeviceBusy
+        );
     }
 }

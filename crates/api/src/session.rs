@@ -59,6 +59,9 @@ pub struct Transition {
     pub at: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
+    /// A failure's cause, for programs (absent in sessions written before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub code: Option<crate::event::FailureCode>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]

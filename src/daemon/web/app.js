@@ -305,10 +305,23 @@ function finished(e) {
     out.textContent = `Cancelled. What was captured is kept: Resume, in the list below, continues it.`;
   } else {
     out.className = "failed";
-    out.textContent = `${e.state}: ${e.error || "no reason given"}`;
+    const next = NEXT_STEP[e.code];
+    out.textContent =
+      `${e.state}: ${e.error || "no reason given"}` + (next ? ` ${next}` : "");
   }
   refreshAll();
 }
+
+// What the operator can do about a failure, by its code (the finished event's `code`, the
+// API's FailureCode). What was captured is kept whatever the cause.
+const NEXT_STEP = {
+  device_busy: "Another program holds the device: close it, then Resume below.",
+  device_permission: "This user may not open the device: see the udev rules in docs/devices.md, then Resume below.",
+  device_missing: "Check that the device is plugged in, switched on and reachable, then Resume below.",
+  device_lost: "The device went away: reconnect it, then Resume below.",
+  device_timeout: "The device did not answer in time: check it, then Resume below.",
+  disk_full: "The disk is full: free space, then Resume below.",
+};
 
 async function start(event) {
   event.preventDefault();
