@@ -16,25 +16,22 @@ use anyhow::Context as _;
 use serde_json::json;
 
 use super::failure::{disk_full, failure_code, FailureCode};
-use super::light::{light_bracket, report_panorama};
+use super::light::light_bracket;
 use super::object::{self, CameraRole, FallbackUse};
 use super::settings::CaptureSettings;
-use super::turning::{turn, turned, turned_bench};
-use super::{Cancel, Devices, Event, Operator, Plan, Progress};
-use crate::bench::{VirtualBench, HELD_OUT_YAW_DEG};
-use crate::config::{MaterialPreset, Rig};
+use super::stage::Stage;
+use super::turning::{turn, turned};
+use super::{Cancel, Devices, Event, Operator, Progress};
+use crate::config::Rig;
 use crate::html::{Context as ReportContext, Visibility};
 use crate::panorama::merge_bracket;
 use crate::session::{PhaseTime, Session, State};
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::Bivariate;
 use brdfd_core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
-use brdfd_core::estimate::{estimate_views, fit_verdict, Estimate, EstimateOptions, Model, View};
-use brdfd_core::geometry::{PixelGeometry, SceneGeometry};
-use brdfd_core::merl::MerlBrdf;
-use brdfd_core::nbrdf::NbrdfSet;
+use brdfd_core::estimate::{estimate_views, fit_verdict, Estimate, EstimateOptions, View};
+use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::raster::Raster;
-use brdfd_core::solve::Colour;
 
 /// The failure a cancelled capture records: its manifest's reason, which the API reads back.
 pub const CANCELLED: &str = "cancelled; what was captured is kept";
@@ -215,20 +212,20 @@ pub fn record_failure(state: &std::path::Path, id: &str, u: &Unrecorded) -> anyh
 
 /// Wall time per phase, with the devices' share; each phase is announced as it starts and
 /// ends.
-struct Phases<'a> {
+pub(super) struct Phases<'a> {
     cx: &'a Context<'a>,
     done: Vec<PhaseTime>,
 }
 
 /// A phase under way.
-struct Running {
+pub(super) struct Running {
     name: String,
     started: Instant,
     device_at_start: f64,
 }
 
 impl<'a> Phases<'a> {
-    fn start(&self, name: &str, total: u64) -> Running {
+    pub(super) fn start(&self, name: &str, total: u64) -> Running {
         self.cx.progress.event(Event::PhaseStarted {
             phase: name.into(),
             total,
@@ -240,13 +237,13 @@ impl<'a> Phases<'a> {
         }
     }
 
-    fn end(&mut self, r: Running) {
+    pub(super) fn end(&mut self, r: Running) {
         let device = self.cx.device_seconds() - r.device_at_start;
         self.finish(r, device);
     }
 
     /// Ends a phase that is the simulator's work as a whole.
-    fn end_as_device(&mut self, r: Running) {
+    pub(super) fn end_as_device(&mut self, r: Running) {
         let all = r.started.elapsed().as_secs_f64();
         self.finish(r, all);
     }
@@ -285,9 +282,10 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
         cx.warn(w.clone());
     }
     check_turntable(cx, s)?;
-    let mut sim = place_sample(cx, s, &basis, &mut phases)?;
-    let env = measure_light(cx, session, s, sim.as_ref(), &mut phases)?;
-    let captured = shoot_views(cx, session, s, &env, sim.as_mut(), &mut phases)?;
+    let mut stage = super::stage::of(cx);
+    stage.place(cx, s, &basis, &mut phases)?;
+    let env = measure_light(cx, session, s, stage.as_ref(), &mut phases)?;
+    let captured = shoot_views(cx, session, s, &env, stage.as_mut(), &mut phases)?;
     session.set_state(State::Captured, None)?;
     cx.cancel.check()?;
     if let Some(text) = &captured.fallback {
@@ -295,22 +293,12 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
     }
     session.set_state(State::Estimating, None)?;
     let est = estimate(cx, s, &basis, &captured, &mut phases)?;
-    let truth = match &sim {
-        Some(sim) => compare_with_truth(cx, &basis, &est, sim, &mut phases),
-        None => None,
-    };
-    let relight = match &mut sim {
-        Some(sim) => Some(relight_against_truth(&est, sim, &mut phases)?),
-        None => None,
-    };
+    let judged = stage.judge(cx, &basis, &est, &mut phases)?;
+    let relight = judged.relight.as_ref().map(|r| r.0);
     // The last point to stop at: once written, the results are the session's.
     cx.cancel.check()?;
     let p = phases.start("write results", 1);
     env.write_exr(&session.dir.join("derived/panorama.exr"))?;
-    // The simulator knows the material: the report overlays it on the estimate's slices.
-    let true_brdf = sim
-        .as_ref()
-        .map(|sim| Bivariate::reduce(&sim.bench.material, basis.header.grid));
     let first = &captured.views[0];
     // Under the candidates' lights, whose visibility the estimate has worked out already.
     let visibility = Visibility::of(&first.geometry, &first.lights);
@@ -318,12 +306,20 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
         Some(shape) => shape.mesh()?,
         None => None,
     };
-    let mut report = report_context(session, &env, &captured, true_brdf.as_ref(), relight);
+    // A stage that knows the material: the report overlays it on the estimate's slices.
+    let mut report = report_context(session, &env, &captured, judged.brdf.as_ref(), relight);
     report.visibility = visibility.as_ref();
     report.object = object.as_ref();
     let exports = write_result(session, &basis, &est, &captured.views[0].lights, &report)?;
     phases.end(p);
-    say_result(cx, session, &est, captured.views.len(), relight, &exports);
+    say_result(
+        cx,
+        session,
+        &est,
+        captured.views.len(),
+        judged.relight,
+        &exports,
+    );
     session.set_phases(phases.done);
     session.set_state(State::Done, None)?;
     let fit = est.fit_error;
@@ -341,7 +337,7 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
             export_relight_error: Some(exports.relight_error),
             export_verdict: Some(exports.verdict.clone()),
         },
-        truth,
+        truth: judged.coefficients,
         pixels: est.selection.pixels.len(),
         condition: est.selection.condition,
         fit_error: est.fit_error,
@@ -360,63 +356,13 @@ fn check_turntable(cx: &Context, s: &CaptureSettings) -> anyhow::Result<()> {
     }
 }
 
-/// What only a simulated rig has: the sample on its bench, and the truth its estimate is
-/// relit against, rendered in the background once the first view is in front of the camera.
-struct Simulated {
-    bench: VirtualBench,
-    relight_truth: Option<Joined<brdfd_core::Result<Raster>>>,
-}
-
-/// A simulated rig needs a sample on its bench. Tabulating the material is the simulator's
-/// work: a real bench has the object.
-fn place_sample(
-    cx: &Context,
-    s: &CaptureSettings,
-    basis: &Basis,
-    phases: &mut Phases,
-) -> anyhow::Result<Option<Simulated>> {
-    let Some(rig) = &cx.devices.sim else {
-        return Ok(None);
-    };
-    let p = phases.start("simulated bench: place the sample", 1);
-    // The bench photographs the object where it truly stands; the estimate uses where the
-    // rig says it is.
-    let scene = SceneGeometry {
-        camera: cx.rig.bench_camera(&s.scene.camera),
-        shape: cx.rig.bench_shape(s.scene.shape.as_ref()),
-        ..s.scene.clone()
-    };
-    let mut bench = simulated_bench(&s.plan, s.preset.as_ref(), &scene, s.yaw, basis)?;
-    bench.stop = cx.cancel.stop();
-    rig.show_light(&bench);
-    phases.end_as_device(p);
-    let (w, h) = s.scene.camera.size();
-    cx.say(format!(
-        "simulated rig: {} on {}; DSLR: simulated {} on {}, {w}×{h}",
-        bench.material_name,
-        s.scene
-            .shape
-            .as_ref()
-            .map_or("the normal map's object".to_string(), |s| s.describe()),
-        rig.dslr_model(),
-        cx.devices
-            .dslr
-            .as_ref()
-            .map_or("none".into(), |d| d.status().selector),
-    ));
-    Ok(Some(Simulated {
-        bench,
-        relight_truth: None,
-    }))
-}
-
 /// The panorama step, then its merge: the light around the object as an environment map in
 /// the bench's unit, through the THETA's gain.
 fn measure_light(
     cx: &Context,
     session: &mut Session,
     s: &CaptureSettings,
-    sim: Option<&Simulated>,
+    stage: &dyn Stage,
     phases: &mut Phases,
 ) -> anyhow::Result<EnvMap> {
     let pano_files = match stored(session, "panorama")? {
@@ -459,8 +405,8 @@ fn measure_light(
             merged.clipped_share * 100.0
         ));
     }
-    if let Some(sim) = sim {
-        cx.say(report_panorama(&merged.map, &sim.bench));
+    if let Some(note) = stage.light_note(&merged.map) {
+        cx.say(note);
     }
     Ok(EnvMap::from_pixels(
         merged.map.width,
@@ -495,7 +441,7 @@ fn shoot_views(
     session: &mut Session,
     s: &CaptureSettings,
     env: &EnvMap,
-    mut sim: Option<&mut Simulated>,
+    stage: &mut dyn Stage,
     phases: &mut Phases,
 ) -> anyhow::Result<Captured> {
     let mut captured = Captured {
@@ -537,10 +483,10 @@ fn shoot_views(
                     CameraRole::Dslr => s.dslr.exposures_s.len(),
                 };
                 let p = phases.start(&format!("{step}: object bracket"), frames as u64);
-                if let (Some(rig), Some(sim)) = (&cx.devices.sim, sim.as_deref_mut()) {
-                    // A render cut short by a cancel says so as every other step does.
-                    show_view(rig, sim, deg).or_else(|e| cx.cancel.check().and(Err(e)))?;
-                }
+                // A render cut short by a cancel says so as every other step does.
+                stage
+                    .show(cx, deg)
+                    .or_else(|e| cx.cancel.check().and(Err(e)))?;
                 let mut using = using;
                 let files = object::shoot_view(
                     cx,
@@ -600,24 +546,6 @@ fn shoot_views(
     Ok(captured)
 }
 
-/// Puts the sample, turned to `deg`, in front of the simulated camera (the simulated
-/// turntable only reports angles: the object turns here).
-fn show_view(
-    rig: &super::simulated::SimulatedRig,
-    sim: &mut Simulated,
-    deg: f64,
-) -> anyhow::Result<()> {
-    rig.show_object(&turned_bench(&sim.bench, deg))?;
-    // The truth the estimate is relit against needs no estimate: it renders while the
-    // camera's modelled exposures wait and the estimate runs. (Not before the scene's own
-    // render: two renders at once only slow each other.)
-    if sim.relight_truth.is_none() {
-        let b = sim.bench.clone();
-        sim.relight_truth = Some(Joined(Some(std::thread::spawn(move || b.relight_truth()))));
-    }
-    Ok(())
-}
-
 /// The estimate of every view together, with the clip level of their merges.
 fn estimate(
     cx: &Context,
@@ -645,53 +573,6 @@ fn estimate(
     let est = estimate_views(basis, &views, &options)?;
     phases.end(p);
     Ok(est)
-}
-
-/// The basis model's estimate beside the simulated material's own projection onto the basis,
-/// its best answer (an analytic fit has no such reference). Comparing with it is the
-/// simulator's business, so its time is the devices'.
-fn compare_with_truth(
-    cx: &Context,
-    basis: &Basis,
-    est: &Estimate,
-    sim: &Simulated,
-    phases: &mut Phases,
-) -> Option<Vec<f64>> {
-    if est.model != Model::Basis {
-        return None;
-    }
-    let p = phases.start("compare with the ground truth (simulator)", 1);
-    let reduced = Bivariate::reduce(&sim.bench.material, basis.header.grid);
-    let truth = match est.colour {
-        Colour::Joint => basis.project(&reduced),
-        Colour::PerChannel => basis.project_channels(&reduced),
-    };
-    phases.end_as_device(p);
-    cx.say(crate::results::coefficient_lines(
-        "ground truth projected on the basis",
-        &est.names,
-        &truth,
-    ));
-    Some(truth)
-}
-
-/// How far the estimate is from the simulated material under light it was not fitted to.
-fn relight_against_truth(
-    est: &Estimate,
-    sim: &mut Simulated,
-    phases: &mut Phases,
-) -> anyhow::Result<f64> {
-    let p = phases.start("relight against the ground truth (simulator)", 1);
-    let truth = match sim.relight_truth.take() {
-        Some(mut render) => render
-            .join()
-            .ok_or_else(|| anyhow::anyhow!("rendering the relight truth panicked"))??,
-        // Every view was already on disk (a resumed session): render it now.
-        None => sim.bench.relight_truth()?,
-    };
-    let error = sim.bench.relight_error_with(&truth, &est.brdf)?;
-    phases.end_as_device(p);
-    Ok(error)
 }
 
 /// What the report says of the session beside the estimate.
@@ -736,12 +617,12 @@ fn say_result(
     session: &Session,
     est: &Estimate,
     views: usize,
-    relight: Option<f64>,
+    relight: Option<(f64, String)>,
     exports: &crate::export::Export,
 ) {
     let report = session.dir.join("result/report.html");
     let extras = crate::summary::Extras {
-        relight: relight.map(|e| (e, format!("the bench's map turned {HELD_OUT_YAW_DEG}°"))),
+        relight,
         views,
         bracketed: true,
         export: Some(exports),
@@ -771,61 +652,6 @@ fn write_result(
     let _ = std::fs::remove_dir_all(&result);
     std::fs::rename(&fresh, &result).context("moving the results into place")?;
     Ok(files.exports)
-}
-
-/// A thread the flow started, joined when dropped: a capture that ends early (an error, a
-/// cancel) does not leave it running into the next one.
-struct Joined<T>(Option<std::thread::JoinHandle<T>>);
-
-impl<T> Joined<T> {
-    /// Its result; `None` if it panicked.
-    fn join(&mut self) -> Option<T> {
-        self.0.take()?.join().ok()
-    }
-}
-
-impl<T> Drop for Joined<T> {
-    fn drop(&mut self) {
-        if let Some(h) = self.0.take() {
-            let _ = h.join();
-        }
-    }
-}
-
-/// The simulated bench for a plan: the material (preset, MERL name, alias or NBRDF file) on
-/// the rig's object, under the plan's light.
-fn simulated_bench(
-    plan: &Plan,
-    preset: Option<&MaterialPreset>,
-    scene: &SceneGeometry,
-    yaw: f64,
-    basis: &Basis,
-) -> anyhow::Result<VirtualBench> {
-    let simulate_as = preset.map_or(plan.material.as_str(), |p| p.simulate_as.as_str());
-    let mut bench = VirtualBench::embedded(simulate_as, plan.size).or_else(|e| {
-        // Not an embedded material: the NBRDF file may have it.
-        let Some(path) = &plan.nbrdf else {
-            return Err(e);
-        };
-        let set = NbrdfSet::read(path)?;
-        let name = crate::bench::resolve_material(simulate_as);
-        let mut b = VirtualBench::embedded("gold", plan.size)?;
-        b.material = MerlBrdf::tabulate(set.get(name)?);
-        b.material_name = name.to_string();
-        Ok::<_, brdfd_core::CoreError>(b)
-    })?;
-    if plan.in_span {
-        let projected = basis.project(&Bivariate::reduce(&bench.material, basis.header.grid));
-        bench.material = basis.reconstruct(&projected).to_merl();
-        bench.material_name = format!("{} (its projection onto the basis)", bench.material_name);
-    }
-    bench.geometry = scene.clone();
-    bench.yaw = yaw;
-    bench.cache = crate::bench::cache::RenderCache::user();
-    if let Some(p) = &plan.env {
-        bench.env = crate::panorama::load_envmap(p)?;
-    }
-    Ok(bench)
 }
 
 /// A step's files from the session (checksums verified), under the names the camera gave

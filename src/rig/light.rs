@@ -8,8 +8,6 @@ use brdfd_theta::{BracketPlan, Frame};
 use super::flow::{Context, Keep, RawFiles};
 use super::roles::LightProbe;
 use super::{Event, Progress};
-use crate::bench::VirtualBench;
-use brdfd_core::envmap::EnvMap;
 
 /// Shoots the light probe's bracket on its worker; the frames are kept as the camera sent
 /// them.
@@ -90,19 +88,4 @@ pub fn check_exposure(progress: &dyn Progress, f: &Frame) {
         // The merge reports a missing EXIF exposure as an error, naming the file.
         Err(e) => tracing::debug!("{e}"),
     }
-}
-
-/// How far the measured map is from the bench's own (total light, per channel).
-pub fn report_panorama(map: &EnvMap, bench: &VirtualBench) -> String {
-    // Total light is independent of the map's resolution (the downsample preserves Σ L·Δω),
-    // so the bench's own map is the reference as it is.
-    let (measured, truth) = (map.lights(0.0).power(), bench.env.lights(0.0).power());
-    format!(
-        "  panorama merged to {}×{}; total light vs the bench's map: {:+.2}% {:+.2}% {:+.2}% (R G B)",
-        map.width,
-        map.height,
-        (measured[0] / truth[0] - 1.0) * 100.0,
-        (measured[1] / truth[1] - 1.0) * 100.0,
-        (measured[2] / truth[2] - 1.0) * 100.0,
-    )
 }

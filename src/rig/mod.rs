@@ -11,6 +11,10 @@
 //! - [`worker`]: one thread per device, with keep-alive and re-opening.
 //! - [`open`]: devices from their selectors (`usb:04b0:0429`, `osc:http://...`, `serial:...`).
 //! - [`simulated`]: the simulated rig, whose devices speak the real protocols on loopback.
+//! - `stage.rs`: the hands on the bench, which place the sample, show it turned to the
+//!   cameras and judge the estimate against what they know of the truth: a real bench's
+//!   operator and turntable, or the simulated rig's virtual bench (`sim_stage.rs`). The flow
+//!   asks them through one trait, and has no simulated branch of its own.
 //! - [`settings`]: a capture's settings, resolved from the plan, the preset and the rig
 //!   before a session exists.
 //! - [`flow`]: the capture itself, as resumable steps; [`failure`]: why it failed, as a code.
@@ -28,7 +32,9 @@ pub mod plan;
 pub mod pose;
 pub mod roles;
 pub mod settings;
+mod sim_stage;
 pub mod simulated;
+mod stage;
 pub mod turning;
 pub mod worker;
 

@@ -7,7 +7,6 @@ use anyhow::Context as _;
 use super::flow::{note_device, Context};
 use super::settings::{CaptureSettings, Turning};
 use super::Event;
-use crate::bench::VirtualBench;
 use crate::session::Session;
 use brdfd_core::geometry::SceneGeometry;
 
@@ -32,15 +31,6 @@ pub fn turned(scene: &SceneGeometry, yaw: f64, deg: f64) -> (SceneGeometry, f64)
     let mut g = scene.clone();
     g.camera = scene.camera.turned_about_y(-theta);
     (g, yaw - theta)
-}
-
-pub fn turned_bench(bench: &VirtualBench, deg: f64) -> VirtualBench {
-    let (geometry, yaw) = turned(&bench.geometry, bench.yaw, deg);
-    VirtualBench {
-        geometry,
-        yaw,
-        ..bench.clone()
-    }
 }
 
 /// Turns the turntable for view `i` (from 0) of `n`, to `target` degrees; where it stopped.
