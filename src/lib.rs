@@ -23,7 +23,7 @@
 //! - [`daemon`]: `brdfd serve`: the devices kept open, one capture at a time, the HTTP API.
 //! - `drivers/` (workspace crates, as they land): device protocols and their simulators.
 
-pub mod bench;
+pub use brdfd_bench as bench;
 pub mod config;
 pub mod daemon;
 /// The camera's pose from a printed board, and an object's placement from its silhouettes:

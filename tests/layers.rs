@@ -160,3 +160,18 @@ fn the_api_contract_sits_on_the_core_alone() {
         );
     }
 }
+
+/// The virtual bench renders what the simulated cameras photograph: it needs the core, the
+/// printed board, the reference lights and the simulators (whose image source its cameras
+/// are), and nothing of the rig, the daemon's contract or schema, or the evaluation. The
+/// rig depends on it, never the other way round.
+#[test]
+fn the_virtual_bench_sits_below_the_rig() {
+    let built = packages("brdfd-bench", &[]);
+    for p in ["brdfd", "brdfd-api", "brdfd-eval", "utoipa"] {
+        assert!(!built.iter().any(|e| e == p), "brdfd-bench depends on {p}");
+    }
+    for p in ["brdfd-core", "brdfd-sim"] {
+        assert!(built.iter().any(|e| e == p), "brdfd-bench lacks {p}");
+    }
+}

@@ -64,7 +64,25 @@ pub struct CameraArgs {
     /// The RAW files it writes when set to RAW or RAW + JPEG (image quality NEF+Fine, say):
     /// nef (14-bit, uncompressed), dng (14-bit) or dng12 (12-bit).
     #[arg(long, value_enum, default_value = "nef")]
-    pub raw: RawFormat,
+    pub raw: RawArg,
+}
+
+/// `--raw`: the simulated camera's RAW format.
+#[derive(clap::ValueEnum, Clone, Copy)]
+pub enum RawArg {
+    Nef,
+    Dng,
+    Dng12,
+}
+
+impl From<RawArg> for RawFormat {
+    fn from(a: RawArg) -> RawFormat {
+        match a {
+            RawArg::Nef => RawFormat::Nef,
+            RawArg::Dng => RawFormat::Dng,
+            RawArg::Dng12 => RawFormat::Dng12,
+        }
+    }
 }
 
 #[derive(clap::Args)]
@@ -181,7 +199,7 @@ pub fn run(cmd: SimCommand) -> anyhow::Result<()> {
                         _ => ("brdfd".into(), format!("simulated {}", a.profile)),
                     };
                     rendering = Some(Arc::new(
-                        BenchCamera::new(bench, &make, &model).with_raw(a.raw),
+                        BenchCamera::new(bench, &make, &model).with_raw(a.raw.into()),
                     ));
                     rendering.clone().unwrap()
                 }

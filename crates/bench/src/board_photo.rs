@@ -7,11 +7,11 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
 
-use crate::pose::board::{Board, PAPER};
 use brdfd_core::brdf::{add, dot, scale, sub, Vec3};
 use brdfd_core::envmap::EnvMap;
 use brdfd_core::geometry::Camera;
 use brdfd_core::raster::Raster;
+use brdfd_pose::board::{Board, PAPER};
 
 /// Rays per pixel, each way.
 const SUPERSAMPLE: usize = 4;
@@ -49,7 +49,7 @@ pub fn render(
     env: &EnvMap,
     yaw: f64,
     spoil: Spoil,
-) -> anyhow::Result<Raster> {
+) -> Result<Raster, crate::PhotoError> {
     let pattern = board.pattern()?;
     let normal = board.normal();
     let centre = board.world([board.size_mm().0 / 2.0, board.size_mm().1 / 2.0]);
@@ -89,7 +89,7 @@ pub fn photograph(
     radiance: impl Fn(Vec3, Vec3) -> [f32; 3] + Sync,
     spoil: Spoil,
     reference: [f32; 3],
-) -> anyhow::Result<Raster> {
+) -> Result<Raster, crate::PhotoError> {
     let (w, h) = camera.size();
     camera.ray_through(0.5, 0.5)?;
     let mut pixels = vec![[0.0f32; 3]; w * h];

@@ -238,9 +238,9 @@ mod tests {
         };
         let jpeg = [0xFF, 0xD8, 0xFF, 0xD9];
         let with = insert_exif(&jpeg, "NIKON CORPORATION", "NIKON D5100", &shot);
-        let e = crate::radiometry::exif_exposure(&with, "a.jpg").unwrap();
+        let e = brdfd_radiometry::exif_exposure(&with, "a.jpg").unwrap();
         assert!((e.shutter_s - 1.0 / 60.0).abs() < 1e-9 && e.f_number == 5.6 && e.iso == 400.0);
-        let err = crate::radiometry::exif_exposure(&jpeg, "b.jpg")
+        let err = brdfd_radiometry::exif_exposure(&jpeg, "b.jpg")
             .unwrap_err()
             .to_string();
         assert!(err.starts_with("b.jpg: EXIF"), "{err}");

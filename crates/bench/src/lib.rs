@@ -2,6 +2,10 @@
 //! the rig's cameras would see it. The device simulators serve these images, and tests and
 //! `brdfd capture --simulate` use them, so a user without hardware runs the whole flow.
 //!
+//! A crate of its own, above the core, pose (the printed board) and the report (its reference
+//! lights): production code reaches it only through the simulated rig (`brdfd::rig`'s
+//! simulated devices and stage), never from the capture flow.
+//!
 //! Defaults are embedded so the binary needs no data folder: the NBRDF fits of the 10
 //! evaluation test materials (derived data, see `test_materials.json` for provenance) and a
 //! procedural studio environment written for this project.
@@ -25,6 +29,17 @@ use brdfd_core::stop::Stop;
 use brdfd_core::Result;
 
 use cache::{Key, RenderCache};
+
+/// Why a photo of a printed board or of an object on one could not be rendered.
+#[derive(Debug, thiserror::Error)]
+pub enum PhotoError {
+    /// The board's file does not describe a board that can be drawn.
+    #[error(transparent)]
+    Board(#[from] brdfd_pose::PoseError),
+    /// The camera, the map or the mesh (the core's own error).
+    #[error(transparent)]
+    Scene(#[from] brdfd_core::CoreError),
+}
 
 /// Short names a bench operator types, mapped to MERL names.
 const ALIASES: [(&str, &str); 6] = [

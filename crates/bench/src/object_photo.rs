@@ -7,13 +7,13 @@
 //! Each pixel averages 4 × 4 rays, and the photo is spoiled as the board's is ([`Spoil`]).
 
 use super::board_photo::{photograph, Spoil};
-use crate::pose::board::PAPER;
 use brdfd_core::brdf::{cross, dot, normalize, scale, sub, Vec3};
 use brdfd_core::bvh::Bvh;
 use brdfd_core::envmap::EnvMap;
 use brdfd_core::geometry::Camera;
 use brdfd_core::mesh::Mesh;
 use brdfd_core::raster::Raster;
+use brdfd_pose::board::PAPER;
 
 /// Lights the print's irradiance is summed over: it is smooth in the normal.
 const LIGHTS: usize = 256;
@@ -31,7 +31,7 @@ pub fn render(
     env: &EnvMap,
     yaw: f64,
     spoil: Spoil,
-) -> anyhow::Result<(Raster, [f32; 3])> {
+) -> Result<(Raster, [f32; 3]), crate::PhotoError> {
     let lights = env.compressed(LIGHTS, yaw);
     let irradiance = |n: Vec3| lights.irradiance_facing(n);
     let radiance_of =
@@ -61,8 +61,8 @@ pub fn render(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pose::silhouette::{refine, Mask, Offset, View};
     use brdfd_core::geometry::{Pose, Shape};
+    use brdfd_pose::silhouette::{refine, Mask, Offset, View};
 
     fn camera() -> Camera {
         Camera::Pinhole {
@@ -117,7 +117,7 @@ mod tests {
             pivot: [0, 1, 2].map(|i| (lo[i] + hi[i]) / 2.0),
         };
         let there = truth.placed(&shape).mesh().unwrap().unwrap();
-        let env = crate::bench::studio_envmap(256);
+        let env = crate::studio_envmap(256);
         let views: Vec<View> = [0.0f64, 30.0, -30.0]
             .iter()
             .enumerate()

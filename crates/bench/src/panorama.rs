@@ -89,8 +89,8 @@ pub fn gpano_xmp(width: usize, height: usize, model: &str) -> String {
 #[cfg(test)]
 mod gpano_read_back {
     use super::*;
-    use crate::bench::camera::insert_app1;
-    use crate::panorama::{check_projection, read_gpano};
+    use crate::camera::insert_app1;
+    use brdfd_radiometry::panorama::{check_projection, read_gpano};
 
     #[test]
     fn gpano_is_read_in_element_and_attribute_form() {

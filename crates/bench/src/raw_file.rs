@@ -15,9 +15,7 @@ use super::tiff::{self, ByteOrder, Ifd, Value};
 use brdfd_core::raster::{linear_to_srgb, Raster};
 
 /// Which RAW file the simulated camera writes.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
-)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum RawFormat {
     /// Nikon's NEF, uncompressed, 14 bits: the D5100's only depth.
