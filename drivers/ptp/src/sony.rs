@@ -304,10 +304,15 @@ impl Camera {
                 settled = true;
                 break;
             }
-            // A value that is not a number (automatic ISO, first in the body's list) is left
-            // a notch up.
             let at = value_of(now);
-            let up = at.is_none_or(|at| (goal > at) == plus_is_larger);
+            let up = match at {
+                Some(at) => (goal > at) == plus_is_larger,
+                // A value that is not a number (automatic ISO) sits at one end of the body's
+                // list: the numbers are a notch up from its first half, down from its second.
+                None => self
+                    .sony_prop(code)
+                    .is_none_or(|p| listed_early(&p.desc.form, now)),
+            };
             self.data_out(
                 op::SONY_SDIO_CONTROL_DEVICE,
                 &[code as u32],
@@ -423,6 +428,18 @@ impl Camera {
             files.push(self.fetch(MEMORY_HANDLE, info, &no_delete, progress)?);
         }
         Ok(files)
+    }
+}
+
+/// Whether `value` sits in the first half of a listed property's values (or the property is
+/// not listed, or does not list it): a notch up leads away from the list's start.
+fn listed_early(form: &Form, value: i64) -> bool {
+    match form {
+        Form::Enum(listed) => listed
+            .iter()
+            .position(|v| v.as_i64() == Some(value))
+            .is_none_or(|i| i < listed.len() / 2),
+        _ => true,
     }
 }
 

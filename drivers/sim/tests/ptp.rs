@@ -198,6 +198,27 @@ fn an_older_sony_takes_its_exposure_a_notch_at_a_time() {
     assert_eq!(file.data, expected(300_000, 1));
 }
 
+/// Automatic ISO listed last: the notch out of it is down, toward the numbers, not up against
+/// the list's end (which would not move).
+#[test]
+fn an_older_sony_that_lists_automatic_iso_last_is_stepped_out_of_it_downward() {
+    let r = responder(Profile::SonyA7M4, 300_000);
+    {
+        let mut r = r.lock().unwrap();
+        r.speak_sony_protocol_2();
+        r.list_sony_auto_iso_last();
+    }
+    let mut cam = usb_camera(&r);
+    assert_eq!(cam.set_iso(400).unwrap(), 400);
+    assert_eq!(r.lock().unwrap().shot_settings().iso, 400);
+    // From automatic to 51,200, then down in third stops to 400.
+    let notches = ops(&r)
+        .iter()
+        .filter(|&&o| o == op::SONY_SDIO_CONTROL_DEVICE)
+        .count();
+    assert_eq!(notches, 1 + 21, "{:?}", ops(&r));
+}
+
 #[test]
 fn generic_capture_over_usb_downloads_and_deletes() {
     let r = responder(Profile::Generic, 300_000);

@@ -52,6 +52,14 @@ impl Responder {
         }
     }
 
+    /// A Sony that lists automatic ISO last, and is set to it (see
+    /// [`super::sony::SonyBody::list_auto_iso_last`]).
+    pub fn list_sony_auto_iso_last(&mut self) {
+        if let Some(sony) = &mut self.sony {
+            sony.list_auto_iso_last();
+        }
+    }
+
     /// Puts a THETA to sleep (property 0xD80E reads 1), as its sleep timer would.
     pub fn fall_asleep(&mut self) {
         if let Some(d) = self.props.get_mut(&prop::RICOH_SLEEP) {

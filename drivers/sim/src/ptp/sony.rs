@@ -216,11 +216,29 @@ impl SonyBody {
             return Some(INVALID_DEVICE_PROP_VALUE);
         };
         let p = self.props.get_mut(&code)?;
+        // A listed property (ISO) moves through its list in the order the body lists it.
+        let values: Vec<i64> = match &p.desc.form {
+            Form::Enum(listed) if !listed.is_empty() => {
+                listed.iter().filter_map(Value::as_i64).collect()
+            }
+            _ => values,
+        };
         let current = p.desc.current.as_i64().unwrap_or(0);
         let at = values.iter().position(|&v| v == current).unwrap_or(0) as i64;
         let to = (at + i64::from(n as i8)).clamp(0, values.len() as i64 - 1);
         p.desc.current = Value::UInt(values[to as usize] as u64);
         Some(rc::OK)
+    }
+
+    /// Lists automatic ISO last instead of first, and sets it: a body whose notch out of
+    /// automatic goes down, not up.
+    pub fn list_auto_iso_last(&mut self) {
+        if let Some(p) = self.props.get_mut(&prop::SONY_ISO) {
+            if let Form::Enum(listed) = &mut p.desc.form {
+                listed.rotate_left(1);
+            }
+            p.desc.current = Value::UInt(ISO_AUTO as u64);
+        }
     }
 
     pub fn connected(&self) -> bool {
