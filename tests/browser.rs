@@ -91,6 +91,9 @@ impl Browser {
             "--disable-background-networking",
             "--disable-component-update",
             "--disable-sync",
+            // WebGL on the CPU (SwiftShader): Chromium 137 and later no longer fall back to it
+            // without this flag, and the viewer's tests need WebGL. The pages are our own.
+            "--enable-unsafe-swiftshader",
             "--window-size=1200,1600",
             &format!("--user-data-dir={}", profile.path().display()),
         ];
