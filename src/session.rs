@@ -306,7 +306,7 @@ impl Session {
                     "interrupted while {was}: the process running it stopped; `brdfd session resume {id}` continues it"
                 )
             },
-            None,
+            Some(FailureCode::Failed),
         )?;
         Ok(marked == Marked::Failed)
     }

@@ -204,6 +204,8 @@ fn a_second_capture_is_refused_and_a_cancelled_one_resumes() {
     );
     let finished = events.last().unwrap();
     assert_eq!(finished["state"], "done");
+    // A capture that did not fail has no failure code.
+    assert!(finished.get("code").is_none(), "{finished}");
     // Every event has an id; a client that reconnects with Last-Event-ID gets only what came
     // after it, and one with an id of another run (say, before the session was resumed, or
     // from another daemon) gets this run's events from the first.

@@ -726,7 +726,10 @@ fn gphoto2_files() -> Option<Vec<PathBuf>> {
 /// recovery: a user without access to the device node (no udev rule), the camera halting
 /// its bulk-in endpoint mid-download (a stall), the interface held by
 /// another process (gvfs, on a desktop), and the camera leaving the bus mid-download (the
-/// gadget unbound), after which it is bound again and answers.
+/// controller's pull-up dropped, as a pulled cable does). Plugging it in again is not checked
+/// here: with Debian's kernel 6.1.0-48, dummy_hcd does not enumerate a gadget whose pull-up
+/// comes back, and unbinding the gadget mid-transfer (the way this test unplugged it before)
+/// can block in the kernel, so the VM never powered off.
 #[test]
 fn usb_faults_on_a_real_bus_end_in_a_clear_error_or_recovery() {
     let Some(m) = machine_or_skip() else {
@@ -751,18 +754,16 @@ fn usb_faults_on_a_real_bus_end_in_a_clear_error_or_recovery() {
         step("held", "brdfd ptp info --port usb"),
         "wait $holder\n".to_string(),
         step("holder", "cat /tmp/holder.log; rm -r /tmp/held"),
-        // The camera leaves the bus mid-download: the gadget is unbound once the simulator
-        // has sent a few pieces of the photo (GetPartialObject, 0x101b, 3.5 MB each).
+        // The camera leaves the bus mid-download once the simulator has sent a few pieces of
+        // the photo (GetPartialObject, 0x101b, 3.5 MB each): the controller drops its pull-up,
+        // as a pulled cable does.
         "n=$(grep -c 'op 0x101b' /tmp/sim.log)\n\
          brdfd ptp capture --port usb --out /tmp/cut > /tmp/cut.log 2>&1 &\ncapture=$!\n\
          until [ $(grep -c 'op 0x101b' /tmp/sim.log) -gt $((n + 3)) ]; do sleep 0.01; done\n\
-         echo '' > $g/UDC\nwait $capture\necho \"capture exit $?\" >> /tmp/cut.log\n"
+         echo disconnect > /sys/class/udc/$(ls /sys/class/udc)/soft_connect\n\
+         wait $capture\necho \"capture exit $?\" >> /tmp/cut.log\n"
             .to_string(),
         step("unplugged", "cat /tmp/cut.log"),
-        // Plugged in again: it answers.
-        "ls /sys/class/udc > $g/UDC\nuntil ls /dev/bus/usb/*/* 2>/dev/null | grep -q 003; do sleep 0.1; done\n"
-            .to_string(),
-        step("replugged", "brdfd ptp info --port usb"),
     ]
     .concat();
     let console = boot(&m, GADGET_MODULES, &[], &script);
@@ -795,9 +796,6 @@ fn usb_faults_on_a_real_bus_end_in_a_clear_error_or_recovery() {
         "{unplugged}"
     );
     assert!(!unplugged.contains("downloaded"), "{unplugged}");
-    let replugged = section(&console, "replugged");
-    assert!(replugged.contains("exit 0"), "{replugged}");
-    assert!(replugged.contains("D5100"), "{replugged}");
 }
 
 /// The simulated THETA V's USB profile (RICOH's PTP extensions) as a gadget: `brdfd theta

@@ -323,6 +323,8 @@ fn a_full_disk_fails_the_session_clearly_and_it_resumes_once_there_is_room() {
     assert!(show.contains("No space left on device"), "{show}");
     // ...and what to do: the failure the core wrote (the results' table) says the disk is full.
     assert!(show.contains("the disk is full; free space"), "{show}");
+    // ...and its code, for programs.
+    assert!(show.contains("\"code\": \"disk_full\""), "{show}");
     let sessions: Vec<_> = std::fs::read_dir(kept.join("full/sessions"))
         .unwrap()
         .map(|e| e.unwrap().path())

@@ -378,16 +378,21 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
         let basis = load_basis(&a.basis)?;
         let r = brdfd::results::StoredResult::read(p)?;
         if r.model == "analytic" || r.model == "hybrid" {
-            let m: Microfacet = r.analytic.with_context(|| {
-                format!(
-                    "{}: a {} estimate without its field `analytic`",
-                    p.display(),
-                    r.model
-                )
-            })?;
+            let m: Microfacet = r
+                .analytic_model()
+                .with_context(|| format!("{}: field `analytic`", p.display()))?
+                .with_context(|| {
+                    format!(
+                        "{}: a {} estimate without its field `analytic`",
+                        p.display(),
+                        r.model
+                    )
+                })?;
             m.check()
                 .map_err(|e| anyhow::anyhow!("{}: field `analytic`: {e}", p.display()))?;
-            let mixture: Vec<MixWeight> = r.mixture.unwrap_or_default();
+            let mixture: Vec<MixWeight> = r
+                .mixture_weights()
+                .with_context(|| format!("{}: field `mixture`", p.display()))?;
             if !mixture.is_empty() && r.basis_id != basis.header.id {
                 bail!(
                     "{} mixes the measured materials of basis {:?}, not {}; pass that basis with --basis",
@@ -400,7 +405,20 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
                 .map_err(|e| anyhow::anyhow!("{}: field `mixture`: {e}", p.display()))?;
             return finish_render(&a.out, render_bivariate(&geometry, &lights, &b));
         }
-        let coeffs = r.coefficient_values();
+        let coeffs: Vec<f64> = r
+            .coefficients
+            .iter()
+            .enumerate()
+            .map(|(i, c)| {
+                c.with_context(|| {
+                    let n = i + 1;
+                    format!(
+                        "{}: field `coefficients`: coefficient {n} is not a number",
+                        p.display()
+                    )
+                })
+            })
+            .collect::<anyhow::Result<_>>()?;
         if r.basis_id != basis.header.id {
             bail!(
                 "{} was estimated on basis {:?}, not {}; pass that basis with --basis",

@@ -96,9 +96,7 @@ fn ptp_code(p: &PtpError) -> Option<FailureCode> {
     match p {
         PtpError::Claimed { .. } => Some(FailureCode::DeviceBusy),
         PtpError::Permission { .. } => Some(FailureCode::DevicePermission),
-        PtpError::Connect { .. } | PtpError::NoUsb { .. } | PtpError::Handshake { .. } => {
-            Some(FailureCode::DeviceMissing)
-        }
+        PtpError::NotFound(_) | PtpError::Connect { .. } => Some(FailureCode::DeviceMissing),
         PtpError::Disconnected { .. } => Some(FailureCode::DeviceLost),
         PtpError::Timeout { .. } => Some(FailureCode::DeviceTimeout),
         // A reset that failed after a stall or timeout: the cause's code.
@@ -165,6 +163,12 @@ mod tests {
             code_of(V4lError::Missing {
                 path: "/dev/video9".into()
             }),
+            FailureCode::DeviceMissing
+        );
+        assert_eq!(
+            code_of(PtpError::NotFound(
+                "no PTP camera on USB matching 04b0:0429".into()
+            )),
             FailureCode::DeviceMissing
         );
         // A failure no driver typed has the plain code.

@@ -46,7 +46,11 @@ pub enum Event {
         #[serde(default)]
         cancelled: bool,
         /// Why it failed, for programs (`error` says it for people); absent when it did not.
-        #[serde(default, skip_serializing_if = "Option::is_none")]
+        #[serde(
+            default,
+            skip_serializing_if = "Option::is_none",
+            deserialize_with = "FailureCode::read_lenient"
+        )]
         code: Option<FailureCode>,
     },
 }
@@ -150,6 +154,20 @@ impl FailureCode {
         }
     }
 
+    /// A code as a reader takes it: one this version does not know (written by a newer brdfd)
+    /// reads as [`FailureCode::Failed`], so that the session and its stream still read.
+    pub fn read_lenient<'de, D: serde::Deserializer<'de>>(
+        d: D,
+    ) -> Result<Option<FailureCode>, D::Error> {
+        let code = Option::<String>::deserialize(d)?;
+        Ok(code.map(|c| {
+            FailureCode::ALL
+                .into_iter()
+                .find(|k| k.name() == c)
+                .unwrap_or(FailureCode::Failed)
+        }))
+    }
+
     /// Every code, for the API's description and its test.
     pub const ALL: [FailureCode; 8] = [
         FailureCode::Cancelled,
@@ -180,5 +198,27 @@ mod tests {
             assert_eq!(json, code.name());
             assert_eq!(serde_json::from_value::<FailureCode>(json).unwrap(), code);
         }
+    }
+
+    #[test]
+    fn a_code_from_a_newer_brdfd_reads_as_failed() {
+        let finished = |code: &str| {
+            let text = format!(
+                r#"{{"type": "finished", "session": "s", "state": "failed", "result": null, "error": "x"{code}}}"#
+            );
+            match serde_json::from_str::<Event>(&text).unwrap() {
+                Event::Finished { code, .. } => code,
+                e => panic!("{e:?}"),
+            }
+        };
+        assert_eq!(
+            finished(r#", "code": "device_busy""#),
+            Some(FailureCode::DeviceBusy)
+        );
+        assert_eq!(
+            finished(r#", "code": "lens_fogged""#),
+            Some(FailureCode::Failed)
+        );
+        assert_eq!(finished(""), None);
     }
 }

@@ -60,7 +60,11 @@ pub struct Transition {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
     /// A failure's cause, for programs (absent in sessions written before it was recorded).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "crate::event::FailureCode::read_lenient"
+    )]
     pub code: Option<crate::event::FailureCode>,
 }
 

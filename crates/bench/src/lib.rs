@@ -3,8 +3,8 @@
 //! `brdfd capture --simulate` use them, so a user without hardware runs the whole flow.
 //!
 //! A crate of its own, above the core, pose (the printed board) and the report (its reference
-//! lights): production code reaches it only through the simulated rig (`brdfd::rig`'s
-//! simulated devices and stage), never from the capture flow.
+//! lights). The capture flow does not import it: the simulated rig's devices and stage do, as
+//! do the simulated calibration and pose photos and the checks of a simulated plan.
 //!
 //! Defaults are embedded so the binary needs no data folder: the NBRDF fits of the 10
 //! evaluation test materials (derived data, see `test_materials.json` for provenance) and a

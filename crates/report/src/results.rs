@@ -132,10 +132,12 @@ pub struct StoredResult {
     /// were the basis's.
     #[serde(default = "basis_model")]
     pub model: String,
+    /// The analytic part, read by [`StoredResult::analytic_model`] only where it is used, so
+    /// that a reader of the summary does not depend on its form.
     #[serde(default)]
-    pub analytic: Option<Microfacet>,
+    analytic: Option<serde_json::Value>,
     #[serde(default)]
-    pub mixture: Option<Vec<MixWeight>>,
+    mixture: Option<serde_json::Value>,
     pub basis_id: String,
     pub columns: Vec<String>,
     /// `null` where a coefficient was not a number (JSON has no NaN).
@@ -207,6 +209,24 @@ impl StoredResult {
             });
         }
         Ok(r)
+    }
+
+    /// The analytic model's parameters (`analytic`), if the file has them.
+    pub fn analytic_model(&self) -> std::result::Result<Option<Microfacet>, serde_json::Error> {
+        self.analytic
+            .clone()
+            .map(serde_json::from_value)
+            .transpose()
+    }
+
+    /// The hybrid model's measured materials and their weights (`mixture`); none if absent.
+    pub fn mixture_weights(&self) -> std::result::Result<Vec<MixWeight>, serde_json::Error> {
+        Ok(self
+            .mixture
+            .clone()
+            .map(serde_json::from_value)
+            .transpose()?
+            .unwrap_or_default())
     }
 
     /// The coefficients, `NaN` where the file holds `null`.

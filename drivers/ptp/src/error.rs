@@ -54,6 +54,10 @@ pub enum PtpError {
     Permission { device: String },
     #[error("transport error: {0}")]
     Io(String),
+    /// No camera on the bus answers to what was asked for: not plugged in, off, or not in
+    /// PTP mode. The text says which camera was looked for.
+    #[error("{0}")]
+    NotFound(String),
     #[error("{0}")]
     Protocol(String),
     #[error("camera does not support {0}")]

@@ -504,10 +504,10 @@ mod rusb_pipe {
                 name,
             });
         }
-        Err(PtpError::Io(match (vendor, product) {
+        Err(PtpError::NotFound(match (vendor, product) {
             (None, None) => "no PTP camera on USB (is it switched on and in PTP/MTP mode?)".into(),
             _ => format!(
-                "no PTP camera on USB matching {:04x}:{:04x}",
+                "no PTP camera on USB matching {:04x}:{:04x} (is it plugged in, switched on and in PTP/MTP mode?)",
                 vendor.unwrap_or(0),
                 product.unwrap_or(0)
             ),
