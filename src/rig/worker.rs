@@ -376,10 +376,9 @@ mod tests {
     #[test]
     fn a_device_that_cannot_be_opened_fails_its_jobs_with_the_openers_code() {
         let open: Opener<Fake> = Box::new(|| {
-            Err(brdfd_serial::SerialError::Busy {
+            Err(anyhow::Error::from(brdfd_serial::SerialError::Busy {
                 port: "/dev/ttyACM0".into(),
-            })
-            .map_err(anyhow::Error::from)
+            }))
         });
         let w = Worker::spawn(
             "turntable",

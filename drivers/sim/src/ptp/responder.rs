@@ -52,8 +52,8 @@ impl Responder {
         }
     }
 
-    /// A Sony that lists automatic ISO last, and is set to it (see
-    /// [`super::sony::SonyBody::list_auto_iso_last`]).
+    /// A Sony that lists automatic ISO last, and is set to it: a body whose notch out of
+    /// automatic goes down, not up.
     pub fn list_sony_auto_iso_last(&mut self) {
         if let Some(sony) = &mut self.sony {
             sony.list_auto_iso_last();
