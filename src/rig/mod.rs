@@ -79,10 +79,7 @@ pub fn check_simulated_material(plan: &Plan) -> anyhow::Result<()> {
 /// The summary of a stored result (`result/coefficients.json`), if it can be read.
 pub fn stored_summary(coefficients_json: &std::path::Path) -> Option<Summary> {
     let r = crate::results::StoredResult::read(coefficients_json).ok()?;
-    let exports = r.exports.unwrap_or(crate::results::StoredExports {
-        relight_error: None,
-        verdict: None,
-    });
+    let exports = r.exports.unwrap_or_default();
     Some(Summary {
         fit_verdict: brdfd_core::estimate::fit_verdict(r.fit_error.unwrap_or(f64::NAN)),
         model: r.model,

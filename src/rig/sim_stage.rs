@@ -113,7 +113,10 @@ impl Stage for SimulatedStage {
         est: &Estimate,
         phases: &mut Phases,
     ) -> anyhow::Result<Judgement> {
-        let coefficients = self.compare_with_truth(cx, basis, est, phases)?;
+        // The true material on the estimate's grid: the report overlays it, and a basis
+        // estimate is compared with its projection.
+        let reduced = Bivariate::reduce(&self.bench()?.material, basis.header.grid);
+        let coefficients = self.compare_with_truth(cx, basis, est, &reduced, phases);
         let relight = self.relight_against_truth(est, phases)?;
         Ok(Judgement {
             coefficients,
@@ -121,10 +124,7 @@ impl Stage for SimulatedStage {
                 relight,
                 format!("the bench's map turned {HELD_OUT_YAW_DEG}°"),
             )),
-            brdf: Some(Bivariate::reduce(
-                &self.bench()?.material,
-                basis.header.grid,
-            )),
+            brdf: Some(reduced),
         })
     }
 }
@@ -138,16 +138,16 @@ impl SimulatedStage {
         cx: &Context,
         basis: &Basis,
         est: &Estimate,
+        reduced: &Bivariate,
         phases: &mut Phases,
-    ) -> anyhow::Result<Option<Vec<f64>>> {
+    ) -> Option<Vec<f64>> {
         if est.model != Model::Basis {
-            return Ok(None);
+            return None;
         }
         let p = phases.start("compare with the ground truth (simulator)", 1);
-        let reduced = Bivariate::reduce(&self.bench()?.material, basis.header.grid);
         let truth = match est.colour {
-            Colour::Joint => basis.project(&reduced),
-            Colour::PerChannel => basis.project_channels(&reduced),
+            Colour::Joint => basis.project(reduced),
+            Colour::PerChannel => basis.project_channels(reduced),
         };
         phases.end_as_device(p);
         cx.say(crate::results::coefficient_lines(
@@ -155,7 +155,7 @@ impl SimulatedStage {
             &est.names,
             &truth,
         ));
-        Ok(Some(truth))
+        Some(truth)
     }
 
     /// How far the estimate is from the simulated material under light it was not fitted to.

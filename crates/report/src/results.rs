@@ -152,7 +152,7 @@ pub struct StoredResult {
 }
 
 /// `coefficients.json`'s `exports`, as far as a reader needs them.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize)]
 pub struct StoredExports {
     pub relight_error: Option<f64>,
     pub verdict: Option<String>,

@@ -111,7 +111,8 @@ impl Default for SonyBody {
 }
 
 /// The values an exposure property moves through a notch at a time, in the order +1 moves:
-/// the a7 IV's third stops within its ranges, and its ISO list (automatic first).
+/// the a7 IV's third stops within its ranges; ISO's are its property's list, in the order the
+/// body lists them (empty here).
 fn notches(code: u16) -> Option<Vec<i64>> {
     Some(match code {
         prop::F_NUMBER => F_NUMBERS
@@ -123,14 +124,8 @@ fn notches(code: u16) -> Option<Vec<i64>> {
             .iter()
             .map(|&s| sony::shutter_code(s))
             .collect(),
-        prop::SONY_ISO => std::iter::once(ISO_AUTO as i64)
-            .chain(
-                ISO_SPEEDS
-                    .iter()
-                    .map(|&i| i64::from(i))
-                    .filter(|&i| i <= 51_200),
-            )
-            .collect(),
+        // ISO moves through the list the body's property gives, in its order.
+        prop::SONY_ISO => Vec::new(),
         _ => return None,
     })
 }
@@ -216,13 +211,15 @@ impl SonyBody {
             return Some(INVALID_DEVICE_PROP_VALUE);
         };
         let p = self.props.get_mut(&code)?;
-        // A listed property (ISO) moves through its list in the order the body lists it.
         let values: Vec<i64> = match &p.desc.form {
-            Form::Enum(listed) if !listed.is_empty() => {
+            Form::Enum(listed) if values.is_empty() => {
                 listed.iter().filter_map(Value::as_i64).collect()
             }
             _ => values,
         };
+        if values.is_empty() {
+            return Some(INVALID_DEVICE_PROP_VALUE);
+        }
         let current = p.desc.current.as_i64().unwrap_or(0);
         let at = values.iter().position(|&v| v == current).unwrap_or(0) as i64;
         let to = (at + i64::from(n as i8)).clamp(0, values.len() as i64 - 1);
