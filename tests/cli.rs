@@ -230,6 +230,58 @@ fn capture_without_a_rig_says_how_to_give_one() {
     assert!(text(&o).1.contains("--simulate"));
 }
 
+/// A geometry file's camera sets the render's size, as the photo it describes has: a
+/// 48 × 32 pinhole renders 48 × 32 whatever --size says, with the sphere in its middle.
+#[test]
+fn render_on_a_geometry_file_is_its_camera_s_size() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("scene.toml"),
+        r#"[camera]
+type = "pinhole"
+width = 48
+height = 32
+fx = 60.0
+fy = 60.0
+cx = 24.0
+cy = 16.0
+position = [0.0, 0.0, 5.0]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+
+[shape]
+type = "sphere"
+center = [0.0, 0.0, 0.0]
+radius = 1.0
+"#,
+    )
+    .unwrap();
+    let o = brdfd(
+        &[
+            "render",
+            "--material",
+            "gold",
+            "--geometry",
+            "scene.toml",
+            "--size",
+            "64",
+            "--lights",
+            "64",
+            "--out",
+            "r.exr",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{:?}", text(&o));
+    let r = brdfd_core::raster::Raster::read(&dir.path().join("r.exr")).unwrap();
+    assert_eq!((r.width, r.height), (48, 32));
+    let lit = |x, y| r.get(x, y).iter().any(|v| *v > 0.0);
+    // The sphere (radius 1 at 5 units, 60 px focal length: about 12 px) in the middle,
+    // nothing in the corners.
+    assert!(lit(24, 16) && lit(24, 8) && lit(14, 16));
+    assert!(!lit(0, 0) && !lit(47, 31) && !lit(2, 16));
+}
+
 /// render → estimate from files → render the estimate: the whole file path of the core.
 #[test]
 fn estimate_from_files() {

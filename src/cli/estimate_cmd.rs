@@ -344,7 +344,8 @@ pub struct RenderArgs {
     pub yaw: f64,
     #[command(flatten)]
     pub geometry: GeometryArgs,
-    /// Image size for built-in shapes, 8 to 8192 pixels.
+    /// Image size for built-in shapes and normal maps, 8 to 8192 pixels (a geometry file's
+    /// camera has its own).
     #[arg(long, default_value_t = 256, value_parser = super::image_size)]
     pub size: usize,
     /// Lights the map is compressed to for the render.
@@ -361,7 +362,15 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
         None => brdfd::bench::studio_envmap(512),
     };
     let lights = env.compressed(a.lights, a.yaw.to_radians());
-    let geometry = a.geometry.scene_or_sphere()?.pixels(a.size, a.size)?;
+    let scene = a.geometry.scene_or_sphere()?;
+    // A geometry file's camera is the one the photo was taken with: the render is the
+    // photo's size, so that it lines up with it pixel for pixel. --size is the built-in
+    // shapes' (and a normal map's, which must match it).
+    let (width, height) = match &a.geometry.geometry {
+        Some(_) => scene.camera.size(),
+        None => (a.size, a.size),
+    };
+    let geometry = scene.pixels(width, height)?;
     let img = if let Some(name) = &a.material {
         let set = match &a.nbrdf {
             Some(p) => NbrdfSet::read(p)?,
