@@ -37,7 +37,7 @@ pub use brdfd_radiometry as radiometry;
 pub use brdfd_radiometry::panorama;
 /// What an estimate is written as for people and renderers: its own crate, re-exported where
 /// the library's modules have always found it (the report itself is now `html`).
-pub use brdfd_report::{compare, export, html, results, summary};
+pub use brdfd_report::{compare, export, flags, html, results, summary};
 pub mod rig;
 pub mod selector;
 pub mod session;

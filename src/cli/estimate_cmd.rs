@@ -282,6 +282,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         views: 1,
         bracketed: false,
         export: Some(&files.exports),
+        flags: &files.flags,
         report: Some(&files.report),
     };
     let lines = brdfd::summary::lines("the estimate", &est, &extras);

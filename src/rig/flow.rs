@@ -310,7 +310,7 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
     let mut report = report_context(session, &env, &captured, judged.brdf.as_ref(), relight);
     report.visibility = visibility.as_ref();
     report.object = object.as_ref();
-    let exports = write_result(session, &basis, &est, &captured.views[0].lights, &report)?;
+    let (exports, flags) = write_result(session, &basis, &est, &captured.views[0].lights, &report)?;
     phases.end(p);
     say_result(
         cx,
@@ -319,6 +319,7 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
         captured.views.len(),
         judged.relight,
         &exports,
+        &flags,
     );
     session.set_phases(phases.done);
     session.set_state(State::Done, None)?;
@@ -336,6 +337,13 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
             fallback: captured.fallback,
             export_relight_error: Some(exports.relight_error),
             export_verdict: Some(exports.verdict.clone()),
+            flags: flags
+                .iter()
+                .map(|f| super::SummaryFlag {
+                    reason: f.reason.name().to_string(),
+                    text: f.text.clone(),
+                })
+                .collect(),
         },
         truth: judged.coefficients,
         pixels: est.selection.pixels.len(),
@@ -619,6 +627,7 @@ fn say_result(
     views: usize,
     relight: Option<(f64, String)>,
     exports: &crate::export::Export,
+    flags: &[crate::flags::Flag],
 ) {
     let report = session.dir.join("result/report.html");
     let extras = crate::summary::Extras {
@@ -626,6 +635,7 @@ fn say_result(
         views,
         bracketed: true,
         export: Some(exports),
+        flags,
         report: Some(&report),
     };
     let lines = crate::summary::lines(&session.manifest().material, est, &extras);
@@ -644,14 +654,14 @@ fn write_result(
     est: &Estimate,
     lights: &brdfd_core::envmap::LightSet,
     report: &ReportContext,
-) -> anyhow::Result<crate::export::Export> {
+) -> anyhow::Result<(crate::export::Export, Vec<crate::flags::Flag>)> {
     let fresh = session.dir.join("result.partial");
     let _ = std::fs::remove_dir_all(&fresh);
     let files = crate::results::write_results(&fresh, basis, est, "fast", lights, report)?;
     let result = session.dir.join("result");
     let _ = std::fs::remove_dir_all(&result);
     std::fs::rename(&fresh, &result).context("moving the results into place")?;
-    Ok(files.exports)
+    Ok((files.exports, files.flags))
 }
 
 /// A step's files from the session (checksums verified), under the names the camera gave

@@ -41,7 +41,7 @@ pub mod worker;
 use std::sync::Arc;
 use std::time::Duration;
 
-pub use brdfd_api::event::{Event, Summary};
+pub use brdfd_api::event::{Event, Summary, SummaryFlag};
 pub use brdfd_api::plan::{some_whole_number, whole_number, PixelCount, Plan, MAX_VIEWS};
 use brdfd_core::stop::Stop;
 pub use devices::Devices;
@@ -90,6 +90,14 @@ pub fn stored_summary(coefficients_json: &std::path::Path) -> Option<Summary> {
         fallback: r.fallback,
         export_relight_error: exports.relight_error,
         export_verdict: exports.verdict,
+        flags: r
+            .flags
+            .into_iter()
+            .map(|f| SummaryFlag {
+                reason: f.reason,
+                text: f.text,
+            })
+            .collect(),
     })
 }
 

@@ -99,6 +99,20 @@ pub struct Summary {
     /// That figure in words (`faithful`, `close` or `approximate`), with its threshold.
     #[serde(default)]
     pub export_verdict: Option<String>,
+    /// The assumptions of brdfd's model that the photo says are broken (`coefficients.json`'s
+    /// `flags`); empty when none is.
+    #[serde(default)]
+    pub flags: Vec<SummaryFlag>,
+}
+
+/// A broken assumption of the model, as the photo shows it: `reason` for programs
+/// (`interreflection`: the part lights itself), `text` for people (the figure, and what it
+/// means for the estimate).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub struct SummaryFlag {
+    pub reason: String,
+    pub text: String,
 }
 
 impl Summary {

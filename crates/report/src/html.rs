@@ -14,6 +14,7 @@ use image::{ImageFormat, Rgb, RgbImage};
 use plotters::prelude::*;
 
 use crate::export::Export;
+use crate::flags::Flag;
 use brdfd_core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
 use brdfd_core::envmap::{uv_of, EnvMap, LightSet};
 use brdfd_core::error::{CoreError, Result};
@@ -57,6 +58,10 @@ pub struct Context<'a> {
 pub struct Visibility {
     pub fraction: Raster,
     pub mean: f64,
+    /// The normal at each of `fraction`'s pixels that is the object's.
+    normals: Vec<Option<[f32; 3]>>,
+    /// The photo's pixels per `fraction` pixel, across and down.
+    step: usize,
 }
 
 /// Pixels across [`Visibility`]'s picture at most: a camera's 16 MP would take minutes to
@@ -89,17 +94,39 @@ impl Visibility {
                 })
                 .collect(),
         };
-        let geometry = &geometry;
-        let fraction = visible_fraction(geometry, lights);
-        let sum: f64 = geometry
-            .pixels
-            .iter()
-            .map(|p| fraction.get(p.x as usize, p.y as usize)[0] as f64)
-            .sum();
-        Some(Visibility {
-            mean: sum / geometry.pixels.len().max(1) as f64,
+        let fraction = visible_fraction(&geometry, lights);
+        let mut normals = vec![None; geometry.width * geometry.height];
+        for p in &geometry.pixels {
+            normals[p.y as usize * geometry.width + p.x as usize] = Some(p.normal);
+        }
+        Some(Visibility::new(fraction, normals, n))
+    }
+
+    /// `fraction` (every `step`-th pixel of the photo's every `step`-th row), with the
+    /// object's normal at each of its pixels.
+    pub fn new(fraction: Raster, normals: Vec<Option<[f32; 3]>>, step: usize) -> Visibility {
+        let (mut sum, mut count) = (0.0, 0usize);
+        for (p, _) in normals.iter().enumerate().filter(|(_, n)| n.is_some()) {
+            sum += f64::from(fraction.pixels[p][0]);
+            count += 1;
+        }
+        Visibility {
+            mean: sum / count.max(1) as f64,
             fraction,
-        })
+            normals,
+            step,
+        }
+    }
+
+    /// The fraction and the normal at the photo's pixel (x, y): those of the nearest pixel
+    /// worked out, if it is the object's.
+    pub fn at(&self, x: usize, y: usize) -> Option<(f32, [f32; 3])> {
+        let (x, y) = (x / self.step, y / self.step);
+        let f = &self.fraction;
+        if x >= f.width || y >= f.height {
+            return None;
+        }
+        self.normals[y * f.width + x].map(|n| (f.get(x, y)[0], n))
     }
 
     /// The fraction as grey levels: 255 for all the light, 128 for half. Not sRGB-encoded,
@@ -130,16 +157,23 @@ const CHANNELS: [(&str, RGBColor); 3] = [
 
 /// Writes the report for `estimate` (with its `preview`, the estimate on a sphere, and the
 /// `lights` it was fitted under) to `path`.
+/// What brdfd judged of the estimate beyond its fit: how its exports relight, and the
+/// assumptions the photo says are broken.
+pub struct Judged<'a> {
+    pub export: &'a Export,
+    pub flags: &'a [Flag],
+}
+
 pub fn write(
     path: &Path,
     estimate: &Estimate,
     basis_id: &str,
     preview: &RgbImage,
     lights: &LightSet,
-    export: &Export,
+    judged: &Judged,
     cx: &Context,
 ) -> Result<()> {
-    let html = page(estimate, basis_id, preview, lights, export, cx)?;
+    let html = page(estimate, basis_id, preview, lights, judged, cx)?;
     std::fs::write(path, html).map_err(|e| CoreError::io(path, e))
 }
 
@@ -148,9 +182,10 @@ fn page(
     basis_id: &str,
     preview: &RgbImage,
     lights: &LightSet,
-    export: &Export,
+    judged: &Judged,
     cx: &Context,
 ) -> Result<String> {
+    let Judged { export, flags } = *judged;
     let mut h = String::new();
     let title = escape(&cx.title);
     let _ = writeln!(
@@ -160,6 +195,11 @@ fn page(
          <h1>brdfd report: {title}</h1>\n<p class=\"summary\">{}</p>",
         escape(&est.method_text())
     );
+    // A broken assumption comes before any picture: the numbers below are judged as if
+    // the model held.
+    for f in flags {
+        let _ = writeln!(h, "<p class=\"flag\">Flagged: {}</p>", escape(&f.text));
+    }
 
     h.push_str("<h2>Photo against estimate</h2>\n");
     match cx.photo {
@@ -294,7 +334,7 @@ figure{margin:0.5em 1em 0.5em 0;display:inline-block;vertical-align:top;max-widt
 figure img{max-width:100%;height:auto;image-rendering:pixelated}figcaption{font-size:0.85em;color:#555;\
 max-width:780px}.row{display:flex;flex-wrap:wrap;gap:0.5em}table{border-collapse:collapse}\
 th,td{text-align:left;padding:0.2em 0.8em;border-bottom:1px solid #eee;vertical-align:top}\
-th{font-weight:normal;color:#555}.summary{font-size:1.05em}.note{font-size:0.85em;color:#555}";
+th{font-weight:normal;color:#555}.summary{font-size:1.05em}.flag{border-left:4px solid #c60;padding-left:0.6em}.note{font-size:0.85em;color:#555}";
 
 /// The numbers, each with its verdict where brdfd has one.
 fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec<(String, String)> {

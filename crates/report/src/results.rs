@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::export::{write_exports, Export};
+use crate::flags::Flag;
 use crate::html::Context;
 use brdfd_core::analytic::Microfacet;
 use brdfd_core::basis::Basis;
@@ -116,6 +117,8 @@ pub struct CoefficientsFile<'a> {
     /// The estimate as a glTF material and an OpenPBR `.mtlx`, fitted to it, and how far they
     /// relight from the estimate itself.
     pub exports: Export,
+    /// The assumptions of the model the photo says are broken ([`crate::flags`]).
+    pub flags: &'a [Flag],
 }
 
 /// What a reader takes back from `coefficients.json`: the model and its coefficients, how it
@@ -149,6 +152,16 @@ pub struct StoredResult {
     pub fallback: Option<String>,
     #[serde(default)]
     pub exports: Option<StoredExports>,
+    /// Absent in files written before flags were.
+    #[serde(default)]
+    pub flags: Vec<StoredFlag>,
+}
+
+/// One of `coefficients.json`'s `flags`, as far as a reader needs it.
+#[derive(Debug, Clone, Deserialize)]
+pub struct StoredFlag {
+    pub reason: String,
+    pub text: String,
 }
 
 /// `coefficients.json`'s `exports`, as far as a reader needs them.
@@ -301,6 +314,8 @@ pub struct ResultFiles {
     pub report: PathBuf,
     /// The exported materials and how far they relight from the estimate.
     pub exports: Export,
+    /// The assumptions of the model the photo says are broken ([`crate::flags`]).
+    pub flags: Vec<Flag>,
     /// Every file written, the report first (what a person opens first), then the files a
     /// program reads, then the pictures.
     pub written: Vec<PathBuf>,
@@ -375,6 +390,7 @@ pub fn write_results(
     let brdf = &estimate.brdf;
     let exports = write_exports(dir, "brdfd_estimate", brdf, cx.env.map(|m| (m, cx.yaw)))?;
     let all = estimate.selection.pixels.len() == estimate.candidates;
+    let flags = crate::flags::of(estimate, cx.visibility);
     let file = CoefficientsFile {
         format: COEFFICIENTS_FORMAT,
         format_version: COEFFICIENTS_VERSION,
@@ -430,6 +446,7 @@ pub fn write_results(
         plausibility: Plausibility::of(brdf),
         uncertainty: estimate.uncertainty.as_ref(),
         exports: exports.clone(),
+        flags: &flags,
     };
     let files = ResultFiles {
         coefficients: dir.join("coefficients.json"),
@@ -439,6 +456,7 @@ pub fn write_results(
         compare_png: cx.photo.map(|_| dir.join("compare.png")),
         report: dir.join("report.html"),
         exports,
+        flags: flags.clone(),
         written: Vec::new(),
     };
     let mut written = vec![
@@ -506,7 +524,10 @@ pub fn write_results(
             basis_id,
             &preview,
             lights,
-            &files.exports,
+            &crate::html::Judged {
+                export: &files.exports,
+                flags: &files.flags,
+            },
             cx,
         )?;
         merl.join().expect("writing the MERL table panicked")

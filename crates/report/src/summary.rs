@@ -12,6 +12,7 @@
 use std::path::Path;
 
 use crate::export::{export_word, Export, CLOSE, FAITHFUL};
+use crate::flags::Flag;
 use brdfd_core::estimate::{fit_verdict, Estimate, Model, GOOD_FIT, POOR_FIT, UNSTEADY_SPREAD};
 
 /// Condition numbers at or below this are good: the presets' estimates on the sphere measure
@@ -67,6 +68,8 @@ pub struct Extras<'a> {
     /// Whether the photos were merged from exposure brackets (a capture's are).
     pub bracketed: bool,
     pub export: Option<&'a Export>,
+    /// The assumptions of the model the photo says are broken ([`crate::flags`]).
+    pub flags: &'a [Flag],
     pub report: Option<&'a Path>,
 }
 
@@ -107,6 +110,11 @@ fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
             ),
         });
     }
+    // A broken assumption makes the figures above optimistic: fair at best, whatever they say.
+    lines.extend(extras.flags.iter().map(|f| Line {
+        grade: Grade::Fair,
+        text: f.text.clone(),
+    }));
     let k = estimate.selection.condition;
     // The prior solves a system with fewer equations than unknowns: its κ is infinite by
     // construction and says nothing of noise, so it is reported, not judged.

@@ -298,6 +298,13 @@ function finished(e) {
         ". ",
       resultLinks(e.session)
     );
+    // A broken assumption makes the figures optimistic: said under them, where it is read.
+    for (const f of r.flags || []) {
+      const p = document.createElement("p");
+      p.className = "flag";
+      p.textContent = `Flagged: ${f.text}`;
+      out.append(p);
+    }
   } else if (e.state === "done") {
     out.append("Done; the result could not be read back. ", resultLinks(e.session));
   } else if (e.cancelled) {
