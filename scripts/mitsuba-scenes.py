@@ -15,11 +15,13 @@ photo is taken under courtyard.hdr and each estimate relit under every other .hd
 - part.obj, geometry.toml: the part (metres, in brdfd's world) and the camera, as a brdfd
   geometry file, so that `brdfd estimate --geometry OUT/SCENE/geometry.toml` sees what
   Mitsuba rendered;
-- photo.exr: linear radiance under the capture map, with up to three bounces;
+- photo.exr: linear radiance under the capture map, with up to two bounces off the part;
 - truth-MAP.exr: the same under each held-out map, the relighting's truth;
 - direct-photo.exr, direct-MAP.exr (concave parts): direct light only, what a part without
   interreflection would look like;
-  (`--photos-only` skips these: a test that needs only the photos);
+
+  (`--photos-only` renders neither truth-MAP.exr nor direct-MAP.exr: a test that needs only
+  the photos; such a set cannot be scored);
 - regions.exr: which region each pixel shows (0 the background, then 1, 2, ...: the two
   materials, or a concave part's grooves apart from the rest);
 - scene.json: the scene's truth (materials, grain direction and roughness ratio, which
@@ -43,7 +45,6 @@ import os
 import subprocess
 import sys
 
-import drjit as dr
 import mitsuba as mi
 
 CAPTURE = "courtyard"
@@ -299,7 +300,8 @@ def render_scene(maps, out, name, spp, truths=True):
         "materials": [{"name": n, "mitsuba": m} for n, m in materials],
         "breaks": breaks,
         "capture": CAPTURE,
-        "held_out": held_out(maps),
+        "held_out": held_out(maps) if truths else [],
+        "photos_only": not truths,
         "samples_per_pixel": spp,
         "bounces": BOUNCES_DEPTH - DIRECT_DEPTH,
         "mitsuba": mi.__version__,
@@ -382,14 +384,27 @@ def score_scene(maps, out, name, brdfd):
               "summary": run.stdout, "per_map": {}, "per_region": {}}
     all_blocks = blocks(region, width, len(ids) // 3 // width)
     by_region = {r: [b for b in all_blocks if b[0] == r] for r in {b[0] for b in all_blocks}}
+    if truth.get("photos_only"):
+        raise SystemExit(f"{name}: rendered with --photos-only, it has no truths to score by")
+    if not truth["held_out"]:
+        raise SystemExit(f"{name}: no held-out map to relight under (MAPS held only {CAPTURE})")
     for m in truth["held_out"]:
+        truth_path = os.path.join(d, f"truth-{m}.exr")
+        if not os.path.exists(truth_path):
+            raise SystemExit(f"{name}: {truth_path} is missing: the set was rendered with "
+                             "--photos-only, or not finished; render it again")
         relit = os.path.join(est, f"relit-{m}.exr")
-        subprocess.run([brdfd, "render", "--coefficients", os.path.join(est, "coefficients.json"),
-                        "--geometry", os.path.join(d, "geometry.toml"),
-                        "--env", os.path.join(maps, m + ".hdr"), "--out", relit],
-                       check=True, capture_output=True)
-        ours, _ = read_rgb(relit)
-        t, _ = read_rgb(os.path.join(d, f"truth-{m}.exr"))
+        run = subprocess.run([brdfd, "render", "--coefficients",
+                              os.path.join(est, "coefficients.json"),
+                              "--geometry", os.path.join(d, "geometry.toml"),
+                              "--env", os.path.join(maps, m + ".hdr"), "--out", relit],
+                             capture_output=True, text=True)
+        if run.returncode != 0:
+            raise SystemExit(f"{name}: brdfd render under {m} failed:\n{run.stderr}")
+        ours, ours_width = read_rgb(relit)
+        t, _ = read_rgb(truth_path)
+        if (len(ours), ours_width) != (len(t), width):
+            raise SystemExit(f"{name}: brdfd's render under {m} is not the truth's size")
         result["per_map"][m] = relative_rmse(ours, t, all_blocks)
         for r, kept in by_region.items():
             result["per_region"].setdefault(truth["regions"][str(r)], {})[m] = \
@@ -401,7 +416,9 @@ def score_scene(maps, out, name, brdfd):
                 relative_rmse(ours, t, all_blocks)
     errors = sorted(result["per_map"].values())
     result["relight_error"] = sum(errors) / len(errors)
-    print(f"{name:20} fit {result['fit_error']:.3f}  relight {result['relight_error']:.3f}  "
+    fit = result["fit_error"]
+    fit = "n/a" if fit is None else f"{fit:.3f}"
+    print(f"{name:20} fit {fit}  relight {result['relight_error']:.3f}  "
           + "  ".join(f"{m} {e:.3f}" for m, e in result["per_map"].items()), flush=True)
     for region_name, per in result["per_region"].items():
         if len(result["per_region"]) > 1:
@@ -413,10 +430,13 @@ def score_scene(maps, out, name, brdfd):
 
 
 def main():
-    if len(sys.argv) < 4 or sys.argv[1] not in ("render", "score"):
+    if len(sys.argv) < 4 or sys.argv[1] not in ("render", "score") or (
+            sys.argv[1] == "score" and len(sys.argv) < 5):
         raise SystemExit(__doc__)
     command, maps, out = sys.argv[1:4]
     rest = sys.argv[4:]
+    if not os.path.exists(os.path.join(maps, CAPTURE + ".hdr")):
+        raise SystemExit(f"{maps} holds no {CAPTURE}.hdr, the map the photos are taken under")
     # The LLVM variants need a libLLVM that a machine may lack or that may not compile
     # Mitsuba's kernels (Debian's LLVM 14 fails on them); the scalar one runs everywhere.
     mi.set_variant("scalar_rgb")
@@ -425,17 +445,23 @@ def main():
         while rest:
             a = rest.pop(0)
             if a == "--spp":
+                if not rest or not rest[0].isdigit() or int(rest[0]) < 1:
+                    raise SystemExit("--spp takes a number of samples per pixel, 1 or more")
                 spp = int(rest.pop(0))
             elif a == "--photos-only":
                 truths = False
             else:
                 names.append(a)
+        unknown = [n for n in names if n not in SCENES]
+        if unknown:
+            raise SystemExit(f"unknown scene {unknown[0]!r}: one of {', '.join(SCENES)}")
         for name in names or SCENES:
-            if name not in SCENES:
-                raise SystemExit(f"unknown scene {name!r}: one of {', '.join(SCENES)}")
             render_scene(maps, out, name, spp, truths)
     else:
         brdfd, names = rest[0], rest[1:]
+        unknown = [n for n in names if n not in SCENES]
+        if unknown:
+            raise SystemExit(f"unknown scene {unknown[0]!r}: one of {', '.join(SCENES)}")
         scores = [score_scene(maps, out, n, brdfd) for n in names or SCENES]
         with open(os.path.join(out, "scores.json"), "w") as f:
             json.dump(scores, f, indent=2)

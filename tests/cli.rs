@@ -231,7 +231,8 @@ fn capture_without_a_rig_says_how_to_give_one() {
 }
 
 /// A geometry file's camera sets the render's size, as the photo it describes has: a
-/// 48 × 32 pinhole renders 48 × 32 whatever --size says, with the sphere in its middle.
+/// 48 × 32 pinhole renders 48 × 32, with the sphere in its middle; --size beside it is
+/// refused, not ignored.
 #[test]
 fn render_on_a_geometry_file_is_its_camera_s_size() {
     let dir = tempfile::tempdir().unwrap();
@@ -263,8 +264,6 @@ radius = 1.0
             "gold",
             "--geometry",
             "scene.toml",
-            "--size",
-            "64",
             "--lights",
             "64",
             "--out",
@@ -280,6 +279,26 @@ radius = 1.0
     // nothing in the corners.
     assert!(lit(24, 16) && lit(24, 8) && lit(14, 16));
     assert!(!lit(0, 0) && !lit(47, 31) && !lit(2, 16));
+    let o = brdfd(
+        &[
+            "render",
+            "--material",
+            "gold",
+            "--geometry",
+            "scene.toml",
+            "--size",
+            "64",
+            "--out",
+            "r.exr",
+        ],
+        dir.path(),
+    );
+    assert!(!o.status.success());
+    let stderr = text(&o).1;
+    assert!(
+        stderr.contains("--size") && stderr.contains("--geometry"),
+        "{stderr}"
+    );
 }
 
 /// render → estimate from files → render the estimate: the whole file path of the core.

@@ -3,6 +3,9 @@
 //! rendered by `scripts/mitsuba-reference.py` and by `brdfd render --gltf` of the same
 //! material. The figure is the relative RMSE in linear light over the sphere's inside.
 //!
+//! And brdfd's own Mitsuba set (`scripts/mitsuba-scenes.py`): its geometry files against
+//! Mitsuba's renders, and the flags of brdfd's estimates from its photos.
+//!
 //! It runs when `BRDFD_MITSUBA_PYTHON` names a Python with `mitsuba` installed; CI sets it and
 //! `BRDFD_REQUIRE_MITSUBA=1`, so there it cannot skip.
 
@@ -131,37 +134,23 @@ fn brdfd_renders_a_sphere_under_a_map_as_mitsuba_does() {
     assert!(failed.is_empty(), "{failed:?}");
 }
 
-/// brdfd's own Mitsuba set (`scripts/mitsuba-scenes.py`) writes each scene's camera and part
-/// as a brdfd geometry file: brdfd must see the part where Mitsuba drew it. Rendered at a few
-/// samples (only the silhouette is compared), the part's pixels in Mitsuba's region image
-/// and in `brdfd render` on the geometry file agree to an IoU of 0.98 (the edges' pixels are
-/// part part, part background, and each renderer decides them its own way), for the grooved
-/// part and for the dome with a stripe of a second material.
+/// brdfd's own Mitsuba set (`scripts/mitsuba-scenes.py`), its photos at 32 samples a pixel.
+///
+/// Each scene's camera and part are written as a brdfd geometry file: brdfd must see the part
+/// where Mitsuba drew it. The part's pixels in Mitsuba's region image and in `brdfd render` on
+/// the geometry file agree to an IoU of 0.98 (the edges' pixels are part part, part
+/// background, and each renderer decides them its own way).
+///
+/// A concave part lights itself: Mitsuba's path tracer draws the light the grooved part's
+/// surface reflects into its grooves, and brdfd, which counts direct light only, flags the
+/// estimate for interreflection; the same part rendered with direct light only is not
+/// flagged (docs/evaluation.md, "brdfd's own Mitsuba set": 1.69 against 0.99 at 512
+/// samples, flagged from 1.10). A dome of blue plastic with a gold stripe is flagged for
+/// several materials (0.69, flagged from 0.25), and the plain dome for nothing.
 #[test]
-fn the_mitsuba_set_s_geometry_files_see_the_part_mitsuba_rendered() {
+fn the_mitsuba_set_lines_up_and_each_part_is_flagged_for_what_it_breaks() {
     let Some(python) = python() else { return };
-    let dir = tempfile::tempdir().unwrap();
-    let maps = dir.path().join("maps");
-    std::fs::create_dir(&maps).unwrap();
-    std::fs::write(
-        maps.join("courtyard.hdr"),
-        brdfd::export::maps::reference_map_file("courtyard").unwrap(),
-    )
-    .unwrap();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/mitsuba-scenes.py");
-    let set = dir.path().join("set");
-    let o = Command::new(&python)
-        .arg(&script)
-        .args(["render"])
-        .args([&maps, &set])
-        .args(["--spp", "2", "--photos-only", "groove-plastic", "two-tone"])
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "mitsuba: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    let (_dir, set) = mitsuba_set(&python, 32);
     for scene in ["groove-plastic", "two-tone"] {
         let d = set.join(scene);
         let o = common::brdfd(
@@ -201,43 +190,12 @@ fn the_mitsuba_set_s_geometry_files_see_the_part_mitsuba_rendered() {
             "{scene}: {second} pixels in the second region"
         );
     }
-}
 
-/// A concave part lights itself: Mitsuba's path tracer draws the light the grooved part's
-/// surface reflects into its grooves, and brdfd, which counts direct light only, flags the
-/// estimate for interreflection; the same part rendered with direct light only is not
-/// flagged (docs/evaluation.md, "brdfd's own Mitsuba set": 1.69 against 0.99 at 512
-/// samples, flagged from 1.10). A dome of blue plastic with a gold stripe is flagged for
-/// several materials (0.70, flagged from 0.25), and nothing else.
-#[test]
-fn each_part_that_breaks_an_assumption_is_flagged_for_it_and_the_others_are_not() {
-    let Some(python) = python() else { return };
-    let dir = tempfile::tempdir().unwrap();
-    let maps = dir.path().join("maps");
-    std::fs::create_dir(&maps).unwrap();
-    std::fs::write(
-        maps.join("courtyard.hdr"),
-        brdfd::export::maps::reference_map_file("courtyard").unwrap(),
-    )
-    .unwrap();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/mitsuba-scenes.py");
-    let set = dir.path().join("set");
-    let o = Command::new(&python)
-        .arg(&script)
-        .args(["render"])
-        .args([&maps, &set])
-        .args(["--spp", "32", "--photos-only", "groove-plastic", "two-tone"])
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "mitsuba: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
     let cases = [
         ("groove-plastic", "photo.exr", Some("interreflection")),
         ("groove-plastic", "direct-photo.exr", None),
         ("two-tone", "photo.exr", Some("several_materials")),
+        ("dome-plastic", "photo.exr", None),
     ];
     for (scene, photo, flag) in cases {
         let d = set.join(scene);
@@ -266,7 +224,8 @@ fn each_part_that_breaks_an_assumption_is_flagged_for_it_and_the_others_are_not(
         )
         .unwrap();
         let flags = json["flags"].as_array().unwrap();
-        eprintln!("{scene} {photo}: flags {flags:?}");
+        let figures: Vec<f64> = flags.iter().filter_map(|f| f["figure"].as_f64()).collect();
+        eprintln!("{scene} {photo}: flags {figures:?}");
         let reasons: Vec<&str> = flags
             .iter()
             .map(|f| f["reason"].as_str().unwrap())
@@ -286,4 +245,40 @@ fn each_part_that_breaks_an_assumption_is_flagged_for_it_and_the_others_are_not(
             );
         }
     }
+}
+
+/// The photos (`--photos-only`) of the set's grooved part, two-material dome and plain dome
+/// under the embedded courtyard map, at `spp` samples a pixel: the folder that holds them,
+/// and the set.
+fn mitsuba_set(python: &str, spp: u32) -> (tempfile::TempDir, std::path::PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let maps = dir.path().join("maps");
+    std::fs::create_dir(&maps).unwrap();
+    std::fs::write(
+        maps.join("courtyard.hdr"),
+        brdfd::export::maps::reference_map_file("courtyard").unwrap(),
+    )
+    .unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/mitsuba-scenes.py");
+    let set = dir.path().join("set");
+    let o = Command::new(python)
+        .arg(&script)
+        .args(["render"])
+        .args([&maps, &set])
+        .args([
+            "--spp",
+            &spp.to_string(),
+            "--photos-only",
+            "groove-plastic",
+            "two-tone",
+            "dome-plastic",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "mitsuba: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    (dir, set)
 }

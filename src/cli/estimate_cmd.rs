@@ -345,10 +345,10 @@ pub struct RenderArgs {
     pub yaw: f64,
     #[command(flatten)]
     pub geometry: GeometryArgs,
-    /// Image size for built-in shapes and normal maps, 8 to 8192 pixels (a geometry file's
-    /// camera has its own).
-    #[arg(long, default_value_t = 256, value_parser = super::image_size)]
-    pub size: usize,
+    /// Image size for built-in shapes and normal maps, 8 to 8192 pixels [default: 256]. A
+    /// geometry file's camera has its own, and the two are not given together.
+    #[arg(long, value_parser = super::image_size, conflicts_with = "geometry")]
+    pub size: Option<usize>,
     /// Lights the map is compressed to for the render.
     #[arg(long, default_value_t = 16384)]
     pub lights: usize,
@@ -364,12 +364,12 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
     };
     let lights = env.compressed(a.lights, a.yaw.to_radians());
     let scene = a.geometry.scene_or_sphere()?;
-    // A geometry file's camera is the one the photo was taken with: the render is the
-    // photo's size, so that it lines up with it pixel for pixel. --size is the built-in
-    // shapes' (and a normal map's, which must match it).
-    let (width, height) = match &a.geometry.geometry {
-        Some(_) => scene.camera.size(),
-        None => (a.size, a.size),
+    // A geometry file's camera describes a photo: the render is the camera's size, so that
+    // it lines up with a photo of that size pixel for pixel. --size is the built-in shapes'
+    // (and a normal map's, which must match it).
+    let (width, height) = match (&a.geometry.geometry, a.size) {
+        (Some(_), _) => scene.camera.size(),
+        (None, size) => (size.unwrap_or(256), size.unwrap_or(256)),
     };
     let geometry = scene.pixels(width, height)?;
     let img = if let Some(name) = &a.material {

@@ -258,10 +258,17 @@ fn summary(s: &Session) -> Vec<String> {
         }
     }
     match result_of(&s.dir) {
-        Some((model, fit)) => lines.push(format!(
-            "estimate: {model} model, fit to the photo {fit:.4} ({})",
-            brdfd_core::estimate::fit_verdict(fit)
-        )),
+        Some((model, fit)) => {
+            lines.push(format!(
+                "estimate: {model} model, fit to the photo {fit:.4} ({})",
+                brdfd_core::estimate::fit_verdict(fit)
+            ));
+            // A broken assumption makes the fit's word optimistic: said right under it.
+            let coefficients = s.dir.join("result/coefficients.json");
+            if let Ok(r) = brdfd::results::StoredResult::read(&coefficients) {
+                lines.extend(r.flags.iter().map(|f| format!("  flagged: {}", f.text)));
+            }
+        }
         None if m.state != State::Done => lines.push(format!(
             "no estimate yet: `brdfd session resume {}` continues it",
             m.id

@@ -26,8 +26,8 @@ use serde::Serialize;
 use crate::html::Visibility;
 use brdfd_core::estimate::{Estimate, Rerendered};
 
-/// A face is shaded when the part hides at least this share of the light that reaches it
-/// (by irradiance: [`brdfd_core::render::visible_fraction`] below 0.8).
+/// A face is shaded when it sees less than this share of the light above its horizon: the
+/// part hides more than a fifth of it (by irradiance, [`brdfd_core::render::visible_fraction`]).
 const SHADED_BELOW: f32 = 0.8;
 /// Shaded faces this much brighter against the estimate than faces turned the same way that
 /// see the whole room are flagged. On the set's grooved parts, rendered with their bounces:
@@ -77,7 +77,7 @@ pub fn of(estimate: &Estimate, visibility: Option<&Visibility>) -> Vec<Flag> {
     let bounce = visibility.and_then(|v| interreflection(&estimate.rerender, v));
     bounce
         .into_iter()
-        .chain(several_materials(&estimate.rerender))
+        .chain(several_materials(&estimate.rerender, visibility))
         .collect()
 }
 
@@ -92,6 +92,9 @@ const NORMAL_CELL: f32 = 0.1;
 /// A cell's pixels split into the more and the less shaded half must differ by at least
 /// this much of their light hidden to say anything.
 const MIN_CONTRAST: f64 = 0.05;
+/// Pixels a cell needs in each half: a cell of a pixel or two at a shadow's edge would set
+/// the slope by its noise.
+const MIN_HALF: usize = 4;
 
 /// Whether, among faces turned the same way, those the part hides more of the room from are
 /// brighter against the estimate: the bounce light grows with the part a face sees of
@@ -124,7 +127,7 @@ fn interreflection(rerender: &[Rerendered], visibility: &Visibility) -> Option<F
     // Σ weight · ln(brightness of the more shaded half / the less), and Σ weight · the
     // difference in their hidden share: their quotient is the slope of ln(photo / estimate)
     // against the share of light hidden, within cells.
-    let (mut rise, mut run) = (0.0, 0.0);
+    let (mut rise, mut run, mut contributing) = (0.0, 0.0, 0usize);
     for pixels in cells.values_mut() {
         pixels.sort_by(|a, b| a.0.total_cmp(&b.0));
         let (less, more) = pixels.split_at(pixels.len() / 2);
@@ -133,7 +136,7 @@ fn interreflection(rerender: &[Rerendered], visibility: &Visibility) -> Option<F
                 .fold((0.0, 0.0, 0.0), |s, p| (s.0 + p.0, s.1 + p.1, s.2 + p.2))
         };
         let (l, m) = (sums(less), sums(more));
-        if less.is_empty() || !(l.2 > 0.0 && m.2 > 0.0 && l.1 > 0.0 && m.1 > 0.0) {
+        if less.len() < MIN_HALF || !(l.2 > 0.0 && m.2 > 0.0 && l.1 > 0.0 && m.1 > 0.0) {
             continue;
         }
         let contrast = m.0 / more.len() as f64 - l.0 / less.len() as f64;
@@ -143,8 +146,10 @@ fn interreflection(rerender: &[Rerendered], visibility: &Visibility) -> Option<F
         let weight = pixels.len() as f64;
         rise += weight * ((m.1 / m.2) / (l.1 / l.2)).ln();
         run += weight * contrast;
+        contributing += pixels.len();
     }
-    if run <= 0.0 {
+    // The slope is judged on as many pixels as the shaded faces are counted by.
+    if run <= 0.0 || contributing < MIN_SHADED {
         return None;
     }
     // The photo against the estimate on the shaded faces, at their mean share hidden,
@@ -154,7 +159,7 @@ fn interreflection(rerender: &[Rerendered], visibility: &Visibility) -> Option<F
         reason: Reason::Interreflection,
         figure,
         text: format!(
-            "interreflection: the faces the part shades from part of the room ({:.0}% of its pixels) are {:.0}% brighter, against the estimate, than faces turned the same way that see all of it would be (flagged from {:.0}%); the part lights itself, and the estimate takes that light for the material's own, so it is too bright, most in the grooves",
+            "interreflection: the faces the part shades from part of the room ({:.0}% of its pixels) are {:.0}% brighter, against the estimate, than faces turned the same way that see all of it would be (flagged from {:.0}%); the part seems to light itself, and the estimate takes that light for the material's own, so it is too bright (a map or pose that does not line up with the photo, or a black level or flare in it, can look the same)",
             100.0 * shaded as f64 / compared as f64,
             100.0 * (figure - 1.0),
             100.0 * (BRIGHTER - 1.0),
@@ -163,18 +168,19 @@ fn interreflection(rerender: &[Rerendered], visibility: &Visibility) -> Option<F
 }
 
 /// Blocks the first view's candidates are gathered into, about: each block's colour is the
-/// mean of its pixels', so that the photo's noise averages out (6 × 6 pixels of a 480 × 320
-/// photo of a part about 200 pixels across).
+/// mean of its pixels', so that the photo's noise averages out (6 × 6 pixels on the set's
+/// dome, about 240 pixels across).
 const COLOUR_BLOCKS: f64 = 1500.0;
 /// Candidates a block needs, at least, for its colour to count.
 const BLOCK_PIXELS: usize = 4;
 /// Blocks needed, at least, to judge.
 const MIN_BLOCKS: usize = 50;
 /// The photo's colour departing from the estimate's by this much, RMS over the blocks (in
-/// ln of the red-to-green and blue-to-green ratios, about a uniform cast), is flagged. One
+/// ln of red's and blue's shares of the light, about a uniform cast), is flagged. One
 /// material's estimate departs by 0.02–0.03 on the set's domes and by 0.02–0.09 on the
-/// simulated presets; brushed aluminium, one material outside the model, by 0.14; a blue
-/// plastic with a gold stripe, by 0.70.
+/// simulated presets; brushed aluminium, one material outside the model, by 0.14; the gold
+/// grooves' open faces, still lit by the gold around them, by 0.20; a blue plastic with a
+/// gold stripe, by 0.69.
 const COLOUR_DEPARTS: f64 = 0.25;
 
 /// A block's sums of the photo and the estimate per channel, and its candidates.
@@ -190,8 +196,15 @@ struct Block {
 /// while a material's own colour changing with the angles (a paint's white highlight) is what
 /// the models hold. A cast over the whole photo (the map's white balance) is not a material's,
 /// and is left out. Materials of one colour and different gloss are not seen by this.
-fn several_materials(rerender: &[Rerendered]) -> Option<Flag> {
-    let first: Vec<&Rerendered> = rerender.iter().filter(|r| r.view == 0).collect();
+fn several_materials(rerender: &[Rerendered], visibility: Option<&Visibility>) -> Option<Flag> {
+    // Light bounced between a concave part's walls takes their colour again at each bounce:
+    // the shaded faces are left out, so that one saturated material is not several.
+    let open = |r: &Rerendered| {
+        visibility
+            .and_then(|v| v.at(r.x as usize, r.y as usize))
+            .is_none_or(|(seen, _)| seen >= SHADED_BELOW)
+    };
+    let first: Vec<&Rerendered> = rerender.iter().filter(|r| r.view == 0 && open(r)).collect();
     if first.is_empty() {
         return None;
     }
@@ -212,8 +225,9 @@ fn several_materials(rerender: &[Rerendered]) -> Option<Flag> {
         }
         b.pixels += 1;
     }
-    // (ln of red to green, ln of blue to green) of the photo against the estimate, and the
-    // block's weight (the estimate's green).
+    // The photo's share of red and of blue in the block's light against the estimate's (ln),
+    // and the block's weight (the estimate's light). Shares of the sum, not ratios to green:
+    // a saturated red or blue material has next to no green, and its noise.
     let departs: Vec<([f64; 2], f64)> = blocks
         .values()
         .filter(|b| {
@@ -221,8 +235,9 @@ fn several_materials(rerender: &[Rerendered]) -> Option<Flag> {
         })
         .map(|b| {
             let (o, p) = (b.observed, b.predicted);
-            let ratio = |c: usize| (o[c] / o[1]).ln() - (p[c] / p[1]).ln();
-            ([ratio(0), ratio(2)], p[1])
+            let (so, sp) = (o.iter().sum::<f64>(), p.iter().sum::<f64>());
+            let share = |c: usize| (o[c] / so).ln() - (p[c] / sp).ln();
+            ([share(0), share(2)], sp)
         })
         .collect();
     if departs.len() < MIN_BLOCKS {
@@ -240,9 +255,7 @@ fn several_materials(rerender: &[Rerendered]) -> Option<Flag> {
         reason: Reason::SeveralMaterials,
         figure,
         text: format!(
-            "several materials: the photo's colour departs from the estimate's by {:.0}% RMS from place to place (flagged from {:.0}%; one material's estimate departs by at most about 10%); the part seems to carry materials of different colours, and one BRDF fitted to all of it is none of them",
-            100.0 * figure,
-            100.0 * COLOUR_DEPARTS,
+            "several materials: the photo's colour departs from the estimate's by {figure:.2} from place to place (RMS of ln colour shares; flagged from {COLOUR_DEPARTS}, single materials measure up to 0.1); the part seems to carry materials of different colours, and one BRDF fitted to all of it is none of them",
         ),
     })
 }
@@ -326,6 +339,10 @@ mod tests {
         assert!(f.is_empty(), "{f:?}");
     }
 
+    fn several_materials_of(rerender: &[Rerendered]) -> Option<Flag> {
+        several_materials(rerender, None)
+    }
+
     /// A 60 × 60 part whose photo is `left` and `right` times the estimate per channel in
     /// its two halves, with a little noise.
     fn two_halves(left: [f32; 3], right: [f32; 3]) -> Vec<Rerendered> {
@@ -349,11 +366,18 @@ mod tests {
 
     #[test]
     fn a_photo_redder_than_the_estimate_here_and_bluer_there_is_flagged_as_several_materials() {
-        let f = several_materials(&two_halves([1.5, 1.0, 0.7], [0.7, 1.0, 1.4])).unwrap();
+        let f = several_materials_of(&two_halves([1.5, 1.0, 0.7], [0.7, 1.0, 1.4])).unwrap();
         assert_eq!(f.reason, Reason::SeveralMaterials);
-        // ln 1.5 − mean and so on: half the spread between the halves, in two ratios.
-        let half = |a: f64, b: f64| (a.ln() - b.ln()) / 2.0;
-        let expected = (half(1.5, 0.7).powi(2) + half(0.7 / 1.0, 1.4).powi(2)).sqrt();
+        // Each half's shares of red and blue against the estimate's, about their mean: half
+        // the difference between the halves, in each share.
+        let p = [0.3, 0.25, 0.2];
+        let shares = |g: [f64; 3]| {
+            let o: Vec<f64> = (0..3).map(|c| p[c] * g[c]).collect();
+            let (so, sp) = (o.iter().sum::<f64>(), p.iter().sum::<f64>());
+            [0, 2].map(|c| (o[c] / so).ln() - (p[c] / sp).ln())
+        };
+        let (l, r) = (shares([1.5, 1.0, 0.7]), shares([0.7, 1.0, 1.4]));
+        let expected = (((l[0] - r[0]) / 2.0).powi(2) + ((l[1] - r[1]) / 2.0).powi(2)).sqrt();
         assert!(
             (f.figure - expected).abs() < 0.02,
             "{} against {expected}",
@@ -362,10 +386,30 @@ mod tests {
     }
 
     #[test]
+    fn a_saturated_material_with_next_to_no_green_is_one_material() {
+        // A deep red: its green is noise, which ratios to green would have made a colour.
+        let mut red = two_halves([1.0; 3], [1.0; 3]);
+        for (i, r) in red.iter_mut().enumerate() {
+            r.predicted = [0.5, 0.001, 0.01];
+            let noise = 1.0 + 0.9 * ((i * 37 % 11) as f32 / 5.0 - 1.0);
+            r.observed = [0.5, 0.001 * noise, 0.01];
+        }
+        assert!(several_materials_of(&red).is_none());
+    }
+
+    #[test]
+    fn each_reason_is_written_by_the_name_the_api_gives_it() {
+        for reason in [Reason::Interreflection, Reason::SeveralMaterials] {
+            let json = serde_json::to_value(reason).unwrap();
+            assert_eq!(json, reason.name());
+        }
+    }
+
+    #[test]
     fn a_cast_over_the_whole_photo_or_brightness_alone_is_not_several_materials() {
         // The map's white balance: the same cast everywhere.
-        assert!(several_materials(&two_halves([1.3, 1.0, 0.8], [1.3, 1.0, 0.8])).is_none());
+        assert!(several_materials_of(&two_halves([1.3, 1.0, 0.8], [1.3, 1.0, 0.8])).is_none());
         // Brighter in one half, the same colour: not a colour of its own.
-        assert!(several_materials(&two_halves([1.4, 1.4, 1.4], [0.8, 0.8, 0.8])).is_none());
+        assert!(several_materials_of(&two_halves([1.4, 1.4, 1.4], [0.8, 0.8, 0.8])).is_none());
     }
 }

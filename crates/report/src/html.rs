@@ -103,8 +103,13 @@ impl Visibility {
     }
 
     /// `fraction` (every `step`-th pixel of the photo's every `step`-th row), with the
-    /// object's normal at each of its pixels.
+    /// object's normal at each of its pixels (row by row, as `fraction`'s).
     pub fn new(fraction: Raster, normals: Vec<Option<[f32; 3]>>, step: usize) -> Visibility {
+        assert_eq!(
+            normals.len(),
+            fraction.width * fraction.height,
+            "a normal, or none, for each pixel of the fraction"
+        );
         let (mut sum, mut count) = (0.0, 0usize);
         for (p, _) in normals.iter().enumerate().filter(|(_, n)| n.is_some()) {
             sum += f64::from(fraction.pixels[p][0]);
@@ -118,8 +123,8 @@ impl Visibility {
         }
     }
 
-    /// The fraction and the normal at the photo's pixel (x, y): those of the nearest pixel
-    /// worked out, if it is the object's.
+    /// The fraction and the normal at the photo's pixel (x, y): those of the pixel worked out
+    /// at or above and left of it (at most `step` − 1 away), if it is the object's.
     pub fn at(&self, x: usize, y: usize) -> Option<(f32, [f32; 3])> {
         let (x, y) = (x / self.step, y / self.step);
         let f = &self.fraction;
@@ -155,8 +160,6 @@ const CHANNELS: [(&str, RGBColor); 3] = [
     ("B", RGBColor(30, 60, 210)),
 ];
 
-/// Writes the report for `estimate` (with its `preview`, the estimate on a sphere, and the
-/// `lights` it was fitted under) to `path`.
 /// What brdfd judged of the estimate beyond its fit: how its exports relight, and the
 /// assumptions the photo says are broken.
 pub struct Judged<'a> {
@@ -164,6 +167,8 @@ pub struct Judged<'a> {
     pub flags: &'a [Flag],
 }
 
+/// Writes the report for `estimate` (with its `preview`, the estimate on a sphere, and the
+/// `lights` it was fitted under) to `path`.
 pub fn write(
     path: &Path,
     estimate: &Estimate,
