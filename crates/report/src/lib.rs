@@ -1,9 +1,9 @@
 //! What brdfd writes from an estimate for people and for renderers, above the estimation core
 //! and nothing else: every result file of an estimate ([`results`]), the glTF and OpenPBR
 //! exports fitted to the whole estimate ([`export`]), `report.html` ([`html`]), the pictures
-//! of each photo against its re-render ([`compare`]), the judged summary lines ([`summary`]), the broken assumptions the residuals point to
-//! ([`flags`]),
-//! and the procedural lights reports relight estimates under ([`lights`]).
+//! of each photo against its re-render ([`compare`]), the judged summary lines ([`summary`]),
+//! the broken assumptions the residuals point to ([`flags`]), and the procedural lights
+//! reports relight estimates under ([`lights`]).
 
 pub mod compare;
 pub mod export;
