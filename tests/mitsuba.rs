@@ -97,20 +97,12 @@ fn brdfd_renders_a_sphere_under_a_map_as_mitsuba_does() {
         ("mirror-0.1", 0.06),
         ("mirror-0.02", 0.05),
     ];
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/mitsuba-reference.py");
-    let o = Command::new(&python)
-        .arg(&script)
-        .arg(&map)
-        .arg(SIZE.to_string())
-        .arg(dir.path())
-        .args(cases.map(|(c, _)| c))
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "mitsuba: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    script(&python, "mitsuba-reference.py", |c| {
+        c.arg(&map)
+            .arg(SIZE.to_string())
+            .arg(dir.path())
+            .args(cases.map(|(c, _)| c));
+    });
     let mut failed = Vec::new();
     for (case, limit) in cases {
         std::fs::write(dir.path().join(format!("{case}.gltf")), gltf(case)).unwrap();
@@ -259,26 +251,28 @@ fn mitsuba_set(python: &str, spp: u32) -> (tempfile::TempDir, std::path::PathBuf
         brdfd::export::maps::reference_map_file("courtyard").unwrap(),
     )
     .unwrap();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/mitsuba-scenes.py");
     let set = dir.path().join("set");
-    let o = Command::new(python)
-        .arg(&script)
-        .args(["render"])
-        .args([&maps, &set])
-        .args([
-            "--spp",
-            &spp.to_string(),
-            "--photos-only",
-            "groove-plastic",
-            "two-tone",
-            "dome-plastic",
-        ])
-        .output()
-        .unwrap();
+    script(python, "mitsuba-scenes.py", |c| {
+        c.arg("render").args([&maps, &set]);
+        c.args(["--spp", &spp.to_string(), "--photos-only"]);
+        c.args(["groove-plastic", "two-tone", "dome-plastic"]);
+    });
+    (dir, set)
+}
+
+/// Runs `scripts/NAME` with `python` and the arguments `args` gives it; it must succeed.
+fn script(python: &str, name: &str, args: impl FnOnce(&mut Command)) {
+    let mut c = Command::new(python);
+    c.arg(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("scripts")
+            .join(name),
+    );
+    args(&mut c);
+    let o = c.output().unwrap();
     assert!(
         o.status.success(),
-        "mitsuba: {}",
+        "{name}: {}",
         String::from_utf8_lossy(&o.stderr)
     );
-    (dir, set)
 }

@@ -175,15 +175,27 @@ fn match_id<'a>(ids: &'a [String], prefix: &str) -> Result<&'a str, String> {
     }
 }
 
-/// The result a session wrote, if it got that far: its model and fit to the photo.
-fn result_of(dir: &Path) -> Option<(String, f64)> {
+/// What a session's result says of itself, read once.
+struct Outcome {
+    model: String,
+    fit: f64,
+    /// The assumptions of the model the photo says are broken.
+    flags: Vec<brdfd::results::StoredFlag>,
+}
+
+/// The result a session wrote, if it got that far.
+fn result_of(dir: &Path) -> Option<Outcome> {
     let r = brdfd::results::StoredResult::read(&dir.join("result/coefficients.json")).ok()?;
-    Some((r.model, r.fit_error?))
+    Some(Outcome {
+        fit: r.fit_error?,
+        model: r.model,
+        flags: r.flags,
+    })
 }
 
 fn list(state: &Path, json: bool) -> anyhow::Result<()> {
     let all = Session::list(state)?;
-    let rows: Vec<(Manifest, Option<(String, f64)>)> = all
+    let rows: Vec<(Manifest, Option<Outcome>)> = all
         .into_iter()
         .map(|m| {
             let r = result_of(&brdfd::session::session_dir(state, &m.id));
@@ -199,8 +211,8 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
                     "state": m.state,
                     "material": m.material,
                     "created": m.created,
-                    "model": r.as_ref().map(|r| &r.0),
-                    "fit_error": r.as_ref().map(|r| r.1),
+                    "model": r.as_ref().map(|r| &r.model),
+                    "fit_error": r.as_ref().map(|r| r.fit),
                 })
             })
             .collect();
@@ -223,7 +235,7 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
     );
     for (m, r) in &rows {
         let (model, fit) = match r {
-            Some((model, fit)) => (model.as_str(), format!("{fit:.3}")),
+            Some(r) => (r.model.as_str(), format!("{:.3}", r.fit)),
             None => ("-", "-".to_string()),
         };
         println!(
@@ -258,16 +270,15 @@ fn summary(s: &Session) -> Vec<String> {
         }
     }
     match result_of(&s.dir) {
-        Some((model, fit)) => {
+        Some(r) => {
             lines.push(format!(
-                "estimate: {model} model, fit to the photo {fit:.4} ({})",
-                brdfd_core::estimate::fit_verdict(fit)
+                "estimate: {} model, fit to the photo {:.4} ({})",
+                r.model,
+                r.fit,
+                brdfd_core::estimate::fit_verdict(r.fit)
             ));
             // A broken assumption makes the fit's word optimistic: said right under it.
-            let coefficients = s.dir.join("result/coefficients.json");
-            if let Ok(r) = brdfd::results::StoredResult::read(&coefficients) {
-                lines.extend(r.flags.iter().map(|f| format!("  flagged: {}", f.text)));
-            }
+            lines.extend(r.flags.iter().map(|f| format!("  flagged: {}", f.text)));
         }
         None if m.state != State::Done => lines.push(format!(
             "no estimate yet: `brdfd session resume {}` continues it",

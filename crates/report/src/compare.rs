@@ -29,7 +29,7 @@ pub const ERROR_SCALE: f32 = 0.25;
 const GAP: u32 = 4;
 const BAR: u32 = 8;
 
-fn luminance(p: [f32; 3]) -> f32 {
+pub(crate) fn luminance(p: [f32; 3]) -> f32 {
     p[0] * 0.2126 + p[1] * 0.7152 + p[2] * 0.0722
 }
 

@@ -23,6 +23,7 @@ use std::collections::HashMap;
 
 use serde::Serialize;
 
+use crate::compare::luminance;
 use crate::html::Visibility;
 use brdfd_core::estimate::{Estimate, Rerendered};
 
@@ -81,10 +82,6 @@ pub fn of(estimate: &Estimate, visibility: Option<&Visibility>) -> Vec<Flag> {
         .collect()
 }
 
-fn luminance(p: [f32; 3]) -> f64 {
-    f64::from(0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2])
-}
-
 /// Normals within a cell this wide (about 6°, in each of the unit normal's coordinates) face
 /// the same way: a misfit that depends on the way a face turns is the same across the cell,
 /// and only the light the part hides from it differs.
@@ -117,8 +114,8 @@ fn interreflection(rerender: &[Rerendered], visibility: &Visibility) -> Option<F
         let cell = normal.map(|c| (c / NORMAL_CELL).round() as i32);
         cells.entry(cell).or_default().push((
             hidden,
-            luminance(r.observed),
-            luminance(r.predicted),
+            f64::from(luminance(r.observed)),
+            f64::from(luminance(r.predicted)),
         ));
     }
     if shaded < MIN_SHADED || (shaded as f64) < MIN_SHADED_SHARE * compared as f64 {
