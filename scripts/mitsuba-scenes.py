@@ -312,6 +312,7 @@ def render_scene(maps, out, name, spp, truths=True):
         n = math.sqrt(sum(c * c for c in a))
         truth["grain"] = {"degrees_from_part_x": GRAIN_DEG,
                           "world_direction_at_top": [c / n for c in a],
+                          "world_normal_at_top": list(to_world((0.0, 0.0, 1000.0))),
                           "alpha_along": ALPHA_ALONG, "alpha_across": ALPHA_ACROSS}
     with open(os.path.join(d, "scene.json"), "w") as f:
         json.dump(truth, f, indent=2)
@@ -356,6 +357,28 @@ def relative_rmse(ours, truth, kept):
             num += (a - b) ** 2
             den += b * b
     return math.sqrt(num / den) if den > 0 else float("nan")
+
+
+def grain_error(truth, found):
+    """How far brdfd's grain is from the truth, on the dome's top (both laid on the surface
+    there: a grain's component along the normal does not turn the tangent), and its
+    stretch (alpha across / alpha along) against the truth's."""
+    n = truth["world_normal_at_top"]
+    length = math.sqrt(sum(c * c for c in n))
+    n = [c / length for c in n]
+
+    def laid(g):
+        d = sum(a * b for a, b in zip(g, n))
+        t = [a - d * b for a, b in zip(g, n)]
+        length = math.sqrt(sum(c * c for c in t))
+        return [c / length for c in t]
+
+    cos = abs(sum(a * b for a, b in zip(laid(truth["world_direction_at_top"]),
+                                        laid(found["grain"]))))
+    return {"degrees_off": math.degrees(math.acos(min(1.0, cos))),
+            "stretch": found["alpha_across"] / found["alpha_along"],
+            "true_stretch": truth["alpha_across"] / truth["alpha_along"],
+            "misfit_ratio": found["anisotropic_misfit"] / found["isotropic_misfit"]}
 
 
 def score_scene(maps, out, name, brdfd):
@@ -416,6 +439,10 @@ def score_scene(maps, out, name, brdfd):
                 relative_rmse(ours, t, all_blocks)
     errors = sorted(result["per_map"].values())
     result["relight_error"] = sum(errors) / len(errors)
+    result["flags"] = [f["reason"] for f in coefficients.get("flags", [])]
+    found = coefficients.get("anisotropy")
+    if "grain" in truth and found:
+        result["grain"] = grain_error(truth["grain"], found)
     fit = result["fit_error"]
     fit = "n/a" if fit is None else f"{fit:.3f}"
     print(f"{name:20} fit {fit}  relight {result['relight_error']:.3f}  "
@@ -426,6 +453,10 @@ def score_scene(maps, out, name, brdfd):
     if "per_map_against_direct" in result:
         print("    against direct light only      " + "  ".join(
             f"{m} {e:.3f}" for m, e in result["per_map_against_direct"].items()))
+    if "grain" in result:
+        print(f"    grain {result['grain']['degrees_off']:.1f}° off, stretch "
+              f"{result['grain']['stretch']:.2f} (truth {result['grain']['true_stretch']:.2f})")
+    print(f"    flagged: {', '.join(result['flags']) or 'no'}")
     return result
 
 

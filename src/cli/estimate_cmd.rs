@@ -231,6 +231,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         colour: a.colour.unwrap_or(ColourArg::Auto).into(),
         white: a.white.or(file_white),
         nonnegative: !a.allow_negative,
+        anisotropy: true,
         // Ctrl-C ends the process: nothing is written before the estimate is done.
         stop: Default::default(),
     };

@@ -107,7 +107,8 @@ pub struct Summary {
 
 /// A broken assumption of the model, as the photo shows it: `reason` for programs
 /// (`interreflection`: the part seems to light itself; `several_materials`: the photo's
-/// colour departs from the estimate's from place to place), `text` for people (the figure,
+/// colour departs from the estimate's from place to place; `anisotropy`: the highlights are
+/// stretched across a grain), `text` for people (the figure,
 /// its threshold, and what it means for the estimate).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]

@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use super::analytic::{self, Microfacet, ViewPixels};
+use super::anisotropy::{self, Anisotropy, ViewSamples};
 use super::basis::{Basis, LinearModel};
 use super::bivariate::Bivariate;
 use super::envmap::LightSet;
@@ -96,6 +97,10 @@ pub struct EstimateOptions {
     /// the paper's method exactly as published (`--allow-negative`), whose least squares can
     /// leave cells negative. The other models are non-negative by construction.
     pub nonnegative: bool,
+    /// Compare an isotropic and an anisotropic lobe on the photo ([`crate::anisotropy`],
+    /// [`Estimate::anisotropy`]): on for an estimate a person reads; off for the evaluation,
+    /// which scores the BRDF alone and runs hundreds.
+    pub anisotropy: bool,
     /// Checked in the estimate's long loops: once requested, the estimate ends with
     /// [`CoreError::Stopped`] within about a second.
     pub stop: Stop,
@@ -114,6 +119,7 @@ impl Default for EstimateOptions {
             colour: ColourChoice::default(),
             white: None,
             nonnegative: true,
+            anisotropy: true,
             stop: Stop::default(),
         }
     }
@@ -173,6 +179,9 @@ pub struct Estimate {
     /// candidates' rows.
     pub chosen_lights: usize,
     pub timings: Timings,
+    /// Whether an anisotropic lobe re-renders the photo closer than an isotropic one
+    /// ([`crate::anisotropy`]); `None` with too few pixels.
+    pub anisotropy: Option<Anisotropy>,
 }
 
 /// One candidate pixel of the re-render: where it is, what the estimate renders there and
@@ -664,6 +673,19 @@ pub fn estimate_views_shared(
         Model::Hybrid => hybrid_estimate(basis, &candidates, options.lobes, &options.stop)?,
     };
     estimate.clipped = clipped;
+    if options.anisotropy {
+        let t = Instant::now();
+        let samples: Vec<ViewSamples> = candidates
+            .iter()
+            .map(|c| ViewSamples {
+                pixels: &c.pixels,
+                observed: &c.observed,
+                lights: c.view.lights,
+            })
+            .collect();
+        estimate.anisotropy = anisotropy::compare(&samples);
+        tracing::debug!("anisotropy {:?} in {:?}", estimate.anisotropy, t.elapsed());
+    }
     Ok(estimate)
 }
 
@@ -730,6 +752,7 @@ fn hybrid_estimate(
         analytic: Some(fit.analytic),
         mixture: fit.mixture,
         uncertainty: Some(fit.uncertainty),
+        anisotropy: None,
     })
 }
 
@@ -785,6 +808,7 @@ fn analytic_estimate(
         analytic: Some(fit.model),
         mixture: Vec::new(),
         uncertainty: Some(fit.uncertainty),
+        anisotropy: None,
     })
 }
 
@@ -888,6 +912,7 @@ fn basis_estimate(
         lights: candidates.first().map_or(0, |c| c.view.lights.len()),
         chosen_lights,
         timings,
+        anisotropy: None,
     })
 }
 

@@ -97,6 +97,7 @@ impl Method {
             colour: self.colour,
             white,
             nonnegative: self != METHODS[0],
+            anisotropy: false,
             ..EstimateOptions::default()
         }
     }

@@ -119,6 +119,10 @@ pub struct CoefficientsFile<'a> {
     pub exports: Export,
     /// The assumptions of the model the photo says are broken ([`crate::flags`]).
     pub flags: &'a [Flag],
+    /// The isotropic and anisotropic lobes compared ([`brdfd_core::anisotropy`]): the
+    /// evidence of the `anisotropy` flag, and the grain's direction and roughnesses.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub anisotropy: Option<&'a brdfd_core::anisotropy::Anisotropy>,
 }
 
 /// What a reader takes back from `coefficients.json`: the model and its coefficients, how it
@@ -447,6 +451,7 @@ pub fn write_results(
         uncertainty: estimate.uncertainty.as_ref(),
         exports: exports.clone(),
         flags: &flags,
+        anisotropy: estimate.anisotropy.as_ref(),
     };
     let files = ResultFiles {
         coefficients: dir.join("coefficients.json"),
