@@ -371,6 +371,8 @@ def grain_error(truth, found):
         d = sum(a * b for a, b in zip(g, n))
         t = [a - d * b for a, b in zip(g, n)]
         length = math.sqrt(sum(c * c for c in t))
+        if length == 0:
+            raise SystemExit("a grain along the dome's normal has no direction on its top")
         return [c / length for c in t]
 
     cos = abs(sum(a * b for a, b in zip(laid(truth["world_direction_at_top"]),
@@ -378,7 +380,8 @@ def grain_error(truth, found):
     return {"degrees_off": math.degrees(math.acos(min(1.0, cos))),
             "stretch": found["alpha_across"] / found["alpha_along"],
             "true_stretch": truth["alpha_across"] / truth["alpha_along"],
-            "misfit_ratio": found["anisotropic_misfit"] / found["isotropic_misfit"]}
+            "misfit_ratio": (found["anisotropic_misfit"] / found["isotropic_misfit"]
+                             if found["isotropic_misfit"] > 0 else 1.0)}
 
 
 def score_scene(maps, out, name, brdfd):

@@ -246,9 +246,6 @@ fn the_mitsuba_set_lines_up_and_each_part_is_flagged_for_what_it_breaks() {
     }
 }
 
-/// The photos (`--photos-only`) of the set's grooved part, two-material dome and plain dome
-/// under the embedded courtyard map, at `spp` samples a pixel: the folder that holds them,
-/// and the set.
 /// The brushed dome's grain, as `coefficients.json` records it, against the scene's truth:
 /// within 5° on the dome's top (both laid on the surface there), and the lobe's stretch
 /// (α across over α along) within 20% (issue 43's figures).
@@ -286,6 +283,9 @@ fn grain_is_found(scene: &Path, found: &serde_json::Value) {
     );
 }
 
+/// The photos (`--photos-only`) of the set's grooved part, two-material dome and plain dome
+/// under the embedded courtyard map, at `spp` samples a pixel, and of its brushed dome at
+/// 4 × `spp`: the folder that holds them, and the set.
 fn mitsuba_set(python: &str, spp: u32) -> (tempfile::TempDir, std::path::PathBuf) {
     let dir = tempfile::tempdir().unwrap();
     let maps = dir.path().join("maps");

@@ -683,7 +683,8 @@ pub fn estimate_views_shared(
                 lights: c.view.lights,
             })
             .collect();
-        estimate.anisotropy = anisotropy::compare(&samples);
+        estimate.anisotropy = anisotropy::compare(&samples, &options.stop);
+        options.stop.check()?;
         tracing::debug!("anisotropy {:?} in {:?}", estimate.anisotropy, t.elapsed());
     }
     Ok(estimate)

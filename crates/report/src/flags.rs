@@ -98,7 +98,7 @@ pub fn of(estimate: &Estimate, visibility: Option<&Visibility>) -> Vec<Flag> {
 /// The anisotropic lobe's misfit, over the best isotropic one's, at or below which the photo
 /// asks for anisotropy. On brdfd's Mitsuba set: brushed aluminium (α 0.06 along the grain,
 /// 0.24 across) 0.28; the in-model domes 0.88–0.98; the parts outside the model for other
-/// reasons 0.92–0.96; the simulated presets 0.89–0.98.
+/// reasons 0.92–1.00; the simulated presets 0.88–0.98.
 const ANISOTROPIC_BELOW: f64 = 0.75;
 /// And the lobe must be this much rougher across the grain than along it: a lobe as wide
 /// both ways that fits better is not a grain.
@@ -438,10 +438,47 @@ mod tests {
 
     #[test]
     fn each_reason_is_written_by_the_name_the_api_gives_it() {
-        for reason in [Reason::Interreflection, Reason::SeveralMaterials] {
+        for reason in [
+            Reason::Interreflection,
+            Reason::SeveralMaterials,
+            Reason::Anisotropy,
+        ] {
             let json = serde_json::to_value(reason).unwrap();
             assert_eq!(json, reason.name());
         }
+    }
+
+    fn compared(isotropic: f64, anisotropic: f64, along: f64, across: f64) -> Anisotropy {
+        Anisotropy {
+            isotropic_misfit: isotropic,
+            isotropic_alpha: 0.15,
+            anisotropic_misfit: anisotropic,
+            axis: [1.0, 0.0, 0.0],
+            smooth_along_axis: true,
+            grain: [1.0, 0.0, 0.0],
+            alpha_along: along,
+            alpha_across: across,
+            pixels: 1000,
+        }
+    }
+
+    #[test]
+    fn a_much_closer_stretched_lobe_is_anisotropy_and_a_little_closer_or_round_one_is_not() {
+        let flag = anisotropy(&compared(0.2, 0.06, 0.06, 0.24)).expect("flagged");
+        assert_eq!(flag.reason, Reason::Anisotropy);
+        assert!((flag.figure - 0.3).abs() < 1e-12, "{}", flag.figure);
+        assert!(
+            flag.text.contains("0.060 along the grain, 0.240 across"),
+            "{}",
+            flag.text
+        );
+        // At the threshold, and just above it.
+        assert!(anisotropy(&compared(0.2, 0.15, 0.06, 0.24)).is_some());
+        assert!(anisotropy(&compared(0.2, 0.152, 0.06, 0.24)).is_none());
+        // Much closer, but as rough both ways: a better lobe, not a grain.
+        assert!(anisotropy(&compared(0.2, 0.06, 0.15, 0.2)).is_none());
+        // A black photo's comparison says nothing.
+        assert!(anisotropy(&compared(0.0, 0.0, 0.06, 0.24)).is_none());
     }
 
     #[test]
