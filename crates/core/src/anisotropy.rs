@@ -29,6 +29,7 @@
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::brdf::{add, angle_between, cross, dot, normalize, scale, sub, tangent_frame};
 use super::envmap::LightSet;
 use super::geometry::GeomPixel;
 use super::stop::Stop;
@@ -344,18 +345,18 @@ impl Fit {
             );
         // A compass search: the moves of the current step while one improves, then half
         // the step.
-        let (mut turn, mut scale) = (0.2f64, 0.35f64);
+        let (mut turn, mut stretch) = (0.2f64, 0.35f64);
         let (mut halvings, mut moves) = (0, 0);
         while halvings < REFINE_ROUNDS && moves < MAX_MOVES {
             let shape = best.0;
-            let (u, w) = perpendiculars(shape.grain);
+            let (u, w) = tangent_frame(shape.grain);
             let mut tries = Vec::with_capacity(8);
             for sgn in [-1.0, 1.0] {
                 for axis in [u, w] {
-                    let grain = normalise(add(shape.grain, mul(axis, sgn * turn)));
+                    let grain = normalize(add(shape.grain, scale(axis, sgn * turn)));
                     tries.push(Shape { grain, ..shape });
                 }
-                let k = (sgn * scale).exp();
+                let k = (sgn * stretch).exp();
                 let along = (shape.along * k).clamp(ALPHA_MIN, ALPHA_MAX);
                 let across = (shape.across * k).clamp(ALPHA_MIN, ALPHA_MAX);
                 tries.push(Shape { along, ..shape });
@@ -370,7 +371,7 @@ impl Fit {
                 moves += 1;
             } else {
                 turn /= 2.0;
-                scale /= 2.0;
+                stretch /= 2.0;
                 halvings += 1;
             }
         }
@@ -416,12 +417,12 @@ fn better<T>(a: (T, f64), b: (T, f64)) -> (T, f64) {
 /// pixels face on average.
 fn grain_across(g: [f64; 3], fit: &Fit) -> [f64; 3] {
     let mean = fit.samples.iter().fold([0.0; 3], |a, s| add(a, s.normal));
-    let n = normalise(mean);
+    let n = normalize(mean);
     let across = cross(n, g);
     if dot(across, across) > 1e-12 {
-        normalise(across)
+        normalize(across)
     } else {
-        perpendiculars(g).0
+        tangent_frame(g).0
     }
 }
 
@@ -520,12 +521,12 @@ fn best_pair(dd: f64, ss: f64, ds: f64, d_o: f64, s_o: f64) -> f64 {
 fn specular(s: &Sample, shape: Shape, fine_below: f64) -> [f64; 3] {
     let n = s.normal;
     let t = {
-        let t = sub(shape.grain, mul(n, dot(shape.grain, n)));
+        let t = sub(shape.grain, scale(n, dot(shape.grain, n)));
         let len = dot(t, t).sqrt();
         if len > 1e-6 {
-            mul(t, 1.0 / len)
+            scale(t, 1.0 / len)
         } else {
-            perpendiculars(n).0
+            tangent_frame(n).0
         }
     };
     let b = cross(n, t);
@@ -682,7 +683,7 @@ fn merged(lights: &LightSet) -> LightSet {
             cell.power[c] += p[c];
         }
         cell.weight += w;
-        cell.dir = add(cell.dir, mul(d, w));
+        cell.dir = add(cell.dir, scale(d, w));
         cell.omega += omega;
         cell.members += 1;
         members.push((k, d, w, lights.spread[i] as f64));
@@ -691,7 +692,7 @@ fn merged(lights: &LightSet) -> LightSet {
         .iter()
         .map(|c| {
             if c.members > 0 {
-                normalise(c.dir)
+                normalize(c.dir)
             } else {
                 [0.0, 1.0, 0.0]
             }
@@ -699,7 +700,7 @@ fn merged(lights: &LightSet) -> LightSet {
         .collect();
     let mut m2 = vec![0.0f64; cells.len()];
     for (k, d, w, spread) in members {
-        let angle = dot(d, dirs[k]).clamp(-1.0, 1.0).acos();
+        let angle = angle_between(d, dirs[k]);
         // A light's own footprint is a disc of radius `spread`: its second moment is r²/2.
         m2[k] += w * (angle * angle + spread * spread / 2.0);
     }
@@ -729,17 +730,6 @@ fn half_sphere(count: usize) -> Vec<[f64; 3]> {
         .collect()
 }
 
-/// Two unit vectors perpendicular to `a` and to each other.
-fn perpendiculars(a: [f64; 3]) -> ([f64; 3], [f64; 3]) {
-    let helper = if a[0].abs() < 0.9 {
-        [1.0, 0.0, 0.0]
-    } else {
-        [0.0, 1.0, 0.0]
-    };
-    let u = normalise(cross(a, helper));
-    (u, cross(a, u))
-}
-
 fn dot32(a: [f32; 3], b: [f32; 3]) -> f32 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
@@ -748,33 +738,6 @@ fn sub32(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
 }
 fn mul32(a: [f32; 3], k: f32) -> [f32; 3] {
     [a[0] * k, a[1] * k, a[2] * k]
-}
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn mul(a: [f64; 3], k: f64) -> [f64; 3] {
-    [a[0] * k, a[1] * k, a[2] * k]
-}
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-fn normalise(a: [f64; 3]) -> [f64; 3] {
-    let len = dot(a, a).sqrt();
-    if len > 0.0 {
-        mul(a, 1.0 / len)
-    } else {
-        a
-    }
 }
 
 #[cfg(test)]
@@ -785,9 +748,9 @@ mod tests {
     /// windows, so that a highlight's shape shows at every part of a sphere.
     fn room(count: usize) -> LightSet {
         let windows: [([f64; 3], f64); 3] = [
-            (normalise([0.3, 0.8, 0.5]), 40.0),
-            (normalise([-0.7, 0.2, 0.7]), 25.0),
-            (normalise([0.6, -0.3, 0.75]), 15.0),
+            (normalize([0.3, 0.8, 0.5]), 40.0),
+            (normalize([-0.7, 0.2, 0.7]), 25.0),
+            (normalize([0.6, -0.3, 0.75]), 15.0),
         ];
         let mut set = LightSet::default();
         for d in fibonacci_sphere(count) {
@@ -854,7 +817,7 @@ mod tests {
             .map(|p| {
                 let n = p.normal.map(f64::from);
                 let v = p.view.map(f64::from);
-                let t = normalise(sub(grain, mul(n, dot(grain, n))));
+                let t = normalize(sub(grain, scale(n, dot(grain, n))));
                 let b = cross(n, t);
                 let local = |w: [f64; 3]| [dot(w, t), dot(w, b), dot(w, n)];
                 let lambda = |w: [f64; 3]| {
@@ -869,7 +832,7 @@ mod tests {
                     if ll[2] <= 0.0 {
                         continue;
                     }
-                    let h = local(normalise(add(l, v)));
+                    let h = local(normalize(add(l, v)));
                     let k = h[0] * h[0] / (ax * ax) + h[1] * h[1] / (ay * ay) + h[2] * h[2];
                     let d = 1.0 / (std::f64::consts::PI * ax * ay * k * k);
                     let g2 = 1.0 / (1.0 + lambda(ll) + lambda(vl));
@@ -899,11 +862,11 @@ mod tests {
     #[test]
     fn a_brushed_sphere_s_grain_and_stretch_are_found() {
         // The grain at 30° in the image, tipped 20° toward the camera.
-        let truth = normalise([0.866 * 0.94, 0.5 * 0.94, 0.34]);
+        let truth = normalize([0.866 * 0.94, 0.5 * 0.94, 0.34]);
         let a = compared(truth, 0.06, 0.24);
         assert!(a.misfit_ratio() < 0.25, "{a:?}");
         // Laid on the sphere's front (the normal +z), the grain found and the true one.
-        let flat = |g: [f64; 3]| normalise([g[0], g[1], 0.0]);
+        let flat = |g: [f64; 3]| normalize([g[0], g[1], 0.0]);
         let angle = dot(flat(a.grain), flat(truth))
             .abs()
             .min(1.0)
