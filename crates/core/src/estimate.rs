@@ -180,7 +180,8 @@ pub struct Estimate {
     pub chosen_lights: usize,
     pub timings: Timings,
     /// Whether an anisotropic lobe re-renders the photo closer than an isotropic one
-    /// ([`crate::anisotropy`]); `None` with too few pixels.
+    /// ([`crate::anisotropy`]); `None` with too few pixels or a black photo, and when
+    /// [`EstimateOptions::anisotropy`] is off.
     pub anisotropy: Option<Anisotropy>,
 }
 
