@@ -106,9 +106,21 @@ impl BinLut {
 
     #[inline(always)]
     pub fn bin(&self, u: f32) -> usize {
+        self.bin_in(self.cell(u), u)
+    }
+
+    /// The table cell of u: arithmetic alone, which the pixel loop runs in SIMD lanes.
+    #[inline(always)]
+    fn cell(&self, u: f32) -> u32 {
         // u ≥ +0 (a squared distance), so its bits order like its value.
-        let q = (u.to_bits().saturating_sub(self.base_bits) >> self.shift) as usize;
-        let q = q.min(self.start_bin.len() - 1);
+        let q = u.to_bits().saturating_sub(self.base_bits) >> self.shift;
+        q.min(self.start_bin.len() as u32 - 1)
+    }
+
+    /// The bin of u, in its cell `q`.
+    #[inline(always)]
+    fn bin_in(&self, q: u32, u: f32) -> usize {
+        let q = q as usize;
         let b = self.start_bin[q] as usize + (u >= self.next_edge_u[q]) as usize;
         b.min(N_THETA_H - 1)
     }
@@ -387,11 +399,15 @@ fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
     dot3(d, d)
 }
 
-/// What the inner loops need of one (pixel, light) pair.
+/// One (pixel, light) pair, worked out alone: the definition the pixel loop's blocks of
+/// lanes ([`Lit::block`]) are tested against, and what `each_light` hands its callers.
 struct Pair {
     /// n·ω, positive.
     cos: f32,
+    /// The θh and θd bins, which only the tests read: the renderers' loops bin in blocks.
+    #[cfg_attr(not(test), allow(dead_code))]
     bh: usize,
+    #[cfg_attr(not(test), allow(dead_code))]
     bd: usize,
 }
 
@@ -412,11 +428,85 @@ impl Luts {
 
 /// A light as the pixel loop meets it: a [`PackedLight`], or one with its half vector
 /// worked out beforehand for a view every pixel shares ([`ViewLight`]).
-trait Lit {
+trait Lit: Sized {
     fn packed(&self) -> &PackedLight;
     /// The pair of this light and a pixel (normal n, view v); `None` when the light is below
     /// the pixel's horizon or opposite the view.
     fn pair(&self, n: [f32; 3], v: [f32; 3], luts: &Luts) -> Option<Pair>;
+    /// The lights as columns, for [`Lit::block`].
+    fn lanes(lights: &[Self]) -> LightLanes;
+    /// [`Lit::pair`]'s arithmetic for the lights `start..start + BLOCK` of `lanes`, short of
+    /// the bins: written over columns, so that the compiler runs it eight lights at a time.
+    fn block(
+        lanes: &LightLanes,
+        start: usize,
+        n: [f32; 3],
+        v: [f32; 3],
+        luts: &Luts,
+        out: &mut BlockPairs,
+    );
+    /// The θd bin of this light, lane `i` of `pairs`.
+    fn bd(&self, pairs: &BlockPairs, i: usize, luts: &Luts) -> usize;
+}
+
+/// Lights per [`Lit::block`].
+const BLOCK: usize = 64;
+
+/// A light set as columns, one number per light, padded with unlit lights (a zero direction)
+/// to whole blocks.
+struct LightLanes {
+    dir: [Vec<f32>; 3],
+    /// The half vectors of a view every pixel shares ([`ViewLight`]); empty otherwise.
+    h: [Vec<f32>; 3],
+}
+
+impl LightLanes {
+    fn columns(len: usize, value: impl Fn(usize) -> [f32; 3]) -> [Vec<f32>; 3] {
+        let padded = len.div_ceil(BLOCK) * BLOCK;
+        std::array::from_fn(|k| {
+            (0..padded)
+                .map(|i| if i < len { value(i)[k] } else { 0.0 })
+                .collect()
+        })
+    }
+
+    /// Columns `start..start + BLOCK` of `c`, as an array: a constant length the compiler
+    /// can vectorise over without bounds checks.
+    #[inline(always)]
+    fn at(c: &[Vec<f32>; 3], start: usize) -> [&[f32; BLOCK]; 3] {
+        std::array::from_fn(|k| {
+            c[k][start..start + BLOCK]
+                .try_into()
+                .expect("lanes padded to whole blocks")
+        })
+    }
+}
+
+/// One pixel's pairs with a block of lights, as [`Lit::block`] leaves them.
+struct BlockPairs {
+    /// Whether the light is above the pixel's horizon and not opposite its view.
+    lit: [bool; BLOCK],
+    /// n·ω.
+    cos: [f32; BLOCK],
+    /// |n − h|² and |ω − h|², which [`BinLut::bin`] takes (`ud` unused with a shared view),
+    /// and their cells in the bin tables ([`BinLut::cell`]).
+    uh: [f32; BLOCK],
+    ud: [f32; BLOCK],
+    qh: [u32; BLOCK],
+    qd: [u32; BLOCK],
+}
+
+impl Default for BlockPairs {
+    fn default() -> Self {
+        BlockPairs {
+            lit: [false; BLOCK],
+            cos: [0.0; BLOCK],
+            uh: [0.0; BLOCK],
+            ud: [0.0; BLOCK],
+            qh: [0; BLOCK],
+            qd: [0; BLOCK],
+        }
+    }
 }
 
 impl Lit for PackedLight {
@@ -438,6 +528,43 @@ impl Lit for PackedLight {
             bd: luts.d.bin(dist2(self.dir, h)),
         })
     }
+
+    fn lanes(lights: &[Self]) -> LightLanes {
+        LightLanes {
+            dir: LightLanes::columns(lights.len(), |i| lights[i].dir),
+            h: [Vec::new(), Vec::new(), Vec::new()],
+        }
+    }
+
+    #[inline(always)]
+    fn block(
+        lanes: &LightLanes,
+        start: usize,
+        n: [f32; 3],
+        v: [f32; 3],
+        luts: &Luts,
+        out: &mut BlockPairs,
+    ) {
+        let [x, y, z] = LightLanes::at(&lanes.dir, start);
+        for i in 0..BLOCK {
+            let dir = [x[i], y[i], z[i]];
+            let cos = dot3(n, dir);
+            // `half_vector`'s test is folded into `lit` instead of an early return.
+            let (h, len2) = half_vector_unchecked(dir, v);
+            let (uh, ud) = (dist2(n, h), dist2(dir, h));
+            out.lit[i] = (cos > 0.0) & (len2 >= 1e-12);
+            out.cos[i] = cos;
+            out.uh[i] = uh;
+            out.ud[i] = ud;
+            out.qh[i] = luts.h.cell(uh);
+            out.qd[i] = luts.d.cell(ud);
+        }
+    }
+
+    #[inline(always)]
+    fn bd(&self, pairs: &BlockPairs, i: usize, luts: &Luts) -> usize {
+        luts.d.bin_in(pairs.qd[i], pairs.ud[i])
+    }
 }
 
 impl Lit for ViewLight {
@@ -457,6 +584,39 @@ impl Lit for ViewLight {
             bh: luts.h.bin(dist2(n, self.h)),
             bd: self.bd as usize,
         })
+    }
+
+    fn lanes(lights: &[Self]) -> LightLanes {
+        LightLanes {
+            dir: LightLanes::columns(lights.len(), |i| lights[i].light.dir),
+            h: LightLanes::columns(lights.len(), |i| lights[i].h),
+        }
+    }
+
+    #[inline(always)]
+    fn block(
+        lanes: &LightLanes,
+        start: usize,
+        n: [f32; 3],
+        _: [f32; 3],
+        luts: &Luts,
+        out: &mut BlockPairs,
+    ) {
+        let [x, y, z] = LightLanes::at(&lanes.dir, start);
+        let [hx, hy, hz] = LightLanes::at(&lanes.h, start);
+        for i in 0..BLOCK {
+            let cos = dot3(n, [x[i], y[i], z[i]]);
+            let uh = dist2(n, [hx[i], hy[i], hz[i]]);
+            out.lit[i] = cos > 0.0;
+            out.cos[i] = cos;
+            out.uh[i] = uh;
+            out.qh[i] = luts.h.cell(uh);
+        }
+    }
+
+    #[inline(always)]
+    fn bd(&self, _: &BlockPairs, _: usize, _: &Luts) -> usize {
+        self.bd as usize
     }
 }
 
@@ -570,8 +730,15 @@ impl ColumnTable {
     }
 
     /// Σⱼ over lights of column values × L·Δω·cos, for one pixel: out[c·m + col].
-    fn pixel<L: Lit>(&self, px: &GeomPixel, lights: &[L], seen: Option<&[u64]>, out: &mut [f32]) {
-        by_columns!(self.m, self.pixel_on_cpu(px, lights, seen, out))
+    fn pixel<L: Lit>(
+        &self,
+        px: &GeomPixel,
+        lights: &[L],
+        lanes: &LightLanes,
+        seen: Option<&[u64]>,
+        out: &mut [f32],
+    ) {
+        by_columns!(self.m, self.pixel_on_cpu(px, lights, lanes, seen, out))
     }
 
     /// [`ColumnTable::pixel`] for `M` columns, in the widest build the CPU runs.
@@ -580,15 +747,16 @@ impl ColumnTable {
         &self,
         px: &GeomPixel,
         lights: &[L],
+        lanes: &LightLanes,
         seen: Option<&[u64]>,
         out: &mut [f32],
     ) {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { self.pixel_avx2::<M, L>(px, lights, seen, out) };
+            return unsafe { self.pixel_avx2::<M, L>(px, lights, lanes, seen, out) };
         }
-        self.pixel_m::<M, L>(px, lights, seen, out)
+        self.pixel_m::<M, L>(px, lights, lanes, seen, out)
     }
 
     /// [`ColumnTable::pixel`] compiled for AVX2: the columns' accumulation runs eight lanes
@@ -603,10 +771,11 @@ impl ColumnTable {
         &self,
         px: &GeomPixel,
         lights: &[L],
+        lanes: &LightLanes,
         seen: Option<&[u64]>,
         out: &mut [f32],
     ) {
-        self.pixel_m::<M, L>(px, lights, seen, out)
+        self.pixel_m::<M, L>(px, lights, lanes, seen, out)
     }
 
     #[inline(always)]
@@ -626,19 +795,27 @@ impl ColumnTable {
         &self,
         px: &GeomPixel,
         lights: &[L],
+        lanes: &LightLanes,
         seen: Option<&[u64]>,
         out: &mut [f32],
     ) {
         let mut acc = [[0f32; M]; 3];
-        // `each_light`'s loop, written out: passed to it as a closure, the step below was
-        // compiled out of line (without AVX2, a call per light) for every column count.
+        // `each_light`'s loop, written out in two steps: the pairs' arithmetic for a block
+        // of lights, in SIMD lanes, then the bins and table reads light by light, in the
+        // same order, so the sums round as the one-light-at-a-time loop's did. (Passed to
+        // `each_light` as a closure, the step below was compiled out of line.)
         let (n, v) = (px.normal, px.view);
-        for l in lights {
-            let light = l.packed();
-            if seen.is_some_and(|row| !is_seen(row, light.index)) {
-                continue;
-            }
-            if let Some(Pair { cos, bh, bd, .. }) = l.pair(n, v, &self.luts) {
+        let mut pairs = BlockPairs::default();
+        for (b, block) in lights.chunks(BLOCK).enumerate() {
+            L::block(lanes, b * BLOCK, n, v, &self.luts, &mut pairs);
+            for (i, l) in block.iter().enumerate() {
+                let light = l.packed();
+                if !pairs.lit[i] || seen.is_some_and(|row| !is_seen(row, light.index)) {
+                    continue;
+                }
+                let cos = pairs.cos[i];
+                let bh = self.luts.h.bin_in(pairs.qh[i], pairs.uh[i]);
+                let bd = l.bd(&pairs, i, &self.luts);
                 let w = [
                     light.power[0] * cos,
                     light.power[1] * cos,
@@ -751,6 +928,10 @@ impl RenderingMatrix {
             .first()
             .filter(|first| pixels.iter().all(|p| p.view == first.view))
             .map(|first| table.shared_view(first.view, &packed));
+        let lanes = match &shared {
+            Some(lights) => ViewLight::lanes(lights),
+            None => PackedLight::lanes(&packed),
+        };
         let seen = Seen::new(pixels, lights);
         raw.par_chunks_mut(PIXELS_PER_TASK * 3 * m)
             .zip(pixels.par_chunks(PIXELS_PER_TASK))
@@ -758,8 +939,8 @@ impl RenderingMatrix {
                 for (o, p) in out.chunks_mut(3 * m).zip(px) {
                     let row = seen.row(p);
                     match &shared {
-                        Some(lights) => table.pixel(p, lights, row, o),
-                        None => table.pixel(p, &packed, row, o),
+                        Some(lights) => table.pixel(p, lights, &lanes, row, o),
+                        None => table.pixel(p, &packed, &lanes, row, o),
                     }
                     if let Some((cap, columns)) = cap.as_ref().filter(|_| mirrors.seen_by(p, row)) {
                         columns.add(cap, p, m, &table.luts, o);
@@ -1373,16 +1554,53 @@ mod tests {
             let table = ColumnTable::new(&refs, ThetaHBinning::Sqrt, &footprints, &vec![0; m]);
             let packed = pack(&lights, &footprints, ColumnTable::stride(m));
             let shared = table.shared_view(geometry.pixels[0].view, &packed);
+            let (packed_lanes, shared_lanes) =
+                (PackedLight::lanes(&packed), ViewLight::lanes(&shared));
             let (mut fast, mut portable) = (vec![0f32; 3 * m], vec![0f32; 3 * m]);
             for px in &geometry.pixels {
-                table.pixel(px, &packed, None, &mut fast);
-                by_columns!(m, table.pixel_m(px, &packed, None, &mut portable));
+                table.pixel(px, &packed, &packed_lanes, None, &mut fast);
+                by_columns!(
+                    m,
+                    table.pixel_m(px, &packed, &packed_lanes, None, &mut portable)
+                );
                 assert_eq!(fast, portable, "general loop, {m} columns");
-                table.pixel(px, &shared, None, &mut fast);
-                by_columns!(m, table.pixel_m(px, &shared, None, &mut portable));
+                assert_eq!(
+                    fast,
+                    one_light_at_a_time(&table, px, &packed),
+                    "general loop"
+                );
+                table.pixel(px, &shared, &shared_lanes, None, &mut fast);
+                by_columns!(
+                    m,
+                    table.pixel_m(px, &shared, &shared_lanes, None, &mut portable)
+                );
                 assert_eq!(fast, portable, "shared-view loop, {m} columns");
+                assert_eq!(
+                    fast,
+                    one_light_at_a_time(&table, px, &shared),
+                    "shared view"
+                );
             }
         }
+    }
+
+    /// A pixel's row summed light by light through [`Lit::pair`], in f32 as the pixel loop
+    /// sums: what its blocks of lanes must give to the bit.
+    fn one_light_at_a_time<L: Lit>(table: &ColumnTable, px: &GeomPixel, lights: &[L]) -> Vec<f32> {
+        let m = table.m;
+        let mut acc = vec![0f32; 3 * m];
+        for l in lights {
+            let light = l.packed();
+            if let Some(Pair { cos, bh, bd }) = l.pair(px.normal, px.view, &table.luts) {
+                let start = light.base + (bh * N_THETA_D + bd) * 3 * m;
+                for c in 0..3 {
+                    for j in 0..m {
+                        acc[c * m + j] += light.power[c] * cos * table.data[start + c * m + j];
+                    }
+                }
+            }
+        }
+        acc
     }
 
     /// The MERL renderer's light geometry over a tile's lanes is the pair loop's, number for
