@@ -21,7 +21,7 @@ const HALF_PI: f64 = std::f64::consts::FRAC_PI_2;
 /// quarter turn stands for the half turn MERL stores, at the same 1° spacing.
 const PHI_SAMPLES: usize = merl::PHI_D_BINS / 2;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ThetaHBinning {
     /// MERL's bins, uniform in √θh: fine near the specular peak.
