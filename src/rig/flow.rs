@@ -23,11 +23,12 @@ use super::stage::Stage;
 use super::turning::{turn, turned};
 use super::{Cancel, Devices, Event, Operator, Progress};
 use crate::config::Rig;
+use crate::export::Prepared;
 use crate::html::{Context as ReportContext, Visibility};
 use crate::panorama::merge_bracket;
 use crate::session::{PhaseTime, Session, State};
 use brdfd_core::basis::Basis;
-use brdfd_core::bivariate::Bivariate;
+use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd_core::estimate::{estimate_views, fit_verdict, Estimate, EstimateOptions, View};
 use brdfd_core::geometry::PixelGeometry;
@@ -285,7 +286,8 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
     let mut stage = super::stage::of(cx);
     stage.place(cx, s, &basis, &mut phases)?;
     let env = measure_light(cx, session, s, stage.as_ref(), &mut phases)?;
-    let captured = shoot_views(cx, session, s, &env, stage.as_mut(), &mut phases)?;
+    let grid = basis.header.grid;
+    let mut captured = shoot_views(cx, session, s, (&env, grid), stage.as_mut(), &mut phases)?;
     session.set_state(State::Captured, None)?;
     cx.cancel.check()?;
     if let Some(text) = &captured.fallback {
@@ -298,6 +300,7 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
     // The last point to stop at: once written, the results are the session's.
     cx.cancel.check()?;
     let p = phases.start("write results", 1);
+    let exports = captured.exports.take().and_then(PreparingExports::finish);
     env.write_exr(&session.dir.join("derived/panorama.exr"))?;
     let first = &captured.views[0];
     // Under the candidates' lights, whose visibility the estimate has worked out already.
@@ -310,6 +313,7 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
     let mut report = report_context(session, &env, &captured, judged.brdf.as_ref(), relight);
     report.visibility = visibility.as_ref();
     report.object = object.as_ref();
+    report.exports = exports.as_ref();
     let (exports, flags) = write_result(session, &basis, &est, &captured.views[0].lights, &report)?;
     phases.end(p);
     say_result(
@@ -441,6 +445,39 @@ struct Captured {
     first_yaw: f64,
     /// When the fallback shot any view: what it cost, in words.
     fallback: Option<String>,
+    /// The exports' renders, started once the first view's turn is known.
+    exports: Option<PreparingExports>,
+}
+
+/// The exports' maps and renders ([`Prepared`]), made on a thread of their own while the
+/// camera shoots: they need the light and the first view's turn, not the photo, and the
+/// bracket leaves the cores idle. Written as the results are, they were a third of the wait
+/// for them.
+struct PreparingExports(std::thread::JoinHandle<brdfd_core::Result<Prepared>>);
+
+impl PreparingExports {
+    fn start(env: &EnvMap, yaw: f64, grid: Grid) -> PreparingExports {
+        let env = env.clone();
+        PreparingExports(std::thread::spawn(move || {
+            Prepared::new(Some((&env, yaw)), grid)
+        }))
+    }
+
+    /// The renders, or `None` if making them failed: the results then make them again, and
+    /// say why if it fails again.
+    fn finish(self) -> Option<Prepared> {
+        match self.0.join() {
+            Ok(Ok(p)) => Some(p),
+            Ok(Err(e)) => {
+                tracing::warn!("preparing the exports: {e}");
+                None
+            }
+            Err(_) => {
+                tracing::warn!("preparing the exports panicked");
+                None
+            }
+        }
+    }
 }
 
 /// One object-camera bracket per view, each stored as it arrives and merged.
@@ -448,7 +485,7 @@ fn shoot_views(
     cx: &Context,
     session: &mut Session,
     s: &CaptureSettings,
-    env: &EnvMap,
+    (env, grid): (&EnvMap, Grid),
     stage: &mut dyn Stage,
     phases: &mut Phases,
 ) -> anyhow::Result<Captured> {
@@ -457,6 +494,7 @@ fn shoot_views(
         clip_level: None,
         first_yaw: s.yaw,
         fallback: None,
+        exports: None,
     };
     // The object camera for the views still to shoot; chosen when the first one is. A
     // capture that fell back stays on the fallback, resumed or not, even if the view it fell
@@ -486,6 +524,10 @@ fn shoot_views(
                     None => *camera.insert(object::choose(cx)?),
                 };
                 let deg = turn(cx, session, s, i)?;
+                if i == 0 {
+                    let yaw = turned(&s.scene, s.yaw, deg).1;
+                    captured.exports = Some(PreparingExports::start(env, yaw, grid));
+                }
                 let frames = match using {
                     CameraRole::Fallback => s.fallback.exposures_s.len(),
                     CameraRole::Dslr => s.dslr.exposures_s.len(),
@@ -603,6 +645,7 @@ fn report_context<'a>(
         fallback: captured.fallback.clone(),
         visibility: None,
         object: None,
+        exports: None,
         record: vec![
             ("session".into(), m.id.clone()),
             ("material".into(), m.material.clone()),

@@ -51,6 +51,9 @@ pub struct Context<'a> {
     /// The object's mesh, placed in the world as the first view saw it: `object.gltf` shows
     /// the export on it.
     pub object: Option<&'a brdfd_core::mesh::Mesh>,
+    /// The exports' maps and renders, made beforehand ([`crate::export::Prepared`]); made
+    /// when the results are written if absent or made for another turn of `env`.
+    pub exports: Option<&'a crate::export::Prepared>,
 }
 
 /// The fraction of the light reaching each object pixel that the object itself lets through

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::export::{write_exports, Export};
+use crate::export::{write_exports, Export, Prepared};
 use crate::flags::Flag;
 use crate::html::Context;
 use brdfd_core::analytic::Microfacet;
@@ -392,7 +392,51 @@ pub fn write_results(
 ) -> Result<ResultFiles> {
     std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
     let brdf = &estimate.brdf;
-    let exports = write_exports(dir, "brdfd_estimate", brdf, cx.env.map(|m| (m, cx.yaw)))?;
+    let merl_path = dir.join("brdf.binary");
+    std::thread::scope(|s| {
+        // The MERL table (35 MB) is written while the rest is worked out.
+        let merl = s.spawn(|| brdf.to_merl().write(&merl_path));
+        // The export's fit and the preview's render need nothing of each other: run side by
+        // side, each fills the cores while the other is in a serial step.
+        let (exports, preview) = rayon::join(
+            || {
+                let capture = cx.env.map(|m| (m, cx.yaw));
+                match cx.exports.filter(|p| p.is_for(capture.map(|c| c.1))) {
+                    Some(prepared) => write_exports(dir, "brdfd_estimate", brdf, prepared),
+                    None => {
+                        let prepared = Prepared::new(capture, brdf.grid)?;
+                        write_exports(dir, "brdfd_estimate", brdf, &prepared)
+                    }
+                }
+            },
+            || write_preview(dir, &dir.join("preview.png"), brdf, lights, cx),
+        );
+        let files = write_the_rest(
+            dir,
+            basis,
+            estimate,
+            method,
+            lights,
+            cx,
+            (exports?, preview?),
+        )?;
+        merl.join().expect("writing the MERL table panicked")?;
+        Ok(files)
+    })
+}
+
+/// [`write_results`] once the exports are fitted and the preview rendered: the files that
+/// read them.
+fn write_the_rest(
+    dir: &Path,
+    basis: &Basis,
+    estimate: &Estimate,
+    method: &str,
+    lights: &LightSet,
+    cx: &Context,
+    (exports, preview): (Export, image::RgbImage),
+) -> Result<ResultFiles> {
+    let brdf = &estimate.brdf;
     let all = estimate.selection.pixels.len() == estimate.candidates;
     let flags = crate::flags::of(estimate, cx.visibility);
     let file = CoefficientsFile {
@@ -519,24 +563,18 @@ pub fn write_results(
             .map_err(|e| CoreError::format(path.display(), format!("could not write PNG: {e}")))?;
         written.push(path);
     }
-    // The MERL table (35 MB) is written while the preview renders.
-    std::thread::scope(|s| {
-        let merl = s.spawn(|| brdf.to_merl().write(&files.merl));
-        let preview = write_preview(dir, &files.preview_png, brdf, lights, cx)?;
-        crate::html::write(
-            &files.report,
-            estimate,
-            basis_id,
-            &preview,
-            lights,
-            &crate::html::Judged {
-                export: &files.exports,
-                flags: &files.flags,
-            },
-            cx,
-        )?;
-        merl.join().expect("writing the MERL table panicked")
-    })?;
+    crate::html::write(
+        &files.report,
+        estimate,
+        basis_id,
+        &preview,
+        lights,
+        &crate::html::Judged {
+            export: &files.exports,
+            flags: &files.flags,
+        },
+        cx,
+    )?;
     Ok(ResultFiles { written, ..files })
 }
 

@@ -461,37 +461,29 @@ impl<'a> Scenes<'a> {
 
     /// The lobe images at each of `alphas`.
     fn lobes(&self, alphas: &[f64]) -> Vec<Lobe> {
-        let cols: Vec<[Vec<f64>; 3]> = alphas.par_iter().map(|a| columns(self.grid, *a)).collect();
+        self.lobes_from(
+            alphas,
+            render_lobes(self.pixels, self.maps, self.grid, alphas),
+        )
+    }
+
+    /// The lobes of `alphas` from their unscaled images ([`render_lobes`]).
+    fn lobes_from(&self, alphas: &[f64], raw: Vec<[Vec<f64>; 2]>) -> Vec<Lobe> {
         let rows = self.pixels.len() * 3;
-        let mut images: Vec<[Vec<f64>; 3]> = (0..alphas.len())
-            .map(|_| std::array::from_fn(|_| Vec::with_capacity(rows * self.maps.len())))
+        let images: Vec<[Vec<f64>; 3]> = raw
+            .into_iter()
+            .map(|[s0, s1]| {
+                let scaled = |x: &[f64]| -> Vec<f64> {
+                    x.iter()
+                        .enumerate()
+                        .map(|(r, v)| v * self.scale[r / rows])
+                        .collect()
+                };
+                let (s0, s1) = (scaled(&s0), scaled(&s1));
+                let sum = s0.iter().zip(&s1).map(|(a, b)| a + b).collect();
+                [s0, s1, sum]
+            })
             .collect();
-        let per_pass = PASS_COLUMNS / 2;
-        for (m, lights) in self.maps.iter().enumerate() {
-            let s = self.scale[m];
-            for (p, chunk) in cols.chunks(per_pass).enumerate() {
-                let refs: Vec<&[f64]> = chunk.iter().flat_map(|c| [&c[1][..], &c[2][..]]).collect();
-                let a = RenderingMatrix::build(
-                    self.pixels,
-                    lights,
-                    &refs,
-                    None,
-                    self.grid.theta_h_binning,
-                );
-                for (i, lobe) in images[p * per_pass..p * per_pass + chunk.len()]
-                    .iter_mut()
-                    .enumerate()
-                {
-                    for r in 0..rows {
-                        let row = a.row(r);
-                        let (s0, s1) = (row[2 * i] as f64 * s, row[2 * i + 1] as f64 * s);
-                        lobe[0].push(s0);
-                        lobe[1].push(s1);
-                        lobe[2].push(s0 + s1);
-                    }
-                }
-            }
-        }
         alphas
             .par_iter()
             .zip(images)
@@ -561,12 +553,12 @@ impl<'a> Scenes<'a> {
 
     /// Fits the shared model to the target: every coarse roughness without a coat, and every
     /// pair of them with one; then finer grids about the best's roughnesses.
-    pub fn fit(&self) -> Fitted {
-        let ratio = (ALPHA_MAX / ALPHA_MIN).powf(1.0 / (COARSE_ALPHAS - 1) as f64);
-        let alphas: Vec<f64> = (0..COARSE_ALPHAS)
-            .map(|i| ALPHA_MIN * ratio.powi(i as i32))
-            .collect();
-        let lobes = self.lobes(&alphas);
+    pub fn fit(&self, coarse: Option<&Coarse>) -> Fitted {
+        let alphas = coarse_alphas();
+        let lobes = match coarse.filter(|c| c.is_for(self)) {
+            Some(c) => self.lobes_from(&alphas, c.images.clone()),
+            None => self.lobes(&alphas),
+        };
         let plain: Vec<Candidate> = lobes.par_iter().map(|l| self.plain(l)).collect();
         let pairs: Vec<(usize, usize)> = (0..COARSE_ALPHAS)
             .flat_map(|b| (0..COARSE_ALPHAS).map(move |c| (b, c)))
@@ -652,6 +644,75 @@ impl<'a> Scenes<'a> {
             coat_alpha: found.coat_alpha,
             fit_error: (found.misfit / self.maps.len() as f64).sqrt(),
         }
+    }
+}
+
+/// The coarse grid of roughnesses: log-spaced from [`ALPHA_MIN`] to [`ALPHA_MAX`].
+fn coarse_alphas() -> Vec<f64> {
+    let ratio = (ALPHA_MAX / ALPHA_MIN).powf(1.0 / (COARSE_ALPHAS - 1) as f64);
+    (0..COARSE_ALPHAS)
+        .map(|i| ALPHA_MIN * ratio.powi(i as i32))
+        .collect()
+}
+
+/// Each of `alphas`' lobe images, S(1 − w) and S·w, unscaled, under every one of `maps` in
+/// turn: renders of the formats' own lobe alone, the same whatever the estimate.
+fn render_lobes(
+    pixels: &[GeomPixel],
+    maps: &[LightSet],
+    grid: Grid,
+    alphas: &[f64],
+) -> Vec<[Vec<f64>; 2]> {
+    let cols: Vec<[Vec<f64>; 3]> = alphas.par_iter().map(|a| columns(grid, *a)).collect();
+    let rows = pixels.len() * 3;
+    let mut images: Vec<[Vec<f64>; 2]> = (0..alphas.len())
+        .map(|_| std::array::from_fn(|_| Vec::with_capacity(rows * maps.len())))
+        .collect();
+    let per_pass = PASS_COLUMNS / 2;
+    for lights in maps {
+        for (p, chunk) in cols.chunks(per_pass).enumerate() {
+            let refs: Vec<&[f64]> = chunk.iter().flat_map(|c| [&c[1][..], &c[2][..]]).collect();
+            let a = RenderingMatrix::build(pixels, lights, &refs, None, grid.theta_h_binning);
+            for (i, lobe) in images[p * per_pass..p * per_pass + chunk.len()]
+                .iter_mut()
+                .enumerate()
+            {
+                for r in 0..rows {
+                    let row = a.row(r);
+                    lobe[0].push(row[2 * i] as f64);
+                    lobe[1].push(row[2 * i + 1] as f64);
+                }
+            }
+        }
+    }
+    images
+}
+
+/// The coarse grid's lobe images for a fit's sphere, maps and grid: the fit's largest
+/// render, and one that needs no estimate. A capture renders it while the camera shoots.
+pub struct Coarse {
+    pixels: usize,
+    maps: usize,
+    grid: Grid,
+    images: Vec<[Vec<f64>; 2]>,
+}
+
+impl Coarse {
+    pub fn render(pixels: &[GeomPixel], maps: &[LightSet], grid: Grid) -> Coarse {
+        Coarse {
+            pixels: pixels.len(),
+            maps: maps.len(),
+            grid,
+            images: render_lobes(pixels, maps, grid, &coarse_alphas()),
+        }
+    }
+
+    /// Whether these are the renders `scenes` would make: the same grid and as many pixels
+    /// and maps (the caller keeps the sphere and the maps themselves the same).
+    fn is_for(&self, scenes: &Scenes) -> bool {
+        self.grid == scenes.grid
+            && self.pixels == scenes.pixels.len()
+            && self.maps == scenes.maps.len()
     }
 }
 

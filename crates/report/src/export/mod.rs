@@ -25,7 +25,7 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use brdfd_core::bivariate::Bivariate;
+use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::envmap::{EnvMap, LightSet};
 use brdfd_core::geometry::{Camera, PixelGeometry, Shape};
 use brdfd_core::render::render_bivariate;
@@ -126,45 +126,83 @@ fn sphere(size: usize) -> Result<PixelGeometry> {
     PixelGeometry::rasterize(&Camera::eval_orthographic(size), &Shape::unit_sphere())
 }
 
+/// What the exports' fit and check need before there is an estimate: the maps they light the
+/// sphere with, and the fit's coarse grid of lobes rendered under them. A capture prepares it
+/// while its camera shoots ([`Prepared::new`] on another thread), which takes it out of the
+/// wait for the results.
+pub struct Prepared {
+    /// The capture's map turn it was made for (radians), if it holds the capture's map.
+    capture_yaw: Option<f64>,
+    fitted_under: Vec<String>,
+    fit_lights: Vec<LightSet>,
+    fit_sphere: PixelGeometry,
+    coarse: fit::Coarse,
+    checks: Vec<Lit>,
+    check_sphere: PixelGeometry,
+}
+
+impl Prepared {
+    /// For estimates on `grid`, fitted under the reference maps and, when given, `capture`
+    /// (the map the estimate was made under, with its turn in radians).
+    pub fn new(capture: Option<(&EnvMap, f64)>, grid: Grid) -> Result<Prepared> {
+        let references = maps::reference_maps()?;
+        let mut fit_maps: Vec<Lit> = references
+            .iter()
+            .map(|(name, map)| reference(map, name, 0.0, FIT_LIGHTS))
+            .collect();
+        if let Some((map, yaw)) = capture {
+            fit_maps.push(Lit {
+                name: "the capture's map".into(),
+                lights: map.compressed(FIT_LIGHTS, yaw),
+            });
+        }
+        let (fitted_under, fit_lights): (Vec<String>, Vec<LightSet>) =
+            fit_maps.into_iter().map(|m| (m.name, m.lights)).unzip();
+        let fit_sphere = sphere(FIT_SIZE)?;
+        let coarse = fit::Coarse::render(&fit_sphere.pixels, &fit_lights, grid);
+        Ok(Prepared {
+            capture_yaw: capture.map(|(_, yaw)| yaw),
+            fitted_under,
+            fit_lights,
+            fit_sphere,
+            coarse,
+            checks: references
+                .iter()
+                .map(|(name, map)| reference(map, name, CHECK_YAW_DEG, CHECK_LIGHTS))
+                .collect(),
+            check_sphere: sphere(CHECK_SIZE)?,
+        })
+    }
+
+    /// Whether this was prepared with the capture's map at turn `yaw` (or without a capture's
+    /// map, for `None`).
+    pub fn is_for(&self, yaw: Option<f64>) -> bool {
+        self.capture_yaw == yaw
+    }
+}
+
 /// Fits the formats to `estimate`, writes `material.gltf` and `material.mtlx` into `dir`, and
-/// measures how far they relight from it. `capture` is the map the estimate was made under
-/// (and its turn, radians): the fit uses it beside the reference maps.
+/// measures how far they relight from it, under the maps `prepared` holds.
 pub fn write_exports(
     dir: &Path,
     name: &str,
     estimate: &Bivariate,
-    capture: Option<(&EnvMap, f64)>,
+    prepared: &Prepared,
 ) -> Result<Export> {
-    let references = maps::reference_maps()?;
-    let mut fit_maps: Vec<Lit> = references
-        .iter()
-        .map(|(name, map)| reference(map, name, 0.0, FIT_LIGHTS))
-        .collect();
-    if let Some((map, yaw)) = capture {
-        fit_maps.push(Lit {
-            name: "the capture's map".into(),
-            lights: map.compressed(FIT_LIGHTS, yaw),
-        });
-    }
-    let (fitted_under, lights): (Vec<String>, Vec<LightSet>) =
-        fit_maps.into_iter().map(|m| (m.name, m.lights)).unzip();
-    let fit_sphere = sphere(FIT_SIZE)?;
-    let fitted = fit::Scenes::new(&fit_sphere.pixels, &lights, estimate)?.fit();
+    let p = prepared;
+    let scenes = fit::Scenes::new(&p.fit_sphere.pixels, &p.fit_lights, estimate)?;
+    let fitted = scenes.fit(Some(&p.coarse));
     let material = GltfMaterial::from_fit(&fitted);
     let openpbr = OpenPbrMaterial::from_fit(&fitted);
 
-    let check_sphere = sphere(CHECK_SIZE)?;
     let exported = material.tables(estimate.grid);
-    let checks: Vec<Lit> = references
-        .iter()
-        .map(|(name, map)| reference(map, name, CHECK_YAW_DEG, CHECK_LIGHTS))
-        .collect();
-    let per_map: Vec<f64> = checks
+    let per_map: Vec<f64> = p
+        .checks
         .iter()
         .map(|c| {
-            let reference = render_bivariate(&check_sphere, &c.lights, estimate);
+            let reference = render_bivariate(&p.check_sphere, &c.lights, estimate);
             exported
-                .render(&check_sphere, &c.lights)
+                .render(&p.check_sphere, &c.lights)
                 .relative_rmse(&reference)
         })
         .collect();
@@ -182,12 +220,13 @@ pub fn write_exports(
         fit_error: fitted.fit_error,
         relight_error,
         verdict: export_verdict(relight_error),
-        fitted_under,
-        checked_under: checks
-            .into_iter()
+        fitted_under: p.fitted_under.clone(),
+        checked_under: p
+            .checks
+            .iter()
             .zip(per_map)
             .map(|(m, e)| CheckedUnder {
-                map: m.name,
+                map: m.name.clone(),
                 relight_error: e,
             })
             .collect(),
@@ -200,7 +239,6 @@ pub fn write_exports(
 mod tests {
     use super::*;
     use brdfd_core::analytic::{Lobe, Microfacet};
-    use brdfd_core::bivariate::Grid;
 
     #[test]
     fn materials_gltf_holds_are_recovered_from_their_renders() {
@@ -208,6 +246,7 @@ mod tests {
         // their parameters again and relights within 1% (measured 0.1–0.4%).
         let grid = Grid::default();
         let dir = tempfile::tempdir().unwrap();
+        let prepared = Prepared::new(None, grid).unwrap();
         for truth in [
             GltfMaterial {
                 base_color: [0.95, 0.64, 0.54],
@@ -231,7 +270,7 @@ mod tests {
             },
         ] {
             let target = Bivariate::reduce(&GltfBrdf(truth), grid);
-            let e = write_exports(dir.path(), "test", &target, None).unwrap();
+            let e = write_exports(dir.path(), "test", &target, &prepared).unwrap();
             assert!(e.relight_error < 0.01, "{truth:?}: {e:?}");
             let m = e.material;
             assert!((m.roughness - truth.roughness).abs() < 0.02, "{m:?}");
@@ -268,7 +307,13 @@ mod tests {
                 },
             ],
         };
-        let e = write_exports(dir.path(), "test", &m.bivariate(grid), None).unwrap();
+        let e = write_exports(
+            dir.path(),
+            "test",
+            &m.bivariate(grid),
+            &Prepared::new(None, grid).unwrap(),
+        )
+        .unwrap();
         let c = &e.material;
         assert!(e.relight_error < CLOSE, "{e:?}");
         assert!(c.clearcoat > 0.5, "{c:?}");
@@ -326,7 +371,13 @@ mod tests {
         let grid = Grid::default();
         let dir = tempfile::tempdir().unwrap();
         let m = Microfacet::one_lobe([0.5, 0.1, 0.1], [0.04; 3], [0.5; 3], 0.2);
-        let e = write_exports(dir.path(), "test", &m.bivariate(grid), None).unwrap();
+        let e = write_exports(
+            dir.path(),
+            "test",
+            &m.bivariate(grid),
+            &Prepared::new(None, grid).unwrap(),
+        )
+        .unwrap();
         assert!(e.relight_error < CLOSE, "{e:?}");
         let text = std::fs::read_to_string(dir.path().join("material.gltf")).unwrap();
         let json: serde_json::Value = serde_json::from_str(&text).unwrap();
@@ -345,7 +396,6 @@ mod tests {
 #[cfg(test)]
 mod figures {
     use super::*;
-    use brdfd_core::bivariate::Grid;
 
     #[test]
     #[ignore]
@@ -374,7 +424,7 @@ mod figures {
             let target = Bivariate::reduce(set.get(name).unwrap(), Grid::default());
             let fitted = fit::Scenes::new(&fit_sphere.pixels, &fit_lights, &target)
                 .unwrap()
-                .fit();
+                .fit(None);
             let exported = GltfMaterial::from_fit(&fitted).tables(Grid::default());
             let mut line = format!(
                 "{name:22} fit {:.3} coat {:.2} at α {:.4}, base α {:.4}:",
