@@ -1168,6 +1168,43 @@ fn hybrid_model_recovers_a_measured_material_in_its_mix() {
     assert_eq!(est.names.len(), est.solution.coefficients.len());
 }
 
+/// Issue 38: the hybrid model's renders made before the photo (a capture makes them while
+/// its camera shoots) leave the estimate as it is without them, to the bit; and a photo that
+/// leaves a pixel out (so other candidates) is estimated from renders of its own.
+#[test]
+fn renders_prepared_before_the_photo_leave_the_estimate_unchanged() {
+    use brdfd_core::estimate::{estimate_views, estimate_views_shared, Shared};
+    let basis = Basis::embedded();
+    let g = sphere(48);
+    let env = studio_envmap(128);
+    let lights = env.compressed(1024, 0.0);
+    let truth = Bivariate::reduce(
+        embedded_materials().get("gold-metallic-paint").unwrap(),
+        basis.header.grid,
+    );
+    let photo = render_bivariate(&g, &lights, &truth);
+    let mut gap = photo.clone();
+    let p = &g.pixels[g.pixels.len() / 2];
+    gap.set(p.x as usize, p.y as usize, [f32::NAN; 3]);
+    let options = EstimateOptions {
+        model: Model::Hybrid,
+        anisotropy: false,
+        ..EstimateOptions::default()
+    };
+    for (photo, uses_them) in [(&photo, true), (&gap, false)] {
+        let view = [one_view(&g, &lights, photo)];
+        let alone = estimate_views(&basis, &view, &options).unwrap();
+        let shared = Shared::default();
+        shared.prepare(&basis, &[(&g, &lights)], &options).unwrap();
+        let prepared = estimate_views_shared(&basis, &view, &options, &shared).unwrap();
+        assert_eq!(alone.solution.coefficients, prepared.solution.coefficients);
+        assert_eq!(alone.brdf.values, prepared.brdf.values);
+        assert_eq!(alone.fit_error.to_bits(), prepared.fit_error.to_bits());
+        assert_eq!(prepared.timings.prepared, uses_them);
+        assert!(!alone.timings.prepared);
+    }
+}
+
 /// Issue 40: a stop requested of an estimate ends each model's with `CoreError::Stopped`,
 /// whose words ("cancelled") are what a capture records as its cancel; a stop requested
 /// after the work is no error; and the MERL renderer (the simulated camera's) stops too.

@@ -18,19 +18,21 @@ use serde_json::json;
 use super::failure::{disk_full, failure_code, FailureCode};
 use super::light::light_bracket;
 use super::object::{self, CameraRole, FallbackUse};
+use super::prepare::Preparing;
 use super::settings::CaptureSettings;
 use super::stage::Stage;
 use super::turning::{turn, turned};
 use super::{Cancel, Devices, Event, Operator, Progress};
 use crate::config::Rig;
-use crate::export::Prepared;
 use crate::html::{Context as ReportContext, Visibility};
 use crate::panorama::merge_bracket;
 use crate::session::{PhaseTime, Session, State};
 use brdfd_core::basis::Basis;
-use brdfd_core::bivariate::{Bivariate, Grid};
+use brdfd_core::bivariate::Bivariate;
 use brdfd_core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
-use brdfd_core::estimate::{estimate_views, fit_verdict, Estimate, EstimateOptions, View};
+use brdfd_core::estimate::{
+    estimate_views_shared, fit_verdict, Estimate, EstimateOptions, Shared, View,
+};
 use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::raster::Raster;
 
@@ -286,21 +288,22 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
     let mut stage = super::stage::of(cx);
     stage.place(cx, s, &basis, &mut phases)?;
     let env = measure_light(cx, session, s, stage.as_ref(), &mut phases)?;
-    let grid = basis.header.grid;
-    let mut captured = shoot_views(cx, session, s, (&env, grid), stage.as_mut(), &mut phases)?;
+    let mut captured = shoot_views(cx, session, s, (&env, &basis), stage.as_mut(), &mut phases)?;
     session.set_state(State::Captured, None)?;
     cx.cancel.check()?;
     if let Some(text) = &captured.fallback {
         cx.warn(text.clone());
     }
     session.set_state(State::Estimating, None)?;
-    let est = estimate(cx, s, &basis, &captured, &mut phases)?;
+    let ready = captured.preparing.take().map(Preparing::finish);
+    let shared = ready.as_ref().map(|r| r.shared.clone()).unwrap_or_default();
+    let est = estimate(cx, s, (&basis, &shared), &captured, &mut phases)?;
     let judged = stage.judge(cx, &basis, &est, &mut phases)?;
     let relight = judged.relight.as_ref().map(|r| r.0);
     // The last point to stop at: once written, the results are the session's.
     cx.cancel.check()?;
     let p = phases.start("write results", 1);
-    let exports = captured.exports.take().and_then(PreparingExports::finish);
+    let exports = ready.and_then(|r| r.exports);
     env.write_exr(&session.dir.join("derived/panorama.exr"))?;
     let first = &captured.views[0];
     // Under the candidates' lights, whose visibility the estimate has worked out already.
@@ -445,39 +448,8 @@ struct Captured {
     first_yaw: f64,
     /// When the fallback shot any view: what it cost, in words.
     fallback: Option<String>,
-    /// The exports' renders, started once the first view's turn is known.
-    exports: Option<PreparingExports>,
-}
-
-/// The exports' maps and renders ([`Prepared`]), made on a thread of their own while the
-/// camera shoots: they need the light and the first view's turn, not the photo, and the
-/// bracket leaves the cores idle. Written as the results are, they were a third of the wait
-/// for them.
-struct PreparingExports(std::thread::JoinHandle<brdfd_core::Result<Prepared>>);
-
-impl PreparingExports {
-    fn start(env: &EnvMap, yaw: f64, grid: Grid) -> PreparingExports {
-        let env = env.clone();
-        PreparingExports(std::thread::spawn(move || {
-            Prepared::new(Some((&env, yaw)), grid)
-        }))
-    }
-
-    /// The renders, or `None` if making them failed: the results then make them again, and
-    /// say why if it fails again.
-    fn finish(self) -> Option<Prepared> {
-        match self.0.join() {
-            Ok(Ok(p)) => Some(p),
-            Ok(Err(e)) => {
-                tracing::warn!("preparing the exports: {e}");
-                None
-            }
-            Err(_) => {
-                tracing::warn!("preparing the exports panicked");
-                None
-            }
-        }
-    }
+    /// The work on the first view that needs no photo, started once its turn is known.
+    preparing: Option<Preparing>,
 }
 
 /// One object-camera bracket per view, each stored as it arrives and merged.
@@ -485,7 +457,7 @@ fn shoot_views(
     cx: &Context,
     session: &mut Session,
     s: &CaptureSettings,
-    (env, grid): (&EnvMap, Grid),
+    (env, basis): (&EnvMap, &Basis),
     stage: &mut dyn Stage,
     phases: &mut Phases,
 ) -> anyhow::Result<Captured> {
@@ -494,7 +466,7 @@ fn shoot_views(
         clip_level: None,
         first_yaw: s.yaw,
         fallback: None,
-        exports: None,
+        preparing: None,
     };
     // The object camera for the views still to shoot; chosen when the first one is. A
     // capture that fell back stays on the fallback, resumed or not, even if the view it fell
@@ -525,8 +497,14 @@ fn shoot_views(
                 };
                 let deg = turn(cx, session, s, i)?;
                 if i == 0 {
-                    let yaw = turned(&s.scene, s.yaw, deg).1;
-                    captured.exports = Some(PreparingExports::start(env, yaw, grid));
+                    let options = EstimateOptions {
+                        stop: cx.cancel.stop(),
+                        ..s.estimate.clone()
+                    };
+                    let view = turned(&s.scene, s.yaw, deg);
+                    let first = (&view.0, view.1);
+                    captured.preparing =
+                        Some(Preparing::start(env, first, basis, &options, s.views == 1));
                 }
                 let frames = match using {
                     CameraRole::Fallback => s.fallback.exposures_s.len(),
@@ -600,7 +578,7 @@ fn shoot_views(
 fn estimate(
     cx: &Context,
     s: &CaptureSettings,
-    basis: &Basis,
+    (basis, shared): (&Basis, &Shared),
     captured: &Captured,
     phases: &mut Phases,
 ) -> anyhow::Result<Estimate> {
@@ -620,7 +598,7 @@ fn estimate(
         })
         .collect();
     let p = phases.start("estimate", 1);
-    let est = estimate_views(basis, &views, &options)?;
+    let est = estimate_views_shared(basis, &views, &options, shared)?;
     phases.end(p);
     Ok(est)
 }

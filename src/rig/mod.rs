@@ -30,6 +30,7 @@ pub mod object;
 pub mod open;
 pub mod plan;
 pub mod pose;
+mod prepare;
 pub mod roles;
 pub mod settings;
 mod sim_stage;

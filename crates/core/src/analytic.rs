@@ -535,35 +535,34 @@ struct Search<'v, 'a> {
     stop: Stop,
 }
 
-/// Rendered columns of the search pixels: Lambert, and (F₀, F₉₀) per α, each as rows
-/// `3·p + c`.
-#[derive(Default)]
-struct SearchColumns {
-    lambert: Vec<f32>,
-    /// By α's bits: the F₀ column's rows, then the F₉₀ column's.
-    lobes: std::collections::HashMap<u64, [Vec<f32>; 2]>,
+/// Where the search renders: each view's search pixels under its lights, on a grid.
+struct SearchPixels<'s> {
+    view_pixels: &'s [Vec<GeomPixel>],
+    lights: &'s [&'s LightSet],
+    grid: Grid,
 }
 
-impl Search<'_, '_> {
-    /// Renders the columns of the αs not rendered yet (and Lambert, the first time), as many
-    /// per pass over the pixels as [`PASS_COLUMNS`] allows, the passes evenly filled.
-    fn render(&mut self, alphas: &[f64]) -> Result<()> {
+impl SearchPixels<'_> {
+    /// Renders into `columns` the αs it lacks (and Lambert, the first time), as many per
+    /// pass over the pixels as [`PASS_COLUMNS`] allows, the passes evenly filled.
+    fn render(&self, columns: &mut SearchColumns, alphas: &[f64], stop: &Stop) -> Result<()> {
         let mut missing: Vec<f64> = Vec::new();
         for a in alphas {
-            if !self.columns.lobes.contains_key(&a.to_bits())
+            if !columns.lobes.contains_key(&a.to_bits())
                 && !missing.iter().any(|m| m.to_bits() == a.to_bits())
             {
                 missing.push(*a);
             }
         }
-        let need_lambert = self.columns.lambert.is_empty();
+        let need_lambert = columns.lambert.is_empty();
         let mut rest = missing.as_slice();
         for (k, count) in passes(missing.len(), need_lambert).into_iter().enumerate() {
-            self.stop.check()?;
+            stop.check()?;
             let (chunk, after) = rest.split_at(count);
             rest = after;
             let lambert = need_lambert && k == 0;
-            let cols: Vec<[Vec<f64>; 3]> = chunk.iter().map(|a| columns(self.grid, *a)).collect();
+            let cols: Vec<[Vec<f64>; 3]> =
+                chunk.iter().map(|a| self::columns(self.grid, *a)).collect();
             let lambert_col = lambert.then(|| lambert_column(self.grid));
             let mut refs: Vec<&[f64]> = lambert_col.iter().map(|c| c.as_slice()).collect();
             for c in &cols {
@@ -571,22 +570,104 @@ impl Search<'_, '_> {
                 refs.push(&c[2]);
             }
             let m = refs.len();
-            let mut rows: Vec<f32> = Vec::with_capacity(3 * self.pixels.len() * m);
-            for (v, pixels) in self.views.iter().zip(&self.view_pixels) {
+            let pixels: usize = self.view_pixels.iter().map(Vec::len).sum();
+            let mut rows: Vec<f32> = Vec::with_capacity(3 * pixels * m);
+            for (lights, pixels) in self.lights.iter().zip(self.view_pixels) {
                 let binning = self.grid.theta_h_binning;
-                rows.extend(RenderingMatrix::build(pixels, v.lights, &refs, None, binning).rows);
+                rows.extend(RenderingMatrix::build(pixels, lights, &refs, None, binning).rows);
             }
             let column = |j: usize| -> Vec<f32> { rows.chunks(m).map(|r| r[j]).collect() };
             let first = usize::from(lambert);
             if lambert {
-                self.columns.lambert = column(0);
+                columns.lambert = column(0);
             }
             for (i, a) in chunk.iter().enumerate() {
                 let pair = [column(first + 2 * i), column(first + 2 * i + 1)];
-                self.columns.lobes.insert(a.to_bits(), pair);
+                columns.lobes.insert(a.to_bits(), pair);
             }
         }
         Ok(())
+    }
+}
+
+/// The search's renders that need no photo: Lambert and the coarse grid's lobes on each
+/// view's search pixels. A capture makes them while its camera shoots, from the pixels the
+/// estimate will take if the photo has none to leave out; the search uses them when its
+/// pixels and lights turn out to be those.
+#[derive(Clone)]
+pub struct CoarseRenders {
+    view_pixels: Vec<Vec<GeomPixel>>,
+    lights: Vec<LightSet>,
+    grid: Grid,
+    columns: SearchColumns,
+}
+
+impl CoarseRenders {
+    /// For views with these candidate pixels under these lights.
+    pub fn new(views: &[(&[GeomPixel], &LightSet)], grid: Grid, stop: &Stop) -> Result<Self> {
+        let view_pixels: Vec<Vec<GeomPixel>> = views
+            .iter()
+            .map(|(pixels, _)| {
+                search_subset(pixels.len(), views.len())
+                    .into_iter()
+                    .map(|i| pixels[i].clone())
+                    .collect()
+            })
+            .collect();
+        let lights: Vec<&LightSet> = views.iter().map(|(_, l)| *l).collect();
+        let mut columns = SearchColumns::default();
+        let at = SearchPixels {
+            view_pixels: &view_pixels,
+            lights: &lights,
+            grid,
+        };
+        at.render(&mut columns, &coarse_grid(), stop)?;
+        Ok(CoarseRenders {
+            view_pixels,
+            lights: lights.into_iter().cloned().collect(),
+            grid,
+            columns,
+        })
+    }
+
+    /// Each view's search pixels.
+    pub(crate) fn view_pixels(&self) -> &[Vec<GeomPixel>] {
+        &self.view_pixels
+    }
+
+    /// Whether these are the renders of these search pixels under these lights.
+    pub(crate) fn is_for(
+        &self,
+        view_pixels: &[Vec<GeomPixel>],
+        views: &[ViewPixels],
+        grid: Grid,
+    ) -> bool {
+        self.grid == grid
+            && self.view_pixels == view_pixels
+            && self.lights.len() == views.len()
+            && self.lights.iter().zip(views).all(|(l, v)| l == v.lights)
+    }
+}
+
+/// Rendered columns of the search pixels: Lambert, and (F₀, F₉₀) per α, each as rows
+/// `3·p + c`.
+#[derive(Default, Clone)]
+struct SearchColumns {
+    lambert: Vec<f32>,
+    /// By α's bits: the F₀ column's rows, then the F₉₀ column's.
+    lobes: std::collections::HashMap<u64, [Vec<f32>; 2]>,
+}
+
+impl Search<'_, '_> {
+    /// Renders the columns of the αs not rendered yet (and Lambert, the first time).
+    fn render(&mut self, alphas: &[f64]) -> Result<()> {
+        let lights: Vec<&LightSet> = self.views.iter().map(|v| v.lights).collect();
+        let at = SearchPixels {
+            view_pixels: &self.view_pixels,
+            lights: &lights,
+            grid: self.grid,
+        };
+        at.render(&mut self.columns, alphas, &self.stop)
     }
 
     /// The search pixels' matrix of the model with these lobes: Lambert, then (F₀, F₉₀) of
@@ -628,10 +709,7 @@ impl Search<'_, '_> {
     /// The best α for one more lobe beside `fixed`: the coarse grid, then the refinement
     /// ([`Search::refine`]) between the best grid point's neighbours.
     fn best_lobe(&mut self, fixed: &[f64]) -> Result<f64> {
-        let log_span = (ALPHA_MAX / ALPHA_MIN).ln();
-        let coarse: Vec<f64> = (0..COARSE_ALPHAS)
-            .map(|i| ALPHA_MIN * (log_span * i as f64 / (COARSE_ALPHAS - 1) as f64).exp())
-            .collect();
+        let coarse = coarse_grid();
         let misfits = self.misfits(fixed, &coarse)?;
         let best = (0..coarse.len())
             .min_by(|&i, &j| misfits[i].total_cmp(&misfits[j]))
@@ -674,6 +752,14 @@ impl Search<'_, '_> {
     }
 }
 
+/// The coarse grid of α: [`COARSE_ALPHAS`] values, log-spaced over the searched range.
+fn coarse_grid() -> Vec<f64> {
+    let log_span = (ALPHA_MAX / ALPHA_MIN).ln();
+    (0..COARSE_ALPHAS)
+        .map(|i| ALPHA_MIN * (log_span * i as f64 / (COARSE_ALPHAS - 1) as f64).exp())
+        .collect()
+}
+
 /// The factor either side of the first lobe's α that it is searched again over once the
 /// second lobe is in place: fitted alone, the first lobe also covered what the second now does.
 const RESEARCH_SPAN: f64 = 1.8;
@@ -685,6 +771,7 @@ fn search_roughness<'v, 'a>(
     grid: Grid,
     lobes: usize,
     score: Option<Scorer<'v>>,
+    coarse: Option<&CoarseRenders>,
     stop: &Stop,
 ) -> Result<(Search<'v, 'a>, Vec<f64>)> {
     if views.iter().all(|v| v.pixels.is_empty()) {
@@ -714,6 +801,9 @@ fn search_roughness<'v, 'a>(
         columns: SearchColumns::default(),
         stop: stop.clone(),
     };
+    if let Some(c) = coarse.filter(|c| c.is_for(&search.view_pixels, views, grid)) {
+        search.columns = c.columns.clone();
+    }
     let mut alphas = vec![search.best_lobe(&[])?];
     if lobes == 2 {
         let second = search.best_lobe(&alphas)?;
@@ -763,14 +853,16 @@ pub(crate) fn search_pixels(views: &[ViewPixels]) -> (Vec<Vec<GeomPixel>>, Vec<[
 /// The roughnesses [`fit`]'s search finds with the given `score` (the analytic model's own if
 /// `None`), each with its 1-σ from the misfit's profile, without the fit's weights over every
 /// candidate: for a model that solves its own weights beside the lobes ([`super::hybrid`]).
+/// The search starts from `coarse`'s renders where they are of its pixels and lights.
 pub fn roughnesses<'v>(
     views: &'v [ViewPixels],
     grid: Grid,
     lobes: usize,
     score: Option<Scorer<'v>>,
+    coarse: Option<&CoarseRenders>,
     stop: &Stop,
 ) -> Result<Vec<(f64, f64)>> {
-    let (mut search, alphas) = search_roughness(views, grid, lobes, score, stop)?;
+    let (mut search, alphas) = search_roughness(views, grid, lobes, score, coarse, stop)?;
     (0..alphas.len())
         .map(|l| Ok((alphas[l], profile_std(&mut search, &alphas, l)?)))
         .collect()
@@ -782,7 +874,7 @@ pub fn roughnesses<'v>(
 /// first searched again beside the second. The weights of the best roughnesses then come from
 /// every candidate.
 pub fn fit(views: &[ViewPixels], grid: Grid, lobes: usize, stop: &Stop) -> Result<AnalyticFit> {
-    let (mut search, alphas) = search_roughness(views, grid, lobes, None, stop)?;
+    let (mut search, alphas) = search_roughness(views, grid, lobes, None, None, stop)?;
     let observed = observed_of(views, false);
     let matrix = matrix_for(views, grid, &alphas);
     stop.check()?;

@@ -132,6 +132,9 @@ pub struct Timings {
     /// Rebuilding the chosen pixels' rows with the finer lights ([`chosen_rows`]).
     pub chosen_rows_s: f64,
     pub solve_s: f64,
+    /// Whether renders made before the photo arrived were used ([`Shared::prepare`]): then
+    /// the times above leave them out.
+    pub prepared: bool,
 }
 
 /// The result, as written to `coefficients.json` (plus the basis id the caller adds).
@@ -496,6 +499,8 @@ pub fn estimate(basis: &Basis, view: View, options: &EstimateOptions) -> Result<
 pub struct Shared {
     matrices: Mutex<Vec<(MatrixKey, Arc<RenderingMatrix>)>>,
     selections: Mutex<Vec<(SelectionKey, Selection)>>,
+    /// The hybrid model's renders made before the photo ([`Shared::prepare`]).
+    hybrid: Mutex<Option<Arc<hybrid::Prepared>>>,
 }
 
 /// What a stacked candidate matrix was built from.
@@ -595,6 +600,41 @@ impl Shared {
         self.insert(basis_tag(basis), &[(pixels, lights)], a);
     }
 
+    /// Renders what the estimate `options` asks for needs of these views before their photos
+    /// arrive, taking each view's candidates to be its pixels as if no photo left any out
+    /// (the usual case: no pixel clipped or unmeasured). An estimate whose candidates turn
+    /// out to be others renders its own. Only the hybrid model has such work.
+    pub fn prepare(
+        &self,
+        basis: &Basis,
+        views: &[(&PixelGeometry, &LightSet)],
+        options: &EstimateOptions,
+    ) -> Result<()> {
+        if options.model != Model::Hybrid || views.is_empty() {
+            return Ok(());
+        }
+        let per_view = (options.max_candidates / views.len()).max(1);
+        let candidates: Vec<(Vec<GeomPixel>, &LightSet)> = views
+            .iter()
+            .map(|(g, lights)| {
+                let pixels = spread(g.pixels.len(), per_view)
+                    .into_iter()
+                    .map(|i| g.pixels[i].clone())
+                    .collect();
+                (pixels, *lights)
+            })
+            .collect();
+        let views: Vec<(&[GeomPixel], &LightSet)> =
+            candidates.iter().map(|(p, l)| (p.as_slice(), *l)).collect();
+        let prepared = hybrid::Prepared::new(&views, basis, &options.stop)?;
+        *self.hybrid.lock().expect("not poisoned") = Some(Arc::new(prepared));
+        Ok(())
+    }
+
+    fn hybrid(&self) -> Option<Arc<hybrid::Prepared>> {
+        self.hybrid.lock().expect("not poisoned").clone()
+    }
+
     /// [`select_pixels`] on matrix `matrix`, made once per setting.
     fn selection(
         &self,
@@ -671,7 +711,16 @@ pub fn estimate_views_shared(
     let mut estimate = match options.model {
         Model::Basis => basis_estimate(basis, &candidates, options, shared)?,
         Model::Analytic => analytic_estimate(basis, &candidates, options.lobes, &options.stop)?,
-        Model::Hybrid => hybrid_estimate(basis, &candidates, options.lobes, &options.stop)?,
+        Model::Hybrid => {
+            let prepared = shared.hybrid();
+            hybrid_estimate(
+                basis,
+                &candidates,
+                options.lobes,
+                prepared.as_deref(),
+                &options.stop,
+            )?
+        }
     };
     estimate.clipped = clipped;
     if options.anisotropy {
@@ -707,10 +756,11 @@ fn hybrid_estimate(
     basis: &Basis,
     candidates: &[Candidates],
     lobes: usize,
+    prepared: Option<&hybrid::Prepared>,
     stop: &Stop,
 ) -> Result<Estimate> {
     let t = Instant::now();
-    let fit = hybrid::fit(&view_pixels(candidates), basis, lobes, stop)?;
+    let fit = hybrid::fit(&view_pixels(candidates), basis, lobes, prepared, stop)?;
     let n = fit.candidates;
     Ok(Estimate {
         model: Model::Hybrid,
@@ -749,6 +799,7 @@ fn hybrid_estimate(
         solved: fit.solved,
         timings: Timings {
             solve_s: secs(t.elapsed()),
+            prepared: fit.prepared,
             ..Timings::default()
         },
         analytic: Some(fit.analytic),

@@ -44,6 +44,37 @@ pub struct MixWeight {
     pub weight: [f64; 3],
 }
 
+/// What [`fit`] renders before it needs the photo: the measured materials' rows and the
+/// roughness search's coarse grid ([`analytic::CoarseRenders`]) on the search pixels. Made
+/// while a camera shoots from the pixels the estimate will take if the photo leaves none out;
+/// the fit uses them only when its pixels, lights and basis turn out to be those.
+pub struct Prepared {
+    coarse: analytic::CoarseRenders,
+    basis: String,
+    atom_rows: Vec<f64>,
+}
+
+impl Prepared {
+    /// For views with these candidate pixels under these lights.
+    pub fn new(views: &[(&[GeomPixel], &LightSet)], basis: &Basis, stop: &Stop) -> Result<Self> {
+        let grid = basis.header.grid;
+        let coarse = analytic::CoarseRenders::new(views, grid, stop)?;
+        let atoms: Vec<&[f64]> = basis.atoms().map(|(_, t)| t).collect();
+        let atom_rows = coarse
+            .view_pixels()
+            .iter()
+            .zip(views)
+            .map(|(px, (_, lights))| dense_rows(px, lights, &atoms, grid, stop))
+            .collect::<Result<Vec<_>>>()?
+            .concat();
+        Ok(Prepared {
+            coarse,
+            basis: basis.header.id.clone(),
+            atom_rows,
+        })
+    }
+}
+
 /// The fit of [`fit`].
 #[derive(Clone, Debug)]
 pub struct HybridFit {
@@ -71,6 +102,8 @@ pub struct HybridFit {
     /// scaled to unit norm.
     pub condition: f64,
     pub uncertainty: Uncertainty,
+    /// Whether [`Prepared`] renders were used.
+    pub prepared: bool,
 }
 
 impl HybridFit {
@@ -249,7 +282,13 @@ impl Mix {
 /// columns, and every candidate of a 16-megapixel photo would cost a hundred matrix passes,
 /// while 4,000 pixels still give about 40 equations per unknown): its roughness search (`lobes` lobes), with every weight, the lobes' and
 /// the materials', solved for each roughness set tried; then the weights of the best.
-pub fn fit(views: &[ViewPixels], basis: &Basis, lobes: usize, stop: &Stop) -> Result<HybridFit> {
+pub fn fit(
+    views: &[ViewPixels],
+    basis: &Basis,
+    lobes: usize,
+    prepared: Option<&Prepared>,
+    stop: &Stop,
+) -> Result<HybridFit> {
     if basis.atoms.is_empty() {
         return Err(CoreError::Invalid(format!(
             "the basis {} holds no measured materials, which the hybrid model mixes; rebuild it with this brdfd's `basis build`, or use --model analytic",
@@ -263,12 +302,20 @@ pub fn fit(views: &[ViewPixels], basis: &Basis, lobes: usize, stop: &Stop) -> Re
     // The mix is solved on the roughness search's pixels: the materials' rows are built once,
     // and each roughness set tried adds only its lobes'.
     let (pixel_sets, observed) = analytic::search_pixels(views);
-    let atom_rows: Vec<f64> = pixel_sets
-        .iter()
-        .zip(views)
-        .map(|(px, v)| dense_rows(px, v.lights, &atom_columns, grid, stop))
-        .collect::<Result<Vec<_>>>()?
-        .concat();
+    let prepared = prepared.filter(|p| {
+        p.basis == basis.header.id
+            && p.atom_rows.len() == 3 * observed.len() * atom_columns.len()
+            && p.coarse.is_for(&pixel_sets, views, grid)
+    });
+    let atom_rows: Vec<f64> = match prepared {
+        Some(p) => p.atom_rows.clone(),
+        None => pixel_sets
+            .iter()
+            .zip(views)
+            .map(|(px, v)| dense_rows(px, v.lights, &atom_columns, grid, stop))
+            .collect::<Result<Vec<_>>>()?
+            .concat(),
+    };
     let mix = Mix::new(atom_rows, atom_columns.len(), &observed);
     // Variable projection over the whole model: each roughness set is scored with every weight
     // (lobes and materials) solved, so a lobe need not cover what a material does.
@@ -281,7 +328,8 @@ pub fn fit(views: &[ViewPixels], basis: &Basis, lobes: usize, stop: &Stop) -> Re
             .collect();
         mix.solve(&rows, cols.len()).1
     });
-    let found = analytic::roughnesses(views, grid, lobes, Some(score), stop)?;
+    let coarse = prepared.map(|p| &p.coarse);
+    let found = analytic::roughnesses(views, grid, lobes, Some(score), coarse, stop)?;
     let alphas: Vec<f64> = found.iter().map(|(alpha, _)| *alpha).collect();
     let alpha_std: Vec<f64> = found.iter().map(|(_, std)| *std).collect();
     let lobe_cols: Vec<[Vec<f64>; 3]> =
@@ -374,6 +422,7 @@ pub fn fit(views: &[ViewPixels], basis: &Basis, lobes: usize, stop: &Stop) -> Re
         predicted,
         condition,
         uncertainty,
+        prepared: prepared.is_some(),
     })
 }
 
