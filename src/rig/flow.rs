@@ -24,15 +24,14 @@ use super::stage::Stage;
 use super::turning::{turn, turned};
 use super::{Cancel, Devices, Event, Operator, Progress};
 use crate::config::Rig;
+use crate::export::Prepared;
 use crate::html::{Context as ReportContext, Visibility};
 use crate::panorama::merge_bracket;
 use crate::session::{PhaseTime, Session, State};
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::Bivariate;
 use brdfd_core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
-use brdfd_core::estimate::{
-    estimate_views_shared, fit_verdict, Estimate, EstimateOptions, Shared, View,
-};
+use brdfd_core::estimate::{estimate_views_shared, fit_verdict, Estimate, EstimateOptions, View};
 use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::raster::Raster;
 
@@ -295,15 +294,12 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
         cx.warn(text.clone());
     }
     session.set_state(State::Estimating, None)?;
-    let ready = captured.preparing.take().map(Preparing::finish);
-    let shared = ready.as_ref().map(|r| r.shared.clone()).unwrap_or_default();
-    let est = estimate(cx, s, (&basis, &shared), &captured, &mut phases)?;
+    let (est, exports) = estimate(cx, s, &basis, &mut captured, &mut phases)?;
     let judged = stage.judge(cx, &basis, &est, &mut phases)?;
     let relight = judged.relight.as_ref().map(|r| r.0);
     // The last point to stop at: once written, the results are the session's.
     cx.cancel.check()?;
     let p = phases.start("write results", 1);
-    let exports = ready.and_then(|r| r.exports);
     env.write_exr(&session.dir.join("derived/panorama.exr"))?;
     let first = &captured.views[0];
     // Under the candidates' lights, whose visibility the estimate has worked out already.
@@ -574,14 +570,20 @@ fn shoot_views(
     Ok(captured)
 }
 
-/// The estimate of every view together, with the clip level of their merges.
+/// The estimate of every view together, with the clip level of their merges; with the
+/// exports' renders made while the camera shot, if they were.
 fn estimate(
     cx: &Context,
     s: &CaptureSettings,
-    (basis, shared): (&Basis, &Shared),
-    captured: &Captured,
+    basis: &Basis,
+    captured: &mut Captured,
     phases: &mut Phases,
-) -> anyhow::Result<Estimate> {
+) -> anyhow::Result<(Estimate, Option<Prepared>)> {
+    let p = phases.start("estimate", 1);
+    // A wait for the work started while the camera shot, if it is not done, is the
+    // estimate's: the estimate would otherwise do most of it.
+    let ready = captured.preparing.take().map(Preparing::finish);
+    let shared = ready.as_ref().map(|r| r.shared.clone()).unwrap_or_default();
     let options = EstimateOptions {
         white: captured.clip_level,
         stop: cx.cancel.stop(),
@@ -597,10 +599,9 @@ fn estimate(
             photo: &v.photo,
         })
         .collect();
-    let p = phases.start("estimate", 1);
-    let est = estimate_views_shared(basis, &views, &options, shared)?;
+    let est = estimate_views_shared(basis, &views, &options, &shared)?;
     phases.end(p);
-    Ok(est)
+    Ok((est, ready.and_then(|r| r.exports)))
 }
 
 /// What the report says of the session beside the estimate.

@@ -5,8 +5,10 @@
 //!
 //! Both parts are guesses checked later. The estimate's renders take the view's candidates to
 //! be every object pixel (no pixel clipped or unmeasured): an estimate whose candidates turn
-//! out to be others renders its own ([`Shared::prepare`]). The exports' renders are for the
-//! first view's turn, which the results check ([`Prepared::is_for`]).
+//! out to be others renders its own ([`Shared::prepare`]). That includes a RAW bracket's,
+//! whose demosaiced merge leaves the object's outline out: there the estimate's part is work
+//! lost. The exports' renders are for the capture's map at the first view's turn, which the
+//! results check ([`Prepared::is_for`]).
 
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -15,12 +17,15 @@ use brdfd_core::basis::Basis;
 use brdfd_core::envmap::{EnvMap, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd_core::estimate::{EstimateOptions, Shared};
 use brdfd_core::geometry::SceneGeometry;
+use brdfd_core::CoreError;
 
 use crate::export::Prepared;
 
-/// The work under way, on a thread of its own.
+/// The work under way, on a thread of its own. Dropped unfinished (the capture failed or
+/// was cancelled), it waits for the thread: nothing of a capture outlives it, and the
+/// estimate's part stops with the capture's cancel.
 pub(super) struct Preparing {
-    exports: JoinHandle<Option<Prepared>>,
+    thread: Option<JoinHandle<Option<Prepared>>>,
     shared: Arc<Shared>,
 }
 
@@ -45,9 +50,9 @@ impl Preparing {
         let (env, scene, basis, options) =
             (env.clone(), scene.clone(), basis.clone(), options.clone());
         let for_estimate = shared.clone();
-        let exports = std::thread::spawn(move || {
+        let work = move || {
             let (exports, estimate) = rayon::join(
-                || Prepared::new(Some((&env, yaw)), basis.header.grid),
+                || Prepared::new(Some((env.clone(), yaw)), basis.header.grid),
                 || {
                     if !single_view {
                         return Ok(());
@@ -58,26 +63,53 @@ impl Preparing {
                     for_estimate.prepare(&basis, &[(&pixels, &lights)], &options)
                 },
             );
-            // Either failing costs only time: the results make their own.
-            if let Err(e) = estimate {
-                tracing::warn!("preparing the estimate's renders: {e}");
+            // Either failing costs only time: the steps that need them make their own.
+            if let Err(e) = &estimate {
+                warn_unless_stopped("the estimate's", e);
             }
-            exports
-                .inspect_err(|e| tracing::warn!("preparing the exports: {e}"))
-                .ok()
-        });
-        Preparing { exports, shared }
+            if let Err(e) = &exports {
+                warn_unless_stopped("the exports'", e);
+            }
+            exports.ok()
+        };
+        let thread = std::thread::Builder::new()
+            .name("brdfd-prepare".into())
+            .spawn(work)
+            .inspect_err(|e| tracing::warn!("no thread to prepare renders on: {e}"))
+            .ok();
+        Preparing { thread, shared }
     }
 
     /// Waits for the work; what of it failed is left to the steps that need it.
-    pub(super) fn finish(self) -> Ready {
-        let exports = self.exports.join().unwrap_or_else(|_| {
-            tracing::warn!("preparing the exports and the estimate panicked");
-            None
-        });
+    pub(super) fn finish(mut self) -> Ready {
         Ready {
-            exports,
-            shared: self.shared,
+            exports: self.join(),
+            shared: self.shared.clone(),
         }
+    }
+
+    fn join(&mut self) -> Option<Prepared> {
+        self.thread.take()?.join().unwrap_or_else(|panic| {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            tracing::warn!("preparing the estimate's and exports' renders panicked: {what}");
+            None
+        })
+    }
+}
+
+impl Drop for Preparing {
+    fn drop(&mut self) {
+        self.join();
+    }
+}
+
+/// A cancelled capture's stop is no news; anything else is logged.
+fn warn_unless_stopped(whose: &str, e: &CoreError) {
+    if !matches!(e, CoreError::Stopped) {
+        tracing::warn!("preparing {whose} renders: {e}");
     }
 }

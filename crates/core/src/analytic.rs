@@ -543,26 +543,25 @@ struct SearchPixels<'s> {
 }
 
 impl SearchPixels<'_> {
-    /// Renders into `columns` the αs it lacks (and Lambert, the first time), as many per
+    /// Renders into `out` the αs it lacks (and Lambert, the first time), as many per
     /// pass over the pixels as [`PASS_COLUMNS`] allows, the passes evenly filled.
-    fn render(&self, columns: &mut SearchColumns, alphas: &[f64], stop: &Stop) -> Result<()> {
+    fn render(&self, out: &mut SearchColumns, alphas: &[f64], stop: &Stop) -> Result<()> {
         let mut missing: Vec<f64> = Vec::new();
         for a in alphas {
-            if !columns.lobes.contains_key(&a.to_bits())
+            if !out.lobes.contains_key(&a.to_bits())
                 && !missing.iter().any(|m| m.to_bits() == a.to_bits())
             {
                 missing.push(*a);
             }
         }
-        let need_lambert = columns.lambert.is_empty();
+        let need_lambert = out.lambert.is_empty();
         let mut rest = missing.as_slice();
         for (k, count) in passes(missing.len(), need_lambert).into_iter().enumerate() {
             stop.check()?;
             let (chunk, after) = rest.split_at(count);
             rest = after;
             let lambert = need_lambert && k == 0;
-            let cols: Vec<[Vec<f64>; 3]> =
-                chunk.iter().map(|a| self::columns(self.grid, *a)).collect();
+            let cols: Vec<[Vec<f64>; 3]> = chunk.iter().map(|a| columns(self.grid, *a)).collect();
             let lambert_col = lambert.then(|| lambert_column(self.grid));
             let mut refs: Vec<&[f64]> = lambert_col.iter().map(|c| c.as_slice()).collect();
             for c in &cols {
@@ -579,11 +578,11 @@ impl SearchPixels<'_> {
             let column = |j: usize| -> Vec<f32> { rows.chunks(m).map(|r| r[j]).collect() };
             let first = usize::from(lambert);
             if lambert {
-                columns.lambert = column(0);
+                out.lambert = column(0);
             }
             for (i, a) in chunk.iter().enumerate() {
                 let pair = [column(first + 2 * i), column(first + 2 * i + 1)];
-                columns.lobes.insert(a.to_bits(), pair);
+                out.lobes.insert(a.to_bits(), pair);
             }
         }
         Ok(())

@@ -600,10 +600,10 @@ impl Shared {
         self.insert(basis_tag(basis), &[(pixels, lights)], a);
     }
 
-    /// Renders what the estimate `options` asks for needs of these views before their photos
-    /// arrive, taking each view's candidates to be its pixels as if no photo left any out
-    /// (the usual case: no pixel clipped or unmeasured). An estimate whose candidates turn
-    /// out to be others renders its own. Only the hybrid model has such work.
+    /// Renders, before the views' photos arrive, what an estimate with `options` will need
+    /// of them, taking each view's candidates to be all its pixels (the usual case: no pixel
+    /// clipped or unmeasured). An estimate whose candidates turn out to be others renders its
+    /// own. Only the hybrid model has such work.
     pub fn prepare(
         &self,
         basis: &Basis,

@@ -47,11 +47,27 @@ pub struct MixWeight {
 /// What [`fit`] renders before it needs the photo: the measured materials' rows and the
 /// roughness search's coarse grid ([`analytic::CoarseRenders`]) on the search pixels. Made
 /// while a camera shoots from the pixels the estimate will take if the photo leaves none out;
-/// the fit uses them only when its pixels, lights and basis turn out to be those.
+/// the fit uses them only when its pixels, lights, grid and measured materials turn out to be
+/// those.
 pub struct Prepared {
     coarse: analytic::CoarseRenders,
-    basis: String,
+    /// The measured materials the rows are of ([`atoms_digest`]): a basis id names its
+    /// training data but not its tables.
+    atoms: u64,
     atom_rows: Vec<f64>,
+}
+
+/// A digest of the basis's measured materials, names and tables to the bit.
+fn atoms_digest(basis: &Basis) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    for (name, table) in basis.atoms() {
+        name.hash(&mut h);
+        for v in table {
+            v.to_bits().hash(&mut h);
+        }
+    }
+    h.finish()
 }
 
 impl Prepared {
@@ -69,7 +85,7 @@ impl Prepared {
             .concat();
         Ok(Prepared {
             coarse,
-            basis: basis.header.id.clone(),
+            atoms: atoms_digest(basis),
             atom_rows,
         })
     }
@@ -303,9 +319,9 @@ pub fn fit(
     // and each roughness set tried adds only its lobes'.
     let (pixel_sets, observed) = analytic::search_pixels(views);
     let prepared = prepared.filter(|p| {
-        p.basis == basis.header.id
-            && p.atom_rows.len() == 3 * observed.len() * atom_columns.len()
+        p.atom_rows.len() == 3 * observed.len() * atom_columns.len()
             && p.coarse.is_for(&pixel_sets, views, grid)
+            && p.atoms == atoms_digest(basis)
     });
     let atom_rows: Vec<f64> = match prepared {
         Some(p) => p.atom_rows.clone(),

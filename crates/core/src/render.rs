@@ -8,9 +8,11 @@
 //! u = |a − b|² = 4 sin²(θ/2), which stays accurate in f32 for tiny angles (where cos θ rounds
 //! to 1), and maps u to its bin through a table with an exact edge check ([`BinLut`]).
 //!
-//! Every renderer here runs one loop over a pixel's lights, `each_light`: it skips the
-//! lights below the pixel's horizon and, on a mesh, those its own object hides
-//! ([`super::visibility`]). The analytic shapes are taken as convex.
+//! Every renderer here visits a pixel's lights in one order, skipping the lights below the
+//! pixel's horizon and, on a mesh, those its own object hides ([`super::visibility`]): one at
+//! a time in `each_light`, or in blocks whose arithmetic runs in SIMD lanes in the rendering
+//! matrix's pixel loop (`ColumnTable::pixel`), to the same sums. The analytic shapes are
+//! taken as convex.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, OnceLock};
@@ -141,16 +143,17 @@ fn smoothing_for(binning: ThetaHBinning, rho: f64) -> Arc<Vec<Vec<(usize, f64)>>
     static MEMO: OnceLock<Memo> = OnceLock::new();
     let key = (binning, rho.to_bits());
     let memo = MEMO.get_or_init(Memo::default);
-    if let Some(found) = memo.lock().expect("smoothing memo poisoned").get(&key) {
+    // A thread that panicked holding the lock left the map whole: each entry is inserted at once.
+    let lock = || {
+        memo.lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    };
+    if let Some(found) = lock().get(&key) {
         return found.clone();
     }
     // Worked out unlocked: two threads may both compute it, and both get the same weights.
     let weights = Arc::new(theta_h_smoothing(binning, rho));
-    memo.lock()
-        .expect("smoothing memo poisoned")
-        .entry(key)
-        .or_insert(weights)
-        .clone()
+    lock().entry(key).or_insert(weights).clone()
 }
 
 /// Averages over a disc of half vectors of angular radius `rho` around each θh bin centre:
@@ -576,7 +579,8 @@ impl Lit for PackedLight {
             // `half_vector`'s test is folded into `lit` instead of an early return.
             let (h, len2) = half_vector_unchecked(dir, v);
             let (uh, ud) = (dist2(n, h), dist2(dir, h));
-            out.lit[i] = (cos > 0.0) & (len2 >= 1e-12);
+            // `pair`'s test (`cos <= 0.0` refuses), so that even a NaN is treated alike.
+            out.lit[i] = ((cos > 0.0) | cos.is_nan()) & (len2 >= 1e-12);
             out.cos[i] = cos;
             out.uh[i] = uh;
             out.ud[i] = ud;
@@ -631,7 +635,7 @@ impl Lit for ViewLight {
         for i in 0..BLOCK {
             let cos = dot3(n, [x[i], y[i], z[i]]);
             let uh = dist2(n, [hx[i], hy[i], hz[i]]);
-            out.lit[i] = cos > 0.0;
+            out.lit[i] = (cos > 0.0) | cos.is_nan();
             out.cos[i] = cos;
             out.uh[i] = uh;
             out.qh[i] = luts.h.cell(uh);
@@ -1547,14 +1551,18 @@ mod tests {
     fn the_avx2_loops_match_the_portable_ones_bit_for_bit() {
         use crate::bivariate::VALUES;
         use crate::envmap::EnvMap;
-        use crate::geometry::{Camera, PixelGeometry, Shape};
+        use crate::geometry::{Camera, PixelGeometry, Pose, Shape};
         if !std::arch::is_x86_feature_detected!("avx2") {
             eprintln!("no AVX2 on this CPU: nothing to compare");
             return;
         }
         let (w, h) = (32, 16);
+        // Some texels black, so that the lights packed are not whole blocks of lanes.
         let pixels: Vec<[f32; 3]> = (0..w * h)
             .map(|i| {
+                if i % 37 == 0 {
+                    return [0.0; 3];
+                }
                 [
                     (i % 7) as f32 + 0.5,
                     (i % 5) as f32 + 0.25,
@@ -1565,10 +1573,28 @@ mod tests {
         let lights = EnvMap::from_pixels(w, h, pixels, "test map")
             .unwrap()
             .lights(0.3);
-        let geometry =
+        let orthographic =
             PixelGeometry::rasterize(&Camera::eval_orthographic(24), &Shape::unit_sphere())
                 .unwrap();
-        for m in [1, 5, 12, PASS_COLUMNS] {
+        // A pinhole camera: every pixel its own view, the general loop's case.
+        let pinhole = Camera::Pinhole {
+            width: 24,
+            height: 18,
+            fx: 30.0,
+            fy: 30.0,
+            cx: 12.0,
+            cy: 9.0,
+            pose: Pose {
+                position: [0.3, 0.4, 3.0],
+                look_at: [0.0; 3],
+                up: [0.0, 1.0, 0.0],
+            },
+        };
+        let pinhole = PixelGeometry::rasterize(&pinhole, &Shape::unit_sphere()).unwrap();
+        for (m, geometry) in [1, 5, 12, PASS_COLUMNS]
+            .into_iter()
+            .flat_map(|m| [(m, &orthographic), (m, &pinhole)])
+        {
             let columns: Vec<Vec<f64>> = (0..m)
                 .map(|j| {
                     (0..VALUES)
@@ -1580,6 +1606,7 @@ mod tests {
             let footprints = Footprints::of(&lights);
             let table = ColumnTable::new(&refs, ThetaHBinning::Sqrt, &footprints, &vec![0; m]);
             let packed = pack(&lights, &footprints, ColumnTable::stride(m));
+            assert_ne!(packed.len() % BLOCK, 0, "a last block partly filled");
             let shared = table.shared_view(geometry.pixels[0].view, &packed);
             let (packed_lanes, shared_lanes) =
                 (PackedLight::lanes(&packed), ViewLight::lanes(&shared));

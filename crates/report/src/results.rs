@@ -401,9 +401,10 @@ pub fn write_results(
         let (exports, preview) = rayon::join(
             || {
                 let capture = cx.env.map(|m| (m, cx.yaw));
-                match cx.exports.filter(|p| p.is_for(capture.map(|c| c.1))) {
+                match cx.exports.filter(|p| p.is_for(capture)) {
                     Some(prepared) => write_exports(dir, "brdfd_estimate", brdf, prepared),
                     None => {
+                        let capture = capture.map(|(m, yaw)| (m.clone(), yaw));
                         let prepared = Prepared::new(capture, brdf.grid)?;
                         write_exports(dir, "brdfd_estimate", brdf, &prepared)
                     }

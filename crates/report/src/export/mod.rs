@@ -131,8 +131,8 @@ fn sphere(size: usize) -> Result<PixelGeometry> {
 /// while its camera shoots ([`Prepared::new`] on another thread), which takes it out of the
 /// wait for the results.
 pub struct Prepared {
-    /// The capture's map turn it was made for (radians), if it holds the capture's map.
-    capture_yaw: Option<f64>,
+    /// The capture's map and its turn (radians) it was made for, if any.
+    capture: Option<(EnvMap, f64)>,
     fitted_under: Vec<String>,
     fit_lights: Vec<LightSet>,
     fit_sphere: PixelGeometry,
@@ -144,16 +144,16 @@ pub struct Prepared {
 impl Prepared {
     /// For estimates on `grid`, fitted under the reference maps and, when given, `capture`
     /// (the map the estimate was made under, with its turn in radians).
-    pub fn new(capture: Option<(&EnvMap, f64)>, grid: Grid) -> Result<Prepared> {
+    pub fn new(capture: Option<(EnvMap, f64)>, grid: Grid) -> Result<Prepared> {
         let references = maps::reference_maps()?;
         let mut fit_maps: Vec<Lit> = references
             .iter()
             .map(|(name, map)| reference(map, name, 0.0, FIT_LIGHTS))
             .collect();
-        if let Some((map, yaw)) = capture {
+        if let Some((map, yaw)) = &capture {
             fit_maps.push(Lit {
                 name: "the capture's map".into(),
-                lights: map.compressed(FIT_LIGHTS, yaw),
+                lights: map.compressed(FIT_LIGHTS, *yaw),
             });
         }
         let (fitted_under, fit_lights): (Vec<String>, Vec<LightSet>) =
@@ -161,7 +161,7 @@ impl Prepared {
         let fit_sphere = sphere(FIT_SIZE)?;
         let coarse = fit::Coarse::render(&fit_sphere.pixels, &fit_lights, grid);
         Ok(Prepared {
-            capture_yaw: capture.map(|(_, yaw)| yaw),
+            capture,
             fitted_under,
             fit_lights,
             fit_sphere,
@@ -174,10 +174,19 @@ impl Prepared {
         })
     }
 
-    /// Whether this was prepared with the capture's map at turn `yaw` (or without a capture's
-    /// map, for `None`).
-    pub fn is_for(&self, yaw: Option<f64>) -> bool {
-        self.capture_yaw == yaw
+    /// Whether this was prepared with this capture's map at this turn (or without a
+    /// capture's map, for `None`): the map compared pixel for pixel, a few milliseconds
+    /// against the renders it stands for.
+    pub fn is_for(&self, capture: Option<(&EnvMap, f64)>) -> bool {
+        match (&self.capture, capture) {
+            (None, None) => true,
+            (Some((mine, my_yaw)), Some((map, yaw))) => {
+                *my_yaw == yaw
+                    && (mine.width, mine.height) == (map.width, map.height)
+                    && mine.pixels == map.pixels
+            }
+            _ => false,
+        }
     }
 }
 
