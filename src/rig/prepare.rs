@@ -51,15 +51,18 @@ impl Preparing {
             (env.clone(), scene.clone(), basis.clone(), options.clone());
         let for_estimate = shared.clone();
         let work = move || {
+            // The estimate's lights first: then the map itself can go to the exports' part.
+            let lights =
+                single_view.then(|| env.estimate_lights(DEFAULT_LIGHTS, CHOSEN_LIGHTS, yaw).0);
+            let grid = basis.header.grid;
             let (exports, estimate) = rayon::join(
-                || Prepared::new(Some((env.clone(), yaw)), basis.header.grid),
+                move || Prepared::new(Some((env, yaw)), grid),
                 || {
-                    if !single_view {
+                    let Some(lights) = lights else {
                         return Ok(());
-                    }
+                    };
                     let (w, h) = scene.camera.size();
                     let pixels = scene.pixels(w, h)?;
-                    let (lights, _) = env.estimate_lights(DEFAULT_LIGHTS, CHOSEN_LIGHTS, yaw);
                     for_estimate.prepare(&basis, &[(&pixels, &lights)], &options)
                 },
             );

@@ -606,12 +606,7 @@ impl CoarseRenders {
     pub fn new(views: &[(&[GeomPixel], &LightSet)], grid: Grid, stop: &Stop) -> Result<Self> {
         let view_pixels: Vec<Vec<GeomPixel>> = views
             .iter()
-            .map(|(pixels, _)| {
-                search_subset(pixels.len(), views.len())
-                    .into_iter()
-                    .map(|i| pixels[i].clone())
-                    .collect()
-            })
+            .map(|(pixels, _)| search_pixels_of(pixels, views.len()))
             .collect();
         let lights: Vec<&LightSet> = views.iter().map(|(_, l)| *l).collect();
         let mut columns = SearchColumns::default();
@@ -839,14 +834,17 @@ fn observed_of(views: &[ViewPixels], subset: bool) -> Vec<[f64; 3]> {
 pub(crate) fn search_pixels(views: &[ViewPixels]) -> (Vec<Vec<GeomPixel>>, Vec<[f64; 3]>) {
     let pixels = views
         .iter()
-        .map(|v| {
-            search_subset(v.pixels.len(), views.len())
-                .into_iter()
-                .map(|i| v.pixels[i].clone())
-                .collect()
-        })
+        .map(|v| search_pixels_of(v.pixels, views.len()))
         .collect();
     (pixels, observed_of(views, true))
+}
+
+/// One view's search pixels, of `views` sharing [`SEARCH_PIXELS`].
+fn search_pixels_of(candidates: &[GeomPixel], views: usize) -> Vec<GeomPixel> {
+    search_subset(candidates.len(), views)
+        .into_iter()
+        .map(|i| candidates[i].clone())
+        .collect()
 }
 
 /// The roughnesses [`fit`]'s search finds with the given `score` (the analytic model's own if

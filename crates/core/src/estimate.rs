@@ -254,6 +254,20 @@ fn secs(d: Duration) -> f64 {
     d.as_secs_f64()
 }
 
+/// At most `max` of `pixels`, spread evenly over them: the candidates of a view whose usable
+/// pixels these are.
+fn spread_pixels(pixels: &[GeomPixel], max: usize) -> Vec<GeomPixel> {
+    spread(pixels.len(), max)
+        .into_iter()
+        .map(|i| pixels[i].clone())
+        .collect()
+}
+
+/// Each view's share of the candidate budget.
+fn candidates_per_view(options: &EstimateOptions, views: usize) -> usize {
+    (options.max_candidates / views.max(1)).max(1)
+}
+
 /// The candidate pixels of `geometry` in `photo`: pixels the photo saw with finite,
 /// non-negative values, below `white` if given, spread to at most `max_candidates`. Returns
 /// them, what they measured, and how many object pixels were clipped.
@@ -292,10 +306,7 @@ pub(crate) fn candidate_pixels(
             "no object pixel of the photo is usable (mask empty, or all values negative/NaN)".into()
         }));
     }
-    let picked: Vec<_> = spread(usable.len(), max_candidates)
-        .into_iter()
-        .map(|i| usable[i].clone())
-        .collect();
+    let picked = spread_pixels(&usable, max_candidates);
     let observed = picked
         .iter()
         .map(|p| photo.get(p.x as usize, p.y as usize).map(|v| v as f64))
@@ -613,16 +624,10 @@ impl Shared {
         if options.model != Model::Hybrid || views.is_empty() {
             return Ok(());
         }
-        let per_view = (options.max_candidates / views.len()).max(1);
+        let per_view = candidates_per_view(options, views.len());
         let candidates: Vec<(Vec<GeomPixel>, &LightSet)> = views
             .iter()
-            .map(|(g, lights)| {
-                let pixels = spread(g.pixels.len(), per_view)
-                    .into_iter()
-                    .map(|i| g.pixels[i].clone())
-                    .collect();
-                (pixels, *lights)
-            })
+            .map(|(g, lights)| (spread_pixels(&g.pixels, per_view), *lights))
             .collect();
         let views: Vec<(&[GeomPixel], &LightSet)> =
             candidates.iter().map(|(p, l)| (p.as_slice(), *l)).collect();
@@ -694,7 +699,7 @@ pub fn estimate_views_shared(
     if views.is_empty() {
         return Err(CoreError::Invalid("no views to estimate from".into()));
     }
-    let per_view = (options.max_candidates / views.len()).max(1);
+    let per_view = candidates_per_view(options, views.len());
     let mut candidates = Vec::with_capacity(views.len());
     let mut clipped = 0;
     for (i, view) in views.iter().enumerate() {

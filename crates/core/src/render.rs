@@ -427,14 +427,12 @@ fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
 }
 
 /// One (pixel, light) pair, worked out alone: the definition the pixel loop's blocks of
-/// lanes ([`Lit::block`]) are tested against, and what `each_light` hands its callers.
+/// lanes ([`Lit::block`]) are tested against.
+#[cfg(test)]
 struct Pair {
     /// n·ω, positive.
     cos: f32,
-    /// The θh and θd bins, which only the tests read: the renderers' loops bin in blocks.
-    #[cfg_attr(not(test), allow(dead_code))]
     bh: usize,
-    #[cfg_attr(not(test), allow(dead_code))]
     bd: usize,
 }
 
@@ -457,13 +455,17 @@ impl Luts {
 /// worked out beforehand for a view every pixel shares ([`ViewLight`]).
 trait Lit: Sized {
     fn packed(&self) -> &PackedLight;
-    /// The pair of this light and a pixel (normal n, view v); `None` when the light is below
-    /// the pixel's horizon or opposite the view.
+    /// n·ω of this light at a pixel (normal n, view v); `None` when the light is below the
+    /// pixel's horizon or opposite the view.
+    fn cos(&self, n: [f32; 3], v: [f32; 3]) -> Option<f32>;
+    /// The whole pair, bins included, worked out alone: the definition the blocks of lanes
+    /// are tested against.
+    #[cfg(test)]
     fn pair(&self, n: [f32; 3], v: [f32; 3], luts: &Luts) -> Option<Pair>;
     /// The lights as columns, for [`Lit::block`].
     fn lanes(lights: &[Self]) -> LightLanes;
-    /// [`Lit::pair`]'s arithmetic for the lights `start..start + BLOCK` of `lanes`, short of
-    /// the bins: written over columns, so that the compiler runs it eight lights at a time.
+    /// A pair's arithmetic for the lights `start..start + BLOCK` of `lanes`, short of the
+    /// bins: written over columns, so that the compiler runs it eight lights at a time.
     fn block(
         lanes: &LightLanes,
         start: usize,
@@ -543,11 +545,18 @@ impl Lit for PackedLight {
     }
 
     #[inline(always)]
-    fn pair(&self, n: [f32; 3], v: [f32; 3], luts: &Luts) -> Option<Pair> {
+    fn cos(&self, n: [f32; 3], v: [f32; 3]) -> Option<f32> {
         let cos = dot3(n, self.dir);
         if cos <= 0.0 {
             return None;
         }
+        half_vector(self.dir, v)?;
+        Some(cos)
+    }
+
+    #[cfg(test)]
+    fn pair(&self, n: [f32; 3], v: [f32; 3], luts: &Luts) -> Option<Pair> {
+        let cos = self.cos(n, v)?;
         let h = half_vector(self.dir, v)?;
         Some(Pair {
             cos,
@@ -602,11 +611,17 @@ impl Lit for ViewLight {
     }
 
     #[inline(always)]
-    fn pair(&self, n: [f32; 3], _: [f32; 3], luts: &Luts) -> Option<Pair> {
+    fn cos(&self, n: [f32; 3], _: [f32; 3]) -> Option<f32> {
         let cos = dot3(n, self.light.dir);
         if cos <= 0.0 {
             return None;
         }
+        Some(cos)
+    }
+
+    #[cfg(test)]
+    fn pair(&self, n: [f32; 3], v: [f32; 3], luts: &Luts) -> Option<Pair> {
+        let cos = self.cos(n, v)?;
         Some(Pair {
             cos,
             bh: luts.h.bin(dist2(n, self.h)),
@@ -666,14 +681,13 @@ fn half_vector_unchecked(l: [f32; 3], v: [f32; 3]) -> ([f32; 3], f32) {
 
 /// The loop every renderer runs over one pixel's lights: `f` gets each light that is above
 /// the pixel's horizon and, where `seen` is given (a bit per light of the set), not hidden by
-/// the pixel's own object, with the pair's geometry.
+/// the pixel's own object, with n·ω.
 #[inline(always)]
 fn each_light<L: Lit>(
     px: &GeomPixel,
     lights: &[L],
     seen: Option<&[u64]>,
-    luts: &Luts,
-    mut f: impl FnMut(&PackedLight, Pair),
+    mut f: impl FnMut(&PackedLight, f32),
 ) {
     let (n, v) = (px.normal, px.view);
     for l in lights {
@@ -681,8 +695,8 @@ fn each_light<L: Lit>(
         if seen.is_some_and(|row| !is_seen(row, light.index)) {
             continue;
         }
-        if let Some(pair) = l.pair(n, v, luts) {
-            f(light, pair);
+        if let Some(cos) = l.cos(n, v) {
+            f(light, cos);
         }
     }
 }
@@ -1377,7 +1391,6 @@ pub fn render_full(geom: &PixelGeometry, lights: &LightSet, brdf: &dyn Isotropic
     // still splits off the cap ([`crate::sharp`]): f′ reads f at the cap's edge.
     let packed = pack(lights, &Footprints::of(lights), 0);
     let mirrors = Mirrors::new(&packed);
-    let luts = Luts::new(ThetaHBinning::Sqrt);
     let cap = Cap::of(lights, ThetaHBinning::Sqrt);
     let theta_c = cap.as_ref().map_or(0.0, |c| c.edge(ThetaHBinning::Sqrt));
     let flat = |wi: [f64; 3], wo: [f64; 3]| match to_cap_edge(wi, wo, theta_c) {
@@ -1398,7 +1411,7 @@ pub fn render_full(geom: &PixelGeometry, lights: &LightSet, brdf: &dyn Isotropic
         let wo = local(px.view);
         let mut acc = [0f64; 3];
         // The loop's pair is not used: this renderer evaluates the BRDF in f64 itself.
-        each_light(px, &packed, seen, &luts, |l, _| {
+        each_light(px, &packed, seen, |l, _| {
             let wi = local(l.dir);
             if wi[2] <= 0.0 {
                 return;
@@ -1426,7 +1439,6 @@ pub fn render_full(geom: &PixelGeometry, lights: &LightSet, brdf: &dyn Isotropic
 /// pixels' order: what a white Lambertian surface returns, times π.
 pub fn irradiance(geom: &PixelGeometry, lights: &LightSet) -> Vec<[f64; 3]> {
     let packed = pack(lights, &Footprints::of(lights), 0);
-    let luts = Luts::new(ThetaHBinning::Sqrt);
     let seen = Seen::new(&geom.pixels, lights);
     geom.pixels
         .par_iter()
@@ -1434,9 +1446,9 @@ pub fn irradiance(geom: &PixelGeometry, lights: &LightSet) -> Vec<[f64; 3]> {
         .map(|px| {
             let row = seen.fresh(px);
             let mut e = [0f64; 3];
-            each_light(px, &packed, row.as_deref(), &luts, |l, p| {
+            each_light(px, &packed, row.as_deref(), |l, cos| {
                 for c in 0..3 {
-                    e[c] += (l.power[c] * p.cos) as f64;
+                    e[c] += (l.power[c] * cos) as f64;
                 }
             });
             e
@@ -1449,12 +1461,11 @@ pub fn irradiance(geom: &PixelGeometry, lights: &LightSet) -> Vec<[f64; 3]> {
 /// horizon (all channels). 1 on a convex shape; the preview and report show it.
 pub fn visible_fraction(geom: &PixelGeometry, lights: &LightSet) -> Raster {
     let packed = pack(lights, &Footprints::of(lights), 0);
-    let luts = Luts::new(ThetaHBinning::Sqrt);
     shade_pixels(geom, lights, |px, seen| {
         let irradiance = |seen: Option<&[u64]>| {
             let mut sum = 0f64;
-            each_light(px, &packed, seen, &luts, |l, p| {
-                sum += (l.power.iter().sum::<f32>() * p.cos) as f64;
+            each_light(px, &packed, seen, |l, cos| {
+                sum += (l.power.iter().sum::<f32>() * cos) as f64;
             });
             sum
         };

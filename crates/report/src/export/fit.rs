@@ -463,15 +463,15 @@ impl<'a> Scenes<'a> {
     fn lobes(&self, alphas: &[f64]) -> Vec<Lobe> {
         self.lobes_from(
             alphas,
-            render_lobes(self.pixels, self.maps, self.grid, alphas),
+            &render_lobes(self.pixels, self.maps, self.grid, alphas),
         )
     }
 
     /// The lobes of `alphas` from their unscaled images ([`render_lobes`]).
-    fn lobes_from(&self, alphas: &[f64], raw: Vec<[Vec<f64>; 2]>) -> Vec<Lobe> {
+    fn lobes_from(&self, alphas: &[f64], raw: &[[Vec<f64>; 2]]) -> Vec<Lobe> {
         let rows = self.pixels.len() * 3;
         let images: Vec<[Vec<f64>; 3]> = raw
-            .into_iter()
+            .iter()
             .map(|[s0, s1]| {
                 let scaled = |x: &[f64]| -> Vec<f64> {
                     x.iter()
@@ -479,7 +479,7 @@ impl<'a> Scenes<'a> {
                         .map(|(r, v)| v * self.scale[r / rows])
                         .collect()
                 };
-                let (s0, s1) = (scaled(&s0), scaled(&s1));
+                let (s0, s1) = (scaled(s0), scaled(s1));
                 let sum = s0.iter().zip(&s1).map(|(a, b)| a + b).collect();
                 [s0, s1, sum]
             })
@@ -556,7 +556,7 @@ impl<'a> Scenes<'a> {
     pub fn fit(&self, coarse: Option<&Coarse>) -> Fitted {
         let alphas = coarse_alphas();
         let lobes = match coarse.filter(|c| c.is_for(self)) {
-            Some(c) => self.lobes_from(&alphas, c.images.clone()),
+            Some(c) => self.lobes_from(&alphas, &c.images),
             None => self.lobes(&alphas),
         };
         let plain: Vec<Candidate> = lobes.par_iter().map(|l| self.plain(l)).collect();
