@@ -514,7 +514,7 @@ fn solve_weights(
 /// the columns of the lobes tried (Lambert first, then each lobe's F₀ and F₉₀), the
 /// relative misfit of the best non-negative weights. The analytic model solves the lobes'
 /// weights alone; the hybrid model solves them beside its measured materials.
-pub type Scorer<'f> = Box<dyn Fn(&RenderingMatrix, &[usize]) -> f64 + 'f>;
+pub type Scorer<'f> = Box<dyn Fn(&RenderingMatrix, &[usize]) -> f64 + Sync + 'f>;
 
 /// The α search on the search pixels: every misfit it computes is recorded.
 struct Search<'v, 'a> {
@@ -686,18 +686,23 @@ impl Search<'_, '_> {
 
     /// The misfit of each candidate α as one more lobe beside the `fixed` ones.
     fn misfits(&mut self, fixed: &[f64], candidates: &[f64]) -> Result<Vec<f64>> {
+        use rayon::prelude::*;
         self.render(&[fixed, candidates].concat())?;
         let cols: Vec<usize> = (0..1 + 2 * (fixed.len() + 1)).collect();
-        Ok(candidates
+        let sets: Vec<Vec<f64>> = candidates
             .iter()
-            .map(|alpha| {
-                let mut set = fixed.to_vec();
-                set.push(*alpha);
-                let misfit = (self.score)(&self.matrix(&set), &cols);
-                self.tried.push((set, misfit));
-                misfit
-            })
-            .collect())
+            .map(|alpha| [fixed, &[*alpha]].concat())
+            .collect();
+        // Each set's solve needs nothing of the others': they run side by side (a round's
+        // solves are serial work as long as its render is parallel).
+        let search = &*self;
+        let misfits: Vec<f64> = sets
+            .par_iter()
+            .map(|set| (search.score)(&search.matrix(set), &cols))
+            .collect();
+        self.tried
+            .extend(sets.into_iter().zip(misfits.iter().copied()));
+        Ok(misfits)
     }
 
     /// The best α for one more lobe beside `fixed`: the coarse grid, then the refinement
