@@ -458,8 +458,10 @@ impl Fit {
 
     /// The relative misfit of Lambert plus a lobe of this shape, with its weights solved.
     fn misfit(&self, shape: Shape) -> f64 {
-        // Per channel: Σ s², Σ s·d, Σ s·o.
-        let sums = self
+        // Per channel: Σ s², Σ s·d, Σ s·o. The chunks' sums are added in order, not in
+        // rayon's reduce tree, whose shape follows the scheduling: the same photo must give
+        // the same figures to the bit, whatever else runs beside.
+        let chunks: Vec<[[f64; 3]; 3]> = self
             .samples
             .par_chunks(64)
             .map(|chunk| {
@@ -474,17 +476,13 @@ impl Fit {
                 }
                 acc
             })
-            .reduce(
-                || [[0.0; 3]; 3],
-                |mut a, b| {
-                    for i in 0..3 {
-                        for c in 0..3 {
-                            a[i][c] += b[i][c];
-                        }
-                    }
-                    a
-                },
-            );
+            .collect();
+        let mut sums = [[0.0f64; 3]; 3];
+        for chunk in &chunks {
+            for (sum, part) in sums.iter_mut().flatten().zip(chunk.iter().flatten()) {
+                *sum += part;
+            }
+        }
         let mut explained = 0.0;
         for c in 0..3 {
             explained += best_pair(self.dd[c], sums[0][c], sums[1][c], self.d_o[c], sums[2][c]);

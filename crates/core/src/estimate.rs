@@ -713,36 +713,63 @@ pub fn estimate_views_shared(
             observed,
         });
     }
-    let mut estimate = match options.model {
-        Model::Basis => basis_estimate(basis, &candidates, options, shared)?,
-        Model::Analytic => analytic_estimate(basis, &candidates, options.lobes, &options.stop)?,
+    // The anisotropy check reads only the photo: it runs beside the model's fit, which
+    // leaves a core idle in its serial steps.
+    let (estimate, anisotropy) = rayon::join(
+        || model_estimate(basis, &candidates, options, shared),
+        || {
+            options
+                .anisotropy
+                .then(|| anisotropy_check(&candidates, &options.stop))
+        },
+    );
+    let mut estimate = estimate?;
+    estimate.clipped = clipped;
+    if let Some(found) = anisotropy {
+        options.stop.check()?;
+        estimate.anisotropy = found;
+    }
+    Ok(estimate)
+}
+
+/// The estimate of the model `options` name, on these candidates.
+fn model_estimate(
+    basis: &Basis,
+    candidates: &[Candidates],
+    options: &EstimateOptions,
+    shared: &Shared,
+) -> Result<Estimate> {
+    match options.model {
+        Model::Basis => basis_estimate(basis, candidates, options, shared),
+        Model::Analytic => analytic_estimate(basis, candidates, options.lobes, &options.stop),
         Model::Hybrid => {
             let prepared = shared.hybrid();
             hybrid_estimate(
                 basis,
-                &candidates,
+                candidates,
                 options.lobes,
                 prepared.as_deref(),
                 &options.stop,
-            )?
+            )
         }
-    };
-    estimate.clipped = clipped;
-    if options.anisotropy {
-        let t = Instant::now();
-        let samples: Vec<ViewSamples> = candidates
-            .iter()
-            .map(|c| ViewSamples {
-                pixels: &c.pixels,
-                observed: &c.observed,
-                lights: c.view.lights,
-            })
-            .collect();
-        estimate.anisotropy = anisotropy::compare(&samples, &options.stop);
-        options.stop.check()?;
-        tracing::debug!("anisotropy {:?} in {:?}", estimate.anisotropy, t.elapsed());
     }
-    Ok(estimate)
+}
+
+/// Whether an anisotropic lobe fits the candidates better than an isotropic one
+/// ([`anisotropy::compare`]).
+fn anisotropy_check(candidates: &[Candidates], stop: &Stop) -> Option<Anisotropy> {
+    let t = Instant::now();
+    let samples: Vec<ViewSamples> = candidates
+        .iter()
+        .map(|c| ViewSamples {
+            pixels: &c.pixels,
+            observed: &c.observed,
+            lights: c.view.lights,
+        })
+        .collect();
+    let found = anisotropy::compare(&samples, stop);
+    tracing::debug!("anisotropy {found:?} in {:?}", t.elapsed());
+    found
 }
 
 fn view_pixels<'c>(candidates: &'c [Candidates]) -> Vec<ViewPixels<'c>> {
