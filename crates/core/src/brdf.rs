@@ -5,6 +5,8 @@
 //! `wo` (toward the camera) point away from the surface. Angles are in radians. Values are
 //! BRDF values in 1/sr, linear RGB.
 
+use crate::merl::{phi_d_center, PHI_D_BINS};
+
 /// A 3-vector in f64, used for directions.
 pub type Vec3 = [f64; 3];
 
@@ -13,6 +15,19 @@ pub trait IsotropicBrdf: Sync {
     /// RGB value at Rusinkiewicz angles (θh, θd, φd). Cells a measurement did not cover
     /// return zero, as light there contributes nothing measurable.
     fn eval_angles(&self, theta_h: f64, theta_d: f64, phi_d: f64) -> [f64; 3];
+
+    /// The values at (θh, θd) and each φd of the MERL table's cell centres, for
+    /// tabulating a row at a time ([`crate::merl::MerlBrdf::tabulate`]): what
+    /// [`IsotropicBrdf::eval_angles`] gives there, to the bit. Cells below the horizon are
+    /// left to the caller, which marks them not measured.
+    fn eval_merl_row(&self, theta_h: f64, theta_d: f64, out: &mut [[f64; 3]; PHI_D_BINS]) {
+        for (k, v) in out.iter_mut().enumerate() {
+            let phi_d = phi_d_center(k);
+            if above_horizon(theta_h, theta_d, phi_d) {
+                *v = self.eval_angles(theta_h, theta_d, phi_d);
+            }
+        }
+    }
 
     /// Whether the source holds a value at these angles. Analytic and fitted sources cover
     /// every cell with both directions above the horizon; measured tables may have holes.

@@ -145,26 +145,30 @@ impl MerlBrdf {
     /// the horizon are marked not measured (-1 in stored units), as in MERL's own files.
     pub fn tabulate(source: &dyn IsotropicBrdf) -> Self {
         use rayon::prelude::*;
+        let not_measured = CHANNEL_SCALE.map(|s| -s);
         let mut values = vec![0.0; 3 * CELLS];
-        let per_cell: Vec<[f64; 3]> = (0..CELLS)
-            .into_par_iter()
-            .map(|idx| {
-                let kp = idx % PHI_D_BINS;
-                let jd = (idx / PHI_D_BINS) % THETA_D_BINS;
-                let ih = idx / (PHI_D_BINS * THETA_D_BINS);
-                let (th, td, pd) = (theta_h_center(ih), theta_d_center(jd), phi_d_center(kp));
-                if above_horizon(th, td, pd) {
-                    source.eval_angles(th, td, pd)
-                } else {
-                    [-CHANNEL_SCALE[0], -CHANNEL_SCALE[1], -CHANNEL_SCALE[2]]
+        let (r, rest) = values.split_at_mut(CELLS);
+        let (g, b) = rest.split_at_mut(CELLS);
+        // A row of the table (θh, θd) at a time: cells of a row are contiguous in each
+        // channel's plane, and a source evaluates a row faster than its cells one by one.
+        r.par_chunks_mut(PHI_D_BINS)
+            .zip(g.par_chunks_mut(PHI_D_BINS))
+            .zip(b.par_chunks_mut(PHI_D_BINS))
+            .enumerate()
+            .for_each(|(row, ((r, g), b))| {
+                let (ih, jd) = (row / THETA_D_BINS, row % THETA_D_BINS);
+                let (th, td) = (theta_h_center(ih), theta_d_center(jd));
+                let mut rgb = [[0.0; 3]; PHI_D_BINS];
+                source.eval_merl_row(th, td, &mut rgb);
+                for (kp, v) in rgb.iter().enumerate() {
+                    let v = if above_horizon(th, td, phi_d_center(kp)) {
+                        v
+                    } else {
+                        &not_measured
+                    };
+                    (r[kp], g[kp], b[kp]) = (v[0], v[1], v[2]);
                 }
-            })
-            .collect();
-        for (idx, rgb) in per_cell.iter().enumerate() {
-            for c in 0..3 {
-                values[c * CELLS + idx] = rgb[c];
-            }
-        }
+            });
         MerlBrdf { values }
     }
 

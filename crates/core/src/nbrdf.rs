@@ -7,11 +7,13 @@
 
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::sync::OnceLock;
 
 use serde::Deserialize;
 
 use super::brdf::IsotropicBrdf;
 use super::error::{CoreError, Result};
+use super::merl::{phi_d_center, PHI_D_BINS};
 
 const IN: usize = 6;
 const HIDDEN: usize = 21;
@@ -174,5 +176,165 @@ impl IsotropicBrdf for NbrdfMaterial {
         let x = [sh, 0.0, ch, sd * cp, sd * sp, cd].map(|v| v as f32);
         // exp(·) − 1 can dip just below zero; a BRDF cannot.
         self.forward(x).map(|v| (v as f64).max(0.0))
+    }
+
+    fn eval_merl_row(&self, theta_h: f64, theta_d: f64, out: &mut [[f64; 3]; PHI_D_BINS]) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2, checked just above.
+            return unsafe { self.merl_row_avx2(theta_h, theta_d, out) };
+        }
+        self.merl_row(theta_h, theta_d, out)
+    }
+}
+
+/// Cells of a MERL row the network evaluates side by side: one AVX register of f32.
+const LANES: usize = 8;
+
+/// sin and cos of each φd cell centre of the MERL table.
+fn phi_d_sin_cos() -> &'static [(f64, f64); PHI_D_BINS] {
+    static TABLE: OnceLock<[(f64, f64); PHI_D_BINS]> = OnceLock::new();
+    TABLE.get_or_init(|| std::array::from_fn(|k| phi_d_center(k).sin_cos()))
+}
+
+impl NbrdfMaterial {
+    /// [`IsotropicBrdf::eval_merl_row`] compiled for AVX2: the lanes run eight wide. Without
+    /// FMA each lane rounds as [`NbrdfMaterial::forward`] does, so the row is the same to the
+    /// bit (a test checks every cell of a table).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn merl_row_avx2(&self, theta_h: f64, theta_d: f64, out: &mut [[f64; 3]; PHI_D_BINS]) {
+        self.merl_row(theta_h, theta_d, out)
+    }
+
+    /// A row of cells, [`LANES`] at a time: the same inputs as [`IsotropicBrdf::eval_angles`]
+    /// (θh's and θd's sines computed once), and the network run on each lane.
+    #[inline(always)]
+    fn merl_row(&self, theta_h: f64, theta_d: f64, out: &mut [[f64; 3]; PHI_D_BINS]) {
+        let (sh, ch) = theta_h.sin_cos();
+        let (sd, cd) = theta_d.sin_cos();
+        let phi = phi_d_sin_cos();
+        for start in (0..PHI_D_BINS).step_by(LANES) {
+            let mut x = [[0f32; LANES]; IN];
+            for l in 0..LANES {
+                // The last block runs past the row: its spare lanes repeat the last cell.
+                let (sp, cp) = phi[(start + l).min(PHI_D_BINS - 1)];
+                let cell = [sh, 0.0, ch, sd * cp, sd * sp, cd];
+                for (xi, v) in x.iter_mut().zip(cell) {
+                    xi[l] = v as f32;
+                }
+            }
+            let y = self.forward_lanes(&x);
+            for (l, v) in out[start..].iter_mut().take(LANES).enumerate() {
+                *v = y.map(|y| (y[l] as f64).max(0.0));
+            }
+        }
+    }
+
+    /// [`NbrdfMaterial::forward`] on [`LANES`] inputs at once, with each lane's sums in the
+    /// same order (from −0.0, as `Iterator::sum` of f32 starts), so each lane's result is
+    /// `forward`'s to the bit.
+    #[inline(always)]
+    fn forward_lanes(&self, x: &[[f32; LANES]; IN]) -> [[f32; LANES]; OUT] {
+        let h1 = layer(&self.w1, &self.b1, x);
+        let h2 = layer(&self.w2, &self.b2, &h1);
+        let mut y = [[0f32; LANES]; OUT];
+        for (o, y) in y.iter_mut().enumerate() {
+            let s = dot_lanes(&self.w3[o], &h2);
+            for (y, s) in y.iter_mut().zip(s) {
+                *y = (s + self.b3[o]).exp() - 1.0;
+            }
+        }
+        y
+    }
+}
+
+/// A hidden layer on [`LANES`] inputs: max(W·x + b, 0) per lane.
+#[inline(always)]
+fn layer<const I: usize>(
+    w: &[[f32; I]; HIDDEN],
+    b: &[f32; HIDDEN],
+    x: &[[f32; LANES]; I],
+) -> [[f32; LANES]; HIDDEN] {
+    let mut h = [[0f32; LANES]; HIDDEN];
+    for (o, h) in h.iter_mut().enumerate() {
+        let s = dot_lanes(&w[o], x);
+        for (h, s) in h.iter_mut().zip(s) {
+            *h = (s + b[o]).max(0.0);
+        }
+    }
+    h
+}
+
+/// Σᵢ wᵢ·xᵢ per lane, summed in i's order from −0.0.
+#[inline(always)]
+fn dot_lanes<const I: usize>(w: &[f32; I], x: &[[f32; LANES]; I]) -> [f32; LANES] {
+    let mut s = [-0.0f32; LANES];
+    for (w, x) in w.iter().zip(x) {
+        for (s, x) in s.iter_mut().zip(x) {
+            *s += w * x;
+        }
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::merl::{theta_d_center, theta_h_center, MerlBrdf, CELLS, THETA_D_BINS};
+
+    /// A network with weights spread over ±1 (a fixed pseudo-random sequence), so that some
+    /// units are cut at zero and some outputs fall below zero before the clamp.
+    fn network() -> NbrdfMaterial {
+        let mut state = 0x2545_f491_u32;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            state as f64 / u32::MAX as f64 * 2.0 - 1.0
+        };
+        let mut matrix = |rows: usize, cols: usize| -> Vec<Vec<f64>> {
+            (0..rows)
+                .map(|_| (0..cols).map(|_| next()).collect())
+                .collect()
+        };
+        let (w1, w2, w3) = (
+            matrix(IN, HIDDEN),
+            matrix(HIDDEN, HIDDEN),
+            matrix(HIDDEN, OUT),
+        );
+        let (b1, b2, b3) = (matrix(1, HIDDEN), matrix(1, HIDDEN), matrix(1, OUT));
+        let json = serde_json::json!({"materials": {"test": {
+            "W1": w1, "b1": b1[0], "W2": w2, "b2": b2[0], "W3": w3, "b3": b3[0],
+        }}});
+        let set = NbrdfSet::from_json(&json.to_string(), "test network").unwrap();
+        set.get("test").unwrap().clone()
+    }
+
+    #[test]
+    fn a_table_tabulated_by_rows_is_every_cell_evaluated_alone() {
+        let m = network();
+        let table = MerlBrdf::tabulate(&m);
+        let mut cells = 0;
+        for ih in 0..crate::merl::THETA_H_BINS {
+            for jd in 0..THETA_D_BINS {
+                let (th, td) = (theta_h_center(ih), theta_d_center(jd));
+                // The portable lanes too, whatever the CPU picks for `tabulate`.
+                let mut row = [[0.0; 3]; PHI_D_BINS];
+                m.merl_row(th, td, &mut row);
+                for (kp, lanes) in row.iter().enumerate() {
+                    let pd = phi_d_center(kp);
+                    if !crate::brdf::above_horizon(th, td, pd) {
+                        continue;
+                    }
+                    let alone = m.eval_angles(th, td, pd);
+                    let tabulated = [0, 1, 2].map(|c| table.cell(c, ih, jd, kp));
+                    assert_eq!(tabulated.map(f64::to_bits), alone.map(f64::to_bits));
+                    assert_eq!(lanes.map(f64::to_bits), alone.map(f64::to_bits));
+                    cells += 1;
+                }
+            }
+        }
+        assert!(cells > CELLS / 2, "{cells} cells above the horizon");
     }
 }
