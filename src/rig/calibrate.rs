@@ -13,6 +13,7 @@
 //! Not here: writing the gains into the rig file (`brdfd calibrate radiometry` does that).
 
 use std::f64::consts::PI;
+use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
 use serde::Deserialize;
@@ -411,7 +412,7 @@ fn median(v: &mut [f64]) -> Option<f64> {
 fn grey_bench(scene: &SceneGeometry, yaw: f64, albedo: [f64; 3]) -> VirtualBench {
     VirtualBench {
         material_name: format!("a Lambertian target of albedo {albedo:?}"),
-        material: MerlBrdf::from_cells(|_, _, _| albedo.map(|a| a / PI)),
+        material: Arc::new(MerlBrdf::from_cells(|_, _, _| albedo.map(|a| a / PI))),
         env: crate::bench::studio_envmap(512),
         yaw,
         geometry: scene.clone(),

@@ -4,6 +4,8 @@
 //! relight error under light the estimate was not fitted to. Its work is the devices' time in
 //! the session's phases: a real bench does none of it.
 
+use std::sync::Arc;
+
 use anyhow::Context as _;
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::Bivariate;
@@ -12,7 +14,6 @@ use brdfd_core::estimate::{Estimate, Model};
 use brdfd_core::geometry::SceneGeometry;
 use brdfd_core::merl::MerlBrdf;
 use brdfd_core::nbrdf::NbrdfSet;
-use brdfd_core::raster::Raster;
 use brdfd_core::solve::Colour;
 
 use super::flow::{Context, Phases};
@@ -20,7 +21,7 @@ use super::settings::CaptureSettings;
 use super::stage::{Judgement, Stage};
 use super::turning::turned;
 use super::Plan;
-use crate::bench::{VirtualBench, HELD_OUT_YAW_DEG};
+use crate::bench::{RelightTruth, VirtualBench, HELD_OUT_YAW_DEG};
 use crate::config::MaterialPreset;
 
 /// The virtual bench, once the sample is placed, and the truth the estimate is relit against,
@@ -28,7 +29,7 @@ use crate::config::MaterialPreset;
 #[derive(Default)]
 pub(super) struct SimulatedStage {
     bench: Option<VirtualBench>,
-    relight_truth: Option<Joined<brdfd_core::Result<Raster>>>,
+    relight_truth: Option<Joined<brdfd_core::Result<RelightTruth>>>,
 }
 
 impl SimulatedStage {
@@ -115,7 +116,7 @@ impl Stage for SimulatedStage {
     ) -> anyhow::Result<Judgement> {
         // The true material on the estimate's grid: the report overlays it, and a basis
         // estimate is compared with its projection.
-        let reduced = Bivariate::reduce(&self.bench()?.material, basis.header.grid);
+        let reduced = Bivariate::reduce(&*self.bench()?.material, basis.header.grid);
         let coefficients = self.compare_with_truth(cx, basis, est, &reduced, phases);
         let relight = self.relight_against_truth(est, phases)?;
         Ok(Judgement {
@@ -172,7 +173,7 @@ impl SimulatedStage {
             // Every view was already on disk (a resumed session): render it now.
             None => self.bench()?.relight_truth()?,
         };
-        let error = self.bench()?.relight_error_with(&truth, &est.brdf)?;
+        let error = truth.error(&est.brdf);
         phases.end_as_device(p);
         Ok(error)
     }
@@ -215,13 +216,13 @@ fn simulated_bench(
         let set = NbrdfSet::read(path)?;
         let name = crate::bench::resolve_material(simulate_as);
         let mut b = VirtualBench::embedded("gold", plan.size)?;
-        b.material = MerlBrdf::tabulate(set.get(name)?);
+        b.material = Arc::new(MerlBrdf::tabulate(set.get(name)?));
         b.material_name = name.to_string();
         Ok::<_, brdfd_core::CoreError>(b)
     })?;
     if plan.in_span {
-        let projected = basis.project(&Bivariate::reduce(&bench.material, basis.header.grid));
-        bench.material = basis.reconstruct(&projected).to_merl();
+        let projected = basis.project(&Bivariate::reduce(&*bench.material, basis.header.grid));
+        bench.material = Arc::new(basis.reconstruct(&projected).to_merl());
         bench.material_name = format!("{} (its projection onto the basis)", bench.material_name);
     }
     bench.geometry = scene.clone();

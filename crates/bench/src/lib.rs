@@ -18,6 +18,8 @@ pub mod panorama;
 pub mod raw_file;
 pub mod tiff;
 
+use std::sync::Arc;
+
 use brdfd_core::bivariate::Bivariate;
 use brdfd_core::envmap::{EnvMap, LightSet};
 use brdfd_core::geometry::{Camera, PixelGeometry, SceneGeometry, Shape};
@@ -93,7 +95,8 @@ pub fn default_geometry(size: usize) -> SceneGeometry {
 #[derive(Clone)]
 pub struct VirtualBench {
     pub material_name: String,
-    pub material: MerlBrdf,
+    /// Shared: a turned bench is a clone, and the table is 35 MB.
+    pub material: Arc<MerlBrdf>,
     pub env: EnvMap,
     /// Yaw of the panorama in the world, radians.
     pub yaw: f64,
@@ -112,7 +115,7 @@ impl VirtualBench {
         let fit = set.get(name)?;
         Ok(VirtualBench {
             material_name: name.to_string(),
-            material: MerlBrdf::tabulate(fit),
+            material: Arc::new(MerlBrdf::tabulate(fit)),
             env: studio_envmap(512),
             yaw: 0.0,
             geometry: default_geometry(size),
@@ -179,24 +182,24 @@ impl VirtualBench {
     /// truth (the full table), both rendered under the bench's map turned [`HELD_OUT_YAW_DEG`]
     /// about the vertical, so that its bright regions light the object from other sides.
     pub fn relight_error(&self, estimate: &Bivariate) -> Result<f64> {
-        self.relight_error_with(&self.relight_truth()?, estimate)
+        Ok(self.relight_truth()?.error(estimate))
     }
 
-    /// The truth of [`VirtualBench::relight_error`]: the material under the held-out light.
-    pub fn relight_truth(&self) -> Result<Raster> {
+    /// The truth of [`VirtualBench::relight_error`]: the material under the held-out light,
+    /// with the sphere and lights it was rendered with, which the estimate is rendered with.
+    pub fn relight_truth(&self) -> Result<RelightTruth> {
         let (sphere, lights, yaw) = self.held_out()?;
-        self.cached(
+        let image = self.cached(
             "relight truth",
             yaw,
             &default_geometry(RELIGHT_SIZE),
             || render_merl_until(&sphere, &lights, &self.material, &self.stop),
-        )
-    }
-
-    /// [`VirtualBench::relight_error`] against a truth rendered beforehand.
-    pub fn relight_error_with(&self, truth: &Raster, estimate: &Bivariate) -> Result<f64> {
-        let (sphere, lights, _) = self.held_out()?;
-        Ok(render_bivariate(&sphere, &lights, estimate).relative_rmse(truth))
+        )?;
+        Ok(RelightTruth {
+            sphere,
+            lights,
+            image,
+        })
     }
 
     /// The sphere and the light of the relight check, and the light's yaw.
@@ -207,6 +210,22 @@ impl VirtualBench {
         )?;
         let yaw = self.yaw + HELD_OUT_YAW_DEG.to_radians();
         Ok((sphere, self.env.compressed(PHOTO_LIGHTS, yaw), yaw))
+    }
+}
+
+/// The bench's material under the held-out light ([`VirtualBench::relight_truth`]), kept
+/// with the sphere and the lights it was rendered with: the estimate's render needs them
+/// too, and they cost a pass over the map to make again.
+pub struct RelightTruth {
+    sphere: PixelGeometry,
+    lights: LightSet,
+    pub image: Raster,
+}
+
+impl RelightTruth {
+    /// [`VirtualBench::relight_error`] of `estimate` against this truth.
+    pub fn error(&self, estimate: &Bivariate) -> f64 {
+        render_bivariate(&self.sphere, &self.lights, estimate).relative_rmse(&self.image)
     }
 }
 
