@@ -1076,22 +1076,35 @@ impl RenderingMatrix {
 
 /// Renders a bivariate BRDF through the same kernel as the rendering matrix.
 pub fn render_bivariate(geom: &PixelGeometry, lights: &LightSet, brdf: &Bivariate) -> Raster {
-    let a = RenderingMatrix::build(
-        &geom.pixels,
-        lights,
-        &[&brdf.values],
-        None,
-        brdf.grid.theta_h_binning,
+    render_bivariates(geom, lights, &[brdf]).remove(0)
+}
+
+/// [`render_bivariate`] of each BRDF, in one pass over the (pixel, light) pairs, whose
+/// geometry is most of a pass's cost: each image is the one its BRDF renders alone, to the
+/// bit, since every column takes its own sums (and the cap by its own shape). The BRDFs
+/// share a θh binning.
+pub fn render_bivariates(
+    geom: &PixelGeometry,
+    lights: &LightSet,
+    brdfs: &[&Bivariate],
+) -> Vec<Raster> {
+    let binning = brdfs[0].grid.theta_h_binning;
+    assert!(
+        brdfs.iter().all(|b| b.grid.theta_h_binning == binning),
+        "BRDFs rendered in one pass share a θh binning"
     );
-    let mut img = Raster::black(geom.width, geom.height);
-    for (p, px) in geom.pixels.iter().enumerate() {
-        img.set(
-            px.x as usize,
-            px.y as usize,
-            [a.rows[3 * p], a.rows[3 * p + 1], a.rows[3 * p + 2]],
-        );
-    }
-    img
+    let tables: Vec<&[f64]> = brdfs.iter().map(|b| b.values.as_slice()).collect();
+    let a = RenderingMatrix::build(&geom.pixels, lights, &tables, None, binning);
+    (0..tables.len())
+        .map(|j| {
+            let mut img = Raster::black(geom.width, geom.height);
+            for (p, px) in geom.pixels.iter().enumerate() {
+                let rgb = std::array::from_fn(|c| a.row(3 * p + c)[j]);
+                img.set(px.x as usize, px.y as usize, rgb);
+            }
+            img
+        })
+        .collect()
 }
 
 /// A BRDF on a unit sphere seen orthographically (the camera of

@@ -17,7 +17,7 @@ use brdfd_core::envmap::LightSet;
 use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::mesh::Mesh;
 use brdfd_core::raster::Raster;
-use brdfd_core::render::render_bivariate;
+use brdfd_core::render::render_bivariates;
 use brdfd_core::{CoreError, Result};
 
 use super::fit::{coat_fresnel_at, Fitted};
@@ -401,9 +401,31 @@ impl GltfTables {
     /// the base's render and the coat's mixed at each pixel by the coat's weight × its
     /// Fresnel at the pixel's N·V (`fresnel_coat`).
     pub fn render(&self, geometry: &PixelGeometry, lights: &LightSet) -> Raster {
-        let mut image = render_bivariate(geometry, lights, &self.base);
-        if let Some((weight, lobe)) = &self.coat {
-            let coat = render_bivariate(geometry, lights, lobe);
+        self.render_beside(geometry, lights, &[]).0
+    }
+
+    /// [`GltfTables::render`], and each of `others` rendered under the same lights in the
+    /// same pass ([`render_bivariates`]): each image as it renders alone.
+    pub fn render_beside(
+        &self,
+        geometry: &PixelGeometry,
+        lights: &LightSet,
+        others: &[&Bivariate],
+    ) -> (Raster, Vec<Raster>) {
+        let mut brdfs = vec![&self.base];
+        brdfs.extend(self.coat.as_ref().map(|(_, lobe)| lobe));
+        let own = brdfs.len();
+        brdfs.extend(others);
+        let mut images = render_bivariates(geometry, lights, &brdfs);
+        let rest = images.split_off(own);
+        (self.mixed(geometry, images), rest)
+    }
+
+    /// The base's render (first) and the coat's, if any, mixed at each pixel.
+    fn mixed(&self, geometry: &PixelGeometry, renders: Vec<Raster>) -> Raster {
+        let mut renders = renders.into_iter();
+        let mut image = renders.next().expect("the base's render");
+        if let (Some((weight, _)), Some(coat)) = (&self.coat, renders.next()) {
             for px in &geometry.pixels {
                 let i = px.y as usize * image.width + px.x as usize;
                 let k = (weight * coat_fresnel_at(px)) as f32;

@@ -28,7 +28,6 @@ use serde::Serialize;
 use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::envmap::{EnvMap, LightSet};
 use brdfd_core::geometry::{Camera, PixelGeometry, Shape};
-use brdfd_core::render::render_bivariate;
 use brdfd_core::{CoreError, Result};
 
 pub use gltf::{GltfBrdf, GltfMaterial};
@@ -209,10 +208,9 @@ pub fn write_exports(
         .checks
         .iter()
         .map(|c| {
-            let reference = render_bivariate(&p.check_sphere, &c.lights, estimate);
-            exported
-                .render(&p.check_sphere, &c.lights)
-                .relative_rmse(&reference)
+            let (image, reference) =
+                exported.render_beside(&p.check_sphere, &c.lights, &[estimate]);
+            image.relative_rmse(&reference[0])
         })
         .collect();
     let relight_error = per_map.iter().sum::<f64>() / per_map.len() as f64;
@@ -441,10 +439,8 @@ mod figures {
             );
             for (n, map) in names.iter().zip(&maps).skip(1) {
                 let lights = map.compressed(CHECK_LIGHTS, 0.0);
-                let reference = render_bivariate(&check_sphere, &lights, &target);
-                let e = exported
-                    .render(&check_sphere, &lights)
-                    .relative_rmse(&reference);
+                let (image, reference) = exported.render_beside(&check_sphere, &lights, &[&target]);
+                let e = image.relative_rmse(&reference[0]);
                 all.push(e);
                 line += &format!(" {n} {e:.3}");
             }
