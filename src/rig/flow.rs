@@ -582,7 +582,12 @@ fn estimate(
     let p = phases.start("estimate", 1);
     // A wait for the work started while the camera shot, if it is not done, is the
     // estimate's: the estimate would otherwise do most of it.
+    let waited = std::time::Instant::now();
     let ready = captured.preparing.take().map(Preparing::finish);
+    tracing::debug!(
+        "waited {:?} for the renders prepared while the camera shot",
+        waited.elapsed()
+    );
     let shared = ready.as_ref().map(|r| r.shared.clone()).unwrap_or_default();
     let options = EstimateOptions {
         white: captured.clip_level,

@@ -194,6 +194,17 @@ fn page(
     cx: &Context,
 ) -> Result<String> {
     let Judged { export, flags } = *judged;
+    // The page's costly parts, the relit spheres' renders and the slices' plots, made side by
+    // side: the plots are serial work.
+    let (relit, slices) = rayon::join(
+        || relit_spheres(&est.brdf),
+        || {
+            SLICE_THETA_D
+                .map(|theta_d| slice_svg(est, cx.truth, theta_d))
+                .into_iter()
+                .collect::<Result<Vec<String>>>()
+        },
+    );
     let mut h = String::new();
     let title = escape(&cx.title);
     let _ = writeln!(
@@ -276,7 +287,7 @@ fn page(
     h.push_str("</div>\n");
 
     h.push_str("<h2>Under other light</h2>\n<div class=\"row\">\n");
-    for (name, sphere) in relit_spheres(&est.brdf)? {
+    for (name, sphere) in relit? {
         let _ = writeln!(
             h,
             "<figure>{}<figcaption>Relit under brdfd's {name} map.</figcaption></figure>",
@@ -293,8 +304,8 @@ fn page(
     );
 
     h.push_str("<h2>BRDF slices</h2>\n<div class=\"row\">\n");
-    for theta_d in SLICE_THETA_D {
-        h.push_str(&slice_svg(est, cx.truth, theta_d)?);
+    for svg in slices? {
+        h.push_str(&svg);
     }
     let _ = writeln!(
         h,

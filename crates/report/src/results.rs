@@ -437,9 +437,58 @@ fn write_the_rest(
     cx: &Context,
     (exports, preview): (Export, image::RgbImage),
 ) -> Result<ResultFiles> {
+    let flags = crate::flags::of(estimate, cx.visibility);
+    let files = ResultFiles {
+        coefficients: dir.join("coefficients.json"),
+        brdf_exr: dir.join("brdf-bivariate.exr"),
+        merl: dir.join("brdf.binary"),
+        preview_png: dir.join("preview.png"),
+        compare_png: cx.photo.map(|_| dir.join("compare.png")),
+        report: dir.join("report.html"),
+        exports,
+        flags,
+        written: Vec::new(),
+    };
+    // The page and the files beside it read the same results and nothing of each other: they
+    // are written side by side, each with serial steps (encoding PNGs and EXRs, the page's
+    // text) that leave a core to the other.
+    let (page, written) = rayon::join(
+        || {
+            crate::html::write(
+                &files.report,
+                estimate,
+                &basis.header.id,
+                &preview,
+                lights,
+                &crate::html::Judged {
+                    export: &files.exports,
+                    flags: &files.flags,
+                },
+                cx,
+            )
+        },
+        || write_records(dir, basis, estimate, method, cx, &files),
+    );
+    page?;
+    Ok(ResultFiles {
+        written: written?,
+        ..files
+    })
+}
+
+/// The files beside the report: `coefficients.json`, the BRDF's EXRs, the capture's light,
+/// the export on the object's mesh, and the photo's and visibility's pictures. Returns every
+/// result file's path, the report's and the exports' among them.
+fn write_records(
+    dir: &Path,
+    basis: &Basis,
+    estimate: &Estimate,
+    method: &str,
+    cx: &Context,
+    files: &ResultFiles,
+) -> Result<Vec<PathBuf>> {
     let brdf = &estimate.brdf;
     let all = estimate.selection.pixels.len() == estimate.candidates;
-    let flags = crate::flags::of(estimate, cx.visibility);
     let file = CoefficientsFile {
         format: COEFFICIENTS_FORMAT,
         format_version: COEFFICIENTS_VERSION,
@@ -494,20 +543,9 @@ fn write_the_rest(
         timings: &estimate.timings,
         plausibility: Plausibility::of(brdf),
         uncertainty: estimate.uncertainty.as_ref(),
-        exports: exports.clone(),
-        flags: &flags,
+        exports: files.exports.clone(),
+        flags: &files.flags,
         anisotropy: estimate.anisotropy.as_ref(),
-    };
-    let files = ResultFiles {
-        coefficients: dir.join("coefficients.json"),
-        brdf_exr: dir.join("brdf-bivariate.exr"),
-        merl: dir.join("brdf.binary"),
-        preview_png: dir.join("preview.png"),
-        compare_png: cx.photo.map(|_| dir.join("compare.png")),
-        report: dir.join("report.html"),
-        exports,
-        flags: flags.clone(),
-        written: Vec::new(),
     };
     let mut written = vec![
         files.report.clone(),
@@ -564,19 +602,7 @@ fn write_the_rest(
             .map_err(|e| CoreError::format(path.display(), format!("could not write PNG: {e}")))?;
         written.push(path);
     }
-    crate::html::write(
-        &files.report,
-        estimate,
-        basis_id,
-        &preview,
-        lights,
-        &crate::html::Judged {
-            export: &files.exports,
-            flags: &files.flags,
-        },
-        cx,
-    )?;
-    Ok(ResultFiles { written, ..files })
+    Ok(written)
 }
 
 /// `preview.png` (on the fixed scale of `preview.json`) and `preview.exr` (linear): the
