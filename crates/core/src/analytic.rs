@@ -474,6 +474,26 @@ pub(crate) fn normal_equations(
     (g, b, yy)
 }
 
+/// The right-hand side of [`normal_equations`] alone, b = Xᵀy and yᵀy, summed in the same
+/// order (so the same to the bit): for a system whose Gram matrix was worked out beforehand.
+pub(crate) fn right_hand_side(
+    m: usize,
+    rows: usize,
+    mut row: impl FnMut(usize, &mut [f64]) -> f64,
+) -> (DVector<f64>, f64) {
+    let mut b = DVector::zeros(m);
+    let mut yy = 0.0;
+    let mut x = vec![0.0; m];
+    for r in 0..rows {
+        let y = row(r, &mut x);
+        yy += y * y;
+        for i in 0..m {
+            b[i] += x[i] * y;
+        }
+    }
+    (b, yy)
+}
+
 /// Per channel, the Gram blocks of the columns `cols` of `a` against the observations.
 fn channel_systems(
     a: &RenderingMatrix,

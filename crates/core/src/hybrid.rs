@@ -55,6 +55,8 @@ pub struct Prepared {
     /// training data but not its tables.
     atoms: u64,
     atom_rows: Vec<f64>,
+    /// Per channel, the rows' Gram matrix ([`Mix`]'s): it needs no photo either.
+    atom_gram: [DMatrix<f64>; 3],
 }
 
 /// A digest of the basis's measured materials, names and tables to the bit.
@@ -83,10 +85,12 @@ impl Prepared {
             .map(|(px, (_, lights))| dense_rows(px, lights, &atoms, grid, stop))
             .collect::<Result<Vec<_>>>()?
             .concat();
+        let atom_gram = Mix::grams(&atom_rows, atoms.len());
         Ok(Prepared {
             coarse,
             atoms: atoms_digest(basis),
             atom_rows,
+            atom_gram,
         })
     }
 }
@@ -219,19 +223,42 @@ struct Mix {
 }
 
 impl Mix {
-    fn new(rows: Vec<f64>, na: usize, observed: &[[f64; 3]]) -> Mix {
-        let picks: Vec<usize> = (0..observed.len()).collect();
-        let cols: Vec<usize> = (0..na).collect();
-        let s = systems(&rows, na, observed, &picks, &cols);
-        let [(a0, b0, y0), (a1, b1, y1), (a2, b2, y2)] = s;
+    /// The mix of `na` materials with these rows on the pixels that measured `observed`; with
+    /// the rows' Gram matrices ([`Mix::grams`]) if they were worked out beforehand.
+    fn new(
+        rows: Vec<f64>,
+        na: usize,
+        observed: &[[f64; 3]],
+        grams: Option<[DMatrix<f64>; 3]>,
+    ) -> Mix {
+        let grams = grams.unwrap_or_else(|| Mix::grams(&rows, na));
+        let [(b0, y0), (b1, y1), (b2, y2)] = std::array::from_fn(|c| {
+            analytic::right_hand_side(na, observed.len(), |p, x| {
+                x.copy_from_slice(&rows[(3 * p + c) * na..(3 * p + c + 1) * na]);
+                observed[p][c]
+            })
+        });
         Mix {
             rows,
             na,
             observed: observed.to_vec(),
-            aa: [a0, a1, a2],
+            aa: grams,
             ba: [b0, b1, b2],
             yy: [y0, y1, y2],
         }
+    }
+
+    /// Per channel, the Gram matrix of `na` materials' rows: what needs no photo of the
+    /// normal equations, the same to the bit as theirs ([`analytic::normal_equations`]).
+    fn grams(rows: &[f64], na: usize) -> [DMatrix<f64>; 3] {
+        let pixels = rows.len() / (3 * na);
+        std::array::from_fn(|c| {
+            let (g, _, _) = analytic::normal_equations(na, pixels, |p, x| {
+                x.copy_from_slice(&rows[(3 * p + c) * na..(3 * p + c + 1) * na]);
+                0.0
+            });
+            g
+        })
     }
 
     /// The non-negative weights per channel, lobes' columns (`nl` of them, rows `lobe_rows`)
@@ -323,16 +350,19 @@ pub fn fit(
             && p.coarse.is_for(&pixel_sets, views, grid)
             && p.atoms == atoms_digest(basis)
     });
-    let atom_rows: Vec<f64> = match prepared {
-        Some(p) => p.atom_rows.clone(),
-        None => pixel_sets
-            .iter()
-            .zip(views)
-            .map(|(px, v)| dense_rows(px, v.lights, &atom_columns, grid, stop))
-            .collect::<Result<Vec<_>>>()?
-            .concat(),
+    let (atom_rows, atom_gram) = match prepared {
+        Some(p) => (p.atom_rows.clone(), Some(p.atom_gram.clone())),
+        None => {
+            let rows = pixel_sets
+                .iter()
+                .zip(views)
+                .map(|(px, v)| dense_rows(px, v.lights, &atom_columns, grid, stop))
+                .collect::<Result<Vec<_>>>()?
+                .concat();
+            (rows, None)
+        }
     };
-    let mix = Mix::new(atom_rows, atom_columns.len(), &observed);
+    let mix = Mix::new(atom_rows, atom_columns.len(), &observed, atom_gram);
     // Variable projection over the whole model: each roughness set is scored with every weight
     // (lobes and materials) solved, so a lobe need not cover what a material does.
     let score: analytic::Scorer = Box::new(|a: &RenderingMatrix, cols: &[usize]| {
