@@ -883,11 +883,27 @@ pub fn roughnesses<'v>(
     score: Option<Scorer<'v>>,
     coarse: Option<&CoarseRenders>,
     stop: &Stop,
-) -> Result<Vec<(f64, f64)>> {
+) -> Result<Roughnesses> {
     let (mut search, alphas) = search_roughness(views, grid, lobes, score, coarse, stop)?;
-    (0..alphas.len())
+    let lobes = (0..alphas.len())
         .map(|l| Ok((alphas[l], profile_std(&mut search, &alphas, l)?)))
-        .collect()
+        .collect::<Result<_>>()?;
+    // The search rendered these roughnesses' columns on its pixels already.
+    let rows = search
+        .matrix(&alphas)
+        .rows
+        .iter()
+        .map(|v| *v as f64)
+        .collect();
+    Ok(Roughnesses { lobes, rows })
+}
+
+/// What [`roughnesses`] finds: each lobe's α with its 1-σ, and the search pixels' dense rows
+/// of the model at those roughnesses (row 3·p + c: Lambert, then each lobe's F₀ and F₉₀), as
+/// the search rendered them.
+pub struct Roughnesses {
+    pub lobes: Vec<(f64, f64)>,
+    pub rows: Vec<f64>,
 }
 
 /// Fits the model with `lobes` lobes (1 or 2) to the candidates of every view, by variable

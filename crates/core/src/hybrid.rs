@@ -376,17 +376,12 @@ pub fn fit(
     });
     let coarse = prepared.map(|p| &p.coarse);
     let found = analytic::roughnesses(views, grid, lobes, Some(score), coarse, stop)?;
-    let alphas: Vec<f64> = found.iter().map(|(alpha, _)| *alpha).collect();
-    let alpha_std: Vec<f64> = found.iter().map(|(_, std)| *std).collect();
+    let alphas: Vec<f64> = found.lobes.iter().map(|(alpha, _)| *alpha).collect();
+    let alpha_std: Vec<f64> = found.lobes.iter().map(|(_, std)| *std).collect();
     let lobe_cols: Vec<[Vec<f64>; 3]> =
         alphas.iter().map(|a| analytic::columns(grid, *a)).collect();
     let mut columns = lobe_refs(&lobe_cols);
-    let lobe_rows: Vec<f64> = pixel_sets
-        .iter()
-        .zip(views)
-        .map(|(px, v)| dense_rows(px, v.lights, &columns, grid, stop))
-        .collect::<Result<Vec<_>>>()?
-        .concat();
+    let lobe_rows = found.rows;
     let (weights, solved_misfit) = mix.solve(&lobe_rows, columns.len());
     let analytic_cols = columns.len();
     columns.extend(&atom_columns);
