@@ -26,7 +26,6 @@ impl Server {
     pub fn start(addr: &str, responder: SharedResponder) -> std::io::Result<Server> {
         let listener = TcpListener::bind(addr)?;
         let addr = listener.local_addr()?;
-        listener.set_nonblocking(true)?;
         let stop = Arc::new(AtomicBool::new(false));
         let flag = stop.clone();
         let thread = thread::Builder::new()
@@ -42,6 +41,16 @@ impl Server {
     pub fn stop(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
         if let Some(t) = self.thread.take() {
+            // The accept loop blocks (a poll would add its period to every connection a
+            // client opens): a connection of our own wakes it to see the flag.
+            let mut wake = self.addr;
+            if wake.ip().is_unspecified() {
+                wake.set_ip(match wake {
+                    SocketAddr::V4(_) => std::net::Ipv4Addr::LOCALHOST.into(),
+                    SocketAddr::V6(_) => std::net::Ipv6Addr::LOCALHOST.into(),
+                });
+            }
+            let _ = TcpStream::connect_timeout(&wake, Duration::from_secs(1));
             let _ = t.join();
         }
     }
@@ -59,14 +68,18 @@ fn accept_loop(listener: TcpListener, responder: SharedResponder, stop: Arc<Atom
     // Command connections waiting for their event connection, by connection number.
     let waiting: Arc<Mutex<Vec<(u32, EventStream)>>> = Arc::default();
     let mut next_conn = 1u32;
-    while !stop.load(Ordering::SeqCst) {
-        let (mut s, peer) = match listener.accept() {
+    loop {
+        let accepted = listener.accept();
+        if stop.load(Ordering::SeqCst) {
+            break;
+        }
+        let (mut s, peer) = match accepted {
             Ok(x) => x,
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+            // Out of descriptors, say: not a reason to stop serving, nor to spin.
+            Err(_) => {
                 thread::sleep(Duration::from_millis(10));
                 continue;
             }
-            Err(_) => continue,
         };
         let _ = s.set_nonblocking(false);
         let _ = s.set_nodelay(true);
