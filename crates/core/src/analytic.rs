@@ -1053,14 +1053,18 @@ fn uncertainty(
     };
     let full: Vec<usize> = (0..p).collect();
     let mut rng = rand::rngs::StdRng::seed_from_u64(BOOTSTRAP_SEED);
-    let (mut brdfs, mut images) = (Vec::new(), Vec::new());
-    for _ in 0..BOOTSTRAP_RESAMPLES {
-        let picks: Vec<usize> = (0..n).map(|_| rng.random_range(0..n)).collect();
-        let obs: Vec<[f64; 3]> = picks.iter().map(|&i| observed[i]).collect();
-        let w = solve_weights(&matrix.subset(&picks), &obs, &full).0;
-        brdfs.push(rebuild(&w));
-        images.push(image(&w));
-    }
+    let resamples: Vec<Vec<usize>> = (0..BOOTSTRAP_RESAMPLES)
+        .map(|_| (0..n).map(|_| rng.random_range(0..n)).collect())
+        .collect();
+    // Drawn in order from one seed, solved side by side.
+    let (brdfs, images): (Vec<Vec<f64>>, Vec<Vec<f64>>) = resamples
+        .par_iter()
+        .map(|picks| {
+            let obs: Vec<[f64; 3]> = picks.iter().map(|&i| observed[i]).collect();
+            let w = solve_weights(&matrix.subset(picks), &obs, &full).0;
+            (rebuild(&w), image(&w))
+        })
+        .unzip();
     Ok(Uncertainty {
         std: std_of(&covariance, m),
         covariance,

@@ -19,6 +19,7 @@
 //! ([`analytic::SEARCH_PIXELS`]); the fit to the photo is measured over every candidate.
 
 use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::analytic::{self, Microfacet, ViewPixels};
@@ -558,14 +559,19 @@ fn uncertainty(
     let own = |c: usize| DVector::from_fn(k, |kk, _| i.weights[c][i.kept[kk]]);
     let fitted: [DVector<f64>; 3] = std::array::from_fn(own);
     let mut rng = rand::rngs::StdRng::seed_from_u64(BOOTSTRAP_SEED);
-    let (mut brdfs, mut images) = (Vec::new(), Vec::new());
-    for _ in 0..BOOTSTRAP_RESAMPLES {
-        let picks: Vec<usize> = (0..pixels).map(|_| rng.random_range(0..pixels)).collect();
-        let s = systems(i.rows, i.n, i.observed, &picks, i.kept);
-        let w: [DVector<f64>; 3] = std::array::from_fn(|c| nnls(&s[c].0, &s[c].1));
-        brdfs.push(combine(&kept_columns, &w, i.grid).values);
-        images.push(image(&w));
-    }
+    let resamples: Vec<Vec<usize>> = (0..BOOTSTRAP_RESAMPLES)
+        .map(|_| (0..pixels).map(|_| rng.random_range(0..pixels)).collect())
+        .collect();
+    // The resamples drawn in order from one seed, then solved side by side: each needs
+    // nothing of the others.
+    let (brdfs, images): (Vec<Vec<f64>>, Vec<Vec<f64>>) = resamples
+        .par_iter()
+        .map(|picks| {
+            let s = systems(i.rows, i.n, i.observed, picks, i.kept);
+            let w: [DVector<f64>; 3] = std::array::from_fn(|c| nnls(&s[c].0, &s[c].1));
+            (combine(&kept_columns, &w, i.grid).values, image(&w))
+        })
+        .unzip();
     Ok(Uncertainty {
         std: std_of(&covariance, m),
         covariance,
