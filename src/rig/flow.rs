@@ -584,10 +584,12 @@ fn estimate(
     // estimate's: the estimate would otherwise do most of it.
     let waited = std::time::Instant::now();
     let ready = captured.preparing.take().map(Preparing::finish);
-    tracing::debug!(
-        "waited {:?} for the renders prepared while the camera shot",
-        waited.elapsed()
-    );
+    if ready.is_some() {
+        tracing::debug!(
+            "waited {:?} for the renders prepared while the camera shot",
+            waited.elapsed()
+        );
+    }
     let shared = ready.as_ref().map(|r| r.shared.clone()).unwrap_or_default();
     let options = EstimateOptions {
         white: captured.clip_level,

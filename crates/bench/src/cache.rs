@@ -190,6 +190,19 @@ mod tests {
         }
     }
 
+    /// A table hashed a block at a time gives the key its bytes as one part gave: renders
+    /// cached before stay found.
+    #[test]
+    fn a_table_hashes_as_its_bytes_in_one_part() {
+        let values: Vec<f64> = (0..3000).map(|i| i as f64 * 0.37 - 11.0).collect();
+        let mut blocks = Key::new("photo").unwrap();
+        blocks.add_f64s(&values);
+        let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        let mut whole = Key::new("photo").unwrap();
+        whole.add(&bytes);
+        assert_eq!(blocks.hex(), whole.hex());
+    }
+
     #[test]
     fn a_render_is_made_once_and_read_back_exactly() {
         let dir = tempfile::tempdir().unwrap();

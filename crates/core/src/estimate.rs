@@ -724,9 +724,9 @@ pub fn estimate_views_shared(
         },
     );
     let mut estimate = estimate?;
+    options.stop.check()?;
     estimate.clipped = clipped;
     if let Some(found) = anisotropy {
-        options.stop.check()?;
         estimate.anisotropy = found;
     }
     Ok(estimate)

@@ -252,7 +252,8 @@ impl Mix {
     /// Per channel, the Gram matrix of `na` materials' rows: what needs no photo of the
     /// normal equations, the same to the bit as theirs ([`analytic::normal_equations`]).
     fn grams(rows: &[f64], na: usize) -> [DMatrix<f64>; 3] {
-        let pixels = rows.len() / (3 * na);
+        // No materials (a basis without them): empty matrices, and the fit's own error.
+        let pixels = if na == 0 { 0 } else { rows.len() / (3 * na) };
         std::array::from_fn(|c| {
             let (g, _, _) = analytic::normal_equations(na, pixels, |p, x| {
                 x.copy_from_slice(&rows[(3 * p + c) * na..(3 * p + c + 1) * na]);

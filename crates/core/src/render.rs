@@ -211,12 +211,17 @@ struct CapColumns {
 }
 
 impl CapColumns {
-    fn new(cap: &Cap, columns: &[&[f64]], capped: Vec<usize>) -> CapColumns {
+    /// `reads[i][ring]`: whether the i-th capped column reads that ring of `cap`
+    /// ([`Cap::pruned_for`]); a ring it does not read holds zeros for it, which add nothing.
+    fn new(cap: &Cap, columns: &[&[f64]], capped: Vec<usize>, reads: &[Vec<bool>]) -> CapColumns {
         let k = capped.len();
         let mut sums = vec![0f32; cap.rings() * N_THETA_D * 3 * k];
-        for (i, j) in capped.iter().enumerate() {
+        let per_ring = N_THETA_D * 3;
+        for (i, (j, reads)) in capped.iter().zip(reads).enumerate() {
             for (cell, value) in cap.ring_sums(columns[*j]).into_iter().enumerate() {
-                sums[cell * k + i] = value;
+                if reads[cell / per_ring] {
+                    sums[cell * k + i] = value;
+                }
             }
         }
         CapColumns { capped, sums }
@@ -308,7 +313,8 @@ impl<'a> Mirrors<'a> {
 
 /// Each θh row of each channel, smoothed along θh: a row's weights applied to whole θd rows
 /// of the table, in the weights' order, so every cell's sum rounds as a sum over its own
-/// column would (from −0.0, as `Iterator::sum` starts) while the θd cells run side by side.
+/// column would (from −0.0, as `Iterator::sum` starts) while the compiler vectorises over
+/// the contiguous θd cells.
 fn smooth_bivariate(values: &[f64], smoothing: &[Vec<(usize, f64)>]) -> Vec<f64> {
     let mut out = vec![-0.0; values.len()];
     for (plane, table) in out
@@ -967,8 +973,8 @@ impl RenderingMatrix {
             .collect();
         let table = ColumnTable::new(&all, binning, &footprints, &cap_bins);
         let cap = cap.map(|cap| {
-            let cap = cap.pruned_for(&capped.iter().map(|j| all[*j]).collect::<Vec<_>>());
-            let columns = CapColumns::new(&cap, &all, capped);
+            let (cap, reads) = cap.pruned_for(&capped.iter().map(|j| all[*j]).collect::<Vec<_>>());
+            let columns = CapColumns::new(&cap, &all, capped, &reads);
             (cap, columns)
         });
         let m = all.len();
@@ -1088,23 +1094,29 @@ pub fn render_bivariates(
     lights: &LightSet,
     brdfs: &[&Bivariate],
 ) -> Vec<Raster> {
-    let binning = brdfs[0].grid.theta_h_binning;
+    let Some(first) = brdfs.first() else {
+        return Vec::new();
+    };
+    let binning = first.grid.theta_h_binning;
     assert!(
         brdfs.iter().all(|b| b.grid.theta_h_binning == binning),
         "BRDFs rendered in one pass share a θh binning"
     );
-    let tables: Vec<&[f64]> = brdfs.iter().map(|b| b.values.as_slice()).collect();
-    let a = RenderingMatrix::build(&geom.pixels, lights, &tables, None, binning);
-    (0..tables.len())
-        .map(|j| {
+    let mut images = Vec::with_capacity(brdfs.len());
+    // A pass holds at most PASS_COLUMNS columns: more BRDFs take more passes.
+    for chunk in brdfs.chunks(PASS_COLUMNS) {
+        let tables: Vec<&[f64]> = chunk.iter().map(|b| b.values.as_slice()).collect();
+        let a = RenderingMatrix::build(&geom.pixels, lights, &tables, None, binning);
+        images.extend((0..tables.len()).map(|j| {
             let mut img = Raster::black(geom.width, geom.height);
             for (p, px) in geom.pixels.iter().enumerate() {
                 let rgb = std::array::from_fn(|c| a.row(3 * p + c)[j]);
                 img.set(px.x as usize, px.y as usize, rgb);
             }
             img
-        })
-        .collect()
+        }));
+    }
+    images
 }
 
 /// A BRDF on a unit sphere seen orthographically (the camera of
@@ -1192,7 +1204,7 @@ pub fn render_merl_until(
         .collect();
     let cap = Cap::of(lights, ThetaHBinning::Sqrt)
         .filter(|cap| cap.needed_by(&[&slice]))
-        .map(|cap| cap.pruned_for(&[&slice]));
+        .map(|cap| cap.pruned_for(&[&slice]).0);
     let cap_bins = cap.as_ref().map_or(0, |c| c.bins);
     let mut table = vec![[0f32; 3]; cells * footprints.radii.len()];
     for (level, rho) in footprints.radii.iter().enumerate() {
@@ -1862,6 +1874,53 @@ mod tests {
             with_cap * 3.0 < lights_alone,
             "{with_cap} against {lights_alone}"
         );
+    }
+
+    /// BRDFs rendered in one pass are each the image it renders alone, to the bit, also when
+    /// several need the cap and prune its rings differently (a mirror, a sharp lobe, a broad
+    /// one, and a mixture of lobes): a column's render does not depend on its neighbours.
+    #[test]
+    fn brdfs_rendered_together_are_each_rendered_alone() {
+        use crate::analytic::{Lobe, Microfacet};
+        use crate::bivariate::Grid;
+        let map = textured_map();
+        let geometry =
+            PixelGeometry::rasterize(&Camera::eval_orthographic(32), &Shape::unit_sphere())
+                .unwrap();
+        let mut mixed = Microfacet::one_lobe([0.1, 0.2, 0.3], [0.5; 3], [1.0; 3], 0.004);
+        mixed.lobes.push(Lobe {
+            f0: [0.2; 3],
+            f90: [1.0; 3],
+            alpha: 0.08,
+        });
+        let tables: Vec<Bivariate> = [
+            sharp_mirror(0.002),
+            sharp_mirror(0.03),
+            Microfacet::one_lobe([0.4; 3], [0.04; 3], [1.0; 3], 0.5),
+            mixed,
+        ]
+        .iter()
+        .map(|m| Bivariate::reduce(m, Grid::default()))
+        .collect();
+        for count in [256, 2048] {
+            let lights = map.compressed(count, 0.0);
+            let cap = Cap::of(&lights, ThetaHBinning::Sqrt).expect("a map's lights have a cap");
+            let all: Vec<&[f64]> = tables.iter().map(|t| t.values.as_slice()).collect();
+            let (_, reads) = cap.pruned_for(&all);
+            assert!(
+                reads.windows(2).any(|w| w[0] != w[1]),
+                "{count} lights: the columns should prune the cap differently"
+            );
+            let together =
+                render_bivariates(&geometry, &lights, &tables.iter().collect::<Vec<_>>());
+            for (i, (table, image)) in tables.iter().zip(&together).enumerate() {
+                let alone = render_bivariate(&geometry, &lights, table);
+                let bits = |r: &Raster| -> Vec<u32> {
+                    r.pixels.iter().flatten().map(|v| v.to_bits()).collect()
+                };
+                assert_eq!(bits(image), bits(&alone), "{count} lights, BRDF {i}");
+            }
+        }
     }
 
     /// The preview's scale: a white Lambertian sphere reaches full white, a grey one its

@@ -469,11 +469,10 @@ fn write_the_rest(
         },
         || write_records(dir, basis, estimate, method, cx, &files),
     );
+    // The files' error first: before they were written side by side, they came first.
+    let written = written?;
     page?;
-    Ok(ResultFiles {
-        written: written?,
-        ..files
-    })
+    Ok(ResultFiles { written, ..files })
 }
 
 /// The files beside the report: `coefficients.json`, the BRDF's EXRs, the capture's light,

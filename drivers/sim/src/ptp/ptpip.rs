@@ -50,8 +50,17 @@ impl Server {
                     SocketAddr::V6(_) => std::net::Ipv6Addr::LOCALHOST.into(),
                 });
             }
-            let _ = TcpStream::connect_timeout(&wake, Duration::from_secs(1));
-            let _ = t.join();
+            // Until it has seen one: a connection that fails (its interface gone, say) is
+            // tried again, for a while; past that the thread is left blocked in `accept`,
+            // to end at the next connection, rather than hang whoever stops the camera.
+            let deadline = std::time::Instant::now() + Duration::from_secs(2);
+            while !t.is_finished() && std::time::Instant::now() < deadline {
+                let _ = TcpStream::connect_timeout(&wake, Duration::from_millis(200));
+                thread::sleep(Duration::from_millis(2));
+            }
+            if t.is_finished() {
+                let _ = t.join();
+            }
         }
     }
 }
