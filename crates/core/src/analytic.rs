@@ -453,19 +453,17 @@ pub(crate) fn normal_equations(
     mut row: impl FnMut(usize, &mut [f64]) -> f64,
 ) -> (DMatrix<f64>, DVector<f64>, f64) {
     let mut g = DMatrix::zeros(m, m);
-    let mut b = DVector::zeros(m);
-    let mut yy = 0.0;
-    let mut x = vec![0.0; m];
-    for r in 0..rows {
-        let y = row(r, &mut x);
-        yy += y * y;
+    // The right-hand side's sums and the Gram matrix's are apart: summed in one pass over
+    // the rows, each in its own order.
+    let (b, yy) = right_hand_side(m, rows, |r, x| {
+        let y = row(r, x);
         for i in 0..m {
-            b[i] += x[i] * y;
             for j in 0..=i {
                 g[(i, j)] += x[i] * x[j];
             }
         }
-    }
+        y
+    });
     for i in 0..m {
         for j in 0..i {
             g[(j, i)] = g[(i, j)];
