@@ -211,17 +211,12 @@ struct CapColumns {
 }
 
 impl CapColumns {
-    /// `reads[i][ring]`: whether the i-th capped column reads that ring of `cap`
-    /// ([`Cap::pruned_for`]); a ring it does not read holds zeros for it, which add nothing.
-    fn new(cap: &Cap, columns: &[&[f64]], capped: Vec<usize>, reads: &[Vec<bool>]) -> CapColumns {
+    fn new(cap: &Cap, columns: &[&[f64]], capped: Vec<usize>) -> CapColumns {
         let k = capped.len();
         let mut sums = vec![0f32; cap.rings() * N_THETA_D * 3 * k];
-        let per_ring = N_THETA_D * 3;
-        for (i, (j, reads)) in capped.iter().zip(reads).enumerate() {
+        for (i, j) in capped.iter().enumerate() {
             for (cell, value) in cap.ring_sums(columns[*j]).into_iter().enumerate() {
-                if reads[cell / per_ring] {
-                    sums[cell * k + i] = value;
-                }
+                sums[cell * k + i] = value;
             }
         }
         CapColumns { capped, sums }
@@ -955,9 +950,12 @@ impl RenderingMatrix {
             all.push(o);
         }
         let footprints = Footprints::of(lights);
-        // Each column takes the cap or not by its own shape, so that its render does not
-        // depend on which columns share its pass (a photo rendered alone and the same BRDF
-        // among a fit's columns must agree).
+        // Each column takes the cap or not by its own shape, so that whether it reads the map
+        // does not depend on which columns share its pass (a photo rendered alone and the
+        // same BRDF among a fit's columns must agree). Which of the cap's rings are read is
+        // judged on the pass's capped columns together (`Cap::pruned_for`): a column beside
+        // a sharper one may read rings it would leave out alone, which hold below 0.2% of
+        // its light.
         let cap = Cap::of(lights, binning);
         let capped: Vec<usize> = cap.as_ref().map_or_else(Vec::new, |cap| {
             (0..all.len())
@@ -973,8 +971,8 @@ impl RenderingMatrix {
             .collect();
         let table = ColumnTable::new(&all, binning, &footprints, &cap_bins);
         let cap = cap.map(|cap| {
-            let (cap, reads) = cap.pruned_for(&capped.iter().map(|j| all[*j]).collect::<Vec<_>>());
-            let columns = CapColumns::new(&cap, &all, capped, &reads);
+            let cap = cap.pruned_for(&capped.iter().map(|j| all[*j]).collect::<Vec<_>>());
+            let columns = CapColumns::new(&cap, &all, capped);
             (cap, columns)
         });
         let m = all.len();
@@ -1086,9 +1084,10 @@ pub fn render_bivariate(geom: &PixelGeometry, lights: &LightSet, brdf: &Bivariat
 }
 
 /// [`render_bivariate`] of each BRDF, in one pass over the (pixel, light) pairs, whose
-/// geometry is most of a pass's cost: each image is the one its BRDF renders alone, to the
-/// bit, since every column takes its own sums (and the cap by its own shape). The BRDFs
-/// share a θh binning.
+/// geometry is most of a pass's cost: each image is the one its BRDF renders alone (every
+/// column takes its own sums, and the cap by its own shape), but for the cap's rings a
+/// sharper neighbour has it read, which hold below 0.2% of its light. The BRDFs share a θh
+/// binning.
 pub fn render_bivariates(
     geom: &PixelGeometry,
     lights: &LightSet,
@@ -1204,7 +1203,7 @@ pub fn render_merl_until(
         .collect();
     let cap = Cap::of(lights, ThetaHBinning::Sqrt)
         .filter(|cap| cap.needed_by(&[&slice]))
-        .map(|cap| cap.pruned_for(&[&slice]).0);
+        .map(|cap| cap.pruned_for(&[&slice]));
     let cap_bins = cap.as_ref().map_or(0, |c| c.bins);
     let mut table = vec![[0f32; 3]; cells * footprints.radii.len()];
     for (level, rho) in footprints.radii.iter().enumerate() {
@@ -1876,9 +1875,10 @@ mod tests {
         );
     }
 
-    /// BRDFs rendered in one pass are each the image it renders alone, to the bit, also when
-    /// several need the cap and prune its rings differently (a mirror, a sharp lobe, a broad
-    /// one, and a mixture of lobes): a column's render does not depend on its neighbours.
+    /// BRDFs rendered in one pass are each the image it renders alone: to the bit for one
+    /// that needs no cap, and within the cap's pruning (rings holding below 0.2% of a
+    /// column's light) for those a sharper neighbour has read more of it (a mirror, a sharp
+    /// lobe, a broad one, and a mixture of lobes).
     #[test]
     fn brdfs_rendered_together_are_each_rendered_alone() {
         use crate::analytic::{Lobe, Microfacet};
@@ -1893,32 +1893,32 @@ mod tests {
             f90: [1.0; 3],
             alpha: 0.08,
         });
-        let tables: Vec<Bivariate> = [
+        let models = [
             sharp_mirror(0.002),
             sharp_mirror(0.03),
             Microfacet::one_lobe([0.4; 3], [0.04; 3], [1.0; 3], 0.5),
             mixed,
-        ]
-        .iter()
-        .map(|m| Bivariate::reduce(m, Grid::default()))
-        .collect();
+        ];
+        let tables: Vec<Bivariate> = models
+            .iter()
+            .map(|m| Bivariate::reduce(m, Grid::default()))
+            .collect();
         for count in [256, 2048] {
             let lights = map.compressed(count, 0.0);
             let cap = Cap::of(&lights, ThetaHBinning::Sqrt).expect("a map's lights have a cap");
-            let all: Vec<&[f64]> = tables.iter().map(|t| t.values.as_slice()).collect();
-            let (_, reads) = cap.pruned_for(&all);
-            assert!(
-                reads.windows(2).any(|w| w[0] != w[1]),
-                "{count} lights: the columns should prune the cap differently"
-            );
             let together =
                 render_bivariates(&geometry, &lights, &tables.iter().collect::<Vec<_>>());
             for (i, (table, image)) in tables.iter().zip(&together).enumerate() {
                 let alone = render_bivariate(&geometry, &lights, table);
-                let bits = |r: &Raster| -> Vec<u32> {
-                    r.pixels.iter().flatten().map(|v| v.to_bits()).collect()
-                };
-                assert_eq!(bits(image), bits(&alone), "{count} lights, BRDF {i}");
+                if !cap.needed_by(&[&table.values]) {
+                    let bits = |r: &Raster| -> Vec<u32> {
+                        r.pixels.iter().flatten().map(|v| v.to_bits()).collect()
+                    };
+                    assert_eq!(bits(image), bits(&alone), "{count} lights, BRDF {i}");
+                } else {
+                    let e = image.relative_rmse(&alone);
+                    assert!(e < 0.002, "{count} lights, BRDF {i}: {e}");
+                }
             }
         }
     }

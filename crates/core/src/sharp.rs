@@ -373,77 +373,52 @@ impl Cap {
         })
     }
 
-    /// The cap without the rings that hold next to nothing of `columns`' peaks, and for each
-    /// column which of the kept rings it reads. Each column is pruned by its own shape
-    /// ([`Cap::rings_kept_by`]), and the cap keeps a ring any of them reads: a column then
-    /// renders the same in any pass as alone (a pass pruned by its columns together gave a
-    /// column the rings a sharper neighbour needed). A lobe that needs the cap but is wider
-    /// than its middle (a metallic paint under the preview's 512 lights) left a third of its
-    /// samples reading the map for less than 0.1% of its light.
-    pub fn pruned_for(&self, columns: &[&[f64]]) -> (Cap, Vec<Vec<bool>>) {
+    /// The cap without the rings that hold next to nothing of `columns`' peaks: each ring's
+    /// largest share of a θd column's light (as [`Cap::needed_by`] weighs them), and the
+    /// least of them left out while together they stay below `NEEDED`. A lobe that needs the
+    /// cap but is wider than its middle (a metallic paint under the preview's 512 lights)
+    /// left a third of its samples reading the map for less than 0.1% of its light.
+    pub fn pruned_for(&self, columns: &[&[f64]]) -> Cap {
         let areas = self.areas();
-        let kept: Vec<Vec<bool>> = columns
-            .iter()
-            .map(|col| self.rings_kept_by(col, &areas))
-            .collect();
-        let any: Vec<bool> = (0..self.rings.len())
-            .map(|r| kept.iter().any(|k| k[r]))
-            .collect();
-        let reads = kept
-            .iter()
-            .map(|k| {
-                k.iter()
-                    .zip(&any)
-                    .filter(|(_, a)| **a)
-                    .map(|(k, _)| *k)
-                    .collect()
-            })
-            .collect();
-        let cap = Cap {
-            bins: self.bins,
-            binning: self.binning,
-            rings: self
-                .rings
-                .iter()
-                .zip(&any)
-                .filter(|(_, keep)| **keep)
-                .map(|(ring, _)| ring.clone())
-                .collect(),
-            map: self.map.clone(),
-        };
-        (cap, reads)
-    }
-
-    /// The rings that hold something of `column`'s peak: each ring's largest share of a θd
-    /// column's light (as [`Cap::needed_by`] weighs them), with the least of them left out
-    /// while together they stay below `NEEDED`.
-    fn rings_kept_by(&self, column: &[f64], areas: &[f64]) -> Vec<bool> {
         let mut shares = vec![0f64; self.rings.len()];
-        any_theta_d_column(column, |f| {
-            let edge = f(self.bins);
-            let all: f64 = (0..N_THETA_H).map(|ih| f(ih).abs() * areas[ih]).sum();
-            for (ring, share) in self.rings.iter().zip(shares.iter_mut()) {
-                let peak: f64 = ring
-                    .bands
-                    .iter()
-                    .map(|band| (f(band.bin) - edge) * areas[band.bin])
-                    .sum();
-                *share = share.max(peak.abs() / all.max(f64::MIN_POSITIVE));
-            }
-            false
-        });
+        for col in columns {
+            any_theta_d_column(col, |f| {
+                let edge = f(self.bins);
+                let all: f64 = (0..N_THETA_H).map(|ih| f(ih).abs() * areas[ih]).sum();
+                for (ring, share) in self.rings.iter().zip(shares.iter_mut()) {
+                    let peak: f64 = ring
+                        .bands
+                        .iter()
+                        .map(|band| (f(band.bin) - edge) * areas[band.bin])
+                        .sum();
+                    *share = share.max(peak.abs() / all.max(f64::MIN_POSITIVE));
+                }
+                false
+            });
+        }
         let mut order: Vec<usize> = (0..self.rings.len()).collect();
         order.sort_by(|a, b| shares[*a].total_cmp(&shares[*b]));
-        let mut kept = vec![true; self.rings.len()];
+        let mut left_out = vec![false; self.rings.len()];
         let mut dropped = 0.0;
         for r in order {
             dropped += shares[r];
             if dropped >= NEEDED {
                 break;
             }
-            kept[r] = false;
+            left_out[r] = true;
         }
-        kept
+        Cap {
+            bins: self.bins,
+            binning: self.binning,
+            rings: self
+                .rings
+                .iter()
+                .zip(&left_out)
+                .filter(|(_, out)| !**out)
+                .map(|(ring, _)| ring.clone())
+                .collect(),
+            map: self.map.clone(),
+        }
     }
 
     /// Each θh bin's solid angle over 2π (the cap's rings span whole bins).
