@@ -1205,6 +1205,65 @@ fn renders_prepared_before_the_photo_leave_the_estimate_unchanged() {
     }
 }
 
+/// The hybrid fit takes its lobes' rows from the roughness search's renders: they are the
+/// rows a pass of Lambert and the found lobes alone gives, in its layout (row 3·p + c;
+/// Lambert, then each lobe's F₀ and F₉₀). A sharp lobe may read, beside the search's
+/// sharper ones, cap rings it would leave out alone (below 0.2% of its light).
+#[test]
+fn the_roughness_search_s_rows_are_its_lobes_rendered() {
+    use brdfd_core::analytic::{columns, lambert_column, roughnesses, ViewPixels};
+    use brdfd_core::render::RenderingMatrix;
+    use brdfd_core::stop::Stop;
+    let grid = Basis::embedded().header.grid;
+    let g = sphere(40);
+    let lights = studio_envmap(128).compressed(1024, 0.0);
+    for material in ["gold-metallic-paint", "chrome-steel"] {
+        let truth = Bivariate::reduce(embedded_materials().get(material).unwrap(), grid);
+        let photo = render_bivariate(&g, &lights, &truth);
+        let observed: Vec<[f64; 3]> = g
+            .pixels
+            .iter()
+            .map(|p| photo.get(p.x as usize, p.y as usize).map(f64::from))
+            .collect();
+        let views = [ViewPixels {
+            pixels: &g.pixels,
+            observed: &observed,
+            lights: &lights,
+        }];
+        let found = roughnesses(&views, grid, 2, None, None, &Stop::default()).unwrap();
+        let lobes: Vec<[Vec<f64>; 3]> =
+            found.lobes.iter().map(|(a, _)| columns(grid, *a)).collect();
+        let lambert = lambert_column(grid);
+        let mut cols: Vec<&[f64]> = vec![&lambert];
+        for l in &lobes {
+            cols.extend([l[1].as_slice(), l[2].as_slice()]);
+        }
+        // Fewer candidates than the search takes: every pixel is a search pixel.
+        let alone = RenderingMatrix::build(&g.pixels, &lights, &cols, None, grid.theta_h_binning);
+        let m = cols.len();
+        assert_eq!(found.rows.len(), alone.rows.len(), "{material}");
+        for j in 0..m {
+            let (mut d2, mut r2) = (0.0, 0.0);
+            for (a, b) in found
+                .rows
+                .iter()
+                .skip(j)
+                .step_by(m)
+                .zip(alone.rows.iter().skip(j).step_by(m))
+            {
+                d2 += (a - *b as f64).powi(2);
+                r2 += (*b as f64).powi(2);
+            }
+            let e = (d2 / r2.max(f64::MIN_POSITIVE)).sqrt();
+            eprintln!(
+                "{material}: column {j} (α {:?}) differs by {e:.2e}",
+                found.lobes
+            );
+            assert!(e < 0.002, "{material}: column {j} differs by {e}");
+        }
+    }
+}
+
 /// Issue 40: a stop requested of an estimate ends each model's with `CoreError::Stopped`,
 /// whose words ("cancelled") are what a capture records as its cancel; a stop requested
 /// after the work is no error; and the MERL renderer (the simulated camera's) stops too.
