@@ -1255,10 +1255,6 @@ fn the_roughness_search_s_rows_are_its_lobes_rendered() {
                 r2 += (*b as f64).powi(2);
             }
             let e = (d2 / r2.max(f64::MIN_POSITIVE)).sqrt();
-            eprintln!(
-                "{material}: column {j} (α {:?}) differs by {e:.2e}",
-                found.lobes
-            );
             assert!(e < 0.002, "{material}: column {j} differs by {e}");
         }
     }
