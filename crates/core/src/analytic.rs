@@ -31,9 +31,7 @@ use super::merl;
 use super::nnls::nnls;
 use super::render::{RenderingMatrix, PASS_COLUMNS};
 use super::stop::Stop;
-use super::uncertainty::{
-    band, image_spread, spread_sphere, std_of, Uncertainty, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED,
-};
+use super::uncertainty::{band, image_spread, resamples, spread_sphere, std_of, Uncertainty};
 
 /// Roughness (GGX α) searched: from a near mirror to a nearly diffuse lobe.
 pub const ALPHA_MIN: f64 = 0.004;
@@ -992,7 +990,6 @@ fn uncertainty(
     lights: &LightSet,
 ) -> Result<Uncertainty> {
     let alphas: Vec<f64> = lobes.iter().map(|l| l.0).collect();
-    use rand::{Rng, SeedableRng};
     let p = weights[0].len();
     let n = observed.len();
     let per_channel: [DMatrix<f64>; 3] = std::array::from_fn(|c| {
@@ -1050,12 +1047,8 @@ fn uncertainty(
         sphere.predict_per_channel([w[0].as_slice(), w[1].as_slice(), w[2].as_slice()])
     };
     let full: Vec<usize> = (0..p).collect();
-    let mut rng = rand::rngs::StdRng::seed_from_u64(BOOTSTRAP_SEED);
-    let resamples: Vec<Vec<usize>> = (0..BOOTSTRAP_RESAMPLES)
-        .map(|_| (0..n).map(|_| rng.random_range(0..n)).collect())
-        .collect();
     // Drawn in order from one seed, solved side by side.
-    let (brdfs, images): (Vec<Vec<f64>>, Vec<Vec<f64>>) = resamples
+    let (brdfs, images): (Vec<Vec<f64>>, Vec<Vec<f64>>) = resamples(n)
         .par_iter()
         .map(|picks| {
             let obs: Vec<[f64; 3]> = picks.iter().map(|&i| observed[i]).collect();

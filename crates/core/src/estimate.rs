@@ -434,10 +434,8 @@ fn basis_uncertainty(
     solution: &Solution,
     lights: &LightSet,
 ) -> Result<Uncertainty> {
-    use rand::{Rng, SeedableRng};
     let n = rows.pixels.len();
     let prior = basis.column_prior();
-    let mut rng = rand::rngs::StdRng::seed_from_u64(uncertainty::BOOTSTRAP_SEED);
     // The sphere relit under the first view's candidate lights, linear in the coefficients.
     let sphere = basis.rendering_matrix(&uncertainty::spread_sphere()?, lights);
     let image = |c: &[f64]| -> Result<Vec<f64>> {
@@ -445,8 +443,7 @@ fn basis_uncertainty(
     };
     let mut coefficients = Vec::new();
     let (mut brdfs, mut images) = (Vec::new(), Vec::new());
-    for _ in 0..uncertainty::BOOTSTRAP_RESAMPLES {
-        let picks: Vec<usize> = (0..n).map(|_| rng.random_range(0..n)).collect();
+    for picks in uncertainty::resamples(n) {
         // A resample with fewer distinct pixels than a channel system has unknowns is left
         // out: least squares would solve it through a pseudo-inverse, a spread of its own.
         let mut distinct = picks.clone();

@@ -33,9 +33,7 @@ use super::nnls::nnls;
 use super::render::{RenderingMatrix, PASS_COLUMNS};
 use super::solve::CHANNELS;
 use super::stop::Stop;
-use super::uncertainty::{
-    band, image_spread, spread_sphere, std_of, Uncertainty, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED,
-};
+use super::uncertainty::{band, image_spread, resamples, spread_sphere, std_of, Uncertainty};
 
 /// One measured material in the mix and its weight per channel.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -512,7 +510,6 @@ fn uncertainty(
     i: Inputs,
     kept_systems: &[(DMatrix<f64>, DVector<f64>, f64); 3],
 ) -> Result<Uncertainty> {
-    use rand::{Rng, SeedableRng};
     let k = i.kept.len();
     let pixels = i.observed.len();
     // Coefficient positions: the analytic part as Microfacet::values orders it (kd RGB, then
@@ -559,13 +556,9 @@ fn uncertainty(
     };
     let own = |c: usize| DVector::from_fn(k, |kk, _| i.weights[c][i.kept[kk]]);
     let fitted: [DVector<f64>; 3] = std::array::from_fn(own);
-    let mut rng = rand::rngs::StdRng::seed_from_u64(BOOTSTRAP_SEED);
-    let resamples: Vec<Vec<usize>> = (0..BOOTSTRAP_RESAMPLES)
-        .map(|_| (0..pixels).map(|_| rng.random_range(0..pixels)).collect())
-        .collect();
     // The resamples drawn in order from one seed, then solved side by side: each needs
     // nothing of the others.
-    let (brdfs, images): (Vec<Vec<f64>>, Vec<Vec<f64>>) = resamples
+    let (brdfs, images): (Vec<Vec<f64>>, Vec<Vec<f64>>) = resamples(pixels)
         .par_iter()
         .map(|picks| {
             let s = systems(i.rows, i.n, i.observed, picks, i.kept);

@@ -16,6 +16,17 @@ pub const BOOTSTRAP_RESAMPLES: usize = 32;
 /// Seed of the bootstrap's resamples: the same photo gives the same spread.
 pub const BOOTSTRAP_SEED: u64 = 0x5eed;
 
+/// The bootstrap's [`BOOTSTRAP_RESAMPLES`] resamples of `n` pixels (indices, with
+/// replacement), drawn in order from [`BOOTSTRAP_SEED`]: every model resamples alike, and
+/// solving them side by side leaves them the same.
+pub fn resamples(n: usize) -> Vec<Vec<usize>> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand::rngs::StdRng::seed_from_u64(BOOTSTRAP_SEED);
+    (0..BOOTSTRAP_RESAMPLES)
+        .map(|_| (0..n).map(|_| rng.random_range(0..n)).collect())
+        .collect()
+}
+
 /// How sure an estimate is.
 #[derive(Clone, Debug, Serialize)]
 pub struct Uncertainty {
