@@ -5,10 +5,24 @@
 //! `wo` (toward the camera) point away from the surface. Angles are in radians. Values are
 //! BRDF values in 1/sr, linear RGB.
 
-use crate::merl::{phi_d_center, PHI_D_BINS};
-
 /// A 3-vector in f64, used for directions.
 pub type Vec3 = [f64; 3];
+
+/// An azimuth φd with its sine and cosine, worked out once for every row of a table that
+/// reads it ([`IsotropicBrdf::eval_row`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Azimuth {
+    pub angle: f64,
+    pub sin: f64,
+    pub cos: f64,
+}
+
+impl Azimuth {
+    pub fn new(angle: f64) -> Azimuth {
+        let (sin, cos) = angle.sin_cos();
+        Azimuth { angle, sin, cos }
+    }
+}
 
 /// An isotropic, reciprocal BRDF.
 pub trait IsotropicBrdf: Sync {
@@ -16,15 +30,14 @@ pub trait IsotropicBrdf: Sync {
     /// return zero, as light there contributes nothing measurable.
     fn eval_angles(&self, theta_h: f64, theta_d: f64, phi_d: f64) -> [f64; 3];
 
-    /// The values at (θh, θd) and each φd of the MERL table's cell centres, for
+    /// The values at (θh, θd) and each of `phi_d`, into `out` (one per azimuth), for
     /// tabulating a row at a time ([`crate::merl::MerlBrdf::tabulate`]): what
     /// [`IsotropicBrdf::eval_angles`] gives there, to the bit. Cells below the horizon are
     /// left to the caller, which marks them not measured.
-    fn eval_merl_row(&self, theta_h: f64, theta_d: f64, out: &mut [[f64; 3]; PHI_D_BINS]) {
-        for (k, v) in out.iter_mut().enumerate() {
-            let phi_d = phi_d_center(k);
-            if above_horizon(theta_h, theta_d, phi_d) {
-                *v = self.eval_angles(theta_h, theta_d, phi_d);
+    fn eval_row(&self, theta_h: f64, theta_d: f64, phi_d: &[Azimuth], out: &mut [[f64; 3]]) {
+        for (phi, v) in phi_d.iter().zip(out) {
+            if above_horizon(theta_h, theta_d, phi.angle) {
+                *v = self.eval_angles(theta_h, theta_d, phi.angle);
             }
         }
     }

@@ -8,7 +8,7 @@
 
 use std::path::Path;
 
-use super::brdf::{above_horizon, IsotropicBrdf};
+use super::brdf::{above_horizon, Azimuth, IsotropicBrdf};
 use super::error::{CoreError, Result};
 
 pub const THETA_H_BINS: usize = 90;
@@ -55,6 +55,12 @@ pub fn theta_d_center(j: usize) -> f64 {
 
 pub(crate) fn phi_d_center(k: usize) -> f64 {
     (k as f64 + 0.5) / PHI_D_BINS as f64 * std::f64::consts::PI
+}
+
+/// Each φd cell centre, with its sine and cosine.
+fn phi_d_centres() -> &'static [Azimuth; PHI_D_BINS] {
+    static CENTRES: std::sync::OnceLock<[Azimuth; PHI_D_BINS]> = std::sync::OnceLock::new();
+    CENTRES.get_or_init(|| std::array::from_fn(|k| Azimuth::new(phi_d_center(k))))
 }
 
 pub(crate) fn cell_index(ih: usize, jd: usize, kp: usize) -> usize {
@@ -159,7 +165,7 @@ impl MerlBrdf {
                 let (ih, jd) = (row / THETA_D_BINS, row % THETA_D_BINS);
                 let (th, td) = (theta_h_center(ih), theta_d_center(jd));
                 let mut rgb = [[0.0; 3]; PHI_D_BINS];
-                source.eval_merl_row(th, td, &mut rgb);
+                source.eval_row(th, td, phi_d_centres(), &mut rgb);
                 for (kp, v) in rgb.iter().enumerate() {
                     let v = if above_horizon(th, td, phi_d_center(kp)) {
                         v

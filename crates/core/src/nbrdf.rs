@@ -7,13 +7,11 @@
 
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::sync::OnceLock;
 
 use serde::Deserialize;
 
-use super::brdf::IsotropicBrdf;
+use super::brdf::{Azimuth, IsotropicBrdf};
 use super::error::{CoreError, Result};
-use super::merl::{phi_d_center, PHI_D_BINS};
 
 const IN: usize = 6;
 const HIDDEN: usize = 21;
@@ -178,54 +176,48 @@ impl IsotropicBrdf for NbrdfMaterial {
         self.forward(x).map(|v| (v as f64).max(0.0))
     }
 
-    fn eval_merl_row(&self, theta_h: f64, theta_d: f64, out: &mut [[f64; 3]; PHI_D_BINS]) {
+    fn eval_row(&self, theta_h: f64, theta_d: f64, phi_d: &[Azimuth], out: &mut [[f64; 3]]) {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { self.merl_row_avx2(theta_h, theta_d, out) };
+            return unsafe { self.row_avx2(theta_h, theta_d, phi_d, out) };
         }
-        self.merl_row(theta_h, theta_d, out)
+        self.row(theta_h, theta_d, phi_d, out)
     }
 }
 
-/// Cells of a MERL row the network evaluates side by side: one AVX register of f32.
+/// Cells of a row the network evaluates side by side: one AVX register of f32.
 const LANES: usize = 8;
 
-/// sin and cos of each φd cell centre of the MERL table.
-fn phi_d_sin_cos() -> &'static [(f64, f64); PHI_D_BINS] {
-    static TABLE: OnceLock<[(f64, f64); PHI_D_BINS]> = OnceLock::new();
-    TABLE.get_or_init(|| std::array::from_fn(|k| phi_d_center(k).sin_cos()))
-}
-
 impl NbrdfMaterial {
-    /// [`IsotropicBrdf::eval_merl_row`] compiled for AVX2: the lanes run eight wide. Without
-    /// FMA each lane rounds as [`NbrdfMaterial::forward`] does, so the row is the same to the
+    /// [`IsotropicBrdf::eval_row`] compiled for AVX2: the lanes run eight wide. Without FMA
+    /// each lane rounds as [`NbrdfMaterial::forward`] does, so the row is the same to the
     /// bit (a test checks every cell of a table).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn merl_row_avx2(&self, theta_h: f64, theta_d: f64, out: &mut [[f64; 3]; PHI_D_BINS]) {
-        self.merl_row(theta_h, theta_d, out)
+    unsafe fn row_avx2(&self, theta_h: f64, theta_d: f64, phi_d: &[Azimuth], out: &mut [[f64; 3]]) {
+        self.row(theta_h, theta_d, phi_d, out)
     }
 
     /// A row of cells, [`LANES`] at a time: the same inputs as [`IsotropicBrdf::eval_angles`]
-    /// (θh's and θd's sines computed once), and the network run on each lane.
+    /// (θh's and θd's sines computed once, φd's given), and the network run on each lane.
     #[inline(always)]
-    fn merl_row(&self, theta_h: f64, theta_d: f64, out: &mut [[f64; 3]; PHI_D_BINS]) {
+    fn row(&self, theta_h: f64, theta_d: f64, phi_d: &[Azimuth], out: &mut [[f64; 3]]) {
         let (sh, ch) = theta_h.sin_cos();
         let (sd, cd) = theta_d.sin_cos();
-        let phi = phi_d_sin_cos();
-        for start in (0..PHI_D_BINS).step_by(LANES) {
+        let n = phi_d.len().min(out.len());
+        for start in (0..n).step_by(LANES) {
             let mut x = [[0f32; LANES]; IN];
             for l in 0..LANES {
                 // The last block runs past the row: its spare lanes repeat the last cell.
-                let (sp, cp) = phi[(start + l).min(PHI_D_BINS - 1)];
-                let cell = [sh, 0.0, ch, sd * cp, sd * sp, cd];
+                let phi = phi_d[(start + l).min(n - 1)];
+                let cell = [sh, 0.0, ch, sd * phi.cos, sd * phi.sin, cd];
                 for (xi, v) in x.iter_mut().zip(cell) {
                     xi[l] = v as f32;
                 }
             }
             let y = self.forward_lanes(&x);
-            for (l, v) in out[start..].iter_mut().take(LANES).enumerate() {
+            for (l, v) in out[start..n].iter_mut().take(LANES).enumerate() {
                 *v = y.map(|y| (y[l] as f64).max(0.0));
             }
         }
@@ -281,7 +273,9 @@ fn dot_lanes<const I: usize>(w: &[f32; I], x: &[[f32; LANES]; I]) -> [f32; LANES
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::merl::{theta_d_center, theta_h_center, MerlBrdf, CELLS, THETA_D_BINS};
+    use crate::merl::{
+        phi_d_center, theta_d_center, theta_h_center, MerlBrdf, CELLS, PHI_D_BINS, THETA_D_BINS,
+    };
 
     /// A network with weights spread over ±1 (a fixed pseudo-random sequence), so that some
     /// units are cut at zero and some outputs fall below zero before the clamp.
@@ -314,6 +308,9 @@ mod tests {
     #[test]
     fn a_table_tabulated_by_rows_is_every_cell_evaluated_alone() {
         let m = network();
+        let azimuths: Vec<Azimuth> = (0..PHI_D_BINS)
+            .map(|k| Azimuth::new(phi_d_center(k)))
+            .collect();
         let table = MerlBrdf::tabulate(&m);
         let mut cells = 0;
         for ih in 0..crate::merl::THETA_H_BINS {
@@ -321,7 +318,7 @@ mod tests {
                 let (th, td) = (theta_h_center(ih), theta_d_center(jd));
                 // The portable lanes too, whatever the CPU picks for `tabulate`.
                 let mut row = [[0.0; 3]; PHI_D_BINS];
-                m.merl_row(th, td, &mut row);
+                m.row(th, td, &azimuths, &mut row);
                 for (kp, lanes) in row.iter().enumerate() {
                     let pd = phi_d_center(kp);
                     if !crate::brdf::above_horizon(th, td, pd) {
