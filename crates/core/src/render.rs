@@ -1619,7 +1619,7 @@ mod tests {
     fn the_avx2_loops_match_the_portable_ones_bit_for_bit() {
         use crate::bivariate::VALUES;
         use crate::envmap::EnvMap;
-        use crate::geometry::{Camera, PixelGeometry, Pose, Shape};
+        use crate::geometry::{Camera, PixelGeometry, Shape};
         if !std::arch::is_x86_feature_detected!("avx2") {
             eprintln!("no AVX2 on this CPU: nothing to compare");
             return;
@@ -1645,20 +1645,7 @@ mod tests {
             PixelGeometry::rasterize(&Camera::eval_orthographic(24), &Shape::unit_sphere())
                 .unwrap();
         // A pinhole camera: every pixel its own view, the general loop's case.
-        let pinhole = Camera::Pinhole {
-            width: 24,
-            height: 18,
-            fx: 30.0,
-            fy: 30.0,
-            cx: 12.0,
-            cy: 9.0,
-            pose: Pose {
-                position: [0.3, 0.4, 3.0],
-                look_at: [0.0; 3],
-                up: [0.0, 1.0, 0.0],
-            },
-        };
-        let pinhole = PixelGeometry::rasterize(&pinhole, &Shape::unit_sphere()).unwrap();
+        let pinhole = pinhole_sphere(24, 18);
         for (m, geometry) in [1, 5, 12, PASS_COLUMNS]
             .into_iter()
             .flat_map(|m| [(m, &orthographic), (m, &pinhole)])
@@ -1725,26 +1712,32 @@ mod tests {
         acc
     }
 
-    /// The MERL renderer's light geometry over a tile's lanes is the pair loop's, number for
-    /// number: in its AVX2 build, in the portable one, and against [`Lit::pair`] and
-    /// [`phi_d_bin`] pixel by pixel (a perspective camera, so every pixel has its own view).
-    #[test]
-    fn a_tile_s_light_geometry_is_the_pair_loop_s_to_the_bit() {
-        use crate::geometry::{Camera, Pose};
+    /// The unit sphere through a `width` × `height` pinhole camera a little off its axis:
+    /// every pixel with its own view, the renderers' general case.
+    fn pinhole_sphere(width: usize, height: usize) -> PixelGeometry {
+        let f = 1.25 * width as f64;
         let camera = Camera::Pinhole {
-            width: 40,
-            height: 30,
-            fx: 50.0,
-            fy: 50.0,
-            cx: 20.0,
-            cy: 15.0,
-            pose: Pose {
+            width,
+            height,
+            fx: f,
+            fy: f,
+            cx: width as f64 / 2.0,
+            cy: height as f64 / 2.0,
+            pose: crate::geometry::Pose {
                 position: [0.3, 0.4, 3.0],
                 look_at: [0.0; 3],
                 up: [0.0, 1.0, 0.0],
             },
         };
-        let geometry = PixelGeometry::rasterize(&camera, &Shape::unit_sphere()).unwrap();
+        PixelGeometry::rasterize(&camera, &Shape::unit_sphere()).unwrap()
+    }
+
+    /// The MERL renderer's light geometry over a tile's lanes is the pair loop's, number for
+    /// number: in its AVX2 build, in the portable one, and against [`Lit::pair`] and
+    /// [`phi_d_bin`] pixel by pixel (a perspective camera, so every pixel has its own view).
+    #[test]
+    fn a_tile_s_light_geometry_is_the_pair_loop_s_to_the_bit() {
+        let geometry = pinhole_sphere(40, 30);
         let luts = Luts::new(ThetaHBinning::Sqrt);
         let dirs = (0..200).map(|k| {
             let (a, z) = (k as f32 * 2.399_963, 1.0 - 2.0 * (k as f32 + 0.5) / 200.0);
