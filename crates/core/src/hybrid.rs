@@ -18,6 +18,8 @@
 //! few materials (a sparse mix). They are solved on the search's spread pixels
 //! ([`analytic::SEARCH_PIXELS`]); the fit to the photo is measured over every candidate.
 
+use std::borrow::Cow;
+
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -212,8 +214,9 @@ fn lobe_refs(cols: &[[Vec<f64>; 3]]) -> Vec<&[f64]> {
 
 /// The measured materials' part of the per-channel systems, computed once: their rows on the
 /// mix pixels, their Gram blocks and right-hand sides. [`Mix::solve`] adds the lobes' rows.
-struct Mix {
-    rows: Vec<f64>,
+struct Mix<'r> {
+    /// The materials' rows: the prepared ones are read in place.
+    rows: Cow<'r, [f64]>,
     na: usize,
     observed: Vec<[f64; 3]>,
     aa: [DMatrix<f64>; 3],
@@ -221,15 +224,15 @@ struct Mix {
     yy: [f64; 3],
 }
 
-impl Mix {
+impl<'r> Mix<'r> {
     /// The mix of `na` materials with these rows on the pixels that measured `observed`; with
     /// the rows' Gram matrices ([`Mix::grams`]) if they were worked out beforehand.
     fn new(
-        rows: Vec<f64>,
+        rows: Cow<'r, [f64]>,
         na: usize,
         observed: &[[f64; 3]],
         grams: Option<[DMatrix<f64>; 3]>,
-    ) -> Mix {
+    ) -> Mix<'r> {
         let grams = grams.unwrap_or_else(|| Mix::grams(&rows, na));
         let [(b0, y0), (b1, y1), (b2, y2)] = std::array::from_fn(|c| {
             analytic::right_hand_side(na, observed.len(), |p, x| {
@@ -351,7 +354,7 @@ pub fn fit(
             && p.atoms == atoms_digest(basis)
     });
     let (atom_rows, atom_gram) = match prepared {
-        Some(p) => (p.atom_rows.clone(), Some(p.atom_gram.clone())),
+        Some(p) => (Cow::Borrowed(&p.atom_rows[..]), Some(p.atom_gram.clone())),
         None => {
             let rows = pixel_sets
                 .iter()
@@ -359,7 +362,7 @@ pub fn fit(
                 .map(|(px, v)| dense_rows(px, v.lights, &atom_columns, grid, stop))
                 .collect::<Result<Vec<_>>>()?
                 .concat();
-            (rows, None)
+            (Cow::Owned(rows), None)
         }
     };
     let mix = Mix::new(atom_rows, atom_columns.len(), &observed, atom_gram);
