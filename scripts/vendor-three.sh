@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Fetches three.js for the web page's 3D viewer from npm into src/daemon/web/vendor/three/:
+# Fetches three.js for the web page's 3D viewer from npm into crates/daemon/src/web/vendor/three/:
 # the library, the three add-ons the viewer imports and the one GLTFLoader imports, unchanged
 # except that their bare `'three'` import names the file beside them (the page's security
 # policy allows no inline import map). three.js is MIT-licensed (its LICENSE goes with it). The daemon compiles the
@@ -8,7 +8,7 @@ set -euo pipefail
 version=0.166.1
 # npm's own integrity string for three@0.166.1; the tarball must match it.
 integrity="sha512-LtuafkKHHzm61AQA1be2MAYIw1IjmhOUxhBa0prrLpEMWbV7ijvxCRHjSgHPGp2493wLBzwKV46tA9nivLEgKg=="
-out=$(cd "$(dirname "$0")/.." && pwd)/src/daemon/web/vendor/three
+out=$(cd "$(dirname "$0")/.." && pwd)/crates/daemon/src/web/vendor/three
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 (cd "$work" && npm pack --silent "three@$version" >/dev/null)

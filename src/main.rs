@@ -1,5 +1,6 @@
-//! The `brdfd` binary: parses the command line and calls the library. Errors print as a chain
-//! and exit with status 1 (2 for usage errors, from clap).
+//! The `brdfd` binary: parses the command line and calls the workspace's library crates (the
+//! rig, the daemon, the core, the report; docs/architecture.md). Errors print as a chain and
+//! exit with status 1 (2 for usage errors, from clap).
 
 mod cli;
 
@@ -54,7 +55,7 @@ fn main() -> std::process::ExitCode {
             std::env::current_exe()
         };
         match exe {
-            Ok(exe) => brdfd::radiometry::isolated::use_child_processes(exe),
+            Ok(exe) => brdfd_radiometry::isolated::use_child_processes(exe),
             Err(e) => tracing::warn!("RAW files will be decoded in this process: {e}"),
         }
     }

@@ -562,7 +562,7 @@ fn the_viewer_shows_the_export_as_brdfd_renders_it() {
     // A clear coat, which a capture's fit takes only for some materials: the same session's
     // export replaced by a varnished metal, so that the viewer's coat is checked whatever gold
     // came to.
-    let coated = brdfd::export::GltfMaterial {
+    let coated = brdfd_report::export::GltfMaterial {
         base_color: [0.9, 0.6, 0.2],
         metallic: 1.0,
         roughness: 0.6,

@@ -4,9 +4,9 @@
 
 mod common;
 
-use brdfd::bench::camera::SENSOR_GAIN;
-use brdfd::bench::panorama::THETA_SENSOR_GAIN;
-use brdfd::config::Rig;
+use brdfd_bench::camera::SENSOR_GAIN;
+use brdfd_bench::panorama::THETA_SENSOR_GAIN;
+use brdfd_rig::config::Rig;
 use common::{brdfd, out, relit};
 
 /// The calibration's tolerance, from the issue: 2% of the known ratio. (Measured: 0.3% for

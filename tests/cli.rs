@@ -155,7 +155,7 @@ fn simulated_capture_prints_coefficients() {
     );
     assert_eq!(raw.len(), 13, "{raw:?}");
     let first = std::fs::read(dir.path().join("result/raw/dslr-01-DSC_0001.JPG")).unwrap();
-    let exp = brdfd::radiometry::exif_exposure(&first, "dslr-01").unwrap();
+    let exp = brdfd_radiometry::exif_exposure(&first, "dslr-01").unwrap();
     assert_eq!((exp.shutter_s, exp.f_number, exp.iso), (0.001, 8.0, 100.0));
 }
 
@@ -306,7 +306,7 @@ radius = 1.0
 fn estimate_from_files() {
     let dir = tempfile::tempdir().unwrap();
     let env = dir.path().join("studio.exr");
-    let map = brdfd::bench::studio_envmap(256);
+    let map = brdfd_bench::studio_envmap(256);
     brdfd_core::envmap::write_exr(&env, map.width, map.height, &map.pixels).unwrap();
     let o = brdfd(
         &[
@@ -677,7 +677,7 @@ fn bad_inputs_get_clear_errors() {
 #[test]
 fn basis_build_from_merl_files() {
     let dir = tempfile::tempdir().unwrap();
-    let set = brdfd::bench::embedded_materials();
+    let set = brdfd_bench::embedded_materials();
     std::fs::create_dir(dir.path().join("merl")).unwrap();
     for name in ["nickel", "blue-fabric", "white-paint", "pearl-paint"] {
         brdfd_core::merl::MerlBrdf::tabulate(set.get(name).unwrap())
@@ -903,7 +903,7 @@ fn a_rig_file_drives_the_devices_it_names() {
 #[test]
 fn analytic_estimate_from_files_and_argument_checks() {
     let dir = tempfile::tempdir().unwrap();
-    let map = brdfd::bench::studio_envmap(256);
+    let map = brdfd_bench::studio_envmap(256);
     brdfd_core::envmap::write_exr(
         &dir.path().join("studio.exr"),
         map.width,

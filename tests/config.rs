@@ -2,8 +2,8 @@
 
 use std::path::{Path, PathBuf};
 
-use brdfd::config::{DaemonConfig, MaterialPreset, PixelCount, Rig};
 use brdfd_core::geometry::SceneGeometry;
+use brdfd_rig::config::{DaemonConfig, MaterialPreset, PixelCount, Rig};
 
 fn files(sub: &str) -> Vec<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -65,7 +65,7 @@ fn every_shipped_rig_material_and_daemon_file_loads() {
     for path in &presets {
         let m = MaterialPreset::read(path).unwrap_or_else(|e| panic!("{e}"));
         // The simulated rig can render it.
-        brdfd::bench::VirtualBench::embedded(&m.simulate_as, 8)
+        brdfd_bench::VirtualBench::embedded(&m.simulate_as, 8)
             .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         // The embedded copy is the same file.
         let name = path.file_stem().unwrap().to_str().unwrap();

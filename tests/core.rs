@@ -1,7 +1,7 @@
 //! Library-level checks of the estimation core, with synthetic ground truth and stated
 //! tolerances. Only the solver comparison reads the shared data folder (for grace).
 
-use brdfd::bench::{embedded_materials, studio_envmap};
+use brdfd_bench::{embedded_materials, studio_envmap};
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::brdf::{dot, normalize, IsotropicBrdf, Vec3};
@@ -768,7 +768,7 @@ fn per_channel_selection_conditions_each_channel() {
 
 #[test]
 fn estimate_recovers_an_embedded_material_on_the_virtual_bench() {
-    let bench = brdfd::bench::VirtualBench::embedded("pearl-paint", 96).unwrap();
+    let bench = brdfd_bench::VirtualBench::embedded("pearl-paint", 96).unwrap();
     let photo = bench.photo().unwrap();
     let g = bench.pixels().unwrap();
     let lights = bench
@@ -1062,8 +1062,8 @@ fn default_estimates_are_plausible_on_every_evaluation_material() {
     // Issue 18: f ≥ 0 in every cell and directional albedo ≤ 1, for the default model's
     // estimate (and f ≥ 0 for the basis model's) of each of the 10 test materials (embedded NBRDF fits) and of brdfd's own GGX
     // materials, from a 48² sphere under the studio map.
-    use brdfd::results::Plausibility;
     use brdfd_eval::relight::analytic_materials;
+    use brdfd_report::results::Plausibility;
     let set = embedded_materials();
     let mut tables: Vec<(String, MerlBrdf)> = set
         .materials

@@ -1206,9 +1206,9 @@ fn the_cli_follows_a_dropped_event_stream_from_its_last_event() {
 /// way, and the server stops when its shutdown future resolves, with nothing left running.
 #[test]
 fn the_server_in_process_agrees_with_the_stored_session_and_stops_cleanly() {
-    use brdfd::config::Rig;
-    use brdfd::daemon::{api, server, Daemon as Core};
-    use brdfd::session::{Session, State};
+    use brdfd_daemon::{api, server, Daemon as Core};
+    use brdfd_rig::config::Rig;
+    use brdfd_rig::session::{Session, State};
     use serde_json::Value;
     use std::sync::Arc;
 

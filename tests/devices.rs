@@ -4,9 +4,9 @@
 
 use std::sync::Arc;
 
-use brdfd::bench::camera::BenchCamera;
-use brdfd::bench::VirtualBench;
-use brdfd::radiometry::{average_frames, Exposure};
+use brdfd_bench::camera::BenchCamera;
+use brdfd_bench::VirtualBench;
+use brdfd_radiometry::{average_frames, Exposure};
 use brdfd_sim::v4l::SimV4l;
 use brdfd_v4l::{FrameSource, PixelFormat, Settings};
 

@@ -61,7 +61,7 @@ fn outside_validators_accept_the_exports() {
 
     // Whether a capture's fit takes a clear coat depends on its material: the writers' coat is
     // checked on a coated material of their own.
-    let coated = brdfd::export::GltfMaterial {
+    let coated = brdfd_report::export::GltfMaterial {
         base_color: [0.8, 0.5, 0.1],
         metallic: 1.0,
         roughness: 0.5,
@@ -74,7 +74,7 @@ fn outside_validators_accept_the_exports() {
     let gltf = dir.path().join("coated.gltf");
     std::fs::write(&gltf, coated.document("coated")).unwrap();
     validate_gltf(&modules, &gltf);
-    let openpbr = brdfd::export::OpenPbrMaterial {
+    let openpbr = brdfd_report::export::OpenPbrMaterial {
         base_color: coated.base_color,
         base_metalness: 1.0,
         specular_weight: 1.0,

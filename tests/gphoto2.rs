@@ -229,10 +229,10 @@ fn gphoto2_downloads_the_nef_and_the_jpeg_of_one_shot() {
     // gphoto2 names a file of format "undefined" (as Nikon reports NEF) capt0000.nef.
     assert_eq!(saved, ["DSC_0001.JPG", "capt0000.nef"], "{log}");
     let nef = std::fs::read(home.path().join("capt0000.nef")).unwrap();
-    let frame = brdfd::radiometry::raw::decode_raw(
+    let frame = brdfd_radiometry::raw::decode_raw(
         &nef,
         "capt0000.nef",
-        brdfd::radiometry::raw::WhiteBalance::AsShot,
+        brdfd_radiometry::raw::WhiteBalance::AsShot,
     )
     .unwrap_or_else(|e| panic!("{e}"));
     assert_eq!((frame.values.width, frame.values.height), (48, 48));

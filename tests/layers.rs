@@ -175,3 +175,40 @@ fn the_virtual_bench_sits_below_the_rig() {
         assert!(built.iter().any(|e| e == p), "brdfd-bench lacks {p}");
     }
 }
+
+/// The rig runs captures for the binary and the daemon alike: it knows neither, nor the
+/// command line, the evaluation or (without its schema feature) the API's description. Its
+/// devices' drivers and the simulated rig's simulators bring their own HTTP (the THETA's Web
+/// API), which is why tokio is not refused here.
+#[test]
+fn the_rig_sits_below_the_daemon_and_the_binary() {
+    let built = packages("brdfd-rig", &[]);
+    for p in [
+        "brdfd",
+        "brdfd-daemon",
+        "brdfd-eval",
+        "clap",
+        "indicatif",
+        "utoipa",
+    ] {
+        assert!(!built.iter().any(|e| e == p), "brdfd-rig depends on {p}");
+    }
+    for p in ["brdfd-core", "brdfd-api", "brdfd-ptp", "brdfd-report"] {
+        assert!(built.iter().any(|e| e == p), "brdfd-rig lacks {p}");
+    }
+    let schema = packages("brdfd-rig", &["schema"]);
+    assert!(schema.iter().any(|p| p == "utoipa"), "{schema:?}");
+}
+
+/// The daemon serves the rig over HTTP: the binary starts it, never the other way round, and
+/// it needs no command line, no client of itself and no evaluation.
+#[test]
+fn the_daemon_sits_below_the_binary() {
+    let built = packages("brdfd-daemon", &[]);
+    for p in ["brdfd", "brdfd-eval", "clap", "indicatif"] {
+        assert!(!built.iter().any(|e| e == p), "brdfd-daemon depends on {p}");
+    }
+    for p in ["brdfd-rig", "brdfd-api", "axum", "tokio"] {
+        assert!(built.iter().any(|e| e == p), "brdfd-daemon lacks {p}");
+    }
+}

@@ -83,7 +83,7 @@ fn brdfd_renders_a_sphere_under_a_map_as_mitsuba_does() {
     let map = dir.path().join("courtyard.hdr");
     std::fs::write(
         &map,
-        brdfd::export::maps::reference_map_file("courtyard").unwrap(),
+        brdfd_report::export::maps::reference_map_file("courtyard").unwrap(),
     )
     .unwrap();
     // The limit each case is held to. Issue 38 asks for 0.05; the figures measured (256²,
@@ -292,7 +292,7 @@ fn mitsuba_set(python: &str, spp: u32) -> (tempfile::TempDir, std::path::PathBuf
     std::fs::create_dir(&maps).unwrap();
     std::fs::write(
         maps.join("courtyard.hdr"),
-        brdfd::export::maps::reference_map_file("courtyard").unwrap(),
+        brdfd_report::export::maps::reference_map_file("courtyard").unwrap(),
     )
     .unwrap();
     let set = dir.path().join("set");

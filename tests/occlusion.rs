@@ -3,7 +3,7 @@
 
 mod common;
 
-use brdfd::bench::studio_envmap;
+use brdfd_bench::studio_envmap;
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::brdf::IsotropicBrdf;
@@ -306,7 +306,7 @@ fn turned_views_of_a_concave_part_recover_the_material_only_with_occlusion() {
 /// relit on a sphere under the held-out light.
 #[test]
 fn the_relight_error_on_a_concave_part_with_and_without_occlusion() {
-    use brdfd::bench::VirtualBench;
+    use brdfd_bench::VirtualBench;
     use brdfd_core::envmap::{CHOSEN_LIGHTS, DEFAULT_LIGHTS};
     use brdfd_core::estimate::{estimate, EstimateOptions, View};
     let mut bench = VirtualBench::embedded("gold", 128).unwrap();
@@ -332,7 +332,7 @@ fn the_relight_error_on_a_concave_part_with_and_without_occlusion() {
     // rendered and estimated so.
     let photo_open = render_merl(
         &open,
-        &bench.env.compressed(brdfd::bench::PHOTO_LIGHTS, bench.yaw),
+        &bench.env.compressed(brdfd_bench::PHOTO_LIGHTS, bench.yaw),
         &bench.material,
     );
     let floor = relit(&open, &photo_open);

@@ -1,17 +1,17 @@
 //! The camera's pose from a photo of the printed board: photos rendered by the virtual bench
 //! at known poses (a 4 × 4 supersampled card, blurred, with sensor noise, through the
-//! simulated camera's 8-bit JPEG with EXIF), then found again by `brdfd::pose::calibrate`.
+//! simulated camera's 8-bit JPEG with EXIF), then found again by `brdfd_pose::calibrate`.
 
 mod common;
 
-use brdfd::bench::board_photo::{self, Spoil};
-use brdfd::bench::camera::BenchCamera;
-use brdfd::bench::{studio_envmap, VirtualBench};
-use brdfd::pose::board::Board;
-use brdfd::pose::{angle_between_deg, calibrate, find, pinhole, Calibrated, Focal};
-use brdfd::rig::pose::Photo;
+use brdfd_bench::board_photo::{self, Spoil};
+use brdfd_bench::camera::BenchCamera;
+use brdfd_bench::{studio_envmap, VirtualBench};
 use brdfd_core::geometry::{Camera, Pose, Shape};
 use brdfd_core::raster::Raster;
+use brdfd_pose::board::Board;
+use brdfd_pose::{angle_between_deg, calibrate, find, pinhole, Calibrated, Focal};
+use brdfd_rig::pose::Photo;
 use brdfd_sim::{ImageSource, Shot};
 
 const WIDTH: usize = 1600;
@@ -42,7 +42,7 @@ fn jpeg(radiance: Raster, camera: &Camera) -> Vec<u8> {
     let bright = lum[lum.len() * 99 / 100] as f64;
     let f_number = 8.0;
     let shot = Shot {
-        shutter_s: 0.85 * f_number * f_number / (bright * brdfd::bench::camera::SENSOR_GAIN),
+        shutter_s: 0.85 * f_number * f_number / (bright * brdfd_bench::camera::SENSOR_GAIN),
         f_number,
         iso: 100,
         raw: false,
@@ -84,7 +84,7 @@ fn placed_roughly(truth: &Camera, focal: f64) -> Camera {
 fn solve_photo(rig: &Camera, p: &Photo, focal: Focal) -> anyhow::Result<Calibrated> {
     let board = Board::default();
     let found = find(&board, &p.grey, &p.name, 0.0)?;
-    let lens = brdfd::rig::pose::lens_focal(p.exif, found.size.0, None);
+    let lens = brdfd_rig::pose::lens_focal(p.exif, found.size.0, None);
     Ok(calibrate(rig, vec![found], [0.0; 3], lens, focal)?)
 }
 
@@ -285,7 +285,7 @@ fn a_pose_found_from_the_board_estimates_the_material_as_the_true_pose_does() {
         .unwrap_or_else(|| panic!("no reprojection error in\n{said}"));
     assert!(rms <= 0.5, "{said}");
     assert!(dir.join("rig.toml.bak").exists());
-    let found = brdfd::config::Rig::read(&dir.join("rig.toml")).unwrap();
+    let found = brdfd_rig::config::Rig::read(&dir.join("rig.toml")).unwrap();
     let truth = found.simulation.clone().unwrap().camera.unwrap();
     let (kf, ef) = pinhole(&found.geometry.camera).unwrap();
     let (kt, et) = pinhole(&truth).unwrap();
@@ -507,7 +507,7 @@ fn the_webcam_and_the_turntable_find_the_focal_length_without_exif() {
     );
     assert!(said.contains("the rig's fx), refined"), "{said}");
     assert_eq!(said.matches("40 corners in view").count(), 3, "{said}");
-    let found = brdfd::config::Rig::read(&dir.join("rig.toml")).unwrap();
+    let found = brdfd_rig::config::Rig::read(&dir.join("rig.toml")).unwrap();
     let (kf, ef) = pinhole(&found.geometry.camera).unwrap();
     let (kt, et) = pinhole(&found.simulation.clone().unwrap().camera.unwrap()).unwrap();
     let (focal, rotation, moved_mm) = (
@@ -598,12 +598,12 @@ fn an_object_step_that_fails_keeps_the_board_s_pose() {
             && said.contains("the DSLR stopped answering at the empty bench's photos"),
         "{said}"
     );
-    let written = brdfd::config::Rig::read(&dir.join("rig.toml")).unwrap();
+    let written = brdfd_rig::config::Rig::read(&dir.join("rig.toml")).unwrap();
     let (k, _) = pinhole(&written.geometry.camera).unwrap();
     assert!((k.fx / 2400.0 - 1.0).abs() < 0.005, "fx {}", k.fx);
     assert_eq!(
         written.geometry.shape,
-        brdfd::config::Rig::parse("typed", &rig)
+        brdfd_rig::config::Rig::parse("typed", &rig)
             .unwrap()
             .geometry
             .shape

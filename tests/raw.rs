@@ -3,12 +3,12 @@
 
 mod common;
 
-use brdfd::bench::camera::{BenchCamera, SENSOR_GAIN};
-use brdfd::bench::raw_file::{self, RawFormat, ShotInfo, D5100};
-use brdfd::bench::VirtualBench;
-use brdfd::radiometry::raw::{decode_raw, WhiteBalance};
-use brdfd::radiometry::{decode_jpeg, merge_hdr, Frame};
+use brdfd_bench::camera::{BenchCamera, SENSOR_GAIN};
+use brdfd_bench::raw_file::{self, RawFormat, ShotInfo, D5100};
+use brdfd_bench::VirtualBench;
 use brdfd_core::raster::Raster;
+use brdfd_radiometry::raw::{decode_raw, WhiteBalance};
+use brdfd_radiometry::{decode_jpeg, merge_hdr, Frame};
 use brdfd_sim::{ImageSource, Shot};
 use common::shared_data;
 
@@ -400,8 +400,8 @@ fn a_camera_that_reuses_file_names_loses_no_file() {
 /// clear error instead of taking the caller with it.
 #[test]
 fn the_decoder_process_answers_exactly_and_is_stopped_past_its_budget() {
-    use brdfd::radiometry::isolated::{decode, Budget};
-    use brdfd::radiometry::raw::decode_raw_here;
+    use brdfd_radiometry::isolated::{decode, Budget};
+    use brdfd_radiometry::raw::decode_raw_here;
     use std::time::Duration;
 
     let program = std::path::Path::new(env!("CARGO_BIN_EXE_brdfd"));

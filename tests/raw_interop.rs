@@ -9,8 +9,8 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use brdfd::radiometry::raw::{decode_raw, WhiteBalance};
 use brdfd_core::raster::Raster;
+use brdfd_radiometry::raw::{decode_raw, WhiteBalance};
 use common::{brdfd, text, tools_present, Simulator};
 
 /// Shoots one RAW + JPEG frame at 1/60 s on a simulated D5100 writing `raw`, and returns

@@ -3,9 +3,9 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use brdfd::rig::worker::{Link, Worker};
-use brdfd::rig::{open, Device};
-use brdfd::selector::Selector;
+use brdfd_rig::selector::Selector;
+use brdfd_rig::worker::{Link, Worker};
+use brdfd_rig::{open, Device};
 use brdfd_sim::theta::{OscServer, ThetaConfig};
 use brdfd_sim::SizedPayload;
 use brdfd_theta::Theta;

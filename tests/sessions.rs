@@ -219,7 +219,7 @@ fn a_unique_prefix_names_a_session() {
     let ids: Vec<String> = ["gold", "gold", "chrome"]
         .iter()
         .map(|m| {
-            brdfd::session::Session::create(&state, m, "simulated", None, serde_json::json!({}))
+            brdfd_rig::session::Session::create(&state, m, "simulated", None, serde_json::json!({}))
                 .unwrap()
                 .manifest()
                 .id
@@ -353,7 +353,7 @@ fn a_full_disk_fails_the_session_clearly_and_it_resumes_once_there_is_room() {
 /// interrupted, and says how to resume it; a session being captured right now is left alone.
 #[test]
 fn cancel_records_a_session_left_capturing_as_interrupted() {
-    use brdfd::session::{Session, State};
+    use brdfd_rig::session::{Session, State};
     let dir = tempfile::tempdir().unwrap();
     let state = dir.path().join("state");
     let mut s = Session::create(&state, "gold", "", None, serde_json::json!({})).unwrap();

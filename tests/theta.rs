@@ -10,9 +10,9 @@ mod common;
 use common::{brdfd, shared_data, text, Simulator};
 use std::time::Duration;
 
-use brdfd::bench::panorama::{BenchPanorama, THETA_SENSOR_GAIN};
-use brdfd::panorama::{load_jpeg, merge_bracket, read_gpano, MergedPanorama};
+use brdfd_bench::panorama::{BenchPanorama, THETA_SENSOR_GAIN};
 use brdfd_core::envmap::EnvMap;
+use brdfd_radiometry::panorama::{load_jpeg, merge_bracket, read_gpano, MergedPanorama};
 use brdfd_sim::theta::{OscServer, ThetaConfig};
 use brdfd_theta::{BracketPlan, Exposure, HttpTimeouts, Theta};
 
@@ -106,8 +106,8 @@ fn resolved_threshold() -> f32 {
 /// merge itself loses.
 #[test]
 fn hdr_merge_of_lossless_8_bit_frames_recovers_grace() {
-    use brdfd::radiometry::{merge_hdr, Exposure as FrameExposure, Frame};
     use brdfd_core::raster::{linear_to_srgb, srgb_to_linear, Raster};
+    use brdfd_radiometry::{merge_hdr, Exposure as FrameExposure, Frame};
     let Some(data) = shared_data() else { return };
     let (truth, plan) = grace_nd_and_plan(&data);
     let frames: Vec<Frame> = plan
@@ -210,7 +210,7 @@ fn theta_s_photo_loads_as_an_environment_map() {
     assert_eq!(g.projection, "equirectangular");
     assert_eq!((g.full_width, g.full_height), (5376, 2688));
     assert_eq!((g.pitch_deg, g.roll_deg), (Some(-7.8), Some(-2.0)));
-    let e = brdfd::radiometry::exif_exposure(&bytes, "R0010001.JPG").unwrap();
+    let e = brdfd_radiometry::exif_exposure(&bytes, "R0010001.JPG").unwrap();
     assert!((e.shutter_s - 1.0 / 350.0).abs() < 1e-9, "{e:?}");
     assert_eq!((e.f_number, e.iso), (2.0, 125.0));
 
@@ -378,7 +378,7 @@ fn the_theta_z1_and_x_are_prepared_and_shot_as_their_options_allow() {
     use brdfd_sim::theta::ThetaModel;
     use brdfd_theta::OscClient;
     use serde_json::json;
-    let map = brdfd::bench::studio_envmap(256);
+    let map = brdfd_bench::studio_envmap(256);
     let timeouts = HttpTimeouts {
         poll: Duration::from_millis(5),
         ..HttpTimeouts::default()
@@ -457,7 +457,7 @@ fn the_theta_z1_and_x_are_prepared_and_shot_as_their_options_allow() {
             "{model:?}: {fastest}"
         );
         // The frames carry the body's aperture in their EXIF.
-        let exif = brdfd::radiometry::exif_exposure(&frames[0].data, &frames[0].name).unwrap();
+        let exif = brdfd_radiometry::exif_exposure(&frames[0].data, &frames[0].name).unwrap();
         assert!(
             (exif.f_number - model.aperture()).abs() < 0.05,
             "{model:?}: f/{}",
@@ -473,7 +473,7 @@ fn the_theta_z1_and_x_are_prepared_and_shot_as_their_options_allow() {
 fn the_simulated_z1_and_x_answer_info_as_the_recorded_bodies() {
     use brdfd_sim::theta::ThetaModel;
     let Some(data) = shared_data() else { return };
-    let map = brdfd::bench::studio_envmap(64);
+    let map = brdfd_bench::studio_envmap(64);
     for (model, file) in [
         (ThetaModel::Z1, "info_z1.json"),
         (ThetaModel::X, "info_x.json"),

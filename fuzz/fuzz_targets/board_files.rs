@@ -9,12 +9,12 @@ mod allocation_limit;
 #[path = "input_file.rs"]
 mod input_file;
 
-use brdfd::pose::board::Board;
+use brdfd_pose::board::Board;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
     let path = input_file::write("toml", data);
-    let Ok(board) = brdfd::config::read_board(&path) else {
+    let Ok(board) = brdfd_rig::config::read_board(&path) else {
         return;
     };
     let (w, h) = board.size_mm();
@@ -34,7 +34,7 @@ fuzz_target!(|data: &[u8]| {
     // so that the detection costs little.
     let _ = board.detect(&image::GrayImage::from_pixel(48, 32, image::Luma([128])));
     let written = board.to_toml();
-    let back: Board = brdfd::config::parse("board.toml", &written)
+    let back: Board = brdfd_rig::config::parse("board.toml", &written)
         .unwrap_or_else(|e| panic!("the board file written does not read back: {e}\n{written}"));
     assert_eq!(back, board, "the board file written reads back otherwise");
 });

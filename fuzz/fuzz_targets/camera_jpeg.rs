@@ -6,6 +6,6 @@ mod allocation_limit;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let _ = brdfd::radiometry::decode_jpeg(data, "fuzz.jpg");
-    let _ = brdfd::panorama::decode_frame(data, "fuzz.jpg");
+    let _ = brdfd_radiometry::decode_jpeg(data, "fuzz.jpg");
+    let _ = brdfd_radiometry::panorama::decode_frame(data, "fuzz.jpg");
 });

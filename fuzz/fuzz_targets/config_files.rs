@@ -2,7 +2,7 @@
 #![no_main]
 #[path = "allocation_limit.rs"]
 mod allocation_limit;
-use brdfd::config::{DaemonConfig, MaterialPreset, Rig};
+use brdfd_rig::config::{DaemonConfig, MaterialPreset, Rig};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

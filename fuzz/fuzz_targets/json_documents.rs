@@ -6,11 +6,11 @@ mod allocation_limit;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    if let Ok(plan) = serde_json::from_slice::<brdfd::rig::Plan>(data) {
+    if let Ok(plan) = serde_json::from_slice::<brdfd_rig::Plan>(data) {
         let _ = plan.validate();
     }
-    let _ = serde_json::from_slice::<brdfd::session::Manifest>(data);
-    if let Ok(result) = serde_json::from_slice::<brdfd::results::StoredResult>(data) {
+    let _ = serde_json::from_slice::<brdfd_rig::session::Manifest>(data);
+    if let Ok(result) = serde_json::from_slice::<brdfd_report::results::StoredResult>(data) {
         let _ = result.coefficient_values();
     }
     let _ = serde_json::from_slice::<brdfd_theta::osc::Info>(data);

@@ -9,5 +9,5 @@ mod allocation_limit;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let _ = brdfd::radiometry::tiff::check(data);
+    let _ = brdfd_radiometry::tiff::check(data);
 });

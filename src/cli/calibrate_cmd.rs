@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
-use brdfd::config::Rig;
-use brdfd::rig::calibrate::{self, Radiometry, Target};
-use brdfd::rig::flow::{Context, Keep};
-use brdfd::rig::{Devices, Progress, KEEP_ALIVE};
+use brdfd_rig::calibrate::{self, Radiometry, Target};
+use brdfd_rig::config::Rig;
+use brdfd_rig::flow::{Context, Keep};
+use brdfd_rig::{Devices, Progress, KEEP_ALIVE};
 use toml_edit::{value, Array, Item, Table};
 
 use super::progress::{Bars, Terminal};
@@ -154,7 +154,7 @@ pub(super) fn calibration_dir(
     let out = match out {
         Some(o) => o.to_path_buf(),
         None => {
-            let state = brdfd::session::state_dir(state_dir, None)?;
+            let state = brdfd_rig::session::state_dir(state_dir, None)?;
             let stamp = humantime::format_rfc3339_seconds(std::time::SystemTime::now())
                 .to_string()
                 .replace(':', "");
@@ -272,7 +272,7 @@ fn write_gains(mut file: RigFile, r: &Radiometry, note: &str) -> anyhow::Result<
     let measured: Vec<&str> = r.cameras.iter().map(|m| table_key(m.field)).collect();
     if !r.theta_given {
         // A new unit: a camera's gain measured against another is of no use now.
-        for (field, _) in brdfd::config::GAIN_FIELDS.iter().map(|f| (*f, ())) {
+        for (field, _) in brdfd_rig::config::GAIN_FIELDS.iter().map(|f| (*f, ())) {
             let key = table_key(field);
             if key != "theta" && !measured.contains(&key) {
                 calibration.remove(key);

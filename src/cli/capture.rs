@@ -10,12 +10,12 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
-use brdfd::config::{DaemonConfig, Rig};
-use brdfd::rig::flow::{self, Context};
-use brdfd::rig::settings::CaptureSettings;
-use brdfd::rig::{Cancel, Devices, Event, Plan, Progress, KEEP_ALIVE};
-use brdfd::session::{safe_file_name, PhaseTime, Session, State};
 use brdfd_api::answers::{Health, SessionDetail};
+use brdfd_rig::config::{DaemonConfig, Rig};
+use brdfd_rig::flow::{self, Context};
+use brdfd_rig::session::{safe_file_name, PhaseTime, Session, State};
+use brdfd_rig::settings::CaptureSettings;
+use brdfd_rig::{Cancel, Devices, Event, Plan, Progress, KEEP_ALIVE};
 
 use super::client::{Busy, Daemon};
 use super::estimate_cmd::{ColourArg, ModelArg, SolveArg};
@@ -48,7 +48,7 @@ pub struct CaptureArgs {
     pub in_span: bool,
     /// Pixels to estimate from (a number or `all`); the material preset's, else 20.
     #[arg(long)]
-    pub pixels: Option<brdfd::rig::PixelCount>,
+    pub pixels: Option<brdfd_rig::PixelCount>,
     /// The BRDF model; the material preset's, else `hybrid` (see `brdfd estimate --help`).
     #[arg(long, value_enum)]
     pub model: Option<ModelArg>,
@@ -147,7 +147,7 @@ fn daemon_plan(
                 bail!(
                 "{flag} {}: the daemon takes scene files by name from the `{}` folder of its state directory; copy the file there and give its name, or capture with --in-process",
                 p.display(),
-                brdfd::daemon::SCENES_DIR
+                brdfd_daemon::SCENES_DIR
             )
             }
             other => Ok(other),
@@ -223,7 +223,7 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
     let (Some((rig, rig_text)), Some(settings)) = (rig, settings) else {
         bail!("no rig: give --rig FILE for a hardware rig (config/rigs/bench.toml is a template), or --simulate for the simulated one");
     };
-    let state = brdfd::session::state_dir(a.state_dir.as_deref(), config.state_dir.as_deref())?;
+    let state = brdfd_rig::session::state_dir(a.state_dir.as_deref(), config.state_dir.as_deref())?;
     let mut session = settings.new_session(&state, &rig_text)?;
     println!(
         "session {} in {}",
@@ -420,7 +420,7 @@ pub fn resume(state: &Path, id: &str, daemon: &DaemonArgs) -> anyhow::Result<()>
         return follow(&d, &id, None, false);
     }
     let mut session = Session::open(state, id)?;
-    let plan = brdfd::daemon::resumable(&mut session)?;
+    let plan = brdfd_daemon::resumable(&mut session)?;
     let mut rig = Rig::parse(
         &format!("the rig stored in session {id}"),
         &session.manifest().rig,
@@ -440,10 +440,15 @@ pub fn resume(state: &Path, id: &str, daemon: &DaemonArgs) -> anyhow::Result<()>
 
 /// `--verbose`: the coefficients from the session's `result/coefficients.json`, and the phases.
 fn print_details(session_dir: &Path, phases: &[PhaseTime]) -> anyhow::Result<()> {
-    let r = brdfd::results::StoredResult::read(&session_dir.join("result/coefficients.json"))?;
+    let r =
+        brdfd_report::results::StoredResult::read(&session_dir.join("result/coefficients.json"))?;
     println!(
         "{}",
-        brdfd::results::coefficient_lines("coefficients", &r.columns, &r.coefficient_values())
+        brdfd_report::results::coefficient_lines(
+            "coefficients",
+            &r.columns,
+            &r.coefficient_values()
+        )
     );
     print_phases(phases);
     Ok(())

@@ -5,10 +5,10 @@ use std::io::{BufRead, BufReader};
 use std::time::Duration;
 
 use anyhow::{bail, Context};
-use brdfd::rig::Progress;
 use brdfd_api::answers::{ContinueRequest, Empty, ErrorBody, ErrorCode, Started};
 use brdfd_api::event::Event;
 use brdfd_api::plan::Plan;
+use brdfd_rig::Progress;
 use reqwest::blocking::{Client, RequestBuilder, Response};
 
 pub struct Daemon {

@@ -9,9 +9,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::bail;
-use brdfd::config::{ConfigError, DaemonConfig, MaterialPreset, Rig};
-use brdfd::rig::calibrate::Target;
 use brdfd_core::geometry::SceneGeometry;
+use brdfd_rig::calibrate::Target;
+use brdfd_rig::config::{ConfigError, DaemonConfig, MaterialPreset, Rig};
 
 #[derive(clap::Subcommand)]
 pub enum ConfigCommand {
@@ -95,7 +95,7 @@ impl Kind {
                 // Accepted only if the capture can run it too: its devices in their roles,
                 // and every camera's gain.
                 let mut found = r.problems();
-                let (roles, more) = brdfd::rig::plan::problems(&r);
+                let (roles, more) = brdfd_rig::plan::problems(&r);
                 found.extend(more);
                 if found.is_empty() {
                     Ok(describe_rig(&r, &roles))
@@ -106,11 +106,15 @@ impl Kind {
             Kind::Material => MaterialPreset::parse_all(file, text)
                 .map(|m| format!("material preset, simulated as {}", m.simulate_as)),
             Kind::Geometry => {
-                brdfd::config::parse::<SceneGeometry>(file, text)
+                brdfd_rig::config::parse::<SceneGeometry>(file, text)
                     .and_then(|mut g| {
                         // The checks a rig's [geometry] gets (issue 40: `fx = nan` passed here).
                         g.check().map_err(|e| {
-                            brdfd::config::invalid(file, brdfd::config::geometry_field("", &e), e)
+                            brdfd_rig::config::invalid(
+                                file,
+                                brdfd_rig::config::geometry_field("", &e),
+                                e,
+                            )
                         })?;
                         // A mesh is read and checked as the capture reads it, beside the file.
                         let dir = Path::new(file).parent().unwrap_or(Path::new("."));
@@ -121,7 +125,7 @@ impl Kind {
                             .map(|s| s.mesh())
                             .transpose()
                             .map_err(|e| {
-                                brdfd::config::invalid(file, "shape.file", e.to_string())
+                                brdfd_rig::config::invalid(file, "shape.file", e.to_string())
                             })?;
                         Ok(match mesh.flatten() {
                             Some(m) => {
@@ -132,7 +136,7 @@ impl Kind {
                     })
                     .map_err(one)
             }
-            Kind::Target => brdfd::config::parse::<Target>(file, text)
+            Kind::Target => brdfd_rig::config::parse::<Target>(file, text)
                 .and_then(|t| {
                     t.check(file)?;
                     Ok(format!("calibration target, albedo {:?}", t.albedo.0))
@@ -146,8 +150,8 @@ impl Kind {
 }
 
 /// A valid rig in a line: what plays each role.
-fn describe_rig(r: &Rig, roles: &brdfd::rig::plan::Roles) -> String {
-    let named = |s: &Option<brdfd::selector::Selector>, simulated: bool| match s {
+fn describe_rig(r: &Rig, roles: &brdfd_rig::plan::Roles) -> String {
+    let named = |s: &Option<brdfd_rig::selector::Selector>, simulated: bool| match s {
         Some(s) => s.to_string(),
         None if simulated => "simulated".into(),
         None => "-".into(),

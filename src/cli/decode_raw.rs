@@ -1,10 +1,10 @@
 //! `brdfd decode-raw`: the child process a capture decodes each RAW file in
-//! (`brdfd::radiometry::isolated` says why). Not a command for people: hidden from `--help`.
+//! (`brdfd_radiometry::isolated` says why). Not a command for people: hidden from `--help`.
 
 use std::io::Read;
 
-use brdfd::radiometry::isolated::{write_frame, UNDECODABLE};
-use brdfd::radiometry::raw::{decode_raw_here, WhiteBalance};
+use brdfd_radiometry::isolated::{write_frame, UNDECODABLE};
+use brdfd_radiometry::raw::{decode_raw_here, WhiteBalance};
 
 #[derive(clap::Args)]
 pub struct DecodeRawArgs {

@@ -3,8 +3,6 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
-use brdfd::html::{Context as ReportContext, Visibility};
-use brdfd::results::write_results;
 use brdfd_core::analytic::{Microfacet, MAX_LOBES};
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::Bivariate;
@@ -20,6 +18,8 @@ use brdfd_core::raster::Raster;
 use brdfd_core::render::{render_bivariate, render_full, render_merl};
 use brdfd_core::select::SwapParams;
 use brdfd_core::solve::{ColourChoice, Solver};
+use brdfd_report::html::{Context as ReportContext, Visibility};
+use brdfd_report::results::write_results;
 
 use super::GeometryArgs;
 
@@ -50,7 +50,7 @@ pub struct EstimateArgs {
     pub lobes: u64,
     /// Basis model: pixels to use, a number or `all` [default: 20].
     #[arg(long)]
-    pub pixels: Option<brdfd::rig::PixelCount>,
+    pub pixels: Option<brdfd_rig::PixelCount>,
     /// Basis model: how pixels are selected [default: fast].
     #[arg(long, value_enum)]
     pub method: Option<MethodArg>,
@@ -186,8 +186,8 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
     let basis = load_basis(&a.basis)?;
     let (photo, file_white) =
         Raster::read_with_white(&a.photo).with_context(|| "reading the photo")?;
-    let env =
-        brdfd::panorama::load_envmap(&a.env).with_context(|| "reading the environment map")?;
+    let env = brdfd_radiometry::panorama::load_envmap(&a.env)
+        .with_context(|| "reading the environment map")?;
     let (lights, chosen_lights) =
         env.estimate_lights(a.lights, a.chosen_lights, a.yaw.to_radians());
     let scene = a.geometry.scene()?;
@@ -220,7 +220,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         lobes: a.lobes as usize,
         pixel_count: a
             .pixels
-            .map_or(Some(brdfd::rig::settings::DEFAULT_PIXELS), |p| p.limit()),
+            .map_or(Some(brdfd_rig::settings::DEFAULT_PIXELS), |p| p.limit()),
         method,
         swap: SwapParams {
             seed: a.seed,
@@ -278,7 +278,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         est.solution.relative_residual,
         total.elapsed().as_secs_f64()
     );
-    let extras = brdfd::summary::Extras {
+    let extras = brdfd_report::summary::Extras {
         relight: None,
         views: 1,
         bracketed: false,
@@ -286,7 +286,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         flags: &files.flags,
         report: Some(&files.report),
     };
-    let lines = brdfd::summary::lines("the estimate", &est, &extras);
+    let lines = brdfd_report::summary::lines("the estimate", &est, &extras);
     if lines[0].contains("do not trust") {
         eprintln!("warning: {}", lines[0]);
         println!("{}", lines[1..].join("\n"));
@@ -311,7 +311,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
 pub fn print_estimate(names: &[String], coefficients: &[f64]) {
     println!(
         "{}",
-        brdfd::results::coefficient_lines("coefficients", names, coefficients)
+        brdfd_report::results::coefficient_lines("coefficients", names, coefficients)
     );
 }
 
@@ -360,8 +360,8 @@ pub struct RenderArgs {
 
 pub fn render(a: RenderArgs) -> anyhow::Result<()> {
     let env = match &a.env {
-        Some(p) => brdfd::panorama::load_envmap(p)?,
-        None => brdfd::bench::studio_envmap(512),
+        Some(p) => brdfd_radiometry::panorama::load_envmap(p)?,
+        None => brdfd_bench::studio_envmap(512),
     };
     let lights = env.compressed(a.lights, a.yaw.to_radians());
     let scene = a.geometry.scene_or_sphere()?;
@@ -376,18 +376,22 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
     let img = if let Some(name) = &a.material {
         let set = match &a.nbrdf {
             Some(p) => NbrdfSet::read(p)?,
-            None => brdfd::bench::embedded_materials(),
+            None => brdfd_bench::embedded_materials(),
         };
-        let table = MerlBrdf::tabulate(set.get(brdfd::bench::resolve_material(name))?);
+        let table = MerlBrdf::tabulate(set.get(brdfd_bench::resolve_material(name))?);
         render_merl(&geometry, &lights, &table)
     } else if let Some(p) = &a.merl {
         render_merl(&geometry, &lights, &MerlBrdf::read(p)?)
     } else if let Some(p) = &a.gltf {
-        let material = brdfd::export::GltfMaterial::read(p)?;
-        render_full(&geometry, &lights, &brdfd::export::GltfBrdf(material))
+        let material = brdfd_report::export::GltfMaterial::read(p)?;
+        render_full(
+            &geometry,
+            &lights,
+            &brdfd_report::export::GltfBrdf(material),
+        )
     } else if let Some(p) = &a.coefficients {
         let basis = load_basis(&a.basis)?;
-        let r = brdfd::results::StoredResult::read(p)?;
+        let r = brdfd_report::results::StoredResult::read(p)?;
         if r.model == "analytic" || r.model == "hybrid" {
             let m: Microfacet = r
                 .analytic_model()

@@ -178,7 +178,7 @@ pub fn image_size(s: &str) -> Result<usize, String> {
 pub fn write_new(dir: &std::path::Path, name: &str, bytes: &[u8]) -> anyhow::Result<PathBuf> {
     use std::io::Write;
     // The name may come from a device: it must not lead out of `dir`.
-    let name = &brdfd::session::safe_file_name(name);
+    let name = &brdfd_rig::session::safe_file_name(name);
     for i in 0.. {
         let path = if i == 0 {
             dir.join(name)

@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use brdfd::bench::{embedded_materials, studio_envmap};
+use brdfd_bench::{embedded_materials, studio_envmap};
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::envmap::{write_exr, DEFAULT_LIGHTS};
@@ -195,8 +195,8 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
 /// spacing also reads the map itself in a cap about its peak ([`brdfd_core::sharp`]), at a
 /// cost that grows with how much of the lobe is inside it; a broad lobe does not.
 fn preview_bench(runs: usize) -> anyhow::Result<()> {
-    use brdfd::results::{PREVIEW_LIGHTS, PREVIEW_SIZE};
     use brdfd_core::render::SpherePicture;
+    use brdfd_report::results::{PREVIEW_LIGHTS, PREVIEW_SIZE};
     println!(
         "
 the preview ({PREVIEW_SIZE}² sphere, {PREVIEW_LIGHTS} lights, and its white sphere):"
@@ -335,7 +335,7 @@ fn capture_bench(runs: usize, size: usize) -> anyhow::Result<()> {
             .status()?;
         let wall = t.elapsed().as_secs_f64();
         anyhow::ensure!(status.success(), "brdfd capture failed: {status}");
-        let manifest = brdfd::session::Session::list(state.path())?
+        let manifest = brdfd_rig::session::Session::list(state.path())?
             .pop()
             .ok_or_else(|| anyhow::anyhow!("the capture left no session"))?;
         let mut device = 0.0;
@@ -373,11 +373,11 @@ fn capture_bench(runs: usize, size: usize) -> anyhow::Result<()> {
 /// (uncompressed 14-bit, 4992 × 3280 with a 4928 × 3264 crop) of a smooth scene with
 /// highlights, one per exposure of the rig's default bracket.
 fn raw_bench(runs: usize) -> anyhow::Result<()> {
-    use brdfd::bench::camera::SENSOR_GAIN;
-    use brdfd::bench::raw_file::{nef, ShotInfo, D5100};
-    use brdfd::radiometry::raw::{decode_raw, WhiteBalance};
-    use brdfd::radiometry::{merge_hdr, Frame};
+    use brdfd_bench::camera::SENSOR_GAIN;
+    use brdfd_bench::raw_file::{nef, ShotInfo, D5100};
     use brdfd_core::raster::Raster;
+    use brdfd_radiometry::raw::{decode_raw, WhiteBalance};
+    use brdfd_radiometry::{merge_hdr, Frame};
 
     let (w, h) = (4928, 3264);
     let mut scene = Raster::black(w, h);

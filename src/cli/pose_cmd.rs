@@ -5,14 +5,14 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
-use brdfd::config::Rig;
-use brdfd::pose::board::Board;
-use brdfd::pose::silhouette::Refined;
-use brdfd::pose::{angle_between_deg, pinhole, Calibrated, Focal};
-use brdfd::rig::flow::Context;
-use brdfd::rig::pose::{self, OnBench, Photo};
-use brdfd::rig::{Devices, Progress, KEEP_ALIVE};
 use brdfd_core::geometry::{Camera, Shape};
+use brdfd_pose::board::Board;
+use brdfd_pose::silhouette::Refined;
+use brdfd_pose::{angle_between_deg, pinhole, Calibrated, Focal};
+use brdfd_rig::config::Rig;
+use brdfd_rig::flow::Context;
+use brdfd_rig::pose::{self, OnBench, Photo};
+use brdfd_rig::{Devices, Progress, KEEP_ALIVE};
 use toml_edit::{value, Array, Item};
 
 use super::calibrate_cmd::{calibration_dir, Folder};
@@ -74,7 +74,7 @@ pub fn target(a: TargetArgs) -> anyhow::Result<()> {
         ("board.png", &png[..]),
         ("board.toml", board.to_toml().as_bytes()),
     ] {
-        brdfd::session::write_atomic(&a.out.join(name), bytes)?;
+        brdfd_rig::session::write_atomic(&a.out.join(name), bytes)?;
     }
     let (w, h) = board.size_mm();
     println!(
@@ -163,7 +163,7 @@ pub struct PoseArgs {
 pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
     let rig = Rig::read(&a.rig)?;
     let board = match &a.board {
-        Some(p) => brdfd::config::read_board(p)?,
+        Some(p) => brdfd_rig::config::read_board(p)?,
         None => Board::default(),
     };
     if pinhole(&rig.geometry.camera).is_none() {
@@ -218,7 +218,7 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
     };
     let mut warn = |w: String| eprintln!("  warning: {w}");
     let (found, object, out) = if a.photo.is_empty() {
-        let roles = brdfd::rig::plan::devices(&rig)?;
+        let roles = brdfd_rig::plan::devices(&rig)?;
         let n = a.views.unwrap_or(if roles.turntable { 3 } else { 1 }) as usize;
         if !(a.turn.is_finite() && a.turn.abs() > 0.0 && a.turn.abs() < 80.0) {
             bail!(
@@ -361,7 +361,7 @@ fn note(found: &Calibrated) -> String {
 
 fn write_json(out: &Path, v: &serde_json::Value) -> anyhow::Result<()> {
     let text = serde_json::to_string_pretty(v)?;
-    brdfd::session::write_atomic(&out.join("pose.json"), text.as_bytes())?;
+    brdfd_rig::session::write_atomic(&out.join("pose.json"), text.as_bytes())?;
     Ok(())
 }
 

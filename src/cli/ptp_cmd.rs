@@ -3,8 +3,8 @@
 
 use std::path::PathBuf;
 
-use brdfd::selector::Selector;
 use brdfd_ptp::{Camera, CaptureOptions, Exposure, ImageFormat, Target};
+use brdfd_rig::selector::Selector;
 
 #[derive(clap::Subcommand)]
 pub enum PtpCommand {
@@ -55,7 +55,7 @@ pub struct CaptureArgs {
 
 /// Opens the camera a port selector names (`usb`, `usb:VVVV[:PPPP]`, `ptpip:HOST[:PORT]`).
 pub fn open(port: &str) -> anyhow::Result<Camera> {
-    brdfd::rig::open::ptp_camera(&port.parse::<Selector>()?)
+    brdfd_rig::open::ptp_camera(&port.parse::<Selector>()?)
 }
 
 pub fn run(cmd: PtpCommand) -> anyhow::Result<()> {

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context as _;
-use brdfd::config::Rig;
+use brdfd_rig::config::Rig;
 use toml_edit::DocumentMut;
 
 pub struct RigFile {
@@ -41,8 +41,8 @@ impl RigFile {
             .context("no name for the backup")?;
         std::fs::copy(&self.path, &backup)
             .with_context(|| format!("keeping {}", backup.display()))?;
-        brdfd::session::write_atomic(&self.path, written.as_bytes())?;
-        if let Err(e) = brdfd::rig::plan::check(&rig) {
+        brdfd_rig::session::write_atomic(&self.path, written.as_bytes())?;
+        if let Err(e) = brdfd_rig::plan::check(&rig) {
             eprintln!("  warning: the rig is not ready to capture yet: {e}");
         }
         Ok(backup)

@@ -2,7 +2,7 @@
 //! wiring at the bench.
 
 use anyhow::bail;
-use brdfd::selector::Selector;
+use brdfd_rig::selector::Selector;
 use brdfd_serial::{ControlLine, GrblTurntable, RigController, ShutterCable};
 
 #[derive(clap::Subcommand)]
@@ -45,7 +45,7 @@ pub struct SerialPort {
 
 fn rig(port: &str) -> anyhow::Result<RigController> {
     match port.parse::<Selector>()? {
-        Selector::Serial(path) => brdfd::rig::open::turntable(&path),
+        Selector::Serial(path) => brdfd_rig::open::turntable(&path),
         Selector::Grbl { .. } => {
             bail!("a GRBL controller turns the table only: it has no shutter output brdfd fires")
         }

@@ -7,8 +7,8 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::Context;
-use brdfd::config::Rig;
-use brdfd::daemon::{api, Daemon};
+use brdfd_daemon::{api, Daemon};
+use brdfd_rig::config::Rig;
 
 #[derive(clap::Args)]
 pub struct ServeArgs {
@@ -31,7 +31,7 @@ pub struct ServeArgs {
     #[arg(long)]
     pub state_dir: Option<PathBuf>,
     /// Seconds between keep-alive requests to idle devices.
-    #[arg(long, default_value_t = brdfd::rig::KEEP_ALIVE.as_secs_f64())]
+    #[arg(long, default_value_t = brdfd_rig::KEEP_ALIVE.as_secs_f64())]
     pub keep_alive: f64,
     /// Open API connections at most; a new one beyond closes the oldest idle one. Default:
     /// the open-file limit less 256 for the daemon's own files, at most 4,096.
@@ -50,13 +50,13 @@ pub struct ServeArgs {
 impl ServeArgs {
     /// The config's log filter; an unreadable config is reported by `run`, so "info" here.
     pub fn log_filter(&self) -> String {
-        brdfd::config::DaemonConfig::load(self.config.as_deref())
+        brdfd_rig::config::DaemonConfig::load(self.config.as_deref())
             .map_or_else(|_| "info".into(), |(c, _)| c.log)
     }
 }
 
 pub fn run(a: ServeArgs) -> anyhow::Result<()> {
-    let (mut config, config_source) = brdfd::config::DaemonConfig::load(a.config.as_deref())?;
+    let (mut config, config_source) = brdfd_rig::config::DaemonConfig::load(a.config.as_deref())?;
     let source = match &a.api {
         Some(api) => {
             config.api = api.clone();
@@ -75,7 +75,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
     let keep_alive = seconds(a.keep_alive, "--keep-alive")?;
     let header_timeout = seconds(a.header_timeout, "--header-timeout")?;
     let write_timeout = seconds(a.write_timeout, "--write-timeout")?;
-    let mut limits = brdfd::daemon::server::Limits {
+    let mut limits = brdfd_daemon::server::Limits {
         header_timeout,
         write_timeout,
         ..Default::default()
@@ -91,10 +91,10 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         ),
     };
     // The daemon keeps the devices open whatever the calibration; captures wait for it.
-    if let Err(e) = brdfd::rig::plan::check(&rig) {
+    if let Err(e) = brdfd_rig::plan::check(&rig) {
         eprintln!("warning: captures will be refused until the rig can be run: {e} (the daemon reads its rig when it starts: stop it to calibrate, since it holds the devices, then start it again)");
     }
-    let state = brdfd::session::state_dir(a.state_dir.as_deref(), config.state_dir.as_deref())?;
+    let state = brdfd_rig::session::state_dir(a.state_dir.as_deref(), config.state_dir.as_deref())?;
     // Absolute, so that the paths the API gives out mean the same to every client.
     let state = std::path::absolute(&state).unwrap_or(state);
     let runtime = tokio::runtime::Builder::new_multi_thread()
@@ -119,7 +119,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         })?;
         daemon.hosts = config.hosts.clone();
         daemon.max_event_streams =
-            (limits.max_connections / 2).clamp(1, brdfd::daemon::MAX_EVENT_STREAMS);
+            (limits.max_connections / 2).clamp(1, brdfd_daemon::MAX_EVENT_STREAMS);
         let daemon = Arc::new(daemon);
         // Scripts and tests wait for this line.
         println!(
@@ -132,7 +132,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         let app = api::router(daemon.clone());
         let d = daemon.clone();
         tracing::debug!(?limits, "serving");
-        brdfd::daemon::server::serve(listener, app, limits, async move {
+        brdfd_daemon::server::serve(listener, app, limits, async move {
             shutdown_signal().await;
             tracing::info!("shutting down");
             println!("shutting down");

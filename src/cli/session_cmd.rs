@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use brdfd::session::{Manifest, Session, State};
+use brdfd_rig::session::{Manifest, Session, State};
 
 #[derive(clap::Args)]
 pub struct SessionArgs {
@@ -75,8 +75,8 @@ pub fn run(a: SessionArgs) -> anyhow::Result<()> {
         | SessionCommand::Follow { daemon, .. } => daemon.config.as_deref(),
         _ => None,
     };
-    let (config, _) = brdfd::config::DaemonConfig::load(given)?;
-    let state = brdfd::session::state_dir(a.state_dir.as_deref(), config.state_dir.as_deref())?;
+    let (config, _) = brdfd_rig::config::DaemonConfig::load(given)?;
+    let state = brdfd_rig::session::state_dir(a.state_dir.as_deref(), config.state_dir.as_deref())?;
     let id = |id: &str| resolve_id(&state, id);
     match a.command {
         SessionCommand::List { json } => list(&state, json)?,
@@ -130,8 +130,8 @@ fn resolve_id(state: &Path, id: &str) -> anyhow::Result<String> {
             .with_context(|| format!("no sessions in {}, so none is the latest", state.display()));
     }
     // Session::open says what is wrong with a name that is not one.
-    if brdfd::config::validate_name("session id", id).is_err()
-        || brdfd::session::session_dir(state, id)
+    if brdfd_rig::config::validate_name("session id", id).is_err()
+        || brdfd_rig::session::session_dir(state, id)
             .join("manifest.json")
             .is_file()
     {
@@ -180,12 +180,13 @@ struct Outcome {
     model: String,
     fit: f64,
     /// The assumptions of the model the photo says are broken.
-    flags: Vec<brdfd::results::StoredFlag>,
+    flags: Vec<brdfd_report::results::StoredFlag>,
 }
 
 /// The result a session wrote, if it got that far.
 fn result_of(dir: &Path) -> Option<Outcome> {
-    let r = brdfd::results::StoredResult::read(&dir.join("result/coefficients.json")).ok()?;
+    let r =
+        brdfd_report::results::StoredResult::read(&dir.join("result/coefficients.json")).ok()?;
     Some(Outcome {
         fit: r.fit_error?,
         model: r.model,
@@ -198,7 +199,7 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
     let rows: Vec<(Manifest, Option<Outcome>)> = all
         .into_iter()
         .map(|m| {
-            let r = result_of(&brdfd::session::session_dir(state, &m.id));
+            let r = result_of(&brdfd_rig::session::session_dir(state, &m.id));
             (m, r)
         })
         .collect();

@@ -7,11 +7,11 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{anyhow, Context};
-use brdfd::bench::cache::RenderCache;
-use brdfd::bench::camera::BenchCamera;
-use brdfd::bench::panorama::BenchPanorama;
-use brdfd::bench::raw_file::RawFormat;
-use brdfd::bench::VirtualBench;
+use brdfd_bench::cache::RenderCache;
+use brdfd_bench::camera::BenchCamera;
+use brdfd_bench::panorama::BenchPanorama;
+use brdfd_bench::raw_file::RawFormat;
+use brdfd_bench::VirtualBench;
 use brdfd_sim::ptp::{ptpip::Server, Profile, Responder};
 use brdfd_sim::theta::{OscServer, ThetaConfig, ThetaModel};
 use brdfd_sim::{ImageSource, SizedPayload};
@@ -118,10 +118,9 @@ fn parse_theta_model(name: &str) -> Result<ThetaModel, String> {
 
 fn bench_env(env: &Option<PathBuf>) -> anyhow::Result<brdfd_core::envmap::EnvMap> {
     Ok(match env {
-        Some(p) => {
-            brdfd::panorama::load_envmap(p).with_context(|| format!("reading {}", p.display()))?
-        }
-        None => brdfd::bench::studio_envmap(1024),
+        Some(p) => brdfd_radiometry::panorama::load_envmap(p)
+            .with_context(|| format!("reading {}", p.display()))?,
+        None => brdfd_bench::studio_envmap(1024),
     })
 }
 

@@ -5,10 +5,10 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
-use brdfd::panorama::merge_bracket;
-use brdfd::rig::Event;
-use brdfd::selector::Selector;
 use brdfd_core::envmap::EnvMap;
+use brdfd_radiometry::panorama::merge_bracket;
+use brdfd_rig::selector::Selector;
+use brdfd_rig::Event;
 use brdfd_theta::{BracketPlan, Credentials, Exposure, Frame, HttpTimeouts, Theta};
 
 #[derive(clap::Subcommand)]
@@ -149,7 +149,7 @@ pub fn open(p: &ThetaPort, timeouts: HttpTimeouts) -> anyhow::Result<Theta> {
         .password
         .credentials(p.user.as_deref())?
         .map(|(user, password)| Credentials { user, password });
-    brdfd::rig::open::theta(&p.port.parse::<Selector>()?, credentials, timeouts)
+    brdfd_rig::open::theta(&p.port.parse::<Selector>()?, credentials, timeouts)
 }
 
 /// Prepares the camera and shoots the plan: the frames as the camera sent them, each
@@ -160,9 +160,9 @@ pub fn shoot_panorama(theta: &mut Theta, plan: &BracketPlan) -> anyhow::Result<V
         Event::Warning { text } => eprintln!("  warning: {text}"),
         _ => {}
     };
-    let frames = brdfd::rig::light::shoot_panorama(theta, plan, &lines)?;
+    let frames = brdfd_rig::light::shoot_panorama(theta, plan, &lines)?;
     for f in &frames {
-        brdfd::rig::light::check_exposure(&lines, f);
+        brdfd_rig::light::check_exposure(&lines, f);
     }
     Ok(frames)
 }

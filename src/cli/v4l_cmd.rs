@@ -5,11 +5,11 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
-use brdfd::bench::cache::RenderCache;
-use brdfd::bench::camera::BenchCamera;
-use brdfd::bench::VirtualBench;
-use brdfd::radiometry::{average_frames, Exposure};
-use brdfd::selector::Selector;
+use brdfd_bench::cache::RenderCache;
+use brdfd_bench::camera::BenchCamera;
+use brdfd_bench::VirtualBench;
+use brdfd_radiometry::{average_frames, Exposure};
+use brdfd_rig::selector::Selector;
 use brdfd_v4l::{FrameSource, Settings};
 
 #[derive(clap::Subcommand)]

@@ -1,5 +1,6 @@
-//! `brdfd serve`: the long-running daemon. It owns the rig's devices (one worker thread
-//! each, kept alive and re-opened; see [`crate::rig::worker`]), runs one capture at a time
+//! brdfd-daemon, `brdfd serve`: the long-running daemon. It sits above the rig
+//! (`brdfd-rig`) and below the binary (docs/architecture.md). It owns the rig's devices (one worker thread
+//! each, kept alive and re-opened; see [`brdfd_rig::worker`]), runs one capture at a time
 //! on them, and serves the HTTP API of [`api`] on tokio, and a web page ([`web`]).
 //!
 //! A capture runs on a thread of its own, because the flow and the devices block; the async
@@ -19,11 +20,11 @@ use std::thread::JoinHandle;
 use anyhow::Context as _;
 use tokio::sync::broadcast;
 
-use crate::config::Rig;
-use crate::rig::flow::{self, Context};
-use crate::rig::settings::CaptureSettings;
-use crate::rig::{Cancel, Devices, Event, GoAhead, Plan};
-use crate::session::{Session, State};
+use brdfd_rig::config::Rig;
+use brdfd_rig::flow::{self, Context};
+use brdfd_rig::session::{Session, State};
+use brdfd_rig::settings::CaptureSettings;
+use brdfd_rig::{Cancel, Devices, Event, GoAhead, Plan};
 
 /// Events of one session: everything so far, and a channel for what comes next. A client
 /// that connects late gets the history first, so no event is missed. An event's id is
@@ -385,7 +386,7 @@ impl Daemon {
         self.hidden.strip(text)
     }
 
-    pub fn devices(&self) -> Vec<crate::rig::DeviceStatus> {
+    pub fn devices(&self) -> Vec<brdfd_rig::DeviceStatus> {
         self.devices.status()
     }
 
@@ -407,14 +408,14 @@ impl Daemon {
     }
 
     /// The manifest as the API shows it: with a failure it could not record yet.
-    pub fn shown(&self, mut m: crate::session::Manifest) -> crate::session::Manifest {
+    pub fn shown(&self, mut m: brdfd_rig::session::Manifest) -> brdfd_rig::session::Manifest {
         // The reasons recorded are the flow's words, which may name a file by its full path.
         for t in &mut m.history {
             t.reason = t.reason.take().map(|r| self.relative(&r));
         }
         if let Some(u) = self.unrecorded.lock().expect("unrecorded").get(&m.id) {
             m.state = State::Failed;
-            m.history.push(crate::session::Transition {
+            m.history.push(brdfd_rig::session::Transition {
                 state: State::Failed,
                 at: m.history.last().map(|t| t.at.clone()).unwrap_or_default(),
                 reason: Some(format!("{} ({}; retried every second)", u.reason, u)),
@@ -514,7 +515,7 @@ impl Daemon {
         }
         let cancel = Cancel::default();
         let go_ahead = GoAhead::default();
-        let operator: Arc<dyn crate::rig::Operator> = Arc::new(go_ahead.clone());
+        let operator: Arc<dyn brdfd_rig::Operator> = Arc::new(go_ahead.clone());
         let reply = session.clone();
         let thread_log = log.clone();
         let (devices, rig, c) = (self.devices.clone(), self.rig.clone(), cancel.clone());

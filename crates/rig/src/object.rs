@@ -18,12 +18,12 @@ use super::roles::{ObjectCamera, Output, Role};
 use super::settings::Bracket;
 use super::Event;
 use crate::config::{Calibration, CameraGain};
-use crate::radiometry::averaged::averaged_exr;
-pub use crate::radiometry::averaged::FallbackBracket;
-use crate::radiometry::raw::{decode_raw, is_raw_name, WhiteBalance};
-use crate::radiometry::{decode_jpeg, merge_hdr, merged_white_level, with_gain, Frame};
 use crate::session::Session;
 use brdfd_core::raster::Raster;
+use brdfd_radiometry::averaged::averaged_exr;
+pub use brdfd_radiometry::averaged::FallbackBracket;
+use brdfd_radiometry::raw::{decode_raw, is_raw_name, WhiteBalance};
+use brdfd_radiometry::{decode_jpeg, merge_hdr, merged_white_level, with_gain, Frame};
 
 /// How long the rig's shutter holds the DSLR's release. The camera exposes for the time it
 /// was set to (never bulb), so the press only has to be one the camera sees: remote sockets

@@ -19,7 +19,7 @@ use brdfd_core::estimate::{EstimateOptions, Shared};
 use brdfd_core::geometry::SceneGeometry;
 use brdfd_core::CoreError;
 
-use crate::export::Prepared;
+use brdfd_report::export::Prepared;
 
 /// The work under way, on a thread of its own. Dropped unfinished (the capture failed or
 /// was cancelled), it waits for the thread: nothing of a capture outlives it, and the

@@ -3,8 +3,8 @@
 
 use brdfd_theta::{BracketPlan, Frame, Theta};
 
-use crate::rig::roles::{LightProbe, RigDevice};
-use crate::rig::Device;
+use crate::roles::{LightProbe, RigDevice};
+use crate::Device;
 
 impl Device for Theta {
     fn identity(&self) -> String {

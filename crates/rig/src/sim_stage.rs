@@ -21,8 +21,8 @@ use super::settings::CaptureSettings;
 use super::stage::{Judgement, Stage};
 use super::turning::turned;
 use super::Plan;
-use crate::bench::{RelightTruth, VirtualBench, HELD_OUT_YAW_DEG};
 use crate::config::MaterialPreset;
+use brdfd_bench::{RelightTruth, VirtualBench, HELD_OUT_YAW_DEG};
 
 /// The virtual bench, once the sample is placed, and the truth the estimate is relit against,
 /// rendered in the background once the first view is in front of the camera.
@@ -151,7 +151,7 @@ impl SimulatedStage {
             Colour::PerChannel => basis.project_channels(reduced),
         };
         phases.end_as_device(p);
-        cx.say(crate::results::coefficient_lines(
+        cx.say(brdfd_report::results::coefficient_lines(
             "ground truth projected on the basis",
             &est.names,
             &truth,
@@ -214,7 +214,7 @@ fn simulated_bench(
             return Err(e);
         };
         let set = NbrdfSet::read(path)?;
-        let name = crate::bench::resolve_material(simulate_as);
+        let name = brdfd_bench::resolve_material(simulate_as);
         let mut b = VirtualBench::embedded("gold", plan.size)?;
         b.material = Arc::new(MerlBrdf::tabulate(set.get(name)?));
         b.material_name = name.to_string();
@@ -227,9 +227,9 @@ fn simulated_bench(
     }
     bench.geometry = scene.clone();
     bench.yaw = yaw;
-    bench.cache = crate::bench::cache::RenderCache::user();
+    bench.cache = brdfd_bench::cache::RenderCache::user();
     if let Some(p) = &plan.env {
-        bench.env = crate::panorama::load_envmap(p)?;
+        bench.env = brdfd_radiometry::panorama::load_envmap(p)?;
     }
     Ok(bench)
 }

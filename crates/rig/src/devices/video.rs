@@ -2,8 +2,8 @@
 //! answers: it streams, so each exposure is a run of frames at a manual exposure time, gain
 //! and white balance, which the flow averages in linear light.
 
-use crate::rig::roles::{Bytes, CameraSettings, Exposed, ObjectCamera, Output, RigDevice};
-use crate::rig::Device;
+use crate::roles::{Bytes, CameraSettings, Exposed, ObjectCamera, Output, RigDevice};
+use crate::Device;
 
 /// A video camera on its worker, with the settings its bracket holds.
 pub struct VideoCamera {

@@ -472,10 +472,10 @@ pub struct Simulation {
     pub turntable: SimulatedTurntable,
     /// The RAW files the simulated DSLR writes: `nef` (the default; 14-bit, a D5100's),
     /// `dng` (14-bit) or `dng12` (12-bit).
-    pub dslr_raw: Option<crate::bench::raw_file::RawFormat>,
+    pub dslr_raw: Option<brdfd_bench::raw_file::RawFormat>,
     /// Damage the simulated DSLR does to every RAW file: `oversized` (the raw image declares
     /// 131,072 × 131,072 pixels) or `ifd_loop` (IFD0 links back to itself). None by default.
-    pub dslr_raw_damage: Option<crate::bench::raw_file::RawDamage>,
+    pub dslr_raw_damage: Option<brdfd_bench::raw_file::RawDamage>,
     /// The simulated DSLR names every file as its first (`DSC_0001.NEF`, `DSC_0001.JPG`), as
     /// a camera can after a card change or when it shoots to its memory.
     pub dslr_reuses_file_names: bool,
@@ -637,7 +637,7 @@ fn check_true_shape(
 }
 
 /// The fallback bracket's values. Whether the rig needs them is the capture's question
-/// ([`crate::rig::plan`]).
+/// ([`crate::plan`]).
 fn check_fallback_bracket(file: &str, b: &Brackets) -> Result<(), ConfigError> {
     check_exposures(file, "brackets.fallback_shutters", &b.fallback_shutters)?;
     if !(1..=MAX_FALLBACK_FRAMES).contains(&b.fallback_frames) {
@@ -696,7 +696,7 @@ impl SimulatedObject {
     /// Its camera and shape: those of `config/rigs/simulated-grooved-block.toml`, the mesh
     /// compiled in.
     pub fn scene(self) -> SceneGeometry {
-        let text = include_str!("../config/rigs/simulated-grooved-block.toml");
+        let text = include_str!("../../../config/rigs/simulated-grooved-block.toml");
         let mut rig = Rig::parse("config/rigs/simulated-grooved-block.toml", text)
             .expect("the shipped rigs are checked by tests");
         if let Some(brdfd_core::geometry::Shape::Mesh { file, .. }) = &mut rig.geometry.shape {
@@ -772,9 +772,9 @@ pub fn parse<T: serde::de::DeserializeOwned>(file: &str, text: &str) -> Result<T
 
 /// A board file (`brdfd calibrate target` writes one), read and checked: the line of a
 /// mistake in its TOML, or what about the board cannot be drawn.
-pub fn read_board(path: &Path) -> anyhow::Result<crate::pose::board::Board> {
+pub fn read_board(path: &Path) -> anyhow::Result<brdfd_pose::board::Board> {
     let (file, text) = read(path)?;
-    let board: crate::pose::board::Board = parse(&file, &text)?;
+    let board: brdfd_pose::board::Board = parse(&file, &text)?;
     board.check().map_err(|e| anyhow::anyhow!("{file}: {e}"))?;
     Ok(board)
 }
@@ -887,14 +887,17 @@ impl DaemonConfig {
 
     /// The shipped defaults.
     pub fn embedded() -> DaemonConfig {
-        DaemonConfig::parse("config/brdfd.toml", include_str!("../config/brdfd.toml"))
-            .expect("the shipped brdfd.toml is checked by tests")
+        DaemonConfig::parse(
+            "config/brdfd.toml",
+            include_str!("../../../config/brdfd.toml"),
+        )
+        .expect("the shipped brdfd.toml is checked by tests")
     }
 }
 
 impl Rig {
     /// Reads a rig file and checks its values. Whether the capture can run the rig (its
-    /// devices in their roles, its calibration) is [`crate::rig::plan::check`]'s question:
+    /// devices in their roles, its calibration) is [`crate::plan::check`]'s question:
     /// `brdfd calibrate radiometry` reads a rig that is not calibrated yet.
     pub fn parse(file: &str, text: &str) -> Result<Rig, ConfigError> {
         let r = Rig::parse_unchecked(file, text)?;
@@ -1014,13 +1017,13 @@ impl Rig {
             }
         }
         if let Some(t) = &r.turntable {
-            if !(1..=crate::rig::MAX_VIEWS).contains(&t.views) || !t.step_deg.is_finite() {
+            if !(1..=crate::MAX_VIEWS).contains(&t.views) || !t.step_deg.is_finite() {
                 check(Err(invalid(
                     file,
                     "turntable",
                     format!(
                         "views must be 1 to {} and step_deg a number",
-                        crate::rig::MAX_VIEWS
+                        crate::MAX_VIEWS
                     ),
                 )));
             }
@@ -1073,8 +1076,11 @@ impl Rig {
 
     /// The shipped simulated rig, which `capture --simulate` uses.
     pub fn simulated() -> Rig {
-        let mut rig = Rig::parse(SIMULATED_RIG, include_str!("../config/rigs/simulated.toml"))
-            .expect("the shipped simulated rig is checked by tests");
+        let mut rig = Rig::parse(
+            SIMULATED_RIG,
+            include_str!("../../../config/rigs/simulated.toml"),
+        )
+        .expect("the shipped simulated rig is checked by tests");
         rig.shipped = true;
         rig
     }
@@ -1085,14 +1091,23 @@ const SIMULATED_RIG: &str = "config/rigs/simulated.toml";
 
 /// The material presets shipped in `config/materials/`, by name.
 const PRESETS: [(&str, &str); 5] = [
-    ("gold", include_str!("../config/materials/gold.toml")),
+    ("gold", include_str!("../../../config/materials/gold.toml")),
     (
         "gold-part",
-        include_str!("../config/materials/gold-part.toml"),
+        include_str!("../../../config/materials/gold-part.toml"),
     ),
-    ("chrome", include_str!("../config/materials/chrome.toml")),
-    ("paint", include_str!("../config/materials/paint.toml")),
-    ("fabric", include_str!("../config/materials/fabric.toml")),
+    (
+        "chrome",
+        include_str!("../../../config/materials/chrome.toml"),
+    ),
+    (
+        "paint",
+        include_str!("../../../config/materials/paint.toml"),
+    ),
+    (
+        "fabric",
+        include_str!("../../../config/materials/fabric.toml"),
+    ),
 ];
 
 /// The names of the shipped presets.
@@ -1213,13 +1228,14 @@ mod tests {
         .unwrap();
         // On loopback a short token is the user's choice.
         DaemonConfig::parse("b.toml", "token = \"secret\"\n").unwrap();
-        let rig = include_str!("../config/rigs/bench.toml").replace("usb:04b0:0429", "usb:nikon");
+        let rig =
+            include_str!("../../../config/rigs/bench.toml").replace("usb:04b0:0429", "usb:nikon");
         let e = Rig::parse("r.toml", &rig).unwrap_err().to_string();
         assert!(
             e.contains("r.toml") && e.contains("line") && e.contains("not a hex USB id"),
             "{e}"
         );
-        let rig = include_str!("../config/rigs/bench.toml").replace("0.004,", "-1.0,");
+        let rig = include_str!("../../../config/rigs/bench.toml").replace("0.004,", "-1.0,");
         let e = Rig::parse("r.toml", &rig).unwrap_err().to_string();
         assert!(e.contains("field `brackets.dslr_shutters[1]`"), "{e}");
         let e = MaterialPreset::parse("m.toml", "simulate_as = \"nickel\"\npixels = 4\n")

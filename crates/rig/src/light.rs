@@ -1,6 +1,6 @@
 //! The light probe's part of a capture: its bracket shot on its worker and kept as the camera
 //! sent it, each frame's EXIF checked against what was asked. The merge into an environment
-//! map is [`crate::panorama`]'s; the step that strings them together is the flow's.
+//! map is [`brdfd_radiometry::panorama`]'s; the step that strings them together is the flow's.
 
 use anyhow::Context as _;
 use brdfd_theta::{BracketPlan, Frame};
@@ -72,7 +72,7 @@ const EXPOSURE_MISMATCH: f64 = 0.05;
 /// camera overrode the setting (auto exposure left on, a model limit), which the operator
 /// should know.
 pub fn check_exposure(progress: &dyn Progress, f: &Frame) {
-    match crate::radiometry::exif_exposure(&f.data, &f.name) {
+    match brdfd_radiometry::exif_exposure(&f.data, &f.name) {
         Ok(e) => {
             let shutter_off = (e.shutter_s / f.asked.shutter_s - 1.0).abs();
             let iso_off = (e.iso / f.asked.iso as f64 - 1.0).abs();

@@ -5,8 +5,8 @@
 use brdfd_ptp::{codes::rc, Camera, CaptureOptions, Captured, Exposure, ImageFormat, PtpError};
 
 use crate::config::DslrFiles;
-use crate::rig::roles::{Bytes, CameraSettings, Exposed, Fire, ObjectCamera, Output, RigDevice};
-use crate::rig::Device;
+use crate::roles::{Bytes, CameraSettings, Exposed, Fire, ObjectCamera, Output, RigDevice};
+use crate::Device;
 
 impl Device for Camera {
     fn identity(&self) -> String {

@@ -159,7 +159,7 @@ mod tests {
     use super::*;
 
     fn planned(devices: &str) -> Vec<Vec<&'static str>> {
-        let bench = include_str!("../../../config/rigs/bench.toml");
+        let bench = include_str!("../../../../config/rigs/bench.toml");
         let start = bench.find("[devices]").unwrap();
         let end = bench.find("# The object camera and the object").unwrap();
         let text = format!("{}[devices]\n{devices}\n{}", &bench[..start], &bench[end..]);

@@ -1,7 +1,14 @@
-//! The capture rig: its devices, each on a worker thread, and the capture flow that turns a
-//! material on the bench into a session on disk. The CLI runs the flow in-process; the daemon
-//! (`brdfd serve`) runs the same flow on devices it keeps open between captures.
+//! brdfd's capture rig: its devices, each on a worker thread, and the capture flow that turns
+//! a material on the bench into a session on disk, with the files that describe a rig and the
+//! sessions it writes. The CLI runs the flow in-process; the daemon (`brdfd-daemon`, `brdfd
+//! serve`) runs the same flow on devices it keeps open between captures. It sits above the
+//! core, the radiometry, pose, report and bench crates and the drivers, and below the daemon
+//! and the binary (docs/architecture.md).
 //!
+//! - [`config`]: the daemon, rig and material files, validated.
+//! - [`session`]: sessions on disk (manifest state machine, raw files with sha256, atomic
+//!   writes).
+//! - [`selector`]: the strings that name devices (`usb:04b0:0429`, `osc:http://...`, ...).
 //! - [`roles`]: what the capture asks of its devices: an object camera, a light probe, a
 //!   turntable, a shutter, each a trait with optional abilities.
 //! - [`plan`]: whether the capture can run a rig file (`config check` asks the same).
@@ -22,6 +29,7 @@
 //!   the DSLR or the V4L2 fallback and merged; [`turning`]: the object turned between views.
 
 pub mod calibrate;
+pub mod config;
 pub mod devices;
 pub mod failure;
 pub mod flow;
@@ -32,6 +40,8 @@ pub mod plan;
 pub mod pose;
 mod prepare;
 pub mod roles;
+pub mod selector;
+pub mod session;
 pub mod settings;
 mod sim_stage;
 pub mod simulated;
@@ -57,8 +67,8 @@ pub fn check_simulated_material(plan: &Plan) -> anyhow::Result<()> {
     let name = preset
         .as_ref()
         .map_or(plan.material.as_str(), |p| p.simulate_as.as_str());
-    let merl = crate::bench::resolve_material(name);
-    if crate::bench::embedded_materials().get(merl).is_ok() {
+    let merl = brdfd_bench::resolve_material(name);
+    if brdfd_bench::embedded_materials().get(merl).is_ok() {
         return Ok(());
     }
     if let Some(path) = &plan.nbrdf {
@@ -66,20 +76,20 @@ pub fn check_simulated_material(plan: &Plan) -> anyhow::Result<()> {
         set.get(merl)?;
         return Ok(());
     }
-    let embedded = crate::bench::embedded_materials();
+    let embedded = brdfd_bench::embedded_materials();
     anyhow::bail!(
         "the simulator has no material {:?}. Use a preset ({}), a short name ({}), a test \
          material ({}), or give --nbrdf FILE holding it",
         plan.material,
         crate::config::preset_names().join(", "),
-        crate::bench::aliases().join(", "),
+        brdfd_bench::aliases().join(", "),
         embedded.names().join(", ")
     )
 }
 
 /// The summary of a stored result (`result/coefficients.json`), if it can be read.
 pub fn stored_summary(coefficients_json: &std::path::Path) -> Option<Summary> {
-    let r = crate::results::StoredResult::read(coefficients_json).ok()?;
+    let r = brdfd_report::results::StoredResult::read(coefficients_json).ok()?;
     let exports = r.exports.unwrap_or_default();
     Some(Summary {
         fit_verdict: brdfd_core::estimate::fit_verdict(r.fit_error.unwrap_or(f64::NAN)),

@@ -7,8 +7,8 @@ use std::time::Duration;
 
 use brdfd_gphoto::{Exposure, GphotoCamera};
 
-use crate::rig::roles::{Bytes, CameraSettings, Exposed, Fire, ObjectCamera, Output, RigDevice};
-use crate::rig::Device;
+use crate::roles::{Bytes, CameraSettings, Exposed, Fire, ObjectCamera, Output, RigDevice};
+use crate::Device;
 
 /// How long after an exposure fired from outside its files may take to be announced.
 const FIRED_FILES_WAIT: Duration = Duration::from_secs(10);

@@ -42,8 +42,8 @@ use super::openapi::{
     Guards, Health, Materials, RigSummary, SessionDetail, SessionItem, Started, StreamEvent,
 };
 use super::{web, Daemon, StartError};
-use crate::rig::{Event, Plan};
-use crate::session::{Session, State as SessionState};
+use brdfd_rig::session::{Session, State as SessionState};
+use brdfd_rig::{Event, Plan};
 
 pub type Shared = Arc<Daemon>;
 
@@ -375,8 +375,8 @@ async fn health(State(d): State<Shared>) -> Json<Health> {
 }
 
 /// The rig's devices and their state.
-#[utoipa::path(get, path = "/devices", responses((status = 200, description = "each device of the rig", body = Vec<crate::rig::DeviceStatus>)))]
-async fn devices(State(d): State<Shared>) -> Json<Vec<crate::rig::DeviceStatus>> {
+#[utoipa::path(get, path = "/devices", responses((status = 200, description = "each device of the rig", body = Vec<brdfd_rig::DeviceStatus>)))]
+async fn devices(State(d): State<Shared>) -> Json<Vec<brdfd_rig::DeviceStatus>> {
     Json(d.devices())
 }
 
@@ -384,7 +384,7 @@ async fn devices(State(d): State<Shared>) -> Json<Vec<crate::rig::DeviceStatus>>
 #[utoipa::path(get, path = "/materials", responses((status = 200, description = "the presets", body = Materials)))]
 async fn materials() -> Json<Materials> {
     Json(Materials {
-        presets: crate::config::preset_names()
+        presets: brdfd_rig::config::preset_names()
             .into_iter()
             .map(str::to_string)
             .collect(),
@@ -464,7 +464,7 @@ const PLAN_READ_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10
 #[utoipa::path(
     post,
     path = "/sessions",
-    request_body = crate::rig::Plan,
+    request_body = brdfd_rig::Plan,
     responses(
         (status = 202, description = "started; follow `events`", body = Started, headers(
             ("Location" = String, description = "the session's address: `/api/v1/sessions/{id}`"),
@@ -1088,20 +1088,20 @@ async fn events(
             let last = s.manifest().history.last();
             let reason = last.and_then(|t| t.reason.clone());
             let reason = reason.map(|r| d.relative(&r));
-            let failed = s.manifest().state == crate::session::State::Failed;
+            let failed = s.manifest().state == brdfd_rig::session::State::Failed;
             // Sessions that failed before codes were recorded: a cancel is told by its words.
             let code = last.and_then(|t| t.code).filter(|_| failed).or_else(|| {
-                (failed && reason.as_deref() == Some(crate::rig::flow::CANCELLED))
-                    .then_some(crate::rig::failure::FailureCode::Cancelled)
+                (failed && reason.as_deref() == Some(brdfd_rig::flow::CANCELLED))
+                    .then_some(brdfd_rig::failure::FailureCode::Cancelled)
             });
             log.push(Event::Finished {
                 session: id.clone(),
                 state: s.manifest().state,
-                result: (s.manifest().state == crate::session::State::Done)
-                    .then(|| crate::rig::stored_summary(&s.dir.join("result/coefficients.json")))
+                result: (s.manifest().state == brdfd_rig::session::State::Done)
+                    .then(|| brdfd_rig::stored_summary(&s.dir.join("result/coefficients.json")))
                     .flatten()
                     .map(Box::new),
-                cancelled: code == Some(crate::rig::failure::FailureCode::Cancelled),
+                cancelled: code == Some(brdfd_rig::failure::FailureCode::Cancelled),
                 code,
                 error: reason,
             });

@@ -7,8 +7,8 @@ use std::time::Duration;
 
 use brdfd_serial::{GrblTurntable, RigController, ShutterCable};
 
-use crate::rig::roles::{RigDevice, Shutter, Turntable};
-use crate::rig::Device;
+use crate::roles::{RigDevice, Shutter, Turntable};
+use crate::Device;
 
 impl Device for RigController {
     fn identity(&self) -> String {

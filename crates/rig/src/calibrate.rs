@@ -23,14 +23,14 @@ use super::light::light_bracket;
 use super::object::{self, dslr_frames, DslrFrames, FallbackBracket};
 use super::plan;
 use super::settings::{light_plan, Bracket};
-use crate::bench::VirtualBench;
 use crate::config::{invalid, ConfigError, Gain};
-use crate::panorama::merge_bracket;
-use crate::radiometry::{merge_hdr, merged_white_level, Frame};
+use brdfd_bench::VirtualBench;
 use brdfd_core::envmap::{LightSet, DEFAULT_LIGHTS};
 use brdfd_core::geometry::{PixelGeometry, SceneGeometry, Shape};
 use brdfd_core::merl::MerlBrdf;
 use brdfd_core::raster::Raster;
+use brdfd_radiometry::panorama::merge_bracket;
+use brdfd_radiometry::{merge_hdr, merged_white_level, Frame};
 
 /// The albedo of a photographer's grey card (18% reflectance), the target assumed when
 /// none is given.
@@ -273,7 +273,7 @@ fn dslr_gains(
     let (raw, jpeg): (RawFiles, RawFiles) = files
         .iter()
         .cloned()
-        .partition(|(name, _)| crate::radiometry::raw::is_raw_name(name));
+        .partition(|(name, _)| brdfd_radiometry::raw::is_raw_name(name));
     let mut out = Vec::new();
     if !raw.is_empty() {
         if let DslrFrames::Raw(frames) = dslr_frames(cx, &raw)? {
@@ -413,10 +413,10 @@ fn grey_bench(scene: &SceneGeometry, yaw: f64, albedo: [f64; 3]) -> VirtualBench
     VirtualBench {
         material_name: format!("a Lambertian target of albedo {albedo:?}"),
         material: Arc::new(MerlBrdf::from_cells(|_, _, _| albedo.map(|a| a / PI))),
-        env: crate::bench::studio_envmap(512),
+        env: brdfd_bench::studio_envmap(512),
         yaw,
         geometry: scene.clone(),
-        cache: crate::bench::cache::RenderCache::user(),
+        cache: brdfd_bench::cache::RenderCache::user(),
         stop: Default::default(),
     }
 }

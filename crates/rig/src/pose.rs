@@ -15,15 +15,15 @@ use super::object::{self, FallbackBracket};
 use super::plan;
 use super::settings::Bracket;
 use super::turning::turn_to;
-use crate::bench::board_photo::{self, Spoil};
-use crate::bench::object_photo;
 use crate::config::DslrFiles;
-use crate::pose::board::Board;
-use crate::pose::silhouette::{refine, Mask, Refined, View};
-use crate::pose::{calibrate, check_photo_size, find, Calibrated, Focal, Found, LensFocal};
-use crate::radiometry::ExifFocal;
+use brdfd_bench::board_photo::{self, Spoil};
+use brdfd_bench::object_photo;
 use brdfd_core::geometry::{Camera, Shape};
 use brdfd_core::raster::linear_to_srgb;
+use brdfd_pose::board::Board;
+use brdfd_pose::silhouette::{refine, Mask, Refined, View};
+use brdfd_pose::{calibrate, check_photo_size, find, Calibrated, Focal, Found, LensFocal};
+use brdfd_radiometry::ExifFocal;
 
 /// A photo of the bench to solve from: 8-bit grey, with the lens's EXIF where it has one.
 pub struct Photo {
@@ -41,7 +41,7 @@ impl Photo {
         Ok(Photo {
             name: name.to_string(),
             grey: image.to_luma8(),
-            exif: crate::radiometry::exif_focal(bytes),
+            exif: brdfd_radiometry::exif_focal(bytes),
         })
     }
 }
@@ -240,7 +240,7 @@ fn shoot_one(
 /// light.
 fn show_simulated(
     cx: &Context,
-    sim: &crate::rig::simulated::SimulatedRig,
+    sim: &crate::simulated::SimulatedRig,
     on_bench: OnBench,
     turn_deg: f64,
 ) -> anyhow::Result<()> {
@@ -250,7 +250,7 @@ fn show_simulated(
     let camera = rig
         .bench_camera(&rig.geometry.camera)
         .turned_about_y(-theta);
-    let env = crate::bench::studio_envmap(512);
+    let env = brdfd_bench::studio_envmap(512);
     let yaw = rig.theta_yaw_deg.to_radians() - theta;
     let radiance = match on_bench {
         OnBench::Board(board) => board_photo::render(board, &camera, &env, yaw, Spoil::default())?,
@@ -277,7 +277,7 @@ fn show_simulated(
 fn jpegs(cx: &Context, files: &RawFiles) -> anyhow::Result<Vec<Photo>> {
     let (raw, jpeg): (Vec<_>, Vec<_>) = files
         .iter()
-        .partition(|(name, _)| crate::radiometry::raw::is_raw_name(name));
+        .partition(|(name, _)| brdfd_radiometry::raw::is_raw_name(name));
     if jpeg.is_empty() && !raw.is_empty() {
         bail!(
             "the DSLR sent RAW files only ({}): set its image quality to JPEG or RAW + JPEG on the body",

@@ -116,7 +116,7 @@ pub async fn three(Path(file): Path<String>) -> Response {
 
 /// `/maps`: the reference maps' names, in order, as JSON.
 pub async fn map_names() -> Response {
-    let names = serde_json::to_string(&crate::export::maps::reference_map_names())
+    let names = serde_json::to_string(&brdfd_report::export::maps::reference_map_names())
         .expect("names serialise");
     with_policy("application/json", names, PAGE_POLICY)
 }
@@ -126,7 +126,7 @@ pub async fn map_names() -> Response {
 pub async fn map(Path(file): Path<String>) -> Response {
     let bytes = file
         .strip_suffix(".hdr")
-        .and_then(crate::export::maps::reference_map_file);
+        .and_then(brdfd_report::export::maps::reference_map_file);
     match bytes {
         Some(b) => with_policy("image/vnd.radiance", b, PAGE_POLICY),
         None => (StatusCode::NOT_FOUND, "no such map").into_response(),

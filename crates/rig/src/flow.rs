@@ -24,9 +24,6 @@ use super::stage::Stage;
 use super::turning::{turn, turned};
 use super::{Cancel, Devices, Event, Operator, Progress};
 use crate::config::Rig;
-use crate::export::Prepared;
-use crate::html::{Context as ReportContext, Visibility};
-use crate::panorama::merge_bracket;
 use crate::session::{PhaseTime, Session, State};
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::Bivariate;
@@ -34,6 +31,9 @@ use brdfd_core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd_core::estimate::{estimate_views_shared, fit_verdict, Estimate, EstimateOptions, View};
 use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::raster::Raster;
+use brdfd_radiometry::panorama::merge_bracket;
+use brdfd_report::export::Prepared;
+use brdfd_report::html::{Context as ReportContext, Visibility};
 
 /// The failure a cancelled capture records: its manifest's reason, which the API reads back.
 pub const CANCELLED: &str = "cancelled; what was captured is kept";
@@ -648,18 +648,18 @@ fn report_context<'a>(
 }
 
 /// The estimate in a few judged lines for the operator, the verdict first
-/// ([`crate::summary`]).
+/// ([`brdfd_report::summary`]).
 fn say_result(
     cx: &Context,
     session: &Session,
     est: &Estimate,
     views: usize,
     relight: Option<(f64, String)>,
-    exports: &crate::export::Export,
-    flags: &[crate::flags::Flag],
+    exports: &brdfd_report::export::Export,
+    flags: &[brdfd_report::flags::Flag],
 ) {
     let report = session.dir.join("result/report.html");
-    let extras = crate::summary::Extras {
+    let extras = brdfd_report::summary::Extras {
         relight,
         views,
         bracketed: true,
@@ -667,7 +667,7 @@ fn say_result(
         flags,
         report: Some(&report),
     };
-    let lines = crate::summary::lines(&session.manifest().material, est, &extras);
+    let lines = brdfd_report::summary::lines(&session.manifest().material, est, &extras);
     if lines[0].contains("do not trust") {
         cx.warn(lines[0].clone());
         cx.say(lines[1..].join("\n"));
@@ -683,10 +683,10 @@ fn write_result(
     est: &Estimate,
     lights: &brdfd_core::envmap::LightSet,
     report: &ReportContext,
-) -> anyhow::Result<(crate::export::Export, Vec<crate::flags::Flag>)> {
+) -> anyhow::Result<(brdfd_report::export::Export, Vec<brdfd_report::flags::Flag>)> {
     let fresh = session.dir.join("result.partial");
     let _ = std::fs::remove_dir_all(&fresh);
-    let files = crate::results::write_results(&fresh, basis, est, "fast", lights, report)?;
+    let files = brdfd_report::results::write_results(&fresh, basis, est, "fast", lights, report)?;
     let result = session.dir.join("result");
     let _ = std::fs::remove_dir_all(&result);
     std::fs::rename(&fresh, &result).context("moving the results into place")?;

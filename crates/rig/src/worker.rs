@@ -37,7 +37,8 @@ struct OpenFailure {
 type Deliver = Box<dyn FnOnce() + Send>;
 
 /// A device's state as the daemon reports it.
-#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, Serialize)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 pub struct DeviceStatus {
     /// The rig fields whose roles the device plays: "dslr", "fallback_camera", "theta",
     /// "turntable", "shutter", or "turntable, shutter" for a box that is both.
@@ -52,7 +53,8 @@ pub struct DeviceStatus {
     pub opened: u32,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum Link {
     /// Not yet opened.

@@ -303,7 +303,7 @@ mod tests {
     /// from another folder reads the same file; the rest of the text stays as it was.
     #[test]
     fn a_session_keeps_the_mesh_path_the_capture_found() {
-        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
         let file = root.join("config/rigs/simulated-grooved-block.toml");
         let text = std::fs::read_to_string(&file).unwrap();
         let rig = Rig::read(&file).unwrap();
@@ -349,7 +349,7 @@ mod tests {
             "rig.toml",
             &format!(
                 "{}\n[simulation]\nturntable = \"absent\"\n",
-                include_str!("../../config/rigs/simulated.toml")
+                include_str!("../../../config/rigs/simulated.toml")
             ),
         )
         .unwrap();
@@ -372,7 +372,7 @@ mod tests {
         // A rig whose webcam has no gain parses, and is refused here, naming the gain.
         let uncalibrated = Rig::parse(
             "rig.toml",
-            &include_str!("../../config/rigs/simulated.toml")
+            &include_str!("../../../config/rigs/simulated.toml")
                 .replace("[calibration.fallback]\ngain = 62.5\n", ""),
         )
         .unwrap();

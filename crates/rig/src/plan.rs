@@ -288,7 +288,7 @@ fn calibration(rig: &Rig, roles: &Roles, found: &mut Vec<ConfigError>) {
 mod tests {
     use super::*;
 
-    const BENCH: &str = include_str!("../../config/rigs/bench.toml");
+    const BENCH: &str = include_str!("../../../config/rigs/bench.toml");
     const GAINS: &str = "[calibration.theta]\ngain = 1.0\n[calibration.dslr_raw]\ngain = 10.0\n[calibration.dslr_jpeg]\ngain = 10.0\n[calibration.fallback]\ngain = 0.6\n";
 
     fn check_text(text: &str) -> Result<Roles, String> {
@@ -370,7 +370,7 @@ mod tests {
 
     #[test]
     fn a_simulated_rig_names_its_devices_in_its_simulation_table() {
-        let sim = include_str!("../../config/rigs/simulated.toml");
+        let sim = include_str!("../../../config/rigs/simulated.toml");
         let roles = check_text(sim).unwrap();
         assert!(roles.dslr && roles.fallback && roles.turntable && !roles.shutter);
         let e = check_text(&sim.replace(

@@ -20,14 +20,14 @@ use brdfd_theta::Theta;
 use super::devices::{video::VideoCamera, Planned};
 use super::plan;
 use super::roles::RigDevice;
-use crate::bench::camera::BenchCamera;
-use crate::bench::panorama::BenchPanorama;
-use crate::bench::raw_file::{RawDamage, RawFormat};
-use crate::bench::VirtualBench;
 use crate::config::{
     DslrBackend, Rig, SimulatedBody, SimulatedLink, SimulatedPresence, SimulatedTurntable,
 };
 use crate::selector::Selector;
+use brdfd_bench::camera::BenchCamera;
+use brdfd_bench::panorama::BenchPanorama;
+use brdfd_bench::raw_file::{RawDamage, RawFormat};
+use brdfd_bench::VirtualBench;
 use brdfd_sim::v4l::SimV4l;
 
 /// Time the simulated THETA takes per frame. A real THETA V takes about a second; the
