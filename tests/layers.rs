@@ -83,7 +83,15 @@ fn the_core_knows_no_runtime_http_driver_or_schema() {
 #[test]
 fn the_evaluation_sits_on_the_core_alone() {
     let eval = packages("brdfd-eval", &[]);
-    for p in ["brdfd", "tokio", "axum", "brdfd-ptp", "brdfd-sim"] {
+    for p in [
+        "brdfd",
+        "brdfd-rig",
+        "brdfd-daemon",
+        "tokio",
+        "axum",
+        "brdfd-ptp",
+        "brdfd-sim",
+    ] {
         assert!(!eval.iter().any(|e| e == p), "brdfd-eval depends on {p}");
     }
     assert!(eval.iter().any(|e| e == "brdfd-core"));
@@ -98,9 +106,12 @@ fn sits_on_the_core(package: &str, forbidden: &[&str]) {
     assert!(built.iter().any(|e| e == "brdfd-core"));
 }
 
-/// The layers above the drivers: none of them may build the binary's runtime or HTTP stack.
-const ABOVE_THE_CORE: [&str; 9] = [
+/// The layers above the drivers: none of them may build the rig, the daemon, the binary, or
+/// their runtime or HTTP stack.
+const ABOVE_THE_CORE: [&str; 11] = [
     "brdfd",
+    "brdfd-rig",
+    "brdfd-daemon",
     "tokio",
     "axum",
     "hyper",
@@ -176,21 +187,15 @@ fn the_virtual_bench_sits_below_the_rig() {
     }
 }
 
-/// The rig runs captures for the binary and the daemon alike: it knows neither, nor the
-/// command line, the evaluation or (without its schema feature) the API's description. Its
-/// devices' drivers and the simulated rig's simulators bring their own HTTP (the THETA's Web
-/// API), which is why tokio is not refused here.
+/// The rig runs captures for the binary and the daemon alike, and builds neither (Cargo would
+/// refuse that cycle before this test could), nor the command line, the evaluation or
+/// (without its schema feature) the API's description. Its devices' drivers and the
+/// simulated rig's simulators bring their own HTTP (the THETA's Web API), which is why tokio
+/// is not refused here.
 #[test]
 fn the_rig_sits_below_the_daemon_and_the_binary() {
     let built = packages("brdfd-rig", &[]);
-    for p in [
-        "brdfd",
-        "brdfd-daemon",
-        "brdfd-eval",
-        "clap",
-        "indicatif",
-        "utoipa",
-    ] {
+    for p in ["brdfd-eval", "clap", "indicatif", "utoipa"] {
         assert!(!built.iter().any(|e| e == p), "brdfd-rig depends on {p}");
     }
     for p in ["brdfd-core", "brdfd-api", "brdfd-ptp", "brdfd-report"] {
@@ -200,12 +205,12 @@ fn the_rig_sits_below_the_daemon_and_the_binary() {
     assert!(schema.iter().any(|p| p == "utoipa"), "{schema:?}");
 }
 
-/// The daemon serves the rig over HTTP: the binary starts it, never the other way round, and
-/// it needs no command line, no client of itself and no evaluation.
+/// The daemon serves the rig over HTTP, and the binary starts it: it needs neither the
+/// command line nor the evaluation.
 #[test]
 fn the_daemon_sits_below_the_binary() {
     let built = packages("brdfd-daemon", &[]);
-    for p in ["brdfd", "brdfd-eval", "clap", "indicatif"] {
+    for p in ["brdfd-eval", "clap", "indicatif"] {
         assert!(!built.iter().any(|e| e == p), "brdfd-daemon depends on {p}");
     }
     for p in ["brdfd-rig", "brdfd-api", "axum", "tokio"] {

@@ -1,6 +1,6 @@
 //! A session's manifest as stored in `manifest.json` and served by the daemon: its state and
 //! history, the rig and plan it ran, its devices, and each capture step's files
-//! (docs/formats.md). Reading and writing it on disk is the rig's (`brdfd::session`).
+//! (docs/formats.md). Reading and writing it on disk is the rig's (`brdfd_rig::session`).
 
 use serde::{Deserialize, Serialize};
 

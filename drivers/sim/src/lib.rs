@@ -1,6 +1,6 @@
 //! Simulated devices that speak the real protocols, for tests and for users without
 //! hardware. Their pictures come from an [`ImageSource`] that the estimation side provides
-//! (the virtual bench renderer in `brdfd::bench`), so a simulated capture is a physically
+//! (the virtual bench renderer in `brdfd_bench`), so a simulated capture is a physically
 //! rendered image of a known material.
 
 pub mod grbl;

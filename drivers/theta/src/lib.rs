@@ -8,7 +8,7 @@
 //! [`Theta::prepare`] sets the camera up for light measurement (no sleep, manual exposure,
 //! no filters, fixed white balance) and [`Theta::capture`] shoots a manual exposure bracket
 //! and downloads every frame unchanged. Merging the frames into a linear HDR map is the
-//! radiometry's job (`brdfd::radiometry`), which reads each frame's EXIF.
+//! radiometry's job (`brdfd_radiometry`), which reads each frame's EXIF.
 //!
 //! The API is blocking, like the other drivers: the daemon runs each device in its own
 //! worker thread. The HTTP link drives its async client on a small runtime of its own, so

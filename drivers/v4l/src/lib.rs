@@ -8,7 +8,7 @@
 //!   compiles everywhere and runs wherever a device exists (`brdfd v4l` and `brdfd devices`).
 //! - [`decode()`]: YUYV (BT.601, limited range, as UVC cameras send it) and MJPG to RGB8.
 //! - [`capture`]: sets the camera up and grabs N frames to average (the averaging itself is
-//!   radiometry, in `brdfd::radiometry`, where the sRGB decoding is).
+//!   radiometry, in `brdfd_radiometry`, where the sRGB decoding is).
 
 pub mod decode;
 pub mod device;
