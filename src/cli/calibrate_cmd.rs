@@ -6,14 +6,15 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
-use brdfd_rig::calibrate::{self, Radiometry, Target};
+use brdfd_rig::calibrate::{self, calibration_dir, Folder, Radiometry, Target};
 use brdfd_rig::config::Rig;
-use brdfd_rig::flow::{Context, Keep};
+use brdfd_rig::flow::Context;
 use brdfd_rig::{Devices, Progress, KEEP_ALIVE};
 use toml_edit::{value, Array, Item, Table};
 
+use brdfd_rig::rig_file::{RigFile, Saved};
+
 use super::progress::{Bars, Terminal};
-use super::rig_file::RigFile;
 
 #[derive(clap::Subcommand)]
 pub enum CalibrateCommand {
@@ -132,47 +133,17 @@ pub fn run(cmd: CalibrateCommand) -> anyhow::Result<()> {
     }
     match rig_file {
         Some(f) => {
-            let backup = write_gains(f, &result, &note)?;
+            let saved = write_gains(f, &result, &note)?;
             println!(
                 "wrote the gains into {} (the file before is {})",
                 a.rig.as_deref().unwrap_or(Path::new("")).display(),
-                backup.display()
+                saved.backup.display()
             );
+            super::warn_not_ready(&saved);
         }
         None => println!("the rig file is left as it is"),
     }
     Ok(())
-}
-
-/// The folder a calibration's photos go to: `out`, else a new one under the state directory's
-/// `calibrations/`, named by the time and `what`. Made if it is not there.
-pub(super) fn calibration_dir(
-    out: Option<&Path>,
-    state_dir: Option<&Path>,
-    what: &str,
-) -> anyhow::Result<PathBuf> {
-    let out = match out {
-        Some(o) => o.to_path_buf(),
-        None => {
-            let state = brdfd_rig::session::state_dir(state_dir, None)?;
-            let stamp = humantime::format_rfc3339_seconds(std::time::SystemTime::now())
-                .to_string()
-                .replace(':', "");
-            state.join("calibrations").join(format!("{stamp}-{what}"))
-        }
-    };
-    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    Ok(out)
-}
-
-/// A calibration's photos, each under its own name in the calibration's folder.
-pub(super) struct Folder(pub(super) PathBuf);
-
-impl Keep for Folder {
-    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
-        super::write_new(&self.0, name, bytes)?;
-        Ok(())
-    }
 }
 
 fn print_result(r: &Radiometry) {
@@ -259,7 +230,7 @@ fn open_for_gains(path: &Path) -> anyhow::Result<RigFile> {
 
 /// Writes the gains, keeping the file's comments and layout (a table that was there keeps its
 /// place and its comments, only its values change); the file before is kept beside it.
-fn write_gains(mut file: RigFile, r: &Radiometry, note: &str) -> anyhow::Result<PathBuf> {
+fn write_gains(mut file: RigFile, r: &Radiometry, note: &str) -> anyhow::Result<Saved> {
     let calibration = file
         .doc
         .entry("calibration")

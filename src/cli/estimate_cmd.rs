@@ -18,8 +18,9 @@ use brdfd_core::raster::Raster;
 use brdfd_core::render::{render_bivariate, render_full, render_merl};
 use brdfd_core::select::SwapParams;
 use brdfd_core::solve::{ColourChoice, Solver};
-use brdfd_report::html::{Context as ReportContext, Visibility};
+use brdfd_report::html::Context as ReportContext;
 use brdfd_report::results::write_results;
+use brdfd_report::visibility::Visibility;
 
 use super::GeometryArgs;
 

@@ -1,5 +1,5 @@
-//! Command-line definitions (clap) and dispatch. Each subcommand's work lives in the library;
-//! this module turns raw arguments into the library's typed options.
+//! Command-line definitions (clap) and dispatch. Each subcommand's work lives in the library
+//! crates; this module turns raw arguments into their typed options.
 
 mod basis_cmd;
 mod calibrate_cmd;
@@ -16,7 +16,6 @@ mod perf_ptp;
 mod pose_cmd;
 mod progress;
 mod ptp_cmd;
-mod rig_file;
 mod serial_cmd;
 mod serve;
 mod session_cmd;
@@ -173,35 +172,11 @@ pub fn image_size(s: &str) -> Result<usize, String> {
     }
 }
 
-/// Writes a camera file into `dir` under its own name, or `N-name` if that exists: an earlier
-/// capture is never overwritten. Returns the path written.
-pub fn write_new(dir: &std::path::Path, name: &str, bytes: &[u8]) -> anyhow::Result<PathBuf> {
-    use std::io::Write;
-    // The name may come from a device: it must not lead out of `dir`.
-    let name = &brdfd_rig::session::safe_file_name(name);
-    for i in 0.. {
-        let path = if i == 0 {
-            dir.join(name)
-        } else {
-            dir.join(format!("{i}-{name}"))
-        };
-        // create_new: the existence check and the creation are one step.
-        match std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&path)
-        {
-            Ok(mut f) => {
-                f.write_all(bytes)
-                    .and_then(|_| f.sync_all())
-                    .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))?;
-                return Ok(path);
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
-            Err(e) => anyhow::bail!("creating {}: {e}", path.display()),
-        }
+/// Says why a rig file a calibration just wrote cannot capture yet, if it cannot.
+fn warn_not_ready(saved: &brdfd_rig::rig_file::Saved) {
+    if let Some(why) = &saved.not_ready {
+        eprintln!("  warning: the rig is not ready to capture yet: {why}");
     }
-    unreachable!("an unbounded range ends only by returning")
 }
 
 /// An evaluation's progress, a line on stderr as each material (or variant) begins: the runs

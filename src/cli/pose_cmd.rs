@@ -1,23 +1,23 @@
 //! `brdfd calibrate target`: the board to print. `brdfd calibrate pose`: the object camera's
-//! pose (and focal length) from a photo of it on the bench, written into the rig file.
+//! pose (and focal length) from a photo of it on the bench, written into the rig file; the
+//! flow is the rig's (`brdfd_rig::calibrate_pose`), this reads the arguments into its request
+//! and prints what it reports.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
-use brdfd_core::geometry::{Camera, Shape};
+use brdfd_core::geometry::Camera;
 use brdfd_pose::board::Board;
 use brdfd_pose::silhouette::Refined;
 use brdfd_pose::{angle_between_deg, pinhole, Calibrated, Focal};
+use brdfd_rig::calibrate_pose::{PhotosFrom, PoseCalibration, PoseReport, PoseRequest};
 use brdfd_rig::config::Rig;
 use brdfd_rig::flow::Context;
-use brdfd_rig::pose::{self, OnBench, Photo};
 use brdfd_rig::{Devices, Progress, KEEP_ALIVE};
-use toml_edit::{value, Array, Item};
 
-use super::calibrate_cmd::{calibration_dir, Folder};
 use super::progress::{Bars, Terminal};
-use super::rig_file::RigFile;
+use brdfd_rig::calibrate::{calibration_dir, Folder};
 
 #[derive(clap::Args)]
 pub struct TargetArgs {
@@ -166,66 +166,36 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
         Some(p) => brdfd_rig::config::read_board(p)?,
         None => Board::default(),
     };
-    if pinhole(&rig.geometry.camera).is_none() {
-        bail!(
-            "{}: the object camera is orthographic: a pose from a board needs a pinhole camera ([geometry.camera] type = \"pinhole\", with fx, fy, cx, cy)",
-            a.rig.display()
-        );
-    }
-    if let Some(s) = a.sensor_width_mm {
-        if !(s.is_finite() && s > 0.0) {
-            bail!("--sensor-width-mm must be a positive number of millimetres, not {s}");
+    let photos = if a.photo.is_empty() && a.object_photo.is_empty() {
+        PhotosFrom::Camera {
+            views: a.views,
+            turn_deg: a.turn,
         }
-    }
-    let refine_object = a.refine_object || !a.object_photo.is_empty();
-    if !a.object_photo.is_empty() && a.photo.is_empty() {
-        bail!("--object-photo goes with --photo (the board's photos from the camera as it stood for the object's); without them, --refine-object photographs both");
-    }
-    if a.refine_object && !a.photo.is_empty() && a.object_photo.is_empty() {
-        bail!("with --photo, --refine-object needs the object's photos and the empty bench's: --object-photo and --empty-photo");
-    }
-    if a.object_photo.len() != a.empty_photo.len() {
-        bail!(
-            "{} --object-photo and {} --empty-photo: each photo of the object needs one of the empty bench at its exposure",
-            a.object_photo.len(),
-            a.empty_photo.len()
-        );
-    }
-    if refine_object && !matches!(rig.geometry.shape, Some(Shape::Mesh { .. })) {
-        bail!(
-            "{}: --refine-object aligns the object's mesh with its silhouette, and [geometry.shape] is no mesh",
-            a.rig.display()
-        );
-    }
-    // Opened first: a file the pose cannot go into is said before anything is shot.
-    let rig_file = if a.dry_run {
-        None
     } else {
-        Some(open_for_pose(&a.rig, refine_object)?)
-    };
-    let focal = if a.fix_focal {
-        Focal::Fixed
-    } else {
-        Focal::Refine
-    };
-    let settle = |found: &Calibrated, out: Option<&Path>| {
-        print_found(&rig.geometry.camera, found);
-        let note = note(found);
-        if let Some(out) = out {
-            write_json(out, &json(found, None, &note))?;
+        PhotosFrom::Files {
+            board: a.photo,
+            object: a.object_photo,
+            empty: a.empty_photo,
+            views: a.views,
         }
-        check_fit(found, a.force || rig_file.is_none())
     };
-    let mut warn = |w: String| eprintln!("  warning: {w}");
-    let (found, object, out) = if a.photo.is_empty() {
-        let roles = brdfd_rig::plan::devices(&rig)?;
-        let n = a.views.unwrap_or(if roles.turntable { 3 } else { 1 }) as usize;
-        if !(a.turn.is_finite() && a.turn.abs() > 0.0 && a.turn.abs() < 80.0) {
-            bail!(
-                "--turn must be a number of degrees between 0 and 80, not {}",
-                a.turn
-            );
-        }
+    let request = PoseRequest {
+        rig_file: a.rig.clone(),
+        board,
+        photos,
+        focal: if a.fix_focal {
+            Focal::Fixed
+        } else {
+            Focal::Refine
+        },
+        sensor_width_mm: a.sensor_width_mm,
+        refine_object: a.refine_object,
+        write: !a.dry_run,
+        force: a.force,
+    };
+    let calibration = PoseCalibration::new(&rig, request)?;
+    let mut report = Printed;
+    let (outcome, out) = if calibration.shoots() {
         let devices = Devices::start(&rig, KEEP_ALIVE)?;
         let out = calibration_dir(a.out.as_deref(), a.state_dir.as_deref(), "pose")?;
         println!("the photos go to {}", out.display());
@@ -236,112 +206,36 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             cancel: Default::default(),
             operator: Arc::new(Terminal),
         };
-        let angles = pose::view_angles(n, a.turn);
         let mut folder = Folder(out.clone());
-        let mut shooting = pose::Shooting::default();
-        let mut shoot = |on_bench, prefix| {
-            pose::shoot(&cx, &mut folder, &mut shooting, on_bench, &angles, prefix)
-        };
-        let views = shoot(OnBench::Board(&board), "")?;
-        let found = pose::solve(
-            &mut warn,
-            &rig.geometry.camera,
-            &board,
-            &views,
-            focal,
-            a.sensor_width_mm,
-        )?;
-        settle(&found, Some(&out))?;
-        // An error from here on leaves the board's pose good: it is written all the same.
-        let simulated = devices.sim.is_some();
-        let object = refine_object.then(|| {
-            ready(
-                simulated,
-                "take the board away, leaving the bench as it was",
-            )?;
-            let empty = shoot(OnBench::Nothing, "empty-")?;
-            ready(
-                simulated,
-                "stand the object where [geometry.shape] places it, as nearly as you can",
-            )?;
-            Ok((empty, shoot(OnBench::Object, "object-")?))
-        });
-        (found, object, Some(out))
+        let outcome = calibration.run(Some((&cx, &mut folder)), Some(&out), &mut report)?;
+        (outcome, Some(out))
     } else {
-        if a.views.is_some_and(|v| v > 1) {
-            bail!("--views turns the board on the turntable; --photo takes photos of the board as it stands, and solves from the one that shows the most of it");
-        }
-        let view = |files: &[PathBuf]| {
-            Ok::<_, anyhow::Error>(vec![pose::PhotoView {
-                turn_deg: 0.0,
-                photos: files
-                    .iter()
-                    .map(|p| {
-                        let bytes =
-                            std::fs::read(p).with_context(|| format!("reading {}", p.display()))?;
-                        Photo::decode(&p.display().to_string(), &bytes)
-                    })
-                    .collect::<anyhow::Result<Vec<_>>>()?,
-            }])
-        };
-        let found = pose::solve(
-            &mut warn,
-            &rig.geometry.camera,
-            &board,
-            &view(&a.photo)?,
-            focal,
-            a.sensor_width_mm,
-        )?;
         let out = match &a.out {
             Some(o) => Some(calibration_dir(Some(o), None, "pose")?),
             None => None,
         };
-        settle(&found, out.as_deref())?;
-        let object = if refine_object {
-            eprintln!("  warning: one view pins the object's distance from the camera only by its outline's size; photographed by `--refine-object` on a rig with a turntable, the slanted views pin it as well as the rest");
-            Some(view(&a.empty_photo).and_then(|e| Ok((e, view(&a.object_photo)?))))
-        } else {
-            None
-        };
-        (found, object, out)
+        (calibration.run(None, out.as_deref(), &mut report)?, out)
     };
-    let note = note(&found);
-    let placed = object.map(|photos| {
-        let (empty, object) = photos?;
-        let shape = rig.geometry.shape.as_ref().expect("checked to be a mesh");
-        let refined = pose::refine_object(&found.camera, shape, &empty, &object)?;
-        print_refined(&refined);
-        let placed = refined.offset.placed(shape);
-        if let Some(out) = &out {
-            write_json(out, &json(&found, Some((&refined, &placed)), &note))?;
-        }
-        Ok::<_, anyhow::Error>(placed)
-    });
     if let Some(out) = &out {
         println!("the fit is in {}", out.join("pose.json").display());
     }
-    let shape = placed.as_ref().and_then(|p| p.as_ref().ok());
-    match rig_file {
-        Some(mut f) => {
-            set_camera(&mut f, &found.camera, &note)?;
-            if let Some(shape) = shape {
-                set_shape(&mut f, shape)?;
-            }
-            let backup = f.save()?;
+    match &outcome.saved {
+        Some(saved) => {
             println!(
                 "wrote the {} into {} (the file before is {})",
-                if shape.is_some() {
+                if matches!(outcome.placed, Some(Ok(_))) {
                     "pose and the object's placement"
                 } else {
                     "pose"
                 },
                 a.rig.display(),
-                backup.display()
+                saved.backup.display()
             );
+            super::warn_not_ready(saved);
         }
         None => println!("the rig file is left as it is"),
     }
-    match placed {
+    match outcome.placed {
         Some(Err(e)) => Err(e.context(
             "the object's placement was not found; the camera's pose is kept (run again with --refine-object, or place the object by hand in [geometry.shape])",
         )),
@@ -349,50 +243,36 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
     }
 }
 
-/// Where the pose came from, for the rig file's comment and pose.json.
-fn note(found: &Calibrated) -> String {
-    format!(
-        "by `brdfd calibrate pose` on {}: {:.3} px RMS over {} board corners",
-        humantime::format_rfc3339_seconds(std::time::SystemTime::now()),
-        found.fit.rms_px,
-        found.fit.corners
-    )
-}
+/// The calibration's report, printed for the person at the terminal.
+struct Printed;
 
-fn write_json(out: &Path, v: &serde_json::Value) -> anyhow::Result<()> {
-    let text = serde_json::to_string_pretty(v)?;
-    brdfd_rig::session::write_atomic(&out.join("pose.json"), text.as_bytes())?;
-    Ok(())
-}
+impl PoseReport for Printed {
+    fn found(&mut self, before: &Camera, found: &Calibrated) {
+        print_found(before, found);
+    }
 
-/// A poor fit is an error, unless it is only printed (`warn_only`: --force, --dry-run).
-fn check_fit(found: &Calibrated, warn_only: bool) -> anyhow::Result<()> {
-    if found.fit.rms_px > MAX_RMS_PX || found.fit.worst_px > MAX_WORST_PX {
-        let why = format!(
-            "the board's corners do not fit one camera well ({:.2} px RMS, {:.2} px at worst; a good fit is under {MAX_RMS_PX} and {MAX_WORST_PX}): check the board's square_mm and [placement], that it is flat, and that it turned with the turntable",
-            found.fit.rms_px, found.fit.worst_px
-        );
-        if !warn_only {
-            bail!("{why}; the rig file is left as it is (--force writes it anyway)");
+    fn refined(&mut self, refined: &Refined) {
+        print_refined(refined);
+    }
+
+    fn warn(&mut self, warning: &str) {
+        eprintln!("  warning: {warning}");
+    }
+
+    /// Waits for the operator to change what stands on the bench; a simulated bench changes
+    /// it itself.
+    fn change_bench(&mut self, what: &str, simulated: bool) -> anyhow::Result<()> {
+        if simulated {
+            println!("simulated rig: {what}: done by the simulated bench");
+            return Ok(());
         }
-        eprintln!("  warning: {why}");
+        Terminal::ask(
+            &format!("{what}, then press Enter"),
+            "no one can change what stands on the bench: standard input is closed. --refine-object needs someone at the terminal, or photos taken already (--photo with --object-photo and --empty-photo)",
+            &|| Ok(true),
+        )
+        .map(|_| ())
     }
-    Ok(())
-}
-
-/// Waits for the operator to change what stands on the bench; a simulated bench changes it
-/// itself.
-fn ready(simulated: bool, what: &str) -> anyhow::Result<()> {
-    if simulated {
-        println!("simulated rig: {what}: done by the simulated bench");
-        return Ok(());
-    }
-    Terminal::ask(
-        &format!("{what}, then press Enter"),
-        "no one can change what stands on the bench: standard input is closed. --refine-object needs someone at the terminal, or photos taken already (--photo with --object-photo and --empty-photo)",
-        &|| Ok(true),
-    )
-    .map(|_| ())
 }
 
 /// A silhouette that matches the mesh worse than this at the offset found has lost or gained
@@ -422,90 +302,6 @@ fn print_refined(r: &Refined) {
     if r.iou_after.iter().any(|i| *i < MIN_IOU) {
         eprintln!("  warning: the object's outline does not match its mesh's well (below {MIN_IOU}): a face as bright as the bench behind it is lost (lay white card under and behind a dark or grey object, black cloth under a white one), or the mesh is not the object's");
     }
-}
-
-/// A fit worse than these is not written without --force: the board's corners are found to
-/// a tenth of a pixel, so a pixel means the model (the board's size or place, its flatness,
-/// the lens's distortion) is wrong.
-const MAX_RMS_PX: f64 = 1.0;
-const MAX_WORST_PX: f64 = 3.0;
-
-/// The rig file, opened for the pose before anything is shot: its `[geometry.camera]` must be
-/// there to be written, and its `[geometry.shape]` for the object's placement.
-fn open_for_pose(path: &Path, object: bool) -> anyhow::Result<RigFile> {
-    let file = RigFile::open(path)?;
-    let tables: &[(&str, &str)] = if object {
-        &[("camera", "pose"), ("shape", "object's placement")]
-    } else {
-        &[("camera", "pose")]
-    };
-    for (table, what) in tables {
-        let found = file
-            .doc
-            .get("geometry")
-            .and_then(|g| g.get(table))
-            .and_then(Item::as_table_like);
-        if found.is_none() {
-            bail!(
-                "{} has no [geometry.{table}] table to write the {what} into",
-                path.display()
-            );
-        }
-    }
-    Ok(file)
-}
-
-/// What `pose.json` holds: the fit, the camera written, and each view's corners; and the
-/// object's placement refined from its silhouette, where it was.
-fn json(c: &Calibrated, object: Option<(&Refined, &Shape)>, note: &str) -> serde_json::Value {
-    let (k, _) = pinhole(&c.camera).expect("a pinhole camera");
-    let pose = match &c.camera {
-        Camera::Pinhole { pose, .. } | Camera::Orthographic { pose, .. } => pose,
-    };
-    let object = object.map(|(r, placed)| {
-        let (rotation_deg, position) = match placed {
-            Shape::Mesh {
-                rotation_deg,
-                position,
-                ..
-            } => (Some(rotation_deg), Some(position)),
-            _ => (None, None),
-        };
-        serde_json::json!({
-            "shift_m": r.offset.shift,
-            "turn_deg": r.offset.turn_deg,
-            "turned_about": r.offset.pivot,
-            "iou_before": r.iou_before,
-            "iou_after": r.iou_after,
-            "rotation_deg": rotation_deg,
-            "position": position,
-        })
-    });
-    serde_json::json!({
-        "measured": note,
-        "object": object,
-        "rms_px": c.fit.rms_px,
-        "worst_px": c.fit.worst_px,
-        "corners": c.fit.corners,
-        "photo_size": [c.photo_size.0, c.photo_size.1],
-        "focal": {
-            "start_fx_px": c.start_fx,
-            "start_from": c.start_from,
-            "refined_sigma": c.fit.focal.as_ref().ok(),
-            "held_because": c.fit.focal.as_ref().err(),
-        },
-        "camera": {
-            "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy,
-            "position": pose.position, "look_at": pose.look_at, "up": pose.up,
-        },
-        "views": c.views.iter().map(|v| serde_json::json!({
-            "photo": v.name,
-            "turn_deg": v.turn_deg,
-            "corners": v.corners.iter()
-                .map(|p| serde_json::json!({ "world": p.world, "pixel": p.pixel }))
-                .collect::<Vec<_>>(),
-        })).collect::<Vec<_>>(),
-    })
 }
 
 fn print_found(before: &Camera, c: &Calibrated) {
@@ -558,84 +354,4 @@ fn print_found(before: &Camera, c: &Calibrated) {
         angle_between_deg(&e.rotation, &e0.rotation),
         (k.fx / k0.fx - 1.0) * 100.0
     );
-}
-
-/// Sets the camera's pose and focal lengths in `[geometry.camera]`, with a comment that
-/// says where they came from; the rest of the file as it was.
-fn set_camera(file: &mut RigFile, camera: &Camera, note: &str) -> anyhow::Result<()> {
-    let Camera::Pinhole { fx, fy, pose, .. } = camera else {
-        bail!("a pose is written for a pinhole camera");
-    };
-    let path = file.path.display().to_string();
-    let item = file
-        .doc
-        .get_mut("geometry")
-        .and_then(|g| g.get_mut("camera"))
-        .with_context(|| format!("{path} has no [geometry.camera] table to write the pose into"))?;
-    // A comment above `fx` says where the numbers came from; an inline table holds none.
-    let is_table = item.is_table();
-    let table = item
-        .as_table_like_mut()
-        .with_context(|| format!("{path}: geometry.camera is not a table"))?;
-    let triple = |v: [f64; 3]| {
-        let mut a = Array::new();
-        for x in v {
-            a.push(x);
-        }
-        value(a)
-    };
-    let round = |x: f64| (x * 100.0).round() / 100.0;
-    table.insert("fx", value(round(*fx)));
-    table.insert("fy", value(round(*fy)));
-    table.insert("position", triple(pose.position));
-    table.insert("look_at", triple(pose.look_at));
-    table.insert("up", triple(pose.up));
-    if let (true, Some(mut key)) = (is_table, table.key_mut("fx")) {
-        key.leaf_decor_mut()
-            .set_prefix(format!("# fx, fy, position, look_at and up {note}.\n"));
-    }
-    Ok(())
-}
-
-/// Sets the mesh's `position` and `rotation_deg` in `[geometry.shape]` to where its
-/// silhouette placed it, with a comment that says so.
-fn set_shape(file: &mut RigFile, placed: &Shape) -> anyhow::Result<()> {
-    let Shape::Mesh {
-        rotation_deg,
-        position,
-        ..
-    } = placed
-    else {
-        bail!("an object's placement is written for a mesh");
-    };
-    let path = file.path.display().to_string();
-    let item = file
-        .doc
-        .get_mut("geometry")
-        .and_then(|g| g.get_mut("shape"))
-        .with_context(|| {
-            format!("{path} has no [geometry.shape] table to write the placement into")
-        })?;
-    let is_table = item.is_table();
-    let table = item
-        .as_table_like_mut()
-        .with_context(|| format!("{path}: geometry.shape is not a table"))?;
-    // Hundredths of a degree and hundredths of a millimetre: finer than a silhouette pins.
-    let triple = |v: [f64; 3], decimals: usize| {
-        let mut a = Array::new();
-        for x in v {
-            let x: f64 = format!("{x:.decimals$}").parse().expect("a number");
-            a.push(x + 0.0);
-        }
-        value(a)
-    };
-    table.insert("rotation_deg", triple(*rotation_deg, 2));
-    table.insert("position", triple(*position, 5));
-    if let (true, Some(mut key)) = (is_table, table.key_mut("rotation_deg")) {
-        key.leaf_decor_mut().set_prefix(format!(
-            "# rotation_deg and position from the object's silhouette, by `brdfd calibrate pose --refine-object` on {}.\n",
-            humantime::format_rfc3339_seconds(std::time::SystemTime::now())
-        ));
-    }
-    Ok(())
 }

@@ -109,7 +109,8 @@ pub fn run(cmd: PtpCommand) -> anyhow::Result<()> {
                 }
                 for file in cam.capture_all(&opts, &mut |_, _, _| {})? {
                     eprintln!("  downloaded {} bytes", file.data.len());
-                    let path = super::write_new(&a.out, &file.info.filename, &file.data)?;
+                    let path =
+                        brdfd_rig::session::write_new(&a.out, &file.info.filename, &file.data)?;
                     println!("{}", path.display());
                 }
             }

@@ -229,7 +229,7 @@ pub fn run(cmd: ThetaCommand) -> anyhow::Result<()> {
             // units (pixel value per unit exposure factor).
             let (map, frames) = capture_panorama(&mut theta, &plan, [1.0; 3])?;
             for f in &frames {
-                let path = super::write_new(&a.out, &f.name, &f.data)?;
+                let path = brdfd_rig::session::write_new(&a.out, &f.name, &f.data)?;
                 println!(
                     "{} ({} bytes, asked {} s ISO {})",
                     path.display(),

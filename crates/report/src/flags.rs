@@ -29,7 +29,7 @@ use std::collections::HashMap;
 use serde::Serialize;
 
 use crate::compare::luminance;
-use crate::html::Visibility;
+use crate::visibility::Visibility;
 use brdfd_core::anisotropy::Anisotropy;
 use brdfd_core::estimate::{Estimate, Rerendered};
 

@@ -2,8 +2,9 @@
 //! and nothing else: every result file of an estimate ([`results`]), the glTF and OpenPBR
 //! exports fitted to the whole estimate ([`export`]), `report.html` ([`html`]), the pictures
 //! of each photo against its re-render ([`compare`]), the judged summary lines ([`summary`]),
-//! the broken assumptions the residuals point to ([`flags`]), and the procedural lights
-//! reports relight estimates under ([`lights`]).
+//! the broken assumptions the residuals point to ([`flags`]), how much of the room a part's
+//! pixels see past the part ([`visibility`]), and the procedural lights reports relight
+//! estimates under ([`lights`]).
 
 pub mod compare;
 pub mod export;
@@ -12,3 +13,4 @@ pub mod html;
 pub mod lights;
 pub mod results;
 pub mod summary;
+pub mod visibility;

@@ -13,6 +13,7 @@
 //! Not here: writing the gains into the rig file (`brdfd calibrate radiometry` does that).
 
 use std::f64::consts::PI;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
@@ -39,6 +40,39 @@ pub const GREY_CARD_ALBEDO: f64 = 0.18;
 /// Target pixels whose predicted radiance is below this share of the median are left out:
 /// a card's edge turned from the light, where noise and the map's resolution dominate.
 const DIM_SHARE: f64 = 0.05;
+
+/// The folder a calibration's photos and results go to (this one's and the pose's): `out`,
+/// else a new one under the state directory's `calibrations/` (`state_dir` as
+/// [`crate::session::state_dir`] finds it), named by the time and `what`. Made if it is not
+/// there.
+pub fn calibration_dir(
+    out: Option<&Path>,
+    state_dir: Option<&Path>,
+    what: &str,
+) -> anyhow::Result<PathBuf> {
+    let out = match out {
+        Some(o) => o.to_path_buf(),
+        None => {
+            let state = crate::session::state_dir(state_dir, None)?;
+            let stamp = humantime::format_rfc3339_seconds(std::time::SystemTime::now())
+                .to_string()
+                .replace(':', "");
+            state.join("calibrations").join(format!("{stamp}-{what}"))
+        }
+    };
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    Ok(out)
+}
+
+/// A calibration's photos, each under its own name in the calibration's folder.
+pub struct Folder(pub PathBuf);
+
+impl Keep for Folder {
+    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
+        crate::session::write_new(&self.0, name, bytes)?;
+        Ok(())
+    }
+}
 
 /// A calibration target: its albedo, and its shape where the object goes.
 #[derive(Debug, Clone, Deserialize)]

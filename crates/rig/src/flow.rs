@@ -33,7 +33,8 @@ use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::raster::Raster;
 use brdfd_radiometry::panorama::merge_bracket;
 use brdfd_report::export::Prepared;
-use brdfd_report::html::{Context as ReportContext, Visibility};
+use brdfd_report::html::Context as ReportContext;
+use brdfd_report::visibility::Visibility;
 
 /// The failure a cancelled capture records: its manifest's reason, which the API reads back.
 pub const CANCELLED: &str = "cancelled; what was captured is kept";

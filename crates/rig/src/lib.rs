@@ -12,7 +12,9 @@
 //! - [`roles`]: what the capture asks of its devices: an object camera, a light probe, a
 //!   turntable, a shutter, each a trait with optional abilities.
 //! - [`plan`]: whether the capture can run a rig file (`config check` asks the same).
-//! - [`calibrate`]: each camera's gain from a target of known albedo.
+//! - [`calibrate`]: each camera's gain from a target of known albedo; [`calibrate_pose`]:
+//!   the object camera's pose (and the object's placement) from photos of the bench, written
+//!   into the rig file ([`rig_file`]: a rig file rewritten with its comments kept).
 //! - [`devices`]: the rig's devices in their roles, and the role traits for PTP, THETA, V4L2
 //!   and serial devices.
 //! - [`worker`]: one thread per device, with keep-alive and re-opening.
@@ -29,6 +31,7 @@
 //!   the DSLR or the V4L2 fallback and merged; [`turning`]: the object turned between views.
 
 pub mod calibrate;
+pub mod calibrate_pose;
 pub mod config;
 pub mod devices;
 pub mod failure;
@@ -39,6 +42,7 @@ pub mod open;
 pub mod plan;
 pub mod pose;
 mod prepare;
+pub mod rig_file;
 pub mod roles;
 pub mod selector;
 pub mod session;

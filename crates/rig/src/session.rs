@@ -98,6 +98,36 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     result.map_err(|e| io(path, e))
 }
 
+/// Writes a camera file into `dir` under its own name (made safe: it may come from a device),
+/// or `N-name` if that exists: an earlier capture is never overwritten. Returns the path
+/// written.
+pub fn write_new(dir: &Path, name: &str, bytes: &[u8]) -> Result<PathBuf> {
+    let name = &safe_file_name(name);
+    for i in 0.. {
+        let path = if i == 0 {
+            dir.join(name)
+        } else {
+            dir.join(format!("{i}-{name}"))
+        };
+        // create_new: the existence check and the creation are one step.
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&path)
+        {
+            Ok(mut f) => {
+                f.write_all(bytes)
+                    .and_then(|_| f.sync_all())
+                    .map_err(|e| io(&path, e))?;
+                return Ok(path);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(io(&path, e)),
+        }
+    }
+    unreachable!("an unbounded range ends only by returning")
+}
+
 /// A file name a device chose, made safe to create in a folder of ours: letters, digits,
 /// `.`, `-` and `_` only (so no separator, `..` component or absolute path survives), not
 /// hidden, not empty. A camera's ObjectInfo name is whatever the camera says.

@@ -1,0 +1,161 @@
+//! A rig file opened to be written by a calibration: its comments and layout kept, only the
+//! values the calibration measured changed, the file before kept beside it.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context as _};
+use brdfd_core::geometry::{Camera, Shape};
+use toml_edit::{value, Array, DocumentMut, Item};
+
+use crate::config::Rig;
+
+pub struct RigFile {
+    pub path: PathBuf,
+    pub doc: DocumentMut,
+}
+
+/// A rig file written: where the file before went, and why the rig cannot capture yet, if
+/// it cannot (a calibration may be one step of several).
+pub struct Saved {
+    pub backup: PathBuf,
+    pub not_ready: Option<String>,
+}
+
+impl RigFile {
+    pub fn open(path: &Path) -> anyhow::Result<RigFile> {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let doc: DocumentMut = text
+            .parse()
+            .with_context(|| format!("{} is not TOML", path.display()))?;
+        Ok(RigFile {
+            path: path.to_path_buf(),
+            doc,
+        })
+    }
+
+    /// The file, opened to be written by a calibration that fills the given tables of
+    /// `[geometry]` (`("camera", "pose")`: the table, and what goes into it): each must be
+    /// there, so that a file the calibration cannot go into is said before anything is shot.
+    pub fn open_for(path: &Path, tables: &[(&str, &str)]) -> anyhow::Result<RigFile> {
+        let file = RigFile::open(path)?;
+        for (table, what) in tables {
+            let found = file
+                .doc
+                .get("geometry")
+                .and_then(|g| g.get(table))
+                .and_then(Item::as_table_like);
+            if found.is_none() {
+                bail!(
+                    "{} has no [geometry.{table}] table to write the {what} into",
+                    path.display()
+                );
+            }
+        }
+        Ok(file)
+    }
+
+    /// Writes the document in place, atomically, once the rig as written parses. The file
+    /// before is kept beside it as FILE.bak (FILE.bak.1 and on, if that is taken).
+    pub fn save(self) -> anyhow::Result<Saved> {
+        let written = self.doc.to_string();
+        let file = self.path.display().to_string();
+        let rig = Rig::parse(&file, &written).context("the rig as written")?;
+        let backup = (0..)
+            .map(|i| match i {
+                0 => PathBuf::from(format!("{file}.bak")),
+                i => PathBuf::from(format!("{file}.bak.{i}")),
+            })
+            .find(|p| !p.exists())
+            .context("no name for the backup")?;
+        std::fs::copy(&self.path, &backup)
+            .with_context(|| format!("keeping {}", backup.display()))?;
+        crate::session::write_atomic(&self.path, written.as_bytes())?;
+        Ok(Saved {
+            backup,
+            not_ready: crate::plan::check(&rig).err().map(|e| e.to_string()),
+        })
+    }
+
+    /// Sets the camera's pose and focal lengths in `[geometry.camera]`, with a comment that
+    /// says where they came from; the rest of the file as it was.
+    pub fn set_camera(&mut self, camera: &Camera, note: &str) -> anyhow::Result<()> {
+        let Camera::Pinhole { fx, fy, pose, .. } = camera else {
+            bail!("a pose is written for a pinhole camera");
+        };
+        let path = self.path.display().to_string();
+        let item = self
+            .doc
+            .get_mut("geometry")
+            .and_then(|g| g.get_mut("camera"))
+            .with_context(|| {
+                format!("{path} has no [geometry.camera] table to write the pose into")
+            })?;
+        // A comment above `fx` says where the numbers came from; an inline table holds none.
+        let is_table = item.is_table();
+        let table = item
+            .as_table_like_mut()
+            .with_context(|| format!("{path}: geometry.camera is not a table"))?;
+        let triple = |v: [f64; 3]| {
+            let mut a = Array::new();
+            for x in v {
+                a.push(x);
+            }
+            value(a)
+        };
+        let round = |x: f64| (x * 100.0).round() / 100.0;
+        table.insert("fx", value(round(*fx)));
+        table.insert("fy", value(round(*fy)));
+        table.insert("position", triple(pose.position));
+        table.insert("look_at", triple(pose.look_at));
+        table.insert("up", triple(pose.up));
+        if let (true, Some(mut key)) = (is_table, table.key_mut("fx")) {
+            key.leaf_decor_mut()
+                .set_prefix(format!("# fx, fy, position, look_at and up {note}.\n"));
+        }
+        Ok(())
+    }
+
+    /// Sets the mesh's `position` and `rotation_deg` in `[geometry.shape]` to where its
+    /// silhouette placed it, with a comment that says so.
+    pub fn set_shape(&mut self, placed: &Shape) -> anyhow::Result<()> {
+        let Shape::Mesh {
+            rotation_deg,
+            position,
+            ..
+        } = placed
+        else {
+            bail!("an object's placement is written for a mesh");
+        };
+        let path = self.path.display().to_string();
+        let item = self
+            .doc
+            .get_mut("geometry")
+            .and_then(|g| g.get_mut("shape"))
+            .with_context(|| {
+                format!("{path} has no [geometry.shape] table to write the placement into")
+            })?;
+        let is_table = item.is_table();
+        let table = item
+            .as_table_like_mut()
+            .with_context(|| format!("{path}: geometry.shape is not a table"))?;
+        // Hundredths of a degree and hundredths of a millimetre: finer than a silhouette pins.
+        let triple = |v: [f64; 3], decimals: usize| {
+            let mut a = Array::new();
+            for x in v {
+                let x: f64 = format!("{x:.decimals$}").parse().expect("a number");
+                a.push(x + 0.0);
+            }
+            value(a)
+        };
+        table.insert("rotation_deg", triple(*rotation_deg, 2));
+        table.insert("position", triple(*position, 5));
+        if let (true, Some(mut key)) = (is_table, table.key_mut("rotation_deg")) {
+            key.leaf_decor_mut().set_prefix(format!(
+                "# rotation_deg and position from the object's silhouette, by `brdfd calibrate pose --refine-object` on {}.\n",
+                humantime::format_rfc3339_seconds(std::time::SystemTime::now())
+            ));
+        }
+        Ok(())
+    }
+}
