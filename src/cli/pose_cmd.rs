@@ -210,17 +210,16 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
         let outcome = calibration.run(Some((&cx, &mut folder)), Some(&out), &mut report)?;
         (outcome, Some(out))
     } else {
-        let out = match &a.out {
-            Some(o) => Some(calibration_dir(Some(o), None, "pose")?),
-            None => None,
-        };
+        // Made by the flow once there is a fit to write into it.
+        let out = a.out.clone();
         (calibration.run(None, out.as_deref(), &mut report)?, out)
     };
     if let Some(out) = &out {
         println!("the fit is in {}", out.join("pose.json").display());
     }
-    match &outcome.saved {
-        Some(saved) => {
+    match outcome.saved {
+        Some(Err(e)) => return Err(e),
+        Some(Ok(saved)) => {
             println!(
                 "wrote the {} into {} (the file before is {})",
                 if matches!(outcome.placed, Some(Ok(_))) {
@@ -231,7 +230,7 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
                 a.rig.display(),
                 saved.backup.display()
             );
-            super::warn_not_ready(saved);
+            super::warn_not_ready(&saved);
         }
         None => println!("the rig file is left as it is"),
     }

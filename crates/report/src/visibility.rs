@@ -100,3 +100,25 @@ impl Visibility {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A photo's pixel reads the visibility worked out at or above and left of it, every
+    /// 4th pixel of every 4th row here; off the object, or past the picture, nothing.
+    #[test]
+    fn a_photo_pixel_reads_the_visibility_worked_out_nearest_above_left_of_it() {
+        let mut fraction = Raster::black(2, 2);
+        fraction.set(1, 0, [0.25; 3]);
+        fraction.set(0, 1, [0.75; 3]);
+        let up = Some([0.0, 1.0, 0.0]);
+        let v = Visibility::new(fraction, vec![None, up, up, None], 4);
+        assert_eq!(v.at(5, 3), Some((0.25, [0.0, 1.0, 0.0])));
+        assert_eq!(v.at(3, 7), Some((0.75, [0.0, 1.0, 0.0])));
+        assert_eq!(v.at(3, 3), None, "off the object");
+        assert_eq!(v.at(8, 0), None, "past the picture");
+        // The mean is over the object's pixels only.
+        assert!((v.mean - 0.5).abs() < 1e-9);
+    }
+}

@@ -76,8 +76,9 @@ pub trait PoseReport {
 /// What a calibration found and did.
 pub struct PoseOutcome {
     pub found: Calibrated,
-    /// The rig file written, if it was (not when only asked to report).
-    pub saved: Option<Saved>,
+    /// The rig file written, or why it could not be, if it was to be (not when only asked
+    /// to report). pose.json is written before it.
+    pub saved: Option<anyhow::Result<Saved>>,
     /// The object's placement, when it was asked for: where the mesh stands now, or why it
     /// was not found (the camera's pose is written all the same).
     pub placed: Option<anyhow::Result<Shape>>,
@@ -276,16 +277,13 @@ impl<'a> PoseCalibration<'a> {
             }
             Ok(placed)
         });
-        let saved = match self.file {
-            Some(mut file) => {
-                file.set_camera(&found.camera, &note)?;
-                if let Some(Ok(shape)) = &placed {
-                    file.set_shape(shape)?;
-                }
-                Some(file.save()?)
+        let saved = self.file.map(|mut file| {
+            file.set_camera(&found.camera, &note)?;
+            if let Some(Ok(shape)) = &placed {
+                file.set_shape(shape)?;
             }
-            None => None,
-        };
+            file.save()
+        });
         Ok(PoseOutcome {
             found,
             saved,
@@ -318,7 +316,9 @@ fn note(found: &Calibrated) -> String {
     )
 }
 
+/// Writes pose.json into `out`, made if it is not there: a folder is made only for a fit.
 fn write_json(out: &Path, v: &serde_json::Value) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let text = serde_json::to_string_pretty(v)?;
     crate::session::write_atomic(&out.join("pose.json"), text.as_bytes())?;
     Ok(())
@@ -484,12 +484,14 @@ mod tests {
     /// A pose needs a pinhole camera, and a placement a mesh, both named in the rig file.
     #[test]
     fn the_rig_s_camera_and_object_must_be_ones_a_pose_is_found_for() {
-        let pose_rig = Rig::parse("simulated-pose.toml", POSE_RIG).unwrap();
-        let sphere = pose_rig.geometry.shape.is_none()
-            || !matches!(pose_rig.geometry.shape, Some(Shape::Mesh { .. }));
-        if sphere {
-            assert!(refused(&pose_rig, request(files(1, 1, 1, None), false)).contains("is no mesh"));
-        }
+        let mesh = Rig::parse("simulated-pose.toml", POSE_RIG).unwrap();
+        assert!(PoseCalibration::new(&mesh, request(files(1, 1, 1, None), false)).is_ok());
+        let mut sphere = mesh.clone();
+        sphere.geometry.shape = Some(Shape::Sphere {
+            center: [0.0; 3],
+            radius: 0.03,
+        });
+        assert!(refused(&sphere, request(files(1, 1, 1, None), false)).contains("is no mesh"));
         let ortho = Rig::parse(
             "simulated.toml",
             include_str!("../../../config/rigs/simulated.toml"),

@@ -118,14 +118,23 @@ pub fn write_new(dir: &Path, name: &str, bytes: &[u8]) -> Result<PathBuf> {
             Ok(mut f) => {
                 f.write_all(bytes)
                     .and_then(|_| f.sync_all())
-                    .map_err(|e| io(&path, e))?;
+                    .map_err(|e| failed("writing", &path, e))?;
                 return Ok(path);
             }
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
-            Err(e) => return Err(io(&path, e)),
+            Err(e) => return Err(failed("creating", &path, e)),
         }
     }
     unreachable!("an unbounded range ends only by returning")
+}
+
+/// A camera file that could not be made: not a session's, so without [`io`]'s advice to
+/// resume one.
+fn failed(doing: &str, path: &Path, e: std::io::Error) -> SessionError {
+    SessionError::Io {
+        path: format!("{doing} {}", path.display()),
+        reason: e.to_string(),
+    }
 }
 
 /// A file name a device chose, made safe to create in a folder of ours: letters, digits,
