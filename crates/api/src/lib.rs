@@ -7,6 +7,7 @@
 //!   against before any device moves.
 //! - [`event`]: what a running capture reports ([`event::Event`]), ending with its
 //!   [`event::Summary`].
+//! - [`failure`]: why a capture failed, as a code ([`failure::FailureCode`]).
 //! - [`session`]: a session's manifest and its states.
 //! - [`answers`]: the daemon's answers, and its errors with their codes.
 //!
@@ -16,5 +17,6 @@
 
 pub mod answers;
 pub mod event;
+pub mod failure;
 pub mod plan;
 pub mod session;

@@ -63,9 +63,9 @@ pub struct Transition {
     #[serde(
         default,
         skip_serializing_if = "Option::is_none",
-        deserialize_with = "crate::event::FailureCode::read_lenient"
+        deserialize_with = "crate::failure::FailureCode::read_lenient"
     )]
-    pub code: Option<crate::event::FailureCode>,
+    pub code: Option<crate::failure::FailureCode>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
