@@ -83,37 +83,19 @@ impl RigFile {
         let Camera::Pinhole { fx, fy, pose, .. } = camera else {
             bail!("a pose is written for a pinhole camera");
         };
-        let path = self.path.display().to_string();
-        let item = self
-            .doc
-            .get_mut("geometry")
-            .and_then(|g| g.get_mut("camera"))
-            .with_context(|| {
-                format!("{path} has no [geometry.camera] table to write the pose into")
-            })?;
-        // A comment above `fx` says where the numbers came from; an inline table holds none.
-        let is_table = item.is_table();
-        let table = item
-            .as_table_like_mut()
-            .with_context(|| format!("{path}: geometry.camera is not a table"))?;
-        let triple = |v: [f64; 3]| {
-            let mut a = Array::new();
-            for x in v {
-                a.push(x);
-            }
-            value(a)
-        };
         let round = |x: f64| (x * 100.0).round() / 100.0;
-        table.insert("fx", value(round(*fx)));
-        table.insert("fy", value(round(*fy)));
-        table.insert("position", triple(pose.position));
-        table.insert("look_at", triple(pose.look_at));
-        table.insert("up", triple(pose.up));
-        if let (true, Some(mut key)) = (is_table, table.key_mut("fx")) {
-            key.leaf_decor_mut()
-                .set_prefix(format!("# fx, fy, position, look_at and up {note}.\n"));
-        }
-        Ok(())
+        self.write_geometry(
+            "camera",
+            "pose",
+            &[
+                ("fx", value(round(*fx))),
+                ("fy", value(round(*fy))),
+                ("position", array(pose.position)),
+                ("look_at", array(pose.look_at)),
+                ("up", array(pose.up)),
+            ],
+            &format!("fx, fy, position, look_at and up {note}"),
+        )
     }
 
     /// Sets the mesh's `position` and `rotation_deg` in `[geometry.shape]` to where its
@@ -127,35 +109,62 @@ impl RigFile {
         else {
             bail!("an object's placement is written for a mesh");
         };
+        // Hundredths of a degree and hundredths of a millimetre: finer than a silhouette pins.
+        let rounded = |v: [f64; 3], decimals: usize| {
+            array(v.map(|x| format!("{x:.decimals$}").parse::<f64>().expect("a number") + 0.0))
+        };
+        self.write_geometry(
+            "shape",
+            "placement",
+            &[
+                ("rotation_deg", rounded(*rotation_deg, 2)),
+                ("position", rounded(*position, 5)),
+            ],
+            &format!(
+                "rotation_deg and position from the object's silhouette, by `brdfd calibrate pose --refine-object` on {}",
+                humantime::format_rfc3339_seconds(std::time::SystemTime::now())
+            ),
+        )
+    }
+
+    /// Sets `values` in `[geometry.TABLE]` (which holds the calibration's `what`), with
+    /// `comment` above the first of them; an inline table holds no comment.
+    fn write_geometry(
+        &mut self,
+        table: &str,
+        what: &str,
+        values: &[(&str, Item)],
+        comment: &str,
+    ) -> anyhow::Result<()> {
         let path = self.path.display().to_string();
         let item = self
             .doc
             .get_mut("geometry")
-            .and_then(|g| g.get_mut("shape"))
+            .and_then(|g| g.get_mut(table))
             .with_context(|| {
-                format!("{path} has no [geometry.shape] table to write the placement into")
+                format!("{path} has no [geometry.{table}] table to write the {what} into")
             })?;
         let is_table = item.is_table();
-        let table = item
+        let t = item
             .as_table_like_mut()
-            .with_context(|| format!("{path}: geometry.shape is not a table"))?;
-        // Hundredths of a degree and hundredths of a millimetre: finer than a silhouette pins.
-        let triple = |v: [f64; 3], decimals: usize| {
-            let mut a = Array::new();
-            for x in v {
-                let x: f64 = format!("{x:.decimals$}").parse().expect("a number");
-                a.push(x + 0.0);
+            .with_context(|| format!("{path}: geometry.{table} is not a table"))?;
+        for (key, v) in values {
+            t.insert(key, v.clone());
+        }
+        if let (true, Some((first, _))) = (is_table, values.first()) {
+            if let Some(mut key) = t.key_mut(first) {
+                key.leaf_decor_mut().set_prefix(format!("# {comment}.\n"));
             }
-            value(a)
-        };
-        table.insert("rotation_deg", triple(*rotation_deg, 2));
-        table.insert("position", triple(*position, 5));
-        if let (true, Some(mut key)) = (is_table, table.key_mut("rotation_deg")) {
-            key.leaf_decor_mut().set_prefix(format!(
-                "# rotation_deg and position from the object's silhouette, by `brdfd calibrate pose --refine-object` on {}.\n",
-                humantime::format_rfc3339_seconds(std::time::SystemTime::now())
-            ));
         }
         Ok(())
     }
+}
+
+/// Three numbers as a TOML array.
+fn array(v: [f64; 3]) -> Item {
+    let mut a = Array::new();
+    for x in v {
+        a.push(x);
+    }
+    value(a)
 }
