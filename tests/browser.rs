@@ -571,6 +571,7 @@ fn the_viewer_shows_the_export_as_brdfd_renders_it() {
         ior: 1.5,
         clearcoat: 1.0,
         clearcoat_roughness: 0.15,
+        anisotropy: None,
     }
     .document("coated");
     let stored = dir
@@ -583,6 +584,51 @@ fn the_viewer_shows_the_export_as_brdfd_renders_it() {
         errors[0] <= 0.05,
         "the viewer is {:.4} from brdfd's render of a coated metal",
         errors[0]
+    );
+
+    // Brushed aluminium, as an estimate that chose an anisotropic lobe exports it: the
+    // viewer stretches the lobe along the file's tangents (KHR_materials_anisotropy), and
+    // brdfd renders it with the tangents laid from the axis the file names. The viewer's
+    // picture is also compared with brdfd's render of the same material without its stretch,
+    // which it must be far from.
+    let brushed = brdfd_report::export::GltfMaterial {
+        base_color: [0.91, 0.92, 0.92],
+        metallic: 1.0,
+        roughness: 0.25,
+        specular: 1.0,
+        specular_color: [1.0; 3],
+        ior: 1.5,
+        clearcoat: 0.0,
+        clearcoat_roughness: 0.0,
+        anisotropy: Some(brdfd_report::export::gltf::GltfAnisotropy {
+            strength: 0.45,
+            axis: brdfd_core::brdf::normalize([0.3, 0.8, 0.5]),
+            rough_along_axis: true,
+        }),
+    };
+    let isotropic = brdfd_report::export::GltfMaterial {
+        anisotropy: None,
+        ..brushed
+    };
+    let text = brushed.document("brushed");
+    std::fs::write(&stored, &text).unwrap();
+    let own = viewer_against_render(&browser, &daemon, &id, dir.path(), text.as_bytes(), &[0])[0];
+    let unstretched = isotropic.document("brushed");
+    let against_isotropic = viewer_against_render(
+        &browser,
+        &daemon,
+        &id,
+        dir.path(),
+        unstretched.as_bytes(),
+        &[0],
+    )[0];
+    assert!(
+        own <= 0.05,
+        "the viewer is {own:.4} from brdfd's render of brushed aluminium"
+    );
+    assert!(
+        against_isotropic > 3.0 * own,
+        "the viewer's brushed aluminium is {against_isotropic:.4} from the same metal unstretched, {own:.4} from itself"
     );
 }
 

@@ -70,6 +70,7 @@ fn outside_validators_accept_the_exports() {
         ior: 1.5,
         clearcoat: 0.9,
         clearcoat_roughness: 0.05,
+        anisotropy: None,
     };
     let gltf = dir.path().join("coated.gltf");
     std::fs::write(&gltf, coated.document("coated")).unwrap();
@@ -82,9 +83,32 @@ fn outside_validators_accept_the_exports() {
         specular_ior: 1.5,
         coat_weight: 0.9,
         coat_roughness: 0.05,
+        specular_roughness_anisotropy: 0.0,
     };
     let mtlx = dir.path().join("coated.mtlx");
     std::fs::write(&mtlx, openpbr.document("coated")).unwrap();
+    validate_mtlx(&python, &mtlx);
+
+    // An anisotropic lobe's export: KHR_materials_anisotropy with tangents, and OpenPBR's
+    // specular_roughness_anisotropy.
+    let lobe = brdfd_core::anisotropic::AnisotropicLobe {
+        diffuse: [0.02; 3],
+        specular: [0.9; 3],
+        axis: brdfd_core::brdf::normalize([0.5, -0.7, 0.5]),
+        alpha_t: 0.235,
+        alpha_b: 0.062,
+    };
+    let brushed = brdfd_report::export::GltfMaterial {
+        clearcoat: 0.0,
+        clearcoat_roughness: 0.0,
+        ..coated
+    }
+    .with_lobe(&lobe);
+    let gltf = dir.path().join("brushed.gltf");
+    std::fs::write(&gltf, brushed.document("brushed")).unwrap();
+    validate_gltf(&modules, &gltf);
+    let mtlx = dir.path().join("brushed.mtlx");
+    std::fs::write(&mtlx, openpbr.with_lobe(&lobe).document("brushed")).unwrap();
     validate_mtlx(&python, &mtlx);
 }
 

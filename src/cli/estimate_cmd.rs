@@ -15,7 +15,7 @@ use brdfd_core::hybrid::{HybridFit, MixWeight};
 use brdfd_core::merl::MerlBrdf;
 use brdfd_core::nbrdf::NbrdfSet;
 use brdfd_core::raster::Raster;
-use brdfd_core::render::{render_bivariate, render_full, render_merl};
+use brdfd_core::render::{render_anisotropic, render_bivariate, render_merl};
 use brdfd_core::select::SwapParams;
 use brdfd_core::solve::{ColourChoice, Solver};
 use brdfd_report::html::Context as ReportContext;
@@ -384,15 +384,18 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
     } else if let Some(p) = &a.merl {
         render_merl(&geometry, &lights, &MerlBrdf::read(p)?)
     } else if let Some(p) = &a.gltf {
-        let material = brdfd_report::export::GltfMaterial::read(p)?;
-        render_full(
-            &geometry,
-            &lights,
-            &brdfd_report::export::GltfBrdf(material),
-        )
+        brdfd_report::export::GltfMaterial::read(p)?.render_full(&geometry, &lights)
     } else if let Some(p) = &a.coefficients {
         let basis = load_basis(&a.basis)?;
         let r = brdfd_report::results::StoredResult::read(p)?;
+        // An estimate that chose an anisotropic lobe relights with it, not with its
+        // (isotropic) model.
+        if let Some(lobe) = r
+            .chosen_lobe()
+            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?
+        {
+            return finish_render(&a.out, render_anisotropic(&geometry, &lights, lobe));
+        }
         if r.model == "analytic" || r.model == "hybrid" {
             let m: Microfacet = r
                 .analytic_model()

@@ -227,6 +227,16 @@ impl RelightTruth {
     pub fn error(&self, estimate: &Bivariate) -> f64 {
         render_bivariate(&self.sphere, &self.lights, estimate).relative_rmse(&self.image)
     }
+
+    /// The same of what an estimate relights with: the anisotropic lobe it chose, if any,
+    /// else its BRDF.
+    pub fn error_of(&self, estimate: &brdfd_core::estimate::Estimate) -> f64 {
+        match estimate.chosen_lobe() {
+            Some(lobe) => brdfd_core::render::render_anisotropic(&self.sphere, &self.lights, lobe)
+                .relative_rmse(&self.image),
+            None => self.error(&estimate.brdf),
+        }
+    }
 }
 
 /// The turn of the bench's map under which [`VirtualBench::relight_error`] relights.

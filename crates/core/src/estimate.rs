@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use super::analytic::{self, Microfacet, ViewPixels};
+use super::anisotropic::AnisotropicLobe;
 use super::anisotropy::{self, Anisotropy, ViewSamples};
 use super::basis::{Basis, LinearModel};
 use super::bivariate::Bivariate;
@@ -15,7 +16,7 @@ use super::error::{CoreError, Result};
 use super::geometry::{GeomPixel, PixelGeometry};
 use super::hybrid::{self, MixWeight};
 use super::raster::Raster;
-use super::render::RenderingMatrix;
+use super::render::{RenderingMatrix, SpherePicture};
 use super::select::{self, Blocks, Selection, SwapParams};
 use super::solve::{channel_coefficients, Colour, ColourChoice, Solution, Solver};
 use super::stop::Stop;
@@ -172,10 +173,12 @@ pub struct Estimate {
     /// Object pixels left out because a channel was clipped (see [`EstimateOptions::white`]).
     pub clipped: usize,
     /// ‖A·c − y‖ / ‖y‖ over every candidate pixel, not only the chosen ones: how well the
-    /// estimate re-renders the photo, with no ground truth needed.
+    /// estimate re-renders the photo, with no ground truth needed. Of the anisotropic lobe
+    /// when the estimate chose one ([`Anisotropy::chosen`]): of what it relights with.
     pub fit_error: f64,
     /// What the estimate renders at each candidate pixel, beside what the photo measured
-    /// there: the re-render [`Estimate::fit_error`] is measured on, every view's in turn.
+    /// there: the re-render [`Estimate::fit_error`] is measured on, every view's in turn (the
+    /// chosen anisotropic lobe's, when there is one).
     pub rerender: Vec<Rerendered>,
     pub lights: usize,
     /// Lights the chosen pixels' rows were rebuilt with (first view); 0 if they kept the
@@ -723,10 +726,33 @@ pub fn estimate_views_shared(
     let mut estimate = estimate?;
     options.stop.check()?;
     estimate.clipped = clipped;
-    if let Some(found) = anisotropy {
-        estimate.anisotropy = found;
+    if let Some(mut found) = anisotropy.flatten() {
+        // The lobe is chosen over the model only when it re-renders the photo closer: a
+        // stretched highlight the measured mix already follows needs no other model.
+        found.chosen = found.asks() && found.anisotropic_misfit < estimate.fit_error;
+        if found.chosen {
+            rerender_with(&mut estimate, &candidates, &found.lobe);
+        }
+        estimate.anisotropy = Some(found);
     }
     Ok(estimate)
+}
+
+/// The estimate's re-render and fit, every candidate's, from the anisotropic lobe it chose:
+/// the photo is compared with what the estimate relights with (the comparison measured the
+/// lobe on a spread of the candidates only).
+fn rerender_with(estimate: &mut Estimate, candidates: &[Candidates], lobe: &AnisotropicLobe) {
+    let predicted: Vec<f64> = candidates
+        .iter()
+        .flat_map(|c| anisotropy::render_lobe(&c.pixels, c.view.lights, lobe))
+        .flatten()
+        .collect();
+    let observed: Vec<[f64; 3]> = candidates
+        .iter()
+        .flat_map(|c| c.observed.iter().copied())
+        .collect();
+    estimate.fit_error = relative_misfit(&predicted, &observed);
+    estimate.rerender = rerendered(candidates, &predicted);
 }
 
 /// The estimate of the model `options` name, on these candidates.
@@ -1079,6 +1105,24 @@ pub fn fit_verdict(fit: f64) -> String {
 }
 
 impl Estimate {
+    /// The anisotropic lobe the estimate relights with, when it chose one over its model
+    /// ([`Anisotropy::chosen`]).
+    pub fn chosen_lobe(&self) -> Option<&AnisotropicLobe> {
+        self.anisotropy
+            .as_ref()
+            .filter(|a| a.chosen)
+            .map(|a| &a.lobe)
+    }
+
+    /// The estimate on a `size` × `size` sphere under `lights`: its chosen lobe when it chose
+    /// one, else its BRDF.
+    pub fn sphere_picture(&self, lights: &LightSet, size: usize) -> Result<SpherePicture> {
+        match self.chosen_lobe() {
+            Some(lobe) => SpherePicture::render_lobe(lobe, lights, size),
+            None => SpherePicture::render(&self.brdf, lights, size),
+        }
+    }
+
     /// The model and its settings, for a person to read.
     pub fn method_text(&self) -> String {
         match (self.model, &self.analytic) {

@@ -8,6 +8,7 @@
 //! pixel through a [`bvh`]; what it hides of its own lights is [`visibility`].
 
 pub mod analytic;
+pub mod anisotropic;
 pub mod anisotropy;
 pub mod basis;
 pub mod bivariate;

@@ -15,10 +15,11 @@
 //! bright. On a convex part no face is shaded by the part, and nothing is flagged.
 //!
 //! **Anisotropy.** A brushed or machined metal, or a print's layer lines, stretch the
-//! highlights across a grain; every model brdfd has is isotropic. The estimate
+//! highlights across a grain, which the isotropic models cannot follow. The estimate
 //! ([`brdfd_core::anisotropy`]) compares Lambert with one isotropic GGX lobe against Lambert
 //! with one anisotropic lobe along a grain it searches for: when the anisotropic lobe
-//! re-renders the photo much closer, the grain is there.
+//! re-renders the photo much closer, the grain is there. The flag says whether the estimate
+//! relights with that lobe, and what stays isotropic.
 //!
 //! Measured on brdfd's own Mitsuba set (`scripts/mitsuba-scenes.py`, docs/evaluation.md)
 //! and the simulated presets: each scene that breaks an assumption is flagged for it, and no
@@ -30,7 +31,7 @@ use serde::Serialize;
 
 use crate::compare::luminance;
 use crate::visibility::Visibility;
-use brdfd_core::anisotropy::Anisotropy;
+use brdfd_core::anisotropy::{Anisotropy, ASKS_BELOW};
 use brdfd_core::estimate::{Estimate, Rerendered};
 
 /// A face is shaded when it sees less than this share of the light above its horizon: the
@@ -95,28 +96,25 @@ pub fn of(estimate: &Estimate, visibility: Option<&Visibility>) -> Vec<Flag> {
         .collect()
 }
 
-/// The anisotropic lobe's misfit, over the best isotropic one's, at or below which the photo
-/// asks for anisotropy. On brdfd's Mitsuba set: brushed aluminium (α 0.06 along the grain,
-/// 0.24 across) 0.28; the in-model domes 0.88–0.98; the parts outside the model for other
-/// reasons 0.92–1.00; the simulated presets 0.88–0.98.
-const ANISOTROPIC_BELOW: f64 = 0.75;
-/// And the lobe must be this much rougher across the grain than along it: a lobe as wide
-/// both ways that fits better is not a grain.
-const MIN_STRETCH: f64 = 1.5;
-
-/// Whether an anisotropic lobe re-renders the photo much closer than any isotropic one.
+/// Whether an anisotropic lobe re-renders the photo much closer than any isotropic one
+/// ([`Anisotropy::asks`]).
 fn anisotropy(a: &Anisotropy) -> Option<Flag> {
     let figure = a.misfit_ratio();
-    (figure <= ANISOTROPIC_BELOW && a.stretch() >= MIN_STRETCH).then(|| Flag {
+    let consequence = if a.chosen {
+        "The estimate relights with this lobe (coefficients.json's `anisotropy.lobe`, `brdfd render`, the glTF's KHR_materials_anisotropy and the .mtlx); the MERL-layout tables and the report's BRDF plots are isotropic, as the layout is, and are too sharp across the grain and too blurred along it"
+    } else {
+        "The estimate's own model re-renders the photo closer still, and is kept; it is isotropic, and is too sharp across the grain and too blurred along it"
+    };
+    a.asks().then(|| Flag {
         reason: Reason::Anisotropy,
         figure,
         text: format!(
-            "anisotropy: the highlights are stretched across a grain; Lambert with an anisotropic GGX lobe (α {:.3} along the grain, {:.3} across it) re-renders the photo to {:.3}, where the best isotropic lobe gives {:.3} (flagged at {:.0}% of it or less); the grain runs along ({:.2}, {:.2}, {:.2}) in the object's frame. brdfd's models are isotropic: the estimate is too sharp across the grain and too blurred along it, and relights poorly",
+            "anisotropy: the highlights are stretched across a grain; Lambert with an anisotropic GGX lobe (α {:.3} along the grain, {:.3} across it) re-renders the photo to {:.3}, where the best isotropic lobe gives {:.3} (flagged at {:.0}% of it or less); the grain runs along ({:.2}, {:.2}, {:.2}) in the object's frame. {consequence}",
             a.alpha_along,
             a.alpha_across,
             a.anisotropic_misfit,
             a.isotropic_misfit,
-            100.0 * ANISOTROPIC_BELOW,
+            100.0 * ASKS_BELOW,
             a.grain[0],
             a.grain[1],
             a.grain[2],
@@ -459,6 +457,14 @@ mod tests {
             alpha_along: along,
             alpha_across: across,
             pixels: 1000,
+            lobe: brdfd_core::anisotropic::AnisotropicLobe {
+                diffuse: [0.0; 3],
+                specular: [1.0; 3],
+                axis: [1.0, 0.0, 0.0],
+                alpha_t: along,
+                alpha_b: across,
+            },
+            chosen: false,
         }
     }
 

@@ -22,7 +22,6 @@ use brdfd_core::error::{CoreError, Result};
 use brdfd_core::estimate::{fit_verdict, Estimate};
 use brdfd_core::merl;
 use brdfd_core::raster::Raster;
-use brdfd_core::render::SpherePicture;
 
 /// What a report shows besides the estimate itself; every part is optional.
 #[derive(Default)]
@@ -105,7 +104,7 @@ fn page(
     // The page's costly parts, the relit spheres' renders and the slices' plots, made side by
     // side: the plots are serial work.
     let (relit, slices) = rayon::join(
-        || relit_spheres(&est.brdf),
+        || relit_spheres(est),
         || {
             SLICE_THETA_D
                 .map(|theta_d| slice_svg(est, cx.truth, theta_d))
@@ -266,7 +265,19 @@ th{font-weight:normal;color:#555}.summary{font-size:1.05em}.flag{border-left:4px
 /// The numbers, each with its verdict where brdfd has one.
 fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec<(String, String)> {
     let mut rows = vec![
-        ("model".to_string(), est.model.name().to_string()),
+        (
+            "model".to_string(),
+            match est.chosen_lobe() {
+                Some(l) => format!(
+                    "an anisotropic GGX lobe (α {:.3} and {:.3}), chosen over the {} model: what the estimate relights with (brdf-anisotropic.binary); the BRDF slices and brdf.binary are the {} model's, isotropic",
+                    l.alpha_t.min(l.alpha_b),
+                    l.alpha_t.max(l.alpha_b),
+                    est.model.name(),
+                    est.model.name()
+                ),
+                None => est.model.name().to_string(),
+            },
+        ),
         (
             "fit to the photo".to_string(),
             format!(
@@ -468,15 +479,12 @@ const RELIT_LIGHTS: usize = 512;
 
 /// The estimate on a sphere under each of [`crate::lights::reference_maps`], each on the fixed
 /// scale of a white Lambertian sphere under the same map.
-fn relit_spheres(brdf: &Bivariate) -> Result<Vec<(&'static str, RgbImage)>> {
+fn relit_spheres(est: &Estimate) -> Result<Vec<(&'static str, RgbImage)>> {
     crate::lights::reference_maps()
         .into_iter()
         .map(|(name, map)| {
             let lights = map.compressed(RELIT_LIGHTS, 0.0);
-            Ok((
-                name,
-                SpherePicture::render(brdf, &lights, RELIT_SIZE)?.to_srgb8(),
-            ))
+            Ok((name, est.sphere_picture(&lights, RELIT_SIZE)?.to_srgb8()))
         })
         .collect()
 }

@@ -16,7 +16,6 @@ use brdfd_core::brdf::directional_albedo;
 use brdfd_core::envmap::{write_exr_attributed, ExrAttribute, LightSet};
 use brdfd_core::estimate::{Estimate, Model, Timings};
 use brdfd_core::hybrid::MixWeight;
-use brdfd_core::render::SpherePicture;
 use brdfd_core::uncertainty::Uncertainty;
 use brdfd_core::{CoreError, Result};
 
@@ -159,6 +158,20 @@ pub struct StoredResult {
     /// Absent in files written before flags were.
     #[serde(default)]
     pub flags: Vec<StoredFlag>,
+    /// Absent when the comparison did not run.
+    #[serde(default)]
+    pub anisotropy: Option<StoredAnisotropy>,
+}
+
+/// `coefficients.json`'s `anisotropy`, as far as relighting needs it.
+#[derive(Debug, Clone, Deserialize)]
+pub struct StoredAnisotropy {
+    /// Whether the estimate relights with `lobe`; absent (false) in files written before
+    /// the lobe could be chosen.
+    #[serde(default)]
+    pub chosen: bool,
+    #[serde(default)]
+    pub lobe: Option<brdfd_core::anisotropic::AnisotropicLobe>,
 }
 
 /// One of `coefficients.json`'s `flags`, as far as a reader needs it.
@@ -244,6 +257,24 @@ impl StoredResult {
             .map(serde_json::from_value)
             .transpose()?
             .unwrap_or_default())
+    }
+
+    /// The anisotropic lobe the estimate relights with, when it chose one over its model
+    /// (`anisotropy.chosen`); says what is wrong with the field when it cannot be rendered.
+    pub fn chosen_lobe(
+        &self,
+    ) -> std::result::Result<Option<&brdfd_core::anisotropic::AnisotropicLobe>, String> {
+        match self.anisotropy.as_ref().filter(|a| a.chosen) {
+            None => Ok(None),
+            Some(a) => {
+                let lobe = a.lobe.as_ref().ok_or(
+                    "field `anisotropy`: `chosen` is true, but the `lobe` it chose is missing",
+                )?;
+                lobe.check()
+                    .map_err(|e| format!("field `anisotropy.lobe`: {e}"))?;
+                Ok(Some(lobe))
+            }
+        }
     }
 
     /// The coefficients, `NaN` where the file holds `null`.
@@ -392,6 +423,7 @@ pub fn write_results(
 ) -> Result<ResultFiles> {
     std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
     let brdf = &estimate.brdf;
+    let lobe = estimate.chosen_lobe();
     let merl_path = dir.join("brdf.binary");
     std::thread::scope(|s| {
         // The MERL table (35 MB) is written while the rest is worked out.
@@ -402,15 +434,15 @@ pub fn write_results(
             || {
                 let capture = cx.env.map(|m| (m, cx.yaw));
                 match cx.exports.filter(|p| p.is_for(capture)) {
-                    Some(prepared) => write_exports(dir, "brdfd_estimate", brdf, prepared),
+                    Some(prepared) => write_exports(dir, "brdfd_estimate", brdf, lobe, prepared),
                     None => {
                         let capture = capture.map(|(m, yaw)| (m.clone(), yaw));
                         let prepared = Prepared::new(capture, brdf.grid)?;
-                        write_exports(dir, "brdfd_estimate", brdf, &prepared)
+                        write_exports(dir, "brdfd_estimate", brdf, lobe, &prepared)
                     }
                 }
             },
-            || write_preview(dir, &dir.join("preview.png"), brdf, lights, cx),
+            || write_preview(dir, &dir.join("preview.png"), estimate, lights, cx),
         );
         let files = write_the_rest(
             dir,
@@ -570,6 +602,13 @@ fn write_records(
         write_bivariate_exr(&dir.join("brdf-sigma.exr"), &band, sigma, basis_id)?;
         written.push(dir.join("brdf-sigma.exr"));
     }
+    // The MERL-layout tables are isotropic by definition: a chosen anisotropic lobe is
+    // tabulated beside them, in its own tangent frame (docs/formats.md).
+    if let Some(lobe) = estimate.chosen_lobe() {
+        let path = dir.join("brdf-anisotropic.binary");
+        std::fs::write(&path, lobe.tabulate().to_bytes()).map_err(|e| CoreError::io(&path, e))?;
+        written.push(path);
+    }
     // The capture's light, for the web page's viewer to show the export under, and on a
     // mesh the export on the object itself, in the same world.
     if let Some(map) = cx.env {
@@ -609,13 +648,13 @@ fn write_records(
 fn write_preview(
     dir: &Path,
     png: &Path,
-    brdf: &Bivariate,
+    estimate: &Estimate,
     lights: &LightSet,
     cx: &Context,
 ) -> Result<image::RgbImage> {
     let fewer = cx.env.map(|map| map.compressed(PREVIEW_LIGHTS, cx.yaw));
     let lights = fewer.as_ref().unwrap_or(lights);
-    let picture = SpherePicture::render(brdf, lights, PREVIEW_SIZE)?;
+    let picture = estimate.sphere_picture(lights, PREVIEW_SIZE)?;
     picture.radiance.write_exr(&dir.join("preview.exr"))?;
     let image = picture.to_srgb8();
     image

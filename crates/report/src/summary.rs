@@ -75,6 +75,7 @@ pub struct Extras<'a> {
 
 fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
     let mut lines = Vec::new();
+    // The fit of what the estimate relights with: the anisotropic lobe's, when it chose one.
     let fit = estimate.fit_error;
     lines.push(Line {
         grade: Grade::of(fit, GOOD_FIT, POOR_FIT),
@@ -93,6 +94,12 @@ fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
             ),
         });
     }
+    // The bootstrap and the conditioning are the model's: said so when a lobe relights.
+    let of_model = if estimate.chosen_lobe().is_some() {
+        "its isotropic model: "
+    } else {
+        ""
+    };
     if let Some(u) = &estimate.uncertainty {
         let s = u.bootstrap_spread;
         let (grade, word) = if s <= UNSTEADY_SPREAD {
@@ -103,7 +110,7 @@ fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
         lines.push(Line {
             grade,
             text: format!(
-                "resampling its pixels {} times moves its relit sphere by {:.1}% RMS ({word} {:.0}%)",
+                "{of_model}resampling its pixels {} times moves its relit sphere by {:.1}% RMS ({word} {:.0}%)",
                 u.resamples,
                 100.0 * s,
                 100.0 * UNSTEADY_SPREAD
@@ -123,7 +130,7 @@ fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
         lines.push(Line {
             grade,
             text: format!(
-                "condition number {k:.0} ({})",
+                "{of_model}condition number {k:.0} ({})",
                 match grade {
                     Grade::Good => format!("well conditioned: at most {WELL_CONDITIONED:.0}"),
                     Grade::Fair => format!("noise is amplified: above {WELL_CONDITIONED:.0}"),
@@ -146,6 +153,10 @@ pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String
         Model::Hybrid => "hybrid model",
         Model::Analytic => "analytic model",
         Model::Basis => "basis model",
+    };
+    let model = match estimate.chosen_lobe() {
+        Some(_) => format!("an anisotropic GGX lobe, chosen over the {model}"),
+        None => model.to_string(),
     };
     let mut out = vec![format!(
         "{material}: {} estimate ({model}){}",

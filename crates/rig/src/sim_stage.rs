@@ -173,7 +173,7 @@ impl SimulatedStage {
             // Every view was already on disk (a resumed session): render it now.
             None => self.bench()?.relight_truth()?,
         };
-        let error = truth.error(&est.brdf);
+        let error = truth.error_of(est);
         phases.end_as_device(p);
         Ok(error)
     }

@@ -267,10 +267,18 @@ const COMMON = /* glsl */ `
 const SPHERE_VERTEX = /* glsl */ `
   varying vec3 vNormal;
   varying vec3 vPosition;
+  #ifdef ANISOTROPIC
+  // KHR_materials_anisotropy stretches the lobe along the mesh's tangent.
+  attribute vec4 tangent;
+  varying vec3 vTangent;
+  #endif
   void main() {
     vec4 world = modelMatrix * vec4(position, 1.0);
     vPosition = world.xyz;
     vNormal = transpose(inverse(mat3(modelMatrix))) * normal;
+    #ifdef ANISOTROPIC
+    vTangent = mat3(modelMatrix) * tangent.xyz;
+    #endif
     gl_Position = projectionMatrix * viewMatrix * world;
   }
 `;
@@ -292,13 +300,19 @@ const SPHERE_FRAGMENT = /* glsl */ `
   uniform vec3 specularB;
   uniform float diffuseLossA;
   uniform float diffuseLossB;
-  uniform float alpha;
+  // GGX α along the lobe's tangent and across it (equal without KHR_materials_anisotropy),
+  // and the turn of the tangent about the normal (anisotropyRotation).
+  uniform vec2 alpha;
+  uniform float anisotropyRotation;
   // KHR_materials_clearcoat: the coat's weight and GGX α.
   uniform float clearcoat;
   uniform float clearcoatAlpha;
   uniform float fresnelMean[FRESNEL_STEPS];
   varying vec3 vNormal;
   varying vec3 vPosition;
+  #ifdef ANISOTROPIC
+  varying vec3 vTangent;
+  #endif
 
   float radicalInverse(uint b) {
     b = (b << 16u) | (b >> 16u);
@@ -309,30 +323,31 @@ const SPHERE_FRAGMENT = /* glsl */ `
     return float(b) * 2.3283064365386963e-10;
   }
 
-  // Smith's Λ for GGX, as brdfd's \`smith_lambda\`.
-  float lambda(float c, float a2) {
-    float c2 = max(c * c, 1e-12);
-    return 0.5 * (sqrt(1.0 + a2 * (1.0 - c2) / c2) - 1.0);
+  // Smith's Λ for an anisotropic GGX of α (along t, along b), for a direction w in the
+  // lobe's frame (t, b, n): brdfd's \`smith_lambda\` when the two are equal.
+  float lambda(vec3 w, vec2 a) {
+    float z2 = max(w.z * w.z, 1e-12);
+    return 0.5 * (sqrt(1.0 + (a.x * a.x * w.x * w.x + a.y * a.y * w.y * w.y) / z2) - 1.0);
   }
 
-  // GGX's D, as brdfd's \`ggx_d\`.
-  float ggx(float cosH, float a2) {
-    float k = (a2 - 1.0) * cosH * cosH + 1.0;
-    return a2 / (PI * k * k);
+  // Anisotropic GGX's D for a unit half vector in the lobe's frame: brdfd's \`ggx_d\` when
+  // the two αs are equal.
+  float ggx(vec3 h, vec2 a) {
+    float k = h.x * h.x / (a.x * a.x) + h.y * h.y / (a.y * a.y) + h.z * h.z;
+    return 1.0 / (PI * a.x * a.y * k * k);
   }
 
-  // The map's light through one GGX lobe of roughness α: ∫ (A + B·w)·D·V·cos θi·L dωi, with
-  // w = (1 − cos θd)⁵, at the pixel of normal n (tangents t, b) and view v.
-  vec3 lobe(vec3 n, vec3 v, vec3 t, vec3 b, float nv, float alpha, vec3 A, vec3 B) {
-    float a2 = alpha * alpha;
-    float lv = lambda(nv, a2);
+  // The map's light through one GGX lobe of roughness α (along t, along b): ∫ (A + B·w)·D·V·
+  // cos θi·L dωi, with w = (1 − cos θd)⁵, at the pixel of normal n (tangents t, b) and view v.
+  vec3 lobe(vec3 n, vec3 v, vec3 t, vec3 b, float nv, vec2 alpha, vec3 A, vec3 B) {
+    vec3 ve = vec3(dot(v, t), dot(v, b), nv);
+    float lv = lambda(ve, alpha);
     // Solid angle of a level-0 texel at the equator; a row's shrinks with sin θ.
     float texel = (2.0 * PI / envSize.x) * (PI / envSize.y);
 
     // Half vectors drawn from the visible normals (Heitz 2018, "Sampling the GGX Distribution
     // of Visible Normals"): pdf(l) = G₁(v)·D(h) / (4 cos θo), and f·cos/pdf = F·G₂/G₁(v),
     // bounded, so a fixed set of samples is an even quadrature of the lobe.
-    vec3 ve = vec3(dot(v, t), dot(v, b), nv);
     vec3 vh = normalize(vec3(alpha * ve.xy, ve.z));
     float lensq = dot(vh.xy, vh.xy);
     vec3 t1 = lensq > 0.0 ? vec3(-vh.y, vh.x, 0.0) * inversesqrt(lensq) : vec3(1.0, 0.0, 0.0);
@@ -351,7 +366,7 @@ const SPHERE_FRAGMENT = /* glsl */ `
       vec3 l = 2.0 * cosD * h - v;
       float nl = dot(n, l);
       if (nl <= 0.0) continue;
-      float pdf = ggx(hl.z, a2) / ((1.0 + lv) * 4.0 * nv);
+      float pdf = ggx(hl, alpha) / ((1.0 + lv) * 4.0 * nv);
       // Filtered importance sampling (Colbert & Křivánek, GPU Gems 3, ch. 20): the level
       // whose texels cover this sample's share of the lobe. The extra level of blur they
       // suggest would widen a rough lobe visibly (7% brighter on brdfd's fabric).
@@ -359,7 +374,8 @@ const SPHERE_FRAGMENT = /* glsl */ `
       float lod = 0.5 * log2(1.0 / (float(SAMPLES) * pdf * texel * sinL));
       vec3 radiance = textureLod(envMap, mapUv(l), clamp(lod, 0.0, envLevels - 1.0)).rgb;
       float w = pow(1.0 - cosD, 5.0);
-      specular += radiance * (A + B * w) * (1.0 + lv) / (1.0 + lv + lambda(nl, a2));
+      float ll = lambda(vec3(dot(l, t), dot(l, b), nl), alpha);
+      specular += radiance * (A + B * w) * (1.0 + lv) / (1.0 + lv + ll);
     }
     specular /= float(SAMPLES);
 
@@ -370,9 +386,10 @@ const SPHERE_FRAGMENT = /* glsl */ `
       if (nl <= 0.0) continue;
       vec3 h = normalize(v + l);
       float w = pow(1.0 - max(dot(v, h), 0.0), 5.0);
+      vec3 hl = vec3(dot(h, t), dot(h, b), max(dot(n, h), 0.0));
+      float ll = lambda(vec3(dot(l, t), dot(l, b), nl), alpha);
       // D·V·cos θi, V's cos θi cancelled.
-      float d = ggx(max(dot(n, h), 0.0), a2 + peaks[2 * i].w)
-        / ((1.0 + lv + lambda(nl, a2)) * 4.0 * nv);
+      float d = ggx(hl, sqrt(alpha * alpha + peaks[2 * i].w)) / ((1.0 + lv + ll) * 4.0 * nv);
       specular += peaks[2 * i + 1].rgb * (A + B * w) * d;
     }
     return specular;
@@ -386,7 +403,14 @@ const SPHERE_FRAGMENT = /* glsl */ `
       : normalize(cameraPosition - vPosition));
     // Where interpolated normals turn from the camera at the silhouette.
     float nv = max(dot(n, v), 1e-4);
+    #ifdef ANISOTROPIC
+    // The mesh's tangent laid on the shading normal, turned by anisotropyRotation.
+    vec3 tm = toMap(vTangent);
+    vec3 t0 = normalize(tm - n * dot(tm, n));
+    vec3 t = cos(anisotropyRotation) * t0 + sin(anisotropyRotation) * cross(n, t0);
+    #else
     vec3 t = normalize(cross(abs(n.y) < 0.999 ? vec3(0.0, 1.0, 0.0) : vec3(1.0, 0.0, 0.0), n));
+    #endif
     vec3 b = cross(n, t);
     vec3 specular = lobe(n, v, t, b, nv, alpha, specularA, specularB);
 
@@ -415,7 +439,7 @@ const SPHERE_FRAGMENT = /* glsl */ `
     vec3 colour = diffuse + specular;
     if (clearcoat > 0.0) {
       float k = clearcoat * (0.04 + 0.96 * pow(1.0 - nv, 5.0));
-      vec3 coat = lobe(n, v, t, b, nv, clearcoatAlpha, vec3(1.0), vec3(0.0));
+      vec3 coat = lobe(n, v, t, b, nv, vec2(clearcoatAlpha), vec3(1.0), vec3(0.0));
       colour = mix(colour, coat, k);
     }
     gl_FragColor = vec4(colour, 1.0);
@@ -449,8 +473,8 @@ const BACKGROUND_FRAGMENT = /* glsl */ `
 `;
 
 // The glTF BRDF's factors, from what the loader made of the material: base colour, metallic,
-// roughness, and KHR_materials_specular, _ior and _clearcoat where present (glTF's defaults
-// otherwise).
+// roughness, and KHR_materials_specular, _ior, _clearcoat and _anisotropy where present
+// (glTF's defaults otherwise).
 // The mixes are folded here so that the shader evaluates
 //   f = (1 − m)·(1 − s·max Fr)·c/π + [(1 − m)·s·Fr + m·(c + (1 − c)·w)]·D·V,
 // Fr = F₀ + (1 − F₀)·w, F₀ = min(((η − 1)/(η + 1))² × specular colour, 1), w = (1 − cos θd)⁵,
@@ -464,6 +488,8 @@ function brdfUniforms(material) {
   const ior = material.ior ?? 1.5;
   const f0 = sc.map((k) => Math.min(((ior - 1) / (ior + 1)) ** 2 * k, 1));
   const f0max = Math.max(...f0);
+  const a = (material.roughness ?? 1) ** 2;
+  const strength = material.anisotropy ?? 0;
   return {
     diffuseColor: { value: new THREE.Vector3(...c.map((k) => (1 - m) * k)) },
     specularA: { value: new THREE.Vector3(...c.map((k, i) => (1 - m) * s * f0[i] + m * k)) },
@@ -471,7 +497,9 @@ function brdfUniforms(material) {
     // max over channels of Fr is F₀max + (1 − F₀max)·w, since w ≤ 1.
     diffuseLossA: { value: s * f0max },
     diffuseLossB: { value: s * (1 - f0max) },
-    alpha: { value: Math.max((material.roughness ?? 1) ** 2, 1e-4) },
+    // KHR_materials_anisotropy: α along the (turned) tangent is mix(α, 1, strength²).
+    alpha: { value: new THREE.Vector2(Math.max(a + (1 - a) * strength ** 2, 1e-4), Math.max(a, 1e-4)) },
+    anisotropyRotation: { value: material.anisotropyRotation ?? 0 },
     clearcoat: { value: material.clearcoat ?? 0 },
     clearcoatAlpha: { value: Math.max((material.clearcoatRoughness ?? 0) ** 2, 1e-4) },
   };
@@ -530,8 +558,13 @@ async function main() {
     const gltf = await new GLTFLoader().loadAsync(url);
     gltf.scene.traverse((o) => {
       if (!o.isMesh) return;
+      // An anisotropic lobe is stretched along the mesh's tangents, which brdfd's exports
+      // carry; a mesh without them is shaded isotropic (glTF would make them from its UVs,
+      // and brdfd's meshes have none).
+      const anisotropic = (o.material.anisotropy ?? 0) > 0 && o.geometry.attributes.tangent;
       o.material = new THREE.ShaderMaterial({
         uniforms: { ...lighting, ...brdfUniforms(o.material) },
+        defines: anisotropic ? { ANISOTROPIC: "" } : {},
         vertexShader: SPHERE_VERTEX,
         fragmentShader: SPHERE_FRAGMENT,
       });

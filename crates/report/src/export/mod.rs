@@ -25,9 +25,12 @@ use std::path::Path;
 
 use serde::Serialize;
 
+use brdfd_core::analytic::Microfacet;
+use brdfd_core::anisotropic::AnisotropicLobe;
 use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::envmap::{EnvMap, LightSet};
 use brdfd_core::geometry::{Camera, PixelGeometry, Shape};
+use brdfd_core::render::render_anisotropic;
 use brdfd_core::{CoreError, Result};
 
 pub use gltf::{GltfBrdf, GltfMaterial};
@@ -99,6 +102,9 @@ pub struct Export {
     pub checked_under: Vec<CheckedUnder>,
     /// What `relight_error` measures of the `.mtlx`.
     pub mtlx_note: &'static str,
+    /// What the formats were fitted to: the estimate's BRDF, or the anisotropic lobe it
+    /// chose.
+    pub fitted_to: &'static str,
 }
 
 /// One map of an export's check.
@@ -190,29 +196,56 @@ impl Prepared {
 }
 
 /// Fits the formats to `estimate`, writes `material.gltf` and `material.mtlx` into `dir`, and
-/// measures how far they relight from it, under the maps `prepared` holds.
+/// measures how far they relight from it, under the maps `prepared` holds. With the
+/// anisotropic `lobe` the estimate chose, the formats are fitted to the lobe instead, and
+/// carry its stretch.
 pub fn write_exports(
     dir: &Path,
     name: &str,
     estimate: &Bivariate,
+    lobe: Option<&AnisotropicLobe>,
     prepared: &Prepared,
 ) -> Result<Export> {
     let p = prepared;
-    let scenes = fit::Scenes::new(&p.fit_sphere.pixels, &p.fit_lights, estimate)?;
+    // A lobe's colours and Fresnel are fitted through the lobe made isotropic (at the
+    // geometric mean of its roughnesses), which the fit's bivariate renders can hold; the
+    // formats then take its own roughnesses, and the check renders both anisotropic.
+    let isotropic_lobe = lobe.map(|l| {
+        let alpha = (l.alpha_t * l.alpha_b).sqrt();
+        Microfacet::one_lobe(l.diffuse, l.specular, l.specular, alpha).bivariate(estimate.grid)
+    });
+    let target = isotropic_lobe.as_ref().unwrap_or(estimate);
+    let scenes = fit::Scenes::new(&p.fit_sphere.pixels, &p.fit_lights, target)?;
     let fitted = scenes.fit(Some(&p.coarse));
-    let material = GltfMaterial::from_fit(&fitted);
-    let openpbr = OpenPbrMaterial::from_fit(&fitted);
+    let (mut material, mut openpbr) = (
+        GltfMaterial::from_fit(&fitted),
+        OpenPbrMaterial::from_fit(&fitted),
+    );
+    if let Some(l) = lobe {
+        (material, openpbr) = (material.with_lobe(l), openpbr.with_lobe(l));
+    }
 
-    let exported = material.tables(estimate.grid);
-    let per_map: Vec<f64> = p
-        .checks
-        .iter()
-        .map(|c| {
-            let (image, reference) =
-                exported.render_beside(&p.check_sphere, &c.lights, &[estimate]);
-            image.relative_rmse(&reference[0])
-        })
-        .collect();
+    let per_map: Vec<f64> = match (lobe, material.anisotropy) {
+        (Some(l), Some(_)) => p
+            .checks
+            .iter()
+            .map(|c| {
+                let image = material.render_full(&p.check_sphere, &c.lights);
+                image.relative_rmse(&render_anisotropic(&p.check_sphere, &c.lights, l))
+            })
+            .collect(),
+        _ => {
+            let exported = material.tables(estimate.grid);
+            p.checks
+                .iter()
+                .map(|c| {
+                    let (image, reference) =
+                        exported.render_beside(&p.check_sphere, &c.lights, &[estimate]);
+                    image.relative_rmse(&reference[0])
+                })
+                .collect()
+        }
+    };
     let relight_error = per_map.iter().sum::<f64>() / per_map.len() as f64;
 
     let gltf = dir.join("material.gltf");
@@ -239,6 +272,13 @@ pub fn write_exports(
             .collect(),
         mtlx_note: "the .mtlx holds the glTF fit's parameters in OpenPBR's inputs; \
                     relight_error is the glTF material's",
+        fitted_to: if lobe.is_some() {
+            "the estimate's anisotropic lobe: its colours and Fresnel through the lobe made \
+             isotropic at the geometric mean of its roughnesses, then its own roughnesses; \
+             relight_error renders both with their anisotropy"
+        } else {
+            "the estimate's BRDF"
+        },
     })
 }
 
@@ -264,6 +304,7 @@ mod tests {
                 ior: 1.5,
                 clearcoat: 0.0,
                 clearcoat_roughness: 0.0,
+                anisotropy: None,
             },
             GltfMaterial {
                 base_color: [0.5, 0.1, 0.1],
@@ -274,10 +315,11 @@ mod tests {
                 ior: 1.5,
                 clearcoat: 0.0,
                 clearcoat_roughness: 0.0,
+                anisotropy: None,
             },
         ] {
             let target = Bivariate::reduce(&GltfBrdf(truth), grid);
-            let e = write_exports(dir.path(), "test", &target, &prepared).unwrap();
+            let e = write_exports(dir.path(), "test", &target, None, &prepared).unwrap();
             assert!(e.relight_error < 0.01, "{truth:?}: {e:?}");
             let m = e.material;
             assert!((m.roughness - truth.roughness).abs() < 0.02, "{m:?}");
@@ -318,6 +360,7 @@ mod tests {
             dir.path(),
             "test",
             &m.bivariate(grid),
+            None,
             &Prepared::new(None, grid).unwrap(),
         )
         .unwrap();
@@ -354,6 +397,7 @@ mod tests {
             ior: 1.5,
             clearcoat: 1.0,
             clearcoat_roughness: 0.5,
+            anisotropy: None,
         };
         let maps = maps::reference_maps().unwrap();
         let lights = maps[0].1.compressed(1024, 0.0);
@@ -382,6 +426,7 @@ mod tests {
             dir.path(),
             "test",
             &m.bivariate(grid),
+            None,
             &Prepared::new(None, grid).unwrap(),
         )
         .unwrap();
@@ -392,6 +437,104 @@ mod tests {
         assert_eq!(json["scenes"][0]["nodes"][0], 0);
         let mtlx = std::fs::read_to_string(dir.path().join("material.mtlx")).unwrap();
         assert!(mtlx.contains("<open_pbr_surface") && mtlx.contains("specular_roughness"));
+    }
+
+    #[test]
+    fn a_chosen_anisotropic_lobe_is_exported_with_its_stretch_along_written_tangents() {
+        // Brushed aluminium as brdfd estimates the Mitsuba set's dome: α 0.062 along the
+        // grain, 0.235 across it (along the axis laid on the surface), F₀ about 0.9.
+        let lobe = AnisotropicLobe {
+            diffuse: [0.026, 0.026, 0.022],
+            specular: [0.906, 0.896, 0.904],
+            axis: brdfd_core::brdf::normalize([0.486, -0.724, 0.49]),
+            alpha_t: 0.235,
+            alpha_b: 0.062,
+        };
+        let grid = Grid::default();
+        let dir = tempfile::tempdir().unwrap();
+        let stand_in = Microfacet::one_lobe(lobe.diffuse, lobe.specular, lobe.specular, 0.12);
+        let e = write_exports(
+            dir.path(),
+            "brushed",
+            &stand_in.bivariate(grid),
+            Some(&lobe),
+            &Prepared::new(None, grid).unwrap(),
+        )
+        .unwrap();
+        // Rendered anisotropic, each in its frame, the export is the lobe's (0.005 measured).
+        assert!(e.relight_error < FAITHFUL, "{e:?}");
+        // glTF: α along the tangent is mix(α, 1, strength²), α = roughness² across it.
+        let m = e.material;
+        let a = m.anisotropy.expect("the extension");
+        let across = m.roughness * m.roughness;
+        let along = across + a.strength * a.strength * (1.0 - across);
+        assert!(
+            (across - 0.062).abs() < 1e-9 && (along - 0.235).abs() < 1e-9,
+            "{m:?}"
+        );
+        // OpenPBR: αt = r²·√(2/(1 + (1 − a)²)) along the tangent, αb = (1 − a)·αt.
+        let o = e.openpbr;
+        let (r2, an) = (
+            o.specular_roughness * o.specular_roughness,
+            o.specular_roughness_anisotropy,
+        );
+        let at = r2 * (2.0 / (1.0 + (1.0 - an) * (1.0 - an))).sqrt();
+        assert!(
+            (at - 0.235).abs() < 1e-9 && ((1.0 - an) * at - 0.062).abs() < 1e-9,
+            "{o:?}"
+        );
+        let mtlx = std::fs::read_to_string(dir.path().join("material.mtlx")).unwrap();
+        assert!(mtlx.contains("specular_roughness_anisotropy"), "{mtlx}");
+
+        // The file: the extension, and a unit tangent at each vertex, on the surface and
+        // along the lobe's rough direction (the axis laid on it).
+        let text = std::fs::read_to_string(dir.path().join("material.gltf")).unwrap();
+        let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert!(doc["extensionsUsed"]
+            .as_array()
+            .unwrap()
+            .contains(&"KHR_materials_anisotropy".into()));
+        let ext = &doc["materials"][0]["extensions"]["KHR_materials_anisotropy"];
+        assert_eq!(ext["anisotropyStrength"].as_f64(), Some(a.strength));
+        let buffer = {
+            use base64::Engine as _;
+            let uri = doc["buffers"][0]["uri"].as_str().unwrap();
+            let data = uri.split_once(",").unwrap().1;
+            base64::engine::general_purpose::STANDARD
+                .decode(data)
+                .unwrap()
+        };
+        let read = |accessor: usize, width: usize, i: usize| -> Vec<f64> {
+            let view = &doc["bufferViews"]
+                [doc["accessors"][accessor]["bufferView"].as_u64().unwrap() as usize];
+            let start = view["byteOffset"].as_u64().unwrap() as usize + 4 * width * i;
+            (0..width)
+                .map(|k| {
+                    let o = start + 4 * k;
+                    f32::from_le_bytes(buffer[o..o + 4].try_into().unwrap()) as f64
+                })
+                .collect()
+        };
+        let attributes = &doc["meshes"][0]["primitives"][0]["attributes"];
+        let (normal, tangent) = (
+            attributes["NORMAL"].as_u64().unwrap() as usize,
+            attributes["TANGENT"].as_u64().unwrap() as usize,
+        );
+        let count = doc["accessors"][tangent]["count"].as_u64().unwrap() as usize;
+        assert_eq!(doc["accessors"][tangent]["type"], "VEC4");
+        for i in 0..count {
+            let (n, t) = (read(normal, 3, i), read(tangent, 4, i));
+            let n = [n[0], n[1], n[2]];
+            let expected = brdfd_core::anisotropic::frame_at(lobe.axis, n).0;
+            let dot = |a: [f64; 3], b: &[f64]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+            assert!(
+                (dot([t[0], t[1], t[2]], &t[..3]) - 1.0).abs() < 1e-5,
+                "{t:?}"
+            );
+            assert!(dot(n, &t[..3]).abs() < 1e-5, "{n:?} {t:?}");
+            assert!(dot(expected, &t[..3]) > 1.0 - 1e-5, "{expected:?} {t:?}");
+            assert_eq!(t[3], 1.0);
+        }
     }
 }
 

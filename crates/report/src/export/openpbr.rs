@@ -7,8 +7,15 @@
 //! the specular over the diffuse and of the coat over the base, F82 tint), so the relight error
 //! written beside the file is the glTF material's, and says so. `coat_darkening` is 0: glTF's
 //! coat dims the base by its Fresnel alone, not by light trapped inside the coat.
+//!
+//! An anisotropic lobe the estimate chose goes into `specular_roughness_anisotropy`, with
+//! OpenPBR's own mapping (αt = r²·√(2/(1 + (1 − a)²)) along the geometry's tangent,
+//! αb = (1 − a)·αt across it): the highlight stretches along the tangent, so the mesh's
+//! tangents must run across the grain, as `material.gltf`'s `TANGENT` does.
 
 use std::fmt::Write as _;
+
+use brdfd_core::anisotropic::AnisotropicLobe;
 
 use super::fit::Fitted;
 
@@ -22,6 +29,8 @@ pub struct OpenPbrMaterial {
     pub specular_ior: f64,
     pub coat_weight: f64,
     pub coat_roughness: f64,
+    /// 0: isotropic (and not written).
+    pub specular_roughness_anisotropy: f64,
 }
 
 /// The coat's IOR: glTF's `KHR_materials_clearcoat` fixes 1.5 (F₀ 0.04).
@@ -37,6 +46,22 @@ impl OpenPbrMaterial {
             specular_ior: f.ior(),
             coat_weight: f.coat,
             coat_roughness: f.coat_alpha.sqrt().clamp(0.0, 1.0),
+            specular_roughness_anisotropy: 0.0,
+        }
+    }
+
+    /// The material with the roughnesses of an anisotropic lobe, through OpenPBR's mapping.
+    pub fn with_lobe(self, lobe: &AnisotropicLobe) -> OpenPbrMaterial {
+        let (smooth, rough) = (
+            lobe.alpha_t.min(lobe.alpha_b),
+            lobe.alpha_t.max(lobe.alpha_b),
+        );
+        let a = (1.0 - smooth / rough).clamp(0.0, 1.0);
+        let r2 = rough / (2.0 / (1.0 + (1.0 - a) * (1.0 - a))).sqrt();
+        OpenPbrMaterial {
+            specular_roughness: r2.sqrt().clamp(0.0, 1.0),
+            specular_roughness_anisotropy: a,
+            ..self
         }
     }
 
@@ -71,6 +96,13 @@ impl OpenPbrMaterial {
             ),
             ("specular_ior", "float", format!("{:.6}", self.specular_ior)),
         ];
+        if self.specular_roughness_anisotropy > 0.0 {
+            inputs.push((
+                "specular_roughness_anisotropy",
+                "float",
+                format!("{:.6}", self.specular_roughness_anisotropy),
+            ));
+        }
         if self.coat_weight > 0.0 {
             inputs.extend([
                 ("coat_weight", "float", format!("{:.6}", self.coat_weight)),
