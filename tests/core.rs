@@ -1188,7 +1188,7 @@ fn renders_prepared_before_the_photo_leave_the_estimate_unchanged() {
     gap.set(p.x as usize, p.y as usize, [f32::NAN; 3]);
     let options = EstimateOptions {
         model: Model::Hybrid,
-        anisotropy: false,
+        checks: false,
         ..EstimateOptions::default()
     };
     for (photo, uses_them) in [(&photo, true), (&gap, false)] {

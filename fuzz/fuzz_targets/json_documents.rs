@@ -12,6 +12,7 @@ fuzz_target!(|data: &[u8]| {
     let _ = serde_json::from_slice::<brdfd_rig::session::Manifest>(data);
     if let Ok(result) = serde_json::from_slice::<brdfd_report::results::StoredResult>(data) {
         let _ = result.coefficient_values();
+        let _ = result.chosen_lobe();
     }
     let _ = serde_json::from_slice::<brdfd_theta::osc::Info>(data);
     let _ = serde_json::from_slice::<brdfd_theta::osc::StateResponse>(data);

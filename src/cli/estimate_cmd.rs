@@ -232,7 +232,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         colour: a.colour.unwrap_or(ColourArg::Auto).into(),
         white: a.white.or(file_white),
         nonnegative: !a.allow_negative,
-        anisotropy: true,
+        checks: true,
         // Ctrl-C ends the process: nothing is written before the estimate is done.
         stop: Default::default(),
     };
@@ -394,7 +394,7 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
             .chosen_lobe()
             .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?
         {
-            return finish_render(&a.out, render_anisotropic(&geometry, &lights, lobe));
+            return finish_render(&a.out, render_anisotropic(&geometry, &lights, &lobe));
         }
         if r.model == "analytic" || r.model == "hybrid" {
             let m: Microfacet = r

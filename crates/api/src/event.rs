@@ -80,6 +80,11 @@ impl Event {
 pub struct Summary {
     /// `hybrid`, `analytic` or `basis`.
     pub model: String,
+    /// Whether the estimate relights with an anisotropic GGX lobe it chose over `model`, for
+    /// a surface with a grain (`coefficients.json`'s `anisotropy.lobe`): `fit_error` is then
+    /// the lobe's, and the exports carry its stretch.
+    #[serde(default)]
+    pub anisotropic_lobe: bool,
     /// Names of the coefficients, in their order.
     pub columns: Vec<String>,
     /// The coefficients; `null` for one that is not a number (JSON has no NaN).
@@ -109,7 +114,8 @@ pub struct Summary {
 /// A broken assumption of the model, as the photo shows it: `reason` for programs
 /// (`interreflection`: the part seems to light itself; `several_materials`: the photo's
 /// colour departs from the estimate's from place to place; `anisotropy`: the highlights are
-/// stretched across a grain), `text` for people (the figure,
+/// stretched across a grain; `misregistration`: the light is turned from where the map's yaw
+/// or the pose put it), `text` for people (the figure,
 /// its threshold, and what it means for the estimate).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]

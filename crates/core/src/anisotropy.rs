@@ -98,11 +98,12 @@ pub struct Anisotropy {
     /// Pixels compared.
     pub pixels: usize,
     /// The anisotropic fit itself, with its weights: what the estimate relights with when it
-    /// is [`Anisotropy::chosen`].
+    /// is [`Anisotropy::chosen`] (its weights then solved on every candidate).
     pub lobe: AnisotropicLobe,
     /// Whether the estimate relights with [`Anisotropy::lobe`] rather than its model: the
-    /// photo asks for anisotropy ([`Anisotropy::asks`]) and the lobe re-renders it closer than
-    /// the model does. Set by the estimate, which knows its model's fit.
+    /// photo asks for anisotropy ([`Anisotropy::asks`]) and the lobe, its weights solved again
+    /// on every candidate ([`refit`]), re-renders it closer than the model does. Set by the
+    /// estimate, which knows its model's fit; the lobe's weights are then the refitted ones.
     pub chosen: bool,
 }
 
@@ -254,6 +255,17 @@ pub fn compare(views: &[ViewSamples], stop: &Stop) -> Option<Anisotropy> {
     Some(fine.outcome(iso, aniso))
 }
 
+/// The best Lambert plus isotropic GGX fit on up to [`PIXELS`] pixels spread over the views'
+/// candidates, under the map merged to [`LIGHTS`] lights alone (each widening the lobe by its
+/// spread, so a sharp lobe is followed too, if less closely): its α, its misfit and the pixels
+/// compared; `None` with too few pixels or no light. [`crate::registration`] compares it under
+/// turned lights, many times, which the merged lights keep cheap.
+pub(crate) fn isotropic_fit(views: &[ViewSamples]) -> Option<(f64, f64, usize)> {
+    let fit = Fit::build(views, 0.0)?;
+    let (alpha, misfit) = fit.isotropic(None);
+    Some((alpha, misfit, fit.samples.len()))
+}
+
 impl Fit {
     /// The pixels' samples, with the estimate's lights kept for lobes sharper than
     /// `fine_below`.
@@ -263,7 +275,8 @@ impl Fit {
         for v in views.iter().filter(|v| !v.pixels.is_empty()) {
             let share = (PIXELS * v.pixels.len()).div_ceil(total);
             let coarse = merged(v.lights);
-            let seen_fine = Seen::new(v.pixels, v.lights);
+            // A fit of the merged lights alone (`fine_below` 0) reads none of the estimate's.
+            let seen_fine = (fine_below > 0.0).then(|| Seen::new(v.pixels, v.lights));
             let seen_coarse = Seen::new(v.pixels, &coarse);
             let pick = super::estimate::spread(v.pixels.len(), share);
             let picked: Vec<Sample> = pick
@@ -271,12 +284,12 @@ impl Fit {
                 .filter_map(|&i| {
                     let (px, o) = (&v.pixels[i], v.observed[i]);
                     let seen = seen_coarse.fresh(px);
-                    let fine = pairs(
-                        px,
-                        v.lights,
-                        seen_fine.fresh(px).as_deref(),
-                        reach(fine_below),
-                    );
+                    let fine = match &seen_fine {
+                        Some(seen) => {
+                            pairs(px, v.lights, seen.fresh(px).as_deref(), reach(fine_below))
+                        }
+                        None => Lights::new(Vec::new()),
+                    };
                     let diffuse = lambert(px, &coarse, seen.as_deref());
                     let coarse = pairs(px, &coarse, seen.as_deref(), f64::INFINITY);
                     (o.iter().all(|x| x.is_finite()) && coarse.len > 0).then(|| Sample {
@@ -641,6 +654,19 @@ pub fn render_lobe(
     lights: &LightSet,
     lobe: &AnisotropicLobe,
 ) -> Vec<[f64; 3]> {
+    lobe_columns(pixels, lights, lobe)
+        .into_iter()
+        .map(|(d, s)| std::array::from_fn(|c| lobe.diffuse[c] * d[c] + lobe.specular[c] * s[c]))
+        .collect()
+}
+
+/// Each pixel's two columns under `lights`: a white Lambert surface's radiance, and the
+/// lobe's shape at unit weight, as [`render_lobe`] renders them.
+fn lobe_columns(
+    pixels: &[GeomPixel],
+    lights: &LightSet,
+    lobe: &AnisotropicLobe,
+) -> Vec<([f64; 3], [f64; 3])> {
     let seen = Seen::new(pixels, lights);
     let shape = Shape {
         grain: lobe.axis,
@@ -653,11 +679,48 @@ pub fn render_lobe(
             let row = seen.fresh(px);
             let all = pairs(px, lights, row.as_deref(), f64::INFINITY);
             let (n, v) = (px.normal.map(f64::from), px.view.map(f64::from));
-            let spec = lobe_radiance(n, v, &all, all.len, shape);
-            let diffuse = lambert(px, lights, row.as_deref());
-            std::array::from_fn(|c| lobe.diffuse[c] * diffuse[c] + lobe.specular[c] * spec[c])
+            (
+                lambert(px, lights, row.as_deref()),
+                lobe_radiance(n, v, &all, all.len, shape),
+            )
         })
         .collect()
+}
+
+/// The lobe with its weights solved again on every pixel of the views, rendered as
+/// [`render_lobe`] renders it (every light, the whole lobe), and its re-render of each pixel
+/// (the views' in turn, RGB). The comparison solved them on a spread of the pixels with the
+/// lobe followed only as far as [`REACH`] and Lambert under the merged lights; relit whole, a
+/// rough lobe would carry the tail it was not fitted with.
+pub fn refit(views: &[ViewSamples], lobe: &AnisotropicLobe) -> (AnisotropicLobe, Vec<f64>) {
+    let columns: Vec<([f64; 3], [f64; 3])> = views
+        .iter()
+        .flat_map(|v| lobe_columns(v.pixels, v.lights, lobe))
+        .collect();
+    let observed = views.iter().flat_map(|v| v.observed.iter());
+    let mut sums = [[0.0f64; 5]; 3];
+    for ((d, s), o) in columns.iter().zip(observed) {
+        for c in 0..3 {
+            let sum = &mut sums[c];
+            sum[0] += d[c] * d[c];
+            sum[1] += s[c] * s[c];
+            sum[2] += d[c] * s[c];
+            sum[3] += d[c] * o[c];
+            sum[4] += s[c] * o[c];
+        }
+    }
+    let mut refitted = lobe.clone();
+    for (c, [dd, ss, ds, d_o, s_o]) in sums.into_iter().enumerate() {
+        (refitted.diffuse[c], refitted.specular[c]) = best_pair(dd, ss, ds, d_o, s_o);
+    }
+    let predicted = columns
+        .iter()
+        .flat_map(|(d, s)| {
+            let w = &refitted;
+            (0..3).map(move |c| w.diffuse[c] * d[c] + w.specular[c] * s[c])
+        })
+        .collect();
+    (refitted, predicted)
 }
 
 /// The lights of `lights` above the pixel's horizon that its object lets through and whose
@@ -881,7 +944,9 @@ mod tests {
     }
 
     /// Lambert (albedo 0.2) plus an anisotropic GGX/Smith lobe (weight 0.8, no Fresnel),
-    /// written out from its definition: the tangent is the grain laid on the surface.
+    /// written out from its definition: the tangent is the grain laid on the surface. Kept
+    /// apart from [`AnisotropicLobe::eval_local`] on purpose, as an independent statement
+    /// of the model the fit must find.
     fn photo(
         pixels: &[GeomPixel],
         lights: &LightSet,
@@ -956,6 +1021,11 @@ mod tests {
             "stretch {:.2} of 4: {a:?}",
             a.stretch()
         );
+        // The weights the photo was made with: Lambert 0.2, the lobe 0.8.
+        for c in 0..3 {
+            assert!((a.lobe.diffuse[c] - 0.2).abs() < 0.03, "{a:?}");
+            assert!((a.lobe.specular[c] - 0.8).abs() < 0.08, "{a:?}");
+        }
     }
 
     #[test]

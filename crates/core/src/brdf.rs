@@ -101,13 +101,13 @@ pub(crate) fn angle_between(a: Vec3, b: Vec3) -> f64 {
 }
 
 /// Rotate `v` about +Z by `angle`.
-fn rot_z(v: Vec3, angle: f64) -> Vec3 {
+pub(crate) fn rot_z(v: Vec3, angle: f64) -> Vec3 {
     let (s, c) = angle.sin_cos();
     [c * v[0] - s * v[1], s * v[0] + c * v[1], v[2]]
 }
 
-/// Rotate `v` about +Y by `angle`.
-fn rot_y(v: Vec3, angle: f64) -> Vec3 {
+/// Rotate `v` about +Y by `angle` (right-handed, as a map's yaw turns it).
+pub(crate) fn rot_y(v: Vec3, angle: f64) -> Vec3 {
     let (s, c) = angle.sin_cos();
     [c * v[0] + s * v[2], v[1], -s * v[0] + c * v[2]]
 }

@@ -16,6 +16,7 @@ use super::error::{CoreError, Result};
 use super::geometry::{GeomPixel, PixelGeometry};
 use super::hybrid::{self, MixWeight};
 use super::raster::Raster;
+use super::registration::{self, Registration};
 use super::render::{RenderingMatrix, SpherePicture};
 use super::select::{self, Blocks, Selection, SwapParams};
 use super::solve::{channel_coefficients, Colour, ColourChoice, Solution, Solver};
@@ -98,10 +99,12 @@ pub struct EstimateOptions {
     /// the paper's method exactly as published (`--allow-negative`), whose least squares can
     /// leave cells negative. The other models are non-negative by construction.
     pub nonnegative: bool,
-    /// Compare an isotropic and an anisotropic lobe on the photo ([`crate::anisotropy`],
-    /// [`Estimate::anisotropy`]): on for an estimate a person reads; off for the evaluation,
-    /// which scores the BRDF alone and runs hundreds.
-    pub anisotropy: bool,
+    /// Check the model's assumptions on the photo: compare an isotropic and an anisotropic
+    /// lobe ([`crate::anisotropy`], [`Estimate::anisotropy`]) and, when the fit is not good,
+    /// the light turned about the vertical ([`crate::registration`],
+    /// [`Estimate::registration`]). On for an estimate a person reads; off for the
+    /// evaluation, which scores the BRDF alone and runs hundreds.
+    pub checks: bool,
     /// Checked in the estimate's long loops: once requested, the estimate ends with
     /// [`CoreError::Stopped`] within about a second.
     pub stop: Stop,
@@ -120,7 +123,7 @@ impl Default for EstimateOptions {
             colour: ColourChoice::default(),
             white: None,
             nonnegative: true,
-            anisotropy: true,
+            checks: true,
             stop: Stop::default(),
         }
     }
@@ -187,8 +190,12 @@ pub struct Estimate {
     pub timings: Timings,
     /// Whether an anisotropic lobe re-renders the photo closer than an isotropic one
     /// ([`crate::anisotropy`]); `None` with too few pixels or a black photo, and when
-    /// [`EstimateOptions::anisotropy`] is off.
+    /// [`EstimateOptions::checks`] is off.
     pub anisotropy: Option<Anisotropy>,
+    /// Whether the photo fits much closer with the light turned about the vertical
+    /// ([`crate::registration`]); `None` when the fit is good (the check is not run), with
+    /// too few pixels, and when [`EstimateOptions::checks`] is off.
+    pub registration: Option<Registration>,
 }
 
 /// One candidate pixel of the re-render: where it is, what the estimate renders there and
@@ -719,7 +726,7 @@ pub fn estimate_views_shared(
         || model_estimate(basis, &candidates, options, shared),
         || {
             options
-                .anisotropy
+                .checks
                 .then(|| anisotropy_check(&candidates, &options.stop))
         },
     );
@@ -727,32 +734,45 @@ pub fn estimate_views_shared(
     options.stop.check()?;
     estimate.clipped = clipped;
     if let Some(mut found) = anisotropy.flatten() {
-        // The lobe is chosen over the model only when it re-renders the photo closer: a
-        // stretched highlight the measured mix already follows needs no other model.
-        found.chosen = found.asks() && found.anisotropic_misfit < estimate.fit_error;
-        if found.chosen {
-            rerender_with(&mut estimate, &candidates, &found.lobe);
+        if found.asks() {
+            choose_lobe(&mut estimate, &candidates, &mut found);
         }
         estimate.anisotropy = Some(found);
+    }
+    if options.checks && estimate.fit_error > CHECK_TURN_ABOVE {
+        estimate.registration = registration::check(&view_samples(&candidates), &options.stop);
+        options.stop.check()?;
     }
     Ok(estimate)
 }
 
-/// The estimate's re-render and fit, every candidate's, from the anisotropic lobe it chose:
-/// the photo is compared with what the estimate relights with (the comparison measured the
-/// lobe on a spread of the candidates only).
-fn rerender_with(estimate: &mut Estimate, candidates: &[Candidates], lobe: &AnisotropicLobe) {
-    let predicted: Vec<f64> = candidates
-        .iter()
-        .flat_map(|c| anisotropy::render_lobe(&c.pixels, c.view.lights, lobe))
-        .flatten()
-        .collect();
+/// A fit above this is checked for turned light ([`crate::registration`]): a good fit (the
+/// summary's "good", at most 0.1) leaves no turn worth finding, and the check costs about
+/// 0.5 s on 2 cores.
+const CHECK_TURN_ABOVE: f64 = 0.1;
+
+/// When the photo asks for anisotropy: the lobe, its weights solved again on every
+/// candidate, is chosen over the model if it re-renders the photo closer than the model does
+/// (a stretched highlight the measured mix already follows needs no other model). Then the
+/// estimate's re-render and fit are the lobe's: the photo is compared with what the estimate
+/// relights with.
+fn choose_lobe(estimate: &mut Estimate, candidates: &[Candidates], found: &mut Anisotropy) {
+    let (lobe, predicted) = anisotropy::refit(&view_samples(candidates), &found.lobe);
     let observed: Vec<[f64; 3]> = candidates
         .iter()
         .flat_map(|c| c.observed.iter().copied())
         .collect();
-    estimate.fit_error = relative_misfit(&predicted, &observed);
-    estimate.rerender = rerendered(candidates, &predicted);
+    let fit = relative_misfit(&predicted, &observed);
+    tracing::debug!(
+        "anisotropic lobe refitted: {fit} against the model's {}",
+        estimate.fit_error
+    );
+    found.chosen = fit < estimate.fit_error;
+    if found.chosen {
+        found.lobe = lobe;
+        estimate.fit_error = fit;
+        estimate.rerender = rerendered(candidates, &predicted);
+    }
 }
 
 /// The estimate of the model `options` name, on these candidates.
@@ -782,17 +802,21 @@ fn model_estimate(
 /// ([`anisotropy::compare`]).
 fn anisotropy_check(candidates: &[Candidates], stop: &Stop) -> Option<Anisotropy> {
     let t = Instant::now();
-    let samples: Vec<ViewSamples> = candidates
+    let found = anisotropy::compare(&view_samples(candidates), stop);
+    tracing::debug!("anisotropy {found:?} in {:?}", t.elapsed());
+    found
+}
+
+/// The candidates as the photo's checks read them.
+fn view_samples<'c>(candidates: &'c [Candidates]) -> Vec<ViewSamples<'c>> {
+    candidates
         .iter()
         .map(|c| ViewSamples {
             pixels: &c.pixels,
             observed: &c.observed,
             lights: c.view.lights,
         })
-        .collect();
-    let found = anisotropy::compare(&samples, stop);
-    tracing::debug!("anisotropy {found:?} in {:?}", t.elapsed());
-    found
+        .collect()
 }
 
 fn view_pixels<'c>(candidates: &'c [Candidates]) -> Vec<ViewPixels<'c>> {
@@ -861,6 +885,7 @@ fn hybrid_estimate(
         mixture: fit.mixture,
         uncertainty: Some(fit.uncertainty),
         anisotropy: None,
+        registration: None,
     })
 }
 
@@ -917,6 +942,7 @@ fn analytic_estimate(
         mixture: Vec::new(),
         uncertainty: Some(fit.uncertainty),
         anisotropy: None,
+        registration: None,
     })
 }
 
@@ -1021,6 +1047,7 @@ fn basis_estimate(
         chosen_lights,
         timings,
         anisotropy: None,
+        registration: None,
     })
 }
 

@@ -24,6 +24,7 @@ pub mod mesh;
 pub mod nbrdf;
 pub mod nnls;
 pub mod raster;
+pub mod registration;
 pub mod render;
 pub mod select;
 pub mod sharp;

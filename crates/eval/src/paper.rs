@@ -97,7 +97,7 @@ impl Method {
             colour: self.colour,
             white,
             nonnegative: self != METHODS[0],
-            anisotropy: false,
+            checks: false,
             ..EstimateOptions::default()
         }
     }

@@ -379,7 +379,7 @@ pub fn run(cfg: &RelightConfig, progress: OnProgress) -> Result<String> {
                 };
                 let options = EstimateOptions {
                     white,
-                    anisotropy: false,
+                    checks: false,
                     ..method.options.clone()
                 };
                 let est = estimate(basis, view, &options)?;

@@ -21,9 +21,15 @@
 //! re-renders the photo much closer, the grain is there. The flag says whether the estimate
 //! relights with that lobe, and what stays isotropic.
 //!
+//! **Misregistration.** A panorama whose north is set wrong, or a pose turned from the
+//! object's, lights the estimate from the wrong side. The estimate
+//! ([`brdfd_core::registration`]) refits Lambert and one isotropic lobe with the light turned
+//! about the vertical, when its fit is not good; a turn that re-renders the photo much closer
+//! is flagged, and the other flags, which read residuals under the wrong light, are not.
+//!
 //! Measured on brdfd's own Mitsuba set (`scripts/mitsuba-scenes.py`, docs/evaluation.md)
 //! and the simulated presets: each scene that breaks an assumption is flagged for it, and no
-//! scene within the model is flagged. Not flagged yet: a misregistered map or pose.
+//! scene within the model is flagged.
 
 use std::collections::HashMap;
 
@@ -33,6 +39,7 @@ use crate::compare::luminance;
 use crate::visibility::Visibility;
 use brdfd_core::anisotropy::{Anisotropy, ASKS_BELOW};
 use brdfd_core::estimate::{Estimate, Rerendered};
+use brdfd_core::registration::{Registration, ASKS_BELOW as REGISTRATION_ASKS_BELOW};
 
 /// A face is shaded when it sees less than this share of the light above its horizon: the
 /// part hides more than a fifth of it (by irradiance, [`brdfd_core::render::visible_fraction`]).
@@ -59,6 +66,8 @@ pub enum Reason {
     /// The surface has a grain: its highlights are stretched across one direction, which no
     /// isotropic model holds.
     Anisotropy,
+    /// The light is turned from where the map and the pose put it.
+    Misregistration,
 }
 
 /// A broken assumption, the figure that shows it, and what it means for the estimate.
@@ -81,6 +90,7 @@ impl Reason {
             Reason::Interreflection => "interreflection",
             Reason::SeveralMaterials => "several_materials",
             Reason::Anisotropy => "anisotropy",
+            Reason::Misregistration => "misregistration",
         }
     }
 }
@@ -88,12 +98,33 @@ impl Reason {
 /// The flags an estimate's residuals raise. `visibility` is the first view's (none for a
 /// shape that hides nothing from itself).
 pub fn of(estimate: &Estimate, visibility: Option<&Visibility>) -> Vec<Flag> {
+    // Under light turned from where it was, every residual reads the wrong light: the other
+    // flags would name the material for what the map's yaw or the pose did.
+    if let Some(turned) = estimate.registration.as_ref().and_then(misregistration) {
+        return vec![turned];
+    }
     let bounce = visibility.and_then(|v| interreflection(&estimate.rerender, v));
     bounce
         .into_iter()
         .chain(several_materials(&estimate.rerender, visibility))
         .chain(estimate.anisotropy.as_ref().and_then(anisotropy))
         .collect()
+}
+
+/// Whether the photo fits much closer with the light turned about the vertical
+/// ([`Registration::asks`]).
+fn misregistration(r: &Registration) -> Option<Flag> {
+    r.asks().then(|| Flag {
+        reason: Reason::Misregistration,
+        figure: r.ratio(),
+        text: format!(
+            "misregistration: the photo fits much closer with the light turned a further {:+.1}° about the vertical: Lambert with one GGX lobe re-renders it to {:.3} there, and to {:.3} as the map was given (flagged at {:.0}% of it or less). The map's yaw (--yaw, or the panorama's north) or the object's pose in the rig file is off by about that much; the estimate was fitted to the wrong light, and its other figures say nothing of the material",
+            r.turn_deg,
+            r.turned_misfit,
+            r.misfit,
+            100.0 * REGISTRATION_ASKS_BELOW,
+        ),
+    })
 }
 
 /// Whether an anisotropic lobe re-renders the photo much closer than any isotropic one
@@ -440,6 +471,7 @@ mod tests {
             Reason::Interreflection,
             Reason::SeveralMaterials,
             Reason::Anisotropy,
+            Reason::Misregistration,
         ] {
             let json = serde_json::to_value(reason).unwrap();
             assert_eq!(json, reason.name());
@@ -466,6 +498,25 @@ mod tests {
             },
             chosen: false,
         }
+    }
+
+    #[test]
+    fn a_much_closer_turn_is_misregistration_and_no_turn_or_a_little_closer_one_is_not() {
+        let turned = |turn_deg: f64, turned_misfit: f64| Registration {
+            misfit: 0.3,
+            turn_deg,
+            turned_misfit,
+            pixels: 1000,
+        };
+        let flag = misregistration(&turned(-10.0, 0.15)).expect("flagged");
+        assert_eq!(flag.reason, Reason::Misregistration);
+        assert!((flag.figure - 0.5).abs() < 1e-12, "{}", flag.figure);
+        assert!(flag.text.contains("-10.0°"), "{}", flag.text);
+        // At the threshold, and just above it.
+        assert!(misregistration(&turned(5.0, 0.24)).is_some());
+        assert!(misregistration(&turned(5.0, 0.2403)).is_none());
+        // No turn fits better.
+        assert!(misregistration(&turned(0.0, 0.3)).is_none());
     }
 
     #[test]

@@ -270,8 +270,8 @@ fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec
             match est.chosen_lobe() {
                 Some(l) => format!(
                     "an anisotropic GGX lobe (α {:.3} and {:.3}), chosen over the {} model: what the estimate relights with (brdf-anisotropic.binary); the BRDF slices and brdf.binary are the {} model's, isotropic",
-                    l.alpha_t.min(l.alpha_b),
-                    l.alpha_t.max(l.alpha_b),
+                    l.smooth_and_rough().0,
+                    l.smooth_and_rough().1,
                     est.model.name(),
                     est.model.name()
                 ),
@@ -294,7 +294,16 @@ fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec
             format!("{e:.4} relative RMSE against the truth"),
         ));
     }
-    rows.push(("condition number".into(), est.selection.condition_text()));
+    // The conditioning and the bootstrap are the model's, when a lobe relights instead.
+    let of_model = if est.chosen_lobe().is_some() {
+        " (the isotropic model's)"
+    } else {
+        ""
+    };
+    rows.push((
+        format!("condition number{of_model}"),
+        est.selection.condition_text(),
+    ));
     rows.push((
         "material.gltf, material.mtlx".into(),
         format!(
@@ -303,7 +312,7 @@ fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec
         ),
     ));
     if let Some((text, _)) = est.certainty_text() {
-        rows.push(("steadiness".into(), text));
+        rows.push((format!("steadiness{of_model}"), text));
     }
     rows.push((
         "clipped pixels".into(),

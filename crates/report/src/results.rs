@@ -122,6 +122,11 @@ pub struct CoefficientsFile<'a> {
     /// evidence of the `anisotropy` flag, and the grain's direction and roughnesses.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub anisotropy: Option<&'a brdfd_core::anisotropy::Anisotropy>,
+    /// The fit with the light as given against the light turned about the vertical
+    /// ([`brdfd_core::registration`]): the evidence of the `misregistration` flag. Absent when
+    /// the fit is good and the check did not run.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub registration: Option<&'a brdfd_core::registration::Registration>,
 }
 
 /// What a reader takes back from `coefficients.json`: the model and its coefficients, how it
@@ -158,20 +163,10 @@ pub struct StoredResult {
     /// Absent in files written before flags were.
     #[serde(default)]
     pub flags: Vec<StoredFlag>,
-    /// Absent when the comparison did not run.
+    /// The anisotropy comparison, read by [`StoredResult::chosen_lobe`] only where it is
+    /// used, as `analytic` is. Absent when the comparison did not run.
     #[serde(default)]
-    pub anisotropy: Option<StoredAnisotropy>,
-}
-
-/// `coefficients.json`'s `anisotropy`, as far as relighting needs it.
-#[derive(Debug, Clone, Deserialize)]
-pub struct StoredAnisotropy {
-    /// Whether the estimate relights with `lobe`; absent (false) in files written before
-    /// the lobe could be chosen.
-    #[serde(default)]
-    pub chosen: bool,
-    #[serde(default)]
-    pub lobe: Option<brdfd_core::anisotropic::AnisotropicLobe>,
+    anisotropy: Option<serde_json::Value>,
 }
 
 /// One of `coefficients.json`'s `flags`, as far as a reader needs it.
@@ -260,21 +255,32 @@ impl StoredResult {
     }
 
     /// The anisotropic lobe the estimate relights with, when it chose one over its model
-    /// (`anisotropy.chosen`); says what is wrong with the field when it cannot be rendered.
+    /// (`anisotropy.chosen`, absent or false in files written before a lobe could be chosen);
+    /// says which field is wrong when it cannot be rendered.
     pub fn chosen_lobe(
         &self,
-    ) -> std::result::Result<Option<&brdfd_core::anisotropic::AnisotropicLobe>, String> {
-        match self.anisotropy.as_ref().filter(|a| a.chosen) {
-            None => Ok(None),
-            Some(a) => {
-                let lobe = a.lobe.as_ref().ok_or(
-                    "field `anisotropy`: `chosen` is true, but the `lobe` it chose is missing",
-                )?;
-                lobe.check()
-                    .map_err(|e| format!("field `anisotropy.lobe`: {e}"))?;
-                Ok(Some(lobe))
+    ) -> std::result::Result<Option<brdfd_core::anisotropic::AnisotropicLobe>, String> {
+        let Some(a) = &self.anisotropy else {
+            return Ok(None);
+        };
+        match &a["chosen"] {
+            serde_json::Value::Null | serde_json::Value::Bool(false) => return Ok(None),
+            serde_json::Value::Bool(true) => {}
+            other => {
+                return Err(format!(
+                    "field `anisotropy.chosen` is {other}, not true or false"
+                ))
             }
         }
+        let lobe = a
+            .get("lobe")
+            .ok_or("field `anisotropy`: `chosen` is true, but the `lobe` it chose is missing")?;
+        let lobe: brdfd_core::anisotropic::AnisotropicLobe =
+            serde_json::from_value(lobe.clone())
+                .map_err(|e| format!("field `anisotropy.lobe`: {e}"))?;
+        lobe.check()
+            .map_err(|e| format!("field `anisotropy.lobe`: {e}"))?;
+        Ok(Some(lobe))
     }
 
     /// The coefficients, `NaN` where the file holds `null`.
@@ -577,6 +583,7 @@ fn write_records(
         exports: files.exports.clone(),
         flags: &files.flags,
         anisotropy: estimate.anisotropy.as_ref(),
+        registration: estimate.registration.as_ref(),
     };
     let mut written = vec![
         files.report.clone(),
@@ -700,6 +707,46 @@ mod tests {
     }
 
     const BASIS: &str = r#""basis_id": "b1", "columns": ["c0", "c1"], "coefficients": [0.5, null], "fit_error": 0.04"#;
+
+    #[test]
+    fn a_chosen_lobe_is_read_where_it_is_used_and_a_wrong_one_is_named() {
+        let with = |anisotropy: &str| {
+            read(&format!(r#"{{{BASIS}, "anisotropy": {anisotropy}}}"#))
+                .unwrap()
+                .chosen_lobe()
+        };
+        let lobe = r#"{"diffuse": [0.02, 0.02, 0.02], "specular": [0.9, 0.9, 0.9], "axis": [0, 1, 0], "alpha_t": 0.24, "alpha_b": 0.06}"#;
+        // Absent, or compared and not chosen: the model relights.
+        assert_eq!(
+            read(&format!("{{{BASIS}}}")).unwrap().chosen_lobe(),
+            Ok(None)
+        );
+        assert_eq!(
+            with(&format!(r#"{{"chosen": false, "lobe": {lobe}}}"#)),
+            Ok(None)
+        );
+        assert_eq!(with(r#"{"isotropic_misfit": 0.2}"#), Ok(None));
+        let l = with(&format!(r#"{{"chosen": true, "lobe": {lobe}}}"#))
+            .unwrap()
+            .unwrap();
+        assert_eq!((l.alpha_t, l.alpha_b), (0.24, 0.06));
+        // A bad lobe fails where it is used, by its field; the rest of the file still reads.
+        let e = with(r#"{"chosen": true}"#).unwrap_err();
+        assert!(e.contains("`lobe` it chose is missing"), "{e}");
+        let e = with(&format!(
+            r#"{{"chosen": true, "lobe": {}}}"#,
+            lobe.replace("0.24", "0")
+        ))
+        .unwrap_err();
+        assert!(
+            e.contains("anisotropy.lobe") && e.contains("alpha_t"),
+            "{e}"
+        );
+        let e = with(r#"{"chosen": true, "lobe": {"diffuse": 1}}"#).unwrap_err();
+        assert!(e.contains("field `anisotropy.lobe`"), "{e}");
+        let e = with(r#"{"chosen": "yes"}"#).unwrap_err();
+        assert!(e.contains("anisotropy.chosen"), "{e}");
+    }
 
     #[test]
     fn a_stored_result_is_read_back_typed_and_a_wrong_one_is_named() {

@@ -333,6 +333,7 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
         coefficients: est.solution.coefficients.clone(),
         summary: super::Summary {
             model: est.model.name().to_string(),
+            anisotropic_lobe: est.chosen_lobe().is_some(),
             columns: est.names.clone(),
             coefficients: super::Summary::numbers(&est.solution.coefficients),
             fit_error: fit.is_finite().then_some(fit),

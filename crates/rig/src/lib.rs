@@ -94,8 +94,10 @@ pub fn check_simulated_material(plan: &Plan) -> anyhow::Result<()> {
 /// The summary of a stored result (`result/coefficients.json`), if it can be read.
 pub fn stored_summary(coefficients_json: &std::path::Path) -> Option<Summary> {
     let r = brdfd_report::results::StoredResult::read(coefficients_json).ok()?;
-    let exports = r.exports.unwrap_or_default();
+    let exports = r.exports.clone().unwrap_or_default();
+    let anisotropic_lobe = matches!(r.chosen_lobe(), Ok(Some(_)));
     Some(Summary {
+        anisotropic_lobe,
         fit_verdict: brdfd_core::estimate::fit_verdict(r.fit_error.unwrap_or(f64::NAN)),
         model: r.model,
         columns: r.columns,

@@ -290,7 +290,9 @@ function finished(e) {
     const r = e.result;
     const fit = r.fit_error === null ? "not a number" : r.fit_error.toFixed(4);
     out.append(
-      `Done: model ${r.model}, fit to the photo ${fit} (${r.fit_verdict})` +
+      `Done: model ${r.model}` +
+        (r.anisotropic_lobe ? ", relit with the anisotropic lobe it chose" : "") +
+        `, fit to the photo ${fit} (${r.fit_verdict})` +
         (r.relight_error != null ? `, relit error ${r.relight_error.toFixed(4)}` : "") +
         (r.export_relight_error != null
           ? `; material.gltf relights ${r.export_relight_error.toFixed(3)} from the estimate (${r.export_verdict})`

@@ -480,7 +480,7 @@ const BACKGROUND_FRAGMENT = /* glsl */ `
 // Fr = F₀ + (1 − F₀)·w, F₀ = min(((η − 1)/(η + 1))² × specular colour, 1), w = (1 − cos θd)⁵,
 // then mix(f, coat lobe, clearcoat × (0.04 + 0.96·(1 − N·V)⁵)), as `GltfBrdf::eval_angles`
 // does.
-function brdfUniforms(material) {
+function brdfUniforms(material, anisotropic) {
   const c = material.color ? material.color.toArray() : [1, 1, 1];
   const m = material.metalness ?? 1;
   const s = material.specularIntensity ?? 1;
@@ -489,7 +489,7 @@ function brdfUniforms(material) {
   const f0 = sc.map((k) => Math.min(((ior - 1) / (ior + 1)) ** 2 * k, 1));
   const f0max = Math.max(...f0);
   const a = (material.roughness ?? 1) ** 2;
-  const strength = material.anisotropy ?? 0;
+  const strength = anisotropic ? material.anisotropy : 0;
   return {
     diffuseColor: { value: new THREE.Vector3(...c.map((k) => (1 - m) * k)) },
     specularA: { value: new THREE.Vector3(...c.map((k, i) => (1 - m) * s * f0[i] + m * k)) },
@@ -561,9 +561,9 @@ async function main() {
       // An anisotropic lobe is stretched along the mesh's tangents, which brdfd's exports
       // carry; a mesh without them is shaded isotropic (glTF would make them from its UVs,
       // and brdfd's meshes have none).
-      const anisotropic = (o.material.anisotropy ?? 0) > 0 && o.geometry.attributes.tangent;
+      const anisotropic = (o.material.anisotropy ?? 0) > 0 && !!o.geometry.attributes.tangent;
       o.material = new THREE.ShaderMaterial({
-        uniforms: { ...lighting, ...brdfUniforms(o.material) },
+        uniforms: { ...lighting, ...brdfUniforms(o.material, anisotropic) },
         defines: anisotropic ? { ANISOTROPIC: "" } : {},
         vertexShader: SPHERE_VERTEX,
         fragmentShader: SPHERE_FRAGMENT,

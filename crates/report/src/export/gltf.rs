@@ -98,10 +98,7 @@ impl GltfMaterial {
     /// The material with the roughnesses of an anisotropic lobe: its smooth α as glTF's
     /// roughness, and its rough α through `anisotropyStrength`.
     pub fn with_lobe(self, lobe: &AnisotropicLobe) -> GltfMaterial {
-        let (smooth, rough) = (
-            lobe.alpha_t.min(lobe.alpha_b),
-            lobe.alpha_t.max(lobe.alpha_b),
-        );
+        let (smooth, rough) = lobe.smooth_and_rough();
         GltfMaterial {
             roughness: smooth.sqrt().clamp(0.0, 1.0),
             anisotropy: Some(GltfAnisotropy {
@@ -165,7 +162,7 @@ impl GltfMaterial {
         if let Some(field) = unrendered(m, "materials[0]") {
             return Err(CoreError::format(
                 &what,
-                format!("{field} is not rendered: brdfd renders glTF's metallic-roughness BRDF with the specular, IOR and clear coat extensions, from factors alone"),
+                format!("{field} is not rendered: brdfd renders glTF's metallic-roughness BRDF with the specular, IOR, clear coat and anisotropy extensions, from factors alone"),
             ));
         }
         let pbr = &m["pbrMetallicRoughness"];
@@ -393,8 +390,8 @@ fn anisotropy(m: &serde_json::Value, what: &str) -> Result<Option<GltfAnisotropy
 }
 
 /// The first part of a glTF material (`at` names where) that [`GltfBrdf`] does not render:
-/// a texture, emission, transparency, or an extension other than the specular, IOR and clear
-/// coat ones.
+/// a texture, emission, transparency, or an extension other than the specular, IOR, clear
+/// coat and anisotropy ones.
 fn unrendered(v: &serde_json::Value, at: &str) -> Option<String> {
     let object = v.as_object()?;
     for (key, value) in object {
@@ -457,7 +454,8 @@ impl Geometry {
         if let Some(a) = anisotropy {
             for n in normals {
                 let t = a.tangent(n.map(f64::from));
-                // w = 1: the bitangent is n × t, as the lobe's own frame has it.
+                // w = 1: glTF's bitangent is n × t; the lobe is the same turned half a turn
+                // about the normal, so its sign does not matter.
                 for v in [t[0] as f32, t[1] as f32, t[2] as f32, 1.0] {
                     buffer.extend_from_slice(&v.to_le_bytes());
                 }
@@ -597,7 +595,9 @@ impl GltfTables {
     }
 }
 
-/// glTF's metallic-roughness BRDF with the specular, IOR and clear coat extensions:
+/// glTF's metallic-roughness BRDF with the specular, IOR and clear coat extensions (as an
+/// [`IsotropicBrdf`] it leaves `KHR_materials_anisotropy` out, which needs a tangent frame:
+/// [`GltfBrdf::eval_local`] and [`GltfMaterial::render_full`] hold it):
 /// `material = mix(dielectric, metal, metallic)` with
 /// `metal = (c + (1 − c)·w)·S` and
 /// `dielectric = (1 − q·max Fr)·c/π + q·Fr·S`, `Fr = F₀ + (1 − F₀)·w` per channel,

@@ -6,8 +6,10 @@
 //! is rendered on a sphere under several maps, and the format's own BRDF is fitted to those
 //! images. How much the format loses is then measured under maps the fit did not see and
 //! written beside the files ([`Export::relight_error`], with a verdict): a format cannot hold
-//! every material (anisotropy, retro-reflection, a measured material's own shape), and the
-//! user should know before relying on it.
+//! every material (retro-reflection, a measured material's own shape), and the user should
+//! know before relying on it. An anisotropic lobe the estimate chose is fitted the same way
+//! for its colours, and written with its stretch (`KHR_materials_anisotropy`,
+//! `specular_roughness_anisotropy`) along tangents laid on the shape.
 //!
 //! # Layout
 //!
@@ -274,8 +276,8 @@ pub fn write_exports(
                     relight_error is the glTF material's",
         fitted_to: if lobe.is_some() {
             "the estimate's anisotropic lobe: its colours and Fresnel through the lobe made \
-             isotropic at the geometric mean of its roughnesses, then its own roughnesses; \
-             relight_error renders both with their anisotropy"
+             isotropic at the geometric mean of its roughnesses (fit_error is that fit's), then \
+             its own roughnesses; relight_error renders both with their anisotropy"
         } else {
             "the estimate's BRDF"
         },

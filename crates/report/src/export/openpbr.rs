@@ -52,10 +52,7 @@ impl OpenPbrMaterial {
 
     /// The material with the roughnesses of an anisotropic lobe, through OpenPBR's mapping.
     pub fn with_lobe(self, lobe: &AnisotropicLobe) -> OpenPbrMaterial {
-        let (smooth, rough) = (
-            lobe.alpha_t.min(lobe.alpha_b),
-            lobe.alpha_t.max(lobe.alpha_b),
-        );
+        let (smooth, rough) = lobe.smooth_and_rough();
         let a = (1.0 - smooth / rough).clamp(0.0, 1.0);
         let r2 = rough / (2.0 / (1.0 + (1.0 - a) * (1.0 - a))).sqrt();
         OpenPbrMaterial {
