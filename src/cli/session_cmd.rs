@@ -178,6 +178,9 @@ fn match_id<'a>(ids: &'a [String], prefix: &str) -> Result<&'a str, String> {
 /// What a session's result says of itself, read once.
 struct Outcome {
     model: String,
+    /// Whether the estimate relights with an anisotropic lobe it chose over `model`; `fit`
+    /// is then the lobe's.
+    anisotropic_lobe: bool,
     fit: f64,
     /// The assumptions of the model the photo says are broken.
     flags: Vec<brdfd_report::results::StoredFlag>,
@@ -188,6 +191,7 @@ fn result_of(dir: &Path) -> Option<Outcome> {
     let r =
         brdfd_report::results::StoredResult::read(&dir.join("result/coefficients.json")).ok()?;
     Some(Outcome {
+        anisotropic_lobe: matches!(r.chosen_lobe(), Ok(Some(_))),
         fit: r.fit_error?,
         model: r.model,
         flags: r.flags,
@@ -213,6 +217,7 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
                     "material": m.material,
                     "created": m.created,
                     "model": r.as_ref().map(|r| &r.model),
+                    "anisotropic_lobe": r.as_ref().map(|r| r.anisotropic_lobe),
                     "fit_error": r.as_ref().map(|r| r.fit),
                 })
             })
@@ -236,6 +241,8 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
     );
     for (m, r) in &rows {
         let (model, fit) = match r {
+            // The lobe relights, and the fit is its own.
+            Some(r) if r.anisotropic_lobe => ("aniso", format!("{:.3}", r.fit)),
             Some(r) => (r.model.as_str(), format!("{:.3}", r.fit)),
             None => ("-", "-".to_string()),
         };
@@ -272,9 +279,13 @@ fn summary(s: &Session) -> Vec<String> {
     }
     match result_of(&s.dir) {
         Some(r) => {
+            let model = if r.anisotropic_lobe {
+                format!("an anisotropic GGX lobe, chosen over the {} model", r.model)
+            } else {
+                format!("{} model", r.model)
+            };
             lines.push(format!(
-                "estimate: {} model, fit to the photo {:.4} ({})",
-                r.model,
+                "estimate: {model}, fit to the photo {:.4} ({})",
                 r.fit,
                 brdfd_core::estimate::fit_verdict(r.fit)
             ));

@@ -243,25 +243,25 @@ struct Shape {
 /// lights, which is cheap; when it finds the photo may ask for anisotropy, a second pass
 /// measures the lobe's shape with them for every roughness that can show it.
 pub fn compare(views: &[ViewSamples], stop: &Stop) -> Option<Anisotropy> {
-    let fit = Fit::build(views, DETECT_FINE_BELOW)?;
+    let fit = Fit::build(views, DETECT_FINE_BELOW, true)?;
     let iso = fit.isotropic(None);
     let aniso = fit.anisotropic(iso.0, COARSE_DIRECTIONS, None);
     if aniso.1 > MAY_ASK * iso.1 || stop.requested() {
         return Some(fit.outcome(iso, aniso));
     }
-    let fine = Fit::build(views, MEASURE_FINE_BELOW)?;
+    let fine = Fit::build(views, MEASURE_FINE_BELOW, true)?;
     let iso = fine.isotropic(Some(iso.0));
     let aniso = fine.anisotropic(iso.0, MEASURE_DIRECTIONS, Some(aniso.0));
     Some(fine.outcome(iso, aniso))
 }
 
 /// The best Lambert plus isotropic GGX fit on up to [`PIXELS`] pixels spread over the views'
-/// candidates, under the map merged to [`LIGHTS`] lights alone (each widening the lobe by its
-/// spread, so a sharp lobe is followed too, if less closely): its α, its misfit and the pixels
-/// compared; `None` with too few pixels or no light. [`crate::registration`] compares it under
-/// turned lights, many times, which the merged lights keep cheap.
+/// candidates, under the views' lights as they are, already [`merged`] (each widening the
+/// lobe by its spread, so a sharp lobe is followed too, if less closely): its α, its misfit
+/// and the pixels compared; `None` with too few pixels or no light. [`crate::registration`]
+/// compares it under turned lights, many times, which the merged lights keep cheap.
 pub(crate) fn isotropic_fit(views: &[ViewSamples]) -> Option<(f64, f64, usize)> {
-    let fit = Fit::build(views, 0.0)?;
+    let fit = Fit::build(views, 0.0, false)?;
     let (alpha, misfit) = fit.isotropic(None);
     Some((alpha, misfit, fit.samples.len()))
 }
@@ -269,12 +269,17 @@ pub(crate) fn isotropic_fit(views: &[ViewSamples]) -> Option<(f64, f64, usize)> 
 impl Fit {
     /// The pixels' samples, with the estimate's lights kept for lobes sharper than
     /// `fine_below`.
-    fn build(views: &[ViewSamples], fine_below: f64) -> Option<Fit> {
+    /// The views' lights are merged first when `merge` is set; else they are taken as merged.
+    fn build(views: &[ViewSamples], fine_below: f64, merge: bool) -> Option<Fit> {
         let total: usize = views.iter().map(|v| v.pixels.len()).sum();
         let mut samples = Vec::new();
         for v in views.iter().filter(|v| !v.pixels.is_empty()) {
             let share = (PIXELS * v.pixels.len()).div_ceil(total);
-            let coarse = merged(v.lights);
+            let coarse = if merge {
+                merged(v.lights)
+            } else {
+                v.lights.clone()
+            };
             // A fit of the merged lights alone (`fine_below` 0) reads none of the estimate's.
             let seen_fine = (fine_below > 0.0).then(|| Seen::new(v.pixels, v.lights));
             let seen_coarse = Seen::new(v.pixels, &coarse);
@@ -690,7 +695,7 @@ fn lobe_columns(
 /// The lobe with its weights solved again on every pixel of the views, rendered as
 /// [`render_lobe`] renders it (every light, the whole lobe), and its re-render of each pixel
 /// (the views' in turn, RGB). The comparison solved them on a spread of the pixels with the
-/// lobe followed only as far as [`REACH`] and Lambert under the merged lights; relit whole, a
+/// lobe followed only as far as 4α and Lambert under the merged lights; relit whole, a
 /// rough lobe would carry the tail it was not fitted with.
 pub fn refit(views: &[ViewSamples], lobe: &AnisotropicLobe) -> (AnisotropicLobe, Vec<f64>) {
     let columns: Vec<([f64; 3], [f64; 3])> = views
@@ -794,7 +799,7 @@ fn reach(alpha: f64) -> f64 {
 /// at its power-weighted mean direction, with the radius of the disc whose second moment is
 /// that of its power's directions about that mean as its spread (√(2m₂): `spread` is a
 /// disc's radius).
-fn merged(lights: &LightSet) -> LightSet {
+pub(crate) fn merged(lights: &LightSet) -> LightSet {
     #[derive(Clone, Copy, Default)]
     struct Cell {
         power: [f64; 3],

@@ -733,23 +733,26 @@ pub fn estimate_views_shared(
     let mut estimate = estimate?;
     options.stop.check()?;
     estimate.clipped = clipped;
+    // Turned light first, on the model's own fit: a lobe chosen under the wrong light would
+    // fit a turn it cannot tell from a grain.
+    let not_good = estimate.fit_error.is_nan() || estimate.fit_error > CHECK_TURN_ABOVE;
+    if options.checks && not_good {
+        estimate.registration = registration::check(&view_samples(&candidates), &options.stop);
+        options.stop.check()?;
+    }
+    let turned = estimate.registration.as_ref().is_some_and(|r| r.asks());
     if let Some(mut found) = anisotropy.flatten() {
-        if found.asks() {
+        if found.asks() && !turned {
             choose_lobe(&mut estimate, &candidates, &mut found);
         }
         estimate.anisotropy = Some(found);
     }
-    if options.checks && estimate.fit_error > CHECK_TURN_ABOVE {
-        estimate.registration = registration::check(&view_samples(&candidates), &options.stop);
-        options.stop.check()?;
-    }
     Ok(estimate)
 }
 
-/// A fit above this is checked for turned light ([`crate::registration`]): a good fit (the
-/// summary's "good", at most 0.1) leaves no turn worth finding, and the check costs about
-/// 0.5 s on 2 cores.
-const CHECK_TURN_ABOVE: f64 = 0.1;
+/// A fit above this (or not a number) is checked for turned light ([`crate::registration`]):
+/// a good fit leaves no turn worth finding, and the check costs about 0.6 s on 2 cores.
+const CHECK_TURN_ABOVE: f64 = GOOD_FIT;
 
 /// When the photo asks for anisotropy: the lobe, its weights solved again on every
 /// candidate, is chosen over the model if it re-renders the photo closer than the model does

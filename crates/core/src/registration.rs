@@ -16,12 +16,13 @@
 
 use serde::Serialize;
 
-use super::anisotropy::{isotropic_fit, ViewSamples};
+use super::anisotropy::{isotropic_fit, merged, ViewSamples};
 use super::brdf::rot_y;
 use super::envmap::LightSet;
 use super::stop::Stop;
 
-/// Turns tried first, in degrees, each way.
+/// Turns tried first, in degrees, each way, up to [`MAX_TURN_DEG`], which the refinement does
+/// not pass either.
 pub const COARSE_STEP_DEG: f64 = 5.0;
 pub const MAX_TURN_DEG: f64 = 30.0;
 /// Halvings of the step about the best coarse turn.
@@ -64,15 +65,25 @@ impl Registration {
 /// The comparison on the views' pixels; `None` with too few pixels, no light, or when the
 /// estimate is asked to stop.
 pub fn check(views: &[ViewSamples], stop: &Stop) -> Option<Registration> {
-    let (_, misfit, pixels) = isotropic_fit(views)?;
+    // The lights are merged once and then turned: merged again after each turn, the cells'
+    // grid would move against the light and change the misfit by itself.
+    let merged: Vec<LightSet> = views.iter().map(|v| merged(v.lights)).collect();
     let misfit_at = |deg: f64| -> Option<f64> {
-        let lights: Vec<LightSet> = views.iter().map(|v| turned(v.lights, deg)).collect();
+        let lights: Vec<LightSet> = merged.iter().map(|l| turned(l, deg)).collect();
         let turned: Vec<ViewSamples> = views
             .iter()
             .zip(&lights)
             .map(|(v, lights)| ViewSamples { lights, ..*v })
             .collect();
         isotropic_fit(&turned).map(|(_, m, _)| m)
+    };
+    let (_, misfit, pixels) = {
+        let given: Vec<ViewSamples> = views
+            .iter()
+            .zip(&merged)
+            .map(|(v, lights)| ViewSamples { lights, ..*v })
+            .collect();
+        isotropic_fit(&given)?
     };
     let mut best = (0.0, misfit);
     let consider = |deg: f64, best: &mut (f64, f64)| -> Option<()> {
@@ -93,9 +104,10 @@ pub fn check(views: &[ViewSamples], stop: &Stop) -> Option<Registration> {
     let mut step = COARSE_STEP_DEG / 2.0;
     for _ in 0..REFINE_ROUNDS {
         let centre = best.0;
-        for deg in [centre - step, centre + step]
+        let tries = [centre - step, centre + step];
+        for deg in tries
             .into_iter()
-            .filter(|d| *d != 0.0)
+            .filter(|d| *d != 0.0 && d.abs() <= MAX_TURN_DEG)
         {
             consider(deg, &mut best)?;
         }
@@ -208,17 +220,17 @@ mod tests {
     }
 
     #[test]
-    fn turning_keeps_the_lights_power_and_turns_as_a_yaw_does() {
-        let lights = room(256);
-        let t = turned(&lights, 90.0);
-        assert_eq!(t.radiance, lights.radiance);
-        // A map's centre column faces −Z; turned +90° it faces −X (crate::envmap).
-        let mut one = LightSet::default();
-        one.directions.push([0.0, 0.0, -1.0]);
-        one.radiance.push([1.0; 3]);
-        one.solid_angle.push(1.0);
-        one.spread.push(0.0);
-        let d = turned(&one, 90.0).directions[0];
-        assert!((d[0] + 1.0).abs() < 1e-6 && d[2].abs() < 1e-6, "{d:?}");
+    fn turning_lights_is_turning_the_map_by_its_yaw() {
+        // A map whose pixels all differ, as lights at yaw 20° and then turned a further 12°,
+        // against the same map's lights at yaw 32° (crate::envmap's convention).
+        let (w, h) = (16, 8);
+        let pixels = (0..w * h).map(|i| [i as f32, 1.0, 2.0]).collect();
+        let map = crate::envmap::EnvMap::from_pixels(w, h, pixels, "test").unwrap();
+        let at = |yaw_deg: f64| map.lights(yaw_deg.to_radians());
+        let (turned, direct) = (turned(&at(20.0), 12.0), at(32.0));
+        assert_eq!(turned.radiance, direct.radiance);
+        for (a, b) in turned.directions.iter().zip(&direct.directions) {
+            assert!((0..3).all(|k| (a[k] - b[k]).abs() < 1e-5), "{a:?} {b:?}");
+        }
     }
 }

@@ -118,11 +118,13 @@ fn misregistration(r: &Registration) -> Option<Flag> {
         reason: Reason::Misregistration,
         figure: r.ratio(),
         text: format!(
-            "misregistration: the photo fits much closer with the light turned a further {:+.1}° about the vertical: Lambert with one GGX lobe re-renders it to {:.3} there, and to {:.3} as the map was given (flagged at {:.0}% of it or less). The map's yaw (--yaw, or the panorama's north) or the object's pose in the rig file is off by about that much; the estimate was fitted to the wrong light, and its other figures say nothing of the material",
+            "misregistration: the photo fits much closer with the light turned a further {:+.1}° about the vertical: Lambert with one GGX lobe re-renders it to {:.3} there, and to {:.3} as the map was given (flagged at {:.0}% of it or less). Add {:+.1}° to the map's yaw (--yaw, or theta_yaw_deg in the rig file), or, if the map's north is right, turn the object's pose by {:+.1}° about the vertical; the estimate was fitted to the wrong light, and its other figures say nothing of the material",
             r.turn_deg,
             r.turned_misfit,
             r.misfit,
             100.0 * REGISTRATION_ASKS_BELOW,
+            r.turn_deg,
+            -r.turn_deg,
         ),
     })
 }
@@ -511,7 +513,12 @@ mod tests {
         let flag = misregistration(&turned(-10.0, 0.15)).expect("flagged");
         assert_eq!(flag.reason, Reason::Misregistration);
         assert!((flag.figure - 0.5).abs() < 1e-12, "{}", flag.figure);
-        assert!(flag.text.contains("-10.0°"), "{}", flag.text);
+        assert!(
+            flag.text.contains("Add -10.0° to the map's yaw"),
+            "{}",
+            flag.text
+        );
+        assert!(flag.text.contains("pose by +10.0°"), "{}", flag.text);
         // At the threshold, and just above it.
         assert!(misregistration(&turned(5.0, 0.24)).is_some());
         assert!(misregistration(&turned(5.0, 0.2403)).is_none());

@@ -268,13 +268,12 @@ fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec
         (
             "model".to_string(),
             match est.chosen_lobe() {
-                Some(l) => format!(
-                    "an anisotropic GGX lobe (α {:.3} and {:.3}), chosen over the {} model: what the estimate relights with (brdf-anisotropic.binary); the BRDF slices and brdf.binary are the {} model's, isotropic",
-                    l.smooth_and_rough().0,
-                    l.smooth_and_rough().1,
-                    est.model.name(),
-                    est.model.name()
-                ),
+                Some(l) => {
+                    let ((smooth, rough), model) = (l.smooth_and_rough(), est.model.name());
+                    format!(
+                        "an anisotropic GGX lobe (α {smooth:.3} and {rough:.3}), chosen over the {model} model: what the estimate relights with (brdf-anisotropic.binary); the BRDF slices and brdf.binary are the {model} model's, isotropic"
+                    )
+                }
                 None => est.model.name().to_string(),
             },
         ),

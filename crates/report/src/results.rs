@@ -263,6 +263,9 @@ impl StoredResult {
         let Some(a) = &self.anisotropy else {
             return Ok(None);
         };
+        if !a.is_object() {
+            return Err(format!("field `anisotropy` is {a}, not an object"));
+        }
         match &a["chosen"] {
             serde_json::Value::Null | serde_json::Value::Bool(false) => return Ok(None),
             serde_json::Value::Bool(true) => {}
@@ -746,6 +749,8 @@ mod tests {
         assert!(e.contains("field `anisotropy.lobe`"), "{e}");
         let e = with(r#"{"chosen": "yes"}"#).unwrap_err();
         assert!(e.contains("anisotropy.chosen"), "{e}");
+        let e = with("[]").unwrap_err();
+        assert!(e.contains("field `anisotropy` is []"), "{e}");
     }
 
     #[test]
