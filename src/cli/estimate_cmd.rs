@@ -386,16 +386,16 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
     } else if let Some(p) = &a.gltf {
         brdfd_report::export::GltfMaterial::read(p)?.render_full(&geometry, &lights)
     } else if let Some(p) = &a.coefficients {
-        let basis = load_basis(&a.basis)?;
         let r = brdfd_report::results::StoredResult::read(p)?;
         // An estimate that chose an anisotropic lobe relights with it, not with its
-        // (isotropic) model.
+        // (isotropic) model, and needs no basis.
         if let Some(lobe) = r
             .chosen_lobe()
             .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?
         {
             return finish_render(&a.out, render_anisotropic(&geometry, &lights, &lobe));
         }
+        let basis = load_basis(&a.basis)?;
         if r.model == "analytic" || r.model == "hybrid" {
             let m: Microfacet = r
                 .analytic_model()
