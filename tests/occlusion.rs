@@ -257,9 +257,11 @@ fn turned_views_of_a_concave_part_recover_the_material_only_with_occlusion() {
             g.pixels.iter().map(|px| 1.0 - at(&f, px)).sum::<f64>() / g.pixels.len() as f64
         })
         .collect();
+    // The photos hold direct light only: nothing bounced to take out.
     let options = EstimateOptions {
         model: Model::Basis,
         colour: ColourChoice::Joint,
+        bounce: false,
         ..EstimateOptions::default()
     };
     let error = |occlusion: bool| {

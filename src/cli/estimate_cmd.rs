@@ -6,6 +6,8 @@ use anyhow::{bail, Context};
 use brdfd_core::analytic::{Microfacet, MAX_LOBES};
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::Bivariate;
+use brdfd_core::bounce;
+use brdfd_core::brdf::{tangent_frame, IsotropicBrdf};
 use brdfd_core::envmap::{CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd_core::estimate::{
     estimate as run_estimate, unused_basis_settings, EstimateOptions, Model, SelectionMethod, View,
@@ -98,6 +100,10 @@ pub struct EstimateArgs {
     /// Also print the estimate's coefficients (they are in `coefficients.json`).
     #[arg(long, short)]
     pub verbose: bool,
+    /// Fit the photo as if every pixel saw only the room: leave in the light a concave mesh
+    /// throws on itself, which is otherwise taken out before the fit (one bounce).
+    #[arg(long)]
+    pub no_bounce: bool,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy)]
@@ -233,6 +239,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         white: a.white.or(file_white),
         nonnegative: !a.allow_negative,
         checks: true,
+        bounce: !a.no_bounce,
         // Ctrl-C ends the process: nothing is written before the estimate is done.
         stop: Default::default(),
     };
@@ -357,6 +364,10 @@ pub struct RenderArgs {
     /// Output image: .exr (linear) or .png (tone-mapped sRGB).
     #[arg(short, long)]
     pub out: PathBuf,
+    /// Leave out the light a concave mesh throws on itself (one bounce, added by default):
+    /// direct light only.
+    #[arg(long)]
+    pub no_bounce: bool,
 }
 
 pub fn render(a: RenderArgs) -> anyhow::Result<()> {
@@ -374,17 +385,29 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
         (None, size) => (size.unwrap_or(256), size.unwrap_or(256)),
     };
     let geometry = scene.pixels(width, height)?;
+    // Each branch's render, with the light a concave mesh throws on itself added through the
+    // same BRDF (unless --no-bounce).
+    let bounce = !a.no_bounce;
+    let isotropic = |mut img: Raster, brdf: &dyn IsotropicBrdf| {
+        if bounce {
+            bounce::add_to(&mut img, &geometry, &lights, tangent_frame, |wi, wo| {
+                brdf.eval_dirs(wi, wo)
+            });
+        }
+        img
+    };
     let img = if let Some(name) = &a.material {
         let set = match &a.nbrdf {
             Some(p) => NbrdfSet::read(p)?,
             None => brdfd_bench::embedded_materials(),
         };
         let table = MerlBrdf::tabulate(set.get(brdfd_bench::resolve_material(name))?);
-        render_merl(&geometry, &lights, &table)
+        isotropic(render_merl(&geometry, &lights, &table), &table)
     } else if let Some(p) = &a.merl {
-        render_merl(&geometry, &lights, &MerlBrdf::read(p)?)
+        let table = MerlBrdf::read(p)?;
+        isotropic(render_merl(&geometry, &lights, &table), &table)
     } else if let Some(p) = &a.gltf {
-        brdfd_report::export::GltfMaterial::read(p)?.render_full(&geometry, &lights)
+        brdfd_report::export::GltfMaterial::read(p)?.render_bounced(&geometry, &lights, bounce)
     } else if let Some(p) = &a.coefficients {
         let r = brdfd_report::results::StoredResult::read(p)?;
         // An estimate that chose an anisotropic lobe relights with it, not with its
@@ -393,7 +416,14 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
             .chosen_lobe()
             .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?
         {
-            return finish_render(&a.out, render_anisotropic(&geometry, &lights, &lobe));
+            let mut img = render_anisotropic(&geometry, &lights, &lobe);
+            if bounce {
+                let frame = |n| lobe.frame(n);
+                bounce::add_to(&mut img, &geometry, &lights, frame, |wi, wo| {
+                    lobe.eval_local(wi, wo)
+                });
+            }
+            return finish_render(&a.out, img);
         }
         let basis = load_basis(&a.basis)?;
         if r.model == "analytic" || r.model == "hybrid" {
@@ -422,7 +452,10 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
             }
             let b = HybridFit::rebuild(&m, &mixture, &basis)
                 .map_err(|e| anyhow::anyhow!("{}: field `mixture`: {e}", p.display()))?;
-            return finish_render(&a.out, render_bivariate(&geometry, &lights, &b));
+            return finish_render(
+                &a.out,
+                isotropic(render_bivariate(&geometry, &lights, &b), &b),
+            );
         }
         let coeffs: Vec<f64> = r
             .coefficients
@@ -449,7 +482,7 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
         let b: Bivariate = basis
             .reconstruct_solution(&coeffs)
             .with_context(|| format!("{}: field `coefficients`", p.display()))?;
-        render_bivariate(&geometry, &lights, &b)
+        isotropic(render_bivariate(&geometry, &lights, &b), &b)
     } else {
         bail!("say what to render: --material, --merl, --coefficients or --gltf");
     };

@@ -533,23 +533,38 @@ fn occlusion_bench(runs: usize) -> anyhow::Result<()> {
         g.pixels.truncate(50_000);
         Ok(g)
     };
-    let photo_part = brdfd_core::render::render_bivariate(&part()?, &lights, &gold);
+    // The part's photo with the light its grooves throw on each other (one bounce).
+    let seen = part()?;
+    let mut photo_part = brdfd_core::render::render_bivariate(&seen, &lights, &gold);
+    use brdfd_core::brdf::IsotropicBrdf;
+    brdfd_core::bounce::add_to(
+        &mut photo_part,
+        &seen,
+        &lights,
+        brdfd_core::brdf::tangent_frame,
+        |wi, wo| gold.eval_dirs(wi, wo),
+    );
     let photo_sphere = brdfd_core::render::render_bivariate(&sphere, &lights, &gold);
-    let run = |g: &PixelGeometry, photo| {
+    let run = |g: &PixelGeometry, photo, bounce: bool| {
         let view = View {
             geometry: g,
             lights: &lights,
             chosen_lights: chosen.as_ref(),
             photo,
         };
-        std::hint::black_box(
-            estimate(&basis, view, &EstimateOptions::default()).expect("estimate"),
-        );
+        let options = EstimateOptions {
+            bounce,
+            ..EstimateOptions::default()
+        };
+        std::hint::black_box(estimate(&basis, view, &options).expect("estimate"));
     };
-    let est_part = median_secs(runs.min(3), || run(&part().expect("the part"), &photo_part));
-    let est_sphere = median_secs(runs.min(3), || run(&sphere, &photo_sphere));
+    let part = || part().expect("the part");
+    let est_part = median_secs(runs.min(3), || run(&part(), &photo_part, true));
+    let est_direct = median_secs(runs.min(3), || run(&part(), &photo_part, false));
+    let est_sphere = median_secs(runs.min(3), || run(&sphere, &photo_sphere, true));
     println!(
-        "  estimate (default model): {est_part:.2} s on the part, {est_sphere:.2} s on the sphere: ratio {:.2}",
+        "  estimate (default model): {est_part:.2} s on the part with one bounce, {est_direct:.2} s without (ratio {:.2}); {est_sphere:.2} s on the sphere: ratio {:.2} to the part's with one bounce",
+        est_part / est_direct,
         est_part / est_sphere
     );
     Ok(())

@@ -21,6 +21,8 @@ pub mod tiff;
 use std::sync::Arc;
 
 use brdfd_core::bivariate::Bivariate;
+use brdfd_core::bounce;
+use brdfd_core::brdf::{tangent_frame, IsotropicBrdf};
 use brdfd_core::envmap::{EnvMap, LightSet};
 use brdfd_core::geometry::{Camera, PixelGeometry, SceneGeometry, Shape};
 use brdfd_core::merl::MerlBrdf;
@@ -135,11 +137,23 @@ impl VirtualBench {
         self
     }
 
-    /// The linear radiance the object camera records (before any camera response).
+    /// The linear radiance the object camera records (before any camera response): a
+    /// concave mesh with the light it throws on itself (one bounce, [`brdfd_core::bounce`]).
     pub fn photo(&self) -> Result<Raster> {
-        self.cached("photo", self.yaw, &self.geometry, || {
+        self.cached("photo with one bounce", self.yaw, &self.geometry, || {
             let lights: LightSet = self.env.compressed(PHOTO_LIGHTS, self.yaw);
-            render_merl_until(&self.pixels()?, &lights, &self.material, &self.stop)
+            let pixels = self.pixels()?;
+            let mut photo = render_merl_until(&pixels, &lights, &self.material, &self.stop)?;
+            let material = &*self.material;
+            bounce::add_to_until(
+                &mut photo,
+                &pixels,
+                &lights,
+                &self.stop,
+                tangent_frame,
+                |wi, wo| material.eval_dirs(wi, wo),
+            )?;
+            Ok(photo)
         })
     }
 

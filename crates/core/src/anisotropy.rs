@@ -795,11 +795,16 @@ fn reach(alpha: f64) -> f64 {
     REACH * alpha
 }
 
-/// The light set merged onto a [`GRID_U`] × [`GRID_V`] grid of directions: each cell's power,
-/// at its power-weighted mean direction, with the radius of the disc whose second moment is
-/// that of its power's directions about that mean as its spread (√(2m₂): `spread` is a
-/// disc's radius).
+/// The light set merged onto a [`GRID_U`] × [`GRID_V`] grid of directions ([`merged_onto`]).
 pub(crate) fn merged(lights: &LightSet) -> LightSet {
+    merged_onto(lights, GRID_U, GRID_V)
+}
+
+/// The light set merged onto a `grid_u` × `grid_v` grid of directions (azimuth by polar
+/// angle): each cell's power, at its power-weighted mean direction, with the radius of the
+/// disc whose second moment is that of its power's directions about that mean as its spread
+/// (√(2m₂): `spread` is a disc's radius).
+pub(crate) fn merged_onto(lights: &LightSet, grid_u: usize, grid_v: usize) -> LightSet {
     #[derive(Clone, Copy, Default)]
     struct Cell {
         power: [f64; 3],
@@ -811,10 +816,10 @@ pub(crate) fn merged(lights: &LightSet) -> LightSet {
     let cell_of = |d: [f64; 3]| {
         let u = (d[0].atan2(d[2]) / std::f64::consts::TAU + 0.5).clamp(0.0, 0.999_999);
         let v = (d[1].clamp(-1.0, 1.0).acos() / std::f64::consts::PI).clamp(0.0, 0.999_999);
-        (v * GRID_V as f64) as usize * GRID_U + (u * GRID_U as f64) as usize
+        (v * grid_v as f64) as usize * grid_u + (u * grid_u as f64) as usize
     };
     let weight_of = |p: [f64; 3]| p[0] + p[1] + p[2];
-    let mut cells = vec![Cell::default(); GRID_U * GRID_V];
+    let mut cells = vec![Cell::default(); grid_u * grid_v];
     let mut members = Vec::with_capacity(lights.len());
     for i in 0..lights.len() {
         let d = lights.directions[i].map(f64::from);

@@ -7,7 +7,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::brdf::IsotropicBrdf;
+use super::brdf::{add, angle_between, normalize, IsotropicBrdf, Vec3};
 use super::merl::{self, MerlBrdf};
 
 pub const N_THETA_H: usize = 90;
@@ -200,5 +200,15 @@ impl IsotropicBrdf for Bivariate {
             self.grid.theta_h_binning.bin(theta_h),
             merl::theta_d_bin(theta_d),
         )
+    }
+
+    /// θh and θd only, straight from the half vector: the table does not vary with φd, so
+    /// the frame that gives it is not worked out (the bounce's grids evaluate millions).
+    fn eval_dirs(&self, wi: Vec3, wo: Vec3) -> [f64; 3] {
+        if wi[2] <= 0.0 || wo[2] <= 0.0 {
+            return [0.0; 3];
+        }
+        let h = normalize(add(wi, wo));
+        self.eval_angles(angle_between(h, [0.0, 0.0, 1.0]), angle_between(wi, h), 0.0)
     }
 }

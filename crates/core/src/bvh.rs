@@ -28,6 +28,31 @@ pub struct Hit {
     pub v: f64,
 }
 
+/// A mesh and its hierarchy, kept together: the surface that lights itself
+/// ([`crate::bounce`]).
+pub struct Surface {
+    pub(crate) mesh: Mesh,
+    bvh: Bvh,
+    /// The length of the mesh's bounding box's diagonal.
+    pub(crate) diagonal: f64,
+}
+
+impl Surface {
+    pub fn new(mesh: Mesh, bvh: Bvh) -> Surface {
+        let (lo, hi) = mesh.bounds();
+        let d = sub(hi, lo);
+        Surface {
+            diagonal: dot(d, d).sqrt(),
+            mesh,
+            bvh,
+        }
+    }
+
+    pub fn bvh(&self) -> &Bvh {
+        &self.bvh
+    }
+}
+
 #[derive(Clone, Copy, Debug)]
 struct Node {
     lo: Vec3,
@@ -267,24 +292,39 @@ impl Bvh {
         found: &mut dyn FnMut(usize, Hit) -> bool,
     ) {
         let inv = dir.map(|d| 1.0 / d);
-        let mut stack: Vec<u32> = Vec::with_capacity(64);
-        stack.push(0);
-        while let Some(i) = stack.pop() {
-            let node = &self.nodes[i as usize];
-            if !slab(node, origin, inv, t_min, *far) {
+        // Boxes to visit, each with where the ray enters it: a box is tested once, when its
+        // parent is, and passed over when popped if a hit found since lies before it. The
+        // tree is built by recursion to depth [`DEEPEST_HEURISTIC`] and then halves at the
+        // median, so its depth stays far below the stack's size.
+        let mut stack = [(0u32, 0f64); 128];
+        let mut len = 0;
+        if enters(&self.nodes[0], origin, inv, t_min, *far).is_none() {
+            return;
+        }
+        stack[len] = (0, 0.0);
+        len += 1;
+        while len > 0 {
+            len -= 1;
+            let (i, enter) = stack[len];
+            if enter > *far {
                 continue;
             }
+            let node = &self.nodes[i as usize];
             if node.count == 0 {
                 let (a, b) = (node.first, node.first + 1);
+                let open = |c: u32| enters(&self.nodes[c as usize], origin, inv, t_min, *far);
                 // The nearer child is searched first, so that `far` shrinks early.
-                let da = entry(&self.nodes[a as usize], origin, inv);
-                let db = entry(&self.nodes[b as usize], origin, inv);
-                if da <= db {
-                    stack.push(b);
-                    stack.push(a);
-                } else {
-                    stack.push(a);
-                    stack.push(b);
+                let mut children = [(a, open(a)), (b, open(b))];
+                if let [(_, Some(da)), (_, Some(db))] = children {
+                    if db < da {
+                        children.swap(0, 1);
+                    }
+                }
+                for (c, enter) in children.into_iter().rev() {
+                    if let Some(enter) = enter {
+                        stack[len] = (c, enter);
+                        len += 1;
+                    }
                 }
                 continue;
             }
@@ -307,8 +347,8 @@ fn area(lo: Vec3, hi: Vec3) -> f64 {
     d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
 }
 
-/// Whether the ray meets the box within `(t_min, t_max)`.
-fn slab(n: &Node, o: Vec3, inv: Vec3, t_min: f64, t_max: f64) -> bool {
+/// Where within `(t_min, t_max)` the ray enters the box, if it passes through it.
+fn enters(n: &Node, o: Vec3, inv: Vec3, t_min: f64, t_max: f64) -> Option<f64> {
     let (mut near, mut far) = (t_min, t_max);
     for i in 0..3 {
         let (a, b) = ((n.lo[i] - o[i]) * inv[i], (n.hi[i] - o[i]) * inv[i]);
@@ -317,25 +357,10 @@ fn slab(n: &Node, o: Vec3, inv: Vec3, t_min: f64, t_max: f64) -> bool {
         near = if a > near { a } else { near };
         far = if b < far { b } else { far };
         if near > far {
-            return false;
+            return None;
         }
     }
-    true
-}
-
-/// Where the ray enters the box (for ordering), or infinity if it misses.
-fn entry(n: &Node, o: Vec3, inv: Vec3) -> f64 {
-    let (mut near, mut far) = (f64::NEG_INFINITY, f64::INFINITY);
-    for i in 0..3 {
-        let (a, b) = ((n.lo[i] - o[i]) * inv[i], (n.hi[i] - o[i]) * inv[i]);
-        near = near.max(a.min(b));
-        far = far.min(a.max(b));
-    }
-    if near <= far && far >= 0.0 {
-        near
-    } else {
-        f64::INFINITY
-    }
+    Some(near)
 }
 
 /// Möller–Trumbore: the hit of the ray on the triangle (corner, two edges), either side.

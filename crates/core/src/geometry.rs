@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 use rayon::prelude::*;
 
 use super::brdf::{add, cross, dot, normalize, scale, sub, tangent_frame, Vec3};
-use super::bvh::Bvh;
+use super::bvh::{Bvh, Hit, Surface};
 use super::error::{CoreError, Result};
 use super::mesh::{Mesh, Placement, Units};
 use super::visibility::{Occluder, Point, Shadow};
@@ -457,6 +457,36 @@ impl PixelGeometry {
     }
 }
 
+/// The surface a ray `hit` at `p`, on the side `toward` points to (toward where the ray came
+/// from): its normal, and how far off the surface rays from it must start. The side seen
+/// counts: a sheet has two, a file's winding may be inside out, and its normals may disagree
+/// with its winding. Rays start above the faces around the point: an interpolated normal tilts
+/// from its face, so the face's corners (and its neighbours', about as much) stand above the
+/// normal's tangent plane; as high as that, twice over, so that a faceted convex surface does
+/// not hide its own light, and never less than 10⁻⁵ of the mesh's `diagonal`.
+pub(crate) fn seen_side(
+    mesh: &Mesh,
+    hit: &Hit,
+    p: Vec3,
+    toward: Vec3,
+    diagonal: f64,
+) -> (Vec3, f64) {
+    let [a, b, c] = mesh.corners(hit.triangle);
+    let mut face = normalize(cross(sub(b, a), sub(c, a)));
+    if dot(face, toward) < 0.0 {
+        face = scale(face, -1.0);
+    }
+    let mut n = mesh.normal_at(hit.triangle, hit.u, hit.v);
+    if dot(n, face) < 0.0 {
+        n = scale(n, -1.0);
+    }
+    let above = [a, b, c]
+        .iter()
+        .map(|q| dot(n, sub(*q, p)))
+        .fold(0.0, f64::max);
+    (n, 2.0 * above + 1e-5 * diagonal)
+}
+
 /// Pixels whose normal is within this many degrees of perpendicular to the view are dropped:
 /// silhouette pixels mix object and background.
 pub const GRAZING_LIMIT_DEG: f64 = 85.0;
@@ -566,31 +596,12 @@ impl PixelGeometry {
                 let ray = camera.ray(i % width, i / width, &axes);
                 let hit = bvh.closest(ray.origin, ray.dir, 0.0, f64::INFINITY)?;
                 let v = scale(ray.dir, -1.0);
-                let [a, b, c] = mesh.corners(hit.triangle);
-                // The side the camera sees: a sheet has two, a file's winding may be inside
-                // out, and its normals may disagree with its winding.
-                let mut face = normalize(cross(sub(b, a), sub(c, a)));
-                if dot(face, v) < 0.0 {
-                    face = scale(face, -1.0);
-                }
-                let mut n = mesh.normal_at(hit.triangle, hit.u, hit.v);
-                if dot(n, face) < 0.0 {
-                    n = scale(n, -1.0);
-                }
                 let footprint = match camera {
                     Camera::Orthographic { extent, width, .. } => extent / *width as f64,
                     Camera::Pinhole { fx, .. } => hit.t / fx,
                 };
-                // Shadow rays start above the faces around the point. An interpolated normal
-                // tilts from its face, so the face's corners (and its neighbours', about as
-                // much) stand above the normal's tangent plane: as high as that, twice over,
-                // so that a faceted convex surface does not hide its own light.
                 let p = add(ray.origin, scale(ray.dir, hit.t));
-                let above = [a, b, c]
-                    .iter()
-                    .map(|q| dot(n, sub(*q, p)))
-                    .fold(0.0, f64::max);
-                let lift = 2.0 * above + 1e-5 * diagonal;
+                let (n, lift) = seen_side(mesh, &hit, p, v, diagonal);
                 Some((p, n, v, footprint, lift))
             })
             .collect();
@@ -640,7 +651,8 @@ impl PixelGeometry {
                 }
             }
         }
-        let occluder = std::sync::Arc::new(Occluder::new(&bvh, points));
+        let surface = std::sync::Arc::new(Surface::new(mesh.clone(), bvh));
+        let occluder = std::sync::Arc::new(Occluder::of_surface(surface, points));
         for (id, px) in pixels.iter_mut().enumerate() {
             px.shadow = Some(Shadow {
                 occluder: occluder.clone(),

@@ -5,13 +5,15 @@
 //! [`render`] builds A from [`geometry`] and [`envmap`] lights → [`select`] picks pixels →
 //! [`solve`] gives the coefficients; [`analytic`] and [`hybrid`] are the other models. [`estimate`] runs the chain;
 //! `brdfd-eval`, a crate above this one, measures it from outside. A real part's shape is a [`mesh`], cast per
-//! pixel through a [`bvh`]; what it hides of its own lights is [`visibility`].
+//! pixel through a [`bvh`]; what it hides of its own lights is [`visibility`], and the light
+//! it throws on itself is [`bounce`].
 
 pub mod analytic;
 pub mod anisotropic;
 pub mod anisotropy;
 pub mod basis;
 pub mod bivariate;
+pub mod bounce;
 pub mod brdf;
 pub mod bvh;
 pub mod envmap;

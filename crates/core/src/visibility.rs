@@ -19,7 +19,7 @@ use std::hash::{Hash, Hasher};
 use std::sync::{Arc, Mutex, OnceLock};
 
 use super::brdf::{cross as cross64, dot as dot64, sub as sub64, Vec3};
-use super::bvh::Bvh;
+use super::bvh::{Bvh, Surface};
 use super::envmap::LightSet;
 use super::geometry::GeomPixel;
 
@@ -97,6 +97,9 @@ pub struct Occluder {
     /// spare: a box is passed over only when it lies this far below the plane.
     slack: f32,
     tables: Mutex<Vec<(u64, Arc<Table>)>>,
+    /// The mesh itself, for the light it throws on itself ([`crate::bounce`]); `None` for an
+    /// occluder of points off the pixels (a bounce's own cells).
+    surface: Option<Arc<Surface>>,
 }
 
 /// A pixel's place in its object's [`Occluder`]: the pixel is `points[id]` there.
@@ -196,6 +199,7 @@ impl Occluder {
             // a wall's own boxes are still passed over.
             slack: 8e-6 * reach,
             tables: Mutex::new(Vec::new()),
+            surface: None,
         };
         let held = occluder.held();
         for (at, range) in held.into_iter().enumerate() {
@@ -226,6 +230,18 @@ impl Occluder {
     /// `o` in the frame the boxes and triangles are kept in.
     fn local(&self, o: [f32; 3]) -> [f32; 3] {
         [0, 1, 2].map(|i| (o[i] as f64 - self.centre[i]) as f32)
+    }
+
+    /// The occluder of `surface`'s mesh for `points`, which keeps the surface for the light
+    /// it throws on itself.
+    pub fn of_surface(surface: Arc<Surface>, points: Vec<Point>) -> Occluder {
+        let mut occluder = Occluder::new(surface.bvh(), points);
+        occluder.surface = Some(surface);
+        occluder
+    }
+
+    pub fn surface(&self) -> Option<&Arc<Surface>> {
+        self.surface.as_ref()
     }
 
     pub fn points(&self) -> &[Point] {

@@ -103,7 +103,8 @@ pub fn of(estimate: &Estimate, visibility: Option<&Visibility>) -> Vec<Flag> {
     if let Some(turned) = estimate.registration.as_ref().and_then(misregistration) {
         return vec![turned];
     }
-    let bounce = visibility.and_then(|v| interreflection(&estimate.rerender, v));
+    let bounce =
+        visibility.and_then(|v| interreflection(&estimate.rerender, v, estimate.bounce.is_some()));
     bounce
         .into_iter()
         .chain(several_materials(&estimate.rerender, visibility))
@@ -170,7 +171,13 @@ const MIN_HALF: usize = 4;
 /// brighter against the estimate: the bounce light grows with the part a face sees of
 /// itself. Comparing faces turned the same way keeps out a misfit that depends on the way a
 /// face turns (a groove's walls face other parts of the map than the top does).
-fn interreflection(rerender: &[Rerendered], visibility: &Visibility) -> Option<Flag> {
+/// With `bounce_taken_out`, the estimate rendered one bounce back ([`brdfd_core::bounce`]):
+/// what is left is more light than one bounce carries.
+fn interreflection(
+    rerender: &[Rerendered],
+    visibility: &Visibility,
+    bounce_taken_out: bool,
+) -> Option<Flag> {
     // Per cell of normals: (hidden share, observed, predicted) of each pixel.
     let mut cells: HashMap<[i32; 3], Vec<(f64, f64, f64)>> = HashMap::new();
     let (mut shaded, mut shaded_hidden, mut compared) = (0usize, 0.0, 0usize);
@@ -229,10 +236,15 @@ fn interreflection(rerender: &[Rerendered], visibility: &Visibility) -> Option<F
         reason: Reason::Interreflection,
         figure,
         text: format!(
-            "interreflection: the faces the part shades from part of the room ({:.0}% of its pixels) are {:.0}% brighter, against the estimate, than faces turned the same way that see all of it would be (flagged from {:.0}%); the part seems to light itself, and the estimate takes that light for the material's own, so it is too bright (a map or pose that does not line up with the photo, or a black level or flare in it, can look the same)",
+            "interreflection: the faces the part shades from part of the room ({:.0}% of its pixels) are {:.0}% brighter, against the estimate, than faces turned the same way that see all of it would be (flagged from {:.0}%); {}, so it is too bright (a map or pose that does not line up with the photo, or a black level or flare in it, can look the same)",
             100.0 * shaded as f64 / compared as f64,
             100.0 * (figure - 1.0),
             100.0 * (BRIGHTER - 1.0),
+            if bounce_taken_out {
+                "the part seems to light itself more than the one bounce the estimate takes out, and the estimate takes the rest for the material's own"
+            } else {
+                "the part seems to light itself, and the estimate, fitted with that light left in (--no-bounce), takes it for the material's own"
+            }
         ),
     })
 }
@@ -360,7 +372,7 @@ mod tests {
             }
         }
         let visibility = Visibility::new(fraction, normals, 1);
-        interreflection(&rerender, &visibility)
+        interreflection(&rerender, &visibility, false)
             .into_iter()
             .collect()
     }

@@ -127,6 +127,11 @@ pub struct CoefficientsFile<'a> {
     /// the fit is good and the check did not run.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub registration: Option<&'a brdfd_core::registration::Registration>,
+    /// The light the part throws on itself, taken out of the photo before the fit (one
+    /// bounce, [`brdfd_core::bounce`]): its share of the light measured and the fit before it.
+    /// Absent off a mesh, on a convex part, and with `--no-bounce`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bounce: Option<&'a brdfd_core::estimate::BounceFit>,
 }
 
 /// What a reader takes back from `coefficients.json`: the model and its coefficients, how it
@@ -587,6 +592,7 @@ fn write_records(
         flags: &files.flags,
         anisotropy: estimate.anisotropy.as_ref(),
         registration: estimate.registration.as_ref(),
+        bounce: estimate.bounce.as_ref(),
     };
     let mut written = vec![
         files.report.clone(),

@@ -172,6 +172,14 @@ pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String
             .iter()
             .map(|l| format!("  {}: {}", l.grade.word(), l.text)),
     );
+    if let Some(b) = &estimate.bounce {
+        out.push(format!(
+            "  the part lights itself: {:.1}% of the light its pixels measured is light its own surface threw on them (one bounce through the estimate, on {} pixels), taken out before the fit; fitted with it left in, the fit was {:.4} (--no-bounce)",
+            100.0 * b.share,
+            b.pixels,
+            b.fit_without
+        ));
+    }
     if estimate.clipped > 0 {
         out.push(if extras.bracketed {
             format!(

@@ -131,17 +131,34 @@ impl GltfMaterial {
     /// ([`brdfd_core::render::render_full`]), as a conforming renderer shows it: with its
     /// anisotropy, each pixel in the frame whose tangent it is stretched along.
     pub fn render_full(&self, geometry: &PixelGeometry, lights: &LightSet) -> Raster {
+        self.render_bounced(geometry, lights, false)
+    }
+
+    /// [`GltfMaterial::render_full`], and with `bounce` the light a concave mesh throws on
+    /// itself through the same material ([`brdfd_core::bounce`]).
+    pub fn render_bounced(
+        &self,
+        geometry: &PixelGeometry,
+        lights: &LightSet,
+        bounce: bool,
+    ) -> Raster {
         let brdf = GltfBrdf(*self);
-        match self.anisotropy {
-            None => brdfd_core::render::render_full(geometry, lights, &brdf),
+        let frame = |n| match self.anisotropy {
             Some(a) => {
-                let frame = |n| {
-                    let t = a.tangent(n);
-                    (t, cross(n, t))
-                };
-                render_in_frames(geometry, lights, frame, |wi, wo| brdf.eval_local(wi, wo))
+                let t = a.tangent(n);
+                (t, cross(n, t))
             }
+            None => brdfd_core::brdf::tangent_frame(n),
+        };
+        let eval = |wi, wo| brdf.eval_local(wi, wo);
+        let mut img = match self.anisotropy {
+            None => brdfd_core::render::render_full(geometry, lights, &brdf),
+            Some(_) => render_in_frames(geometry, lights, frame, eval),
+        };
+        if bounce {
+            brdfd_core::bounce::add_to(&mut img, geometry, lights, frame, eval);
         }
+        img
     }
 
     /// The first material of a glTF file (`.gltf`, JSON): its metallic-roughness factors and
