@@ -30,7 +30,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::anisotropic::{frame_at, AnisotropicLobe};
-use super::brdf::{add, angle_between, cross, dot, normalize, scale, tangent_frame};
+use super::brdf::{add, angle_between, cross, dot, half_sphere, normalize, scale, tangent_frame};
 use super::envmap::LightSet;
 use super::geometry::GeomPixel;
 use super::stop::Stop;
@@ -350,6 +350,7 @@ impl Fit {
     fn anisotropic(&self, iso_alpha: f64, directions: usize, start: Option<Shape>) -> (Shape, f64) {
         let s = (iso_alpha / COARSE_RATIO.sqrt()).max(ALPHA_MIN);
         let r = (iso_alpha * COARSE_RATIO.sqrt()).min(ALPHA_MAX);
+        // Grains over the half sphere: a grain and its opposite are one grain.
         let mut best = half_sphere(directions)
             .into_iter()
             .flat_map(|g| {
@@ -865,20 +866,6 @@ pub(crate) fn merged_onto(lights: &LightSet, grid_u: usize, grid_v: usize) -> Li
     out
 }
 
-/// `count` directions spread evenly over the half sphere z ≥ 0 (a Fibonacci lattice): a grain
-/// and its opposite are one grain.
-fn half_sphere(count: usize) -> Vec<[f64; 3]> {
-    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-    (0..count)
-        .map(|i| {
-            let z = 1.0 - (i as f64 + 0.5) / count as f64;
-            let r = (1.0 - z * z).sqrt();
-            let phi = golden * i as f64;
-            [r * phi.cos(), r * phi.sin(), z]
-        })
-        .collect()
-}
-
 fn dot32(a: [f32; 3], b: [f32; 3]) -> f32 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
@@ -892,7 +879,7 @@ fn mul32(a: [f32; 3], k: f32) -> [f32; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::brdf::sub;
+    use crate::brdf::{fibonacci_sphere, sub};
 
     /// A room of point lights, evenly spread: a dim sky brighter above, and three bright
     /// windows, so that a highlight's shape shows at every part of a sphere.
@@ -917,18 +904,6 @@ mod tests {
             set.spread.push(0.0);
         }
         set
-    }
-
-    fn fibonacci_sphere(count: usize) -> Vec<[f64; 3]> {
-        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-        (0..count)
-            .map(|i| {
-                let y = 1.0 - 2.0 * (i as f64 + 0.5) / count as f64;
-                let r = (1.0 - y * y).sqrt();
-                let phi = golden * i as f64;
-                [r * phi.cos(), y, r * phi.sin()]
-            })
-            .collect()
     }
 
     /// Pixels of a sphere seen straight on (an orthographic camera along +z).

@@ -22,7 +22,7 @@ use std::sync::{Arc, OnceLock};
 
 use rayon::prelude::*;
 
-use super::brdf::{add, dot, normalize, scale, Vec3};
+use super::brdf::{add, dot, fibonacci_sphere, normalize, scale, Vec3};
 use super::bvh::Surface;
 use super::envmap::LightSet;
 use super::geometry::{seen_side, GeomPixel, PixelGeometry};
@@ -75,15 +75,10 @@ struct Cell {
 fn gather_lights() -> &'static LightSet {
     static LIGHTS: OnceLock<LightSet> = OnceLock::new();
     LIGHTS.get_or_init(|| {
-        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
         let omega = 4.0 * std::f64::consts::PI / GATHER as f64;
         let mut set = LightSet::default();
-        for i in 0..GATHER {
-            let y = 1.0 - 2.0 * (i as f64 + 0.5) / GATHER as f64;
-            let r = (1.0 - y * y).sqrt();
-            let phi = golden * i as f64;
-            set.directions
-                .push([r * phi.cos(), y, r * phi.sin()].map(|c| c as f32));
+        for d in fibonacci_sphere(GATHER) {
+            set.directions.push(d.map(|c| c as f32));
             set.radiance.push([1.0; 3]);
             set.solid_angle.push(omega as f32);
             set.spread
@@ -425,15 +420,10 @@ mod tests {
     #[test]
     fn a_white_cell_under_a_white_half_sphere_sends_its_albedo_everywhere() {
         let n = 400;
-        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
         let omega = 2.0 * std::f64::consts::PI / n as f64;
-        let lit: Vec<(Vec3, [f64; 3])> = (0..n)
-            .map(|i| {
-                let z = 1.0 - (i as f64 + 0.5) / n as f64;
-                let r = (1.0 - z * z).sqrt();
-                let phi = golden * i as f64;
-                ([r * phi.cos(), r * phi.sin(), z], [omega; 3])
-            })
+        let lit: Vec<(Vec3, [f64; 3])> = crate::brdf::half_sphere(n)
+            .into_iter()
+            .map(|d| (d, [omega; 3]))
             .collect();
         let rho = [0.8, 0.5, 0.2];
         let grid = Grid::lit(&lit, &|_, _| rho.map(|r| r / std::f64::consts::PI));
@@ -488,19 +478,8 @@ mod tests {
         // side, each light's ray cast from just above the face.
         let bvh = Bvh::build(&mesh);
         let n = 20_000;
-        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
         let omega = 4.0 * std::f64::consts::PI / n as f64;
-        let dirs: Vec<Vec3> = (0..n)
-            .map(|i| {
-                let y = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-                let r = (1.0 - y * y).sqrt();
-                [
-                    r * (golden * i as f64).cos(),
-                    y,
-                    r * (golden * i as f64).sin(),
-                ]
-            })
-            .collect();
+        let dirs = fibonacci_sphere(n);
         let occluder = geom.pixels[0].shadow.as_ref().unwrap().occluder.clone();
         let (mut worst, mut checked) = (0f64, 0);
         for (i, px) in geom.pixels.iter().enumerate().step_by(97) {

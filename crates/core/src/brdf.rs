@@ -144,6 +144,34 @@ pub(crate) fn above_horizon(theta_h: f64, theta_d: f64, phi_d: f64) -> bool {
     wi[2] > 0.0 && wo[2] > 0.0
 }
 
+/// `count` directions spread evenly over the sphere (a Fibonacci lattice about +Y): each stands
+/// for an equal solid angle, 4π/`count`, and no two lie on one line of latitude.
+pub fn fibonacci_sphere(count: usize) -> Vec<Vec3> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..count)
+        .map(|i| {
+            let y = 1.0 - 2.0 * (i as f64 + 0.5) / count as f64;
+            let r = (1.0 - y * y).sqrt();
+            let phi = golden * i as f64;
+            [r * phi.cos(), y, r * phi.sin()]
+        })
+        .collect()
+}
+
+/// `count` directions spread evenly over the half sphere z ≥ 0 (a Fibonacci lattice about +Z),
+/// each for a solid angle of 2π/`count`.
+pub fn half_sphere(count: usize) -> Vec<Vec3> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..count)
+        .map(|i| {
+            let z = 1.0 - (i as f64 + 0.5) / count as f64;
+            let r = (1.0 - z * z).sqrt();
+            let phi = golden * i as f64;
+            [r * phi.cos(), r * phi.sin(), z]
+        })
+        .collect()
+}
+
 /// An orthonormal tangent frame (t, b, n) for a unit normal, so that local = (t·v, b·v, n·v).
 /// Isotropy makes the choice of tangent irrelevant; this one is continuous except at n = -Y.
 pub fn tangent_frame(n: Vec3) -> (Vec3, Vec3) {

@@ -148,12 +148,8 @@ mod tests {
     fn room(count: usize) -> LightSet {
         let window = normalize([0.5, 0.6, 0.6]);
         let mut set = LightSet::default();
-        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-        for i in 0..count {
-            let y = 1.0 - 2.0 * (i as f64 + 0.5) / count as f64;
-            let r = (1.0 - y * y).sqrt();
-            let phi = golden * i as f64;
-            let d = [r * phi.cos(), y, r * phi.sin()];
+        for d in crate::brdf::fibonacci_sphere(count) {
+            let y = d[1];
             let cos = d[0] * window[0] + d[1] * window[1] + d[2] * window[2];
             let bright = 30.0 * (-(1.0 - cos) / 0.01).exp() + 0.3 + 0.2 * y.max(0.0);
             set.directions.push(d.map(|x| x as f32));
