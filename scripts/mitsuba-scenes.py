@@ -29,7 +29,9 @@ photo is taken under courtyard.hdr and each estimate relit under every other .hd
 
 `score` estimates each scene with the brdfd binary BRDFD (default settings), relights it with
 `brdfd render` under every held-out map, and prints the relative RMSE over the part's pixels
-(the evaluation's relight error, on 4 × 4 blocks) per map and region; it writes OUT/scores.json.
+(the evaluation's relight error, on 4 × 4 blocks) per map and region, how many materials the
+estimate found and, on a part of several, how its split (`materials-mask.png`) matches the
+truth's regions (IoU); it writes OUT/scores.json.
 
 Conventions (docs/formats.md): brdfd's world has +Y up; its map's middle column is at -Z,
 Mitsuba's at +Z, so the map is turned half a turn about +Y. Both cameras look along
@@ -384,6 +386,36 @@ def grain_error(truth, found):
                              if found["isotropic_misfit"] > 0 else 1.0)}
 
 
+def read_labels(path, size):
+    """An 8-bit label image (brdfd's materials-mask.png: 0 off the part, then 1, 2, ...) as
+    a list of ints; all 0 where the file is absent (the estimate found one material)."""
+    if not os.path.exists(path):
+        return [0] * size
+    # PNGs are marked sRGB: kept so, the codes come back as they were written.
+    b = mi.Bitmap(path).convert(mi.Bitmap.PixelFormat.Y, mi.Struct.Type.Float32,
+                                srgb_gamma=True)
+    return [round(v * 255.0) for v in mi.TensorXf(b).array]
+
+
+def segmentation_iou(region, labels, regions):
+    """Each true region's intersection over union with the estimate's material that matches
+    it best, over the pixels wholly inside one region, under the one-to-one matching of
+    regions to materials that maximises the smaller IoU: {region: IoU}."""
+    found = sorted({labels[p] for p in region if labels[p] > 0})
+    def iou(r, m):
+        both = sum(1 for p, t in region.items() if t == r and labels[p] == m)
+        either = sum(1 for p, t in region.items() if t == r or labels[p] == m)
+        return both / either if either else 0.0
+    best = {r: 0.0 for r in regions}
+    if len(found) >= len(regions):
+        import itertools
+        for chosen in itertools.permutations(found, len(regions)):
+            scores = {r: iou(r, m) for r, m in zip(regions, chosen)}
+            if min(scores.values()) > min(best.values()):
+                best = scores
+    return best
+
+
 def score_scene(maps, out, name, brdfd):
     d = os.path.join(out, name)
     with open(os.path.join(d, "scene.json")) as f:
@@ -443,6 +475,14 @@ def score_scene(maps, out, name, brdfd):
     errors = sorted(result["per_map"].values())
     result["relight_error"] = sum(errors) / len(errors)
     result["flags"] = [f["reason"] for f in coefficients.get("flags", [])]
+    # Materials: how many the estimate found, and on a part of several, how its split
+    # matches the truth's regions.
+    split = coefficients.get("materials")
+    result["materials_found"] = len(split["parts"]) if split else 1
+    if len(truth["materials"]) > 1:
+        labels = read_labels(os.path.join(est, "materials-mask.png"), len(ids) // 3)
+        ious = segmentation_iou(region, labels, sorted(set(region.values())))
+        result["segmentation_iou"] = {truth["regions"][str(r)]: v for r, v in ious.items()}
     found = coefficients.get("anisotropy")
     if "grain" in truth and found:
         result["grain"] = grain_error(truth["grain"], found)
@@ -459,6 +499,11 @@ def score_scene(maps, out, name, brdfd):
     if "grain" in result:
         print(f"    grain {result['grain']['degrees_off']:.1f}° off, stretch "
               f"{result['grain']['stretch']:.2f} (truth {result['grain']['true_stretch']:.2f})")
+    if "segmentation_iou" in result:
+        print("    materials found: " + str(result["materials_found"]) + ", IoU against the truth: "
+              + "  ".join(f"{k} {v:.3f}" for k, v in result["segmentation_iou"].items()))
+    elif result["materials_found"] > 1:
+        print(f"    materials found: {result['materials_found']} (the truth has one)")
     print(f"    flagged: {', '.join(result['flags']) or 'no'}")
     return result
 

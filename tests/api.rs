@@ -170,7 +170,13 @@ fn the_openapi_description_is_the_live_api() {
     for (path, item) in paths {
         assert!(path.starts_with("/api/v1/"), "{path}");
         let urls: Vec<String> = if path.contains("{file}") {
-            files.iter().map(|f| path.replace("{file}", f)).collect()
+            files
+                .iter()
+                .map(|f| {
+                    path.replace("{file}", f)
+                        .replace("{material}", "material-1")
+                })
+                .collect()
         } else {
             vec![path.clone()]
         };
@@ -226,15 +232,23 @@ fn the_openapi_description_is_the_live_api() {
                     }
                 }
                 if path.contains("{file}") {
-                    // The session's object is a sphere, which hides nothing from itself: the
-                    // visibility picture and the export on the object are written for a mesh
-                    // only.
-                    let expected =
-                        if url.ends_with("/visibility.png") || url.ends_with("/object.gltf") {
-                            404
-                        } else {
-                            200
-                        };
+                    // The session's object is a sphere of one material, which hides nothing
+                    // from itself: the visibility picture and the export on the object are
+                    // written for a mesh only, and the materials' folders and pictures for a
+                    // part split into two.
+                    let only_sometimes = [
+                        "/visibility.png",
+                        "/object.gltf",
+                        "/materials.png",
+                        "/materials-mask.png",
+                    ];
+                    let expected = if path.contains("{material}")
+                        || only_sometimes.iter().any(|f| url.ends_with(f))
+                    {
+                        404
+                    } else {
+                        200
+                    };
                     assert_eq!(status, expected, "{url}: a listed result file is missing");
                 }
             }
@@ -251,6 +265,7 @@ fn the_openapi_description_is_the_live_api() {
         "get /api/v1/sessions/{id}/events",
         "get /api/v1/sessions/{id}/result",
         "get /api/v1/sessions/{id}/result/{file}",
+        "get /api/v1/sessions/{id}/result/{material}/{file}",
         "post /api/v1/sessions/{id}/cancel",
         "post /api/v1/sessions/{id}/resume",
     ] {
@@ -810,4 +825,53 @@ fn sessions_have_a_location_and_result_files_take_etags_and_ranges() {
         body["detail"],
         format!("session {id} has no visibility.png")
     );
+}
+
+/// A part split into two materials has each material's results in its own folder
+/// (`material-1/`, `material-2/`), which the whole part's report links: the daemon serves
+/// them as it serves the whole part's, names a missing one by its folder, and serves no
+/// folder but a material's. The simulated bench renders one material, so the first
+/// material's report here is the session's own, copied where a split writes it.
+#[test]
+fn a_materials_own_results_are_served_from_its_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let daemon = Daemon::simulated(&state);
+    let id = finished_session(&daemon);
+    let result = state.join("sessions").join(&id).join("result");
+    std::fs::create_dir(result.join("material-1")).unwrap();
+    let report = std::fs::read(result.join("report.html")).unwrap();
+    std::fs::write(result.join("material-1/report.html"), &report).unwrap();
+    let origin = format!("http://{}", daemon.addr);
+    let r = http()
+        .get(format!(
+            "{origin}/api/v1/sessions/{id}/result/material-1/report.html"
+        ))
+        .send()
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    assert_eq!(media_type(&r), "text/html");
+    assert!(r.headers().contains_key("etag"));
+    assert_eq!(r.bytes().unwrap().to_vec(), report);
+    let r = http()
+        .get(format!(
+            "{origin}/api/v1/sessions/{id}/result/material-2/report.html"
+        ))
+        .send()
+        .unwrap();
+    let body = problem(r, 404, "not_found");
+    assert_eq!(
+        body["detail"],
+        format!("session {id} has no material-2/report.html")
+    );
+    // "material-1/.." reaches the route as one segment, and is no folder of the list.
+    for folder in ["material-3", "derived", "material-1%2F.."] {
+        let r = http()
+            .get(format!(
+                "{origin}/api/v1/sessions/{id}/result/{folder}/report.html"
+            ))
+            .send()
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 404, "{folder}");
+    }
 }

@@ -194,3 +194,64 @@ fn the_export_on_the_object_is_valid_gltf() {
     );
     assert_eq!(doc["nodes"][0]["name"], "object");
 }
+
+/// A part of two materials ([`brdfd_core::materials`]): `object.gltf` carries each on its own
+/// triangles, one primitive per material, each with its own buffer. The validator accepts it,
+/// and every triangle is drawn once, in its material (a triangle no view saw, in the
+/// commoner).
+#[test]
+fn the_export_of_two_materials_on_the_object_is_valid_gltf() {
+    let Some((modules, _)) = validators() else {
+        return;
+    };
+    use brdfd_report::export::GltfMaterial;
+    let material = |base_color: [f64; 3], metallic: f64, clearcoat: f64| GltfMaterial {
+        base_color,
+        metallic,
+        roughness: 0.4,
+        specular: 1.0,
+        specular_color: [1.0; 3],
+        ior: 1.5,
+        clearcoat,
+        clearcoat_roughness: 0.1,
+        anisotropy: None,
+    };
+    let (gold, blue) = (
+        material([0.95, 0.64, 0.54], 1.0, 0.0),
+        material([0.08, 0.16, 0.45], 0.0, 1.0),
+    );
+    let mesh = brdfd_core::mesh::uv_sphere([0.0; 3], 0.03, 16, 32);
+    // A band of the second material, and a few triangles no view saw.
+    let labels: Vec<u8> = (0..mesh.triangles.len())
+        .map(|t| match t % 10 {
+            0 => brdfd_core::materials::UNSEEN,
+            1..=3 => 1,
+            _ => 0,
+        })
+        .collect();
+    let painted = brdfd_report::materials::painted(&labels, 2);
+    let text = brdfd_report::export::gltf::document_of_materials(
+        "brdfd_estimate",
+        &[("gold", &gold), ("blue", &blue)],
+        &mesh,
+        &painted,
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("object.gltf");
+    std::fs::write(&path, &text).unwrap();
+    validate_gltf(&modules, &path);
+    let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let primitives = doc["meshes"][0]["primitives"].as_array().unwrap();
+    assert_eq!(primitives.len(), 2);
+    let count = |k: usize| {
+        doc["accessors"][primitives[k]["attributes"]["POSITION"].as_u64().unwrap() as usize]
+            ["count"]
+            .as_u64()
+            .unwrap()
+    };
+    let second = labels.iter().filter(|l| **l == 1).count() as u64;
+    assert_eq!(count(1), 3 * second);
+    assert_eq!(count(0) + count(1), 3 * mesh.triangles.len() as u64);
+    assert_eq!(doc["materials"][1]["name"], "blue");
+    assert!(doc["materials"][1]["extensions"]["KHR_materials_clearcoat"].is_object());
+}

@@ -8,12 +8,15 @@ use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::Bivariate;
 use brdfd_core::bounce;
 use brdfd_core::brdf::{tangent_frame, IsotropicBrdf};
+use brdfd_core::envmap::LightSet;
 use brdfd_core::envmap::{CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd_core::estimate::{
-    estimate as run_estimate, unused_basis_settings, EstimateOptions, Model, SelectionMethod, View,
-    DEFAULT_LOBES, DEFAULT_MAX_CANDIDATES,
+    unused_basis_settings, EstimateOptions, Model, SelectionMethod, Shared, View, DEFAULT_LOBES,
+    DEFAULT_MAX_CANDIDATES,
 };
+use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::hybrid::{HybridFit, MixWeight};
+use brdfd_core::materials::{estimate_materials, triangles_of};
 use brdfd_core::merl::MerlBrdf;
 use brdfd_core::nbrdf::NbrdfSet;
 use brdfd_core::raster::Raster;
@@ -21,6 +24,7 @@ use brdfd_core::render::{render_anisotropic, render_bivariate, render_merl};
 use brdfd_core::select::SwapParams;
 use brdfd_core::solve::{ColourChoice, Solver};
 use brdfd_report::html::Context as ReportContext;
+use brdfd_report::materials::{commoner, folder, painted, write_parts};
 use brdfd_report::results::write_results;
 use brdfd_report::visibility::Visibility;
 
@@ -104,6 +108,11 @@ pub struct EstimateArgs {
     /// throws on itself, which is otherwise taken out before the fit (one bounce).
     #[arg(long)]
     pub no_bounce: bool,
+    /// Fit one BRDF to the whole part, even where its colour departs from place to place:
+    /// otherwise such a part is split into two materials, each estimated on its own pixels
+    /// and written in its own folder (material-1/, material-2/).
+    #[arg(long)]
+    pub one_material: bool,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy)]
@@ -240,6 +249,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         nonnegative: !a.allow_negative,
         checks: true,
         bounce: !a.no_bounce,
+        materials: !a.one_material,
         // Ctrl-C ends the process: nothing is written before the estimate is done.
         stop: Default::default(),
     };
@@ -249,34 +259,51 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         chosen_lights: chosen_lights.as_ref(),
         photo: &photo,
     };
-    let est = run_estimate(&basis, view, &options)?;
-    let files = write_results(
-        &a.out,
-        &basis,
-        &est,
-        match method_arg {
-            MethodArg::Fast => "fast",
-            MethodArg::Paper => "paper",
-        },
-        &lights,
-        &ReportContext {
-            visibility: Visibility::of(&geometry, &lights).as_ref(),
-            object: object.as_ref(),
-            title: format!("{} under {}", a.photo.display(), a.env.display()),
-            photo: Some(&photo),
-            env: Some(&env),
-            yaw: a.yaw.to_radians(),
-            record: vec![
-                ("photo".into(), a.photo.display().to_string()),
-                ("environment map".into(), a.env.display().to_string()),
-                (
-                    "software".into(),
-                    format!("brdfd {}", env!("CARGO_PKG_VERSION")),
-                ),
-            ],
-            ..ReportContext::default()
-        },
-    )?;
+    let found = estimate_materials(&basis, &[view], &options, &Shared::default())?;
+    let est = found.whole;
+    let method_name = match method_arg {
+        MethodArg::Fast => "fast",
+        MethodArg::Paper => "paper",
+    };
+    let visibility = Visibility::of(&geometry, &lights);
+    let cx = ReportContext {
+        visibility: visibility.as_ref(),
+        object: object.as_ref(),
+        title: format!("{} under {}", a.photo.display(), a.env.display()),
+        photo: Some(&photo),
+        env: Some(&env),
+        yaw: a.yaw.to_radians(),
+        record: vec![
+            ("photo".into(), a.photo.display().to_string()),
+            ("environment map".into(), a.env.display().to_string()),
+            (
+                "software".into(),
+                format!("brdfd {}", env!("CARGO_PKG_VERSION")),
+            ),
+        ],
+        ..ReportContext::default()
+    };
+    // Each material's results first, in their folders; then the whole part's beside them,
+    // which record the split. A split an earlier estimate into this folder wrote is not this
+    // one's.
+    brdfd_report::materials::remove_stale(&a.out)?;
+    let parts = match (&found.split, found.departure) {
+        (Some(split), Some(departure)) => Some(write_parts(
+            &a.out,
+            &basis,
+            split,
+            departure,
+            method_name,
+            &lights,
+            &cx,
+        )?),
+        _ => None,
+    };
+    let cx = ReportContext {
+        materials: parts.as_ref(),
+        ..cx
+    };
+    let files = write_results(&a.out, &basis, &est, method_name, &lights, &cx)?;
     if a.verbose {
         print_estimate(&est.names, &est.solution.coefficients);
     }
@@ -293,6 +320,9 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         export: Some(&files.exports),
         flags: &files.flags,
         report: Some(&files.report),
+        materials: parts
+            .as_ref()
+            .zip(found.split.as_ref().map(|s| s.parts.as_slice())),
     };
     let lines = brdfd_report::summary::lines("the estimate", &est, &extras);
     if lines[0].contains("do not trust") {
@@ -301,11 +331,11 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
     } else {
         println!("{}", lines.join("\n"));
     }
+    // Relative to the folder: each material's files are in its own.
     let names: Vec<String> = files
         .written
         .iter()
-        .filter_map(|p| p.file_name())
-        .map(|n| n.to_string_lossy().into_owned())
+        .map(|p| p.strip_prefix(&a.out).unwrap_or(p).display().to_string())
         .collect();
     println!(
         "wrote {} files in {}: {}",
@@ -409,84 +439,166 @@ pub fn render(a: RenderArgs) -> anyhow::Result<()> {
     } else if let Some(p) = &a.gltf {
         brdfd_report::export::GltfMaterial::read(p)?.render_bounced(&geometry, &lights, bounce)
     } else if let Some(p) = &a.coefficients {
-        let r = brdfd_report::results::StoredResult::read(p)?;
-        // An estimate that chose an anisotropic lobe relights with it, not with its
-        // (isotropic) model, and needs no basis.
-        if let Some(lobe) = r
-            .chosen_lobe()
-            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?
-        {
-            let mut img = render_anisotropic(&geometry, &lights, &lobe);
-            if bounce {
-                let frame = |n| lobe.frame(n);
-                bounce::add_to(&mut img, &geometry, &lights, frame, |wi, wo| {
-                    lobe.eval_local(wi, wo)
-                });
-            }
-            return finish_render(&a.out, img);
-        }
-        let basis = load_basis(&a.basis)?;
-        if r.model == "analytic" || r.model == "hybrid" {
-            let m: Microfacet = r
-                .analytic_model()
-                .with_context(|| format!("{}: field `analytic`", p.display()))?
-                .with_context(|| {
-                    format!(
-                        "{}: a {} estimate without its field `analytic`",
-                        p.display(),
-                        r.model
-                    )
-                })?;
-            m.check()
-                .map_err(|e| anyhow::anyhow!("{}: field `analytic`: {e}", p.display()))?;
-            let mixture: Vec<MixWeight> = r
-                .mixture_weights()
-                .with_context(|| format!("{}: field `mixture`", p.display()))?;
-            if !mixture.is_empty() && r.basis_id != basis.header.id {
-                bail!(
-                    "{} mixes the measured materials of basis {:?}, not {}; pass that basis with --basis",
-                    p.display(),
-                    r.basis_id,
-                    basis.header.id
-                );
-            }
-            let b = HybridFit::rebuild(&m, &mixture, &basis)
-                .map_err(|e| anyhow::anyhow!("{}: field `mixture`: {e}", p.display()))?;
-            return finish_render(
-                &a.out,
-                isotropic(render_bivariate(&geometry, &lights, &b), &b),
+        render_result(p, &a.basis, &geometry, &lights, bounce)?
+    } else {
+        bail!("say what to render: --material, --merl, --coefficients or --gltf");
+    };
+    finish_render(&a.out, img)
+}
+
+/// The render of a `coefficients.json`: of each material on its own triangles when the
+/// estimate split the part into materials and the geometry is of its mesh; of the one BRDF
+/// otherwise.
+fn render_result(
+    p: &std::path::Path,
+    basis: &Option<PathBuf>,
+    geometry: &PixelGeometry,
+    lights: &LightSet,
+    bounce: bool,
+) -> anyhow::Result<Raster> {
+    let r = brdfd_report::results::StoredResult::read(p)?;
+    let painted = r.materials.as_ref().and_then(|m| {
+        let (count, triangles) = triangles_of(geometry)?;
+        let labels = m.triangles.as_ref().filter(|t| t.len() == count)?;
+        Some((m, painted(labels, m.parts.len()), triangles))
+    });
+    let Some((m, labels, triangles)) = painted else {
+        if r.materials.is_some() {
+            eprintln!(
+                "note: {} holds {} materials, painted on its mesh's triangles; this geometry is not that mesh, so the one BRDF fitted to the whole part is rendered",
+                p.display(),
+                r.materials.as_ref().map_or(0, |m| m.parts.len())
             );
         }
-        let coeffs: Vec<f64> = r
-            .coefficients
-            .iter()
-            .enumerate()
-            .map(|(i, c)| {
-                c.with_context(|| {
-                    let n = i + 1;
-                    format!(
-                        "{}: field `coefficients`: coefficient {n} is not a number",
-                        p.display()
-                    )
-                })
-            })
-            .collect::<anyhow::Result<_>>()?;
-        if r.basis_id != basis.header.id {
+        return render_one(p, r, basis, geometry, lights, bounce);
+    };
+    let mut img = Raster::black(geometry.width, geometry.height);
+    let dir = p.parent().unwrap_or(std::path::Path::new("."));
+    // A pixel whose triangle is not found (rarely, at an edge) takes the commoner material.
+    let commoner = commoner(&labels, m.parts.len());
+    for (k, part) in m.parts.iter().enumerate() {
+        // The folder is brdfd's own name for the material, never a path the file chooses.
+        if part.folder != folder(k) {
             bail!(
-                "{} was estimated on basis {:?}, not {}; pass that basis with --basis",
+                "{}: field `materials.parts[{k}].folder` is {:?}, not {:?}",
+                p.display(),
+                part.folder,
+                folder(k)
+            );
+        }
+        let mine = PixelGeometry {
+            width: geometry.width,
+            height: geometry.height,
+            pixels: geometry
+                .pixels
+                .iter()
+                .zip(&triangles)
+                .filter(|(_, t)| t.map_or(commoner, |t| labels[t as usize]) as usize == k)
+                .map(|(px, _)| px.clone())
+                .collect(),
+        };
+        if mine.pixels.is_empty() {
+            continue;
+        }
+        let path = dir.join(&part.folder).join("coefficients.json");
+        let stored = brdfd_report::results::StoredResult::read(&path)
+            .with_context(|| format!("material {} of {}", k + 1, p.display()))?;
+        let own = render_one(&path, stored, basis, &mine, lights, bounce)?;
+        for px in &mine.pixels {
+            let (x, y) = (px.x as usize, px.y as usize);
+            img.set(x, y, own.get(x, y));
+        }
+    }
+    Ok(img)
+}
+
+/// The render of one estimate's `coefficients.json` (read as `r`) on `geometry`.
+fn render_one(
+    p: &std::path::Path,
+    r: brdfd_report::results::StoredResult,
+    basis: &Option<PathBuf>,
+    geometry: &PixelGeometry,
+    lights: &LightSet,
+    bounce: bool,
+) -> anyhow::Result<Raster> {
+    let isotropic = |mut img: Raster, brdf: &dyn IsotropicBrdf| {
+        if bounce {
+            bounce::add_to(&mut img, geometry, lights, tangent_frame, |wi, wo| {
+                brdf.eval_dirs(wi, wo)
+            });
+        }
+        img
+    };
+    // An estimate that chose an anisotropic lobe relights with it, not with its
+    // (isotropic) model, and needs no basis.
+    if let Some(lobe) = r
+        .chosen_lobe()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?
+    {
+        let mut img = render_anisotropic(geometry, lights, &lobe);
+        if bounce {
+            let frame = |n| lobe.frame(n);
+            bounce::add_to(&mut img, geometry, lights, frame, |wi, wo| {
+                lobe.eval_local(wi, wo)
+            });
+        }
+        return Ok(img);
+    }
+    let basis = load_basis(basis)?;
+    if r.model == "analytic" || r.model == "hybrid" {
+        let m: Microfacet = r
+            .analytic_model()
+            .with_context(|| format!("{}: field `analytic`", p.display()))?
+            .with_context(|| {
+                format!(
+                    "{}: a {} estimate without its field `analytic`",
+                    p.display(),
+                    r.model
+                )
+            })?;
+        m.check()
+            .map_err(|e| anyhow::anyhow!("{}: field `analytic`: {e}", p.display()))?;
+        let mixture: Vec<MixWeight> = r
+            .mixture_weights()
+            .with_context(|| format!("{}: field `mixture`", p.display()))?;
+        if !mixture.is_empty() && r.basis_id != basis.header.id {
+            bail!(
+                "{} mixes the measured materials of basis {:?}, not {}; pass that basis with --basis",
                 p.display(),
                 r.basis_id,
                 basis.header.id
             );
         }
-        let b: Bivariate = basis
-            .reconstruct_solution(&coeffs)
-            .with_context(|| format!("{}: field `coefficients`", p.display()))?;
-        isotropic(render_bivariate(&geometry, &lights, &b), &b)
-    } else {
-        bail!("say what to render: --material, --merl, --coefficients or --gltf");
-    };
-    finish_render(&a.out, img)
+        let b = HybridFit::rebuild(&m, &mixture, &basis)
+            .map_err(|e| anyhow::anyhow!("{}: field `mixture`: {e}", p.display()))?;
+        return Ok(isotropic(render_bivariate(geometry, lights, &b), &b));
+    }
+    let coeffs: Vec<f64> = r
+        .coefficients
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            c.with_context(|| {
+                let n = i + 1;
+                format!(
+                    "{}: field `coefficients`: coefficient {n} is not a number",
+                    p.display()
+                )
+            })
+        })
+        .collect::<anyhow::Result<_>>()?;
+    if r.basis_id != basis.header.id {
+        bail!(
+            "{} was estimated on basis {:?}, not {}; pass that basis with --basis",
+            p.display(),
+            r.basis_id,
+            basis.header.id
+        );
+    }
+    let b: Bivariate = basis
+        .reconstruct_solution(&coeffs)
+        .with_context(|| format!("{}: field `coefficients`", p.display()))?;
+    Ok(isotropic(render_bivariate(geometry, lights, &b), &b))
 }
 
 fn finish_render(out: &std::path::Path, img: Raster) -> anyhow::Result<()> {

@@ -109,6 +109,25 @@ pub struct Summary {
     /// `flags`); empty when none is.
     #[serde(default)]
     pub flags: Vec<SummaryFlag>,
+    /// When the part was split into two materials (`coefficients.json`'s `materials`), each
+    /// material's results, share and fit; empty for one material. The figures above are then
+    /// of the one BRDF fitted to the whole part.
+    #[serde(default)]
+    pub materials: Vec<SummaryMaterial>,
+}
+
+/// One material of a part split into two: its own results' folder
+/// (`/sessions/{id}/result/{folder}/{file}`), its share of the part's pixels, and how well its
+/// estimate re-renders them.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub struct SummaryMaterial {
+    pub folder: String,
+    pub share: f64,
+    /// Relative RMSE; `null` if not a number.
+    pub fit_error: Option<f64>,
+    /// The fit in words, with its threshold.
+    pub fit_verdict: String,
 }
 
 /// A broken assumption of the model, as the photo shows it: `reason` for programs

@@ -111,6 +111,10 @@ pub struct EstimateOptions {
     /// fit, which is then made again ([`crate::bounce`], one bounce); off, every pixel is
     /// fitted as if it saw only the room.
     pub bounce: bool,
+    /// Whether [`crate::materials::estimate_materials`] may split a part whose photo's colour
+    /// departs from one BRDF's from place to place into two materials, each estimated on its
+    /// own pixels; off, one BRDF is fitted to the whole part.
+    pub materials: bool,
     /// Checked in the estimate's long loops: once requested, the estimate ends with
     /// [`CoreError::Stopped`] within about a second.
     pub stop: Stop,
@@ -131,6 +135,7 @@ impl Default for EstimateOptions {
             nonnegative: true,
             checks: true,
             bounce: true,
+            materials: true,
             stop: Stop::default(),
         }
     }

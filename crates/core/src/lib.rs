@@ -21,6 +21,7 @@ pub mod error;
 pub mod estimate;
 pub mod geometry;
 pub mod hybrid;
+pub mod materials;
 pub mod merl;
 pub mod mesh;
 pub mod nbrdf;

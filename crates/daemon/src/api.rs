@@ -13,7 +13,8 @@
 //! | `GET /api/v1/sessions/{id}` | `{"id", "dir", "manifest", "waiting_for_view"}`: where it is stored, its manifest, and the view whose hand turn it waits for |
 //! | `GET /api/v1/sessions/{id}/events` | Server-Sent Events, one JSON [`Event`] each with its place as `id`, from the session's first (after `Last-Event-ID` if given); ends after `finished` |
 //! | `GET /api/v1/sessions/{id}/result` | `coefficients.json`; 409 `not_done` until the session is done |
-//! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `coefficients.json`, `preview.png`, `preview.json`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`, `material.gltf`, `material.mtlx`, `light.hdr`; with `ETag` (`If-None-Match`: 304) and one byte range (`Range`: 206, or 416) |
+//! | `GET /api/v1/sessions/{id}/result/{file}` | `report.html`, `coefficients.json`, `preview.png`, `preview.json`, `compare.png`, `preview.exr`, `brdf-bivariate.exr`, `brdf-sigma.exr`, `brdf.binary`, `material.gltf`, `material.mtlx`, `light.hdr`, `visibility.png`, `object.gltf`, `materials.png`, `materials-mask.png`; with `ETag` (`If-None-Match`: 304) and one byte range (`Range`: 206, or 416) |
+//! | `GET /api/v1/sessions/{id}/result/{material}/{file}` | when the part was split into two materials: `material-1` or `material-2`, then one of the files above, that material's |
 //! | `POST /api/v1/sessions/{id}/cancel` | 202; 409 `not_running` |
 //! | `POST /api/v1/sessions/{id}/continue` | the object is turned by hand, as the `waiting_for_operator` event asked: 202; 409 `not_waiting` |
 //! | `POST /api/v1/sessions/{id}/resume` | 202 as for a new capture; 409 `busy`, `already_done`, `not_resumable` |
@@ -96,6 +97,7 @@ fn api() -> OpenApiRouter<Shared> {
         .routes(guarded(routes!(events)))
         .routes(guarded(routes!(result)))
         .routes(guarded(routes!(result_file)))
+        .routes(guarded(routes!(material_file)))
         .routes(guarded(routes!(cancel)))
         .routes(guarded(routes!(continue_capture)))
         .routes(guarded(routes!(resume)))
@@ -723,7 +725,7 @@ async fn result(
     Path(id): Path<String>,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
-    serve_result(&d, &id, ResultFile::Coefficients, &headers).await
+    serve_result(&d, &id, None, ResultFile::Coefficients, &headers).await
 }
 
 /// The result files the API serves. A fixed list, so a file name from a request never reaches
@@ -758,10 +760,14 @@ pub enum ResultFile {
     Light,
     #[serde(rename = "object.gltf")]
     Object,
+    #[serde(rename = "materials.png")]
+    MaterialsPicture,
+    #[serde(rename = "materials-mask.png")]
+    MaterialsMask,
 }
 
 impl ResultFile {
-    pub const ALL: [ResultFile; 14] = [
+    pub const ALL: [ResultFile; 16] = [
         ResultFile::Report,
         ResultFile::PreviewPng,
         ResultFile::PreviewScale,
@@ -776,6 +782,8 @@ impl ResultFile {
         ResultFile::MaterialX,
         ResultFile::Light,
         ResultFile::Object,
+        ResultFile::MaterialsPicture,
+        ResultFile::MaterialsMask,
     ];
 
     pub fn named(name: &str) -> Option<ResultFile> {
@@ -798,12 +806,18 @@ impl ResultFile {
             ResultFile::MaterialX => "material.mtlx",
             ResultFile::Light => "light.hdr",
             ResultFile::Object => "object.gltf",
+            ResultFile::MaterialsPicture => "materials.png",
+            ResultFile::MaterialsMask => "materials-mask.png",
         }
     }
 
     fn media_type(self) -> &'static str {
         match self {
-            ResultFile::PreviewPng | ResultFile::Compare | ResultFile::Visibility => "image/png",
+            ResultFile::PreviewPng
+            | ResultFile::Compare
+            | ResultFile::Visibility
+            | ResultFile::MaterialsPicture
+            | ResultFile::MaterialsMask => "image/png",
             ResultFile::PreviewExr | ResultFile::Bivariate | ResultFile::Sigma => "image/x-exr",
             ResultFile::Merl => "application/octet-stream",
             ResultFile::Coefficients | ResultFile::PreviewScale => "application/json",
@@ -854,7 +868,7 @@ impl ResultFile {
         (status = 304, description = "not modified: `If-None-Match` named the file's `ETag`", headers(
             ("ETag" = String, description = "the file's strong validator"),
         )),
-        (status = 404, description = "`not_found`: no such session, or no such file in its result (`brdf-sigma.exr` with an uncertainty band, `compare.png` with a photo, `light.hdr` with a capture's map, `object.gltf` on a mesh)", body = ErrorBody),
+        (status = 404, description = "`not_found`: no such session, or no such file in its result (`brdf-sigma.exr` with an uncertainty band, `compare.png` with a photo, `light.hdr` with a capture's map, `object.gltf` on a mesh, `materials.png` and `materials-mask.png` on a part split into materials)", body = ErrorBody),
         (status = 409, description = "`not_done`: the session is not done", body = ErrorBody),
         (status = 416, description = "`range_not_satisfiable`: `Range` starts past the file's end", body = ErrorBody, headers(
             ("Content-Range" = String, description = "`bytes */LENGTH`"),
@@ -868,7 +882,91 @@ async fn result_file(
 ) -> ApiResult<Response> {
     let file =
         ResultFile::named(&file).ok_or_else(|| not_found(format!("no result file {file:?}")))?;
-    serve_result(&d, &id, file, &headers).await
+    serve_result(&d, &id, None, file, &headers).await
+}
+
+/// One material's folder of a result split into materials (`material-1`, `material-2`):
+/// a fixed list, as [`ResultFile`] is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, utoipa::ToSchema)]
+pub enum MaterialFolder {
+    #[serde(rename = "material-1")]
+    First,
+    #[serde(rename = "material-2")]
+    Second,
+}
+
+impl MaterialFolder {
+    pub const ALL: [MaterialFolder; 2] = [MaterialFolder::First, MaterialFolder::Second];
+
+    pub fn named(name: &str) -> Option<MaterialFolder> {
+        MaterialFolder::ALL.into_iter().find(|f| f.name() == name)
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            MaterialFolder::First => "material-1",
+            MaterialFolder::Second => "material-2",
+        }
+    }
+}
+
+/// One of a material's result files, when the session's part was split into two materials
+/// (docs/formats.md): the same files as the whole part's, in the material's folder.
+#[utoipa::path(
+    get,
+    path = "/sessions/{id}/result/{material}/{file}",
+    params(
+        ("id" = String, Path, description = "the session's id"),
+        ("material" = MaterialFolder, Path, description = "the material's folder"),
+        ("file" = ResultFile, Path, description = "the file"),
+    ),
+    responses(
+        (status = 200, description = "the file", content(
+            (FileBytes = "image/png"),
+            (FileBytes = "image/x-exr"),
+            (FileBytes = "image/vnd.radiance"),
+            (FileBytes = "application/octet-stream"),
+            (Object = "application/json"),
+            (String = "text/html"),
+            (Object = "model/gltf+json"),
+            (String = "application/xml"),
+        ), headers(
+            ("ETag" = String, description = "the file's strong validator"),
+            ("Accept-Ranges" = String, description = "`bytes`"),
+        )),
+        (status = 206, description = "the bytes `Range` asked for, as `Content-Range` says, in the file's media type", content(
+            (FileBytes = "image/png"),
+            (FileBytes = "image/x-exr"),
+            (FileBytes = "image/vnd.radiance"),
+            (FileBytes = "application/octet-stream"),
+            (FileBytes = "application/json"),
+            (FileBytes = "text/html"),
+            (FileBytes = "model/gltf+json"),
+            (FileBytes = "application/xml"),
+        ), headers(
+            ("ETag" = String, description = "the file's strong validator"),
+            ("Content-Range" = String, description = "`bytes FIRST-LAST/LENGTH`"),
+        )),
+        (status = 304, description = "not modified: `If-None-Match` named the file's `ETag`", headers(
+            ("ETag" = String, description = "the file's strong validator"),
+        )),
+        (status = 404, description = "`not_found`: no such session, its part was not split into materials, or no such file in the material's result", body = ErrorBody),
+        (status = 409, description = "`not_done`: the session is not done", body = ErrorBody),
+        (status = 416, description = "`range_not_satisfiable`: `Range` starts past the file's end", body = ErrorBody, headers(
+            ("Content-Range" = String, description = "`bytes */LENGTH`"),
+        )),
+    )
+)]
+async fn material_file(
+    State(d): State<Shared>,
+    Path((id, material, file)): Path<(String, String, String)>,
+    headers: HeaderMap,
+) -> ApiResult<Response> {
+    let folder = MaterialFolder::named(&material)
+        .ok_or_else(|| not_found(format!("no material folder {material:?}")))?;
+    let file =
+        ResultFile::named(&file).ok_or_else(|| not_found(format!("no result file {file:?}")))?;
+    serve_result(&d, &id, Some(folder), file, &headers).await
 }
 
 /// Bytes a result file is read and sent in: 40 clients that ask for the 35 MB BRDF table and
@@ -885,12 +983,21 @@ const FILE_CHUNK: usize = 64 * 1024;
 async fn serve_result(
     d: &Daemon,
     id: &str,
+    folder: Option<MaterialFolder>,
     file: ResultFile,
     headers: &HeaderMap,
 ) -> ApiResult<Response> {
     let s = done(d, id)?;
-    let missing = || not_found(format!("session {id} has no {}", file.name()));
-    let mut opened = tokio::fs::File::open(s.dir.join("result").join(file.name()))
+    let shown = match folder {
+        Some(f) => format!("{}/{}", f.name(), file.name()),
+        None => file.name().to_string(),
+    };
+    let missing = || not_found(format!("session {id} has no {shown}"));
+    let mut dir = s.dir.join("result");
+    if let Some(f) = folder {
+        dir = dir.join(f.name());
+    }
+    let mut opened = tokio::fs::File::open(dir.join(file.name()))
         .await
         .map_err(|_| missing())?;
     let meta = opened.metadata().await.map_err(|_| missing())?;
@@ -919,10 +1026,7 @@ async fn serve_result(
             let mut response = ApiError(
                 StatusCode::RANGE_NOT_SATISFIABLE,
                 ErrorCode::RangeNotSatisfiable,
-                format!(
-                    "{} has {length} bytes; the range asked for starts past them",
-                    file.name()
-                ),
+                format!("{shown} has {length} bytes; the range asked for starts past them"),
             )
             .into_response();
             response.headers_mut().insert(

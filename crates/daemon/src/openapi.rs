@@ -41,7 +41,7 @@ pub struct FileBytes(pub Vec<u8>);
                        results. docs/api.md says more.",
         license(name = "MIT", identifier = "MIT"),
     ),
-    components(schemas(ErrorBody, brdfd_rig::Event, super::api::ResultFile))
+    components(schemas(ErrorBody, brdfd_rig::Event, super::api::ResultFile, super::api::MaterialFolder))
 )]
 pub struct ApiDoc;
 

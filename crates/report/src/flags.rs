@@ -39,6 +39,7 @@ use crate::compare::luminance;
 use crate::visibility::Visibility;
 use brdfd_core::anisotropy::{Anisotropy, ASKS_BELOW};
 use brdfd_core::estimate::{Estimate, Rerendered};
+use brdfd_core::materials::colour_departure;
 use brdfd_core::registration::{Registration, ASKS_BELOW as REGISTRATION_ASKS_BELOW};
 
 /// A face is shaded when it sees less than this share of the light above its horizon: the
@@ -262,8 +263,9 @@ const MIN_BLOCKS: usize = 50;
 /// material's estimate departs by 0.02–0.03 on the set's domes and by 0.02–0.09 on the
 /// simulated presets; brushed aluminium, one material outside the model, by 0.14; the gold
 /// grooves' open faces, still lit by the gold around them, by 0.20; a blue plastic with a
-/// gold stripe, by 0.69.
-const COLOUR_DEPARTS: f64 = 0.25;
+/// gold stripe, by 0.69. The estimate splits a part into two materials by the same threshold,
+/// on its own figure over smaller neighbourhoods of every view ([`brdfd_core::materials`]).
+const COLOUR_DEPARTS: f64 = brdfd_core::materials::DEPARTS_FROM;
 
 /// A block's sums of the photo and the estimate per channel, and its candidates.
 #[derive(Default)]
@@ -308,18 +310,13 @@ fn several_materials(rerender: &[Rerendered], visibility: Option<&Visibility>) -
         b.pixels += 1;
     }
     // The photo's share of red and of blue in the block's light against the estimate's (ln),
-    // and the block's weight (the estimate's light). Shares of the sum, not ratios to green:
-    // a saturated red or blue material has next to no green, and its noise.
+    // and the block's weight (the estimate's light).
     let departs: Vec<([f64; 2], f64)> = blocks
         .values()
-        .filter(|b| {
-            b.pixels >= BLOCK_PIXELS && b.observed.iter().chain(&b.predicted).all(|v| *v > 0.0)
-        })
-        .map(|b| {
-            let (o, p) = (b.observed, b.predicted);
-            let (so, sp) = (o.iter().sum::<f64>(), p.iter().sum::<f64>());
-            let share = |c: usize| (o[c] / so).ln() - (p[c] / sp).ln();
-            ([share(0), share(2)], sp)
+        .filter(|b| b.pixels >= BLOCK_PIXELS)
+        .filter_map(|b| {
+            let d = colour_departure(&b.observed, &b.predicted)?;
+            Some((d, b.predicted.iter().sum::<f64>()))
         })
         .collect();
     if departs.len() < MIN_BLOCKS {

@@ -53,6 +53,9 @@ pub struct Context<'a> {
     /// The exports' maps and renders, made beforehand ([`crate::export::Prepared`]); made
     /// when the results are written if absent or made for another turn of `env`.
     pub exports: Option<&'a crate::export::Prepared>,
+    /// When the part holds two materials, each estimated on its own
+    /// ([`crate::materials`]): the page shows the split and links their reports.
+    pub materials: Option<&'a crate::materials::Parts>,
 }
 
 /// θd of the BRDF slices, in degrees: near the retro direction, a middle angle, near grazing.
@@ -125,6 +128,9 @@ fn page(
     // the model held.
     for f in flags {
         let _ = writeln!(h, "<p class=\"flag\">Flagged: {}</p>", escape(&f.text));
+    }
+    if let Some(parts) = cx.materials {
+        materials_section(&mut h, parts, est.fit_error)?;
     }
 
     h.push_str("<h2>Photo against estimate</h2>\n");
@@ -527,6 +533,54 @@ fn map_thumbnail(env: &EnvMap, yaw: f64, lights: &LightSet) -> RgbImage {
         }
     }
     img
+}
+
+/// The part's two materials: the split on the photo, and each material's figures and report.
+fn materials_section(h: &mut String, parts: &crate::materials::Parts, whole: f64) -> Result<()> {
+    let r = &parts.record;
+    let _ = writeln!(
+        h,
+        "<h2>Materials</h2>\n<p>The part holds {} materials: the photo's colour departs from \
+         one BRDF's by {:.2} from place to place (RMS of ln colour shares; split from {}), so \
+         each material was estimated on its own pixels. Together they re-render the photo to \
+         {:.4}, against {:.4} for the one BRDF this page describes below.</p>",
+        r.parts.len(),
+        r.departure,
+        brdfd_core::materials::DEPARTS_FROM,
+        r.fit_error,
+        whole,
+    );
+    if let Some(picture) = &parts.picture {
+        let _ = writeln!(
+            h,
+            "<figure>{}<figcaption>The first view's pixels by material: orange the first, \
+             cyan the second (materials.png; materials-mask.png holds the labels, 1 and 2, \
+             0 off the part).</figcaption></figure>",
+            img_tag(picture, "the part's pixels by material")?
+        );
+    }
+    h.push_str("<table>\n<tr><th>material</th><th>colour</th><th>pixels</th><th>fit</th><th>report</th></tr>\n");
+    for p in &r.parts {
+        let swatch = p
+            .colour
+            .map(|c| (brdfd_core::raster::linear_to_srgb(c as f32) * 255.0).round() as u8);
+        let _ = writeln!(
+            h,
+            "<tr><td>{folder}</td><td><span style=\"display:inline-block;width:2em;height:1em;\
+             background:rgb({},{},{})\"></span></td><td>{} ({:.0}%)</td><td>{:.4} ({})</td>\
+             <td><a href=\"{folder}/report.html\">{folder}/report.html</a></td></tr>",
+            swatch[0],
+            swatch[1],
+            swatch[2],
+            p.pixels,
+            100.0 * p.share,
+            p.fit_error,
+            fit_verdict(p.fit_error),
+            folder = escape(&p.folder),
+        );
+    }
+    h.push_str("</table>\n");
+    Ok(())
 }
 
 /// An `<img>` with the image inline as a PNG data URI.

@@ -11,6 +11,7 @@ pub mod export;
 pub mod flags;
 pub mod html;
 pub mod lights;
+pub mod materials;
 pub mod results;
 pub mod summary;
 pub mod visibility;

@@ -132,6 +132,10 @@ pub struct CoefficientsFile<'a> {
     /// Absent off a mesh, on a convex part, and with `--no-bounce`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub bounce: Option<&'a brdfd_core::estimate::BounceFit>,
+    /// The part's materials, each estimated on its own pixels in its own folder
+    /// ([`crate::materials`]); absent for one material.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub materials: Option<&'a crate::materials::MaterialsRecord>,
 }
 
 /// What a reader takes back from `coefficients.json`: the model and its coefficients, how it
@@ -172,6 +176,10 @@ pub struct StoredResult {
     /// used, as `analytic` is. Absent when the comparison did not run.
     #[serde(default)]
     anisotropy: Option<serde_json::Value>,
+    /// The part's materials, when it holds two (absent for one, and in files written
+    /// before parts were split).
+    #[serde(default)]
+    pub materials: Option<crate::materials::MaterialsRecord>,
 }
 
 /// One of `coefficients.json`'s `flags`, as far as a reader needs it.
@@ -483,7 +491,24 @@ fn write_the_rest(
     cx: &Context,
     (exports, preview): (Export, image::RgbImage),
 ) -> Result<ResultFiles> {
-    let flags = crate::flags::of(estimate, cx.visibility);
+    let mut flags = crate::flags::of(estimate, cx.visibility);
+    // Split into materials, the part's several materials are what the results hold.
+    if let Some(m) = cx.materials {
+        for f in &mut flags {
+            if f.reason == crate::flags::Reason::SeveralMaterials {
+                f.text.push_str(&format!(
+                    "; so it was split into {} materials, each estimated on its own ({})",
+                    m.record.parts.len(),
+                    m.record
+                        .parts
+                        .iter()
+                        .map(|p| format!("{}/", p.folder))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ));
+            }
+        }
+    }
     let files = ResultFiles {
         coefficients: dir.join("coefficients.json"),
         brdf_exr: dir.join("brdf-bivariate.exr"),
@@ -593,6 +618,7 @@ fn write_records(
         anisotropy: estimate.anisotropy.as_ref(),
         registration: estimate.registration.as_ref(),
         bounce: estimate.bounce.as_ref(),
+        materials: cx.materials.map(|m| &m.record),
     };
     let mut written = vec![
         files.report.clone(),
@@ -633,10 +659,24 @@ fn write_records(
     }
     if let Some(mesh) = cx.object {
         let path = dir.join("object.gltf");
-        let text = files
-            .exports
-            .material
-            .document_on_mesh("brdfd_estimate", mesh);
+        // With two materials, each triangle in its own (unseen ones in the commoner).
+        let painted = cx.materials.and_then(|m| {
+            let t = m.record.triangles.as_ref()?;
+            (t.len() == mesh.triangles.len())
+                .then(|| crate::materials::painted(t, m.record.parts.len()))
+        });
+        let text = match (cx.materials, painted) {
+            (Some(m), Some(labels)) => {
+                let gltf = m.gltf();
+                let named: Vec<(&str, &crate::export::GltfMaterial)> =
+                    gltf.iter().map(|(n, g)| (n.as_str(), *g)).collect();
+                crate::export::gltf::document_of_materials("brdfd_estimate", &named, mesh, &labels)
+            }
+            _ => files
+                .exports
+                .material
+                .document_on_mesh("brdfd_estimate", mesh),
+        };
         std::fs::write(&path, text).map_err(|e| CoreError::io(&path, e))?;
         written.push(path);
     }
@@ -648,6 +688,10 @@ fn write_records(
     if let (Some(photo), Some(path)) = (cx.photo, &files.compare_png) {
         crate::compare::write(path, photo, &estimate.rerender)?;
         written.push(path.clone());
+    }
+    if let Some(m) = cx.materials {
+        written.extend(m.pictures.iter().cloned());
+        written.extend(m.files.iter().map(|f| f.report.clone()));
     }
     if let Some(v) = cx.visibility {
         let path = dir.join("visibility.png");

@@ -71,6 +71,9 @@ pub struct Extras<'a> {
     /// The assumptions of the model the photo says are broken ([`crate::flags`]).
     pub flags: &'a [Flag],
     pub report: Option<&'a Path>,
+    /// When the part holds two materials: what was written of them, and their estimates
+    /// (in the order of the record's parts).
+    pub materials: Option<(&'a crate::materials::Parts, &'a [Estimate])>,
 }
 
 fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
@@ -147,6 +150,9 @@ fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
 /// The summary's lines: the verdict first, then each judged number, the exports and where the
 /// report is.
 pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String> {
+    if let Some((parts, estimates)) = extras.materials {
+        return materials_lines(material, estimate, extras, parts, estimates);
+    }
     let judged = judged(estimate, extras);
     let worst = judged.iter().map(|l| l.grade).max().unwrap_or(Grade::Poor);
     let model = match estimate.model {
@@ -205,6 +211,99 @@ pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String
                     .into(),
             );
         }
+    }
+    if let Some(r) = extras.report {
+        out.push(format!("  report: {}", r.display()));
+    }
+    out
+}
+
+/// The summary of a part split into materials: the verdict of the worst material first, then
+/// the split, then each material's judged lines and exports, then the one BRDF fitted to the
+/// whole part, for comparison.
+fn materials_lines(
+    material: &str,
+    whole: &Estimate,
+    extras: &Extras,
+    parts: &crate::materials::Parts,
+    estimates: &[Estimate],
+) -> Vec<String> {
+    let r = &parts.record;
+    let mut worst = Grade::Good;
+    let mut body = Vec::new();
+    for ((p, files), estimate) in r.parts.iter().zip(&parts.files).zip(estimates) {
+        let own = Extras {
+            flags: &files.flags,
+            export: Some(&files.exports),
+            report: None,
+            materials: None,
+            relight: None,
+            ..*extras
+        };
+        let judged = judged(estimate, &own);
+        worst = judged.iter().map(|l| l.grade).fold(worst, Grade::max);
+        body.push(format!(
+            "  {} ({:.0}% of the pixels; its results in {}/):",
+            p.folder.replace('-', " "),
+            100.0 * p.share,
+            p.folder
+        ));
+        body.extend(
+            judged
+                .iter()
+                .map(|l| format!("    {}: {}", l.grade.word(), l.text)),
+        );
+        if let Some(b) = &estimate.bounce {
+            body.push(format!(
+                "    it lights itself: {:.1}% of the light its pixels measured, taken out before the fit",
+                100.0 * b.share
+            ));
+        }
+        body.push(format!(
+            "    {}/material.gltf, material.mtlx: relit {:.3} from its estimate, {}",
+            p.folder,
+            files.exports.relight_error,
+            export_word(files.exports.relight_error),
+        ));
+    }
+    let mut out = vec![format!(
+        "{material}: {} materials, {} estimates{}",
+        r.parts.len(),
+        worst.word(),
+        match worst {
+            Grade::Good => "",
+            Grade::Fair => "; look at the reports before relying on them",
+            Grade::Poor => "; do not trust them under other light",
+        }
+    )];
+    out.push(format!(
+        "  the photo's colour departs from one BRDF's by {:.2} from place to place (split from {}): each material was estimated on its own pixels, and together they re-render the photo to {:.4} ({})",
+        r.departure,
+        brdfd_core::materials::DEPARTS_FROM,
+        r.fit_error,
+        fit_verdict(r.fit_error)
+    ));
+    out.extend(body);
+    out.push(format!(
+        "  one BRDF for the whole part (coefficients.json, material.gltf) re-renders it to {:.4} ({}); object.gltf carries both materials on the mesh where there is one",
+        whole.fit_error,
+        fit_verdict(whole.fit_error)
+    ));
+    if let Some((e, under)) = &extras.relight {
+        out.push(format!(
+            "  relit under {under} (light it was not fitted to), the whole part's estimate is {e:.4} from the truth (a simulation's figure)"
+        ));
+    }
+    if whole.clipped > 0 {
+        out.push(format!(
+            "  {} object pixels were clipped and left out{}",
+            whole.clipped,
+            if extras.bracketed {
+                " (in every frame of their bracket; a shorter exposure would keep them)"
+            } else {
+                " (at or above the white level)"
+            }
+        ));
     }
     if let Some(r) = extras.report {
         out.push(format!("  report: {}", r.display()));

@@ -28,8 +28,9 @@ use crate::session::{PhaseTime, Session, State};
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::Bivariate;
 use brdfd_core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
-use brdfd_core::estimate::{estimate_views_shared, fit_verdict, Estimate, EstimateOptions, View};
+use brdfd_core::estimate::{fit_verdict, EstimateOptions, View};
 use brdfd_core::geometry::PixelGeometry;
+use brdfd_core::materials::{estimate_materials, Materials};
 use brdfd_core::raster::Raster;
 use brdfd_radiometry::panorama::merge_bracket;
 use brdfd_report::export::Prepared;
@@ -295,8 +296,9 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
         cx.warn(text.clone());
     }
     session.set_state(State::Estimating, None)?;
-    let (est, exports) = estimate(cx, s, &basis, &mut captured, &mut phases)?;
-    let judged = stage.judge(cx, &basis, &est, &mut phases)?;
+    let (found, exports) = estimate(cx, s, &basis, &mut captured, &mut phases)?;
+    let est = &found.whole;
+    let judged = stage.judge(cx, &basis, est, &mut phases)?;
     let relight = judged.relight.as_ref().map(|r| r.0);
     // The last point to stop at: once written, the results are the session's.
     cx.cancel.check()?;
@@ -314,16 +316,16 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
     report.visibility = visibility.as_ref();
     report.object = object.as_ref();
     report.exports = exports.as_ref();
-    let (exports, flags) = write_result(session, &basis, &est, &captured.views[0].lights, &report)?;
+    let (exports, flags, parts) =
+        write_result(session, &basis, &found, &captured.views[0].lights, report)?;
     phases.end(p);
     say_result(
         cx,
         session,
-        &est,
+        &found,
         captured.views.len(),
         judged.relight,
-        &exports,
-        &flags,
+        (&exports, &flags, parts.as_ref()),
     );
     session.set_phases(phases.done);
     session.set_state(State::Done, None)?;
@@ -349,6 +351,10 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
                     text: f.text.clone(),
                 })
                 .collect(),
+            materials: parts
+                .as_ref()
+                .map(|p| super::summary_materials(&p.record))
+                .unwrap_or_default(),
         },
         truth: judged.coefficients,
         pixels: est.selection.pixels.len(),
@@ -572,15 +578,16 @@ fn shoot_views(
     Ok(captured)
 }
 
-/// The estimate of every view together, with the clip level of their merges; with the
-/// exports' renders made while the camera shot, if they were.
+/// The estimate of every view together, with the clip level of their merges (and of each
+/// material, when the part holds two); with the exports' renders made while the camera shot,
+/// if they were.
 fn estimate(
     cx: &Context,
     s: &CaptureSettings,
     basis: &Basis,
     captured: &mut Captured,
     phases: &mut Phases,
-) -> anyhow::Result<(Estimate, Option<Prepared>)> {
+) -> anyhow::Result<(Materials, Option<Prepared>)> {
     let p = phases.start("estimate", 1);
     // A wait for the work started while the camera shot, if it is not done, is the
     // estimate's: the estimate would otherwise do most of it.
@@ -608,9 +615,9 @@ fn estimate(
             photo: &v.photo,
         })
         .collect();
-    let est = estimate_views_shared(basis, &views, &options, &shared)?;
+    let found = estimate_materials(basis, &views, &options, &shared)?;
     phases.end(p);
-    Ok((est, ready.and_then(|r| r.exports)))
+    Ok((found, ready.and_then(|r| r.exports)))
 }
 
 /// What the report says of the session beside the estimate.
@@ -634,6 +641,7 @@ fn report_context<'a>(
         visibility: None,
         object: None,
         exports: None,
+        materials: None,
         record: vec![
             ("session".into(), m.id.clone()),
             ("material".into(), m.material.clone()),
@@ -654,11 +662,14 @@ fn report_context<'a>(
 fn say_result(
     cx: &Context,
     session: &Session,
-    est: &Estimate,
+    found: &Materials,
     views: usize,
     relight: Option<(f64, String)>,
-    exports: &brdfd_report::export::Export,
-    flags: &[brdfd_report::flags::Flag],
+    (exports, flags, parts): (
+        &brdfd_report::export::Export,
+        &[brdfd_report::flags::Flag],
+        Option<&brdfd_report::materials::Parts>,
+    ),
 ) {
     let report = session.dir.join("result/report.html");
     let extras = brdfd_report::summary::Extras {
@@ -668,8 +679,9 @@ fn say_result(
         export: Some(exports),
         flags,
         report: Some(&report),
+        materials: parts.zip(found.split.as_ref().map(|s| s.parts.as_slice())),
     };
-    let lines = brdfd_report::summary::lines(&session.manifest().material, est, &extras);
+    let lines = brdfd_report::summary::lines(&session.manifest().material, &found.whole, &extras);
     if lines[0].contains("do not trust") {
         cx.warn(lines[0].clone());
         cx.say(lines[1..].join("\n"));
@@ -678,21 +690,37 @@ fn say_result(
     }
 }
 
-/// Results go to a fresh folder that replaces `result/` in one rename.
+/// Results go to a fresh folder that replaces `result/` in one rename: with two materials,
+/// each material's in its own folder first, then the whole part's, which record the split.
 fn write_result(
     session: &Session,
     basis: &Basis,
-    est: &Estimate,
+    found: &Materials,
     lights: &brdfd_core::envmap::LightSet,
-    report: &ReportContext,
-) -> anyhow::Result<(brdfd_report::export::Export, Vec<brdfd_report::flags::Flag>)> {
+    report: ReportContext,
+) -> anyhow::Result<(
+    brdfd_report::export::Export,
+    Vec<brdfd_report::flags::Flag>,
+    Option<brdfd_report::materials::Parts>,
+)> {
     let fresh = session.dir.join("result.partial");
     let _ = std::fs::remove_dir_all(&fresh);
-    let files = brdfd_report::results::write_results(&fresh, basis, est, "fast", lights, report)?;
+    let parts = match (&found.split, found.departure) {
+        (Some(split), Some(departure)) => Some(brdfd_report::materials::write_parts(
+            &fresh, basis, split, departure, "fast", lights, &report,
+        )?),
+        _ => None,
+    };
+    let report = ReportContext {
+        materials: parts.as_ref(),
+        ..report
+    };
+    let files =
+        brdfd_report::results::write_results(&fresh, basis, &found.whole, "fast", lights, &report)?;
     let result = session.dir.join("result");
     let _ = std::fs::remove_dir_all(&result);
     std::fs::rename(&fresh, &result).context("moving the results into place")?;
-    Ok((files.exports, files.flags))
+    Ok((files.exports, files.flags, parts))
 }
 
 /// A step's files from the session (checksums verified), under the names the camera gave

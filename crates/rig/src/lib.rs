@@ -56,7 +56,7 @@ pub mod worker;
 use std::sync::Arc;
 use std::time::Duration;
 
-pub use brdfd_api::event::{Event, Summary, SummaryFlag};
+pub use brdfd_api::event::{Event, Summary, SummaryFlag, SummaryMaterial};
 pub use brdfd_api::plan::{some_whole_number, whole_number, PixelCount, Plan, MAX_VIEWS};
 use brdfd_core::stop::Stop;
 pub use devices::Devices;
@@ -115,7 +115,24 @@ pub fn stored_summary(coefficients_json: &std::path::Path) -> Option<Summary> {
                 text: f.text,
             })
             .collect(),
+        materials: r
+            .materials
+            .map(|m| summary_materials(&m))
+            .unwrap_or_default(),
     })
+}
+
+/// The materials of a part split into two, as the summary carries them.
+pub fn summary_materials(m: &brdfd_report::materials::MaterialsRecord) -> Vec<SummaryMaterial> {
+    m.parts
+        .iter()
+        .map(|p| SummaryMaterial {
+            folder: p.folder.clone(),
+            share: p.share,
+            fit_error: p.fit_error.is_finite().then_some(p.fit_error),
+            fit_verdict: brdfd_core::estimate::fit_verdict(p.fit_error),
+        })
+        .collect()
 }
 
 pub trait Progress: Send + Sync {

@@ -300,6 +300,21 @@ function finished(e) {
         ". ",
       resultLinks(e.session)
     );
+    // A part of two materials: each estimated on its own, with its own results.
+    if ((r.materials || []).length > 0) {
+      const p = el("p", `${r.materials.length} materials, each estimated on its own pixels (the figures above are of one BRDF for the whole part): `);
+      const base = `/api/v1/sessions/${encodeURIComponent(e.session)}/result`;
+      for (const m of r.materials) {
+        const fit = m.fit_error === null ? "not a number" : m.fit_error.toFixed(4);
+        p.append(
+          `${m.folder}, ${Math.round(100 * m.share)}% of the pixels, fit ${fit} (${m.fit_verdict}): `,
+          el("a", "report", { href: `${base}/${m.folder}/report.html`, target: "_blank" }),
+          "; "
+        );
+      }
+      p.append(el("a", "the split", { href: `${base}/materials.png`, target: "_blank" }));
+      out.append(p);
+    }
     // A broken assumption makes the figures optimistic: said under them, where it is read.
     for (const f of r.flags || []) {
       const p = document.createElement("p");

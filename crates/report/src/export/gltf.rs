@@ -259,52 +259,16 @@ impl GltfMaterial {
     }
 
     fn document_on(&self, name: &str, shape: &str, geometry: &Geometry) -> String {
-        let Geometry {
-            buffer,
-            vertices,
-            tangents,
-            indices,
-            min,
-            max,
-        } = geometry;
-        let vec3s = vertices * 12;
-        let mut primitive = serde_json::json!({
-            "attributes": { "POSITION": 0, "NORMAL": 1 },
-            "material": 0,
-        });
-        let mut accessors = vec![
-            serde_json::json!({ "bufferView": 0, "componentType": 5126, "count": vertices,
-                                "type": "VEC3", "min": min, "max": max }),
-            serde_json::json!({ "bufferView": 1, "componentType": 5126, "count": vertices,
-                                "type": "VEC3" }),
-        ];
-        let mut views = vec![
-            serde_json::json!({ "buffer": 0, "byteOffset": 0, "byteLength": vec3s,
-                                "target": 34962 }),
-            serde_json::json!({ "buffer": 0, "byteOffset": vec3s, "byteLength": vec3s,
-                                "target": 34962 }),
-        ];
-        let mut offset = 2 * vec3s;
-        if *tangents {
-            primitive["attributes"]["TANGENT"] = views.len().into();
-            accessors.push(
-                serde_json::json!({ "bufferView": views.len(), "componentType": 5126,
-                                               "count": vertices, "type": "VEC4" }),
-            );
-            views.push(serde_json::json!({ "buffer": 0, "byteOffset": offset,
-                                           "byteLength": vertices * 16, "target": 34962 }));
-            offset += vertices * 16;
+        document(name, shape, &[(name, self, geometry)])
+    }
+
+    /// The material's glTF object, named `name`, with the extensions it uses added to `used`.
+    fn material_json(&self, name: &str, used: &mut Vec<&'static str>) -> serde_json::Value {
+        for e in ["KHR_materials_specular", "KHR_materials_ior"] {
+            if !used.contains(&e) {
+                used.push(e);
+            }
         }
-        if let Some(indices) = indices {
-            primitive["indices"] = views.len().into();
-            accessors.push(
-                serde_json::json!({ "bufferView": views.len(), "componentType": 5123,
-                                               "count": indices, "type": "SCALAR" }),
-            );
-            views.push(serde_json::json!({ "buffer": 0, "byteOffset": offset,
-                                           "byteLength": indices * 2, "target": 34963 }));
-        }
-        let mut used = vec!["KHR_materials_specular", "KHR_materials_ior"];
         let mut extensions = serde_json::json!({
             "KHR_materials_specular": {
                 "specularFactor": self.specular,
@@ -314,7 +278,9 @@ impl GltfMaterial {
         });
         let mut extras = serde_json::json!({});
         if let Some(a) = &self.anisotropy {
-            used.push("KHR_materials_anisotropy");
+            if !used.contains(&"KHR_materials_anisotropy") {
+                used.push("KHR_materials_anisotropy");
+            }
             extensions["KHR_materials_anisotropy"] = serde_json::json!({
                 "anisotropyStrength": a.strength,
                 "anisotropyRotation": 0.0,
@@ -326,41 +292,149 @@ impl GltfMaterial {
             });
         }
         if self.clearcoat > 0.0 {
-            used.push("KHR_materials_clearcoat");
+            if !used.contains(&"KHR_materials_clearcoat") {
+                used.push("KHR_materials_clearcoat");
+            }
             extensions["KHR_materials_clearcoat"] = serde_json::json!({
                 "clearcoatFactor": self.clearcoat,
                 "clearcoatRoughnessFactor": self.clearcoat_roughness,
             });
         }
-        let json = serde_json::json!({
-            "asset": { "version": "2.0", "generator": concat!("brdfd ", env!("CARGO_PKG_VERSION")) },
-            "extensionsUsed": used,
-            "scene": 0,
-            "scenes": [{ "name": name, "nodes": [0] }],
-            "nodes": [{ "name": shape, "mesh": 0 }],
-            "meshes": [{ "name": shape, "primitives": [primitive] }],
-            "accessors": accessors,
-            "bufferViews": views,
-            "buffers": [{
-                "byteLength": buffer.len(),
-                "uri": format!(
-                    "data:application/octet-stream;base64,{}",
-                    base64::engine::general_purpose::STANDARD.encode(buffer)
-                ),
-            }],
-            "materials": [{
-                "name": name,
-                "pbrMetallicRoughness": {
-                    "baseColorFactor": [self.base_color[0], self.base_color[1], self.base_color[2], 1.0],
-                    "metallicFactor": self.metallic,
-                    "roughnessFactor": self.roughness,
-                },
-                "extensions": extensions,
-                "extras": extras,
-            }],
-        });
-        serde_json::to_string_pretty(&json).expect("a material serialises")
+        serde_json::json!({
+            "name": name,
+            "pbrMetallicRoughness": {
+                "baseColorFactor": [self.base_color[0], self.base_color[1], self.base_color[2], 1.0],
+                "metallicFactor": self.metallic,
+                "roughnessFactor": self.roughness,
+            },
+            "extensions": extensions,
+            "extras": extras,
+        })
     }
+}
+
+/// Several materials on one object ([`brdfd_core::materials`]): `mesh` with each triangle
+/// drawn in the material `labels` gives it (an index into `materials`; a label past them, a
+/// triangle no view saw, takes the first). One primitive per material, each with its own
+/// buffer; a material with no triangle is left out.
+pub fn document_of_materials(
+    name: &str,
+    materials: &[(&str, &GltfMaterial)],
+    mesh: &Mesh,
+    labels: &[u8],
+) -> String {
+    let geometries: Vec<(usize, Geometry)> = (0..materials.len())
+        .filter_map(|k| {
+            let mine = |l: u8| l as usize == k || (k == 0 && l as usize >= materials.len());
+            let triangles: Vec<[u32; 3]> = mesh
+                .triangles
+                .iter()
+                .zip(labels)
+                .filter(|(_, l)| mine(**l))
+                .map(|(t, _)| *t)
+                .collect();
+            if triangles.is_empty() {
+                return None;
+            }
+            let corner_normals = mesh.corner_normals.as_ref().map(|c| {
+                c.iter()
+                    .zip(labels)
+                    .filter(|(_, l)| mine(**l))
+                    .map(|(n, _)| *n)
+                    .collect()
+            });
+            let part = Mesh {
+                positions: mesh.positions.clone(),
+                triangles,
+                corner_normals,
+            };
+            Some((k, mesh_buffer(&part, materials[k].1.anisotropy.as_ref())))
+        })
+        .collect();
+    let pieces: Vec<(&str, &GltfMaterial, &Geometry)> = geometries
+        .iter()
+        .map(|(k, g)| (materials[*k].0, materials[*k].1, g))
+        .collect();
+    document(name, "object", &pieces)
+}
+
+/// The document: one node and mesh named `shape`, one primitive per piece, each in its
+/// material and with its own buffer.
+fn document(name: &str, shape: &str, pieces: &[(&str, &GltfMaterial, &Geometry)]) -> String {
+    let (mut primitives, mut accessors, mut views, mut buffers, mut materials) =
+        (vec![], vec![], vec![], vec![], vec![]);
+    let mut used = Vec::new();
+    for (i, (material_name, material, geometry)) in pieces.iter().enumerate() {
+        let Geometry {
+            buffer,
+            vertices,
+            tangents,
+            indices,
+            min,
+            max,
+        } = geometry;
+        let vec3s = vertices * 12;
+        let mut primitive = serde_json::json!({
+            "attributes": { "POSITION": accessors.len(), "NORMAL": accessors.len() + 1 },
+            "material": i,
+        });
+        accessors.push(
+            serde_json::json!({ "bufferView": views.len(), "componentType": 5126,
+                                           "count": vertices, "type": "VEC3",
+                                           "min": min, "max": max }),
+        );
+        accessors.push(serde_json::json!({ "bufferView": views.len() + 1,
+                                           "componentType": 5126, "count": vertices,
+                                           "type": "VEC3" }));
+        views.push(
+            serde_json::json!({ "buffer": i, "byteOffset": 0, "byteLength": vec3s,
+                                       "target": 34962 }),
+        );
+        views.push(
+            serde_json::json!({ "buffer": i, "byteOffset": vec3s, "byteLength": vec3s,
+                                       "target": 34962 }),
+        );
+        let mut offset = 2 * vec3s;
+        if *tangents {
+            primitive["attributes"]["TANGENT"] = accessors.len().into();
+            accessors.push(serde_json::json!({ "bufferView": views.len(),
+                                               "componentType": 5126, "count": vertices,
+                                               "type": "VEC4" }));
+            views.push(serde_json::json!({ "buffer": i, "byteOffset": offset,
+                                           "byteLength": vertices * 16, "target": 34962 }));
+            offset += vertices * 16;
+        }
+        if let Some(indices) = indices {
+            primitive["indices"] = accessors.len().into();
+            accessors.push(serde_json::json!({ "bufferView": views.len(),
+                                               "componentType": 5123, "count": indices,
+                                               "type": "SCALAR" }));
+            views.push(serde_json::json!({ "buffer": i, "byteOffset": offset,
+                                           "byteLength": indices * 2, "target": 34963 }));
+        }
+        primitives.push(primitive);
+        buffers.push(serde_json::json!({
+            "byteLength": buffer.len(),
+            "uri": format!(
+                "data:application/octet-stream;base64,{}",
+                base64::engine::general_purpose::STANDARD.encode(buffer)
+            ),
+        }));
+        materials.push(material.material_json(material_name, &mut used));
+    }
+    let json = serde_json::json!({
+        "asset": { "version": "2.0", "generator": concat!("brdfd ", env!("CARGO_PKG_VERSION")) },
+        "extensionsUsed": used,
+        "scene": 0,
+        "scenes": [{ "name": name, "nodes": [0] }],
+        "nodes": [{ "name": shape, "mesh": 0 }],
+        "meshes": [{ "name": shape, "primitives": primitives }],
+        "accessors": accessors,
+        "bufferViews": views,
+        "buffers": buffers,
+        "materials": materials,
+    });
+    serde_json::to_string_pretty(&json).expect("a material serialises")
 }
 
 /// A material's `KHR_materials_anisotropy` with the axis brdfd lays its tangents from
