@@ -357,23 +357,7 @@ fn materials_are_found(scene: &Path, estimate: &str, json: &serde_json::Value, s
     assert!(best.iter().all(|v| *v >= 0.9), "{best:?}");
     // Painted on the mesh by the materials' own estimates, under the photo's light.
     let coefficients = format!("{estimate}/coefficients.json");
-    let out = format!("{estimate}/painted.exr");
-    let o = common::brdfd(
-        &[
-            "render",
-            "--coefficients",
-            &coefficients,
-            "--geometry",
-            "geometry.toml",
-            "--env",
-            "../../maps/courtyard.hdr",
-            "--out",
-            &out,
-        ],
-        scene,
-    );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let painted = Raster::read(&scene.join(&out)).unwrap();
+    let painted = render_estimate(scene, &coefficients, "courtyard", true);
     let photo = Raster::read(&scene.join("photo.exr")).unwrap();
     let error = block_rmse(&painted, &photo, &regions);
     let whole = json["fit_error"].as_f64().unwrap();
@@ -386,20 +370,20 @@ fn materials_are_found(scene: &Path, estimate: &str, json: &serde_json::Value, s
     );
 }
 
-/// The estimate in `estimate` (a folder of `scene`) relit by `brdfd render` under the
-/// embedded city map, with one bounce or without, against Mitsuba's truth there
-/// ([`block_rmse`], as the set's score measures it).
-fn relit_against_truth(scene: &Path, estimate: &str, bounce: bool) -> f64 {
-    let coefficients = format!("{estimate}/coefficients.json");
-    let out = format!("{estimate}/relit-city.exr");
+/// The estimate `coefficients` (a `coefficients.json`, from `scene`) rendered by `brdfd render
+/// --coefficients` on the scene's geometry under the map `map` (of the set's maps), with one
+/// bounce or without.
+fn render_estimate(scene: &Path, coefficients: &str, map: &str, bounce: bool) -> Raster {
+    let env = format!("../../maps/{map}.hdr");
+    let out = coefficients.replace(".json", &format!("-{map}-{bounce}.exr"));
     let mut args = vec![
         "render",
         "--coefficients",
-        &coefficients,
+        coefficients,
         "--geometry",
         "geometry.toml",
         "--env",
-        "../../maps/city.hdr",
+        &env,
         "--out",
         &out,
     ];
@@ -408,7 +392,19 @@ fn relit_against_truth(scene: &Path, estimate: &str, bounce: bool) -> f64 {
     }
     let o = common::brdfd(&args, scene);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let ours = Raster::read(&scene.join(&out)).unwrap();
+    Raster::read(&scene.join(&out)).unwrap()
+}
+
+/// The estimate in `estimate` (a folder of `scene`) relit by `brdfd render` under the
+/// embedded city map, with one bounce or without, against Mitsuba's truth there
+/// ([`block_rmse`], as the set's score measures it).
+fn relit_against_truth(scene: &Path, estimate: &str, bounce: bool) -> f64 {
+    let ours = render_estimate(
+        scene,
+        &format!("{estimate}/coefficients.json"),
+        "city",
+        bounce,
+    );
     let truth = Raster::read(&scene.join("truth-city.exr")).unwrap();
     let regions = Raster::read(&scene.join("regions.exr")).unwrap();
     block_rmse(&ours, &truth, &regions)
@@ -471,22 +467,7 @@ fn relights_with_its_lobe(scene: &Path, estimate: &str, json: &serde_json::Value
     let truth = Raster::read(&scene.join("truth-city.exr")).unwrap();
     let regions = Raster::read(&scene.join("regions.exr")).unwrap();
     let relit = |coefficients: &str| {
-        let o = common::brdfd(
-            &[
-                "render",
-                "--coefficients",
-                &format!("{estimate}/{coefficients}"),
-                "--geometry",
-                "geometry.toml",
-                "--env",
-                "../../maps/city.hdr",
-                "--out",
-                "relit-city.exr",
-            ],
-            scene,
-        );
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let ours = Raster::read(&scene.join("relit-city.exr")).unwrap();
+        let ours = render_estimate(scene, &format!("{estimate}/{coefficients}"), "city", true);
         block_rmse(&ours, &truth, &regions)
     };
     let (lobe, model) = (relit("coefficients.json"), relit("isotropic.json"));

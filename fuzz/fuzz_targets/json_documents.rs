@@ -13,6 +13,12 @@ fuzz_target!(|data: &[u8]| {
     if let Ok(result) = serde_json::from_slice::<brdfd_report::results::StoredResult>(data) {
         let _ = result.coefficient_values();
         let _ = result.chosen_lobe();
+        // A split's triangles, as `brdfd render --coefficients` paints them.
+        if let Some(m) = &result.materials {
+            if let Some(t) = &m.triangles {
+                let _ = brdfd_report::materials::painted(t, m.parts.len());
+            }
+        }
     }
     let _ = serde_json::from_slice::<brdfd_theta::osc::Info>(data);
     let _ = serde_json::from_slice::<brdfd_theta::osc::StateResponse>(data);

@@ -3,12 +3,12 @@
 //! One BRDF fitted to every pixel of such a part is a compromise that is none of its
 //! materials. The whole part's estimate is where this starts: it renders the shading (light,
 //! shape, shadows and a BRDF), so what the photo departs from it by, neighbourhood by
-//! neighbourhood ([`Cells`]), is the appearance the shading leaves (issue 43, item 3). Where
+//! neighbourhood (`Cells`), is the appearance the shading leaves (issue 43, item 3). Where
 //! the part holds materials of different colours, that departure falls into two groups: the
 //! one material redder than the compromise, the other bluer. The pixels are split between
-//! them ([`two_means`]), each group is estimated on its own, and each pixel goes again to the
+//! them (`two_means`), each group is estimated on its own, and each pixel goes again to the
 //! material whose estimate renders it closer, [`ROUNDS`] times. On a mesh, every view's pixels
-//! of one triangle vote for its material ([`Labels`]): the views of a turntable agree, and the
+//! of one triangle vote for its material (`Labels`): the views of a turntable agree, and the
 //! materials' edges follow the mesh's.
 //!
 //! The split is kept only when it is asked for and pays: the photo's colour departs from the

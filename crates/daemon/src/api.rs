@@ -830,60 +830,74 @@ impl ResultFile {
     }
 }
 
-/// One of a finished session's result files (docs/formats.md).
-#[utoipa::path(
-    get,
-    path = "/sessions/{id}/result/{file}",
-    params(
+/// A result file's route: `path`, its parameters, and what its 404 means; the answers are
+/// the same for the whole part's files and for each material's (the files, their ranges and
+/// validators, and the errors).
+macro_rules! result_file_route {
+    ($path:literal, ($($param:tt)*), $not_found:literal, $handler:item) => {
+        #[utoipa::path(
+            get,
+            path = $path,
+            params($($param)*),
+            responses(
+                (status = 200, description = "the file", content(
+                    (FileBytes = "image/png"),
+                    (FileBytes = "image/x-exr"),
+                    (FileBytes = "image/vnd.radiance"),
+                    (FileBytes = "application/octet-stream"),
+                    (Object = "application/json"),
+                    (String = "text/html"),
+                    (Object = "model/gltf+json"),
+                    (String = "application/xml"),
+                ), headers(
+                    ("ETag" = String, description = "the file's strong validator"),
+                    ("Accept-Ranges" = String, description = "`bytes`"),
+                )),
+                (status = 206, description = "the bytes `Range` asked for, as `Content-Range` says, in the file's media type", content(
+                    (FileBytes = "image/png"),
+                    (FileBytes = "image/x-exr"),
+                    (FileBytes = "image/vnd.radiance"),
+                    (FileBytes = "application/octet-stream"),
+                    (FileBytes = "application/json"),
+                    (FileBytes = "text/html"),
+                    (FileBytes = "model/gltf+json"),
+                    (FileBytes = "application/xml"),
+                ), headers(
+                    ("ETag" = String, description = "the file's strong validator"),
+                    ("Content-Range" = String, description = "`bytes FIRST-LAST/LENGTH`"),
+                )),
+                (status = 304, description = "not modified: `If-None-Match` named the file's `ETag`", headers(
+                    ("ETag" = String, description = "the file's strong validator"),
+                )),
+                (status = 404, description = $not_found, body = ErrorBody),
+                (status = 409, description = "`not_done`: the session is not done", body = ErrorBody),
+                (status = 416, description = "`range_not_satisfiable`: `Range` starts past the file's end", body = ErrorBody, headers(
+                    ("Content-Range" = String, description = "`bytes */LENGTH`"),
+                )),
+            )
+        )]
+        $handler
+    };
+}
+
+result_file_route!(
+    "/sessions/{id}/result/{file}",
+    (
         ("id" = String, Path, description = "the session's id"),
         ("file" = ResultFile, Path, description = "the file"),
     ),
-    responses(
-        (status = 200, description = "the file", content(
-            (FileBytes = "image/png"),
-            (FileBytes = "image/x-exr"),
-            (FileBytes = "image/vnd.radiance"),
-            (FileBytes = "application/octet-stream"),
-            (Object = "application/json"),
-            (String = "text/html"),
-            (Object = "model/gltf+json"),
-            (String = "application/xml"),
-        ), headers(
-            ("ETag" = String, description = "the file's strong validator"),
-            ("Accept-Ranges" = String, description = "`bytes`"),
-        )),
-        (status = 206, description = "the bytes `Range` asked for, as `Content-Range` says, in the file's media type", content(
-            (FileBytes = "image/png"),
-            (FileBytes = "image/x-exr"),
-            (FileBytes = "image/vnd.radiance"),
-            (FileBytes = "application/octet-stream"),
-            (FileBytes = "application/json"),
-            (FileBytes = "text/html"),
-            (FileBytes = "model/gltf+json"),
-            (FileBytes = "application/xml"),
-        ), headers(
-            ("ETag" = String, description = "the file's strong validator"),
-            ("Content-Range" = String, description = "`bytes FIRST-LAST/LENGTH`"),
-        )),
-        (status = 304, description = "not modified: `If-None-Match` named the file's `ETag`", headers(
-            ("ETag" = String, description = "the file's strong validator"),
-        )),
-        (status = 404, description = "`not_found`: no such session, or no such file in its result (`brdf-sigma.exr` with an uncertainty band, `compare.png` with a photo, `light.hdr` with a capture's map, `object.gltf` on a mesh, `materials.png` and `materials-mask.png` on a part split into materials)", body = ErrorBody),
-        (status = 409, description = "`not_done`: the session is not done", body = ErrorBody),
-        (status = 416, description = "`range_not_satisfiable`: `Range` starts past the file's end", body = ErrorBody, headers(
-            ("Content-Range" = String, description = "`bytes */LENGTH`"),
-        )),
-    )
-)]
-async fn result_file(
-    State(d): State<Shared>,
-    Path((id, file)): Path<(String, String)>,
-    headers: HeaderMap,
-) -> ApiResult<Response> {
-    let file =
-        ResultFile::named(&file).ok_or_else(|| not_found(format!("no result file {file:?}")))?;
-    serve_result(&d, &id, None, file, &headers).await
-}
+    "`not_found`: no such session, or no such file in its result (`brdf-sigma.exr` with an uncertainty band, `compare.png` with a photo, `light.hdr` with a capture's map, `object.gltf` on a mesh, `materials.png` and `materials-mask.png` on a part split into materials)",
+    /// One of a finished session's result files (docs/formats.md).
+    async fn result_file(
+        State(d): State<Shared>,
+        Path((id, file)): Path<(String, String)>,
+        headers: HeaderMap,
+    ) -> ApiResult<Response> {
+        let file =
+            ResultFile::named(&file).ok_or_else(|| not_found(format!("no result file {file:?}")))?;
+        serve_result(&d, &id, None, file, &headers).await
+    }
+);
 
 /// One material's folder of a result split into materials (`material-1`, `material-2`):
 /// a fixed list, as [`ResultFile`] is.
@@ -910,64 +924,28 @@ impl MaterialFolder {
     }
 }
 
-/// One of a material's result files, when the session's part was split into two materials
-/// (docs/formats.md): the same files as the whole part's, in the material's folder.
-#[utoipa::path(
-    get,
-    path = "/sessions/{id}/result/{material}/{file}",
-    params(
+result_file_route!(
+    "/sessions/{id}/result/{material}/{file}",
+    (
         ("id" = String, Path, description = "the session's id"),
         ("material" = MaterialFolder, Path, description = "the material's folder"),
         ("file" = ResultFile, Path, description = "the file"),
     ),
-    responses(
-        (status = 200, description = "the file", content(
-            (FileBytes = "image/png"),
-            (FileBytes = "image/x-exr"),
-            (FileBytes = "image/vnd.radiance"),
-            (FileBytes = "application/octet-stream"),
-            (Object = "application/json"),
-            (String = "text/html"),
-            (Object = "model/gltf+json"),
-            (String = "application/xml"),
-        ), headers(
-            ("ETag" = String, description = "the file's strong validator"),
-            ("Accept-Ranges" = String, description = "`bytes`"),
-        )),
-        (status = 206, description = "the bytes `Range` asked for, as `Content-Range` says, in the file's media type", content(
-            (FileBytes = "image/png"),
-            (FileBytes = "image/x-exr"),
-            (FileBytes = "image/vnd.radiance"),
-            (FileBytes = "application/octet-stream"),
-            (FileBytes = "application/json"),
-            (FileBytes = "text/html"),
-            (FileBytes = "model/gltf+json"),
-            (FileBytes = "application/xml"),
-        ), headers(
-            ("ETag" = String, description = "the file's strong validator"),
-            ("Content-Range" = String, description = "`bytes FIRST-LAST/LENGTH`"),
-        )),
-        (status = 304, description = "not modified: `If-None-Match` named the file's `ETag`", headers(
-            ("ETag" = String, description = "the file's strong validator"),
-        )),
-        (status = 404, description = "`not_found`: no such session, its part was not split into materials, or no such file in the material's result", body = ErrorBody),
-        (status = 409, description = "`not_done`: the session is not done", body = ErrorBody),
-        (status = 416, description = "`range_not_satisfiable`: `Range` starts past the file's end", body = ErrorBody, headers(
-            ("Content-Range" = String, description = "`bytes */LENGTH`"),
-        )),
-    )
-)]
-async fn material_file(
-    State(d): State<Shared>,
-    Path((id, material, file)): Path<(String, String, String)>,
-    headers: HeaderMap,
-) -> ApiResult<Response> {
-    let folder = MaterialFolder::named(&material)
-        .ok_or_else(|| not_found(format!("no material folder {material:?}")))?;
-    let file =
-        ResultFile::named(&file).ok_or_else(|| not_found(format!("no result file {file:?}")))?;
-    serve_result(&d, &id, Some(folder), file, &headers).await
-}
+    "`not_found`: no such session, its part was not split into materials, or no such file in the material's result",
+    /// One of a material's result files, when the session's part was split into two materials
+    /// (docs/formats.md): the same files as the whole part's, in the material's folder.
+    async fn material_file(
+        State(d): State<Shared>,
+        Path((id, material, file)): Path<(String, String, String)>,
+        headers: HeaderMap,
+    ) -> ApiResult<Response> {
+        let folder = MaterialFolder::named(&material)
+            .ok_or_else(|| not_found(format!("no material folder {material:?}")))?;
+        let file =
+            ResultFile::named(&file).ok_or_else(|| not_found(format!("no result file {file:?}")))?;
+        serve_result(&d, &id, Some(folder), file, &headers).await
+    }
+);
 
 /// Bytes a result file is read and sent in: 40 clients that ask for the 35 MB BRDF table and
 /// never read it hold a chunk each, not the file (the server's write timeout drops them).
