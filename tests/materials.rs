@@ -128,6 +128,25 @@ fn triangle_iou(truth: &[u8], triangles: &[u8]) -> [f64; 2] {
     }
 }
 
+/// Every view's pixels of one triangle carry its triangle's label, as the materials'
+/// estimates, the mask and the painted mesh read them.
+fn labels_follow_the_triangles(
+    views: &[(PixelGeometry, LightSet, LightSet, Raster)],
+    split: &brdfd_core::materials::Split,
+) {
+    let triangles = split.triangles.as_ref().unwrap();
+    assert_eq!(split.labels.len(), views.len());
+    for ((g, ..), labels) in views.iter().zip(&split.labels) {
+        let (_, tris) = triangles_of(g).unwrap();
+        for ((p, t), l) in g.pixels.iter().zip(&tris).zip(labels) {
+            assert_eq!((p.x, p.y), (l.x, l.y));
+            if let Some(t) = t {
+                assert_eq!(l.material, triangles[*t as usize]);
+            }
+        }
+    }
+}
+
 #[test]
 fn a_sphere_of_two_materials_is_split_along_its_triangles_and_one_of_one_is_not() {
     let mesh = uv_sphere([0.0; 3], 1.0, 32, 64);
@@ -147,18 +166,7 @@ fn a_sphere_of_two_materials_is_split_along_its_triangles_and_one_of_one_is_not(
     );
     assert!(best[0] >= 0.9 && best[1] >= 0.9, "IoU {best:?}");
     assert!(split.fit_error <= 0.5 * found.whole.fit_error);
-    // Every view's pixels of one triangle carry its triangle's label, as the materials'
-    // estimates and the summary's pixel counts read them.
-    assert_eq!(split.labels.len(), views.len());
-    for ((g, ..), labels) in views.iter().zip(&split.labels) {
-        let (_, tris) = triangles_of(g).unwrap();
-        for ((p, t), l) in g.pixels.iter().zip(&tris).zip(labels) {
-            assert_eq!((p.x, p.y), (l.x, l.y));
-            if let Some(t) = t {
-                assert_eq!(l.material, triangles[*t as usize]);
-            }
-        }
-    }
+    labels_follow_the_triangles(&views, &split);
 
     // Candidates spread over a photo with more pixels than them: each neighbourhood is then
     // of cells as wide as the candidates are apart, and a triangle no candidate fell on
@@ -166,6 +174,7 @@ fn a_sphere_of_two_materials_is_split_along_its_triangles_and_one_of_one_is_not(
     let spread = estimate(&views, 2000)
         .split
         .expect("two materials found from spread candidates");
+    labels_follow_the_triangles(&views, &spread);
     let best = triangle_iou(&truth, spread.triangles.as_ref().unwrap());
     eprintln!(
         "two materials from 2,000 candidates: IoU {:.3} {:.3}",

@@ -488,8 +488,14 @@ fn export_flat(session: &Session, out: &Path) -> anyhow::Result<()> {
     let mut results = Vec::new();
     for e in std::fs::read_dir(session.dir.join("result"))? {
         let e = e?;
-        copy(e.path(), out.join(e.file_name()))?;
-        results.push(e.file_name().to_string_lossy().into_owned());
+        // A part split into materials has each one's results in a folder of its own.
+        if e.file_type()?.is_dir() {
+            super::session_cmd::copy_dir(&e.path(), &out.join(e.file_name()))?;
+            results.push(format!("{}/", e.file_name().to_string_lossy()));
+        } else {
+            copy(e.path(), out.join(e.file_name()))?;
+            results.push(e.file_name().to_string_lossy().into_owned());
+        }
     }
     copy(
         session.dir.join("derived/photo-view1.exr"),

@@ -369,7 +369,8 @@ pub struct RenderArgs {
     /// A MERL .binary file.
     #[arg(long)]
     pub merl: Option<PathBuf>,
-    /// A coefficients.json from `brdfd estimate` (rendered on --basis or the embedded basis).
+    /// A coefficients.json from `brdfd estimate` (rendered on --basis or the embedded basis);
+    /// of a part split into two materials, each painted on its own triangles of the mesh.
     #[arg(long)]
     pub coefficients: Option<PathBuf>,
     /// The basis --coefficients were estimated on (STEM.exr + STEM.json); the embedded
@@ -463,11 +464,16 @@ fn render_result(
         Some((m, painted(labels, m.parts.len()), triangles))
     });
     let Some((m, labels, triangles)) = painted else {
-        if r.materials.is_some() {
+        if let Some(m) = &r.materials {
+            let why = if m.triangles.is_some() {
+                "they are painted on its mesh's triangles, and this geometry is not that mesh"
+            } else {
+                "the split was made off a mesh, with no triangles to paint them on"
+            };
             eprintln!(
-                "note: {} holds {} materials, painted on its mesh's triangles; this geometry is not that mesh, so the one BRDF fitted to the whole part is rendered",
+                "note: {} holds {} materials, but {why}: the one BRDF fitted to the whole part is rendered",
                 p.display(),
-                r.materials.as_ref().map_or(0, |m| m.parts.len())
+                m.parts.len()
             );
         }
         return render_one(p, r, basis, geometry, lights, bounce);

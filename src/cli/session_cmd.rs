@@ -326,7 +326,7 @@ fn cancel(state: &Path, id: &str, daemon: &super::capture::DaemonArgs) -> anyhow
     Ok(())
 }
 
-fn copy_dir(from: &Path, to: &Path) -> anyhow::Result<()> {
+pub(super) fn copy_dir(from: &Path, to: &Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(to).with_context(|| format!("creating {}", to.display()))?;
     for e in std::fs::read_dir(from)? {
         let e = e?;

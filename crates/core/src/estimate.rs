@@ -113,7 +113,8 @@ pub struct EstimateOptions {
     pub bounce: bool,
     /// Whether [`crate::materials::estimate_materials`] may split a part whose photo's colour
     /// departs from one BRDF's from place to place into two materials, each estimated on its
-    /// own pixels; off, one BRDF is fitted to the whole part.
+    /// own pixels; off, one BRDF is fitted to the whole part. Only with
+    /// [`EstimateOptions::checks`], as the split is itself a check of the photo.
     pub materials: bool,
     /// Checked in the estimate's long loops: once requested, the estimate ends with
     /// [`CoreError::Stopped`] within about a second.

@@ -64,7 +64,8 @@ pub struct Materials {
     pub whole: Estimate,
     pub split: Option<Split>,
     /// How far the photo's colour departs from the whole estimate's from place to place
-    /// (RMS of ln colour shares; see [`DEPARTS_FROM`]); `None` with too few pixels.
+    /// (RMS of ln colour shares; see [`DEPARTS_FROM`]); `None` with too few pixels, and when
+    /// the split is off ([`EstimateOptions::materials`] or `checks`).
     pub departure: Option<f64>,
 }
 
@@ -77,7 +78,8 @@ pub struct Split {
     /// On a mesh, each triangle's material ([`UNSEEN`] where no view saw it).
     pub triangles: Option<Vec<u8>>,
     /// The materials' re-render of the photo, together: ‖A·c − y‖ / ‖y‖ over every
-    /// candidate, each by its own material, as [`Estimate::fit_error`] is.
+    /// candidate, each by its own material, each material's candidates weighted by its pixels
+    /// per candidate.
     pub fit_error: f64,
     /// Pixels in each material, over every view.
     pub pixels: Vec<usize>,
@@ -148,11 +150,18 @@ pub fn estimate_materials(
             chosen = closer(views, &whole.rerender, &split, &cells);
         }
         // A round that fits worse than the one before it is not kept.
-        if best.as_ref().is_none_or(|b| split.fit_error < b.fit_error) {
+        if best
+            .as_ref()
+            .is_none_or(|b| b.fit_error.is_nan() || split.fit_error < b.fit_error)
+        {
             best = Some(split);
         }
     }
-    let split = best.filter(|s| s.fit_error <= BETTER_BY * whole.fit_error);
+    // Each material's figures are written, and read back, as numbers.
+    let split = best.filter(|s| {
+        s.fit_error <= BETTER_BY * whole.fit_error
+            && s.parts.iter().all(|p| p.fit_error.is_finite())
+    });
     Ok(Materials {
         whole,
         split,
@@ -575,8 +584,9 @@ impl Labels {
     }
 
     /// Every pixel's label, per view, from the labels of the re-rendered pixels: on a mesh,
-    /// its triangle's, where some candidate on the triangle voted; else its cell's, or the
-    /// nearest cell's ([`Cells::label_near`]); else the commoner label.
+    /// its triangle's (the majority of the triangle's candidates over every view or, where
+    /// none fell on it, of its pixels' cells); off a mesh, or off every triangle, its cell's
+    /// or the nearest cell's ([`Cells::label_near`]); else the commoner label.
     fn spread(
         &self,
         views: &[View],
@@ -604,10 +614,29 @@ impl Labels {
                     }
                 }
             }
-            votes
+            let mut by: Vec<Option<u8>> = votes
                 .iter()
                 .map(|v| (v[0] + v[1] > 0).then(|| u8::from(v[1] > v[0])))
-                .collect()
+                .collect();
+            // A triangle no candidate fell on takes the majority of its pixels' cells, over
+            // every view: all its pixels then carry one label, as the record paints it.
+            let mut near_votes = vec![[0u32; 2]; self.count];
+            for ((v, view), tris) in views.iter().enumerate().zip(triangles) {
+                for (p, t) in view.geometry.pixels.iter().zip(tris) {
+                    let Some(t) = t else { continue };
+                    if by[*t as usize].is_none() {
+                        if let Some(l) = cells.label_near(&near, v, p.x, p.y) {
+                            near_votes[*t as usize][l as usize] += 1;
+                        }
+                    }
+                }
+            }
+            for (b, v) in by.iter_mut().zip(&near_votes) {
+                if b.is_none() && v[0] + v[1] > 0 {
+                    *b = Some(u8::from(v[1] > v[0]));
+                }
+            }
+            by
         });
         views
             .iter()

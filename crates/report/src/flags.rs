@@ -334,7 +334,7 @@ fn several_materials(rerender: &[Rerendered], visibility: Option<&Visibility>) -
         reason: Reason::SeveralMaterials,
         figure,
         text: format!(
-            "several materials: the photo's colour departs from the estimate's by {figure:.2} from place to place (RMS of ln colour shares; flagged from {COLOUR_DEPARTS}, single materials measure up to 0.1); the part seems to carry materials of different colours, and one BRDF fitted to all of it is none of them",
+            "several materials: the photo's colour departs from the estimate's by {figure:.2} from place to place (RMS of ln colour shares; flagged from {COLOUR_DEPARTS}; single materials measured up to 0.2, a concave gold part's walls lighting each other); the part seems to carry materials of different colours, and one BRDF fitted to all of it is none of them",
         ),
     })
 }

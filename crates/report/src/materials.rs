@@ -254,8 +254,14 @@ pub fn painted(triangles: &[u8], parts: usize) -> Vec<u8> {
 
 /// Removes what a split into materials wrote in `dir` (the materials' folders and the
 /// split's pictures), before results are written there again: an estimate that finds one
-/// material must not leave an earlier one's beside its own.
+/// material must not leave an earlier one's beside its own. Only when the `coefficients.json`
+/// there records a split: folders of those names are otherwise not brdfd's to remove.
 pub fn remove_stale(dir: &Path) -> Result<()> {
+    let split = crate::results::StoredResult::read(&dir.join("coefficients.json"))
+        .is_ok_and(|r| r.materials.is_some());
+    if !split {
+        return Ok(());
+    }
     for k in 0..2 {
         let d = dir.join(folder(k));
         if d.is_dir() {

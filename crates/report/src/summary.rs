@@ -260,12 +260,30 @@ fn materials_lines(
             ));
         }
         body.push(format!(
-            "    {}/material.gltf, material.mtlx: relit {:.3} from its estimate, {}",
+            "    {}/material.gltf, material.mtlx: relit {:.3} from its estimate, {} (faithful at most {FAITHFUL}, close at most {CLOSE})",
             p.folder,
             files.exports.relight_error,
             export_word(files.exports.relight_error),
         ));
     }
+    // What the whole part's photo says beside its colours (the light turned, the part
+    // lighting itself) holds for both materials, and judges them too.
+    let whole_flags: Vec<&Flag> = extras
+        .flags
+        .iter()
+        .filter(|f| f.reason != crate::flags::Reason::SeveralMaterials)
+        .collect();
+    if !whole_flags.is_empty() {
+        worst = worst.max(Grade::Fair);
+    }
+    let relight = extras.relight.as_ref().map(|(e, under)| {
+        let grade = Grade::of(*e, GOOD_FIT, POOR_FIT);
+        worst = worst.max(grade);
+        format!(
+            "  {}: relit under {under} (light it was not fitted to), the whole part's estimate is {e:.4} from the truth (a simulation's figure, judged as the fit)",
+            grade.word()
+        )
+    });
     let mut out = vec![format!(
         "{material}: {} materials, {} estimates{}",
         r.parts.len(),
@@ -289,11 +307,8 @@ fn materials_lines(
         whole.fit_error,
         fit_verdict(whole.fit_error)
     ));
-    if let Some((e, under)) = &extras.relight {
-        out.push(format!(
-            "  relit under {under} (light it was not fitted to), the whole part's estimate is {e:.4} from the truth (a simulation's figure)"
-        ));
-    }
+    out.extend(relight);
+    out.extend(whole_flags.iter().map(|f| format!("  fair: {}", f.text)));
     if whole.clipped > 0 {
         out.push(format!(
             "  {} object pixels were clipped and left out{}",
