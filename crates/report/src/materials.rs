@@ -12,7 +12,7 @@ use brdfd_core::basis::Basis;
 use brdfd_core::envmap::LightSet;
 use brdfd_core::error::{CoreError, Result};
 use brdfd_core::materials::{Split, UNSEEN};
-use brdfd_core::raster::{linear_to_srgb, Raster};
+use brdfd_core::raster::Raster;
 
 use crate::export::GltfMaterial;
 use crate::html::Context;
@@ -173,40 +173,19 @@ pub fn write_pictures(
         return Ok((None, Vec::new()));
     };
     let (w, h) = (photo.width, photo.height);
-    // The photo's exposure as the compare picture's: its brightest 1% at white.
-    let mut levels: Vec<f32> = first
-        .iter()
-        .map(|l| {
-            let v = photo.get(l.x as usize, l.y as usize);
-            v[0].max(v[1]).max(v[2])
-        })
-        .filter(|v| v.is_finite())
-        .collect();
-    levels.sort_by(f32::total_cmp);
-    let white = levels
-        .get(levels.len().saturating_sub(1 + levels.len() / 100))
-        .copied()
-        .filter(|v| *v > 0.0)
-        .unwrap_or(1.0);
-    let shown = |x: usize, y: usize, dim: f32| {
-        photo
-            .get(x, y)
-            .map(|v| (linear_to_srgb((v / white).clamp(0.0, 1.0)) * dim * 255.0) as u8)
-    };
-    let mut picture = image::RgbImage::new(w as u32, h as u32);
-    for y in 0..h {
-        for x in 0..w {
-            picture.put_pixel(x as u32, y as u32, image::Rgb(shown(x, y, 0.35)));
-        }
+    // The photo at the exposure `compare.png` shows it at, dimmed off the materials.
+    let shown = photo.to_srgb8(photo.auto_exposure());
+    let mut picture = shown.clone();
+    for p in picture.pixels_mut() {
+        p.0 = p.0.map(|v| (f32::from(v) * 0.35) as u8);
     }
     let mut mask = image::GrayImage::new(w as u32, h as u32);
     for l in first {
-        let (x, y) = (l.x as usize, l.y as usize);
-        if x >= w || y >= h {
+        if l.x as usize >= w || l.y as usize >= h {
             continue;
         }
         let tint = TINTS[l.material as usize % TINTS.len()];
-        let grey = shown(x, y, 1.0).iter().map(|v| f32::from(*v)).sum::<f32>() / 3.0;
+        let grey = shown.get_pixel(l.x, l.y).0.iter().map(|v| f32::from(*v)).sum::<f32>() / 3.0;
         let px = [0, 1, 2].map(|c| (0.5 * grey + 0.5 * 255.0 * tint[c]).min(255.0) as u8);
         picture.put_pixel(l.x, l.y, image::Rgb(px));
         mask.put_pixel(l.x, l.y, image::Luma([l.material + 1]));
