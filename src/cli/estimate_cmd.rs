@@ -24,8 +24,7 @@ use brdfd_core::render::{render_anisotropic, render_bivariate, render_merl};
 use brdfd_core::select::SwapParams;
 use brdfd_core::solve::{ColourChoice, Solver};
 use brdfd_report::html::Context as ReportContext;
-use brdfd_report::materials::{commoner, folder, painted, write_parts};
-use brdfd_report::results::write_results;
+use brdfd_report::materials::{commoner, folder, painted, write_all};
 use brdfd_report::visibility::Visibility;
 
 use super::GeometryArgs;
@@ -260,7 +259,6 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         photo: &photo,
     };
     let found = estimate_materials(&basis, &[view], &options, &Shared::default())?;
-    let est = found.whole;
     let method_name = match method_arg {
         MethodArg::Fast => "fast",
         MethodArg::Paper => "paper",
@@ -283,27 +281,8 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         ],
         ..ReportContext::default()
     };
-    // Each material's results first, in their folders; then the whole part's beside them,
-    // which record the split. A split an earlier estimate into this folder wrote is not this
-    // one's.
-    brdfd_report::materials::remove_stale(&a.out)?;
-    let parts = match (&found.split, found.departure) {
-        (Some(split), Some(departure)) => Some(write_parts(
-            &a.out,
-            &basis,
-            split,
-            departure,
-            method_name,
-            &lights,
-            &cx,
-        )?),
-        _ => None,
-    };
-    let cx = ReportContext {
-        materials: parts.as_ref(),
-        ..cx
-    };
-    let files = write_results(&a.out, &basis, &est, method_name, &lights, &cx)?;
+    let (files, parts) = write_all(&a.out, &basis, &found, method_name, &lights, cx)?;
+    let est = &found.whole;
     if a.verbose {
         print_estimate(&est.names, &est.solution.coefficients);
     }
@@ -324,7 +303,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
             .as_ref()
             .zip(found.split.as_ref().map(|s| s.parts.as_slice())),
     };
-    let lines = brdfd_report::summary::lines("the estimate", &est, &extras);
+    let lines = brdfd_report::summary::lines("the estimate", est, &extras);
     if lines[0].contains("do not trust") {
         eprintln!("warning: {}", lines[0]);
         println!("{}", lines[1..].join("\n"));

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use brdfd_core::basis::Basis;
 use brdfd_core::envmap::LightSet;
 use brdfd_core::error::{CoreError, Result};
-use brdfd_core::materials::{Split, UNSEEN};
+use brdfd_core::materials::{Materials, Split, UNSEEN};
 use brdfd_core::raster::Raster;
 
 use crate::export::GltfMaterial;
@@ -71,6 +71,33 @@ impl Parts {
             .map(|(k, f)| (format!("brdfd_material_{}", k + 1), &f.exports.material))
             .collect()
     }
+}
+
+/// Every result of an estimate that may have split its part into materials: each material's
+/// in its own folder first ([`write_parts`]), then the whole part's beside them
+/// ([`write_results`]), which record the split. What an earlier split wrote in `dir` is
+/// removed first ([`remove_stale`]).
+pub fn write_all(
+    dir: &Path,
+    basis: &Basis,
+    found: &Materials,
+    method: &str,
+    lights: &LightSet,
+    cx: Context,
+) -> Result<(ResultFiles, Option<Parts>)> {
+    remove_stale(dir)?;
+    let parts = match (&found.split, found.departure) {
+        (Some(split), Some(departure)) => Some(write_parts(
+            dir, basis, split, departure, method, lights, &cx,
+        )?),
+        _ => None,
+    };
+    let cx = Context {
+        materials: parts.as_ref(),
+        ..cx
+    };
+    let files = write_results(dir, basis, &found.whole, method, lights, &cx)?;
+    Ok((files, parts))
 }
 
 /// A material's folder, beside the whole part's results.
@@ -185,7 +212,13 @@ pub fn write_pictures(
             continue;
         }
         let tint = TINTS[l.material as usize % TINTS.len()];
-        let grey = shown.get_pixel(l.x, l.y).0.iter().map(|v| f32::from(*v)).sum::<f32>() / 3.0;
+        let grey = shown
+            .get_pixel(l.x, l.y)
+            .0
+            .iter()
+            .map(|v| f32::from(*v))
+            .sum::<f32>()
+            / 3.0;
         let px = [0, 1, 2].map(|c| (0.5 * grey + 0.5 * 255.0 * tint[c]).min(255.0) as u8);
         picture.put_pixel(l.x, l.y, image::Rgb(px));
         mask.put_pixel(l.x, l.y, image::Luma([l.material + 1]));

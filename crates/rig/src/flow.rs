@@ -705,18 +705,8 @@ fn write_result(
 )> {
     let fresh = session.dir.join("result.partial");
     let _ = std::fs::remove_dir_all(&fresh);
-    let parts = match (&found.split, found.departure) {
-        (Some(split), Some(departure)) => Some(brdfd_report::materials::write_parts(
-            &fresh, basis, split, departure, "fast", lights, &report,
-        )?),
-        _ => None,
-    };
-    let report = ReportContext {
-        materials: parts.as_ref(),
-        ..report
-    };
-    let files =
-        brdfd_report::results::write_results(&fresh, basis, &found.whole, "fast", lights, &report)?;
+    let (files, parts) =
+        brdfd_report::materials::write_all(&fresh, basis, found, "fast", lights, report)?;
     let result = session.dir.join("result");
     let _ = std::fs::remove_dir_all(&result);
     std::fs::rename(&fresh, &result).context("moving the results into place")?;
