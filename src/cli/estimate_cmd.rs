@@ -455,10 +455,12 @@ fn render_result(
                 m.parts.len()
             );
         }
-        return render_one(p, r, basis, geometry, lights, bounce);
+        return render_one(p, r, &mut LazyBasis::new(basis), geometry, lights, bounce);
     };
     let mut img = Raster::black(geometry.width, geometry.height);
     let dir = p.parent().unwrap_or(std::path::Path::new("."));
+    // Read once for both materials, and only if one needs it.
+    let mut basis = LazyBasis::new(basis);
     // A pixel whose triangle is not found (rarely, at an edge) takes the commoner material.
     let commoner = commoner(&labels, m.parts.len());
     for (k, part) in m.parts.iter().enumerate() {
@@ -488,7 +490,7 @@ fn render_result(
         let path = dir.join(&part.folder).join("coefficients.json");
         let stored = brdfd_report::results::StoredResult::read(&path)
             .with_context(|| format!("material {} of {}", k + 1, p.display()))?;
-        let own = render_one(&path, stored, basis, &mine, lights, bounce)?;
+        let own = render_one(&path, stored, &mut basis, &mine, lights, bounce)?;
         for px in &mine.pixels {
             let (x, y) = (px.x as usize, px.y as usize);
             img.set(x, y, own.get(x, y));
@@ -497,11 +499,30 @@ fn render_result(
     Ok(img)
 }
 
+/// The basis `--basis` names (the embedded one if none), read when first asked for.
+struct LazyBasis<'a> {
+    path: &'a Option<PathBuf>,
+    read: Option<Basis>,
+}
+
+impl<'a> LazyBasis<'a> {
+    fn new(path: &'a Option<PathBuf>) -> LazyBasis<'a> {
+        LazyBasis { path, read: None }
+    }
+
+    fn get(&mut self) -> anyhow::Result<&Basis> {
+        if self.read.is_none() {
+            self.read = Some(load_basis(self.path)?);
+        }
+        Ok(self.read.as_ref().expect("just read"))
+    }
+}
+
 /// The render of one estimate's `coefficients.json` (read as `r`) on `geometry`.
 fn render_one(
     p: &std::path::Path,
     r: brdfd_report::results::StoredResult,
-    basis: &Option<PathBuf>,
+    basis: &mut LazyBasis,
     geometry: &PixelGeometry,
     lights: &LightSet,
     bounce: bool,
@@ -529,7 +550,7 @@ fn render_one(
         }
         return Ok(img);
     }
-    let basis = load_basis(basis)?;
+    let basis = basis.get()?;
     if r.model == "analytic" || r.model == "hybrid" {
         let m: Microfacet = r
             .analytic_model()
