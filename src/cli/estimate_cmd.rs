@@ -575,7 +575,7 @@ fn render_one(
                 basis.header.id
             );
         }
-        let b = HybridFit::rebuild(&m, &mixture, &basis)
+        let b = HybridFit::rebuild(&m, &mixture, basis)
             .map_err(|e| anyhow::anyhow!("{}: field `mixture`: {e}", p.display()))?;
         return Ok(isotropic(render_bivariate(geometry, lights, &b), &b));
     }

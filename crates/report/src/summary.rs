@@ -186,19 +186,7 @@ pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String
             b.fit_without
         ));
     }
-    if estimate.clipped > 0 {
-        out.push(if extras.bracketed {
-            format!(
-                "  {} object pixels were clipped in every frame of their bracket and left out; a shorter exposure would keep them",
-                estimate.clipped
-            )
-        } else {
-            format!(
-                "  {} object pixels were clipped (at or above the white level) and left out",
-                estimate.clipped
-            )
-        });
-    }
+    out.extend(clipped_line(estimate, extras));
     if let Some(e) = extras.export {
         out.push(format!(
             "  material.gltf, material.mtlx: relit {:.3} from the estimate, {} (faithful at most {FAITHFUL}, close at most {CLOSE})",
@@ -309,19 +297,26 @@ fn materials_lines(
     ));
     out.extend(relight);
     out.extend(whole_flags.iter().map(|f| format!("  fair: {}", f.text)));
-    if whole.clipped > 0 {
-        out.push(format!(
-            "  {} object pixels were clipped and left out{}",
-            whole.clipped,
-            if extras.bracketed {
-                " (in every frame of their bracket; a shorter exposure would keep them)"
-            } else {
-                " (at or above the white level)"
-            }
-        ));
-    }
+    out.extend(clipped_line(whole, extras));
     if let Some(r) = extras.report {
         out.push(format!("  report: {}", r.display()));
     }
     out
+}
+
+/// The object pixels left out as clipped, when there are any.
+fn clipped_line(estimate: &Estimate, extras: &Extras) -> Option<String> {
+    (estimate.clipped > 0).then(|| {
+        if extras.bracketed {
+            format!(
+                "  {} object pixels were clipped in every frame of their bracket and left out; a shorter exposure would keep them",
+                estimate.clipped
+            )
+        } else {
+            format!(
+                "  {} object pixels were clipped (at or above the white level) and left out",
+                estimate.clipped
+            )
+        }
+    })
 }
