@@ -72,6 +72,9 @@ BLUE_PLASTIC = {"type": "roughplastic", "distribution": "ggx", "alpha": 0.12, "i
 WARM_PLASTIC = {"type": "roughplastic", "distribution": "ggx", "alpha": 0.1, "int_ior": 1.5,
                 "diffuse_reflectance": {"type": "rgb", "value": [0.6, 0.45, 0.3]}}
 GOLD = {"type": "roughconductor", "material": "Au", "distribution": "ggx", "alpha": 0.2}
+# A Lambertian paint, which brdfd's glTF renderer draws exactly: the grooves' bounced light
+# checks brdfd's bounces against the path tracer's, with nothing of the estimate in it.
+MATTE = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.8, 0.6, 0.4]}}
 COAT_SHEEN = {"type": "principled", "base_color": {"type": "rgb", "value": [0.5, 0.08, 0.06]},
               "roughness": 0.45, "clearcoat": 1.0, "clearcoat_gloss": 0.9, "sheen": 1.0,
               "sheen_tint": 0.0}
@@ -88,6 +91,7 @@ SCENES = {
     "dome-coat-sheen": ("dome", [("red paint, clear coat and sheen", COAT_SHEEN)], []),
     "groove-plastic": ("grooved", [("warm plastic", WARM_PLASTIC)], ["interreflection"]),
     "groove-gold": ("grooved", [("gold", GOLD)], ["interreflection"]),
+    "groove-matte": ("grooved", [("matte paint", MATTE)], ["interreflection"]),
     "brushed-aluminium": ("brushed", [("brushed aluminium", BRUSHED)], ["anisotropy"]),
     "two-tone": ("striped", [("blue plastic", BLUE_PLASTIC), ("gold", GOLD)],
                  ["several materials"]),

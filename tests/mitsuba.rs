@@ -302,13 +302,13 @@ fn the_mitsuba_set_lines_up_and_each_part_is_flagged_for_what_it_breaks() {
     // bounces and all: with its bounce taken out and rendered back, and without.
     let with = relit_grooves.iter().find(|r| r.0).unwrap().1;
     let without = relit_grooves.iter().find(|r| !r.0).unwrap().1;
-    eprintln!("groove-plastic relit under city: {with:.4} with one bounce, {without:.4} without");
-    // Measured 0.087 and 0.175 on these 32-sample photos and truths; on the set at 512
-    // samples, over four maps, 0.079 and 0.185 (docs/evaluation.md).
-    assert!(with <= 0.1, "with one bounce: {with}");
+    eprintln!("groove-plastic relit under city: {with:.4} with its bounces, {without:.4} without");
+    // Measured 0.091 and 0.175 on these 32-sample photos and truths (0.087 with one
+    // bounce); on the set at 512 samples, over four maps, 0.097 and 0.185 (docs/evaluation.md).
+    assert!(with <= 0.1, "with its bounces: {with}");
     assert!(
         1.75 * with <= without,
-        "with one bounce {with}, without {without}"
+        "with its bounces {with}, without {without}"
     );
 }
 
@@ -395,8 +395,109 @@ fn render_estimate(scene: &Path, coefficients: &str, map: &str, bounce: bool) ->
     Raster::read(&scene.join(&out)).unwrap()
 }
 
+/// The light a concave part throws on itself, as brdfd renders it and as Mitsuba's path tracer
+/// does, with nothing of an estimate in it: the grooved part in a Lambertian paint (the set's
+/// `groove-matte`), which glTF's BRDF with no specular is, under the embedded courtyard map.
+/// In the grooves, the light that met the part once or twice (the photo less its direct
+/// light) must agree within 5% per channel, which one bounce alone misses by about a quarter
+/// (at 512 samples under grace, the second bounce was 0.0192 of Mitsuba's 0.0684 in red:
+/// docs/evaluation.md). Measured here (32 samples, courtyard): +1.1%, +0.9% and +0.1%, and
+/// the direct light −1.5%, −1.7% and −2.1%.
+#[test]
+fn the_grooves_bounce_light_as_mitsuba_s_path_tracer_does() {
+    let Some(python) = python() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let maps = dir.path().join("maps");
+    std::fs::create_dir(&maps).unwrap();
+    std::fs::write(
+        maps.join("courtyard.hdr"),
+        brdfd_report::export::maps::reference_map_file("courtyard").unwrap(),
+    )
+    .unwrap();
+    let set = dir.path().join("set");
+    script(&python, "mitsuba-scenes.py", |c| {
+        c.arg("render").args([&maps, &set]);
+        c.args(["--spp", "32", "--photos-only", "groove-matte"]);
+    });
+    let d = set.join("groove-matte");
+    let gltf = serde_json::json!({
+        "asset": { "version": "2.0" },
+        "materials": [{
+            "pbrMetallicRoughness": {
+                "baseColorFactor": [0.8, 0.6, 0.4, 1.0],
+                "metallicFactor": 0.0,
+                "roughnessFactor": 1.0,
+            },
+            "extensions": { "KHR_materials_specular": { "specularFactor": 0.0 } },
+        }],
+    });
+    std::fs::write(d.join("matte.gltf"), gltf.to_string()).unwrap();
+    let render = |out: &str, bounce: bool| {
+        let mut args = vec![
+            "render",
+            "--gltf",
+            "matte.gltf",
+            "--geometry",
+            "geometry.toml",
+            "--env",
+            "../../maps/courtyard.hdr",
+            // A matte paint's light changes slowly over the map: 1,024 lights hold it, at
+            // a seventh of the default's time.
+            "--lights",
+            "1024",
+            "--out",
+            out,
+        ];
+        if !bounce {
+            args.push("--no-bounce");
+        }
+        let o = common::brdfd(&args, &d);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        Raster::read(&d.join(out)).unwrap()
+    };
+    let (ours, ours_direct) = (render("ours.exr", true), render("ours-direct.exr", false));
+    let photo = Raster::read(&d.join("photo.exr")).unwrap();
+    let direct = Raster::read(&d.join("direct-photo.exr")).unwrap();
+    let regions = Raster::read(&d.join("regions.exr")).unwrap();
+    // Sums over the grooves (region 2) of each image's red, green and blue.
+    let grooves = |r: &Raster| {
+        let mut sum = [0f64; 3];
+        let mut count = 0;
+        for (p, g) in r.pixels.iter().zip(&regions.pixels) {
+            if (g[0] - 2.0).abs() < 1e-3 {
+                count += 1;
+                for c in 0..3 {
+                    sum[c] += p[c] as f64;
+                }
+            }
+        }
+        assert!(count > 5000, "{count} pixels in the grooves");
+        sum
+    };
+    let (a, b) = (grooves(&ours), grooves(&ours_direct));
+    let (c, e) = (grooves(&photo), grooves(&direct));
+    for k in 0..3 {
+        let (bounced, theirs) = (a[k] - b[k], c[k] - e[k]);
+        let direct_off = b[k] / e[k] - 1.0;
+        eprintln!(
+            "channel {k}: bounced light {bounced:.1} against Mitsuba's {theirs:.1} ({:+.1}%); direct light {:+.1}%",
+            100.0 * (bounced / theirs - 1.0),
+            100.0 * direct_off
+        );
+        assert!(
+            (bounced / theirs - 1.0).abs() < 0.05,
+            "channel {k}: the grooves' bounced light {bounced} against Mitsuba's {theirs}"
+        );
+        // The direct light must agree too, or the bounces are compared on a wrong footing.
+        assert!(
+            direct_off.abs() < 0.03,
+            "channel {k}: direct light off by {direct_off}"
+        );
+    }
+}
+
 /// The estimate in `estimate` (a folder of `scene`) relit by `brdfd render` under the
-/// embedded city map, with one bounce or without, against Mitsuba's truth there
+/// embedded city map, with its bounces or without, against Mitsuba's truth there
 /// ([`block_rmse`], as the set's score measures it).
 fn relit_against_truth(scene: &Path, estimate: &str, bounce: bool) -> f64 {
     let ours = render_estimate(

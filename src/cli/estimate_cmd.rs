@@ -104,7 +104,7 @@ pub struct EstimateArgs {
     #[arg(long, short)]
     pub verbose: bool,
     /// Fit the photo as if every pixel saw only the room: leave in the light a concave mesh
-    /// throws on itself, which is otherwise taken out before the fit (one bounce).
+    /// throws on itself, which is otherwise taken out before the fit (up to two bounces).
     #[arg(long)]
     pub no_bounce: bool,
     /// Fit one BRDF to the whole part, even where its colour departs from place to place:
@@ -374,7 +374,7 @@ pub struct RenderArgs {
     /// Output image: .exr (linear) or .png (tone-mapped sRGB).
     #[arg(short, long)]
     pub out: PathBuf,
-    /// Leave out the light a concave mesh throws on itself (one bounce, added by default):
+    /// Leave out the light a concave mesh throws on itself (up to two bounces, added by default):
     /// direct light only.
     #[arg(long)]
     pub no_bounce: bool,

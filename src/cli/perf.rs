@@ -533,7 +533,7 @@ fn occlusion_bench(runs: usize) -> anyhow::Result<()> {
         g.pixels.truncate(50_000);
         Ok(g)
     };
-    // The part's photo with the light its grooves throw on each other (one bounce).
+    // The part's photo with the light its grooves throw on each other (two bounces).
     let seen = part()?;
     let mut photo_part = brdfd_core::render::render_bivariate(&seen, &lights, &gold);
     use brdfd_core::brdf::IsotropicBrdf;
@@ -563,7 +563,7 @@ fn occlusion_bench(runs: usize) -> anyhow::Result<()> {
     let est_direct = median_secs(runs.min(3), || run(&part(), &photo_part, false));
     let est_sphere = median_secs(runs.min(3), || run(&sphere, &photo_sphere, true));
     println!(
-        "  estimate (default model): {est_part:.2} s on the part with one bounce, {est_direct:.2} s without (ratio {:.2}); {est_sphere:.2} s on the sphere: ratio {:.2} to the part's with one bounce",
+        "  estimate (default model): {est_part:.2} s on the part with its bounces, {est_direct:.2} s without (ratio {:.2}); {est_sphere:.2} s on the sphere: ratio {:.2} to the part's with its bounces",
         est_part / est_direct,
         est_part / est_sphere
     );

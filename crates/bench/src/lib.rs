@@ -138,9 +138,11 @@ impl VirtualBench {
     }
 
     /// The linear radiance the object camera records (before any camera response): a
-    /// concave mesh with the light it throws on itself (one bounce, [`brdfd_core::bounce`]).
+    /// concave mesh with the light it throws on itself (two bounces, [`brdfd_core::bounce`]).
     pub fn photo(&self) -> Result<Raster> {
-        self.cached("photo with one bounce", self.yaw, &self.geometry, || {
+        // The label is part of the render cache's key: photos cached with one bounce are
+        // not these.
+        self.cached("photo with two bounces", self.yaw, &self.geometry, || {
             let lights: LightSet = self.env.compressed(PHOTO_LIGHTS, self.yaw);
             let pixels = self.pixels()?;
             let mut photo = render_merl_until(&pixels, &lights, &self.material, &self.stop)?;

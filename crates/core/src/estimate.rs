@@ -108,7 +108,7 @@ pub struct EstimateOptions {
     /// evaluation, which scores the BRDF alone and runs hundreds.
     pub checks: bool,
     /// Whether the light a concave mesh throws on itself is taken out of the photo before the
-    /// fit, which is then made again ([`crate::bounce`], one bounce); off, every pixel is
+    /// fit, which is then made again, twice ([`crate::bounce`], up to two bounces); off, every pixel is
     /// fitted as if it saw only the room.
     pub bounce: bool,
     /// Whether [`crate::materials::estimate_materials`] may split a part whose photo's colour
@@ -216,14 +216,15 @@ pub struct Estimate {
     pub bounce: Option<BounceFit>,
 }
 
-/// What one bounce ([`crate::bounce`]) took out of the photo before the fit.
+/// What the bounces ([`crate::bounce`]) took out of the photo before the fit.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct BounceFit {
-    /// Hidden directions followed from the candidates, and the cells they ended in.
+    /// Hidden directions followed from the candidates, and the cells they ended in, with
+    /// those the cells' own hidden directions end in.
     pub directions: usize,
     pub cells: usize,
     /// The share of all the light the candidates measured (sum over pixels and channels)
-    /// that was taken out as bounced.
+    /// that was taken out as bounced before the final fit.
     pub share: f64,
     /// Candidates that receive any bounced light.
     pub pixels: usize,
@@ -801,16 +802,18 @@ pub fn estimate_views_shared(
     Ok(estimate)
 }
 
-/// Fits the model again to the photo less the light the part throws on itself. That light is
-/// lit through the first fit, made to the whole photo, which took the bounce for the
-/// material's own and came out too bright by about the bounce's share of the light: the
-/// bounce it gives is scaled down by that share, per channel, a first-order correction that
-/// measured as close as a second round of the fit on brdfd's Mitsuba set (groove-gold 0.102
-/// both, groove-plastic 0.079 against 0.078) for half the time. The candidates keep the
-/// photo less that bounce, so that the checks after it judge what the model is asked to fit;
-/// what is needed to put the photo and the bounce back ([`put_back_bounce`]) is returned.
-/// `None` when no view is of a concave mesh, or the first fit lights it with a value that is
-/// not a number.
+/// Fits the model again to the photo less the light the part throws on itself, in two
+/// rounds. The first fit, made to the whole photo, took the bounce for the material's own and
+/// came out too bright by about the bounce's share of the light: the bounce lit through it is
+/// scaled down by that share, per channel, a first-order correction, and the model fitted to
+/// the photo less it. The second round lights the bounce through that fit, made to direct
+/// light, and fits again to the photo less it. On brdfd's Mitsuba set the second round took
+/// groove-gold from 0.070 to 0.058 and groove-plastic from 0.108 to 0.097
+/// (docs/evaluation.md). The candidates keep the photo less the last bounce, so that the
+/// checks after it judge what the model is asked to fit; what is needed to put the photo and
+/// the bounce back ([`put_back_bounce`]) is returned: that bounce, the one the final fit was
+/// made against. `None` when no view is of a concave mesh, or the first fit lights it with a
+/// value that is not a number.
 fn bounce_refit(
     basis: &Basis,
     candidates: &mut [Candidates],
@@ -833,56 +836,66 @@ fn bounce_refit(
         .collect();
     let sum = |v: &[[f64; 3]], k: usize| v.iter().map(|x| x[k]).sum::<f64>();
     let brdf = &estimate.brdf;
-    let mut taken = lit(candidates, &paths, tangent_frame, |wi, wo| {
+    let mut bounce = lit(candidates, &paths, tangent_frame, |wi, wo| {
         brdf.eval_dirs(wi, wo)
     });
-    if !taken.iter().flatten().all(|v| v.is_finite()) {
+    if !bounce.iter().flatten().all(|v| v.is_finite()) {
         tracing::warn!("the first fit lights the part's bounce with a value that is not a number: fitted without the bounce");
         return Ok(None);
     }
     let share: [f64; 3] =
-        std::array::from_fn(|k| (sum(&taken, k) / sum(&photo, k).max(f64::MIN_POSITIVE)).min(1.0));
-    for b in &mut taken {
+        std::array::from_fn(|k| (sum(&bounce, k) / sum(&photo, k).max(f64::MIN_POSITIVE)).min(1.0));
+    for b in &mut bounce {
         for k in 0..3 {
             b[k] *= 1.0 - share[k];
         }
     }
-    let mut b = taken.iter().zip(&photo);
-    for c in candidates.iter_mut() {
-        for o in c.observed.iter_mut() {
-            let (b, y) = b.next().expect("a bounce per candidate");
-            *o = std::array::from_fn(|k| (y[k] - b[k]).max(0.0));
-        }
-    }
     let fit_without = estimate.fit_error;
-    let lit_first = t.elapsed();
-    *estimate = model_estimate(basis, candidates, options, shared)?;
-    let refitted = t.elapsed();
-    options.stop.check()?;
-    let brdf = &estimate.brdf;
-    let rendered = lit(candidates, &paths, tangent_frame, |wi, wo| {
-        brdf.eval_dirs(wi, wo)
-    });
+    let mut rounds = Vec::with_capacity(2);
+    for round in 0..2 {
+        if round > 0 {
+            let brdf = &estimate.brdf;
+            let next = lit(candidates, &paths, tangent_frame, |wi, wo| {
+                brdf.eval_dirs(wi, wo)
+            });
+            if !next.iter().flatten().all(|v| v.is_finite()) {
+                // The first round's fit stands, made against a bounce that was a number.
+                tracing::warn!("the first round's fit lights the part's bounce with a value that is not a number: kept the first round");
+                break;
+            }
+            bounce = next;
+        }
+        let lit_at = t.elapsed();
+        let mut b = bounce.iter().zip(&photo);
+        for c in candidates.iter_mut() {
+            for o in c.observed.iter_mut() {
+                let (b, y) = b.next().expect("a bounce per candidate");
+                *o = std::array::from_fn(|k| (y[k] - b[k]).max(0.0));
+            }
+        }
+        *estimate = model_estimate(basis, candidates, options, shared)?;
+        options.stop.check()?;
+        rounds.push((lit_at, t.elapsed()));
+    }
     let total: f64 = (0..3).map(|k| sum(&photo, k)).sum();
     estimate.bounce = Some(BounceFit {
         directions: paths.iter().flatten().map(Paths::len).sum(),
         cells: paths.iter().flatten().map(Paths::cells).sum(),
-        share: (0..3).map(|k| sum(&taken, k)).sum::<f64>() / total.max(f64::MIN_POSITIVE),
-        pixels: taken.iter().filter(|b| b.iter().any(|&v| v > 0.0)).count(),
+        share: (0..3).map(|k| sum(&bounce, k)).sum::<f64>() / total.max(f64::MIN_POSITIVE),
+        pixels: bounce.iter().filter(|b| b.iter().any(|&v| v > 0.0)).count(),
         fit_without,
     });
     tracing::debug!(
-        "one bounce: paths followed in {:.2} s, lit in {:.2} s, refitted in {:.2} s, lit again in {:.2} s",
+        "bounce: paths followed in {:.2} s; lit in {:.2} s and refitted in {:.2} s, twice",
         followed.as_secs_f64(),
-        (lit_first - followed).as_secs_f64(),
-        (refitted - lit_first).as_secs_f64(),
-        (t.elapsed() - refitted).as_secs_f64()
+        (rounds[0].0 - followed + rounds[1].0 - rounds[0].1).as_secs_f64(),
+        (rounds[0].1 - rounds[0].0 + rounds[1].1 - rounds[1].0).as_secs_f64(),
     );
-    let whole_fit = whole_photo_fit(&estimate.rerender, &photo, &rendered);
+    let whole_fit = whole_photo_fit(&estimate.rerender, &photo, &bounce);
     Ok(Some(Bounced {
         paths,
         photo,
-        rendered,
+        rendered: bounce,
         whole_fit,
     }))
 }
@@ -906,7 +919,8 @@ fn lit(
 }
 
 /// What [`bounce_refit`] leaves to put back: each view's paths, the photo as measured and the
-/// bounce lit through the new fit, per candidate in order, and that fit against the photo.
+/// bounce the final fit was made against (lit through the fit before it), per candidate in
+/// order, and the final fit with that bounce against the photo.
 struct Bounced {
     paths: Vec<Option<Paths>>,
     photo: Vec<[f64; 3]>,
@@ -927,10 +941,11 @@ fn whole_photo_fit(rerender: &[Rerendered], photo: &[[f64; 3]], bounce: &[[f64; 
     relative_misfit(&predicted, photo)
 }
 
-/// The bounce put back into the estimate's re-render: the photo as measured, and what the
-/// estimate renders with its own bounce (lit through the anisotropic lobe when it chose one,
-/// as `brdfd render` lights it). The fit is then measured against the whole photo, as without
-/// a bounce.
+/// The bounce put back into the estimate's re-render: the photo as measured, and the
+/// estimate's render with the bounce its fit was made against (lit through the round before
+/// it, which the final fit moved little), or, when it chose an anisotropic lobe, lit through
+/// that lobe, as `brdfd render` lights it. The fit is then measured against the whole photo,
+/// as without a bounce.
 fn put_back_bounce(estimate: &mut Estimate, candidates: &[Candidates], bounced: &Bounced) {
     let lobe_bounce;
     let rendered = match estimate.chosen_lobe() {

@@ -172,8 +172,8 @@ const MIN_HALF: usize = 4;
 /// brighter against the estimate: the bounce light grows with the part a face sees of
 /// itself. Comparing faces turned the same way keeps out a misfit that depends on the way a
 /// face turns (a groove's walls face other parts of the map than the top does).
-/// With `bounce_taken_out`, the estimate rendered one bounce back ([`brdfd_core::bounce`]):
-/// what is left is more light than one bounce carries.
+/// With `bounce_taken_out`, the estimate rendered its bounces back ([`brdfd_core::bounce`]):
+/// what is left is more light than two bounces carry.
 fn interreflection(
     rerender: &[Rerendered],
     visibility: &Visibility,
@@ -242,7 +242,7 @@ fn interreflection(
             100.0 * (figure - 1.0),
             100.0 * (BRIGHTER - 1.0),
             if bounce_taken_out {
-                "the part seems to light itself more than the one bounce the estimate takes out, and the estimate takes the rest for the material's own"
+                "the part seems to light itself more than the two bounces the estimate takes out, and the estimate takes the rest for the material's own"
             } else {
                 "the part seems to light itself, and the estimate, fitted with that light left in (--no-bounce), takes it for the material's own"
             }

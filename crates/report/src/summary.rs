@@ -180,7 +180,7 @@ pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String
     );
     if let Some(b) = &estimate.bounce {
         out.push(format!(
-            "  the part lights itself: {:.1}% of the light its pixels measured is light its own surface threw on them (one bounce through the estimate, on {} pixels), taken out before the fit; fitted with it left in, the fit was {:.4} (--no-bounce)",
+            "  the part lights itself: {:.1}% of the light its pixels measured is light its own surface threw on them (up to two bounces through the estimate, on {} pixels), taken out before the fit; fitted with it left in, the fit was {:.4} (--no-bounce)",
             100.0 * b.share,
             b.pixels,
             b.fit_without
