@@ -851,7 +851,8 @@ fn bounce_refit(
         }
     }
     let fit_without = estimate.fit_error;
-    let mut rounds = Vec::with_capacity(2);
+    // Time spent lighting the bounce and fitting again, over the rounds.
+    let (mut lighting, mut fitting, mut mark) = (Duration::ZERO, Duration::ZERO, followed);
     for round in 0..2 {
         if round > 0 {
             let brdf = &estimate.brdf;
@@ -875,7 +876,9 @@ fn bounce_refit(
         }
         *estimate = model_estimate(basis, candidates, options, shared)?;
         options.stop.check()?;
-        rounds.push((lit_at, t.elapsed()));
+        lighting += lit_at - mark;
+        mark = t.elapsed();
+        fitting += mark - lit_at;
     }
     let total: f64 = (0..3).map(|k| sum(&photo, k)).sum();
     estimate.bounce = Some(BounceFit {
@@ -886,10 +889,10 @@ fn bounce_refit(
         fit_without,
     });
     tracing::debug!(
-        "bounce: paths followed in {:.2} s; lit in {:.2} s and refitted in {:.2} s, twice",
+        "bounce: paths followed in {:.2} s; lit in {:.2} s and refitted in {:.2} s over the rounds",
         followed.as_secs_f64(),
-        (rounds[0].0 - followed + rounds[1].0 - rounds[0].1).as_secs_f64(),
-        (rounds[0].1 - rounds[0].0 + rounds[1].1 - rounds[1].0).as_secs_f64(),
+        lighting.as_secs_f64(),
+        fitting.as_secs_f64(),
     );
     let whole_fit = whole_photo_fit(&estimate.rerender, &photo, &bounce);
     Ok(Some(Bounced {
