@@ -164,14 +164,13 @@ impl Paths {
         // Cells in the pixels' order, so that the same pixels make the same cells.
         let mut index = CellIndex::new(surface.diagonal / CELLS_ACROSS);
         let (ranges, steps) = index.steps(&met);
-        let first = index.points();
         // The second bounce: the first cells' own hidden directions. The cells these alone
         // meet are placed by their own points; the first cells keep where the pixels' paths
         // put them.
-        let firsts = Occluder::new(surface.bvh(), first.clone());
+        let firsts = Occluder::new(surface.bvh(), index.cells_and_points().1);
         let cell_gather = cell_gather_lights();
         let table = firsts.table(cell_gather);
-        let met: Vec<Vec<(u16, Met)>> = (0..first.len())
+        let met: Vec<Vec<(u16, Met)>> = (0..firsts.points().len())
             .into_par_iter()
             .map(|c| {
                 if stop.requested() {
@@ -180,7 +179,7 @@ impl Paths {
                 hidden(
                     &surface,
                     cell_gather,
-                    &first[c],
+                    &firsts.points()[c],
                     table.row(&firsts, c as u32),
                 )
             })
@@ -195,7 +194,7 @@ impl Paths {
             cells,
             cell_ranges,
             cell_steps,
-            cell_occluder: Occluder::new(surface.bvh(), points),
+            cell_occluder: firsts.with_points(points),
         }))
     }
 
@@ -273,14 +272,14 @@ impl Paths {
             Bounces::Two => {
                 let cell_gather = cell_gather_lights();
                 let omega = 4.0 * std::f64::consts::PI / CELL_GATHER as f64;
-                let mut twice: Vec<Grid> = self
+                let again: Vec<Option<Grid>> = self
                     .cell_ranges
                     .par_iter()
                     .enumerate()
                     .map(|(c, range)| {
                         let steps = &self.cell_steps[range.start as usize..range.end as usize];
                         if steps.is_empty() {
-                            return once[c].clone();
+                            return None;
                         }
                         let n = self.cells[c].normal;
                         let (t, b) = frame(n);
@@ -289,13 +288,16 @@ impl Paths {
                             let (d, l) = self.along(step, cell_gather, &once, &frame);
                             (local(d), l.map(|x| x * omega))
                         });
-                        // Light adds: the room's part is the first lighting's.
-                        let mut grid = Grid::lit(&merged(bounced), &eval);
-                        grid.add(&once[c]);
-                        grid
+                        Some(Grid::lit(&merged(bounced), &eval))
                     })
                     .collect();
-                twice.extend_from_slice(&once[self.cell_ranges.len()..]);
+                // Light adds: the room's part is the first lighting's.
+                let mut twice = once;
+                for (grid, more) in twice.iter_mut().zip(again) {
+                    if let Some(more) = more {
+                        grid.add(&more);
+                    }
+                }
                 twice
             }
         };
@@ -463,11 +465,8 @@ impl CellIndex {
         self.closed = self.sums.len();
     }
 
-    /// Each cell's point: its mean, lifted off the surface along its mean normal.
-    fn points(&self) -> Vec<Point> {
-        self.cells_and_points().1
-    }
-
+    /// Each cell's normal, and its point: its mean, lifted off the surface along its mean
+    /// normal.
     fn cells_and_points(&self) -> (Vec<Cell>, Vec<Point>) {
         self.sums
             .iter()
@@ -559,7 +558,6 @@ fn facing(n: Vec3) -> u8 {
 
 /// A cell's outgoing radiance on a grid of directions in its frame: rows of equal 1 − cos θ
 /// (node i at (i + ½)/[`THETA_STEPS`]), columns of azimuth.
-#[derive(Clone)]
 struct Grid {
     values: Vec<[f64; 3]>,
 }

@@ -232,6 +232,20 @@ impl Occluder {
         [0, 1, 2].map(|i| (o[i] as f64 - self.centre[i]) as f32)
     }
 
+    /// The same mesh's occluder for other `points`: its boxes and their layers as they are
+    /// (laying them out again costs a pass over the whole tree), and no tables yet.
+    pub fn with_points(&self, points: Vec<Point>) -> Occluder {
+        Occluder {
+            nodes: self.nodes.clone(),
+            tris: self.tris.clone(),
+            points,
+            centre: self.centre,
+            slack: self.slack,
+            tables: Mutex::new(Vec::new()),
+            surface: self.surface.clone(),
+        }
+    }
+
     /// The occluder of `surface`'s mesh for `points`, which keeps the surface for the light
     /// it throws on itself.
     pub fn of_surface(surface: Arc<Surface>, points: Vec<Point>) -> Occluder {
