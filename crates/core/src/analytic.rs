@@ -23,7 +23,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::bivariate::{Bivariate, Grid, PhiReduction, GRID_CELLS, N_THETA_D, N_THETA_H, VALUES};
-use super::brdf::{from_rusinkiewicz, IsotropicBrdf};
+use super::brdf::{add, dot, from_rusinkiewicz, normalize, IsotropicBrdf};
 use super::envmap::LightSet;
 use super::error::{CoreError, Result};
 use super::geometry::GeomPixel;
@@ -138,16 +138,41 @@ impl IsotropicBrdf for Microfacet {
         if wi[2] <= 0.0 || wo[2] <= 0.0 {
             return [0.0; 3];
         }
-        let w = schlick_weight(theta_d.cos());
+        self.eval_cosines(theta_h.cos(), theta_d.cos(), wi[2], wo[2])
+    }
+
+    /// From the halfway vector, without the angles: a renderer asks for directions, and
+    /// going through Rusinkiewicz's angles (two arctangents, an arccosine and a sine and
+    /// cosine back) cost three times the lobe itself.
+    fn eval_dirs(&self, wi: [f64; 3], wo: [f64; 3]) -> [f64; 3] {
+        if wi[2] <= 0.0 || wo[2] <= 0.0 {
+            return [0.0; 3];
+        }
+        let h = normalize(add(wi, wo));
+        self.eval_cosines(h[2], dot(wi, h), wi[2], wo[2])
+    }
+}
+
+impl Microfacet {
+    /// The value at cos θh and cos θd, with the directions' cosines to the normal
+    /// (both positive).
+    fn eval_cosines(&self, cos_h: f64, cos_d: f64, cos_i: f64, cos_o: f64) -> [f64; 3] {
+        let w = schlick_weight(cos_d);
         let mut out = self.diffuse.map(|kd| kd / std::f64::consts::PI);
         for l in &self.lobes {
-            let lobe = ggx_d(theta_h.cos(), l.alpha) * visibility(wi[2], wo[2], l.alpha);
+            let lobe = ggx_lobe(cos_h, cos_i, cos_o, l.alpha);
             for c in 0..3 {
                 out[c] += lobe * (l.f0[c] * (1.0 - w) + l.f90[c] * w);
             }
         }
         out
     }
+}
+
+/// One GGX lobe without its Fresnel, D · G₂ / (4 cos θi cos θo), at cos θh and the
+/// directions' cosines to the normal (both positive).
+pub fn ggx_lobe(cos_h: f64, cos_i: f64, cos_o: f64, alpha: f64) -> f64 {
+    ggx_d(cos_h, alpha) * visibility(cos_i, cos_o, alpha)
 }
 
 /// The (cos θi, cos θo) of every φd sample of every grid cell that is above both horizons,

@@ -10,7 +10,7 @@
 
 use base64::Engine as _;
 
-use brdfd_core::analytic::{coat_fresnel, schlick_weight, Microfacet};
+use brdfd_core::analytic::{coat_fresnel, ggx_lobe, schlick_weight, Microfacet};
 use brdfd_core::anisotropic::{frame_at, AnisotropicLobe};
 use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::brdf::{add, cross, dot, from_rusinkiewicz, normalize, IsotropicBrdf};
@@ -699,16 +699,21 @@ pub struct GltfBrdf(pub GltfMaterial);
 
 impl IsotropicBrdf for GltfBrdf {
     fn eval_angles(&self, theta_h: f64, theta_d: f64, phi_d: f64) -> [f64; 3] {
-        let m = &self.0;
         let (wi, wo) = from_rusinkiewicz(theta_h, theta_d, phi_d);
         if wi[2] <= 0.0 || wo[2] <= 0.0 {
             return [0.0; 3];
         }
-        let alpha = m.roughness * m.roughness;
-        let specular = Microfacet::one_lobe([0.0; 3], [1.0; 3], [1.0; 3], alpha)
-            .eval_angles(theta_h, theta_d, phi_d)[0];
-        let coat_lobe = self.coat_lobe(|lobe| lobe.eval_angles(theta_h, theta_d, phi_d)[0]);
-        self.combine(specular, schlick_weight(theta_d.cos()), coat_lobe, wo[2])
+        self.eval_cosines(theta_h.cos(), theta_d.cos(), wi[2], wo[2])
+    }
+
+    /// From the halfway vector, without the angles (`brdfd render --gltf` asks for
+    /// directions; [`Microfacet`]'s `eval_dirs` says why).
+    fn eval_dirs(&self, wi: [f64; 3], wo: [f64; 3]) -> [f64; 3] {
+        if wi[2] <= 0.0 || wo[2] <= 0.0 {
+            return [0.0; 3];
+        }
+        let h = normalize(add(wi, wo));
+        self.eval_cosines(h[2], dot(wi, h), wi[2], wo[2])
     }
 }
 
@@ -734,16 +739,25 @@ impl GltfBrdf {
         };
         let specular = lobe.eval_local(wi, wo)[0];
         let h = normalize(add(wi, wo));
-        let coat_lobe = self.coat_lobe(|lobe| lobe.eval_dirs(wi, wo)[0]);
+        let coat_lobe = self.coat_lobe(h[2], wi[2], wo[2]);
         self.combine(specular, schlick_weight(dot(wi, h)), coat_lobe, wo[2])
     }
 
-    /// The coat's lobe (no Fresnel of its own) as `eval` reads it; 0 without a coat.
-    fn coat_lobe(&self, eval: impl Fn(&Microfacet) -> f64) -> f64 {
+    /// The isotropic BRDF at cos θh and cos θd, with the directions' cosines to the normal
+    /// (both positive).
+    fn eval_cosines(&self, cos_h: f64, cos_d: f64, cos_i: f64, cos_o: f64) -> [f64; 3] {
+        let alpha = self.0.roughness * self.0.roughness;
+        let specular = ggx_lobe(cos_h, cos_i, cos_o, alpha);
+        let coat_lobe = self.coat_lobe(cos_h, cos_i, cos_o);
+        self.combine(specular, schlick_weight(cos_d), coat_lobe, cos_o)
+    }
+
+    /// The coat's lobe (no Fresnel of its own); 0 without a coat.
+    fn coat_lobe(&self, cos_h: f64, cos_i: f64, cos_o: f64) -> f64 {
         let m = &self.0;
         if m.clearcoat > 0.0 {
             let alpha = m.clearcoat_roughness * m.clearcoat_roughness;
-            eval(&Microfacet::one_lobe([0.0; 3], [1.0; 3], [1.0; 3], alpha))
+            ggx_lobe(cos_h, cos_i, cos_o, alpha)
         } else {
             0.0
         }
