@@ -256,7 +256,8 @@ fn coefficients_inside_the_span_are_recovered() {
 /// from all; the joint model, one set for every channel, cannot fit the photo.
 #[test]
 fn per_channel_colour_recovers_what_the_joint_basis_cannot() {
-    use brdfd_core::solve::{channel_coefficients, Colour};
+    use brdfd_core::basis::channel_coefficients;
+    use brdfd_core::solve::Colour;
     let basis = Basis::embedded();
     // A different in-span shape and scale per channel, each ≥ 0 in every cell: a colour the
     // joint basis's RGB patterns cannot mix.

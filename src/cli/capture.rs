@@ -490,7 +490,7 @@ fn export_flat(session: &Session, out: &Path) -> anyhow::Result<()> {
         let e = e?;
         // A part split into materials has each one's results in a folder of its own.
         if e.file_type()?.is_dir() {
-            super::session_cmd::copy_dir(&e.path(), &out.join(e.file_name()))?;
+            super::copy_dir(&e.path(), &out.join(e.file_name()))?;
             results.push(format!("{}/", e.file_name().to_string_lossy()));
         } else {
             copy(e.path(), out.join(e.file_name()))?;

@@ -111,7 +111,7 @@ pub fn run(a: SessionArgs) -> anyhow::Result<()> {
                 eprintln!("note: session {id} is {}, not done", s.manifest().state);
             }
             let dest = to.join(&id);
-            copy_dir(&s.dir, &dest)?;
+            super::copy_dir(&s.dir, &dest)?;
             println!("{} ({n} raw files verified)", dest.display());
         }
     }
@@ -323,25 +323,6 @@ fn cancel(state: &Path, id: &str, daemon: &super::capture::DaemonArgs) -> anyhow
         Some("cancelled by `brdfd session cancel`; what was captured is kept".into()),
     )?;
     println!("session {id} recorded as interrupted: `brdfd session resume {id}` continues it");
-    Ok(())
-}
-
-pub(super) fn copy_dir(from: &Path, to: &Path) -> anyhow::Result<()> {
-    std::fs::create_dir_all(to).with_context(|| format!("creating {}", to.display()))?;
-    for e in std::fs::read_dir(from)? {
-        let e = e?;
-        let name = e.file_name();
-        // Temporary files of an interrupted write are not part of the session.
-        if name.to_string_lossy().starts_with('.') {
-            continue;
-        }
-        let (src, dst) = (e.path(), to.join(&name));
-        if e.file_type()?.is_dir() {
-            copy_dir(&src, &dst)?;
-        } else {
-            std::fs::copy(&src, &dst).with_context(|| format!("copying {}", src.display()))?;
-        }
-    }
     Ok(())
 }
 

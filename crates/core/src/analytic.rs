@@ -465,7 +465,7 @@ fn lobe_columns(lobes: &[usize]) -> Vec<usize> {
 }
 
 fn search_subset(n: usize, views: usize) -> Vec<usize> {
-    super::estimate::spread(n, (SEARCH_PIXELS / views.max(1)).max(1))
+    super::select::spread(n, (SEARCH_PIXELS / views.max(1)).max(1))
 }
 
 /// The normal equations of `rows` rows of m unknowns: G = XᵀX, b = Xᵀy and yᵀy. `row(r, x)`

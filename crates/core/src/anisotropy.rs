@@ -283,7 +283,7 @@ impl Fit {
             // A fit of the merged lights alone (`fine_below` 0) reads none of the estimate's.
             let seen_fine = (fine_below > 0.0).then(|| Seen::new(v.pixels, v.lights));
             let seen_coarse = Seen::new(v.pixels, &coarse);
-            let pick = super::estimate::spread(v.pixels.len(), share);
+            let pick = super::select::spread(v.pixels.len(), share);
             let picked: Vec<Sample> = pick
                 .par_iter()
                 .filter_map(|&i| {

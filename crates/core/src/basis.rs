@@ -371,11 +371,11 @@ impl Basis {
     }
 
     /// Reconstructs a solution's BRDF, joint or per channel
-    /// ([`channel_coefficients`](super::solve::channel_coefficients)); an error if its length
+    /// ([`channel_coefficients`]); an error if its length
     /// fits neither.
     pub fn reconstruct_solution(&self, coefficients: &[f64]) -> Result<Bivariate> {
         let m = self.model().columns.len();
-        let per_channel = super::solve::channel_coefficients(coefficients, m)?;
+        let per_channel = channel_coefficients(coefficients, m)?;
         Ok(if coefficients.len() == m {
             self.reconstruct(coefficients)
         } else {
@@ -660,4 +660,24 @@ fn layout_text() -> String {
 
 fn atom_layer(material: &str) -> String {
     format!("atom.{material}")
+}
+
+/// Each channel's coefficients from a solution with `m` model columns: the same slice three
+/// times for a joint solution (length m), the channel's third for a per-channel one (3m).
+pub fn channel_coefficients(coefficients: &[f64], m: usize) -> Result<[&[f64]; 3]> {
+    if coefficients.len() == m {
+        Ok([coefficients; 3])
+    } else if coefficients.len() == 3 * m {
+        Ok([
+            &coefficients[..m],
+            &coefficients[m..2 * m],
+            &coefficients[2 * m..],
+        ])
+    } else {
+        Err(CoreError::Invalid(format!(
+            "{} coefficients for a model of {m} columns: expected {m} (joint colour) or {} (per channel)",
+            coefficients.len(),
+            3 * m
+        )))
+    }
 }

@@ -9,6 +9,7 @@ use serde::Serialize;
 use super::analytic::{self, Microfacet, ViewPixels};
 use super::anisotropic::AnisotropicLobe;
 use super::anisotropy::{self, Anisotropy, ViewSamples};
+use super::basis::channel_coefficients;
 use super::basis::{Basis, LinearModel};
 use super::bivariate::Bivariate;
 use super::bounce::Paths;
@@ -20,8 +21,9 @@ use super::hybrid::{self, MixWeight};
 use super::raster::Raster;
 use super::registration::{self, Registration};
 use super::render::{RenderingMatrix, SpherePicture};
+use super::select::spread;
 use super::select::{self, Blocks, Selection, SwapParams};
-use super::solve::{channel_coefficients, Colour, ColourChoice, Solution, Solver};
+use super::solve::{relative_misfit, Colour, ColourChoice, Solution, Solver};
 use super::stop::Stop;
 use super::uncertainty::{self, Uncertainty};
 
@@ -284,14 +286,6 @@ pub(crate) fn keep_better_fit<T>(kept: Option<(T, f64)>, candidate: (T, f64)) ->
         Some(k) if candidate.1 >= k.1 - COLOUR_FIT_MARGIN => Some(k),
         _ => Some(candidate),
     }
-}
-
-/// Spreads `max` picks evenly over `0..n` (deterministic, keeps the image's coverage).
-pub fn spread(n: usize, max: usize) -> Vec<usize> {
-    if n <= max {
-        return (0..n).collect();
-    }
-    (0..max).map(|i| i * n / max).collect()
 }
 
 fn secs(d: Duration) -> f64 {
@@ -1304,18 +1298,6 @@ fn stacked_matrix(
         });
     }
     stacked.ok_or_else(|| CoreError::Invalid("no views to estimate from".into()))
-}
-
-/// ‖predicted − observed‖ / ‖observed‖ over every pixel and channel.
-pub(crate) fn relative_misfit(predicted: &[f64], observed: &[[f64; 3]]) -> f64 {
-    let (mut num, mut den) = (0.0, 0.0);
-    for (p, o) in predicted.chunks_exact(3).zip(observed) {
-        for c in 0..3 {
-            num += (p[c] - o[c]).powi(2);
-            den += o[c] * o[c];
-        }
-    }
-    (num / den.max(f64::MIN_POSITIVE)).sqrt()
 }
 
 /// The warning for basis-model settings given to an estimate that uses another model: the

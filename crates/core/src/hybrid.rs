@@ -29,11 +29,10 @@ use super::basis::Basis;
 use super::bivariate::{Bivariate, Grid, GRID_CELLS, VALUES};
 use super::envmap::LightSet;
 use super::error::{CoreError, Result};
-use super::estimate::relative_misfit;
 use super::geometry::GeomPixel;
 use super::nnls::nnls;
 use super::render::{RenderingMatrix, PASS_COLUMNS};
-use super::solve::CHANNELS;
+use super::solve::{relative_misfit, CHANNELS};
 use super::stop::Stop;
 use super::uncertainty::{band, image_spread, resamples, spread_sphere, std_of, Uncertainty};
 

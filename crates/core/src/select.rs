@@ -735,6 +735,14 @@ pub fn random_pixels(blocks: &Blocks, count: usize, seed: u64) -> Selection {
     }
 }
 
+/// Spreads `max` picks evenly over `0..n` (deterministic, keeps the image's coverage).
+pub fn spread(n: usize, max: usize) -> Vec<usize> {
+    if n <= max {
+        return (0..n).collect();
+    }
+    (0..max).map(|i| i * n / max).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -64,7 +64,7 @@ impl Solver {
 
     /// Solves with the given colour model: [`Colour::Joint`] is [`Solver::solve`];
     /// [`Colour::PerChannel`] solves each channel from its own rows, and the coefficients are
-    /// the three channels' in turn (R, G, B; see [`channel_coefficients`]), each channel's
+    /// the three channels' in turn (R, G, B; see [`channel_coefficients`](super::basis::channel_coefficients)), each channel's
     /// BRDF kept ≥ 0 with `nonnegative` as in [`Solver::solve`].
     pub(crate) fn solve_colour(
         self,
@@ -176,24 +176,16 @@ impl ColourChoice {
     }
 }
 
-/// Each channel's coefficients from a solution with `m` model columns: the same slice three
-/// times for a joint solution (length m), the channel's third for a per-channel one (3m).
-pub fn channel_coefficients(coefficients: &[f64], m: usize) -> Result<[&[f64]; 3]> {
-    if coefficients.len() == m {
-        Ok([coefficients; 3])
-    } else if coefficients.len() == 3 * m {
-        Ok([
-            &coefficients[..m],
-            &coefficients[m..2 * m],
-            &coefficients[2 * m..],
-        ])
-    } else {
-        Err(CoreError::Invalid(format!(
-            "{} coefficients for a model of {m} columns: expected {m} (joint colour) or {} (per channel)",
-            coefficients.len(),
-            3 * m
-        )))
+/// ‖predicted − observed‖ / ‖observed‖ over every pixel and channel.
+pub fn relative_misfit(predicted: &[f64], observed: &[[f64; 3]]) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for (p, o) in predicted.chunks_exact(3).zip(observed) {
+        for c in 0..3 {
+            num += (p[c] - o[c]).powi(2);
+            den += o[c] * o[c];
+        }
     }
+    (num / den.max(f64::MIN_POSITIVE)).sqrt()
 }
 
 #[derive(Clone, Debug)]

@@ -27,6 +27,7 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Poisson};
 
 use crate::{OnProgress, Progress};
+use brdfd_core::basis::channel_coefficients;
 use brdfd_core::basis::{Basis, CellWeight, Normalisation, DEFAULT_K};
 use brdfd_core::bivariate::{Bivariate, Grid, GRID_CELLS};
 use brdfd_core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
@@ -39,7 +40,7 @@ use brdfd_core::merl::MerlBrdf;
 use brdfd_core::nbrdf::NbrdfSet;
 use brdfd_core::raster::Raster;
 use brdfd_core::render::{render_bivariate, render_merl, RenderingMatrix};
-use brdfd_core::solve::{channel_coefficients, ColourChoice, Solver};
+use brdfd_core::solve::{ColourChoice, Solver};
 
 pub const TEST_SET: [&str; 10] = [
     "black-soft-plastic",

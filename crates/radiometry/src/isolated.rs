@@ -19,8 +19,7 @@ use std::time::{Duration, Instant};
 
 use brdfd_core::raster::Raster;
 
-use super::raw::{decode_error, WhiteBalance};
-use super::{Exposure, Frame, RadiometryError};
+use super::{Exposure, Frame, RadiometryError, WhiteBalance};
 
 /// The program that decodes: `<program> decode-raw`.
 static PROGRAM: OnceLock<PathBuf> = OnceLock::new();
@@ -93,7 +92,9 @@ pub fn decode(
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .map_err(|e| decode_error(file, format!("RAW: cannot start the decoder process: {e}")))?;
+        .map_err(|e| {
+            RadiometryError::decode(file, format!("RAW: cannot start the decoder process: {e}"))
+        })?;
     let (mut stdin, mut stdout, mut stderr) = (
         child.stdin.take().expect("piped stdin"),
         child.stdout.take().expect("piped stdout"),
@@ -136,7 +137,7 @@ pub fn decode(
             err.join().expect("the reader does not panic"),
         )
     });
-    let status = status.map_err(|e| decode_error(file, e))?;
+    let status = status.map_err(|e| RadiometryError::decode(file, e))?;
     let first_line = err
         .lines()
         .map(str::trim)
@@ -145,7 +146,7 @@ pub fn decode(
     if status.code() == Some(UNDECODABLE) {
         // The child's own words: `file: reason`, as RadiometryError prints it.
         let reason = first_line.trim_start_matches(&format!("{file}: "));
-        return Err(decode_error(file, reason));
+        return Err(RadiometryError::decode(file, reason));
     }
     if !status.success() {
         // An allocation past the budget aborts: Rust says so on stderr, then SIGABRT.
@@ -162,12 +163,18 @@ pub fn decode(
             };
             format!("RAW: the decoder {how} on this file ({first_line})")
         };
-        return Err(decode_error(file, reason));
+        return Err(RadiometryError::decode(file, reason));
     }
     match frame {
         Ok(Some(frame)) => Ok(frame),
-        Ok(None) => Err(decode_error(file, "RAW: the decoder's answer is cut short")),
-        Err(e) => Err(decode_error(file, format!("RAW: reading the decoder: {e}"))),
+        Ok(None) => Err(RadiometryError::decode(
+            file,
+            "RAW: the decoder's answer is cut short",
+        )),
+        Err(e) => Err(RadiometryError::decode(
+            file,
+            format!("RAW: reading the decoder: {e}"),
+        )),
     }
 }
 

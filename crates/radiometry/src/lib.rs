@@ -27,6 +27,26 @@ pub enum RadiometryError {
     Core(#[from] brdfd_core::CoreError),
 }
 
+impl RadiometryError {
+    /// A file that could not be decoded, and why.
+    pub(crate) fn decode(file: &str, reason: impl std::fmt::Display) -> RadiometryError {
+        RadiometryError::Decode {
+            file: file.into(),
+            reason: reason.to_string(),
+        }
+    }
+}
+
+/// Which white balance a decoded RAW frame carries.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum WhiteBalance {
+    /// The multipliers the camera recorded in the file for the shot.
+    #[default]
+    AsShot,
+    /// Fixed multipliers (red, green, blue) from the rig, for every file alike.
+    Fixed([f32; 3]),
+}
+
 /// Exposure as a camera recorded it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Exposure {

@@ -24,6 +24,9 @@ use rawler::rawimage::{RawImage, RawImageData, RawPhotometricInterpretation};
 use rawler::rawsource::RawSource;
 use rayon::prelude::*;
 
+// Defined at the crate root, where the child-process decoder (`super::isolated`) reads
+// it too without importing this module back.
+pub use super::WhiteBalance;
 use super::{Exposure, Frame, RadiometryError};
 use brdfd_core::raster::Raster;
 
@@ -36,23 +39,6 @@ const RAW_EXTENSIONS: [&str; 9] = [
 pub fn is_raw_name(name: &str) -> bool {
     let ext = name.rsplit_once('.').map_or("", |(_, e)| e);
     RAW_EXTENSIONS.iter().any(|r| r.eq_ignore_ascii_case(ext))
-}
-
-/// Which white balance a decoded RAW frame carries.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub enum WhiteBalance {
-    /// The multipliers the camera recorded in the file for the shot.
-    #[default]
-    AsShot,
-    /// Fixed multipliers (red, green, blue) from the rig, for every file alike.
-    Fixed([f32; 3]),
-}
-
-pub(super) fn decode_error(file: &str, reason: impl std::fmt::Display) -> RadiometryError {
-    RadiometryError::Decode {
-        file: file.into(),
-        reason: reason.to_string(),
-    }
 }
 
 /// Decodes a RAW file to linear camera RGB (see the module's description), with the
@@ -96,7 +82,7 @@ pub fn decode_raw_here(
 fn read_raw(bytes: &[u8], file: &str) -> Result<(RawImage, Exposure), RadiometryError> {
     // The decoder trusts the file's structure (super::tiff says how that fails).
     super::tiff::check(bytes)
-        .map_err(|e| decode_error(file, format!("RAW: the file is damaged: {e}")))?;
+        .map_err(|e| RadiometryError::decode(file, format!("RAW: the file is damaged: {e}")))?;
     let source = RawSource::new_from_slice(bytes);
     let params = RawDecodeParams::default();
     let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
@@ -107,9 +93,9 @@ fn read_raw(bytes: &[u8], file: &str) -> Result<(RawImage, Exposure), Radiometry
     }));
     let (image, metadata) = match read {
         Ok(Ok(read)) => read,
-        Ok(Err(e)) => return Err(decode_error(file, format!("RAW: {e}"))),
+        Ok(Err(e)) => return Err(RadiometryError::decode(file, format!("RAW: {e}"))),
         Err(_) => {
-            return Err(decode_error(
+            return Err(RadiometryError::decode(
                 file,
                 "RAW: the decoder failed on this file (it is damaged or of a kind rawler does not read)",
             ))
@@ -147,7 +133,7 @@ fn as_shot(image: &RawImage, file: &str) -> Result<[f32; 3], RadiometryError> {
     if m.iter().all(|v| v.is_finite() && *v > 0.0) {
         Ok(m)
     } else {
-        Err(decode_error(
+        Err(RadiometryError::decode(
             file,
             format!(
                 "RAW: no usable as-shot white balance in the file ({:?}); set calibration.raw_white_balance in the rig",
@@ -165,7 +151,7 @@ fn develop(image: &RawImage, file: &str) -> Result<Raster, RadiometryError> {
         RawImageData::Float(v) => v.len(),
     };
     if count != w * h * cpp || w < 2 || h < 2 || cpp == 0 {
-        return Err(decode_error(
+        return Err(RadiometryError::decode(
             file,
             format!("RAW: {count} samples for a {w} × {h} image of {cpp} per pixel"),
         ));
@@ -191,14 +177,14 @@ fn develop(image: &RawImage, file: &str) -> Result<Raster, RadiometryError> {
     match &image.photometric {
         RawPhotometricInterpretation::Cfa(config) => {
             if cpp != 1 {
-                return Err(decode_error(
+                return Err(RadiometryError::decode(
                     file,
                     format!("RAW: a colour filter array with {cpp} samples per pixel"),
                 ));
             }
             let cfa = &config.cfa;
             if cfa.unique_colors() != 3 || !cfa.is_rgb() {
-                return Err(decode_error(
+                return Err(RadiometryError::decode(
                     file,
                     "RAW: the sensor's colour filter is not red, green and blue (only RGB sensors are read)",
                 ));
