@@ -11,7 +11,9 @@ use brdfd_core::geometry::Camera;
 use brdfd_pose::board::Board;
 use brdfd_pose::silhouette::Refined;
 use brdfd_pose::{angle_between_deg, pinhole, Calibrated, Focal};
-use brdfd_rig::calibrate_pose::{PhotosFrom, PoseCalibration, PoseReport, PoseRequest};
+use brdfd_rig::calibrate_pose::{
+    Field, PhotosFrom, PoseCalibration, PoseRefused, PoseReport, PoseRequest,
+};
 use brdfd_rig::config::Rig;
 use brdfd_rig::flow::Context;
 use brdfd_rig::{Devices, Progress, KEEP_ALIVE};
@@ -193,7 +195,7 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
         write: !a.dry_run,
         force: a.force,
     };
-    let calibration = PoseCalibration::new(&rig, request)?;
+    let calibration = PoseCalibration::new(&rig, request).map_err(in_flags)?;
     let mut report = Printed;
     let (outcome, out) = if calibration.shoots() {
         let devices = Devices::start(&rig, KEEP_ALIVE)?;
@@ -207,12 +209,17 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
             operator: Arc::new(Terminal),
         };
         let mut folder = Folder(out.clone());
-        let outcome = calibration.run(Some((&cx, &mut folder)), Some(&out), &mut report)?;
+        let outcome = calibration
+            .run(Some((&cx, &mut folder)), Some(&out), &mut report)
+            .map_err(in_flags)?;
         (outcome, Some(out))
     } else {
         // Made by the flow once there is a fit to write into it.
         let out = a.out.clone();
-        (calibration.run(None, out.as_deref(), &mut report)?, out)
+        let outcome = calibration
+            .run(None, out.as_deref(), &mut report)
+            .map_err(in_flags)?;
+        (outcome, out)
     };
     if let Some(out) = &out {
         println!("the fit is in {}", out.join("pose.json").display());
@@ -353,4 +360,26 @@ fn print_found(before: &Camera, c: &Calibrated) {
         angle_between_deg(&e.rotation, &e0.rotation),
         (k.fx / k0.fx - 1.0) * 100.0
     );
+}
+
+/// The flag that sets each field of the flow's request.
+fn flag(field: Field) -> &'static str {
+    match field {
+        Field::SensorWidth => "--sensor-width-mm",
+        Field::Turn => "--turn",
+        Field::Views => "--views",
+        Field::BoardPhotos => "--photo",
+        Field::ObjectPhotos => "--object-photo",
+        Field::EmptyPhotos => "--empty-photo",
+        Field::RefineObject => "--refine-object",
+        Field::Force => "--force",
+    }
+}
+
+/// The flow's refusal said in this command's flags; any other error as it is.
+fn in_flags(e: anyhow::Error) -> anyhow::Error {
+    match e.downcast::<PoseRefused>() {
+        Ok(refused) => anyhow::anyhow!(refused.said_with(flag)),
+        Err(e) => e,
+    }
 }

@@ -84,6 +84,130 @@ pub struct PoseOutcome {
     pub placed: Option<anyhow::Result<Shape>>,
 }
 
+/// A field of a [`PoseRequest`] that a refusal names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Field {
+    SensorWidth,
+    /// [`PhotosFrom::Camera`]'s `turn_deg`.
+    Turn,
+    /// [`PhotosFrom`]'s `views`.
+    Views,
+    /// [`PhotosFrom::Files`]'s `board`, `object` and `empty`.
+    BoardPhotos,
+    ObjectPhotos,
+    EmptyPhotos,
+    RefineObject,
+    Force,
+}
+
+impl Field {
+    /// The request's own name for it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Field::SensorWidth => "`sensor_width_mm`",
+            Field::Turn => "`turn_deg`",
+            Field::Views => "`views`",
+            Field::BoardPhotos => "the board's photos (`board`)",
+            Field::ObjectPhotos => "the object's photos (`object`)",
+            Field::EmptyPhotos => "the empty bench's photos (`empty`)",
+            Field::RefineObject => "`refine_object`",
+            Field::Force => "`force`",
+        }
+    }
+}
+
+/// Why a calibration was refused: a mistake in its request, said before anything is shot, or
+/// a fit too poor to write. Its words name the request's fields ([`Field::name`]); whoever
+/// took the request names them its own way ([`PoseRefused::said_with`]): the command line
+/// by its flags.
+#[derive(Debug, Clone, PartialEq)]
+pub enum PoseRefused {
+    /// The rig file's object camera is orthographic.
+    Orthographic {
+        rig_file: PathBuf,
+    },
+    SensorWidth(f64),
+    Turn(f64),
+    /// Photos of the object without the board's from where the camera stood for them.
+    ObjectWithoutBoard,
+    /// The object's placement asked for from photos, without the object's.
+    RefineWithoutObject,
+    /// Not one photo of the empty bench per photo of the object.
+    Unpaired {
+        object: usize,
+        empty: usize,
+    },
+    /// More than one view asked of photos taken already.
+    ViewsOfPhotos,
+    /// The object's placement asked for, and the rig file's object is no mesh.
+    NoMesh {
+        rig_file: PathBuf,
+    },
+    /// The board's fit is poor, and the rig file was to be written: why.
+    PoorFit(String),
+}
+
+impl PoseRefused {
+    /// What was refused, with each field named by `name`.
+    pub fn said_with(&self, name: impl Fn(Field) -> &'static str) -> String {
+        use Field::*;
+        match self {
+            PoseRefused::Orthographic { rig_file } => format!(
+                "{}: the object camera is orthographic: a pose from a board needs a pinhole camera ([geometry.camera] type = \"pinhole\", with fx, fy, cx, cy)",
+                rig_file.display()
+            ),
+            PoseRefused::SensorWidth(s) => format!(
+                "{} must be a positive number of millimetres, not {s}",
+                name(SensorWidth)
+            ),
+            PoseRefused::Turn(t) => format!(
+                "{} must be a number of degrees between 0 and 80, not {t}",
+                name(Turn)
+            ),
+            PoseRefused::ObjectWithoutBoard => format!(
+                "{} goes with {} (the board's photos from the camera as it stood for the object's); without them, {} photographs both",
+                name(ObjectPhotos),
+                name(BoardPhotos),
+                name(RefineObject)
+            ),
+            PoseRefused::RefineWithoutObject => format!(
+                "with {}, {} needs the object's photos and the empty bench's: {} and {}",
+                name(BoardPhotos),
+                name(RefineObject),
+                name(ObjectPhotos),
+                name(EmptyPhotos)
+            ),
+            PoseRefused::Unpaired { object, empty } => format!(
+                "{object} {} and {empty} {}: each photo of the object needs one of the empty bench at its exposure",
+                name(ObjectPhotos),
+                name(EmptyPhotos)
+            ),
+            PoseRefused::ViewsOfPhotos => format!(
+                "{} turns the board on the turntable; {} takes photos of the board as it stands, and solves from the one that shows the most of it",
+                name(Views),
+                name(BoardPhotos)
+            ),
+            PoseRefused::NoMesh { rig_file } => format!(
+                "{}: {} aligns the object's mesh with its silhouette, and [geometry.shape] is no mesh",
+                rig_file.display(),
+                name(RefineObject)
+            ),
+            PoseRefused::PoorFit(why) => format!(
+                "{why}; the rig file is left as it is ({} writes it anyway)",
+                name(Force)
+            ),
+        }
+    }
+}
+
+impl std::fmt::Display for PoseRefused {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.said_with(Field::name))
+    }
+}
+
+impl std::error::Error for PoseRefused {}
+
 /// A calibration checked against its rig and ready to run: every mistake in the request is
 /// said before anything is shot, and the rig file is open.
 pub struct PoseCalibration<'a> {
@@ -99,14 +223,14 @@ impl<'a> PoseCalibration<'a> {
     pub fn new(rig: &'a Rig, request: PoseRequest) -> anyhow::Result<PoseCalibration<'a>> {
         let r = &request;
         if pinhole(&rig.geometry.camera).is_none() {
-            bail!(
-                "{}: the object camera is orthographic: a pose from a board needs a pinhole camera ([geometry.camera] type = \"pinhole\", with fx, fy, cx, cy)",
-                r.rig_file.display()
-            );
+            return Err(PoseRefused::Orthographic {
+                rig_file: r.rig_file.clone(),
+            }
+            .into());
         }
         if let Some(s) = r.sensor_width_mm {
             if !(s.is_finite() && s > 0.0) {
-                bail!("--sensor-width-mm must be a positive number of millimetres, not {s}");
+                return Err(PoseRefused::SensorWidth(s).into());
             }
         }
         let (refine_object, angles) = match &r.photos {
@@ -114,7 +238,7 @@ impl<'a> PoseCalibration<'a> {
                 let roles = crate::plan::devices(rig)?;
                 let n = views.unwrap_or(if roles.turntable { 3 } else { 1 }) as usize;
                 if !(turn_deg.is_finite() && turn_deg.abs() > 0.0 && turn_deg.abs() < 80.0) {
-                    bail!("--turn must be a number of degrees between 0 and 80, not {turn_deg}");
+                    return Err(PoseRefused::Turn(*turn_deg).into());
                 }
                 (r.refine_object, Some(pose::view_angles(n, *turn_deg)))
             }
@@ -125,29 +249,29 @@ impl<'a> PoseCalibration<'a> {
                 views,
             } => {
                 if !object.is_empty() && board.is_empty() {
-                    bail!("--object-photo goes with --photo (the board's photos from the camera as it stood for the object's); without them, --refine-object photographs both");
+                    return Err(PoseRefused::ObjectWithoutBoard.into());
                 }
                 if r.refine_object && object.is_empty() {
-                    bail!("with --photo, --refine-object needs the object's photos and the empty bench's: --object-photo and --empty-photo");
+                    return Err(PoseRefused::RefineWithoutObject.into());
                 }
                 if object.len() != empty.len() {
-                    bail!(
-                        "{} --object-photo and {} --empty-photo: each photo of the object needs one of the empty bench at its exposure",
-                        object.len(),
-                        empty.len()
-                    );
+                    return Err(PoseRefused::Unpaired {
+                        object: object.len(),
+                        empty: empty.len(),
+                    }
+                    .into());
                 }
                 if views.is_some_and(|v| v > 1) {
-                    bail!("--views turns the board on the turntable; --photo takes photos of the board as it stands, and solves from the one that shows the most of it");
+                    return Err(PoseRefused::ViewsOfPhotos.into());
                 }
                 (r.refine_object || !object.is_empty(), None)
             }
         };
         if refine_object && !matches!(rig.geometry.shape, Some(Shape::Mesh { .. })) {
-            bail!(
-                "{}: --refine-object aligns the object's mesh with its silhouette, and [geometry.shape] is no mesh",
-                r.rig_file.display()
-            );
+            return Err(PoseRefused::NoMesh {
+                rig_file: r.rig_file.clone(),
+            }
+            .into());
         }
         // Opened first: a file the pose cannot go into is said before anything is shot.
         let file = if r.write {
@@ -251,7 +375,7 @@ impl<'a> PoseCalibration<'a> {
                 )?;
                 settle(&found, report)?;
                 let object = self.refine_object.then(|| {
-                    report.warn("one view pins the object's distance from the camera only by its outline's size; photographed by `--refine-object` on a rig with a turntable, the slanted views pin it as well as the rest");
+                    report.warn("one view pins the object's distance from the camera only by its outline's size; photographed by the rig's camera on a rig with a turntable, the slanted views pin it as well as the rest");
                     Ok((photo_view(empty)?, photo_view(object)?))
                 });
                 (found, object)
@@ -337,7 +461,7 @@ fn check_fit(
             found.fit.rms_px, found.fit.worst_px
         );
         if !warn_only {
-            bail!("{why}; the rig file is left as it is (--force writes it anyway)");
+            return Err(PoseRefused::PoorFit(why).into());
         }
         report.warn(&why);
     }
@@ -427,43 +551,76 @@ mod tests {
         }
     }
 
-    fn refused(rig: &Rig, r: PoseRequest) -> String {
+    fn refused(rig: &Rig, r: PoseRequest) -> PoseRefused {
         match PoseCalibration::new(rig, r) {
             Ok(_) => panic!("a request with a mistake was taken"),
-            Err(e) => format!("{e:#}"),
+            Err(e) => e.downcast::<PoseRefused>().expect("a refusal"),
         }
     }
 
     /// A request's mistakes are said when it is checked against the rig, before any device
-    /// starts or any photo is read (none of the photos named here exists).
+    /// starts or any photo is read (none of the photos named here exists), in the request's
+    /// own words, or in its taker's.
     #[test]
     fn a_request_s_mistakes_are_said_before_anything_is_shot() {
         let rig = Rig::parse("simulated-pose.toml", POSE_RIG).unwrap();
         let cases = [
-            (files(0, 1, 1, None), false, "goes with --photo"),
-            (files(1, 0, 0, None), true, "needs the object's photos"),
+            (files(0, 1, 1, None), false, PoseRefused::ObjectWithoutBoard),
+            (files(1, 0, 0, None), true, PoseRefused::RefineWithoutObject),
             (
                 files(1, 2, 1, None),
                 false,
-                "each photo of the object needs one",
+                PoseRefused::Unpaired {
+                    object: 2,
+                    empty: 1,
+                },
             ),
-            (files(1, 0, 0, Some(3)), false, "--views turns the board"),
+            (files(1, 0, 0, Some(3)), false, PoseRefused::ViewsOfPhotos),
             (
                 PhotosFrom::Camera {
                     views: None,
                     turn_deg: 90.0,
                 },
                 false,
-                "--turn must be",
+                PoseRefused::Turn(90.0),
             ),
         ];
         for (photos, refine, expected) in cases {
-            let why = refused(&rig, request(photos, refine));
-            assert!(why.contains(expected), "{expected:?} not in {why:?}");
+            assert_eq!(refused(&rig, request(photos, refine)), expected);
         }
         let mut r = request(files(1, 0, 0, None), false);
         r.sensor_width_mm = Some(-1.0);
-        assert!(refused(&rig, r).contains("--sensor-width-mm"));
+        let why = refused(&rig, r);
+        assert_eq!(why, PoseRefused::SensorWidth(-1.0));
+        assert_eq!(
+            why.to_string(),
+            "`sensor_width_mm` must be a positive number of millimetres, not -1"
+        );
+        assert_eq!(
+            why.said_with(|_| "--width"),
+            "--width must be a positive number of millimetres, not -1"
+        );
+        // Every field a refusal names is named by the taker's names, none by the request's.
+        let all = [
+            PoseRefused::ObjectWithoutBoard,
+            PoseRefused::RefineWithoutObject,
+            PoseRefused::Unpaired {
+                object: 2,
+                empty: 1,
+            },
+            PoseRefused::ViewsOfPhotos,
+            PoseRefused::NoMesh {
+                rig_file: "rig.toml".into(),
+            },
+            PoseRefused::PoorFit("poor".into()),
+        ];
+        for r in all {
+            let taker = r.said_with(|f| if f == Field::Force { "FORCE" } else { "FLAG" });
+            assert!(
+                !taker.contains('`') && taker.contains("FLAG") || taker.contains("FORCE"),
+                "{taker}"
+            );
+        }
         // The board's photos alone, and the camera shooting, are what a calibration takes.
         let taken = PoseCalibration::new(&rig, request(files(1, 0, 0, None), false)).unwrap();
         assert!(!taken.shoots());
@@ -491,13 +648,17 @@ mod tests {
             center: [0.0; 3],
             radius: 0.03,
         });
-        assert!(refused(&sphere, request(files(1, 1, 1, None), false)).contains("is no mesh"));
+        assert!(matches!(
+            refused(&sphere, request(files(1, 1, 1, None), false)),
+            PoseRefused::NoMesh { .. }
+        ));
         let ortho = Rig::parse(
             "simulated.toml",
             include_str!("../../../config/rigs/simulated.toml"),
         )
         .unwrap();
         assert!(refused(&ortho, request(files(1, 0, 0, None), false))
+            .to_string()
             .contains("the object camera is orthographic"));
     }
 
@@ -512,6 +673,10 @@ mod tests {
         let mut r = request(files(1, 0, 0, None), false);
         r.rig_file = path;
         r.write = true;
-        assert!(refused(&rig, r).contains("has no [geometry.camera] table"));
+        let why = match PoseCalibration::new(&rig, r) {
+            Ok(_) => panic!("a rig file without the table was taken"),
+            Err(e) => format!("{e:#}"),
+        };
+        assert!(why.contains("has no [geometry.camera] table"), "{why}");
     }
 }
