@@ -83,7 +83,8 @@ pub fn check_simulated_material(plan: &Plan) -> anyhow::Result<()> {
     let embedded = brdfd_bench::embedded_materials();
     anyhow::bail!(
         "the simulator has no material {:?}. Use a preset ({}), a short name ({}), a test \
-         material ({}), or give --nbrdf FILE holding it",
+         material ({}), or an NBRDF file holding it (the plan's `nbrdf`; `--nbrdf FILE` on \
+         the command line)",
         plan.material,
         crate::config::preset_names().join(", "),
         brdfd_bench::aliases().join(", "),
