@@ -245,6 +245,7 @@ pub fn radiometry(
         let bracket = Bracket::dslr(rig, rig.brackets.dslr_shutters.clone());
         let measured = role
             .ping()
+            .map_err(anyhow::Error::from)
             .and_then(|()| {
                 object::bracket(
                     cx,

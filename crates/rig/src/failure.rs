@@ -1,7 +1,8 @@
 //! Why a capture failed, as a code a client can act on ([`FailureCode`]): another program
 //! holds the camera, the disk is full, a device went away. The flow records it in the
 //! manifest beside the reason, and the daemon's event stream ends with it. The drivers' typed
-//! errors say which; they are found anywhere in the error's chain, under the flow's context.
+//! errors say which, as the devices' roles return them ([`DeviceError`]); they are found
+//! anywhere in the error's chain, under the flow's context.
 
 use brdfd_ptp::PtpError;
 use brdfd_serial::SerialError;
@@ -20,6 +21,92 @@ pub struct DeviceUnavailable {
     pub selector: String,
     pub message: String,
     pub code: FailureCode,
+}
+
+/// What went wrong with a device in one of its roles (`crate::roles`): its driver's typed
+/// error, its worker's, or the device's own words. [`DeviceError::code`] is the code a
+/// capture that failed on it records.
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    #[error(transparent)]
+    Ptp(#[from] PtpError),
+    #[error(transparent)]
+    Theta(#[from] ThetaError),
+    #[error(transparent)]
+    Serial(#[from] SerialError),
+    #[error(transparent)]
+    V4l(#[from] V4lError),
+    /// libgphoto2's, for a camera driven through it.
+    #[cfg(feature = "gphoto2")]
+    #[error(transparent)]
+    Gphoto(#[from] brdfd_gphoto::GphotoError),
+    /// The device could not be opened for the job.
+    #[error(transparent)]
+    Unavailable(#[from] DeviceUnavailable),
+    /// What the device cannot do, in words: a role it cannot play, a control it lacks.
+    #[error("{0}")]
+    Cannot(String),
+    /// The rig's shutter did not fire the object camera.
+    #[error("the rig's shutter {selector} did not fire the DSLR")]
+    ShutterFailed {
+        selector: String,
+        #[source]
+        cause: Box<DeviceError>,
+    },
+    /// A step of the device's work, and what failed in it.
+    #[error("{step}")]
+    During {
+        step: &'static str,
+        #[source]
+        cause: Box<DeviceError>,
+    },
+    /// The capture was cancelled while the device worked.
+    #[error("cancelled")]
+    Cancelled,
+    /// The capture stopped taking what the camera sent.
+    #[error("the capture stopped taking files")]
+    Abandoned,
+    /// The device's thread ended before the job answered.
+    #[error("the {0} worker stopped during the job")]
+    WorkerStopped(String),
+}
+
+impl DeviceError {
+    /// This error, as the cause of a failed `step`.
+    pub fn during(self, step: &'static str) -> DeviceError {
+        DeviceError::During {
+            step,
+            cause: Box::new(self),
+        }
+    }
+
+    /// The code a failure of this error's says, if it says one.
+    pub fn code(&self) -> Option<FailureCode> {
+        match self {
+            DeviceError::Ptp(p) => ptp_code(p),
+            DeviceError::Theta(t) => theta_code(t),
+            DeviceError::Serial(s) => serial_code(s),
+            DeviceError::V4l(v) => v4l_code(v),
+            DeviceError::Unavailable(d) => Some(d.code).filter(|c| *c != FailureCode::Failed),
+            DeviceError::ShutterFailed { cause, .. } | DeviceError::During { cause, .. } => {
+                cause.code()
+            }
+            _ => None,
+        }
+    }
+}
+
+/// `e` and its causes, as one line (what `anyhow` writes for `{:#}`): for a message that
+/// passes a typed error on in words.
+pub fn said(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut text = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        text.push_str(": ");
+        text.push_str(&c.to_string());
+        cause = c.source();
+    }
+    text
 }
 
 /// The code of a capture's failure `e`: the first cause in its chain, from the outside in,
@@ -51,6 +138,9 @@ pub fn disk_full(e: &anyhow::Error) -> bool {
 
 /// The code one cause says, if it is a typed device error that says one.
 fn typed_code(cause: &(dyn std::error::Error + 'static)) -> Option<FailureCode> {
+    if let Some(d) = cause.downcast_ref::<DeviceError>() {
+        return d.code();
+    }
     if let Some(d) = cause.downcast_ref::<DeviceUnavailable>() {
         return Some(d.code).filter(|c| *c != FailureCode::Failed);
     }
@@ -58,38 +148,50 @@ fn typed_code(cause: &(dyn std::error::Error + 'static)) -> Option<FailureCode> 
         return ptp_code(p);
     }
     if let Some(t) = cause.downcast_ref::<ThetaError>() {
-        return match t {
-            ThetaError::Timeout { .. } => Some(FailureCode::DeviceTimeout),
-            ThetaError::NoConnection { .. } | ThetaError::Unreachable { .. } => {
-                Some(FailureCode::DeviceMissing)
-            }
-            // The THETA over USB speaks PTP.
-            ThetaError::Ptp(p) => ptp_code(p),
-            _ => None,
-        };
+        return theta_code(t);
     }
     if let Some(s) = cause.downcast_ref::<SerialError>() {
-        return match s {
-            SerialError::Missing { .. } => Some(FailureCode::DeviceMissing),
-            SerialError::Permission { .. } => Some(FailureCode::DevicePermission),
-            SerialError::Busy { .. } => Some(FailureCode::DeviceBusy),
-            SerialError::Unplugged { .. } => Some(FailureCode::DeviceLost),
-            SerialError::Timeout { .. } | SerialError::GrblTimeout { .. } => {
-                Some(FailureCode::DeviceTimeout)
-            }
-            _ => None,
-        };
+        return serial_code(s);
     }
     if let Some(v) = cause.downcast_ref::<V4lError>() {
-        return match v {
-            V4lError::Missing { .. } => Some(FailureCode::DeviceMissing),
-            V4lError::Permission { .. } => Some(FailureCode::DevicePermission),
-            V4lError::Busy { .. } => Some(FailureCode::DeviceBusy),
-            V4lError::Timeout { .. } => Some(FailureCode::DeviceTimeout),
-            _ => None,
-        };
+        return v4l_code(v);
     }
     None
+}
+
+fn theta_code(t: &ThetaError) -> Option<FailureCode> {
+    match t {
+        ThetaError::Timeout { .. } => Some(FailureCode::DeviceTimeout),
+        ThetaError::NoConnection { .. } | ThetaError::Unreachable { .. } => {
+            Some(FailureCode::DeviceMissing)
+        }
+        // The THETA over USB speaks PTP.
+        ThetaError::Ptp(p) => ptp_code(p),
+        _ => None,
+    }
+}
+
+fn serial_code(s: &SerialError) -> Option<FailureCode> {
+    match s {
+        SerialError::Missing { .. } => Some(FailureCode::DeviceMissing),
+        SerialError::Permission { .. } => Some(FailureCode::DevicePermission),
+        SerialError::Busy { .. } => Some(FailureCode::DeviceBusy),
+        SerialError::Unplugged { .. } => Some(FailureCode::DeviceLost),
+        SerialError::Timeout { .. } | SerialError::GrblTimeout { .. } => {
+            Some(FailureCode::DeviceTimeout)
+        }
+        _ => None,
+    }
+}
+
+fn v4l_code(v: &V4lError) -> Option<FailureCode> {
+    match v {
+        V4lError::Missing { .. } => Some(FailureCode::DeviceMissing),
+        V4lError::Permission { .. } => Some(FailureCode::DevicePermission),
+        V4lError::Busy { .. } => Some(FailureCode::DeviceBusy),
+        V4lError::Timeout { .. } => Some(FailureCode::DeviceTimeout),
+        _ => None,
+    }
 }
 
 fn ptp_code(p: &PtpError) -> Option<FailureCode> {
@@ -176,6 +278,38 @@ mod tests {
             failure_code(&anyhow::anyhow!("the estimate has no pixels")),
             FailureCode::Failed
         );
+    }
+
+    /// A role's error keeps its driver's code under the steps and the shutter around it,
+    /// and says them all in one line.
+    #[test]
+    fn a_device_error_keeps_its_drivers_code_under_the_steps_around_it() {
+        let lost = DeviceError::from(PtpError::Disconnected {
+            during: "GetObject",
+        });
+        assert_eq!(lost.code(), Some(FailureCode::DeviceLost));
+        let busy = DeviceError::from(SerialError::Busy {
+            port: "/dev/ttyACM0".into(),
+        });
+        let busy_words = busy.to_string();
+        let shutter = DeviceError::ShutterFailed {
+            selector: "serial:/dev/ttyACM0".into(),
+            cause: Box::new(busy.during("pressing the release")),
+        };
+        assert_eq!(shutter.code(), Some(FailureCode::DeviceBusy));
+        assert_eq!(
+            said(&shutter),
+            format!(
+                "the rig's shutter serial:/dev/ttyACM0 did not fire the DSLR: pressing the release: {busy_words}"
+            )
+        );
+        assert_eq!(code_of(shutter), FailureCode::DeviceBusy);
+        // The device's own words and the worker's say no code of their own.
+        assert_eq!(
+            DeviceError::Cannot("no exposure control".into()).code(),
+            None
+        );
+        assert_eq!(code_of(DeviceError::Abandoned), FailureCode::Failed);
     }
 
     #[test]

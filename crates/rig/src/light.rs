@@ -2,9 +2,9 @@
 //! sent it, each frame's EXIF checked against what was asked. The merge into an environment
 //! map is [`brdfd_radiometry::panorama`]'s; the step that strings them together is the flow's.
 
-use anyhow::Context as _;
 use brdfd_theta::{BracketPlan, Frame};
 
+use super::failure::DeviceError;
 use super::flow::{Context, Keep, RawFiles};
 use super::roles::LightProbe;
 use super::{Event, Progress};
@@ -39,8 +39,11 @@ pub fn shoot_panorama(
     probe: &mut dyn LightProbe,
     plan: &BracketPlan,
     progress: &dyn Progress,
-) -> anyhow::Result<Vec<Frame>> {
-    for line in probe.prepare().context("preparing the THETA")? {
+) -> Result<Vec<Frame>, DeviceError> {
+    for line in probe
+        .prepare()
+        .map_err(|e| e.during("preparing the THETA"))?
+    {
         tracing::info!("THETA: {line}");
     }
     let total = plan.shots.len() as u64;
@@ -59,7 +62,7 @@ pub fn shoot_panorama(
                 total,
             });
         })
-        .context("shooting the panorama bracket")?;
+        .map_err(|e| e.during("shooting the panorama bracket"))?;
     Ok(frames)
 }
 

@@ -10,9 +10,10 @@
 
 use std::sync::mpsc;
 
-use anyhow::{bail, Context as _};
+use anyhow::Context as _;
 use serde_json::json;
 
+use super::failure::{said, DeviceError};
 use super::flow::{note_device, Context, Keep, RawFiles, Step};
 use super::roles::{ObjectCamera, Output, Role};
 use super::settings::Bracket;
@@ -106,10 +107,14 @@ pub fn choose(cx: &Context) -> anyhow::Result<CameraRole> {
         // A shutter that cannot fire is found before the first shot, and is its own fault:
         // the DSLR answers, so the capture does not hand over to the fallback.
         Ok(()) => match &devices.shutter {
-            Some(s) => s
-                .call(|_| Ok(()))
-                .context(ShutterFailed(s.status().selector))
-                .map(|()| CameraRole::Dslr),
+            Some(s) => match s.call(|_| Ok(())) {
+                Ok(()) => Ok(CameraRole::Dslr),
+                Err(e) => Err(DeviceError::ShutterFailed {
+                    selector: s.status().selector,
+                    cause: Box::new(e),
+                }
+                .into()),
+            },
             None => Ok(CameraRole::Dslr),
         },
         Err(e) => match &devices.fallback {
@@ -120,7 +125,7 @@ pub fn choose(cx: &Context) -> anyhow::Result<CameraRole> {
                 ));
                 Ok(CameraRole::Fallback)
             }
-            None => Err(e.context(
+            None => Err(anyhow::Error::from(e).context(
                 "the DSLR does not answer, and the rig names no fallback_camera to use instead",
             )),
         },
@@ -190,13 +195,16 @@ pub(super) fn the_dslrs_fault(cx: &Context, e: &anyhow::Error) -> bool {
     !cx.cancel.is_cancelled()
         && !e
             .chain()
-            .any(|c| c.is::<crate::session::SessionError>() || c.is::<ShutterFailed>())
+            .any(|c| c.is::<crate::session::SessionError>() || shutter_failed(c))
 }
 
-/// The rig's shutter did not fire the DSLR.
-#[derive(Debug, thiserror::Error)]
-#[error("the rig's shutter {0} did not fire the DSLR")]
-pub struct ShutterFailed(String);
+/// Whether `cause` is the rig's shutter not firing the DSLR.
+fn shutter_failed(cause: &(dyn std::error::Error + 'static)) -> bool {
+    matches!(
+        cause.downcast_ref::<DeviceError>(),
+        Some(DeviceError::ShutterFailed { .. })
+    )
+}
 
 /// One exposure as it came from the camera's worker.
 enum Arrived {
@@ -244,7 +252,9 @@ pub fn bracket(
             });
         }
         for &t in &exposures {
-            cancel.check()?;
+            if cancel.is_cancelled() {
+                return Err(DeviceError::Cancelled);
+            }
             let mut last = u64::MAX;
             let mut bytes = |done: u64, total: u64| {
                 // One event per tenth: enough for a bar, few enough for a stream.
@@ -265,18 +275,21 @@ pub fn bracket(
                     let mut failed = None;
                     let mut fire = || {
                         s.call(|s| s.fire(SHUTTER_PRESS)).map_err(|e| {
-                            let said = anyhow::anyhow!("{e:#}");
+                            let words = DeviceError::Cannot(said(&e));
                             failed = Some(e);
-                            said
+                            words
                         })
                     };
                     let exposed = cam.expose_fired_by(t, &mut fire, &mut bytes);
                     if let Some(e) = failed {
-                        return Err(e.context(ShutterFailed(s.status().selector)));
+                        return Err(DeviceError::ShutterFailed {
+                            selector: s.status().selector,
+                            cause: Box::new(e),
+                        });
                     }
                     exposed.unwrap_or_else(|| {
-                        Err(anyhow::anyhow!(
-                            "the object camera cannot be fired by the rig's shutter"
+                        Err(DeviceError::Cannot(
+                            "the object camera cannot be fired by the rig's shutter".into(),
                         ))
                     })?
                 }
@@ -304,7 +317,7 @@ pub fn bracket(
                     .is_ok(),
             };
             if !sent {
-                bail!("the capture stopped taking files");
+                return Err(DeviceError::Abandoned);
             }
         }
         Ok(())

@@ -194,6 +194,7 @@ fn shoot_one(
         bracket.camera.files = Some(DslrFiles::Jpeg);
         let shot = role
             .ping()
+            .map_err(anyhow::Error::from)
             .and_then(|()| object::bracket(cx, keep, "pose: DSLR", role, &bracket, true));
         match shot {
             Ok(files) => return jpegs(cx, &files),

@@ -18,6 +18,7 @@ use std::time::Duration;
 
 use brdfd_theta::{BracketPlan, Frame};
 
+use super::failure::DeviceError;
 use super::worker::{Device, Pending, Worker};
 use crate::config::DslrFiles;
 
@@ -46,7 +47,7 @@ impl Device for Box<dyn RigDevice> {
     fn identity(&self) -> String {
         (**self).identity()
     }
-    fn keep_alive(&mut self) -> anyhow::Result<()> {
+    fn keep_alive(&mut self) -> Result<(), DeviceError> {
         (**self).keep_alive()
     }
 }
@@ -81,7 +82,7 @@ pub enum Output {
 }
 
 /// Fires the camera from outside: the rig's shutter, called from the camera's own job.
-pub type Fire<'a> = &'a mut dyn FnMut() -> anyhow::Result<()>;
+pub type Fire<'a> = &'a mut dyn FnMut() -> Result<(), DeviceError>;
 
 /// Download progress of one exposure: bytes done, of total.
 pub type Bytes<'a> = &'a mut dyn FnMut(u64, u64);
@@ -90,9 +91,9 @@ pub type Bytes<'a> = &'a mut dyn FnMut(u64, u64);
 pub trait ObjectCamera {
     /// Applies the bracket's fixed settings; a line per setting, as applied, for the
     /// operator.
-    fn prepare(&mut self, settings: &CameraSettings) -> anyhow::Result<Vec<String>>;
+    fn prepare(&mut self, settings: &CameraSettings) -> Result<Vec<String>, DeviceError>;
     /// One exposure of `seconds`, fired by the camera itself; what it made.
-    fn expose(&mut self, seconds: f64, progress: Bytes) -> anyhow::Result<Exposed>;
+    fn expose(&mut self, seconds: f64, progress: Bytes) -> Result<Exposed, DeviceError>;
     /// Optional: one exposure of `seconds`, fired by `fire` (a trigger box or a release
     /// cable on the camera's remote socket), with the files the camera then reports. `None`
     /// for a camera nothing outside can fire (a webcam streams).
@@ -101,7 +102,7 @@ pub trait ObjectCamera {
         _seconds: f64,
         _fire: Fire,
         _progress: Bytes,
-    ) -> Option<anyhow::Result<Exposed>> {
+    ) -> Option<Result<Exposed, DeviceError>> {
         None
     }
 }
@@ -110,28 +111,28 @@ pub trait ObjectCamera {
 pub trait LightProbe {
     /// Sets the camera up for light measurement (manual exposure, fixed white balance,
     /// timers off); a line per setting, as applied.
-    fn prepare(&mut self) -> anyhow::Result<Vec<String>>;
+    fn prepare(&mut self) -> Result<Vec<String>, DeviceError>;
     /// Shoots the plan (snapped to what the camera supports): the frames as the camera sent
     /// them. `progress` gets a phase and the fraction done.
     fn shoot(
         &mut self,
         plan: &BracketPlan,
         progress: &mut (dyn FnMut(&str, f64) + Send),
-    ) -> anyhow::Result<Vec<Frame>>;
+    ) -> Result<Vec<Frame>, DeviceError>;
 }
 
 /// What turns the object between views.
 pub trait Turntable {
     /// Where it stands, degrees.
-    fn position(&mut self) -> anyhow::Result<f64>;
+    fn position(&mut self) -> Result<f64, DeviceError>;
     /// Turns by `degrees` (signed); where it stopped.
-    fn rotate(&mut self, degrees: f64) -> anyhow::Result<f64>;
+    fn rotate(&mut self, degrees: f64) -> Result<f64, DeviceError>;
 }
 
 /// What fires the DSLR when the capture does not fire it over PTP.
 pub trait Shutter {
     /// Presses the release for `hold`, and lets go.
-    fn fire(&mut self, hold: Duration) -> anyhow::Result<()>;
+    fn fire(&mut self, hold: Duration) -> Result<(), DeviceError>;
 }
 
 /// A device's worker, shared by the roles the device plays.
@@ -174,7 +175,7 @@ impl<R: ?Sized + 'static> Role<R> {
     /// Runs `f` on the device in this role, on its thread (see [`Worker::submit`]).
     pub fn submit<T: Send + 'static>(
         &self,
-        f: impl FnOnce(&mut R) -> anyhow::Result<T> + Send + 'static,
+        f: impl FnOnce(&mut R) -> Result<T, DeviceError> + Send + 'static,
     ) -> Pending<T> {
         let (get, name) = (self.get, self.name);
         self.worker.submit(move |d: &mut Box<dyn RigDevice>| {
@@ -182,7 +183,7 @@ impl<R: ?Sized + 'static> Role<R> {
             let cannot = device.cannot(name);
             match get(device) {
                 Some(r) => f(r),
-                None => Err(anyhow::anyhow!(cannot)),
+                None => Err(DeviceError::Cannot(cannot)),
             }
         })
     }
@@ -190,14 +191,14 @@ impl<R: ?Sized + 'static> Role<R> {
     /// `submit`, then `wait`.
     pub fn call<T: Send + 'static>(
         &self,
-        f: impl FnOnce(&mut R) -> anyhow::Result<T> + Send + 'static,
-    ) -> anyhow::Result<T> {
+        f: impl FnOnce(&mut R) -> Result<T, DeviceError> + Send + 'static,
+    ) -> Result<T, DeviceError> {
         self.submit(f).wait()
     }
 
     /// A request the device must answer: an open handle alone says nothing of a camera
     /// that has gone quiet.
-    pub fn ping(&self) -> anyhow::Result<()> {
+    pub fn ping(&self) -> Result<(), DeviceError> {
         self.worker.call(|d| d.keep_alive())
     }
 

@@ -89,7 +89,7 @@ fn turn_by_hand(cx: &Context, i: usize, n: usize, step: f64) -> anyhow::Result<f
 /// it is.
 pub fn turn_to(cx: &Context, target: f64) -> anyhow::Result<f64> {
     let table = cx.devices.turntable.as_ref().context("no turntable")?;
-    table.call(move |t| {
+    let turned = table.call(move |t| {
         let here = t.position()?;
         let turn = (target - here + 180.0).rem_euclid(360.0) - 180.0;
         Ok(if turn.abs() > 1e-9 {
@@ -97,5 +97,6 @@ pub fn turn_to(cx: &Context, target: f64) -> anyhow::Result<f64> {
         } else {
             here
         })
-    })
+    })?;
+    Ok(turned)
 }

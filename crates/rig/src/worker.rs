@@ -10,14 +10,14 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-use super::failure::{failure_code, DeviceUnavailable, FailureCode};
+use super::failure::{failure_code, said, DeviceError, DeviceUnavailable, FailureCode};
 
 /// What a worker needs of its device.
 pub trait Device: Send + 'static {
     /// "NIKON D5100 (serial 3000123)": for the device list and the session's manifest.
     fn identity(&self) -> String;
     /// A cheap request that keeps the device from sleeping; an error means it has gone.
-    fn keep_alive(&mut self) -> anyhow::Result<()>;
+    fn keep_alive(&mut self) -> Result<(), DeviceError>;
 }
 
 /// Opens a device: called at start, and again whenever the device has been lost.
@@ -73,16 +73,13 @@ pub struct Worker<D: Device> {
 }
 
 /// A job's answer, to wait for.
-pub struct Pending<R>(mpsc::Receiver<anyhow::Result<R>>, String);
+pub struct Pending<R>(mpsc::Receiver<Result<R, DeviceError>>, String);
 
 impl<R> Pending<R> {
-    pub fn wait(self) -> anyhow::Result<R> {
-        self.0.recv().unwrap_or_else(|_| {
-            Err(anyhow::anyhow!(
-                "the {} worker stopped during the job",
-                self.1
-            ))
-        })
+    pub fn wait(self) -> Result<R, DeviceError> {
+        self.0
+            .recv()
+            .unwrap_or(Err(DeviceError::WorkerStopped(self.1)))
     }
 }
 
@@ -122,14 +119,14 @@ impl<D: Device> Worker<D> {
     /// answers, so that the next job opens it afresh.
     pub fn submit<R: Send + 'static>(
         &self,
-        f: impl FnOnce(&mut D) -> anyhow::Result<R> + Send + 'static,
+        f: impl FnOnce(&mut D) -> Result<R, DeviceError> + Send + 'static,
     ) -> Pending<R> {
         let (tx, rx) = mpsc::sync_channel(1);
         let DeviceStatus { role, selector, .. } = self.status();
         let job: Job<D> = Box::new(move |d| {
             let r = d
                 .map_err(|e| {
-                    anyhow::Error::new(DeviceUnavailable {
+                    DeviceError::Unavailable(DeviceUnavailable {
                         role,
                         selector,
                         message: e.message,
@@ -156,8 +153,8 @@ impl<D: Device> Worker<D> {
     /// `submit`, then `wait`.
     pub fn call<R: Send + 'static>(
         &self,
-        f: impl FnOnce(&mut D) -> anyhow::Result<R> + Send + 'static,
-    ) -> anyhow::Result<R> {
+        f: impl FnOnce(&mut D) -> Result<R, DeviceError> + Send + 'static,
+    ) -> Result<R, DeviceError> {
         self.submit(f).wait()
     }
 }
@@ -240,7 +237,7 @@ fn run<D: Device>(
                         // A job that failed may have lost the device; one keep-alive tells.
                         if failed {
                             if let Err(e) = device.as_mut().expect("still open").keep_alive() {
-                                lose(&mut device, format!("{e:#}"));
+                                lose(&mut device, said(&e));
                             }
                         }
                         deliver();
@@ -252,7 +249,7 @@ fn run<D: Device>(
                 match device.as_mut() {
                     Some(d) => {
                         if let Err(e) = d.keep_alive() {
-                            lose(&mut device, format!("{e:#}"));
+                            lose(&mut device, said(&e));
                         }
                     }
                     None => {
@@ -292,12 +289,12 @@ mod tests {
         fn identity(&self) -> String {
             format!("fake {}", self.serial)
         }
-        fn keep_alive(&mut self) -> anyhow::Result<()> {
+        fn keep_alive(&mut self) -> Result<(), DeviceError> {
             self.pings.fetch_add(1, Ordering::SeqCst);
             if self.plugged.load(Ordering::SeqCst) {
                 Ok(())
             } else {
-                anyhow::bail!("unplugged")
+                Err(DeviceError::Cannot("unplugged".into()))
             }
         }
     }
@@ -364,10 +361,10 @@ mod tests {
     fn a_failed_job_that_lost_the_device_makes_the_next_job_reopen_it() {
         let (w, plugged, _) = fake_worker(Duration::from_secs(60));
         let p = plugged.clone();
-        let err = w.call(move |_d| -> anyhow::Result<()> {
+        let err = w.call(move |_d| -> Result<(), DeviceError> {
             // The camera goes away mid-job, then comes back.
             p.store(false, Ordering::SeqCst);
-            anyhow::bail!("transfer failed")
+            Err(DeviceError::Cannot("transfer failed".into()))
         });
         assert!(err.is_err());
         assert_eq!(w.status().state, Link::Lost);
@@ -389,13 +386,14 @@ mod tests {
             Duration::from_secs(60),
         );
         let e = w.call(|d| Ok(d.serial)).unwrap_err();
-        let unavailable = e
-            .downcast_ref::<DeviceUnavailable>()
-            .expect("a typed error");
+        let DeviceError::Unavailable(unavailable) = &e else {
+            panic!("not the opener's error: {e:?}");
+        };
         assert_eq!(unavailable.code, FailureCode::DeviceBusy);
+        assert_eq!(e.code(), Some(FailureCode::DeviceBusy));
         assert!(e.to_string().contains("in use by another program"), "{e}");
         assert_eq!(
-            failure_code(&e.context("turning to view 2")),
+            failure_code(&anyhow::Error::from(e).context("turning to view 2")),
             FailureCode::DeviceBusy
         );
     }

@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use brdfd_gphoto::{Exposure, GphotoCamera};
 
+use crate::failure::DeviceError;
 use crate::roles::{Bytes, CameraSettings, Exposed, Fire, ObjectCamera, Output, RigDevice};
 use crate::Device;
 
@@ -20,7 +21,7 @@ impl Device for GphotoCamera {
             None => format!("{} through libgphoto2", self.model()),
         }
     }
-    fn keep_alive(&mut self) -> anyhow::Result<()> {
+    fn keep_alive(&mut self) -> Result<(), DeviceError> {
         Ok(GphotoCamera::keep_alive(self)?)
     }
 }
@@ -32,7 +33,7 @@ impl RigDevice for GphotoCamera {
 }
 
 impl ObjectCamera for GphotoCamera {
-    fn prepare(&mut self, s: &CameraSettings) -> anyhow::Result<Vec<String>> {
+    fn prepare(&mut self, s: &CameraSettings) -> Result<Vec<String>, DeviceError> {
         let applied = self.set_exposure(&Exposure {
             shutter_s: None,
             f_number: s.f_number,
@@ -56,7 +57,7 @@ impl ObjectCamera for GphotoCamera {
         Ok(lines)
     }
 
-    fn expose(&mut self, seconds: f64, progress: Bytes) -> anyhow::Result<Exposed> {
+    fn expose(&mut self, seconds: f64, progress: Bytes) -> Result<Exposed, DeviceError> {
         let applied_s = self.set_shutter(seconds)?;
         let files = self.capture(progress)?;
         Ok(Exposed {
@@ -70,7 +71,7 @@ impl ObjectCamera for GphotoCamera {
         seconds: f64,
         fire: Fire,
         progress: Bytes,
-    ) -> Option<anyhow::Result<Exposed>> {
+    ) -> Option<Result<Exposed, DeviceError>> {
         Some((|| {
             let applied_s = self.set_shutter(seconds)?;
             self.forget_pending_events()?;

@@ -5,6 +5,7 @@
 use brdfd_ptp::{codes::rc, Camera, CaptureOptions, Captured, Exposure, ImageFormat, PtpError};
 
 use crate::config::DslrFiles;
+use crate::failure::{said, DeviceError};
 use crate::roles::{Bytes, CameraSettings, Exposed, Fire, ObjectCamera, Output, RigDevice};
 use crate::Device;
 
@@ -12,7 +13,7 @@ impl Device for Camera {
     fn identity(&self) -> String {
         format!("{} (serial {})", self.describe(), self.info.serial_number)
     }
-    fn keep_alive(&mut self) -> anyhow::Result<()> {
+    fn keep_alive(&mut self) -> Result<(), DeviceError> {
         self.storage_ids()?;
         Ok(())
     }
@@ -25,7 +26,7 @@ impl RigDevice for Camera {
 }
 
 impl ObjectCamera for Camera {
-    fn prepare(&mut self, s: &CameraSettings) -> anyhow::Result<Vec<String>> {
+    fn prepare(&mut self, s: &CameraSettings) -> Result<Vec<String>, DeviceError> {
         let applied = self.set_exposure(&Exposure {
             shutter_s: None,
             f_number: s.f_number,
@@ -44,7 +45,7 @@ impl ObjectCamera for Camera {
         Ok(lines)
     }
 
-    fn expose(&mut self, seconds: f64, progress: Bytes) -> anyhow::Result<Exposed> {
+    fn expose(&mut self, seconds: f64, progress: Bytes) -> Result<Exposed, DeviceError> {
         let applied_s = self.set_shutter(seconds)?;
         let files = self.capture_all(&CaptureOptions::default(), &mut |_, d, t| progress(d, t))?;
         Ok(exposed(applied_s, files))
@@ -55,7 +56,7 @@ impl ObjectCamera for Camera {
         seconds: f64,
         fire: Fire,
         progress: Bytes,
-    ) -> Option<anyhow::Result<Exposed>> {
+    ) -> Option<Result<Exposed, DeviceError>> {
         Some((|| {
             let applied_s = self.set_shutter(seconds)?;
             // A shot fired from outside is stored on the card, where it is listed; the card
@@ -65,7 +66,9 @@ impl ObjectCamera for Camera {
                 delete_after: false,
             };
             let files = self.capture_fired(
-                &mut || fire().map_err(|e| PtpError::Protocol(format!("the shutter: {e:#}"))),
+                &mut || {
+                    fire().map_err(|e| PtpError::Protocol(format!("the shutter: {}", said(&e))))
+                },
                 &opts,
                 &mut |_, d, t| progress(d, t),
             )?;
@@ -89,7 +92,7 @@ fn exposed(applied_s: f64, files: Vec<Captured>) -> Exposed {
 /// Sets the camera to make the files the rig asks for. A camera that cannot be set so keeps
 /// shooting as set on its body, and the merge takes what comes: RAW files if any, JPEGs
 /// otherwise. Either way the operator is told.
-fn set_files(cam: &mut Camera, want: DslrFiles) -> anyhow::Result<Option<String>> {
+fn set_files(cam: &mut Camera, want: DslrFiles) -> Result<Option<String>, DeviceError> {
     let format = match want {
         DslrFiles::RawJpeg => ImageFormat::RawJpeg,
         DslrFiles::Raw => ImageFormat::Raw,

@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use brdfd_serial::{GrblTurntable, RigController, ShutterCable};
 
+use crate::failure::DeviceError;
 use crate::roles::{RigDevice, Shutter, Turntable};
 use crate::Device;
 
@@ -19,7 +20,7 @@ impl Device for RigController {
             self.port_name()
         )
     }
-    fn keep_alive(&mut self) -> anyhow::Result<()> {
+    fn keep_alive(&mut self) -> Result<(), DeviceError> {
         // A box that does not turn has no position to report: its ID? is the cheap question.
         if self.identity.can_rotate {
             self.position()?;
@@ -47,16 +48,16 @@ impl RigDevice for RigController {
 }
 
 impl Turntable for RigController {
-    fn position(&mut self) -> anyhow::Result<f64> {
+    fn position(&mut self) -> Result<f64, DeviceError> {
         Ok(RigController::position(self)?)
     }
-    fn rotate(&mut self, degrees: f64) -> anyhow::Result<f64> {
+    fn rotate(&mut self, degrees: f64) -> Result<f64, DeviceError> {
         Ok(RigController::rotate(self, degrees)?)
     }
 }
 
 impl Shutter for RigController {
-    fn fire(&mut self, hold: Duration) -> anyhow::Result<()> {
+    fn fire(&mut self, hold: Duration) -> Result<(), DeviceError> {
         Ok(RigController::fire(self, hold.as_millis().max(1) as u32)?)
     }
 }
@@ -65,7 +66,7 @@ impl Device for ShutterCable {
     fn identity(&self) -> String {
         format!("release cable on {:?} of {}", self.line(), self.port_name())
     }
-    fn keep_alive(&mut self) -> anyhow::Result<()> {
+    fn keep_alive(&mut self) -> Result<(), DeviceError> {
         Ok(self.release()?)
     }
 }
@@ -77,7 +78,7 @@ impl RigDevice for ShutterCable {
 }
 
 impl Shutter for ShutterCable {
-    fn fire(&mut self, hold: Duration) -> anyhow::Result<()> {
+    fn fire(&mut self, hold: Duration) -> Result<(), DeviceError> {
         Ok(ShutterCable::fire(self, hold.as_millis().max(1) as u32)?)
     }
 }
@@ -91,7 +92,7 @@ impl Device for GrblTurntable {
             self.port_name()
         )
     }
-    fn keep_alive(&mut self) -> anyhow::Result<()> {
+    fn keep_alive(&mut self) -> Result<(), DeviceError> {
         // `?` is GRBL's real-time question: it moves nothing and is answered at once.
         self.status()?;
         Ok(())
@@ -111,10 +112,10 @@ impl RigDevice for GrblTurntable {
 }
 
 impl Turntable for GrblTurntable {
-    fn position(&mut self) -> anyhow::Result<f64> {
+    fn position(&mut self) -> Result<f64, DeviceError> {
         Ok(GrblTurntable::position(self)?)
     }
-    fn rotate(&mut self, degrees: f64) -> anyhow::Result<f64> {
+    fn rotate(&mut self, degrees: f64) -> Result<f64, DeviceError> {
         Ok(GrblTurntable::rotate(self, degrees)?)
     }
 }

@@ -3,6 +3,7 @@
 
 use brdfd_theta::{BracketPlan, Frame, Theta};
 
+use crate::failure::DeviceError;
 use crate::roles::{LightProbe, RigDevice};
 use crate::Device;
 
@@ -10,7 +11,7 @@ impl Device for Theta {
     fn identity(&self) -> String {
         self.describe()
     }
-    fn keep_alive(&mut self) -> anyhow::Result<()> {
+    fn keep_alive(&mut self) -> Result<(), DeviceError> {
         Ok(Theta::keep_alive(self)?)
     }
 }
@@ -22,7 +23,7 @@ impl RigDevice for Theta {
 }
 
 impl LightProbe for Theta {
-    fn prepare(&mut self) -> anyhow::Result<Vec<String>> {
+    fn prepare(&mut self) -> Result<Vec<String>, DeviceError> {
         Ok(Theta::prepare(self)?)
     }
 
@@ -30,7 +31,7 @@ impl LightProbe for Theta {
         &mut self,
         plan: &BracketPlan,
         progress: &mut (dyn FnMut(&str, f64) + Send),
-    ) -> anyhow::Result<Vec<Frame>> {
+    ) -> Result<Vec<Frame>, DeviceError> {
         Ok(self.capture(plan, progress)?)
     }
 }

@@ -2,6 +2,7 @@
 //! answers: it streams, so each exposure is a run of frames at a manual exposure time, gain
 //! and white balance, which the flow averages in linear light.
 
+use crate::failure::DeviceError;
 use crate::roles::{Bytes, CameraSettings, Exposed, ObjectCamera, Output, RigDevice};
 use crate::Device;
 
@@ -25,7 +26,7 @@ impl Device for VideoCamera {
     fn identity(&self) -> String {
         self.source.describe()
     }
-    fn keep_alive(&mut self) -> anyhow::Result<()> {
+    fn keep_alive(&mut self) -> Result<(), DeviceError> {
         self.source.formats()?;
         Ok(())
     }
@@ -38,7 +39,7 @@ impl RigDevice for VideoCamera {
 }
 
 impl ObjectCamera for VideoCamera {
-    fn prepare(&mut self, s: &CameraSettings) -> anyhow::Result<Vec<String>> {
+    fn prepare(&mut self, s: &CameraSettings) -> Result<Vec<String>, DeviceError> {
         let src = self.source.as_mut();
         let (format, w, h) = brdfd_v4l::start(src)?;
         self.held = s.clone();
@@ -49,7 +50,7 @@ impl ObjectCamera for VideoCamera {
         )])
     }
 
-    fn expose(&mut self, seconds: f64, _progress: Bytes) -> anyhow::Result<Exposed> {
+    fn expose(&mut self, seconds: f64, _progress: Bytes) -> Result<Exposed, DeviceError> {
         let src = self.source.as_mut();
         let settings = brdfd_v4l::Settings {
             exposure_s: Some(seconds),
@@ -60,11 +61,11 @@ impl ObjectCamera for VideoCamera {
         // Without a manual exposure time the camera stays on auto exposure, and no frame's
         // exposure is known: there is no bracket to merge.
         let Some(applied_s) = applied.exposure_s else {
-            anyhow::bail!(
+            return Err(DeviceError::Cannot(format!(
                 "the fallback camera {} has no manual exposure control ({}), so it cannot shoot a bracket",
                 src.describe(),
                 applied.notes.join(", ")
-            );
+            )));
         };
         Ok(Exposed {
             applied_s,
