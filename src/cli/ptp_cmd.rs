@@ -55,7 +55,7 @@ pub struct CaptureArgs {
 
 /// Opens the camera a port selector names (`usb`, `usb:VVVV[:PPPP]`, `ptpip:HOST[:PORT]`).
 pub fn open(port: &str) -> anyhow::Result<Camera> {
-    brdfd_rig::open::ptp_camera(&port.parse::<Selector>()?)
+    Ok(brdfd_rig::open::ptp_camera(&port.parse::<Selector>()?)?)
 }
 
 pub fn run(cmd: PtpCommand) -> anyhow::Result<()> {

@@ -45,7 +45,7 @@ pub struct SerialPort {
 
 fn rig(port: &str) -> anyhow::Result<RigController> {
     match port.parse::<Selector>()? {
-        Selector::Serial(path) => brdfd_rig::open::turntable(&path),
+        Selector::Serial(path) => Ok(brdfd_rig::open::turntable(&path)?),
         Selector::Grbl { .. } => {
             bail!("a GRBL controller turns the table only: it has no shutter output brdfd fires")
         }

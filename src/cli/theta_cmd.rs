@@ -149,7 +149,11 @@ pub fn open(p: &ThetaPort, timeouts: HttpTimeouts) -> anyhow::Result<Theta> {
         .password
         .credentials(p.user.as_deref())?
         .map(|(user, password)| Credentials { user, password });
-    brdfd_rig::open::theta(&p.port.parse::<Selector>()?, credentials, timeouts)
+    Ok(brdfd_rig::open::theta(
+        &p.port.parse::<Selector>()?,
+        credentials,
+        timeouts,
+    )?)
 }
 
 /// Prepares the camera and shoots the plan: the frames as the camera sent them, each

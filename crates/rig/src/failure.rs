@@ -43,6 +43,9 @@ pub enum DeviceError {
     /// The device could not be opened for the job.
     #[error(transparent)]
     Unavailable(#[from] DeviceUnavailable),
+    /// A selector that names no device of the kind asked for.
+    #[error("{0}")]
+    WrongSelector(String),
     /// What the device cannot do, in words: a role it cannot play, a control it lacks.
     #[error("{0}")]
     Cannot(String),

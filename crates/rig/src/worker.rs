@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-use super::failure::{failure_code, said, DeviceError, DeviceUnavailable, FailureCode};
+use super::failure::{said, DeviceError, DeviceUnavailable, FailureCode};
 
 /// What a worker needs of its device.
 pub trait Device: Send + 'static {
@@ -21,7 +21,7 @@ pub trait Device: Send + 'static {
 }
 
 /// Opens a device: called at start, and again whenever the device has been lost.
-pub type Opener<D> = Box<dyn FnMut() -> anyhow::Result<D> + Send>;
+pub type Opener<D> = Box<dyn FnMut() -> Result<D, DeviceError> + Send>;
 
 /// A job gets the device, or why it could not be opened. It returns whether it failed, and
 /// the delivery of its answer, which the worker makes after checking the device: a caller
@@ -196,7 +196,7 @@ fn run<D: Device>(
                 Ok(())
             }
             Err(e) => {
-                let msg = format!("{e:#}");
+                let msg = said(&e);
                 set(&|s| {
                     s.last_error = Some(msg.clone());
                     if s.state == Link::Open {
@@ -266,8 +266,8 @@ fn run<D: Device>(
 /// The code of a device that could not be opened. A device that hangs up while it is being
 /// opened (a camera switched off, whose network stack still accepts the connection) was never
 /// there for this capture: missing, not lost.
-fn opening_code(e: &anyhow::Error) -> FailureCode {
-    match failure_code(e) {
+fn opening_code(e: &DeviceError) -> FailureCode {
+    match e.code().unwrap_or(FailureCode::Failed) {
         FailureCode::DeviceLost => FailureCode::DeviceMissing,
         code => code,
     }
@@ -306,7 +306,7 @@ mod tests {
         let (p, q) = (plugged.clone(), pings.clone());
         let open: Opener<Fake> = Box::new(move || {
             if !p.load(Ordering::SeqCst) {
-                anyhow::bail!("no such device");
+                return Err(DeviceError::Cannot("no such device".into()));
             }
             Ok(Fake {
                 serial: serial.fetch_add(1, Ordering::SeqCst),
@@ -375,7 +375,7 @@ mod tests {
     #[test]
     fn a_device_that_cannot_be_opened_fails_its_jobs_with_the_openers_code() {
         let open: Opener<Fake> = Box::new(|| {
-            Err(anyhow::Error::from(brdfd_serial::SerialError::Busy {
+            Err(DeviceError::from(brdfd_serial::SerialError::Busy {
                 port: "/dev/ttyACM0".into(),
             }))
         });
@@ -393,7 +393,7 @@ mod tests {
         assert_eq!(e.code(), Some(FailureCode::DeviceBusy));
         assert!(e.to_string().contains("in use by another program"), "{e}");
         assert_eq!(
-            failure_code(&anyhow::Error::from(e).context("turning to view 2")),
+            crate::failure::failure_code(&anyhow::Error::from(e).context("turning to view 2")),
             FailureCode::DeviceBusy
         );
     }

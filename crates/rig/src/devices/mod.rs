@@ -18,6 +18,7 @@ use std::time::Duration;
 
 use anyhow::Context as _;
 
+use super::failure::DeviceError;
 use super::plan;
 use super::roles::{
     self, DeviceWorker, LightProbe, ObjectCamera, RigDevice, Role, Shutter, Turntable,
@@ -41,7 +42,7 @@ impl Planned {
     pub fn from_selector(field: &'static str, s: Selector, loopback: bool) -> Planned {
         let selector = s.to_string();
         let open: Opener<Box<dyn RigDevice>> =
-            Box::new(move || -> anyhow::Result<Box<dyn RigDevice>> {
+            Box::new(move || -> Result<Box<dyn RigDevice>, DeviceError> {
                 Ok(match (field, &s) {
                     (plan::THETA, _) => {
                         let timeouts = if loopback {
@@ -59,7 +60,11 @@ impl Planned {
                     (_, Selector::Grbl { axis, path }) => Box::new(super::open::grbl(path, *axis)?),
                     (_, Selector::Cable { rts, path }) => Box::new(super::open::cable(*rts, path)?),
                     (_, Selector::Gphoto(port)) => super::open::gphoto_camera(port.as_deref())?,
-                    (_, Selector::Osc(_)) => anyhow::bail!("{s} is a THETA, not a {field}"),
+                    (_, Selector::Osc(_)) => {
+                        return Err(DeviceError::WrongSelector(format!(
+                            "{s} is a THETA, not a {field}"
+                        )))
+                    }
                 })
             });
         Planned {
