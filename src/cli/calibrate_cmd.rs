@@ -260,7 +260,7 @@ fn write_gains(mut file: RigFile, r: &Radiometry, note: &str) -> anyhow::Result<
         t["spread"] = array(m.spread, SPREAD_DIGITS);
         t["measured"] = value(format!("{note}, over {} pixels", m.pixels));
     }
-    file.save()
+    Ok(file.save()?)
 }
 
 /// `dslr_raw` of `calibration.dslr_raw`.

@@ -225,7 +225,7 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
         println!("the fit is in {}", out.join("pose.json").display());
     }
     match outcome.saved {
-        Some(Err(e)) => return Err(e),
+        Some(Err(e)) => return Err(e.into()),
         Some(Ok(saved)) => {
             println!(
                 "wrote the {} into {} (the file before is {})",

@@ -17,7 +17,7 @@ use brdfd_pose::{pinhole, Calibrated, Focal};
 use crate::config::Rig;
 use crate::flow::{Context, Keep};
 use crate::pose::{self, OnBench, Photo, PhotoView};
-use crate::rig_file::{RigFile, Saved};
+use crate::rig_file::{RigFile, RigFileError, Saved};
 
 /// A fit worse than these is not written without `force`: the board's corners are found to
 /// a tenth of a pixel, so a pixel means the model (the board's size or place, its flatness,
@@ -78,7 +78,7 @@ pub struct PoseOutcome {
     pub found: Calibrated,
     /// The rig file written, or why it could not be, if it was to be (not when only asked
     /// to report). pose.json is written before it.
-    pub saved: Option<anyhow::Result<Saved>>,
+    pub saved: Option<Result<Saved, RigFileError>>,
     /// The object's placement, when it was asked for: where the mesh stands now, or why it
     /// was not found (the camera's pose is written all the same).
     pub placed: Option<anyhow::Result<Shape>>,

@@ -3,11 +3,52 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context as _};
 use brdfd_core::geometry::{Camera, Shape};
 use toml_edit::{value, Array, DocumentMut, Item};
 
-use crate::config::Rig;
+use crate::config::{ConfigError, Rig};
+use crate::session::SessionError;
+
+/// Why a rig file could not be opened for a calibration, or written.
+#[derive(Debug, thiserror::Error)]
+pub enum RigFileError {
+    #[error("reading {}", path.display())]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{} is not TOML", path.display())]
+    NotToml {
+        path: PathBuf,
+        #[source]
+        source: toml_edit::TomlError,
+    },
+    /// The table of `[geometry]` the calibration's `what` goes into is not there.
+    #[error("{} has no [geometry.{table}] table to write the {what} into", path.display())]
+    NoTable {
+        path: PathBuf,
+        table: String,
+        what: String,
+    },
+    #[error("{}: geometry.{table} is not a table", path.display())]
+    NotATable { path: PathBuf, table: String },
+    /// What would be written is not a rig brdfd reads.
+    #[error("the rig as written")]
+    Written(#[source] ConfigError),
+    #[error("keeping {}", path.display())]
+    Backup {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Write(#[from] SessionError),
+    #[error("a pose is written for a pinhole camera")]
+    NotPinhole,
+    #[error("an object's placement is written for a mesh")]
+    NotMesh,
+}
 
 pub struct RigFile {
     pub path: PathBuf,
@@ -22,12 +63,15 @@ pub struct Saved {
 }
 
 impl RigFile {
-    pub fn open(path: &Path) -> anyhow::Result<RigFile> {
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let doc: DocumentMut = text
-            .parse()
-            .with_context(|| format!("{} is not TOML", path.display()))?;
+    pub fn open(path: &Path) -> Result<RigFile, RigFileError> {
+        let text = std::fs::read_to_string(path).map_err(|source| RigFileError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let doc: DocumentMut = text.parse().map_err(|source| RigFileError::NotToml {
+            path: path.to_path_buf(),
+            source,
+        })?;
         Ok(RigFile {
             path: path.to_path_buf(),
             doc,
@@ -37,7 +81,7 @@ impl RigFile {
     /// The file, opened to be written by a calibration that fills the given tables of
     /// `[geometry]` (`("camera", "pose")`: the table, and what goes into it): each must be
     /// there, so that a file the calibration cannot go into is said before anything is shot.
-    pub fn open_for(path: &Path, tables: &[(&str, &str)]) -> anyhow::Result<RigFile> {
+    pub fn open_for(path: &Path, tables: &[(&str, &str)]) -> Result<RigFile, RigFileError> {
         let file = RigFile::open(path)?;
         for (table, what) in tables {
             let found = file
@@ -46,10 +90,11 @@ impl RigFile {
                 .and_then(|g| g.get(table))
                 .and_then(Item::as_table_like);
             if found.is_none() {
-                bail!(
-                    "{} has no [geometry.{table}] table to write the {what} into",
-                    path.display()
-                );
+                return Err(RigFileError::NoTable {
+                    path: path.to_path_buf(),
+                    table: table.to_string(),
+                    what: what.to_string(),
+                });
             }
         }
         Ok(file)
@@ -57,19 +102,22 @@ impl RigFile {
 
     /// Writes the document in place, atomically, once the rig as written parses. The file
     /// before is kept beside it as FILE.bak (FILE.bak.1 and on, if that is taken).
-    pub fn save(self) -> anyhow::Result<Saved> {
+    pub fn save(self) -> Result<Saved, RigFileError> {
         let written = self.doc.to_string();
         let file = self.path.display().to_string();
-        let rig = Rig::parse(&file, &written).context("the rig as written")?;
+        let rig = Rig::parse(&file, &written).map_err(RigFileError::Written)?;
+        // The first name free: the search ends, as the folder holds finitely many files.
         let backup = (0..)
             .map(|i| match i {
                 0 => PathBuf::from(format!("{file}.bak")),
                 i => PathBuf::from(format!("{file}.bak.{i}")),
             })
             .find(|p| !p.exists())
-            .context("no name for the backup")?;
-        std::fs::copy(&self.path, &backup)
-            .with_context(|| format!("keeping {}", backup.display()))?;
+            .expect("a free name among endless ones");
+        std::fs::copy(&self.path, &backup).map_err(|source| RigFileError::Backup {
+            path: backup.clone(),
+            source,
+        })?;
         crate::session::write_atomic(&self.path, written.as_bytes())?;
         Ok(Saved {
             backup,
@@ -79,9 +127,9 @@ impl RigFile {
 
     /// Sets the camera's pose and focal lengths in `[geometry.camera]`, with a comment that
     /// says where they came from; the rest of the file as it was.
-    pub fn set_camera(&mut self, camera: &Camera, note: &str) -> anyhow::Result<()> {
+    pub fn set_camera(&mut self, camera: &Camera, note: &str) -> Result<(), RigFileError> {
         let Camera::Pinhole { fx, fy, pose, .. } = camera else {
-            bail!("a pose is written for a pinhole camera");
+            return Err(RigFileError::NotPinhole);
         };
         let round = |x: f64| (x * 100.0).round() / 100.0;
         self.write_geometry(
@@ -100,14 +148,14 @@ impl RigFile {
 
     /// Sets the mesh's `position` and `rotation_deg` in `[geometry.shape]` to where its
     /// silhouette placed it, with a comment that says so.
-    pub fn set_shape(&mut self, placed: &Shape) -> anyhow::Result<()> {
+    pub fn set_shape(&mut self, placed: &Shape) -> Result<(), RigFileError> {
         let Shape::Mesh {
             rotation_deg,
             position,
             ..
         } = placed
         else {
-            bail!("an object's placement is written for a mesh");
+            return Err(RigFileError::NotMesh);
         };
         // Hundredths of a degree and hundredths of a millimetre: finer than a silhouette pins.
         let rounded = |v: [f64; 3], decimals: usize| {
@@ -135,19 +183,23 @@ impl RigFile {
         what: &str,
         values: &[(&str, Item)],
         comment: &str,
-    ) -> anyhow::Result<()> {
-        let path = self.path.display().to_string();
+    ) -> Result<(), RigFileError> {
         let item = self
             .doc
             .get_mut("geometry")
             .and_then(|g| g.get_mut(table))
-            .with_context(|| {
-                format!("{path} has no [geometry.{table}] table to write the {what} into")
+            .ok_or_else(|| RigFileError::NoTable {
+                path: self.path.clone(),
+                table: table.into(),
+                what: what.into(),
             })?;
         let is_table = item.is_table();
         let t = item
             .as_table_like_mut()
-            .with_context(|| format!("{path}: geometry.{table} is not a table"))?;
+            .ok_or_else(|| RigFileError::NotATable {
+                path: self.path.clone(),
+                table: table.into(),
+            })?;
         for (key, v) in values {
             t.insert(key, v.clone());
         }
