@@ -23,7 +23,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::bivariate::{Bivariate, Grid, PhiReduction, GRID_CELLS, N_THETA_D, N_THETA_H, VALUES};
-use super::brdf::{add, dot, from_rusinkiewicz, normalize, IsotropicBrdf};
+use super::brdf::{from_rusinkiewicz, Cosines, IsotropicBrdf};
 use super::envmap::LightSet;
 use super::error::{CoreError, Result};
 use super::geometry::GeomPixel;
@@ -134,33 +134,21 @@ pub fn schlick_weight(cos_d: f64) -> f64 {
 
 impl IsotropicBrdf for Microfacet {
     fn eval_angles(&self, theta_h: f64, theta_d: f64, phi_d: f64) -> [f64; 3] {
-        let (wi, wo) = from_rusinkiewicz(theta_h, theta_d, phi_d);
-        if wi[2] <= 0.0 || wo[2] <= 0.0 {
-            return [0.0; 3];
-        }
-        self.eval_cosines(theta_h.cos(), theta_d.cos(), wi[2], wo[2])
+        Cosines::of_angles(theta_h, theta_d, phi_d).map_or([0.0; 3], |c| self.eval_cosines(c))
     }
 
-    /// From the halfway vector, without the angles: a renderer asks for directions, and
-    /// going through Rusinkiewicz's angles (two arctangents, an arccosine and a sine and
-    /// cosine back) cost three times the lobe itself.
+    /// From the halfway vector, without the angles ([`Cosines::of_dirs`] says why).
     fn eval_dirs(&self, wi: [f64; 3], wo: [f64; 3]) -> [f64; 3] {
-        if wi[2] <= 0.0 || wo[2] <= 0.0 {
-            return [0.0; 3];
-        }
-        let h = normalize(add(wi, wo));
-        self.eval_cosines(h[2], dot(wi, h), wi[2], wo[2])
+        Cosines::of_dirs(wi, wo).map_or([0.0; 3], |c| self.eval_cosines(c))
     }
 }
 
 impl Microfacet {
-    /// The value at cos θh and cos θd, with the directions' cosines to the normal
-    /// (both positive).
-    fn eval_cosines(&self, cos_h: f64, cos_d: f64, cos_i: f64, cos_o: f64) -> [f64; 3] {
-        let w = schlick_weight(cos_d);
+    fn eval_cosines(&self, c: Cosines) -> [f64; 3] {
+        let w = schlick_weight(c.d);
         let mut out = self.diffuse.map(|kd| kd / std::f64::consts::PI);
         for l in &self.lobes {
-            let lobe = ggx_lobe(cos_h, cos_i, cos_o, l.alpha);
+            let lobe = ggx_lobe(c.h, c.i, c.o, l.alpha);
             for c in 0..3 {
                 out[c] += lobe * (l.f0[c] * (1.0 - w) + l.f90[c] * w);
             }

@@ -177,7 +177,7 @@ impl ColourChoice {
 }
 
 /// ‖predicted − observed‖ / ‖observed‖ over every pixel and channel.
-pub fn relative_misfit(predicted: &[f64], observed: &[[f64; 3]]) -> f64 {
+pub(crate) fn relative_misfit(predicted: &[f64], observed: &[[f64; 3]]) -> f64 {
     let (mut num, mut den) = (0.0, 0.0);
     for (p, o) in predicted.chunks_exact(3).zip(observed) {
         for c in 0..3 {

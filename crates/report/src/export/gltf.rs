@@ -13,7 +13,7 @@ use base64::Engine as _;
 use brdfd_core::analytic::{coat_fresnel, ggx_lobe, schlick_weight, Microfacet};
 use brdfd_core::anisotropic::{frame_at, AnisotropicLobe};
 use brdfd_core::bivariate::{Bivariate, Grid};
-use brdfd_core::brdf::{add, cross, dot, from_rusinkiewicz, normalize, IsotropicBrdf};
+use brdfd_core::brdf::{add, cross, dot, normalize, Cosines, IsotropicBrdf};
 use brdfd_core::envmap::LightSet;
 use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::mesh::Mesh;
@@ -699,21 +699,13 @@ pub struct GltfBrdf(pub GltfMaterial);
 
 impl IsotropicBrdf for GltfBrdf {
     fn eval_angles(&self, theta_h: f64, theta_d: f64, phi_d: f64) -> [f64; 3] {
-        let (wi, wo) = from_rusinkiewicz(theta_h, theta_d, phi_d);
-        if wi[2] <= 0.0 || wo[2] <= 0.0 {
-            return [0.0; 3];
-        }
-        self.eval_cosines(theta_h.cos(), theta_d.cos(), wi[2], wo[2])
+        Cosines::of_angles(theta_h, theta_d, phi_d).map_or([0.0; 3], |c| self.eval_cosines(c))
     }
 
     /// From the halfway vector, without the angles (`brdfd render --gltf` asks for
-    /// directions; [`Microfacet`]'s `eval_dirs` says why).
+    /// directions; [`Cosines::of_dirs`] says why).
     fn eval_dirs(&self, wi: [f64; 3], wo: [f64; 3]) -> [f64; 3] {
-        if wi[2] <= 0.0 || wo[2] <= 0.0 {
-            return [0.0; 3];
-        }
-        let h = normalize(add(wi, wo));
-        self.eval_cosines(h[2], dot(wi, h), wi[2], wo[2])
+        Cosines::of_dirs(wi, wo).map_or([0.0; 3], |c| self.eval_cosines(c))
     }
 }
 
@@ -743,13 +735,12 @@ impl GltfBrdf {
         self.combine(specular, schlick_weight(dot(wi, h)), coat_lobe, wo[2])
     }
 
-    /// The isotropic BRDF at cos θh and cos θd, with the directions' cosines to the normal
-    /// (both positive).
-    fn eval_cosines(&self, cos_h: f64, cos_d: f64, cos_i: f64, cos_o: f64) -> [f64; 3] {
+    /// The isotropic BRDF.
+    fn eval_cosines(&self, c: Cosines) -> [f64; 3] {
         let alpha = self.0.roughness * self.0.roughness;
-        let specular = ggx_lobe(cos_h, cos_i, cos_o, alpha);
-        let coat_lobe = self.coat_lobe(cos_h, cos_i, cos_o);
-        self.combine(specular, schlick_weight(cos_d), coat_lobe, cos_o)
+        let specular = ggx_lobe(c.h, c.i, c.o, alpha);
+        let coat_lobe = self.coat_lobe(c.h, c.i, c.o);
+        self.combine(specular, schlick_weight(c.d), coat_lobe, c.o)
     }
 
     /// The coat's lobe (no Fresnel of its own); 0 without a coat.
