@@ -254,11 +254,12 @@ fn in_process(
     };
     if let Err(e) = flow::execute(session, settings, &cx) {
         // Stopped by Ctrl-C, not by a failure of its own (which is reported as it is).
-        if cancel.is_cancelled() && e.chain().any(|c| c.to_string() == "cancelled") {
+        let cancelled = brdfd_rig::failure::chain(&e).any(|c| c.to_string() == "cancelled");
+        if cancel.is_cancelled() && cancelled {
             let id = &session.manifest().id;
             bail!("session {id} interrupted; what was captured is kept: `brdfd session resume {id}` continues it");
         }
-        return Err(e);
+        return Err(e.into());
     }
     if verbose {
         print_details(&session.dir, &session.manifest().phases)?;

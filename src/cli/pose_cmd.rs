@@ -11,10 +11,9 @@ use brdfd_core::geometry::Camera;
 use brdfd_pose::board::Board;
 use brdfd_pose::silhouette::Refined;
 use brdfd_pose::{angle_between_deg, pinhole, Calibrated, Focal};
-use brdfd_rig::calibrate_pose::{
-    Field, PhotosFrom, PoseCalibration, PoseRefused, PoseReport, PoseRequest,
-};
+use brdfd_rig::calibrate_pose::{Field, PhotosFrom, PoseCalibration, PoseReport, PoseRequest};
 use brdfd_rig::config::Rig;
+use brdfd_rig::error::RigError;
 use brdfd_rig::flow::Context;
 use brdfd_rig::{Devices, Progress, KEEP_ALIVE};
 
@@ -242,7 +241,7 @@ pub fn pose(a: PoseArgs) -> anyhow::Result<()> {
         None => println!("the rig file is left as it is"),
     }
     match outcome.placed {
-        Some(Err(e)) => Err(e.context(
+        Some(Err(e)) => Err(anyhow::Error::from(e).context(
             "the object's placement was not found; the camera's pose is kept (run again with --refine-object, or place the object by hand in [geometry.shape])",
         )),
         _ => Ok(()),
@@ -267,7 +266,7 @@ impl PoseReport for Printed {
 
     /// Waits for the operator to change what stands on the bench; a simulated bench changes
     /// it itself.
-    fn change_bench(&mut self, what: &str, simulated: bool) -> anyhow::Result<()> {
+    fn change_bench(&mut self, what: &str, simulated: bool) -> Result<(), RigError> {
         if simulated {
             println!("simulated rig: {what}: done by the simulated bench");
             return Ok(());
@@ -377,9 +376,9 @@ fn flag(field: Field) -> &'static str {
 }
 
 /// The flow's refusal said in this command's flags; any other error as it is.
-fn in_flags(e: anyhow::Error) -> anyhow::Error {
-    match e.downcast::<PoseRefused>() {
-        Ok(refused) => anyhow::anyhow!(refused.said_with(flag)),
-        Err(e) => e,
+fn in_flags(e: RigError) -> anyhow::Error {
+    match e {
+        RigError::Refused(refused) => anyhow::anyhow!(refused.said_with(flag)),
+        e => e.into(),
     }
 }

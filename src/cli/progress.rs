@@ -1,6 +1,7 @@
 //! The operator's view of a capture: a progress bar per phase on a terminal, plain lines
 //! otherwise. The same events arrive from an in-process flow or from the daemon's stream.
 
+use brdfd_rig::error::RigError;
 use std::collections::HashMap;
 use std::io::{IsTerminal, Write};
 use std::sync::Mutex;
@@ -153,10 +154,10 @@ impl Terminal {
     /// Waits for Enter once the object is turned, after saying `hint`, while `still_needed`
     /// says so: true once Enter is pressed, false once the wait is no longer needed
     /// (answered elsewhere).
-    pub fn enter(
+    pub fn enter<E: From<RigError>>(
         hint: &str,
-        still_needed: &dyn Fn() -> anyhow::Result<bool>,
-    ) -> anyhow::Result<bool> {
+        still_needed: &dyn Fn() -> Result<bool, E>,
+    ) -> Result<bool, E> {
         Terminal::ask(
             &format!("press Enter once it is turned ({hint})"),
             "no one can say the object is turned: standard input is closed. A capture of several views on a rig with no turntable needs someone at the terminal (or a client that calls the API's `continue`)",
@@ -165,13 +166,14 @@ impl Terminal {
     }
 
     /// Says `prompt` and waits for Enter while `still_needed` says so; `closed` is the error
-    /// when no one can answer (standard input is closed).
-    pub fn ask(
+    /// when no one can answer (standard input is closed). Its errors are the rig's, as a
+    /// flow's operator gives them, or whatever `still_needed`'s are.
+    pub fn ask<E: From<RigError>>(
         prompt: &str,
         closed: &str,
-        still_needed: &dyn Fn() -> anyhow::Result<bool>,
-    ) -> anyhow::Result<bool> {
-        let closed = || anyhow::anyhow!("{closed}");
+        still_needed: &dyn Fn() -> Result<bool, E>,
+    ) -> Result<bool, E> {
+        let closed = || E::from(RigError::invalid(closed));
         let lines = stdin_lines().lock().expect("stdin lines");
         // Lines typed before the question do not answer it.
         while let Ok(r) = lines.try_recv() {
@@ -183,7 +185,9 @@ impl Terminal {
         loop {
             match lines.recv_timeout(STILL_NEEDED_EVERY) {
                 Ok(Ok(n)) if n > 0 => return Ok(true),
-                Ok(Err(e)) => return Err(anyhow::Error::new(e).context("reading standard input")),
+                Ok(Err(e)) => {
+                    return Err(E::from(RigError::from(e).step("reading standard input")))
+                }
                 Ok(Ok(_)) | Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
                     return Err(closed())
                 }
@@ -198,7 +202,7 @@ impl Terminal {
 }
 
 impl Operator for Terminal {
-    fn wait(&self, _view: usize, announce: &dyn Fn(), cancel: &Cancel) -> anyhow::Result<()> {
+    fn wait(&self, _view: usize, announce: &dyn Fn(), cancel: &Cancel) -> Result<(), RigError> {
         announce();
         Terminal::enter("Ctrl-C stops; the session can be resumed", &|| {
             cancel.check().map(|()| true)

@@ -17,7 +17,8 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
-use anyhow::Context as _;
+use brdfd_rig::error::{RigError, StepExt};
+use brdfd_rig::failure::said;
 use tokio::sync::broadcast;
 
 use brdfd_rig::config::Rig;
@@ -156,7 +157,7 @@ fn scene_file(
     state: &std::path::Path,
     what: &str,
     name: &std::path::Path,
-) -> anyhow::Result<PathBuf> {
+) -> Result<PathBuf, RigError> {
     use std::path::Component;
     let dir = state.join(SCENES_DIR);
     let mut parts = name.components();
@@ -166,24 +167,24 @@ fn scene_file(
         (parts.next(), parts.next()),
         (Some(Component::Normal(_)), None)
     ) {
-        anyhow::bail!(
+        return Err(RigError::invalid(format!(
             "`{what}` must name a file in the daemon's {SCENES_DIR} folder, not give a path: {:?}",
             name.display().to_string()
-        );
+        )));
     }
     let path = dir.join(name);
     let meta = std::fs::metadata(&path).map_err(|e| {
-        anyhow::anyhow!(
+        RigError::invalid(format!(
             "`{what}`: no file {:?} in the daemon's {SCENES_DIR} folder ({})",
             name.display().to_string(),
             e.kind()
-        )
+        ))
     })?;
     if !meta.is_file() {
-        anyhow::bail!(
+        return Err(RigError::invalid(format!(
             "`{what}`: {:?} in the daemon's {SCENES_DIR} folder is not a regular file",
             name.display().to_string()
-        );
+        )));
     }
     Ok(path)
 }
@@ -191,14 +192,15 @@ fn scene_file(
 /// A plan's scene files are named, never given as paths: a name has no `/` (the pattern the
 /// API's description gives `env` and `nbrdf`). A name of that shape that is no file in the
 /// folder (`..`, say) is refused when it is looked up ([`scene_file`]).
-fn scene_names(plan: &Plan) -> anyhow::Result<()> {
+fn scene_names(plan: &Plan) -> Result<(), String> {
     for (what, file) in [("env", &plan.env), ("nbrdf", &plan.nbrdf)] {
         if let Some(name) = file {
             let name = name.to_string_lossy();
-            anyhow::ensure!(
-                !name.is_empty() && !name.contains('/'),
-                "`{what}` must name a file in the daemon's {SCENES_DIR} folder, not give a path: {name:?}"
-            );
+            if name.is_empty() || name.contains('/') {
+                return Err(format!(
+                    "`{what}` must name a file in the daemon's {SCENES_DIR} folder, not give a path: {name:?}"
+                ));
+            }
         }
     }
     Ok(())
@@ -301,7 +303,9 @@ fn record_when_possible(
                 return;
             }
             Ok(false) => {}
-            Err(e) => tracing::debug!(session = %id, "the failure still cannot be recorded: {e:#}"),
+            Err(e) => {
+                tracing::debug!(session = %id, "the failure still cannot be recorded: {}", said(&e))
+            }
         }
     }
 }
@@ -310,29 +314,30 @@ fn record_when_possible(
 const EVENT_LOGS_KEPT: usize = 32;
 
 /// Why a capture could not start or resume. The API answers each with its own status
-/// (`api::start_error`).
+/// (`api::start_error`). The causes are said as API clients may read them
+/// ([`Daemon::private`]): in words, without this machine's paths.
 #[derive(Debug, thiserror::Error)]
 pub enum StartError {
     #[error("busy: session {0} is capturing on this rig; wait for it, or cancel it")]
     Busy(String),
     /// The plan breaks a rule its schema states (a name, a range, a count): fix the plan.
-    #[error("{0:#}")]
-    Invalid(anyhow::Error),
+    #[error("{0}")]
+    Invalid(String),
     /// A well-formed plan this daemon cannot carry out: a material its simulator lacks, a scene
     /// file not in its folder, a rig that cannot run it.
-    #[error("{0:#}")]
-    Unusable(anyhow::Error),
+    #[error("{0}")]
+    Unusable(String),
     #[error("no session {0:?}; GET /api/v1/sessions lists them")]
     NotFound(String),
     #[error("session {0} is already done; its result is at /api/v1/sessions/{0}/result")]
     Done(String),
     /// A stored session that cannot go on as it is (its files changed, or the rig no longer
     /// fits its plan).
-    #[error("session {0} cannot be resumed: {1:#}")]
-    NotResumable(String, anyhow::Error),
+    #[error("session {0} cannot be resumed: {1}")]
+    NotResumable(String, String),
     /// The state directory could not hold the session, or the capture's thread not start.
-    #[error("{0:#}")]
-    Storage(anyhow::Error),
+    #[error("{0}")]
+    Storage(String),
 }
 
 impl Daemon {
@@ -344,11 +349,11 @@ impl Daemon {
         state_dir: PathBuf,
         token: Option<String>,
         keep_alive: std::time::Duration,
-    ) -> anyhow::Result<Daemon> {
+    ) -> Result<Daemon, RigError> {
         // Made now, so that its resolved path is known from the start (and a folder that
         // cannot be made fails the daemon here, not the first capture).
         std::fs::create_dir_all(&state_dir)
-            .with_context(|| format!("creating the state directory {}", state_dir.display()))?;
+            .with_step(|| format!("creating the state directory {}", state_dir.display()))?;
         for m in Session::list(&state_dir)? {
             let mut s = Session::open(&state_dir, &m.id)?;
             if s.mark_if_interrupted()? {
@@ -376,8 +381,8 @@ impl Daemon {
 
     /// `e` as API clients may read it: paths in the state directory relative to it, so that no
     /// answer tells a client where this machine keeps its files.
-    pub fn private(&self, e: anyhow::Error) -> anyhow::Error {
-        anyhow::Error::msg(self.relative(&format!("{e:#}")))
+    pub fn private(&self, e: &(dyn std::error::Error + 'static)) -> String {
+        self.relative(&said(e))
     }
 
     /// `text` with the state directory's path (as given, and resolved) left out of the paths
@@ -429,19 +434,22 @@ impl Daemon {
     pub fn start_capture(&self, plan: Plan) -> Result<Session, StartError> {
         // A malformed plan is refused as such whether or not a capture runs: the caller
         // learns what to fix, not only that it must wait.
-        plan.validate().map_err(|e| StartError::Invalid(e.into()))?;
+        plan.validate()
+            .map_err(|e| StartError::Invalid(e.to_string()))?;
         scene_names(&plan).map_err(StartError::Invalid)?;
         // The scene files by name first: every later step reads the files they resolve to,
         // never a path the client sent.
-        let plan = self.scene_files(plan).map_err(StartError::Unusable)?;
+        let plan = self
+            .scene_files(plan)
+            .map_err(|e| StartError::Unusable(said(&e)))?;
         let settings = CaptureSettings::resolve(&plan, &self.rig)
-            .map_err(|e| StartError::Unusable(self.private(e)))?;
+            .map_err(|e| StartError::Unusable(self.private(&e)))?;
         // One lock from the busy check to the launch: two plans sent at once must not both
         // pass the check and leave a session behind for the one that loses.
         let mut running = self.lock_idle()?;
         let session = settings
             .new_session(&self.state_dir, &self.rig_text)
-            .map_err(|e| StartError::Storage(self.private(e)))?;
+            .map_err(|e| StartError::Storage(self.private(&e)))?;
         self.launch(&mut running, session, settings)
     }
 
@@ -449,7 +457,7 @@ impl Daemon {
     /// directory's [`SCENES_DIR`]. A client names them and never hands the daemon a path:
     /// a path would let any client make the daemon read any file on its machine, or
     /// `/dev/zero` without end.
-    fn scene_files(&self, mut plan: Plan) -> anyhow::Result<Plan> {
+    fn scene_files(&self, mut plan: Plan) -> Result<Plan, RigError> {
         for (what, file) in [("env", &mut plan.env), ("nbrdf", &mut plan.nbrdf)] {
             if let Some(name) = file.as_ref() {
                 *file = Some(scene_file(&self.state_dir, what, name)?);
@@ -466,13 +474,12 @@ impl Daemon {
         self.unrecorded.lock().expect("unrecorded").remove(id);
         let mut s = Session::open(&self.state_dir, id).map_err(|e| match e {
             e if e.names_no_session(id) => StartError::NotFound(id.to_string()),
-            e => StartError::Storage(self.private(e.into())),
+            e => StartError::Storage(self.private(&e)),
         })?;
         if s.manifest().state == State::Done {
             return Err(StartError::Done(id.to_string()));
         }
-        let unresumable =
-            |e: anyhow::Error| StartError::NotResumable(id.to_string(), self.private(e));
+        let unresumable = |e: RigError| StartError::NotResumable(id.to_string(), self.private(&e));
         let plan = resumable(&mut s).map_err(unresumable)?;
         let settings = CaptureSettings::resolve(&plan, &self.rig).map_err(unresumable)?;
         // Checked again under the lock: another capture may have started meanwhile.
@@ -540,8 +547,8 @@ impl Daemon {
                 match flow::execute(&mut session, &settings, &cx) {
                     Ok(_) => tracing::info!(session = %id, "capture done"),
                     Err(e) => {
-                        tracing::warn!(session = %id, "capture failed: {e:#}");
-                        if let Some(u) = e.downcast_ref::<flow::Unrecorded>() {
+                        tracing::warn!(session = %id, "capture failed: {}", said(&e));
+                        if let Some(u) = e.unrecorded() {
                             pending
                                 .lock()
                                 .expect("unrecorded")
@@ -553,7 +560,7 @@ impl Daemon {
                     }
                 }
             })
-            .map_err(|e| StartError::Storage(e.into()))?;
+            .map_err(|e| StartError::Storage(e.to_string()))?;
         *running = Some(Running {
             id,
             cancel,
@@ -618,9 +625,12 @@ impl Daemon {
 
 /// The plan of a stored session, after adopting files stored but not yet listed and checking
 /// every checksum: what a resume needs before it continues.
-pub fn resumable(s: &mut Session) -> anyhow::Result<Plan> {
+pub fn resumable(s: &mut Session) -> Result<Plan, RigError> {
     if s.manifest().state == State::Done {
-        anyhow::bail!("session {} is already done", s.manifest().id);
+        return Err(RigError::invalid(format!(
+            "session {} is already done",
+            s.manifest().id
+        )));
     }
     // Left capturing or estimating by a process that is gone: recorded as what it is, so
     // that the resumed run starts from a failed session, as every resume does.
@@ -629,7 +639,6 @@ pub fn resumable(s: &mut Session) -> anyhow::Result<Plan> {
     if adopted > 0 {
         tracing::info!("{adopted} raw files were stored but not yet listed; listed now");
     }
-    s.verify()
-        .context("checking what the session already holds")?;
-    serde_json::from_value(s.manifest().options.clone()).context("the manifest's capture options")
+    s.verify().step("checking what the session already holds")?;
+    serde_json::from_value(s.manifest().options.clone()).step("the manifest's capture options")
 }

@@ -16,7 +16,6 @@ use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use anyhow::{bail, Context as _};
 use serde::Deserialize;
 
 use super::flow::{Context, Keep, Prefixed, RawFiles};
@@ -25,6 +24,8 @@ use super::object::{self, dslr_frames, DslrFrames, FallbackBracket};
 use super::plan;
 use super::settings::{light_plan, Bracket};
 use crate::config::{invalid, ConfigError, Gain};
+use crate::error::{refuse, Result, RigError, StepExt};
+use crate::failure::said;
 use brdfd_bench::VirtualBench;
 use brdfd_core::envmap::{LightSet, DEFAULT_LIGHTS};
 use brdfd_core::geometry::{PixelGeometry, SceneGeometry, Shape};
@@ -49,7 +50,7 @@ pub fn calibration_dir(
     out: Option<&Path>,
     state_dir: Option<&Path>,
     what: &str,
-) -> anyhow::Result<PathBuf> {
+) -> Result<PathBuf> {
     let out = match out {
         Some(o) => o.to_path_buf(),
         None => {
@@ -60,7 +61,7 @@ pub fn calibration_dir(
             state.join("calibrations").join(format!("{stamp}-{what}"))
         }
     };
-    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    std::fs::create_dir_all(&out).with_step(|| format!("creating {}", out.display()))?;
     Ok(out)
 }
 
@@ -68,7 +69,7 @@ pub fn calibration_dir(
 pub struct Folder(pub PathBuf);
 
 impl Keep for Folder {
-    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
+    fn keep(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
         crate::session::write_new(&self.0, name, bytes)?;
         Ok(())
     }
@@ -102,9 +103,9 @@ impl Default for Target {
 
 impl Target {
     /// A target file: `albedo` and a `[shape]` table.
-    pub fn read(path: &std::path::Path) -> anyhow::Result<Target> {
+    pub fn read(path: &std::path::Path) -> Result<Target> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).with_context(|| format!("reading {file}"))?;
+        let text = std::fs::read_to_string(path).with_step(|| format!("reading {file}"))?;
         let t: Target = crate::config::parse(&file, &text)?;
         t.check(&file)?;
         Ok(t)
@@ -175,11 +176,7 @@ impl Radiometry {
 
 /// Shoots the target with every camera of the rig and measures their gains. Each camera
 /// file is kept as it arrives.
-pub fn radiometry(
-    cx: &Context,
-    keep: &mut dyn Keep,
-    target: &Target,
-) -> anyhow::Result<Radiometry> {
+pub fn radiometry(cx: &Context, keep: &mut dyn Keep, target: &Target) -> Result<Radiometry> {
     let rig = cx.rig;
     let roles = plan::devices(rig)?;
     let scene = SceneGeometry {
@@ -234,18 +231,18 @@ pub fn radiometry(
     let mut cameras = Vec::new();
     let mut skipped = Vec::new();
     // Each camera on its own: one that fails is said, and the others are still measured.
-    let mut each = |what: &str, measured: anyhow::Result<Vec<Measured>>| match measured {
+    let mut each = |what: &str, measured: Result<Vec<Measured>>| match measured {
         Ok(m) => cameras.extend(m),
         Err(e) => {
-            cx.warn(format!("{what} is not measured: {e:#}"));
-            skipped.push(format!("{what}: {e:#}"));
+            cx.warn(format!("{what} is not measured: {}", said(&e)));
+            skipped.push(format!("{what}: {}", said(&e)));
         }
     };
     if let (true, Some(role)) = (roles.dslr, &cx.devices.dslr) {
         let bracket = Bracket::dslr(rig, rig.brackets.dslr_shutters.clone());
         let measured = role
             .ping()
-            .map_err(anyhow::Error::from)
+            .map_err(RigError::from)
             .and_then(|()| {
                 object::bracket(
                     cx,
@@ -283,7 +280,7 @@ pub fn radiometry(
         each("the fallback camera", measured);
     }
     if cameras.is_empty() {
-        bail!(
+        refuse!(
             "no camera of the rig could photograph the target: {}",
             skipped.join("; ")
         );
@@ -304,7 +301,7 @@ fn dslr_gains(
     pixels: &PixelGeometry,
     predicted: &[[f64; 3]],
     theta: [f64; 3],
-) -> anyhow::Result<Vec<Measured>> {
+) -> Result<Vec<Measured>> {
     let (raw, jpeg): (RawFiles, RawFiles) = files
         .iter()
         .cloned()
@@ -362,7 +359,11 @@ fn predicted_for(
 /// The radiance a Lambertian target of `albedo` shows at each pixel under `lights`, in the
 /// lights' unit: ρ/π · Σ L·max(0, n·ω)·Δω over the lights the pixel sees (a mesh target's
 /// own shape hides some, as the renderers count it).
-pub fn lambertian(pixels: &PixelGeometry, lights: &LightSet, albedo: [f64; 3]) -> Vec<[f64; 3]> {
+pub(crate) fn lambertian(
+    pixels: &PixelGeometry,
+    lights: &LightSet,
+    albedo: [f64; 3],
+) -> Vec<[f64; 3]> {
     brdfd_core::render::irradiance(pixels, lights)
         .into_iter()
         .map(|e| [0, 1, 2].map(|c| albedo[c] / PI * e[c]))
@@ -378,7 +379,7 @@ fn measure(
     pixels: &PixelGeometry,
     predicted: &[[f64; 3]],
     theta: [f64; 3],
-) -> anyhow::Result<Measured> {
+) -> Result<Measured> {
     let merged = merge_hdr(frames, 1.0)?;
     let white = merged_white_level(frames, 1.0).unwrap_or(f32::INFINITY);
     check_size(&merged, pixels, what)?;
@@ -406,7 +407,7 @@ fn measure(
     let mut spread = [0.0; 3];
     for c in 0..3 {
         let Some(m) = median(&mut ratios[c]) else {
-            bail!("{what}: no pixel of the target is lit and unclipped in the bracket; check that the target fills the object's place and the exposures reach it");
+            refuse!("{what}: no pixel of the target is lit and unclipped in the bracket; check that the target fills the object's place and the exposures reach it");
         };
         let mut deviation: Vec<f64> = ratios[c].iter().map(|r| (r - m).abs()).collect();
         let mad = median(&mut deviation).unwrap_or(0.0);
@@ -422,9 +423,9 @@ fn measure(
     })
 }
 
-fn check_size(photo: &Raster, pixels: &PixelGeometry, what: &str) -> anyhow::Result<()> {
+fn check_size(photo: &Raster, pixels: &PixelGeometry, what: &str) -> Result<()> {
     if (photo.width, photo.height) != (pixels.width, pixels.height) {
-        bail!(
+        refuse!(
             "{what}: the photos are {}×{}, the rig's camera is {}×{}: set [geometry.camera] width and height to the camera's",
             photo.width,
             photo.height,

@@ -8,13 +8,13 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context as _};
 use brdfd_core::geometry::{Camera, Shape};
 use brdfd_pose::board::Board;
 use brdfd_pose::silhouette::Refined;
 use brdfd_pose::{pinhole, Calibrated, Focal};
 
 use crate::config::Rig;
+use crate::error::{refuse, Result, StepExt};
 use crate::flow::{Context, Keep};
 use crate::pose::{self, OnBench, Photo, PhotoView};
 use crate::rig_file::{RigFile, RigFileError, Saved};
@@ -70,7 +70,7 @@ pub trait PoseReport {
     fn warn(&mut self, warning: &str);
     /// Asks for what stands on the bench to be changed, returning once it is; a simulated
     /// bench changes it itself (`simulated`), and is only told.
-    fn change_bench(&mut self, what: &str, simulated: bool) -> anyhow::Result<()>;
+    fn change_bench(&mut self, what: &str, simulated: bool) -> Result<()>;
 }
 
 /// What a calibration found and did.
@@ -81,7 +81,7 @@ pub struct PoseOutcome {
     pub saved: Option<Result<Saved, RigFileError>>,
     /// The object's placement, when it was asked for: where the mesh stands now, or why it
     /// was not found (the camera's pose is written all the same).
-    pub placed: Option<anyhow::Result<Shape>>,
+    pub placed: Option<Result<Shape>>,
 }
 
 /// A field of a [`PoseRequest`] that a refusal names.
@@ -220,7 +220,7 @@ pub struct PoseCalibration<'a> {
 }
 
 impl<'a> PoseCalibration<'a> {
-    pub fn new(rig: &'a Rig, request: PoseRequest) -> anyhow::Result<PoseCalibration<'a>> {
+    pub fn new(rig: &'a Rig, request: PoseRequest) -> Result<PoseCalibration<'a>> {
         let r = &request;
         if pinhole(&rig.geometry.camera).is_none() {
             return Err(PoseRefused::Orthographic {
@@ -309,7 +309,7 @@ impl<'a> PoseCalibration<'a> {
         camera: Option<(&Context, &mut dyn Keep)>,
         out: Option<&Path>,
         report: &mut dyn PoseReport,
-    ) -> anyhow::Result<PoseOutcome> {
+    ) -> Result<PoseOutcome> {
         let rig_camera = &self.rig.geometry.camera;
         let r = &self.request;
         let focal = r.focal;
@@ -353,7 +353,7 @@ impl<'a> PoseCalibration<'a> {
                 (found, object)
             }
             (Some(_), None, _) => {
-                bail!("the board is to be photographed by the rig's camera, and no devices were given to shoot with")
+                refuse!("the board is to be photographed by the rig's camera, and no devices were given to shoot with")
             }
             (
                 None,
@@ -385,7 +385,7 @@ impl<'a> PoseCalibration<'a> {
             }
         };
         let note = note(&found);
-        let placed = object.map(|photos: anyhow::Result<(Vec<PhotoView>, Vec<PhotoView>)>| {
+        let placed = object.map(|photos: Result<(Vec<PhotoView>, Vec<PhotoView>)>| {
             let (empty, object) = photos?;
             let shape = self
                 .rig
@@ -417,16 +417,16 @@ impl<'a> PoseCalibration<'a> {
 }
 
 /// Photos taken already, as the one view they are.
-fn photo_view(files: &[PathBuf]) -> anyhow::Result<Vec<PhotoView>> {
+fn photo_view(files: &[PathBuf]) -> Result<Vec<PhotoView>> {
     Ok(vec![PhotoView {
         turn_deg: 0.0,
         photos: files
             .iter()
             .map(|p| {
-                let bytes = std::fs::read(p).with_context(|| format!("reading {}", p.display()))?;
+                let bytes = std::fs::read(p).with_step(|| format!("reading {}", p.display()))?;
                 Photo::decode(&p.display().to_string(), &bytes)
             })
-            .collect::<anyhow::Result<Vec<_>>>()?,
+            .collect::<Result<Vec<_>>>()?,
     }])
 }
 
@@ -441,8 +441,8 @@ fn note(found: &Calibrated) -> String {
 }
 
 /// Writes pose.json into `out`, made if it is not there: a folder is made only for a fit.
-fn write_json(out: &Path, v: &serde_json::Value) -> anyhow::Result<()> {
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+fn write_json(out: &Path, v: &serde_json::Value) -> Result<()> {
+    std::fs::create_dir_all(out).with_step(|| format!("creating {}", out.display()))?;
     let text = serde_json::to_string_pretty(v)?;
     crate::session::write_atomic(&out.join("pose.json"), text.as_bytes())?;
     Ok(())
@@ -450,11 +450,7 @@ fn write_json(out: &Path, v: &serde_json::Value) -> anyhow::Result<()> {
 
 /// A poor fit is an error, unless it is only reported (`warn_only`: forced, or nothing is
 /// written).
-fn check_fit(
-    found: &Calibrated,
-    warn_only: bool,
-    report: &mut dyn PoseReport,
-) -> anyhow::Result<()> {
+fn check_fit(found: &Calibrated, warn_only: bool, report: &mut dyn PoseReport) -> Result<()> {
     if found.fit.rms_px > MAX_RMS_PX || found.fit.worst_px > MAX_WORST_PX {
         let why = format!(
             "the board's corners do not fit one camera well ({:.2} px RMS, {:.2} px at worst; a good fit is under {MAX_RMS_PX} and {MAX_WORST_PX}): check the board's square_mm and [placement], that it is flat, and that it turned with the turntable",
@@ -554,7 +550,8 @@ mod tests {
     fn refused(rig: &Rig, r: PoseRequest) -> PoseRefused {
         match PoseCalibration::new(rig, r) {
             Ok(_) => panic!("a request with a mistake was taken"),
-            Err(e) => e.downcast::<PoseRefused>().expect("a refusal"),
+            Err(crate::error::RigError::Refused(r)) => r,
+            Err(e) => panic!("not a refusal: {e:?}"),
         }
     }
 
@@ -675,7 +672,7 @@ mod tests {
         r.write = true;
         let why = match PoseCalibration::new(&rig, r) {
             Ok(_) => panic!("a rig file without the table was taken"),
-            Err(e) => format!("{e:#}"),
+            Err(e) => crate::failure::said(&e),
         };
         assert!(why.contains("has no [geometry.camera] table"), "{why}");
     }

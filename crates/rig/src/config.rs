@@ -17,6 +17,7 @@ use serde::{Deserialize, Deserializer};
 
 pub use brdfd_api::plan::{PixelCount, MAX_BRACKET, MAX_EXPOSURE_S};
 
+use crate::error::{Result, RigError};
 use crate::selector::Selector;
 use brdfd_core::estimate::Model;
 use brdfd_core::geometry::{Camera, SceneGeometry, Shape};
@@ -360,7 +361,7 @@ impl Calibration {
 
     /// The ratios of before the gains are refused, with what to write instead. (They are
     /// read, so that `brdfd calibrate radiometry` can read the rig and replace them.)
-    pub fn refuse_ratios(&self, file: &str) -> Result<(), ConfigError> {
+    pub(crate) fn refuse_ratios(&self, file: &str) -> Result<(), ConfigError> {
         let Some(field) = self.ratio_field() else {
             return Ok(());
         };
@@ -731,7 +732,7 @@ pub fn validate_name(kind: &str, name: &str) -> Result<(), String> {
 
 /// Where brdfd.toml is looked for when no `--config` is given: `BRDFD_CONFIG`, else
 /// `$XDG_CONFIG_HOME/brdfd/brdfd.toml`, else `~/.config/brdfd/brdfd.toml`.
-pub fn default_config_path() -> Option<PathBuf> {
+pub(crate) fn default_config_path() -> Option<PathBuf> {
     let var = |k: &str| {
         std::env::var_os(k)
             .filter(|v| !v.is_empty())
@@ -772,10 +773,12 @@ pub fn parse<T: serde::de::DeserializeOwned>(file: &str, text: &str) -> Result<T
 
 /// A board file (`brdfd calibrate target` writes one), read and checked: the line of a
 /// mistake in its TOML, or what about the board cannot be drawn.
-pub fn read_board(path: &Path) -> anyhow::Result<brdfd_pose::board::Board> {
+pub fn read_board(path: &Path) -> Result<brdfd_pose::board::Board> {
     let (file, text) = read(path)?;
     let board: brdfd_pose::board::Board = parse(&file, &text)?;
-    board.check().map_err(|e| anyhow::anyhow!("{file}: {e}"))?;
+    board
+        .check()
+        .map_err(|e| RigError::invalid(format!("{file}: {e}")))?;
     Ok(board)
 }
 
@@ -867,7 +870,7 @@ impl DaemonConfig {
     }
 
     /// The settings a command uses, and where they came from: the file given, else the
-    /// default path's file if there is one (see [`default_config_path`]), else the shipped
+    /// default path's file if there is one (see `default_config_path`), else the shipped
     /// defaults. The CLI and the daemon both start here, so they agree on `api`, `token` and
     /// `state_dir`.
     pub fn load(given: Option<&Path>) -> Result<(DaemonConfig, String), ConfigError> {
@@ -1054,7 +1057,7 @@ impl Rig {
     /// The camera the simulated bench photographs through, for a scene whose camera is
     /// `believed` (the rig's, at the capture's size): `[simulation] camera` at that size, or
     /// `believed` itself.
-    pub fn bench_camera(&self, believed: &Camera) -> Camera {
+    pub(crate) fn bench_camera(&self, believed: &Camera) -> Camera {
         match self.simulation.as_ref().and_then(|s| s.camera.as_ref()) {
             Some(truth) => {
                 let (w, h) = believed.size();
@@ -1067,7 +1070,7 @@ impl Rig {
     /// The object as the simulated bench places it, for a scene whose shape is `believed`:
     /// `[simulation] shape` where `believed` is the rig's own `[geometry.shape]`, else
     /// `believed` itself (a preset's object is where the preset says).
-    pub fn bench_shape(&self, believed: Option<&Shape>) -> Option<Shape> {
+    pub(crate) fn bench_shape(&self, believed: Option<&Shape>) -> Option<Shape> {
         match self.simulation.as_ref().and_then(|s| s.shape.as_ref()) {
             Some(truth) if believed == self.geometry.shape.as_ref() => Some(truth.clone()),
             _ => believed.cloned(),
@@ -1116,7 +1119,7 @@ pub fn preset_names() -> Vec<&'static str> {
 }
 
 /// The text of a shipped preset, as stored in a session's manifest.
-pub fn preset_text(name: &str) -> Option<&'static str> {
+pub(crate) fn preset_text(name: &str) -> Option<&'static str> {
     PRESETS.iter().find(|(n, _)| *n == name).map(|(_, t)| *t)
 }
 

@@ -2,14 +2,17 @@
 //! holds the camera, the disk is full, a device went away. The flow records it in the
 //! manifest beside the reason, and the daemon's event stream ends with it. The drivers' typed
 //! errors say which, as the devices' roles return them ([`DeviceError`]); they are found
-//! anywhere in the error's chain, under the flow's context.
+//! anywhere in the error's chain, under the flow's steps.
 
+use brdfd_core::CoreError;
 use brdfd_ptp::PtpError;
 use brdfd_serial::SerialError;
 use brdfd_theta::ThetaError;
 use brdfd_v4l::V4lError;
 
 pub use brdfd_api::event::FailureCode;
+
+use crate::error::RigError;
 
 /// A device that could not be opened for a job: its role and selector, what went wrong, and
 /// its code, kept from the opener's typed error (the worker keeps the words for its status,
@@ -116,31 +119,60 @@ pub fn said(e: &(dyn std::error::Error + 'static)) -> String {
 /// that a driver or the worker typed; else a full disk anywhere in it; else
 /// [`FailureCode::Failed`]. A cancelled capture is the caller's to tell (its error is the
 /// cancel's, wherever the capture stopped).
-pub fn failure_code(e: &anyhow::Error) -> FailureCode {
-    e.chain()
+pub(crate) fn failure_code(e: &(dyn std::error::Error + 'static)) -> FailureCode {
+    chain(e)
         .find_map(typed_code)
         .or_else(|| disk_full(e).then_some(FailureCode::DiskFull))
         .unwrap_or(FailureCode::Failed)
 }
 
+/// `e`, then each of its causes, each as its own type: a step's cause is boxed
+/// (`Box<RigError>`), and a box's `source` is its content's, which would leave the content
+/// itself out of a plain walk of `source`.
+pub fn chain<'a>(
+    e: &'a (dyn std::error::Error + 'static),
+) -> impl Iterator<Item = &'a (dyn std::error::Error + 'static)> {
+    std::iter::successors(Some(unboxed(e)), |c| c.source().map(unboxed))
+}
+
+fn unboxed<'a>(e: &'a (dyn std::error::Error + 'static)) -> &'a (dyn std::error::Error + 'static) {
+    if let Some(b) = e.downcast_ref::<Box<RigError>>() {
+        return b.as_ref();
+    }
+    if let Some(b) = e.downcast_ref::<Box<DeviceError>>() {
+        return b.as_ref();
+    }
+    e
+}
+
 /// Whether a full disk (ENOSPC) caused `e`, wherever in its chain: a session file's error, a
 /// plain I/O error, or the core's (whose I/O error is a field, not a source).
-pub fn disk_full(e: &anyhow::Error) -> bool {
+pub fn disk_full(e: &(dyn std::error::Error + 'static)) -> bool {
     const ENOSPC: i32 = 28;
-    e.chain().any(|c| {
+    let core_full = |c: &CoreError| matches!(c, CoreError::Io { error, .. } if error.raw_os_error() == Some(ENOSPC));
+    chain(e).any(|c| {
         c.downcast_ref::<std::io::Error>()
             .and_then(std::io::Error::raw_os_error)
             == Some(ENOSPC)
-            || matches!(
-                c.downcast_ref::<brdfd_core::CoreError>(),
-                Some(brdfd_core::CoreError::Io { error, .. }) if error.raw_os_error() == Some(ENOSPC)
-            )
+            || c.downcast_ref::<CoreError>().is_some_and(core_full)
+            || match c.downcast_ref::<RigError>() {
+                Some(RigError::Core(core)) => core_full(core),
+                Some(RigError::Io(io)) => io.raw_os_error() == Some(ENOSPC),
+                _ => false,
+            }
             || c.to_string().contains("the disk is full")
     })
 }
 
-/// The code one cause says, if it is a typed device error that says one.
+/// The code one cause says, if it is a typed device error that says one. The rig's own
+/// errors hold a driver's error inside [`DeviceError`]; a bare one is a link of the chain only
+/// where a caller put it under contexts of its own (the command line, the tests).
 fn typed_code(cause: &(dyn std::error::Error + 'static)) -> Option<FailureCode> {
+    // The rig's own error says a device's code through its transparent variant; its steps
+    // are the chain's next links.
+    if let Some(RigError::Device(d)) = cause.downcast_ref::<RigError>() {
+        return d.code();
+    }
     if let Some(d) = cause.downcast_ref::<DeviceError>() {
         return d.code();
     }
@@ -216,13 +248,24 @@ mod tests {
     use anyhow::Context as _;
     use std::time::Duration;
 
-    /// `e` as the flow sees it: under the contexts a capture adds on its way out.
-    fn code_of(e: impl std::error::Error + Send + Sync + 'static) -> FailureCode {
+    /// A device's error `e` as the flow returns it: under the steps a capture adds on its
+    /// way out.
+    fn code_of(e: impl Into<DeviceError>) -> FailureCode {
+        use crate::error::StepExt as _;
+        let e = Err::<(), _>(e.into())
+            .step("view1: object bracket")
+            .step("the rig's DSLR")
+            .unwrap_err();
+        e.code()
+    }
+
+    /// `e` as the command line holds it: under contexts of its own.
+    fn code_under_contexts(e: impl std::error::Error + Send + Sync + 'static) -> FailureCode {
         let e = Err::<(), _>(e)
             .context("view1: object bracket")
             .context("the rig's DSLR")
             .unwrap_err();
-        failure_code(&e)
+        failure_code(e.as_ref())
     }
 
     #[test]
@@ -278,7 +321,7 @@ mod tests {
         );
         // A failure no driver typed has the plain code.
         assert_eq!(
-            failure_code(&anyhow::anyhow!("the estimate has no pixels")),
+            failure_code(anyhow::anyhow!("the estimate has no pixels").as_ref()),
             FailureCode::Failed
         );
     }
@@ -318,7 +361,7 @@ mod tests {
     #[test]
     fn a_full_disk_is_found_under_any_context() {
         let full = std::io::Error::from_raw_os_error(28);
-        assert_eq!(code_of(full), FailureCode::DiskFull);
+        assert_eq!(code_under_contexts(full), FailureCode::DiskFull);
     }
 
     #[test]
@@ -330,5 +373,23 @@ mod tests {
             code: FailureCode::DeviceBusy,
         };
         assert_eq!(code_of(e), FailureCode::DeviceBusy);
+    }
+
+    /// A driver's error under the command line's contexts, without the rig's wrapper, says
+    /// its code too.
+    #[test]
+    fn a_bare_drivers_error_under_contexts_says_its_code() {
+        assert_eq!(
+            code_under_contexts(SerialError::Busy {
+                port: "/dev/ttyACM0".into()
+            }),
+            FailureCode::DeviceBusy
+        );
+        assert_eq!(
+            code_under_contexts(PtpError::Disconnected {
+                during: "GetObject"
+            }),
+            FailureCode::DeviceLost
+        );
     }
 }

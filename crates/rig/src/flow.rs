@@ -12,10 +12,9 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::Context as _;
 use serde_json::json;
 
-use super::failure::{disk_full, failure_code, FailureCode};
+use super::failure::{disk_full, said, FailureCode};
 use super::light::light_bracket;
 use super::object::{self, CameraRole, FallbackUse};
 use super::prepare::Preparing;
@@ -24,6 +23,7 @@ use super::stage::Stage;
 use super::turning::{turn, turned};
 use super::{Cancel, Devices, Event, Operator, Progress};
 use crate::config::Rig;
+use crate::error::{Result, RigError, StepExt};
 use crate::session::{PhaseTime, Session, State};
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::Bivariate;
@@ -46,14 +46,14 @@ pub type RawFiles = Vec<(String, Vec<u8>)>;
 /// Where a bracket's files go as they arrive, each at once, so that a failure later in the
 /// bracket loses none already taken: a session's step, or a calibration's folder.
 pub trait Keep {
-    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()>;
+    fn keep(&mut self, name: &str, bytes: &[u8]) -> Result<()>;
 }
 
 /// Keeps each file under its name with a prefix (`theta-`, `view2-`).
 pub struct Prefixed<'a>(pub &'a mut dyn Keep, pub String);
 
 impl Keep for Prefixed<'_> {
-    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
+    fn keep(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
         self.0.keep(&format!("{}{name}", self.1), bytes)
     }
 }
@@ -65,7 +65,7 @@ pub struct Step<'a> {
 }
 
 impl Keep for Step<'_> {
-    fn keep(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
+    fn keep(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
         self.session.add_raw(self.name, name, bytes)?;
         Ok(())
     }
@@ -115,11 +115,7 @@ impl Context<'_> {
 
 /// Runs the flow on a session. A failure is recorded in the manifest, and the session stays
 /// resumable; either way the last event is `Finished`.
-pub fn execute(
-    session: &mut Session,
-    settings: &CaptureSettings,
-    cx: &Context,
-) -> anyhow::Result<Outcome> {
+pub fn execute(session: &mut Session, settings: &CaptureSettings, cx: &Context) -> Result<Outcome> {
     // (result, why it failed, and whether the manifest could not record it), with the failure
     // recorded while the session is still claimed.
     let mut unrecorded = None;
@@ -132,18 +128,19 @@ pub fn execute(
             let code = if cx.cancel.is_cancelled() {
                 FailureCode::Cancelled
             } else {
-                failure_code(e)
+                e.code()
             };
             let reason = if code == FailureCode::Cancelled {
                 CANCELLED.to_string()
-            } else if disk_full(e) && !format!("{e:#}").contains("the disk is full") {
+            } else if disk_full(e) && !said(e).contains("the disk is full") {
                 // A derived map or a result, written by the core, says only ENOSPC.
                 format!(
-                    "{e:#}: the disk is full; free space, then `brdfd session resume {}` continues it (what was captured is kept)",
+                    "{}: the disk is full; free space, then `brdfd session resume {}` continues it (what was captured is kept)",
+                    said(e),
                     session.manifest().id
                 )
             } else {
-                format!("{e:#}")
+                said(e)
             };
             // Half-written results are of no use, and on a full disk removing them is what
             // makes room to record the failure.
@@ -175,40 +172,23 @@ pub fn execute(
     });
     result.map_err(|e| {
         let e = match unrecorded {
-            Some(u) => e.context(u),
+            Some(unrecorded) => RigError::Unrecorded {
+                unrecorded,
+                cause: Box::new(e),
+            },
             None => e,
         };
-        e.context(format!(
+        e.step(format!(
             "session {id} failed; what was captured is kept: `brdfd session resume {id}` continues it"
         ))
     })
 }
 
-/// A failure the manifest could not record (the disk full, no file descriptor left), in the
-/// error [`execute`] returns: the daemon records it once it can ([`record_failure`]).
-#[derive(Debug, Clone)]
-pub struct Unrecorded {
-    /// What the manifest should say.
-    pub reason: String,
-    /// Its code.
-    pub code: FailureCode,
-    /// Why it could not.
-    pub error: String,
-}
-
-impl std::fmt::Display for Unrecorded {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "the failure could not be recorded in the manifest ({})",
-            self.error
-        )
-    }
-}
+pub use crate::error::Unrecorded;
 
 /// Records a failure that [`execute`] could not. `Ok(true)` once the manifest says it (or
 /// says the session ended by other means); `Ok(false)` while another process holds it.
-pub fn record_failure(state: &std::path::Path, id: &str, u: &Unrecorded) -> anyhow::Result<bool> {
+pub fn record_failure(state: &std::path::Path, id: &str, u: &Unrecorded) -> Result<bool> {
     let marked =
         Session::open(state, id)?.fail_unless_running(|_| u.reason.clone(), Some(u.code))?;
     Ok(marked != crate::session::Marked::Running)
@@ -267,7 +247,7 @@ impl<'a> Phases<'a> {
     }
 }
 
-fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Result<Outcome> {
+fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> Result<Outcome> {
     let mut phases = Phases {
         cx,
         done: Vec::new(),
@@ -365,10 +345,10 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> anyhow::Resu
 
 /// A turntable that cannot turn is found before anything is shot: its device opened, and its
 /// role asked of it (a box whose `ID?` lists FIRE alone is no turntable).
-fn check_turntable(cx: &Context, s: &CaptureSettings) -> anyhow::Result<()> {
+fn check_turntable(cx: &Context, s: &CaptureSettings) -> Result<()> {
     match (&cx.devices.turntable, s.turning) {
         (Some(t), super::settings::Turning::Turntable) => {
-            t.call(|t| t.position()).context("the rig's turntable")?;
+            t.call(|t| t.position()).step("the rig's turntable")?;
             Ok(())
         }
         _ => Ok(()),
@@ -383,7 +363,7 @@ fn measure_light(
     s: &CaptureSettings,
     stage: &dyn Stage,
     phases: &mut Phases,
-) -> anyhow::Result<EnvMap> {
+) -> Result<EnvMap> {
     let pano_files = match stored(session, "panorama")? {
         Some((files, _)) => {
             cx.say(format!(
@@ -413,7 +393,7 @@ fn measure_light(
         .theta
         .as_ref()
         .map(|g| g.gain.0)
-        .context("calibration.theta.gain is not in the rig's calibration: `brdfd calibrate radiometry` measures it")?;
+        .step("calibration.theta.gain is not in the rig's calibration: `brdfd calibrate radiometry` measures it")?;
     let p = phases.start("panorama HDR merge", 1);
     let merged = merge_bracket(&pano_files, gain)?;
     phases.end(p);
@@ -464,7 +444,7 @@ fn shoot_views(
     (env, basis): (&EnvMap, &Basis),
     stage: &mut dyn Stage,
     phases: &mut Phases,
-) -> anyhow::Result<Captured> {
+) -> Result<Captured> {
     let mut captured = Captured {
         views: Vec::with_capacity(s.views),
         clip_level: None,
@@ -587,7 +567,7 @@ fn estimate(
     basis: &Basis,
     captured: &mut Captured,
     phases: &mut Phases,
-) -> anyhow::Result<(Materials, Option<Prepared>)> {
+) -> Result<(Materials, Option<Prepared>)> {
     let p = phases.start("estimate", 1);
     // A wait for the work started while the camera shot, if it is not done, is the
     // estimate's: the estimate would otherwise do most of it.
@@ -698,7 +678,7 @@ fn write_result(
     found: &Materials,
     lights: &brdfd_core::envmap::LightSet,
     report: ReportContext,
-) -> anyhow::Result<(
+) -> Result<(
     brdfd_report::export::Export,
     Vec<brdfd_report::flags::Flag>,
     Option<brdfd_report::materials::Parts>,
@@ -709,16 +689,13 @@ fn write_result(
         brdfd_report::materials::write_all(&fresh, basis, found, "fast", lights, report)?;
     let result = session.dir.join("result");
     let _ = std::fs::remove_dir_all(&result);
-    std::fs::rename(&fresh, &result).context("moving the results into place")?;
+    std::fs::rename(&fresh, &result).step("moving the results into place")?;
     Ok((files.exports, files.flags, parts))
 }
 
 /// A step's files from the session (checksums verified), under the names the camera gave
 /// them, if the step is complete.
-pub fn stored(
-    session: &Session,
-    step: &str,
-) -> anyhow::Result<Option<(RawFiles, serde_json::Value)>> {
+pub fn stored(session: &Session, step: &str) -> Result<Option<(RawFiles, serde_json::Value)>> {
     let Some(s) = session.complete_step(step) else {
         return Ok(None);
     };
@@ -726,13 +703,13 @@ pub fn stored(
         .files
         .iter()
         .map(|f| Ok((f.device_name(s).to_string(), session.read_raw(f)?)))
-        .collect::<anyhow::Result<Vec<_>>>()?;
+        .collect::<Result<Vec<_>>>()?;
     Ok(Some((files, s.meta.clone())))
 }
 
 /// Writes a merged photo with its white level, so that a later `brdfd estimate` on the file
 /// leaves out the pixels the capture left out.
-fn save_exr(session: &Session, name: &str, r: &Raster, white: Option<f32>) -> anyhow::Result<()> {
+fn save_exr(session: &Session, name: &str, r: &Raster, white: Option<f32>) -> Result<()> {
     // Written beside, then renamed: a derived file is whole or absent.
     let tmp = session.dir.join("derived").join(format!(".{name}.tmp.exr"));
     r.write_exr_with_white(&tmp, white)?;

@@ -26,7 +26,8 @@
 //!   asks them through one trait, and has no simulated branch of its own.
 //! - [`settings`]: a capture's settings, resolved from the plan, the preset and the rig
 //!   before a session exists.
-//! - [`flow`]: the capture itself, as resumable steps; [`failure`]: why it failed, as a code.
+//! - [`flow`]: the capture itself, as resumable steps; [`error`]: what it failed on, and
+//!   [`failure`]: why, as a code.
 //! - [`light`]: the light probe's bracket; [`object`]: the object camera's views, shot on
 //!   the DSLR or the V4L2 fallback and merged; [`turning`]: the object turned between views.
 
@@ -34,6 +35,7 @@ pub mod calibrate;
 pub mod calibrate_pose;
 pub mod config;
 pub mod devices;
+pub mod error;
 pub mod failure;
 pub mod flow;
 pub mod light;
@@ -53,6 +55,7 @@ mod stage;
 pub mod turning;
 pub mod worker;
 
+use crate::error::{refuse, Result, RigError};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -65,9 +68,9 @@ pub use worker::{Device, DeviceStatus, Worker};
 /// On a simulated rig, the plan's material must be one the simulator can render: a shipped
 /// preset, an alias or embedded test material, or one of the plan's NBRDF file. Checked
 /// before a session exists, so that a typo leaves nothing behind.
-pub fn check_simulated_material(plan: &Plan) -> anyhow::Result<()> {
+pub(crate) fn check_simulated_material(plan: &Plan) -> Result<()> {
     let preset =
-        crate::config::MaterialPreset::embedded(&plan.material).map_err(anyhow::Error::msg)?;
+        crate::config::MaterialPreset::embedded(&plan.material).map_err(RigError::invalid)?;
     let name = preset
         .as_ref()
         .map_or(plan.material.as_str(), |p| p.simulate_as.as_str());
@@ -81,7 +84,7 @@ pub fn check_simulated_material(plan: &Plan) -> anyhow::Result<()> {
         return Ok(());
     }
     let embedded = brdfd_bench::embedded_materials();
-    anyhow::bail!(
+    refuse!(
         "the simulator has no material {:?}. Use a preset ({}), a short name ({}), a test \
          material ({}), or an NBRDF file holding it (the plan's `nbrdf`; `--nbrdf FILE` on \
          the command line)",
@@ -124,7 +127,9 @@ pub fn stored_summary(coefficients_json: &std::path::Path) -> Option<Summary> {
 }
 
 /// The materials of a part split into two, as the summary carries them.
-pub fn summary_materials(m: &brdfd_report::materials::MaterialsRecord) -> Vec<SummaryMaterial> {
+pub(crate) fn summary_materials(
+    m: &brdfd_report::materials::MaterialsRecord,
+) -> Vec<SummaryMaterial> {
     m.parts
         .iter()
         .map(|p| SummaryMaterial {
@@ -159,8 +164,10 @@ impl Cancel {
     pub fn is_cancelled(&self) -> bool {
         self.0.requested()
     }
-    pub fn check(&self) -> anyhow::Result<()> {
-        anyhow::ensure!(!self.is_cancelled(), "cancelled");
+    pub fn check(&self) -> Result<()> {
+        if self.is_cancelled() {
+            return Err(RigError::Cancelled);
+        }
         Ok(())
     }
     /// The same request, as the estimation core and the exports see it.
@@ -175,7 +182,7 @@ pub trait Operator: Send + Sync {
     /// Asks for view `view`'s turn (`announce` sends the request out, once an answer can be
     /// taken) and returns once the operator says it is done; an error if the capture is
     /// cancelled meanwhile or no operator can answer.
-    fn wait(&self, view: usize, announce: &dyn Fn(), cancel: &Cancel) -> anyhow::Result<()>;
+    fn wait(&self, view: usize, announce: &dyn Fn(), cancel: &Cancel) -> Result<()>;
 }
 
 /// A go-ahead given from elsewhere (the daemon's API) to a capture waiting on this thread.
@@ -212,7 +219,7 @@ impl GoAhead {
 }
 
 impl Operator for GoAhead {
-    fn wait(&self, view: usize, announce: &dyn Fn(), cancel: &Cancel) -> anyhow::Result<()> {
+    fn wait(&self, view: usize, announce: &dyn Fn(), cancel: &Cancel) -> Result<()> {
         let (state, ready) = &*self.0;
         *state.lock().expect("go-ahead") = GoState {
             waiting: Some(view),

@@ -8,14 +8,15 @@ use super::failure::DeviceError;
 use super::flow::{Context, Keep, RawFiles};
 use super::roles::LightProbe;
 use super::{Event, Progress};
+use crate::error::Result;
 
 /// Shoots the light probe's bracket on its worker; the frames are kept as the camera sent
 /// them.
-pub fn light_bracket(
+pub(crate) fn light_bracket(
     cx: &Context,
     keep: &mut dyn Keep,
     plan: BracketPlan,
-) -> anyhow::Result<RawFiles> {
+) -> Result<RawFiles> {
     let probe = &cx.devices.light_probe;
     let progress = cx.progress.clone();
     let frames = probe.call(move |probe| shoot_panorama(probe, &plan, progress.as_ref()))?;

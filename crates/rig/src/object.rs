@@ -10,15 +10,15 @@
 
 use std::sync::mpsc;
 
-use anyhow::Context as _;
 use serde_json::json;
 
-use super::failure::{said, DeviceError};
+use super::failure::{chain, said, DeviceError};
 use super::flow::{note_device, Context, Keep, RawFiles, Step};
 use super::roles::{ObjectCamera, Output, Role};
 use super::settings::Bracket;
 use super::Event;
 use crate::config::{Calibration, CameraGain};
+use crate::error::{Result, RigError, StepExt};
 use crate::session::Session;
 use brdfd_core::raster::Raster;
 use brdfd_radiometry::averaged::averaged_exr;
@@ -47,7 +47,7 @@ impl CameraRole {
     }
 
     /// The camera a stored step names (steps from before the fallback name none: the DSLR).
-    pub fn of_step(meta: &serde_json::Value) -> CameraRole {
+    pub(crate) fn of_step(meta: &serde_json::Value) -> CameraRole {
         match meta["camera"].as_str() {
             Some("fallback") => CameraRole::Fallback,
             _ => CameraRole::Dslr,
@@ -97,7 +97,7 @@ impl FallbackUse {
 
 /// The camera the capture starts on: the DSLR if the rig has one and it answers, else the
 /// fallback. Neither is an error that says what was tried.
-pub fn choose(cx: &Context) -> anyhow::Result<CameraRole> {
+pub fn choose(cx: &Context) -> Result<CameraRole> {
     let devices = cx.devices;
     let Some(dslr) = &devices.dslr else {
         cx.say("object camera: the V4L2 fallback (the rig has no DSLR)");
@@ -120,12 +120,13 @@ pub fn choose(cx: &Context) -> anyhow::Result<CameraRole> {
         Err(e) => match &devices.fallback {
             Some(f) => {
                 cx.warn(format!(
-                    "the DSLR does not answer ({e:#}); the capture uses the fallback camera {}",
+                    "the DSLR does not answer ({}); the capture uses the fallback camera {}",
+                    said(&e),
                     f.status().selector
                 ));
                 Ok(CameraRole::Fallback)
             }
-            None => Err(anyhow::Error::from(e).context(
+            None => Err(RigError::from(e).step(
                 "the DSLR does not answer, and the rig names no fallback_camera to use instead",
             )),
         },
@@ -135,18 +136,18 @@ pub fn choose(cx: &Context) -> anyhow::Result<CameraRole> {
 /// Shoots one view on `camera`. A DSLR that fails during the bracket is replaced by the
 /// fallback, if the rig has one: the view is shot again, whole, and `camera` stays the
 /// fallback for the views after it.
-pub fn shoot_view(
+pub(crate) fn shoot_view(
     cx: &Context,
     session: &mut Session,
     step: &str,
     deg: f64,
     brackets: (&Bracket, &Bracket),
     camera: &mut CameraRole,
-) -> anyhow::Result<RawFiles> {
+) -> Result<RawFiles> {
     let (dslr_bracket, fallback_bracket) = brackets;
     if *camera == CameraRole::Dslr {
         session.begin_step(step, json!({ "turntable_deg": deg, "camera": "dslr" }))?;
-        let dslr = cx.devices.dslr.as_ref().context("the rig has no DSLR")?;
+        let dslr = cx.devices.dslr.as_ref().step("the rig has no DSLR")?;
         let mut keep = Step {
             session,
             name: step,
@@ -159,12 +160,13 @@ pub fn shoot_view(
             Err(e) if !the_dslrs_fault(cx, &e) => return Err(e),
             Err(e) if cx.devices.fallback.is_some() => {
                 cx.warn(format!(
-                    "the DSLR failed during {step} ({e:#}); {step} is shot again on the fallback camera, and so are the views after it"
+                    "the DSLR failed during {step} ({}); {step} is shot again on the fallback camera, and so are the views after it",
+                    said(&e)
                 ));
                 *camera = CameraRole::Fallback;
             }
             Err(e) => {
-                return Err(e.context(format!(
+                return Err(e.step(format!(
                     "the DSLR failed during {step}, and the rig names no fallback_camera to shoot it on instead"
                 )))
             }
@@ -178,7 +180,7 @@ pub fn shoot_view(
         .devices
         .fallback
         .as_ref()
-        .context("the rig names no fallback_camera")?;
+        .step("the rig names no fallback_camera")?;
     let mut keep = Step {
         session,
         name: step,
@@ -191,19 +193,14 @@ pub fn shoot_view(
 /// Whether a bracket's failure is the DSLR's, which the fallback camera can make good: not a
 /// cancel, not the session's own (a full disk: the fallback would fail the same way), not the
 /// rig's shutter (the DSLR is there and would shoot if fired).
-pub(super) fn the_dslrs_fault(cx: &Context, e: &anyhow::Error) -> bool {
+pub(super) fn the_dslrs_fault(cx: &Context, e: &RigError) -> bool {
     !cx.cancel.is_cancelled()
-        && !e
-            .chain()
-            .any(|c| c.is::<crate::session::SessionError>() || shutter_failed(c))
-}
-
-/// Whether `cause` is the rig's shutter not firing the DSLR.
-fn shutter_failed(cause: &(dyn std::error::Error + 'static)) -> bool {
-    matches!(
-        cause.downcast_ref::<DeviceError>(),
-        Some(DeviceError::ShutterFailed { .. })
-    )
+        && !chain(e).any(|c| {
+            matches!(
+                c.downcast_ref::<RigError>(),
+                Some(RigError::Session(_) | RigError::Device(DeviceError::ShutterFailed { .. }))
+            )
+        })
 }
 
 /// One exposure as it came from the camera's worker.
@@ -231,7 +228,7 @@ pub fn bracket(
     camera: &Role<dyn ObjectCamera>,
     bracket: &Bracket,
     fires: bool,
-) -> anyhow::Result<RawFiles> {
+) -> Result<RawFiles> {
     let (tx, rx) = mpsc::channel::<Arrived>();
     let (progress, cancel) = (cx.progress.clone(), cx.cancel.clone());
     let shutter = cx.devices.shutter.clone().filter(|_| fires);
@@ -387,7 +384,7 @@ impl<'a> Arriving<'a> {
         bytes: Vec<u8>,
         said: String,
         shot_done: bool,
-    ) -> anyhow::Result<()> {
+    ) -> Result<()> {
         to.keep(&name, &bytes)?;
         self.cx.say(said);
         self.files.push((name, bytes));
@@ -415,24 +412,21 @@ pub struct Merged {
 }
 
 /// A camera's gain from the rig's calibration, or the field to measure.
-fn gain(g: &Option<CameraGain>, field: &str) -> anyhow::Result<[f64; 3]> {
-    g.as_ref().map(|g| g.gain.0).with_context(|| {
+fn gain(g: &Option<CameraGain>, field: &str) -> Result<[f64; 3]> {
+    g.as_ref().map(|g| g.gain.0).with_step(|| {
         format!("{field}.gain is not in the rig's calibration: `brdfd calibrate radiometry` measures it")
     })
 }
 
 /// Merges frames through a camera's gain: radiance in the bench's unit, and the level at and
 /// above which only clipped frames were there.
-fn merge_with_gain(
-    mut frames: Vec<Frame>,
-    gain: [f64; 3],
-) -> anyhow::Result<(Raster, Option<f32>)> {
+fn merge_with_gain(mut frames: Vec<Frame>, gain: [f64; 3]) -> Result<(Raster, Option<f32>)> {
     with_gain(&mut frames, gain);
     Ok((merge_hdr(&frames, 1.0)?, merged_white_level(&frames, 1.0)))
 }
 
 /// Merges a view's bracket, as the camera that shot it needs.
-pub fn merge_view(cx: &Context, camera: CameraRole, files: &RawFiles) -> anyhow::Result<Merged> {
+pub(crate) fn merge_view(cx: &Context, camera: CameraRole, files: &RawFiles) -> Result<Merged> {
     let c = &cx.rig.calibration;
     match camera {
         CameraRole::Dslr => {
@@ -479,7 +473,7 @@ pub enum DslrFrames {
 /// RAW files are preferred: they are linear. If the bracket has none, or they cannot be
 /// decoded and there are JPEGs beside them, the JPEGs are used, their tone curve taken as
 /// sRGB (a camera's own curve differs, which the estimate then absorbs).
-pub fn dslr_frames(cx: &Context, files: &RawFiles) -> anyhow::Result<DslrFrames> {
+pub(crate) fn dslr_frames(cx: &Context, files: &RawFiles) -> Result<DslrFrames> {
     let (raw, jpeg): (Vec<_>, Vec<_>) = files.iter().partition(|(name, _)| is_raw_name(name));
     // A RAW file missing from some shots would merge fewer exposures than were shot.
     let whole = jpeg.is_empty() || raw.len() == jpeg.len();
@@ -494,7 +488,8 @@ pub fn dslr_frames(cx: &Context, files: &RawFiles) -> anyhow::Result<DslrFrames>
         match decode_raw_bracket(cx, &raw) {
             Ok(frames) => return Ok(DslrFrames::Raw(frames)),
             Err(e) if !jpeg.is_empty() => cx.warn(format!(
-                "the RAW files cannot be merged ({e:#}); merging the JPEG files instead, their tone curve taken as sRGB"
+                "the RAW files cannot be merged ({}); merging the JPEG files instead, their tone curve taken as sRGB",
+                said(&e)
             )),
             Err(e) => return Err(e),
         }
@@ -503,10 +498,7 @@ pub fn dslr_frames(cx: &Context, files: &RawFiles) -> anyhow::Result<DslrFrames>
 }
 
 /// The JPEG files of a bracket decoded, each said with its EXIF exposure.
-pub fn decode_jpeg_bracket(
-    cx: &Context,
-    jpeg: &[&(String, Vec<u8>)],
-) -> anyhow::Result<Vec<Frame>> {
+pub(crate) fn decode_jpeg_bracket(cx: &Context, jpeg: &[&(String, Vec<u8>)]) -> Result<Vec<Frame>> {
     jpeg.iter()
         .map(|(name, bytes)| {
             let f = decode_jpeg(bytes, name)?;
@@ -520,10 +512,7 @@ pub fn decode_jpeg_bracket(
 }
 
 /// The RAW files of a bracket decoded, with the rig's fixed white balance if it has one.
-pub fn decode_raw_bracket(
-    cx: &Context,
-    files: &[&(String, Vec<u8>)],
-) -> anyhow::Result<Vec<Frame>> {
+pub(crate) fn decode_raw_bracket(cx: &Context, files: &[&(String, Vec<u8>)]) -> Result<Vec<Frame>> {
     let wb = raw_white_balance(&cx.rig.calibration);
     files
         .iter()

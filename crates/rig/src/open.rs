@@ -50,14 +50,14 @@ pub fn ptp_camera(port: &Selector) -> Result<Camera, DeviceError> {
 /// Opens a camera through the system's libgphoto2 (`gphoto2[:PORT]`), in a brdfd built with
 /// the `gphoto2` feature; in one built without, says how to get it.
 #[cfg(feature = "gphoto2")]
-pub fn gphoto_camera(port: Option<&str>) -> Result<Box<dyn RigDevice>, DeviceError> {
+pub(crate) fn gphoto_camera(port: Option<&str>) -> Result<Box<dyn RigDevice>, DeviceError> {
     Ok(Box::new(brdfd_gphoto::GphotoCamera::open(port)?))
 }
 
 /// Opens a camera through the system's libgphoto2 (`gphoto2[:PORT]`), in a brdfd built with
 /// the `gphoto2` feature; in one built without, says how to get it.
 #[cfg(not(feature = "gphoto2"))]
-pub fn gphoto_camera(port: Option<&str>) -> Result<Box<dyn RigDevice>, DeviceError> {
+pub(crate) fn gphoto_camera(port: Option<&str>) -> Result<Box<dyn RigDevice>, DeviceError> {
     Err(DeviceError::Cannot(format!(
         "gphoto2{}: this brdfd was built without libgphoto2; build it with `cargo install --path . --features gphoto2` (needs libgphoto2-dev, libclang-dev and pkg-config), or use brdfd's own PTP driver (usb, ptpip:HOST)",
         port.map(|p| format!(":{p}")).unwrap_or_default()
@@ -85,7 +85,7 @@ pub fn theta(
 }
 
 /// Opens the V4L2 camera a selector names (`v4l:/dev/videoN`).
-pub fn video_camera(port: &Selector) -> Result<VideoCamera, DeviceError> {
+pub(crate) fn video_camera(port: &Selector) -> Result<VideoCamera, DeviceError> {
     match port {
         Selector::V4l(path) => Ok(VideoCamera::new(Box::new(
             brdfd_v4l::device::V4lCamera::open(path)?,

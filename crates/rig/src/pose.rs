@@ -8,14 +8,14 @@
 //! puts it, when the rig has them: what the operator typed into the rig is then what the
 //! calibration corrects.
 
-use anyhow::bail;
-
 use super::flow::{Context, Keep, Prefixed, RawFiles};
 use super::object::{self, FallbackBracket};
 use super::plan;
 use super::settings::Bracket;
 use super::turning::turn_to;
 use crate::config::DslrFiles;
+use crate::error::{refuse, Result, RigError};
+use crate::failure::said;
 use brdfd_bench::board_photo::{self, Spoil};
 use brdfd_bench::object_photo;
 use brdfd_core::geometry::{Camera, Shape};
@@ -34,9 +34,11 @@ pub struct Photo {
 
 impl Photo {
     /// A JPEG or PNG file.
-    pub fn decode(name: &str, bytes: &[u8]) -> anyhow::Result<Photo> {
+    pub fn decode(name: &str, bytes: &[u8]) -> Result<Photo> {
         let image = image::load_from_memory(bytes).map_err(|e| {
-            anyhow::anyhow!("{name}: not a photo brdfd reads for a pose (JPEG or PNG): {e}")
+            RigError::invalid(format!(
+                "{name}: not a photo brdfd reads for a pose (JPEG or PNG): {e}"
+            ))
         })?;
         Ok(Photo {
             name: name.to_string(),
@@ -54,7 +56,7 @@ pub struct PhotoView {
 
 /// The turntable's angles for `n` views `step` degrees apart: 0, +step, −step, +2·step, ...
 /// (the board seen square-on first, then at slants both ways).
-pub fn view_angles(n: usize, step: f64) -> Vec<f64> {
+pub(crate) fn view_angles(n: usize, step: f64) -> Vec<f64> {
     (0..n)
         .map(|i| {
             let k = i.div_ceil(2) as f64;
@@ -119,10 +121,10 @@ pub fn shoot(
     on_bench: OnBench,
     angles: &[f64],
     prefix: &str,
-) -> anyhow::Result<Vec<PhotoView>> {
+) -> Result<Vec<PhotoView>> {
     let turns = angles.iter().any(|a| *a != 0.0);
     if turns && cx.devices.turntable.is_none() {
-        bail!(
+        refuse!(
             "several views of the {} need the rig's turntable, and it has none",
             on_bench.name()
         );
@@ -160,7 +162,7 @@ pub fn shoot(
                 photos,
             });
         }
-        Ok::<_, anyhow::Error>(())
+        Ok::<_, RigError>(())
     })();
     if turns {
         // Back where the object goes, after an error too; the first error is the one said.
@@ -180,7 +182,7 @@ fn shoot_one(
     on_bench: OnBench,
     turn_deg: f64,
     shooting: &mut Shooting,
-) -> anyhow::Result<Vec<Photo>> {
+) -> Result<Vec<Photo>> {
     let first_view = !shooting.shot_any;
     let rig = cx.rig;
     let roles = plan::devices(rig)?;
@@ -194,7 +196,7 @@ fn shoot_one(
         bracket.camera.files = Some(DslrFiles::Jpeg);
         let shot = role
             .ping()
-            .map_err(anyhow::Error::from)
+            .map_err(RigError::from)
             .and_then(|()| object::bracket(cx, keep, "pose: DSLR", role, &bracket, true));
         match shot {
             Ok(files) => return jpegs(cx, &files),
@@ -202,14 +204,15 @@ fn shoot_one(
             // only from the first view, so that all photos are of one camera.
             Err(e) if roles.fallback && first_view && object::the_dslrs_fault(cx, &e) => {
                 cx.warn(format!(
-                    "the DSLR did not photograph the {} ({e:#}); the fallback camera does",
-                    on_bench.name()
+                    "the DSLR did not photograph the {} ({}); the fallback camera does",
+                    on_bench.name(),
+                    said(&e)
                 ));
                 shooting.dslr_answers = false;
                 dslr_failed = Some(e);
             }
             Err(e) if !first_view => {
-                return Err(e.context(format!(
+                return Err(e.step(format!(
                     "the DSLR stopped answering at the {}'s photos (a calibration's photos must all be of one camera): wake it, and run again",
                     on_bench.name()
                 )))
@@ -230,7 +233,7 @@ fn shoot_one(
     }
     match dslr_failed {
         Some(e) => Err(e),
-        None => bail!(
+        None => refuse!(
             "the rig has no object camera to photograph the {} with",
             on_bench.name()
         ),
@@ -244,7 +247,7 @@ fn show_simulated(
     sim: &crate::simulated::SimulatedRig,
     on_bench: OnBench,
     turn_deg: f64,
-) -> anyhow::Result<()> {
+) -> Result<()> {
     let rig = cx.rig;
     // The bench turned by θ is, in its own frame, the camera and the light turned by −θ.
     let theta = turn_deg.to_radians();
@@ -259,7 +262,9 @@ fn show_simulated(
         OnBench::Object => {
             let shape = rig.bench_shape(rig.geometry.shape.as_ref());
             let Some(mesh) = shape.as_ref().map(Shape::mesh).transpose()?.flatten() else {
-                bail!("the rig's [geometry.shape] is no mesh: a silhouette is aligned for a mesh");
+                refuse!(
+                    "the rig's [geometry.shape] is no mesh: a silhouette is aligned for a mesh"
+                );
             };
             object_photo::render(Some(&mesh), &camera, &env, yaw, Spoil::default())?.0
         }
@@ -275,12 +280,12 @@ fn show_simulated(
 
 /// The DSLR's JPEGs as photos. RAW files (a body that keeps its own image
 /// quality setting) are left out, with a note; a bracket of RAW files only is an error.
-fn jpegs(cx: &Context, files: &RawFiles) -> anyhow::Result<Vec<Photo>> {
+fn jpegs(cx: &Context, files: &RawFiles) -> Result<Vec<Photo>> {
     let (raw, jpeg): (Vec<_>, Vec<_>) = files
         .iter()
         .partition(|(name, _)| brdfd_radiometry::raw::is_raw_name(name));
     if jpeg.is_empty() && !raw.is_empty() {
-        bail!(
+        refuse!(
             "the DSLR sent RAW files only ({}): set its image quality to JPEG or RAW + JPEG on the body",
             raw.len()
         );
@@ -297,7 +302,7 @@ fn jpegs(cx: &Context, files: &RawFiles) -> anyhow::Result<Vec<Photo>> {
 }
 
 /// The fallback camera's frames as 8-bit sRGB grey.
-fn frames_as_photos(files: &RawFiles) -> anyhow::Result<Vec<Photo>> {
+fn frames_as_photos(files: &RawFiles) -> Result<Vec<Photo>> {
     let bracket = FallbackBracket::read(files)?;
     Ok(bracket
         .frames
@@ -329,7 +334,7 @@ pub fn solve(
     views: &[PhotoView],
     focal: Focal,
     sensor_width_mm: Option<f64>,
-) -> anyhow::Result<Calibrated> {
+) -> Result<Calibrated> {
     let mut chosen = Vec::new();
     let mut exif = None;
     let mut failures = Vec::new();
@@ -347,7 +352,7 @@ pub fn solve(
                         best = Some((f, p.exif, c));
                     }
                 }
-                Err(e) => failures.push(format!("{e:#}")),
+                Err(e) => failures.push(e.to_string()),
             }
         }
         match best {
@@ -364,7 +369,7 @@ pub fn solve(
     }
     if chosen.is_empty() {
         let photos: usize = views.iter().map(|v| v.photos.len()).sum();
-        bail!(
+        refuse!(
             "the board was found in none of the {photos} photos: {}",
             failures.join("; ")
         );
@@ -420,15 +425,15 @@ pub fn refine_object(
     shape: &Shape,
     empty: &[PhotoView],
     object: &[PhotoView],
-) -> anyhow::Result<Refined> {
+) -> Result<Refined> {
     let Some(mesh) = shape.mesh()? else {
-        bail!(
+        refuse!(
             "the rig's [geometry.shape] is {}: a silhouette is aligned for a mesh",
             shape.describe()
         );
     };
     if empty.len() != object.len() {
-        bail!(
+        refuse!(
             "{} views of the object and {} of the empty bench: each view needs both",
             object.len(),
             empty.len()
@@ -437,7 +442,7 @@ pub fn refine_object(
     let mut views = Vec::new();
     for (e, o) in empty.iter().zip(object) {
         if (e.turn_deg - o.turn_deg).abs() > 0.05 || e.photos.len() != o.photos.len() {
-            bail!(
+            refuse!(
                 "the empty bench's view at {:.2}° ({} photos) and the object's at {:.2}° ({} photos) are not of one bracket at one angle",
                 e.turn_deg,
                 e.photos.len(),
@@ -446,7 +451,7 @@ pub fn refine_object(
             );
         }
         let Some(best) = (0..o.photos.len()).max_by_key(|&i| contrast(&o.photos[i].grey)) else {
-            bail!("no photo of the object at {:.2}°", o.turn_deg);
+            refuse!("no photo of the object at {:.2}°", o.turn_deg);
         };
         let (oi, ei) = (&o.photos[best], &e.photos[best]);
         check_photo_size(camera, (oi.grey.width(), oi.grey.height()), &oi.name)?;

@@ -81,7 +81,7 @@ impl RigFile {
     /// The file, opened to be written by a calibration that fills the given tables of
     /// `[geometry]` (`("camera", "pose")`: the table, and what goes into it): each must be
     /// there, so that a file the calibration cannot go into is said before anything is shot.
-    pub fn open_for(path: &Path, tables: &[(&str, &str)]) -> Result<RigFile, RigFileError> {
+    pub(crate) fn open_for(path: &Path, tables: &[(&str, &str)]) -> Result<RigFile, RigFileError> {
         let file = RigFile::open(path)?;
         for (table, what) in tables {
             let found = file
@@ -127,7 +127,7 @@ impl RigFile {
 
     /// Sets the camera's pose and focal lengths in `[geometry.camera]`, with a comment that
     /// says where they came from; the rest of the file as it was.
-    pub fn set_camera(&mut self, camera: &Camera, note: &str) -> Result<(), RigFileError> {
+    pub(crate) fn set_camera(&mut self, camera: &Camera, note: &str) -> Result<(), RigFileError> {
         let Camera::Pinhole { fx, fy, pose, .. } = camera else {
             return Err(RigFileError::NotPinhole);
         };
@@ -148,7 +148,7 @@ impl RigFile {
 
     /// Sets the mesh's `position` and `rotation_deg` in `[geometry.shape]` to where its
     /// silhouette placed it, with a comment that says so.
-    pub fn set_shape(&mut self, placed: &Shape) -> Result<(), RigFileError> {
+    pub(crate) fn set_shape(&mut self, placed: &Shape) -> Result<(), RigFileError> {
         let Shape::Mesh {
             rotation_deg,
             position,

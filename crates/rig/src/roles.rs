@@ -173,7 +173,7 @@ impl<R: ?Sized + 'static> Role<R> {
     }
 
     /// Runs `f` on the device in this role, on its thread (see [`Worker::submit`]).
-    pub fn submit<T: Send + 'static>(
+    pub(crate) fn submit<T: Send + 'static>(
         &self,
         f: impl FnOnce(&mut R) -> Result<T, DeviceError> + Send + 'static,
     ) -> Pending<T> {
@@ -198,7 +198,7 @@ impl<R: ?Sized + 'static> Role<R> {
 
     /// A request the device must answer: an open handle alone says nothing of a camera
     /// that has gone quiet.
-    pub fn ping(&self) -> Result<(), DeviceError> {
+    pub(crate) fn ping(&self) -> Result<(), DeviceError> {
         self.worker.call(|d| d.keep_alive())
     }
 
@@ -207,7 +207,7 @@ impl<R: ?Sized + 'static> Role<R> {
     }
 }
 
-pub fn object_camera(w: &Arc<DeviceWorker>) -> Role<dyn ObjectCamera> {
+pub(crate) fn object_camera(w: &Arc<DeviceWorker>) -> Role<dyn ObjectCamera> {
     Role::new(w, "object camera", |d| d.object_camera())
 }
 

@@ -158,7 +158,7 @@ pub fn safe_file_name(device_name: &str) -> String {
     }
 }
 
-pub fn sha256_hex(bytes: &[u8]) -> String {
+pub(crate) fn sha256_hex(bytes: &[u8]) -> String {
     Sha256::digest(bytes)
         .iter()
         .map(|b| format!("{b:02x}"))
@@ -169,7 +169,7 @@ fn now() -> String {
     humantime::format_rfc3339_seconds(SystemTime::now()).to_string()
 }
 
-/// What [`Session::fail_unless_running`] found.
+/// What `Session::fail_unless_running` found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Marked {
     /// Done or failed already: nothing written.
@@ -353,7 +353,7 @@ impl Session {
     /// Records the session as failed, with the reason `why` gives for the state it was left
     /// in and its code if known, unless it already ended or a process runs it (holds its
     /// claim).
-    pub fn fail_unless_running(
+    pub(crate) fn fail_unless_running(
         &mut self,
         why: impl FnOnce(State) -> String,
         code: Option<FailureCode>,
@@ -398,12 +398,12 @@ impl Session {
     }
 
     /// Records how long each phase of the run took; saved with the next save.
-    pub fn set_phases(&mut self, phases: Vec<PhaseTime>) {
+    pub(crate) fn set_phases(&mut self, phases: Vec<PhaseTime>) {
         self.manifest.phases = phases;
     }
 
     /// Records a device the session used, by its identity, once; saved with the next save.
-    pub fn note_device(&mut self, identity: String) {
+    pub(crate) fn note_device(&mut self, identity: String) {
         if !self.manifest.devices.contains(&identity) {
             self.manifest.devices.push(identity);
         }
@@ -456,7 +456,7 @@ impl Session {
     }
 
     /// The complete attempt of a step, if there is one.
-    pub fn complete_step(&self, name: &str) -> Option<&Step> {
+    pub(crate) fn complete_step(&self, name: &str) -> Option<&Step> {
         self.manifest
             .steps
             .iter()
@@ -464,7 +464,7 @@ impl Session {
     }
 
     /// Starts a new attempt of a step (earlier incomplete attempts keep their files).
-    pub fn begin_step(&mut self, name: &str, meta: serde_json::Value) -> Result<u32> {
+    pub(crate) fn begin_step(&mut self, name: &str, meta: serde_json::Value) -> Result<u32> {
         let attempt = self
             .manifest
             .steps
@@ -495,7 +495,12 @@ impl Session {
     /// Stores a device's file as it arrived, under `raw/<step>-a<attempt>-<frame>-<name>`
     /// (the frame counts the attempt's files from 01, so a name the device reuses is stored
     /// apart), and records it in the manifest.
-    pub fn add_raw(&mut self, step: &str, device_name: &str, bytes: &[u8]) -> Result<PathBuf> {
+    pub(crate) fn add_raw(
+        &mut self,
+        step: &str,
+        device_name: &str,
+        bytes: &[u8],
+    ) -> Result<PathBuf> {
         let current = self.current_step(step)?;
         let (attempt, stored) = (current.attempt, current.files.len());
         let raw = self.dir.join("raw");
@@ -524,7 +529,7 @@ impl Session {
         Ok(path)
     }
 
-    pub fn finish_step(&mut self, step: &str) -> Result<()> {
+    pub(crate) fn finish_step(&mut self, step: &str) -> Result<()> {
         self.current_step(step)?.complete = true;
         self.save()
     }

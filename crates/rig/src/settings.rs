@@ -8,13 +8,13 @@
 
 use std::path::Path;
 
-use anyhow::bail;
 use brdfd_theta::BracketPlan;
 
 use super::plan::{self, Roles};
 use super::roles::CameraSettings;
 use super::Plan;
 use crate::config::{MaterialPreset, PixelCount, Rig};
+use crate::error::{refuse, Result, RigError};
 use crate::session::Session;
 use brdfd_core::basis::DEFAULT_K;
 use brdfd_core::estimate::{unused_basis_settings, EstimateOptions, Model};
@@ -49,7 +49,7 @@ fn with_files_found(rig_text: &str, scene: &SceneGeometry) -> String {
 
 /// The rig's text with its `[geometry]` replaced by `scene` (the camera and the object a
 /// preset put on the simulated bench); the rest kept as it was.
-fn with_geometry(rig_text: &str, scene: &SceneGeometry) -> anyhow::Result<String> {
+fn with_geometry(rig_text: &str, scene: &SceneGeometry) -> Result<String> {
     let mut doc: toml_edit::DocumentMut = rig_text.parse()?;
     let geometry: toml_edit::DocumentMut = toml::to_string(scene)?.parse()?;
     doc["geometry"] = toml_edit::Item::Table(geometry.as_table().clone());
@@ -144,13 +144,13 @@ pub struct CaptureSettings {
 
 impl CaptureSettings {
     /// Resolves and checks the plan against the rig.
-    pub fn resolve(plan: &Plan, rig: &Rig) -> anyhow::Result<CaptureSettings> {
+    pub fn resolve(plan: &Plan, rig: &Rig) -> Result<CaptureSettings> {
         plan.validate()?;
         let roles = plan::check(rig)?;
-        let preset = MaterialPreset::embedded(&plan.material).map_err(anyhow::Error::msg)?;
+        let preset = MaterialPreset::embedded(&plan.material).map_err(RigError::invalid)?;
         if let Some(p) = &preset {
             if p.k != DEFAULT_K {
-                bail!(
+                refuse!(
                     "the {} preset is tuned for K = {}, the basis has K = {DEFAULT_K}",
                     plan.material,
                     p.k
@@ -227,7 +227,7 @@ impl CaptureSettings {
 
     /// A new session for these settings under `state`, recording the rig and the preset as
     /// used, and the plan, which a resume resolves again.
-    pub fn new_session(&self, state: &Path, rig_text: &str) -> anyhow::Result<Session> {
+    pub fn new_session(&self, state: &Path, rig_text: &str) -> Result<Session> {
         Ok(Session::create(
             state,
             &self.plan.material,
@@ -245,7 +245,7 @@ impl CaptureSettings {
     }
 
     /// The preset in a line for the operator, if the material is one.
-    pub fn preset_line(&self, simulated: bool) -> Option<String> {
+    pub(crate) fn preset_line(&self, simulated: bool) -> Option<String> {
         let p = self.preset.as_ref()?;
         // The preset's pixel count only matters to the basis model.
         let model = match self.estimate.model {
@@ -274,7 +274,7 @@ impl CaptureSettings {
 }
 
 /// The rig's THETA bracket: its own shutter list, or the light probe.
-pub fn light_plan(rig: &Rig) -> BracketPlan {
+pub(crate) fn light_plan(rig: &Rig) -> BracketPlan {
     if rig.brackets.theta_shutters.is_empty() {
         return BracketPlan::light_probe();
     }
@@ -294,6 +294,7 @@ pub fn light_plan(rig: &Rig) -> BracketPlan {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::failure::said;
 
     fn plan(material: &str) -> Plan {
         serde_json::from_value(serde_json::json!({ "material": material })).unwrap()
@@ -366,8 +367,9 @@ mod tests {
         let rig = Rig::simulated();
         let e = CaptureSettings::resolve(&plan("unobtainium"), &rig).unwrap_err();
         assert!(
-            format!("{e:#}").contains("the simulator has no material"),
-            "{e:#}"
+            said(&e).contains("the simulator has no material"),
+            "{}",
+            said(&e)
         );
         // A rig whose webcam has no gain parses, and is refused here, naming the gain.
         let uncalibrated = Rig::parse(
@@ -378,8 +380,9 @@ mod tests {
         .unwrap();
         let e = CaptureSettings::resolve(&plan("gold"), &uncalibrated).unwrap_err();
         assert!(
-            format!("{e:#}").contains("calibration.fallback.gain"),
-            "{e:#}"
+            said(&e).contains("calibration.fallback.gain"),
+            "{}",
+            said(&e)
         );
     }
 

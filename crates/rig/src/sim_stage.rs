@@ -6,7 +6,6 @@
 
 use std::sync::Arc;
 
-use anyhow::Context as _;
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::Bivariate;
 use brdfd_core::envmap::EnvMap;
@@ -22,6 +21,7 @@ use super::stage::{Judgement, Stage};
 use super::turning::turned;
 use super::Plan;
 use crate::config::MaterialPreset;
+use crate::error::{Result, RigError, StepExt};
 use brdfd_bench::{RelightTruth, VirtualBench, HELD_OUT_YAW_DEG};
 
 /// The virtual bench, once the sample is placed, and the truth the estimate is relit against,
@@ -33,10 +33,10 @@ pub(super) struct SimulatedStage {
 }
 
 impl SimulatedStage {
-    fn bench(&self) -> anyhow::Result<&VirtualBench> {
+    fn bench(&self) -> Result<&VirtualBench> {
         self.bench
             .as_ref()
-            .context("the simulated bench has no sample: it is placed before anything is shot")
+            .step("the simulated bench has no sample: it is placed before anything is shot")
     }
 }
 
@@ -48,12 +48,12 @@ impl Stage for SimulatedStage {
         s: &CaptureSettings,
         basis: &Basis,
         phases: &mut Phases,
-    ) -> anyhow::Result<()> {
+    ) -> Result<()> {
         let rig = cx
             .devices
             .sim
             .as_ref()
-            .context("the simulated rig's devices")?;
+            .step("the simulated rig's devices")?;
         let p = phases.start("simulated bench: place the sample", 1);
         // The bench photographs the object where it truly stands; the estimate uses where the
         // rig says it is.
@@ -89,12 +89,12 @@ impl Stage for SimulatedStage {
     }
 
     /// The simulated turntable only reports angles: the object turns here.
-    fn show(&mut self, cx: &Context, deg: f64) -> anyhow::Result<()> {
+    fn show(&mut self, cx: &Context, deg: f64) -> Result<()> {
         let rig = cx
             .devices
             .sim
             .as_ref()
-            .context("the simulated rig's devices")?;
+            .step("the simulated rig's devices")?;
         let bench = self.bench()?;
         rig.show_object(&turned_bench(bench, deg))?;
         // The truth the estimate is relit against needs no estimate: it renders while the
@@ -113,7 +113,7 @@ impl Stage for SimulatedStage {
         basis: &Basis,
         est: &Estimate,
         phases: &mut Phases,
-    ) -> anyhow::Result<Judgement> {
+    ) -> Result<Judgement> {
         // The true material on the estimate's grid: the report overlays it, and a basis
         // estimate is compared with its projection.
         let reduced = Bivariate::reduce(&*self.bench()?.material, basis.header.grid);
@@ -160,16 +160,12 @@ impl SimulatedStage {
     }
 
     /// How far the estimate is from the simulated material under light it was not fitted to.
-    fn relight_against_truth(
-        &mut self,
-        est: &Estimate,
-        phases: &mut Phases,
-    ) -> anyhow::Result<f64> {
+    fn relight_against_truth(&mut self, est: &Estimate, phases: &mut Phases) -> Result<f64> {
         let p = phases.start("relight against the ground truth (simulator)", 1);
         let truth = match self.relight_truth.take() {
             Some(mut render) => render
                 .join()
-                .ok_or_else(|| anyhow::anyhow!("rendering the relight truth panicked"))??,
+                .ok_or_else(|| RigError::invalid("rendering the relight truth panicked"))??,
             // Every view was already on disk (a resumed session): render it now.
             None => self.bench()?.relight_truth()?,
         };
@@ -206,7 +202,7 @@ fn simulated_bench(
     scene: &SceneGeometry,
     yaw: f64,
     basis: &Basis,
-) -> anyhow::Result<VirtualBench> {
+) -> Result<VirtualBench> {
     let simulate_as = preset.map_or(plan.material.as_str(), |p| p.simulate_as.as_str());
     let mut bench = VirtualBench::embedded(simulate_as, plan.size).or_else(|e| {
         // Not an embedded material: the NBRDF file may have it.

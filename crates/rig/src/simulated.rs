@@ -23,6 +23,7 @@ use super::roles::RigDevice;
 use crate::config::{
     DslrBackend, Rig, SimulatedBody, SimulatedLink, SimulatedPresence, SimulatedTurntable,
 };
+use crate::error::{Result, RigError};
 use crate::selector::Selector;
 use brdfd_bench::camera::BenchCamera;
 use brdfd_bench::panorama::BenchPanorama;
@@ -76,7 +77,7 @@ pub struct SimulatedRig {
 impl SimulatedRig {
     /// Starts the simulators the rig's `[simulation]` table names, with nothing in front of
     /// the cameras.
-    pub fn start(rig: &Rig) -> anyhow::Result<SimulatedRig> {
+    pub fn start(rig: &Rig) -> Result<SimulatedRig> {
         let simulation = rig.simulation.clone().unwrap_or_default();
         let dslr_scene = Arc::new(Stage::new((256, 256)));
         let dslr_time = Arc::new(Timed::new(dslr_scene.clone()));
@@ -178,7 +179,7 @@ impl SimulatedRig {
     /// The simulators as the rig's devices: each opened by the code that opens hardware,
     /// through the selector a bench would give it.
     /// The simulated DSLR's model, as it names itself.
-    pub fn dslr_model(&self) -> &'static str {
+    pub(crate) fn dslr_model(&self) -> &'static str {
         self.dslr_names.2
     }
 
@@ -238,7 +239,7 @@ impl SimulatedRig {
     }
 
     /// Puts the bench's light in front of the THETA.
-    pub fn show_light(&self, bench: &VirtualBench) {
+    pub(crate) fn show_light(&self, bench: &VirtualBench) {
         let t = Instant::now();
         self.theta_scene.show(Arc::new(BenchPanorama::new(
             &bench.env,
@@ -250,7 +251,7 @@ impl SimulatedRig {
 
     /// Puts the object in front of the DSLR as it stands now (after the turntable moved it),
     /// rendered at once, as a real scene simply exists.
-    pub fn show_object(&self, bench: &VirtualBench) -> anyhow::Result<()> {
+    pub(crate) fn show_object(&self, bench: &VirtualBench) -> Result<()> {
         let t = Instant::now();
         let (make, model, _) = self.dslr_names;
         let camera = BenchCamera::new(bench.clone(), make, model)
@@ -258,7 +259,7 @@ impl SimulatedRig {
             .with_raw_damage(self.raw_damage);
         camera
             .prepare()
-            .map_err(|e| anyhow::anyhow!("rendering the simulated scene: {e}"))?;
+            .map_err(|e| RigError::invalid(format!("rendering the simulated scene: {e}")))?;
         self.dslr_scene.show(Arc::new(camera));
         self.add_render(t);
         Ok(())
@@ -266,11 +267,11 @@ impl SimulatedRig {
 
     /// Puts a scene rendered elsewhere in front of the DSLR (the pose board), as `camera`
     /// sees it.
-    pub fn show_radiance(
+    pub(crate) fn show_radiance(
         &self,
         radiance: brdfd_core::raster::Raster,
         camera: &brdfd_core::geometry::Camera,
-    ) -> anyhow::Result<()> {
+    ) -> Result<()> {
         let (make, model, _) = self.dslr_names;
         let camera = BenchCamera::of_radiance(radiance, camera, make, model)
             .with_raw(self.raw)

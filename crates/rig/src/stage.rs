@@ -15,6 +15,7 @@ use brdfd_core::estimate::Estimate;
 
 use super::flow::{Context, Phases};
 use super::settings::CaptureSettings;
+use crate::error::Result;
 
 /// The bench's hands, as the capture flow asks for them (module header).
 pub(super) trait Stage {
@@ -25,14 +26,14 @@ pub(super) trait Stage {
         s: &CaptureSettings,
         basis: &Basis,
         phases: &mut Phases,
-    ) -> anyhow::Result<()>;
+    ) -> Result<()>;
 
     /// A line on the measured light against the light the stage knows is there, if it knows.
     fn light_note(&self, measured: &EnvMap) -> Option<String>;
 
     /// Shows the sample turned to `deg` to the object camera, before its view is shot (the
     /// turntable has already turned to it).
-    fn show(&mut self, cx: &Context, deg: f64) -> anyhow::Result<()>;
+    fn show(&mut self, cx: &Context, deg: f64) -> Result<()>;
 
     /// What the stage knows of the truth, set beside the estimate.
     fn judge(
@@ -41,7 +42,7 @@ pub(super) trait Stage {
         basis: &Basis,
         est: &Estimate,
         phases: &mut Phases,
-    ) -> anyhow::Result<Judgement>;
+    ) -> Result<Judgement>;
 }
 
 /// The estimate judged against the truth, where the stage knows it.
@@ -59,13 +60,7 @@ pub(super) struct Judgement {
 pub(super) struct Hands;
 
 impl Stage for Hands {
-    fn place(
-        &mut self,
-        _: &Context,
-        _: &CaptureSettings,
-        _: &Basis,
-        _: &mut Phases,
-    ) -> anyhow::Result<()> {
+    fn place(&mut self, _: &Context, _: &CaptureSettings, _: &Basis, _: &mut Phases) -> Result<()> {
         Ok(())
     }
 
@@ -73,17 +68,11 @@ impl Stage for Hands {
         None
     }
 
-    fn show(&mut self, _: &Context, _: f64) -> anyhow::Result<()> {
+    fn show(&mut self, _: &Context, _: f64) -> Result<()> {
         Ok(())
     }
 
-    fn judge(
-        &mut self,
-        _: &Context,
-        _: &Basis,
-        _: &Estimate,
-        _: &mut Phases,
-    ) -> anyhow::Result<Judgement> {
+    fn judge(&mut self, _: &Context, _: &Basis, _: &Estimate, _: &mut Phases) -> Result<Judgement> {
         Ok(Judgement::default())
     }
 }

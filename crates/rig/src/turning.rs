@@ -2,21 +2,15 @@
 //! rig without one; and the scene as the camera then sees it (the object turned is the camera
 //! and the light turned the other way, in the object's frame).
 
-use anyhow::Context as _;
-
 use super::flow::{note_device, Context};
 use super::settings::{CaptureSettings, Turning};
 use super::Event;
+use crate::error::{Result, StepExt};
 use crate::session::Session;
 use brdfd_core::geometry::SceneGeometry;
 
 /// Turns the object for view `i` (from 0), as the rig turns it; where it stands.
-pub fn turn(
-    cx: &Context,
-    session: &mut Session,
-    s: &CaptureSettings,
-    i: usize,
-) -> anyhow::Result<f64> {
+pub fn turn(cx: &Context, session: &mut Session, s: &CaptureSettings, i: usize) -> Result<f64> {
     match s.turning {
         Turning::None => Ok(0.0),
         Turning::Turntable => turn_on_turntable(cx, session, i, s.views, i as f64 * s.turn_step),
@@ -40,7 +34,7 @@ fn turn_on_turntable(
     i: usize,
     n: usize,
     target: f64,
-) -> anyhow::Result<f64> {
+) -> Result<f64> {
     let at = turn_to(cx, target)?;
     if let Some(t) = &cx.devices.turntable {
         note_device(session, t.status().identity.clone());
@@ -58,7 +52,7 @@ fn turn_on_turntable(
 /// View `i` (from 0) of `n` on a rig with no turntable: the first is the object as placed;
 /// before each of the others the operator turns it by hand `step` degrees further and says
 /// so. The angle is the one asked: nothing measures it.
-fn turn_by_hand(cx: &Context, i: usize, n: usize, step: f64) -> anyhow::Result<f64> {
+fn turn_by_hand(cx: &Context, i: usize, n: usize, step: f64) -> Result<f64> {
     let target = i as f64 * step;
     if i == 0 {
         cx.say(format!(
@@ -87,8 +81,8 @@ fn turn_by_hand(cx: &Context, i: usize, n: usize, step: f64) -> anyhow::Result<f
 
 /// Turns the turntable to `target` degrees by the shortest way; returns where it reports
 /// it is.
-pub fn turn_to(cx: &Context, target: f64) -> anyhow::Result<f64> {
-    let table = cx.devices.turntable.as_ref().context("no turntable")?;
+pub(crate) fn turn_to(cx: &Context, target: f64) -> Result<f64> {
+    let table = cx.devices.turntable.as_ref().step("no turntable")?;
     let turned = table.call(move |t| {
         let here = t.position()?;
         let turn = (target - here + 180.0).rem_euclid(360.0) - 180.0;

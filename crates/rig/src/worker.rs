@@ -117,7 +117,7 @@ impl<D: Device> Worker<D> {
     /// Runs `f` on the device, on the device's thread, opening the device first if it is not
     /// open. An error from `f` makes the worker check the device, and drop it if it no longer
     /// answers, so that the next job opens it afresh.
-    pub fn submit<R: Send + 'static>(
+    pub(crate) fn submit<R: Send + 'static>(
         &self,
         f: impl FnOnce(&mut D) -> Result<R, DeviceError> + Send + 'static,
     ) -> Pending<R> {
@@ -393,7 +393,9 @@ mod tests {
         assert_eq!(e.code(), Some(FailureCode::DeviceBusy));
         assert!(e.to_string().contains("in use by another program"), "{e}");
         assert_eq!(
-            crate::failure::failure_code(&anyhow::Error::from(e).context("turning to view 2")),
+            crate::failure::failure_code(
+                anyhow::Error::from(e).context("turning to view 2").as_ref()
+            ),
             FailureCode::DeviceBusy
         );
     }

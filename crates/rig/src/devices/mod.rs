@@ -16,8 +16,6 @@ pub mod video;
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::Context as _;
-
 use super::failure::DeviceError;
 use super::plan;
 use super::roles::{
@@ -26,6 +24,7 @@ use super::roles::{
 use super::simulated::SimulatedRig;
 use super::worker::{DeviceStatus, Opener, Worker};
 use crate::config::Rig;
+use crate::error::{Result, StepExt};
 use crate::selector::Selector;
 
 /// A device to start: the rig fields whose roles it plays, the selector it is shown by, and
@@ -39,7 +38,7 @@ pub struct Planned {
 impl Planned {
     /// The device a selector names, opened as `field`'s role needs it. `loopback`: a
     /// simulator on this machine, whose THETA is polled faster than a real one.
-    pub fn from_selector(field: &'static str, s: Selector, loopback: bool) -> Planned {
+    pub(crate) fn from_selector(field: &'static str, s: Selector, loopback: bool) -> Planned {
         let selector = s.to_string();
         let open: Opener<Box<dyn RigDevice>> =
             Box::new(move || -> Result<Box<dyn RigDevice>, DeviceError> {
@@ -94,10 +93,10 @@ impl Devices {
     /// Starts a worker per device the rig names; each opens its device in the background.
     /// A simulated rig starts its simulators first, on loopback. The rig's devices are
     /// checked first ([`plan::devices`]), so a rig that `config check` refuses never starts.
-    pub fn start(rig: &Rig, keep_alive: Duration) -> anyhow::Result<Devices> {
+    pub fn start(rig: &Rig, keep_alive: Duration) -> Result<Devices> {
         plan::devices(rig)?;
         let (planned, sim) = if rig.simulated {
-            let sim = SimulatedRig::start(rig).context("starting the simulated rig")?;
+            let sim = SimulatedRig::start(rig).step("starting the simulated rig")?;
             (sim.devices(), Some(sim))
         } else {
             (hardware(rig), None)
@@ -127,7 +126,7 @@ impl Devices {
         Ok(Devices {
             dslr,
             fallback,
-            light_probe: light_probe.context(
+            light_probe: light_probe.step(
                 "the rig names no theta; add `theta = \"...\"` under [devices] (`brdfd devices` lists what is connected)",
             )?,
             turntable,
