@@ -1174,7 +1174,7 @@ async fn events(
             // Sessions that failed before codes were recorded: a cancel is told by its words.
             let code = last.and_then(|t| t.code).filter(|_| failed).or_else(|| {
                 (failed && reason.as_deref() == Some(brdfd_rig::flow::CANCELLED))
-                    .then_some(brdfd_rig::failure::FailureCode::Cancelled)
+                    .then_some(brdfd_rig::error::FailureCode::Cancelled)
             });
             log.push(Event::Finished {
                 session: id.clone(),
@@ -1183,7 +1183,7 @@ async fn events(
                     .then(|| brdfd_rig::stored_summary(&s.dir.join("result/coefficients.json")))
                     .flatten()
                     .map(Box::new),
-                cancelled: code == Some(brdfd_rig::failure::FailureCode::Cancelled),
+                cancelled: code == Some(brdfd_rig::error::FailureCode::Cancelled),
                 code,
                 error: reason,
             });

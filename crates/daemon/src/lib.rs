@@ -17,8 +17,8 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
+use brdfd_rig::error::said;
 use brdfd_rig::error::{RigError, StepExt};
-use brdfd_rig::failure::said;
 use tokio::sync::broadcast;
 
 use brdfd_rig::config::Rig;

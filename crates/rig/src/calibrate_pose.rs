@@ -14,7 +14,9 @@ use brdfd_pose::silhouette::Refined;
 use brdfd_pose::{pinhole, Calibrated, Focal};
 
 use crate::config::Rig;
+// The refusals are the rig's errors' (`crate::error`), named here as before.
 use crate::error::{refuse, Result, StepExt};
+pub use crate::error::{Field, PoseRefused};
 use crate::flow::{Context, Keep};
 use crate::pose::{self, OnBench, Photo, PhotoView};
 use crate::rig_file::{RigFile, RigFileError, Saved};
@@ -83,130 +85,6 @@ pub struct PoseOutcome {
     /// was not found (the camera's pose is written all the same).
     pub placed: Option<Result<Shape>>,
 }
-
-/// A field of a [`PoseRequest`] that a refusal names.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Field {
-    SensorWidth,
-    /// [`PhotosFrom::Camera`]'s `turn_deg`.
-    Turn,
-    /// [`PhotosFrom`]'s `views`.
-    Views,
-    /// [`PhotosFrom::Files`]'s `board`, `object` and `empty`.
-    BoardPhotos,
-    ObjectPhotos,
-    EmptyPhotos,
-    RefineObject,
-    Force,
-}
-
-impl Field {
-    /// The request's own name for it.
-    pub fn name(self) -> &'static str {
-        match self {
-            Field::SensorWidth => "`sensor_width_mm`",
-            Field::Turn => "`turn_deg`",
-            Field::Views => "`views`",
-            Field::BoardPhotos => "the board's photos (`board`)",
-            Field::ObjectPhotos => "the object's photos (`object`)",
-            Field::EmptyPhotos => "the empty bench's photos (`empty`)",
-            Field::RefineObject => "`refine_object`",
-            Field::Force => "`force`",
-        }
-    }
-}
-
-/// Why a calibration was refused: a mistake in its request, said before anything is shot, or
-/// a fit too poor to write. Its words name the request's fields ([`Field::name`]); whoever
-/// took the request names them its own way ([`PoseRefused::said_with`]): the command line
-/// by its flags.
-#[derive(Debug, Clone, PartialEq)]
-pub enum PoseRefused {
-    /// The rig file's object camera is orthographic.
-    Orthographic {
-        rig_file: PathBuf,
-    },
-    SensorWidth(f64),
-    Turn(f64),
-    /// Photos of the object without the board's from where the camera stood for them.
-    ObjectWithoutBoard,
-    /// The object's placement asked for from photos, without the object's.
-    RefineWithoutObject,
-    /// Not one photo of the empty bench per photo of the object.
-    Unpaired {
-        object: usize,
-        empty: usize,
-    },
-    /// More than one view asked of photos taken already.
-    ViewsOfPhotos,
-    /// The object's placement asked for, and the rig file's object is no mesh.
-    NoMesh {
-        rig_file: PathBuf,
-    },
-    /// The board's fit is poor, and the rig file was to be written: why.
-    PoorFit(String),
-}
-
-impl PoseRefused {
-    /// What was refused, with each field named by `name`.
-    pub fn said_with(&self, name: impl Fn(Field) -> &'static str) -> String {
-        use Field::*;
-        match self {
-            PoseRefused::Orthographic { rig_file } => format!(
-                "{}: the object camera is orthographic: a pose from a board needs a pinhole camera ([geometry.camera] type = \"pinhole\", with fx, fy, cx, cy)",
-                rig_file.display()
-            ),
-            PoseRefused::SensorWidth(s) => format!(
-                "{} must be a positive number of millimetres, not {s}",
-                name(SensorWidth)
-            ),
-            PoseRefused::Turn(t) => format!(
-                "{} must be a number of degrees between 0 and 80, not {t}",
-                name(Turn)
-            ),
-            PoseRefused::ObjectWithoutBoard => format!(
-                "{} goes with {} (the board's photos from the camera as it stood for the object's); without them, {} photographs both",
-                name(ObjectPhotos),
-                name(BoardPhotos),
-                name(RefineObject)
-            ),
-            PoseRefused::RefineWithoutObject => format!(
-                "with {}, {} needs the object's photos and the empty bench's: {} and {}",
-                name(BoardPhotos),
-                name(RefineObject),
-                name(ObjectPhotos),
-                name(EmptyPhotos)
-            ),
-            PoseRefused::Unpaired { object, empty } => format!(
-                "{object} {} and {empty} {}: each photo of the object needs one of the empty bench at its exposure",
-                name(ObjectPhotos),
-                name(EmptyPhotos)
-            ),
-            PoseRefused::ViewsOfPhotos => format!(
-                "{} turns the board on the turntable; {} takes photos of the board as it stands, and solves from the one that shows the most of it",
-                name(Views),
-                name(BoardPhotos)
-            ),
-            PoseRefused::NoMesh { rig_file } => format!(
-                "{}: {} aligns the object's mesh with its silhouette, and [geometry.shape] is no mesh",
-                rig_file.display(),
-                name(RefineObject)
-            ),
-            PoseRefused::PoorFit(why) => format!(
-                "{why}; the rig file is left as it is ({} writes it anyway)",
-                name(Force)
-            ),
-        }
-    }
-}
-
-impl std::fmt::Display for PoseRefused {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.said_with(Field::name))
-    }
-}
-
-impl std::error::Error for PoseRefused {}
 
 /// A calibration checked against its rig and ready to run: every mistake in the request is
 /// said before anything is shot, and the rig file is open.
@@ -672,7 +550,7 @@ mod tests {
         r.write = true;
         let why = match PoseCalibration::new(&rig, r) {
             Ok(_) => panic!("a rig file without the table was taken"),
-            Err(e) => crate::failure::said(&e),
+            Err(e) => crate::error::said(&e),
         };
         assert!(why.contains("has no [geometry.camera] table"), "{why}");
     }

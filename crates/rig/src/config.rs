@@ -17,7 +17,6 @@ use serde::{Deserialize, Deserializer};
 
 pub use brdfd_api::plan::{PixelCount, MAX_BRACKET, MAX_EXPOSURE_S};
 
-use crate::error::{Result, RigError};
 use crate::selector::Selector;
 use brdfd_core::estimate::Model;
 use brdfd_core::geometry::{Camera, SceneGeometry, Shape};
@@ -27,6 +26,13 @@ use brdfd_core::solve::{ColourChoice, Solver};
 pub enum ConfigError {
     #[error("{file}: {reason}")]
     Read { file: String, reason: String },
+    /// A board file whose numbers make no board brdfd can draw and find.
+    #[error("{file}: {source}")]
+    Board {
+        file: String,
+        #[source]
+        source: brdfd_pose::PoseError,
+    },
     /// Syntax, types and unknown fields; the parser's message has the line and column.
     #[error("{file}: {message}")]
     Parse {
@@ -773,12 +779,12 @@ pub fn parse<T: serde::de::DeserializeOwned>(file: &str, text: &str) -> Result<T
 
 /// A board file (`brdfd calibrate target` writes one), read and checked: the line of a
 /// mistake in its TOML, or what about the board cannot be drawn.
-pub fn read_board(path: &Path) -> Result<brdfd_pose::board::Board> {
+pub fn read_board(path: &Path) -> Result<brdfd_pose::board::Board, ConfigError> {
     let (file, text) = read(path)?;
     let board: brdfd_pose::board::Board = parse(&file, &text)?;
     board
         .check()
-        .map_err(|e| RigError::invalid(format!("{file}: {e}")))?;
+        .map_err(|source| ConfigError::Board { file, source })?;
     Ok(board)
 }
 

@@ -14,7 +14,7 @@ use std::time::Instant;
 
 use serde_json::json;
 
-use super::failure::{disk_full, said, FailureCode};
+use super::error::{disk_full, said, FailureCode};
 use super::light::light_bracket;
 use super::object::{self, CameraRole, FallbackUse};
 use super::prepare::Preparing;

@@ -27,7 +27,7 @@
 //! - [`settings`]: a capture's settings, resolved from the plan, the preset and the rig
 //!   before a session exists.
 //! - [`flow`]: the capture itself, as resumable steps; [`error`]: what it failed on, and
-//!   [`failure`]: why, as a code.
+//!   why, as a code.
 //! - [`light`]: the light probe's bracket; [`object`]: the object camera's views, shot on
 //!   the DSLR or the V4L2 fallback and merged; [`turning`]: the object turned between views.
 
@@ -36,7 +36,6 @@ pub mod calibrate_pose;
 pub mod config;
 pub mod devices;
 pub mod error;
-pub mod failure;
 pub mod flow;
 pub mod light;
 pub mod object;

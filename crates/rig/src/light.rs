@@ -4,7 +4,7 @@
 
 use brdfd_theta::{BracketPlan, Frame};
 
-use super::failure::DeviceError;
+use super::error::DeviceError;
 use super::flow::{Context, Keep, RawFiles};
 use super::roles::LightProbe;
 use super::{Event, Progress};

@@ -12,7 +12,7 @@ use std::sync::mpsc;
 
 use serde_json::json;
 
-use super::failure::{chain, said, DeviceError};
+use super::error::{chain, said, DeviceError};
 use super::flow::{note_device, Context, Keep, RawFiles, Step};
 use super::roles::{ObjectCamera, Output, Role};
 use super::settings::Bracket;

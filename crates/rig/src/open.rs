@@ -11,7 +11,7 @@ use brdfd_serial::{ControlLine, GrblTurntable, RigController, RigTimeouts, Shutt
 use brdfd_theta::{Credentials, HttpTimeouts, Theta};
 
 use super::devices::video::VideoCamera;
-use super::failure::DeviceError;
+use super::error::DeviceError;
 use super::roles::RigDevice;
 use crate::selector::Selector;
 

@@ -6,49 +6,8 @@ use std::path::{Path, PathBuf};
 use brdfd_core::geometry::{Camera, Shape};
 use toml_edit::{value, Array, DocumentMut, Item};
 
-use crate::config::{ConfigError, Rig};
-use crate::session::SessionError;
-
-/// Why a rig file could not be opened for a calibration, or written.
-#[derive(Debug, thiserror::Error)]
-pub enum RigFileError {
-    #[error("reading {}", path.display())]
-    Read {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("{} is not TOML", path.display())]
-    NotToml {
-        path: PathBuf,
-        #[source]
-        source: toml_edit::TomlError,
-    },
-    /// The table of `[geometry]` the calibration's `what` goes into is not there.
-    #[error("{} has no [geometry.{table}] table to write the {what} into", path.display())]
-    NoTable {
-        path: PathBuf,
-        table: String,
-        what: String,
-    },
-    #[error("{}: geometry.{table} is not a table", path.display())]
-    NotATable { path: PathBuf, table: String },
-    /// What would be written is not a rig brdfd reads.
-    #[error("the rig as written")]
-    Written(#[source] ConfigError),
-    #[error("keeping {}", path.display())]
-    Backup {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error(transparent)]
-    Write(#[from] SessionError),
-    #[error("a pose is written for a pinhole camera")]
-    NotPinhole,
-    #[error("an object's placement is written for a mesh")]
-    NotMesh,
-}
+use crate::config::Rig;
+pub use crate::error::RigFileError;
 
 pub struct RigFile {
     pub path: PathBuf,

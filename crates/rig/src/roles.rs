@@ -18,7 +18,7 @@ use std::time::Duration;
 
 use brdfd_theta::{BracketPlan, Frame};
 
-use super::failure::DeviceError;
+use super::error::DeviceError;
 use super::worker::{Device, Pending, Worker};
 use crate::config::DslrFiles;
 

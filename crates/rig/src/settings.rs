@@ -294,7 +294,7 @@ pub(crate) fn light_plan(rig: &Rig) -> BracketPlan {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::failure::said;
+    use crate::error::said;
 
     fn plan(material: &str) -> Plan {
         serde_json::from_value(serde_json::json!({ "material": material })).unwrap()

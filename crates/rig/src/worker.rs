@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-use super::failure::{said, DeviceError, DeviceUnavailable, FailureCode};
+use super::error::{said, DeviceError, DeviceUnavailable, FailureCode};
 
 /// What a worker needs of its device.
 pub trait Device: Send + 'static {
@@ -393,7 +393,7 @@ mod tests {
         assert_eq!(e.code(), Some(FailureCode::DeviceBusy));
         assert!(e.to_string().contains("in use by another program"), "{e}");
         assert_eq!(
-            crate::failure::failure_code(
+            crate::error::failure_code(
                 anyhow::Error::from(e).context("turning to view 2").as_ref()
             ),
             FailureCode::DeviceBusy

@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use brdfd_gphoto::{Exposure, GphotoCamera};
 
-use crate::failure::DeviceError;
+use crate::error::DeviceError;
 use crate::roles::{Bytes, CameraSettings, Exposed, Fire, ObjectCamera, Output, RigDevice};
 use crate::Device;
 

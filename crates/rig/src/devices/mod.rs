@@ -16,7 +16,7 @@ pub mod video;
 use std::sync::Arc;
 use std::time::Duration;
 
-use super::failure::DeviceError;
+use super::error::DeviceError;
 use super::plan;
 use super::roles::{
     self, DeviceWorker, LightProbe, ObjectCamera, RigDevice, Role, Shutter, Turntable,

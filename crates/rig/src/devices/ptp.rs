@@ -5,7 +5,7 @@
 use brdfd_ptp::{codes::rc, Camera, CaptureOptions, Captured, Exposure, ImageFormat, PtpError};
 
 use crate::config::DslrFiles;
-use crate::failure::{said, DeviceError};
+use crate::error::{said, DeviceError};
 use crate::roles::{Bytes, CameraSettings, Exposed, Fire, ObjectCamera, Output, RigDevice};
 use crate::Device;
 

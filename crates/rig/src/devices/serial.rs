@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use brdfd_serial::{GrblTurntable, RigController, ShutterCable};
 
-use crate::failure::DeviceError;
+use crate::error::DeviceError;
 use crate::roles::{RigDevice, Shutter, Turntable};
 use crate::Device;
 

@@ -3,7 +3,7 @@
 
 use brdfd_theta::{BracketPlan, Frame, Theta};
 
-use crate::failure::DeviceError;
+use crate::error::DeviceError;
 use crate::roles::{LightProbe, RigDevice};
 use crate::Device;
 

@@ -2,7 +2,7 @@
 //! answers: it streams, so each exposure is a run of frames at a manual exposure time, gain
 //! and white balance, which the flow averages in linear light.
 
-use crate::failure::DeviceError;
+use crate::error::DeviceError;
 use crate::roles::{Bytes, CameraSettings, Exposed, ObjectCamera, Output, RigDevice};
 use crate::Device;
 
