@@ -26,12 +26,12 @@ use brdfd_core::solve::{ColourChoice, Solver};
 pub enum ConfigError {
     #[error("{file}: {reason}")]
     Read { file: String, reason: String },
-    /// A board file whose numbers make no board brdfd can draw and find.
-    #[error("{file}: {source}")]
+    /// A board file whose numbers make no board brdfd can draw and find, and what about the
+    /// board (in the message, as every variant here says its reason: not also a source).
+    #[error("{file}: {error}")]
     Board {
         file: String,
-        #[source]
-        source: brdfd_pose::PoseError,
+        error: brdfd_pose::PoseError,
     },
     /// Syntax, types and unknown fields; the parser's message has the line and column.
     #[error("{file}: {message}")]
@@ -784,7 +784,7 @@ pub fn read_board(path: &Path) -> Result<brdfd_pose::board::Board, ConfigError> 
     let board: brdfd_pose::board::Board = parse(&file, &text)?;
     board
         .check()
-        .map_err(|source| ConfigError::Board { file, source })?;
+        .map_err(|error| ConfigError::Board { file, error })?;
     Ok(board)
 }
 

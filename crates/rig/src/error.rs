@@ -11,8 +11,8 @@
 //! stream ends with it. The drivers' typed errors say which ([`RigError::code`]), found
 //! anywhere in the error's chain under the flow's steps. The daemon says an error to its
 //! clients in words; the command line puts its own contexts around it. Every other module of
-//! the rig imports this one, and it imports none of theirs but the rig files' and sessions'
-//! own errors.
+//! the rig imports this one, and it imports none of theirs but the configuration files' and
+//! the sessions' own errors.
 
 use std::path::PathBuf;
 

@@ -199,6 +199,9 @@ pub(super) fn the_dslrs_fault(cx: &Context, e: &RigError) -> bool {
             matches!(
                 c.downcast_ref::<RigError>(),
                 Some(RigError::Session(_) | RigError::Device(DeviceError::ShutterFailed { .. }))
+            ) || matches!(
+                c.downcast_ref::<DeviceError>(),
+                Some(DeviceError::ShutterFailed { .. })
             )
         })
 }
