@@ -207,10 +207,15 @@ fn a_photo_without_the_board_says_so() {
     bench.geometry.camera = Camera::eval_orthographic(400);
     let photo = jpeg(bench.photo().unwrap(), &truth.resized(400, 400));
     let p = Photo::decode("sphere.jpg", &photo).unwrap();
-    let err = solve_photo(&truth.resized(400, 400), &p, Focal::Refine)
-        .unwrap_err()
-        .to_string();
-    assert!(err.contains("no 9 × 6 ChArUco board"), "{err}");
+    // With its cause, as the command line says it: the photo's name, then what is wrong.
+    let err = format!(
+        "{:#}",
+        solve_photo(&truth.resized(400, 400), &p, Focal::Refine).unwrap_err()
+    );
+    assert!(
+        err.starts_with("sphere.jpg: no 9 × 6 ChArUco board"),
+        "{err}"
+    );
     assert!(err.contains("400×400"), "{err}");
     // A photo of another shape than the rig's camera is refused.
     let mut board = Photo::decode(

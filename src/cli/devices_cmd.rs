@@ -165,7 +165,7 @@ fn gphoto_cameras(l: &mut Listing) {
                 l.device_on("libgphoto2", format!("gphoto2:{}", d.port), true, d.model);
             }
         }
-        Err(e) => l.note(e.to_string()),
+        Err(e) => l.note(brdfd_rig::error::said(&e)),
     }
 }
 

@@ -14,8 +14,9 @@ pub enum PoseError {
     /// No board in a photo.
     #[error("{0}")]
     BoardNotFound(String),
-    /// A named photo's problem.
-    #[error("{photo}: {source}")]
+    /// A named photo's problem. The problem is the source, not also the message: a chain
+    /// printed whole (anyhow's `{:#}`, the rig's `said`) would say it twice.
+    #[error("{photo}")]
     InPhoto {
         photo: String,
         #[source]

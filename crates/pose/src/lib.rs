@@ -665,11 +665,13 @@ mod tests {
             matches!(**source, PoseError::BoardNotFound(_)),
             "{source:?}"
         );
-        assert!(std::error::Error::source(&e).is_some());
+        assert_eq!(e.to_string(), "blank.jpg");
+        let cause = std::error::Error::source(&e).map(|s| s.to_string());
         assert!(
-            e.to_string()
-                .starts_with("blank.jpg: no 9 × 6 ChArUco board"),
-            "{e}"
+            cause
+                .as_deref()
+                .is_some_and(|c| c.starts_with("no 9 × 6 ChArUco board")),
+            "{cause:?}"
         );
         let bad = board::Board {
             rows: 2,

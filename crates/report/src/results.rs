@@ -203,14 +203,16 @@ fn basis_model() -> String {
 /// Why `coefficients.json` could not be read back.
 #[derive(Debug, thiserror::Error)]
 pub enum ReadResultError {
-    #[error("reading {path}: {source}")]
+    // The cause is the source, not the message: a chain printed whole (anyhow's `{:#}`, the
+    // rig's `said`) would otherwise say it twice.
+    #[error("reading {path}")]
     Io {
         path: String,
         #[source]
         source: std::io::Error,
     },
     /// Not JSON, or a field of the wrong type (serde says which, with its line and column).
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Parse {
         path: String,
         #[source]
@@ -830,7 +832,13 @@ mod tests {
                 && bad.to_string().contains("coefficients.json"),
             "{bad}"
         );
+        // Serde's words are the source, said once after the file's name.
         let truncated = read(&format!("{{{BASIS}")).unwrap_err();
-        assert!(truncated.to_string().contains("EOF"), "{truncated}");
+        let source = std::error::Error::source(&truncated).map(|s| s.to_string());
+        assert!(
+            source.as_deref().is_some_and(|s| s.contains("EOF"))
+                && !truncated.to_string().contains("EOF"),
+            "{truncated}: {source:?}"
+        );
     }
 }

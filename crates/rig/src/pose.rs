@@ -352,7 +352,7 @@ pub fn solve(
                         best = Some((f, p.exif, c));
                     }
                 }
-                Err(e) => failures.push(e.to_string()),
+                Err(e) => failures.push(said(&e)),
             }
         }
         match best {

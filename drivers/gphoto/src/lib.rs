@@ -28,7 +28,9 @@ pub enum GphotoError {
     #[error("libgphoto2 finds no camera{0}")]
     NotFound(String),
     /// libgphoto2 refused or failed a step.
-    #[error("libgphoto2, {step}: {source}")]
+    // The library's words are the source, not the message: a chain printed whole would
+    // otherwise say them twice.
+    #[error("libgphoto2, {step}")]
     Library {
         step: String,
         #[source]

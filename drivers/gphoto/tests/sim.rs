@@ -77,17 +77,17 @@ fn body(profile: Profile, model: &str, exposure: Exposure) {
     let port = format!("ptpip:{}:{}", server.addr, server.addr.port());
     let fd0 = || std::fs::read_link("/proc/self/fd/0").ok();
     let fd0_before = fd0();
-    let cam = GphotoCamera::open(Some(&port)).unwrap_or_else(|e| panic!("{profile:?}: {e}"));
+    let cam = GphotoCamera::open(Some(&port)).unwrap_or_else(|e| panic!("{profile:?}: {e:?}"));
     assert!(cam.model().contains(model), "{profile:?}: {}", cam.model());
     let applied = cam
         .set_exposure(&exposure)
-        .unwrap_or_else(|e| panic!("{profile:?}: {e}"));
+        .unwrap_or_else(|e| panic!("{profile:?}: {e:?}"));
     assert_eq!(applied.f_number, exposure.f_number, "{profile:?}");
     assert_eq!(applied.iso, exposure.iso, "{profile:?}");
     let mut seen = 0;
     let files = cam
         .capture(&mut |done, _| seen = done)
-        .unwrap_or_else(|e| panic!("{profile:?}: {e}"));
+        .unwrap_or_else(|e| panic!("{profile:?}: {e:?}"));
     drop(cam);
     // libgphoto2's PTP/IP disconnect closes fd 0; the backend puts it back (`Fd0Guard`), or
     // the simulator's listening socket would take its place and be closed by the next.
@@ -102,7 +102,7 @@ fn body(profile: Profile, model: &str, exposure: Exposure) {
     assert_eq!(seen, FILE_BYTES as u64, "{profile:?}");
 
     let link = PtpIpTransport::connect(server.addr, Initiator::default(), Duration::from_secs(5))
-        .unwrap_or_else(|e| panic!("{profile:?}: {e}"));
+        .unwrap_or_else(|e| panic!("{profile:?}: {e:?}"));
     let mut ours = Camera::open(Box::new(link), Timeouts::default()).unwrap();
     let our_applied = ours
         .set_exposure(&brdfd_ptp::Exposure {
