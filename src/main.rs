@@ -8,6 +8,8 @@ use clap::Parser;
 
 fn main() -> std::process::ExitCode {
     let args = cli::Cli::parse();
+    // `--simulate` and rig files that say `simulated = true` run on the simulated rig.
+    brdfd_simrig::provide();
     if args.command.ends_quietly_on_a_closed_pipe() {
         // `brdfd session list | head` should end quietly, as other tools do, not panic on the
         // closed pipe (Rust ignores SIGPIPE by default). Every other command keeps ignoring

@@ -1212,6 +1212,8 @@ fn the_server_in_process_agrees_with_the_stored_session_and_stops_cleanly() {
     use serde_json::Value;
     use std::sync::Arc;
 
+    // What the binary's main does: the daemon's rig is the simulated one.
+    brdfd_simrig::provide();
     let dir = tempfile::tempdir().unwrap();
     let state = dir.path().join("state");
     let runtime = tokio::runtime::Builder::new_multi_thread()

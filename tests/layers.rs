@@ -172,7 +172,7 @@ fn the_api_contract_sits_on_the_core_alone() {
 /// The virtual bench renders what the simulated cameras photograph: it needs the core, the
 /// printed board, the reference lights and the simulators (whose image source its cameras
 /// are), and nothing of the rig, the daemon's contract or schema, or the evaluation. The
-/// rig depends on it, never the other way round.
+/// simulated rig depends on it; the rig and the daemon do not (below).
 #[test]
 fn the_virtual_bench_sits_below_the_rig() {
     let built = packages("brdfd-bench", &[]);
@@ -186,13 +186,22 @@ fn the_virtual_bench_sits_below_the_rig() {
 
 /// The rig runs captures for the binary and the daemon alike, and builds neither (Cargo would
 /// refuse that cycle before this test could), nor the command line, the evaluation or
-/// (without its schema feature) the API's description. Its devices' drivers and the
-/// simulated rig's simulators bring their own HTTP (the THETA's Web API), which is why tokio
-/// is not refused here.
+/// (without its schema feature) the API's description. Nor the simulated rig: its
+/// simulators and the virtual bench they photograph sit above the rig, behind its
+/// simulation seam. Its devices' drivers bring their own HTTP (the THETA's Web API), which
+/// is why tokio is not refused here.
 #[test]
 fn the_rig_sits_below_the_daemon_and_the_binary() {
     let built = packages("brdfd-rig", &[]);
-    for p in ["brdfd-eval", "clap", "indicatif", "utoipa"] {
+    for p in [
+        "brdfd-eval",
+        "clap",
+        "indicatif",
+        "utoipa",
+        "brdfd-bench",
+        "brdfd-sim",
+        "brdfd-simrig",
+    ] {
         assert!(!built.iter().any(|e| e == p), "brdfd-rig depends on {p}");
     }
     for p in ["brdfd-core", "brdfd-api", "brdfd-ptp", "brdfd-report"] {
@@ -203,14 +212,35 @@ fn the_rig_sits_below_the_daemon_and_the_binary() {
 }
 
 /// The daemon serves the rig over HTTP, and the binary starts it: it needs neither the
-/// command line nor the evaluation.
+/// command line nor the evaluation, nor the simulated rig, which the binary provides.
 #[test]
 fn the_daemon_sits_below_the_binary() {
     let built = packages("brdfd-daemon", &[]);
-    for p in ["brdfd-eval", "clap", "indicatif"] {
+    for p in [
+        "brdfd-eval",
+        "clap",
+        "indicatif",
+        "brdfd-bench",
+        "brdfd-sim",
+        "brdfd-simrig",
+    ] {
         assert!(!built.iter().any(|e| e == p), "brdfd-daemon depends on {p}");
     }
     for p in ["brdfd-rig", "brdfd-api", "axum", "tokio"] {
         assert!(built.iter().any(|e| e == p), "brdfd-daemon lacks {p}");
+    }
+}
+
+/// The simulated rig fills the rig's simulation seam with the simulators and the virtual
+/// bench: it sits on the rig, and below the daemon and the command line; only the binary
+/// joins them. (Its THETA simulator serves the Web API with axum, as the daemon does.)
+#[test]
+fn the_simulated_rig_sits_on_the_rig() {
+    let built = packages("brdfd-simrig", &[]);
+    for p in ["brdfd", "brdfd-daemon", "brdfd-eval", "clap", "utoipa"] {
+        assert!(!built.iter().any(|e| e == p), "brdfd-simrig depends on {p}");
+    }
+    for p in ["brdfd-rig", "brdfd-bench", "brdfd-sim"] {
+        assert!(built.iter().any(|e| e == p), "brdfd-simrig lacks {p}");
     }
 }

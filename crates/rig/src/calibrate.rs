@@ -14,7 +14,6 @@
 
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use serde::Deserialize;
 
@@ -26,10 +25,8 @@ use super::settings::{light_plan, Bracket};
 use crate::config::{invalid, ConfigError, Gain};
 use crate::error::said;
 use crate::error::{refuse, Result, RigError, StepExt};
-use brdfd_bench::VirtualBench;
 use brdfd_core::envmap::{LightSet, DEFAULT_LIGHTS};
 use brdfd_core::geometry::{PixelGeometry, SceneGeometry, Shape};
-use brdfd_core::merl::MerlBrdf;
 use brdfd_core::raster::Raster;
 use brdfd_radiometry::panorama::merge_bracket;
 use brdfd_radiometry::{merge_hdr, merged_white_level, Frame};
@@ -189,14 +186,7 @@ pub fn radiometry(cx: &Context, keep: &mut dyn Keep, target: &Target) -> Result<
     };
     let yaw = rig.theta_yaw_deg.to_radians();
     if let Some(sim) = &cx.devices.sim {
-        let truth = SceneGeometry {
-            camera: rig.bench_camera(&scene.camera),
-            shape: rig.bench_shape(scene.shape.as_ref()),
-            ..scene.clone()
-        };
-        let bench = grey_bench(&truth, yaw, target.albedo.0);
-        sim.show_light(&bench);
-        sim.show_object(&bench)?;
+        sim.show_target(cx, &scene, target.albedo.0)?;
         cx.say(format!(
             "simulated rig: a Lambertian target of albedo {:?} on the rig's {}",
             target.albedo.0,
@@ -442,17 +432,4 @@ fn median(v: &mut [f64]) -> Option<f64> {
     }
     let mid = v.len() / 2;
     Some(*v.select_nth_unstable_by(mid, f64::total_cmp).1)
-}
-
-/// The simulated bench with a Lambertian target of `albedo` on `scene`, under its studio map.
-fn grey_bench(scene: &SceneGeometry, yaw: f64, albedo: [f64; 3]) -> VirtualBench {
-    VirtualBench {
-        material_name: format!("a Lambertian target of albedo {albedo:?}"),
-        material: Arc::new(MerlBrdf::from_cells(|_, _, _| albedo.map(|a| a / PI))),
-        env: brdfd_bench::studio_envmap(512),
-        yaw,
-        geometry: scene.clone(),
-        cache: brdfd_bench::cache::RenderCache::user(),
-        stop: Default::default(),
-    }
 }

@@ -19,7 +19,7 @@ pub use brdfd_api::plan::{PixelCount, MAX_BRACKET, MAX_EXPOSURE_S};
 
 use crate::selector::Selector;
 use brdfd_core::estimate::Model;
-use brdfd_core::geometry::{Camera, SceneGeometry, Shape};
+use brdfd_core::geometry::{SceneGeometry, Shape};
 use brdfd_core::solve::{ColourChoice, Solver};
 
 #[derive(Debug, thiserror::Error)]
@@ -479,10 +479,10 @@ pub struct Simulation {
     pub turntable: SimulatedTurntable,
     /// The RAW files the simulated DSLR writes: `nef` (the default; 14-bit, a D5100's),
     /// `dng` (14-bit) or `dng12` (12-bit).
-    pub dslr_raw: Option<brdfd_bench::raw_file::RawFormat>,
+    pub dslr_raw: Option<SimulatedRaw>,
     /// Damage the simulated DSLR does to every RAW file: `oversized` (the raw image declares
     /// 131,072 × 131,072 pixels) or `ifd_loop` (IFD0 links back to itself). None by default.
-    pub dslr_raw_damage: Option<brdfd_bench::raw_file::RawDamage>,
+    pub dslr_raw_damage: Option<SimulatedRawDamage>,
     /// The simulated DSLR names every file as its first (`DSC_0001.NEF`, `DSC_0001.JPG`), as
     /// a camera can after a card change or when it shoots to its memory.
     pub dslr_reuses_file_names: bool,
@@ -560,6 +560,29 @@ pub enum SimulatedTurntable {
     /// A GRBL G-code controller, the table on its A axis.
     Grbl,
     Absent,
+}
+
+/// The RAW files the simulated DSLR writes (`[simulation] dslr_raw`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SimulatedRaw {
+    /// Nikon's NEF, 14 bits.
+    Nef,
+    /// Adobe's DNG at 14 bits.
+    Dng,
+    /// DNG at 12 bits.
+    Dng12,
+}
+
+/// Damage the simulated DSLR does to every RAW file it writes (`[simulation]
+/// dslr_raw_damage`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SimulatedRawDamage {
+    /// The raw image declares 131,072 × 131,072 pixels.
+    Oversized,
+    /// IFD0 links back to itself.
+    IfdLoop,
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
@@ -1058,29 +1081,6 @@ impl Rig {
             }
         }
         Ok(rig)
-    }
-
-    /// The camera the simulated bench photographs through, for a scene whose camera is
-    /// `believed` (the rig's, at the capture's size): `[simulation] camera` at that size, or
-    /// `believed` itself.
-    pub(crate) fn bench_camera(&self, believed: &Camera) -> Camera {
-        match self.simulation.as_ref().and_then(|s| s.camera.as_ref()) {
-            Some(truth) => {
-                let (w, h) = believed.size();
-                truth.resized(w, h)
-            }
-            None => believed.clone(),
-        }
-    }
-
-    /// The object as the simulated bench places it, for a scene whose shape is `believed`:
-    /// `[simulation] shape` where `believed` is the rig's own `[geometry.shape]`, else
-    /// `believed` itself (a preset's object is where the preset says).
-    pub(crate) fn bench_shape(&self, believed: Option<&Shape>) -> Option<Shape> {
-        match self.simulation.as_ref().and_then(|s| s.shape.as_ref()) {
-            Some(truth) if believed == self.geometry.shape.as_ref() => Some(truth.clone()),
-            _ => believed.cloned(),
-        }
     }
 
     /// The shipped simulated rig, which `capture --simulate` uses.

@@ -44,8 +44,9 @@ pub enum RigError {
     Radiometry(#[from] RadiometryError),
     #[error(transparent)]
     Pose(#[from] brdfd_pose::PoseError),
+    /// What the simulated rig failed on ([`crate::simulation`]): its renderer's own error.
     #[error(transparent)]
-    Photo(#[from] brdfd_bench::PhotoError),
+    Simulator(Box<dyn std::error::Error + Send + Sync>),
     #[error(transparent)]
     Refused(#[from] PoseRefused),
     /// A file's error whose step names the file.

@@ -97,10 +97,10 @@ pub struct Context<'a> {
 }
 
 impl Context<'_> {
-    pub(super) fn say(&self, text: impl Into<String>) {
+    pub fn say(&self, text: impl Into<String>) {
         self.progress.event(Event::Message { text: text.into() });
     }
-    pub(super) fn warn(&self, text: impl Into<String>) {
+    pub fn warn(&self, text: impl Into<String>) {
         self.progress.event(Event::Warning { text: text.into() });
     }
     /// The simulated devices' own time so far (zero on hardware, where it is unknowable and
@@ -196,20 +196,20 @@ pub fn record_failure(state: &std::path::Path, id: &str, u: &Unrecorded) -> Resu
 
 /// Wall time per phase, with the devices' share; each phase is announced as it starts and
 /// ends.
-pub(super) struct Phases<'a> {
+pub struct Phases<'a> {
     cx: &'a Context<'a>,
     done: Vec<PhaseTime>,
 }
 
 /// A phase under way.
-pub(super) struct Running {
+pub struct Running {
     name: String,
     started: Instant,
     device_at_start: f64,
 }
 
 impl<'a> Phases<'a> {
-    pub(super) fn start(&self, name: &str, total: u64) -> Running {
+    pub fn start(&self, name: &str, total: u64) -> Running {
         self.cx.progress.event(Event::PhaseStarted {
             phase: name.into(),
             total,
@@ -221,13 +221,13 @@ impl<'a> Phases<'a> {
         }
     }
 
-    pub(super) fn end(&mut self, r: Running) {
+    pub fn end(&mut self, r: Running) {
         let device = self.cx.device_seconds() - r.device_at_start;
         self.finish(r, device);
     }
 
     /// Ends a phase that is the simulator's work as a whole.
-    pub(super) fn end_as_device(&mut self, r: Running) {
+    pub fn end_as_device(&mut self, r: Running) {
         let all = r.started.elapsed().as_secs_f64();
         self.finish(r, all);
     }

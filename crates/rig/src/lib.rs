@@ -2,8 +2,8 @@
 //! a material on the bench into a session on disk, with the files that describe a rig and the
 //! sessions it writes. The CLI runs the flow in-process; the daemon (`brdfd-daemon`, `brdfd
 //! serve`) runs the same flow on devices it keeps open between captures. It sits above the
-//! core, the radiometry, pose, report and bench crates and the drivers, and below the daemon
-//! and the binary (docs/architecture.md).
+//! core, the radiometry, pose and report crates and the drivers, and below the simulated rig
+//! (`brdfd-simrig`), the daemon and the binary (docs/architecture.md).
 //!
 //! - [`config`]: the daemon, rig and material files, validated.
 //! - [`session`]: sessions on disk (manifest state machine, raw files with sha256, atomic
@@ -19,11 +19,12 @@
 //!   and serial devices.
 //! - [`worker`]: one thread per device, with keep-alive and re-opening.
 //! - [`open`]: devices from their selectors (`usb:04b0:0429`, `osc:http://...`, `serial:...`).
-//! - [`simulated`]: the simulated rig, whose devices speak the real protocols on loopback.
+//! - [`simulation`]: the seam the simulated rig (`brdfd-simrig`) fills: its devices, which
+//!   speak the real protocols on loopback, and its virtual bench. A program provides it once.
 //! - `stage.rs`: the hands on the bench, which place the sample, show it turned to the
 //!   cameras and judge the estimate against what they know of the truth: a real bench's
-//!   operator and turntable, or the simulated rig's virtual bench (`sim_stage.rs`). The flow
-//!   asks them through one trait, and has no simulated branch of its own.
+//!   operator and turntable, or the simulated rig's virtual bench. The flow asks them through
+//!   one trait ([`simulation::Stage`]), and has no simulated branch of its own.
 //! - [`settings`]: a capture's settings, resolved from the plan, the preset and the rig
 //!   before a session exists.
 //! - [`flow`]: the capture itself, as resumable steps; [`error`]: what it failed on, and
@@ -48,13 +49,12 @@ pub mod roles;
 pub mod selector;
 pub mod session;
 pub mod settings;
-mod sim_stage;
-pub mod simulated;
+pub mod simulation;
 mod stage;
 pub mod turning;
 pub mod worker;
 
-use crate::error::{refuse, Result, RigError};
+use crate::error::{Result, RigError};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -63,36 +63,6 @@ pub use brdfd_api::plan::{some_whole_number, whole_number, PixelCount, Plan, MAX
 use brdfd_core::stop::Stop;
 pub use devices::Devices;
 pub use worker::{Device, DeviceStatus, Worker};
-
-/// On a simulated rig, the plan's material must be one the simulator can render: a shipped
-/// preset, an alias or embedded test material, or one of the plan's NBRDF file. Checked
-/// before a session exists, so that a typo leaves nothing behind.
-pub(crate) fn check_simulated_material(plan: &Plan) -> Result<()> {
-    let preset =
-        crate::config::MaterialPreset::embedded(&plan.material).map_err(RigError::invalid)?;
-    let name = preset
-        .as_ref()
-        .map_or(plan.material.as_str(), |p| p.simulate_as.as_str());
-    let merl = brdfd_bench::resolve_material(name);
-    if brdfd_bench::embedded_materials().get(merl).is_ok() {
-        return Ok(());
-    }
-    if let Some(path) = &plan.nbrdf {
-        let set = brdfd_core::nbrdf::NbrdfSet::read(path)?;
-        set.get(merl)?;
-        return Ok(());
-    }
-    let embedded = brdfd_bench::embedded_materials();
-    refuse!(
-        "the simulator has no material {:?}. Use a preset ({}), a short name ({}), a test \
-         material ({}), or an NBRDF file holding it (the plan's `nbrdf`; `--nbrdf FILE` on \
-         the command line)",
-        plan.material,
-        crate::config::preset_names().join(", "),
-        brdfd_bench::aliases().join(", "),
-        embedded.names().join(", ")
-    )
-}
 
 /// The summary of a stored result (`result/coefficients.json`), if it can be read.
 pub fn stored_summary(coefficients_json: &std::path::Path) -> Option<Summary> {

@@ -20,6 +20,9 @@ pub const THETA: &str = "devices.theta";
 pub const TURNTABLE: &str = "devices.turntable";
 pub const SHUTTER: &str = "devices.shutter";
 
+/// The simulated rig's fallback camera: `fallback_camera = "v4l:simulated"`.
+pub const SIMULATED_WEBCAM: &str = "simulated";
+
 /// The roles a rig fills. A simulated rig's devices are its simulators, so it fills them as
 /// its `[simulation]` table says.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -218,7 +221,7 @@ fn simulated(rig: &Rig, found: &mut Vec<ConfigError>) -> Roles {
             ));
         }
     }
-    let webcam = Selector::V4l(super::simulated::SIMULATED_WEBCAM.into());
+    let webcam = Selector::V4l(SIMULATED_WEBCAM.into());
     if let Some(s) = d.fallback_camera.as_ref().filter(|s| **s != webcam) {
         found.push(invalid(
             file,

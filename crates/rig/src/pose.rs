@@ -16,8 +16,6 @@ use super::turning::turn_to;
 use crate::config::DslrFiles;
 use crate::error::said;
 use crate::error::{refuse, Result, RigError};
-use brdfd_bench::board_photo::{self, Spoil};
-use brdfd_bench::object_photo;
 use brdfd_core::geometry::{Camera, Shape};
 use brdfd_core::raster::linear_to_srgb;
 use brdfd_pose::board::Board;
@@ -187,7 +185,7 @@ fn shoot_one(
     let rig = cx.rig;
     let roles = plan::devices(rig)?;
     if let Some(sim) = &cx.devices.sim {
-        show_simulated(cx, sim, on_bench, turn_deg)?;
+        sim.show_for_pose(cx, on_bench, turn_deg)?;
     }
     let mut dslr_failed = None;
     if let (true, true, Some(role)) = (roles.dslr, shooting.dslr_answers, &cx.devices.dslr) {
@@ -238,44 +236,6 @@ fn shoot_one(
             on_bench.name()
         ),
     }
-}
-
-/// What the simulated bench shows its cameras: `on_bench` turned `turn_deg`, under the studio
-/// light.
-fn show_simulated(
-    cx: &Context,
-    sim: &crate::simulated::SimulatedRig,
-    on_bench: OnBench,
-    turn_deg: f64,
-) -> Result<()> {
-    let rig = cx.rig;
-    // The bench turned by θ is, in its own frame, the camera and the light turned by −θ.
-    let theta = turn_deg.to_radians();
-    let camera = rig
-        .bench_camera(&rig.geometry.camera)
-        .turned_about_y(-theta);
-    let env = brdfd_bench::studio_envmap(512);
-    let yaw = rig.theta_yaw_deg.to_radians() - theta;
-    let radiance = match on_bench {
-        OnBench::Board(board) => board_photo::render(board, &camera, &env, yaw, Spoil::default())?,
-        OnBench::Nothing => object_photo::render(None, &camera, &env, yaw, Spoil::default())?.0,
-        OnBench::Object => {
-            let shape = rig.bench_shape(rig.geometry.shape.as_ref());
-            let Some(mesh) = shape.as_ref().map(Shape::mesh).transpose()?.flatten() else {
-                refuse!(
-                    "the rig's [geometry.shape] is no mesh: a silhouette is aligned for a mesh"
-                );
-            };
-            object_photo::render(Some(&mesh), &camera, &env, yaw, Spoil::default())?.0
-        }
-    };
-    sim.show_radiance(radiance, &camera)?;
-    cx.say(match on_bench {
-        OnBench::Board(_) => "simulated rig: the board stands where the object goes, under the studio light",
-        OnBench::Nothing => "simulated rig: the bench is empty, under the studio light",
-        OnBench::Object => "simulated rig: the object stands on the bench (where [simulation] shape says, else where [geometry.shape] does), under the studio light",
-    });
-    Ok(())
 }
 
 /// The DSLR's JPEGs as photos. RAW files (a body that keeps its own image

@@ -4,9 +4,9 @@
 //!
 //! - On a real bench ([`Hands`]) the operator has placed the object and the turntable turns
 //!   it, so there is nothing to do and no truth to judge by.
-//! - On the simulated rig (`SimulatedStage`, in `sim_stage.rs`) the stage is the virtual
-//!   bench: it renders the material the plan names, shows each view to the simulated cameras,
-//!   and relights the estimate against the material.
+//! - On the simulated rig the stage is the virtual bench (`brdfd-simrig`, through
+//!   [`crate::simulation`]): it renders the material the plan names, shows each view to the
+//!   simulated cameras, and relights the estimate against the material.
 
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::Bivariate;
@@ -17,8 +17,11 @@ use super::flow::{Context, Phases};
 use super::settings::CaptureSettings;
 use crate::error::Result;
 
-/// The bench's hands, as the capture flow asks for them (module header).
-pub(super) trait Stage {
+/// The bench's hands, as the capture flow asks for them: what puts the sample in front of the
+/// cameras, turns it for each view, and judges the estimate against what it knows of the
+/// truth. A real bench's do nothing and know no truth; the simulated rig's are its virtual
+/// bench ([`crate::simulation`]).
+pub trait Stage {
     /// Puts the sample on the bench before anything is shot.
     fn place(
         &mut self,
@@ -47,7 +50,7 @@ pub(super) trait Stage {
 
 /// The estimate judged against the truth, where the stage knows it.
 #[derive(Default)]
-pub(super) struct Judgement {
+pub struct Judgement {
     /// The truth projected on the basis, beside a basis estimate's coefficients.
     pub coefficients: Option<Vec<f64>>,
     /// The estimate's relight error against the truth, and the light it was relit under.
@@ -80,8 +83,8 @@ impl Stage for Hands {
 /// The stage of the rig `cx` runs on: the simulated rig's virtual bench, or a real bench's
 /// hands. The one place the flow's composition looks at which rig it has.
 pub(super) fn of(cx: &Context) -> Box<dyn Stage> {
-    match cx.devices.sim {
-        Some(_) => Box::new(super::sim_stage::SimulatedStage::default()),
+    match &cx.devices.sim {
+        Some(sim) => sim.stage(),
         None => Box::new(Hands),
     }
 }

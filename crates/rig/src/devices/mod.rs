@@ -21,7 +21,7 @@ use super::plan;
 use super::roles::{
     self, DeviceWorker, LightProbe, ObjectCamera, RigDevice, Role, Shutter, Turntable,
 };
-use super::simulated::SimulatedRig;
+use super::simulation::{self, SimulatedRig};
 use super::worker::{DeviceStatus, Opener, Worker};
 use crate::config::Rig;
 use crate::error::{Result, StepExt};
@@ -38,7 +38,7 @@ pub struct Planned {
 impl Planned {
     /// The device a selector names, opened as `field`'s role needs it. `loopback`: a
     /// simulator on this machine, whose THETA is polled faster than a real one.
-    pub(crate) fn from_selector(field: &'static str, s: Selector, loopback: bool) -> Planned {
+    pub fn from_selector(field: &'static str, s: Selector, loopback: bool) -> Planned {
         let selector = s.to_string();
         let open: Opener<Box<dyn RigDevice>> =
             Box::new(move || -> Result<Box<dyn RigDevice>, DeviceError> {
@@ -86,7 +86,7 @@ pub struct Devices {
     workers: Vec<Arc<DeviceWorker>>,
     /// The simulators behind the workers when the rig is simulated (they stop when this is
     /// dropped, after the workers).
-    pub sim: Option<SimulatedRig>,
+    pub sim: Option<Box<dyn SimulatedRig>>,
 }
 
 impl Devices {
@@ -96,7 +96,9 @@ impl Devices {
     pub fn start(rig: &Rig, keep_alive: Duration) -> Result<Devices> {
         plan::devices(rig)?;
         let (planned, sim) = if rig.simulated {
-            let sim = SimulatedRig::start(rig).step("starting the simulated rig")?;
+            let sim = simulation::simulator()?
+                .start(rig)
+                .step("starting the simulated rig")?;
             (sim.devices(), Some(sim))
         } else {
             (hardware(rig), None)

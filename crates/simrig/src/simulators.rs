@@ -17,26 +17,24 @@ use brdfd_sim::theta::{OscServer, ThetaConfig};
 use brdfd_sim::{Stage, Timed};
 use brdfd_theta::Theta;
 
-use super::devices::{video::VideoCamera, Planned};
-use super::plan;
-use super::roles::RigDevice;
-use crate::config::{
-    DslrBackend, Rig, SimulatedBody, SimulatedLink, SimulatedPresence, SimulatedTurntable,
-};
-use crate::error::{Result, RigError};
-use crate::selector::Selector;
 use brdfd_bench::camera::BenchCamera;
 use brdfd_bench::panorama::BenchPanorama;
 use brdfd_bench::raw_file::{RawDamage, RawFormat};
 use brdfd_bench::VirtualBench;
+use brdfd_rig::config::{
+    DslrBackend, Rig, SimulatedBody, SimulatedLink, SimulatedPresence, SimulatedRaw,
+    SimulatedRawDamage, SimulatedTurntable,
+};
+use brdfd_rig::devices::{video::VideoCamera, Planned};
+use brdfd_rig::error::{Result, RigError};
+use brdfd_rig::plan::{self, SIMULATED_WEBCAM};
+use brdfd_rig::roles::RigDevice;
+use brdfd_rig::selector::Selector;
 use brdfd_sim::v4l::SimV4l;
 
 /// Time the simulated THETA takes per frame. A real THETA V takes about a second; the
 /// simulation keeps a delay so that the client's polling runs as it would, but a short one.
 pub const SIM_THETA_SHOT_TIME: Duration = Duration::from_millis(20);
-
-/// The simulated rig's fallback camera: `fallback_camera = "v4l:simulated"`.
-pub const SIMULATED_WEBCAM: &str = "simulated";
 
 /// Largest panorama the simulated THETA serves (a real THETA V writes 5376 × 2688).
 const SIM_THETA_WIDTH: usize = 1024;
@@ -48,7 +46,7 @@ enum ThetaLink {
     Usb(SharedResponder),
 }
 
-pub struct SimulatedRig {
+pub(crate) struct Simulators {
     /// Whether the rig has the simulated V4L2 webcam.
     fallback: bool,
     /// The RAW files the DSLR writes (`[simulation] dslr_raw`), and how it damages them.
@@ -74,10 +72,10 @@ pub struct SimulatedRig {
     grbl: Option<(GrblPeer, serialport::TTYPort)>,
 }
 
-impl SimulatedRig {
+impl Simulators {
     /// Starts the simulators the rig's `[simulation]` table names, with nothing in front of
     /// the cameras.
-    pub fn start(rig: &Rig) -> Result<SimulatedRig> {
+    pub(crate) fn start(rig: &Rig) -> Result<Simulators> {
         let simulation = rig.simulation.clone().unwrap_or_default();
         let dslr_scene = Arc::new(Stage::new((256, 256)));
         let dslr_time = Arc::new(Timed::new(dslr_scene.clone()));
@@ -156,10 +154,17 @@ impl SimulatedRig {
             })?;
             (Some((peer, roles)), Some(end))
         };
-        Ok(SimulatedRig {
+        Ok(Simulators {
             fallback: rig.devices.fallback_camera.is_some(),
-            raw: simulation.dslr_raw.unwrap_or(RawFormat::Nef),
-            raw_damage: simulation.dslr_raw_damage,
+            raw: match simulation.dslr_raw {
+                None | Some(SimulatedRaw::Nef) => RawFormat::Nef,
+                Some(SimulatedRaw::Dng) => RawFormat::Dng,
+                Some(SimulatedRaw::Dng12) => RawFormat::Dng12,
+            },
+            raw_damage: simulation.dslr_raw_damage.map(|d| match d {
+                SimulatedRawDamage::Oversized => RawDamage::Oversized,
+                SimulatedRawDamage::IfdLoop => RawDamage::IfdLoop,
+            }),
             dslr_scene,
             dslr_time,
             dslr_names,
@@ -176,14 +181,14 @@ impl SimulatedRig {
         })
     }
 
-    /// The simulators as the rig's devices: each opened by the code that opens hardware,
-    /// through the selector a bench would give it.
     /// The simulated DSLR's model, as it names itself.
     pub(crate) fn dslr_model(&self) -> &'static str {
         self.dslr_names.2
     }
 
-    pub fn devices(&self) -> Vec<Planned> {
+    /// The simulators as the rig's devices: each opened by the code that opens hardware,
+    /// through the selector a bench would give it.
+    pub(crate) fn devices(&self) -> Vec<Planned> {
         let addr = self.ptpip.addr;
         let dslr = match self.dslr_backend {
             DslrBackend::Brdfd => Selector::PtpIp(addr.to_string()),
@@ -271,13 +276,12 @@ impl SimulatedRig {
         &self,
         radiance: brdfd_core::raster::Raster,
         camera: &brdfd_core::geometry::Camera,
-    ) -> Result<()> {
+    ) {
         let (make, model, _) = self.dslr_names;
         let camera = BenchCamera::of_radiance(radiance, camera, make, model)
             .with_raw(self.raw)
             .with_raw_damage(self.raw_damage);
         self.dslr_scene.show(Arc::new(camera));
-        Ok(())
     }
 
     fn add_render(&self, since: Instant) {
@@ -290,7 +294,7 @@ impl SimulatedRig {
     /// Seconds the simulated devices have spent on their own work so far: rendering scenes,
     /// making frames, the DSLR's modelled exposure and processing, and the THETA's modelled
     /// shot time per frame.
-    pub fn device_seconds(&self) -> f64 {
+    pub(crate) fn device_seconds(&self) -> f64 {
         let dslr_busy = self.dslr.lock().map_or(0.0, |r| r.busy_seconds());
         let theta_shots = match &self.theta {
             ThetaLink::Http(osc) => SIM_THETA_SHOT_TIME.as_secs_f64() * osc.shots() as f64,

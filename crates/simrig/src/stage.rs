@@ -1,4 +1,4 @@
-//! The simulated rig's stage ([`super::stage::Stage`]): the virtual bench. It tabulates the
+//! The simulated rig's stage ([`brdfd_rig::simulation::Stage`]): the virtual bench. It tabulates the
 //! material the plan names on the rig's object, shows each view to the simulated cameras,
 //! and judges the estimate against the material: its projection on the basis, and its
 //! relight error under light the estimate was not fitted to. Its work is the devices' time in
@@ -15,24 +15,36 @@ use brdfd_core::merl::MerlBrdf;
 use brdfd_core::nbrdf::NbrdfSet;
 use brdfd_core::solve::Colour;
 
-use super::flow::{Context, Phases};
-use super::settings::CaptureSettings;
-use super::stage::{Judgement, Stage};
-use super::turning::turned;
-use super::Plan;
-use crate::config::MaterialPreset;
-use crate::error::{Result, RigError, StepExt};
 use brdfd_bench::{RelightTruth, VirtualBench, HELD_OUT_YAW_DEG};
+use brdfd_rig::config::MaterialPreset;
+use brdfd_rig::error::{Result, RigError, StepExt};
+use brdfd_rig::flow::{Context, Phases};
+use brdfd_rig::settings::CaptureSettings;
+use brdfd_rig::simulation::{Judgement, Stage};
+use brdfd_rig::turning::turned;
+use brdfd_rig::Plan;
+
+use super::simulators::Simulators;
+use super::{truth_camera, truth_shape};
 
 /// The virtual bench, once the sample is placed, and the truth the estimate is relit against,
 /// rendered in the background once the first view is in front of the camera.
-#[derive(Default)]
 pub(super) struct SimulatedStage {
+    rig: Arc<Simulators>,
     bench: Option<VirtualBench>,
     relight_truth: Option<Joined<brdfd_core::Result<RelightTruth>>>,
 }
 
 impl SimulatedStage {
+    /// The stage of the simulated rig `rig`, with nothing placed on it yet.
+    pub(super) fn new(rig: Arc<Simulators>) -> SimulatedStage {
+        SimulatedStage {
+            rig,
+            bench: None,
+            relight_truth: None,
+        }
+    }
+
     fn bench(&self) -> Result<&VirtualBench> {
         self.bench
             .as_ref()
@@ -49,17 +61,13 @@ impl Stage for SimulatedStage {
         basis: &Basis,
         phases: &mut Phases,
     ) -> Result<()> {
-        let rig = cx
-            .devices
-            .sim
-            .as_ref()
-            .step("the simulated rig's devices")?;
+        let rig = &self.rig;
         let p = phases.start("simulated bench: place the sample", 1);
         // The bench photographs the object where it truly stands; the estimate uses where the
         // rig says it is.
         let scene = SceneGeometry {
-            camera: cx.rig.bench_camera(&s.scene.camera),
-            shape: cx.rig.bench_shape(s.scene.shape.as_ref()),
+            camera: truth_camera(cx.rig, &s.scene.camera),
+            shape: truth_shape(cx.rig, s.scene.shape.as_ref()),
             ..s.scene.clone()
         };
         let mut bench = simulated_bench(&s.plan, s.preset.as_ref(), &scene, s.yaw, basis)?;
@@ -89,14 +97,9 @@ impl Stage for SimulatedStage {
     }
 
     /// The simulated turntable only reports angles: the object turns here.
-    fn show(&mut self, cx: &Context, deg: f64) -> Result<()> {
-        let rig = cx
-            .devices
-            .sim
-            .as_ref()
-            .step("the simulated rig's devices")?;
+    fn show(&mut self, _: &Context, deg: f64) -> Result<()> {
         let bench = self.bench()?;
-        rig.show_object(&turned_bench(bench, deg))?;
+        self.rig.show_object(&turned_bench(bench, deg))?;
         // The truth the estimate is relit against needs no estimate: it renders while the
         // camera's modelled exposures wait and the estimate runs. (Not before the scene's own
         // render: two renders at once only slow each other.)
