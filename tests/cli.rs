@@ -898,6 +898,49 @@ fn a_rig_file_drives_the_devices_it_names() {
     assert!(shown.contains("13 raw files verified"), "{shown}");
 }
 
+/// A capture asked for one material (`--one-material`) keeps that in its session's plan (the
+/// manifest's `options`), which a resume repeats; a capture that does not ask writes no such
+/// field.
+#[test]
+fn a_capture_for_one_material_keeps_it_in_its_plan() {
+    let dir = tempfile::tempdir().unwrap();
+    // Each capture in its own state folder, so that each lists one session.
+    let plan_of = |state: &str, extra: &[&str]| {
+        let mut args = vec![
+            "capture",
+            "--simulate",
+            "--material",
+            "gold",
+            "--size",
+            "48",
+            "--state-dir",
+            state,
+        ];
+        args.extend_from_slice(extra);
+        let o = brdfd(&args, dir.path());
+        let (stdout, stderr) = text(&o);
+        assert!(o.status.success(), "{stdout}\n{stderr}");
+        let listed = text(&brdfd(
+            &["session", "list", "--json", "--state-dir", state],
+            dir.path(),
+        ))
+        .0;
+        let listed: serde_json::Value = serde_json::from_str(&listed).unwrap();
+        let id = listed[0]["id"].as_str().unwrap().to_string();
+        let manifest = dir
+            .path()
+            .join(state)
+            .join("sessions")
+            .join(&id)
+            .join("manifest.json");
+        let manifest: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&manifest).unwrap()).unwrap();
+        manifest["options"].clone()
+    };
+    assert_eq!(plan_of("one", &["--one-material"])["one_material"], true);
+    assert!(plan_of("split", &[]).get("one_material").is_none());
+}
+
 /// Issue 18: the analytic model through the binary, a render of its result, a negative yaw
 /// given as a separate argument, and an estimate that names no geometry.
 #[test]

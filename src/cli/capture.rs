@@ -46,6 +46,11 @@ pub struct CaptureArgs {
     /// estimate can be checked against known coefficients.
     #[arg(long, requires = "simulate")]
     pub in_span: bool,
+    /// Fit one BRDF to the whole part, even where its colour departs from place to place:
+    /// otherwise such a part is split into two materials, each estimated on its own pixels
+    /// and written in its own folder (material-1/, material-2/).
+    #[arg(long)]
+    pub one_material: bool,
     /// Pixels to estimate from (a number or `all`); the material preset's, else 20.
     #[arg(long)]
     pub pixels: Option<brdfd_rig::PixelCount>,
@@ -179,6 +184,7 @@ pub fn run(a: CaptureArgs) -> anyhow::Result<()> {
         env: a.env.map(|p| std::path::absolute(&p).unwrap_or(p)),
         nbrdf: a.nbrdf.map(|p| std::path::absolute(&p).unwrap_or(p)),
         in_span: a.in_span,
+        one_material: a.one_material,
     };
     plan.validate()?;
     let config = a.daemon.config()?;

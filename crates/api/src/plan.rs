@@ -185,6 +185,13 @@ pub struct Plan {
     /// exactly, which checks the capture chain apart from the model's own error.
     #[serde(default)]
     pub in_span: bool,
+    /// Fit one BRDF to the whole part, even where its colour departs from place to place:
+    /// otherwise such a part is split into two materials, each estimated on its own pixels
+    /// (`brdfd estimate --one-material` says the same for an estimate from files).
+    // Left out of a manifest when false, so that a session that does not ask for it reads
+    // as it did in a brdfd from before the field.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub one_material: bool,
 }
 
 fn default_size() -> usize {
@@ -242,6 +249,7 @@ impl Plan {
             env: None,
             nbrdf: None,
             in_span: false,
+            one_material: false,
         }
     }
 
@@ -333,6 +341,22 @@ mod tests {
                 "{bad} was taken"
             );
         }
+    }
+
+    /// A plan that asks for one material says so on the wire; one that does not is written
+    /// without the field, as before it existed, and a manifest without it reads as not asking.
+    #[test]
+    fn one_material_is_written_only_when_asked_for() {
+        let mut plan = Plan::new("gold");
+        let json = serde_json::to_value(&plan).unwrap();
+        assert!(json.get("one_material").is_none(), "{json}");
+        assert!(!serde_json::from_value::<Plan>(json).unwrap().one_material);
+        plan.one_material = true;
+        let json = serde_json::to_value(&plan).unwrap();
+        assert_eq!(json["one_material"], true);
+        assert!(serde_json::from_value::<Plan>(json).unwrap().one_material);
+        let bad = r#"{"material":"gold","one_material":"yes"}"#;
+        assert!(serde_json::from_str::<Plan>(bad).is_err());
     }
 
     #[test]

@@ -179,6 +179,7 @@ impl CaptureSettings {
             pixel_count,
             solver: plan.solve.or(p.map(|p| p.solve)).unwrap_or_default(),
             colour: plan.colour.or(p.map(|p| p.colour)).unwrap_or_default(),
+            materials: !plan.one_material,
             ..EstimateOptions::default()
         };
         let warnings = unused_basis_settings(
@@ -339,6 +340,18 @@ mod tests {
         assert!(mesh.is_file(), "{}", mesh.display());
         assert!(kept.starts_with("# The simulated rig"), "comments kept");
         assert_eq!(again.geometry.camera, rig.geometry.camera);
+    }
+
+    /// A capture splits a part of two materials unless its plan asks for one.
+    #[test]
+    fn a_plan_for_one_material_turns_the_split_off() {
+        let rig = Rig::simulated();
+        let split = CaptureSettings::resolve(&plan("gold"), &rig).unwrap();
+        assert!(split.estimate.materials);
+        let mut one = plan("gold");
+        one.one_material = true;
+        let one = CaptureSettings::resolve(&one, &rig).unwrap();
+        assert!(!one.estimate.materials);
     }
 
     #[test]
