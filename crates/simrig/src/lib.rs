@@ -56,7 +56,8 @@ impl Simulator for VirtualRig {
             .as_ref()
             .map_or(plan.material.as_str(), |p| p.simulate_as.as_str());
         let merl = brdfd_bench::resolve_material(name);
-        if brdfd_bench::embedded_materials().get(merl).is_ok() {
+        let embedded = brdfd_bench::embedded_materials();
+        if embedded.get(merl).is_ok() {
             return Ok(());
         }
         if let Some(path) = &plan.nbrdf {
@@ -71,7 +72,7 @@ impl Simulator for VirtualRig {
             plan.material,
             brdfd_rig::config::preset_names().join(", "),
             brdfd_bench::aliases().join(", "),
-            brdfd_bench::embedded_materials().names().join(", ")
+            embedded.names().join(", ")
         )))
     }
 }
@@ -94,11 +95,7 @@ impl SimulatedRig for Running {
 
     fn show_target(&self, cx: &Context, scene: &SceneGeometry, albedo: [f64; 3]) -> Result<()> {
         let rig = cx.rig;
-        let truth = SceneGeometry {
-            camera: truth_camera(rig, &scene.camera),
-            shape: truth_shape(rig, scene.shape.as_ref()),
-            ..scene.clone()
-        };
+        let truth = truth_scene(rig, scene);
         let bench = VirtualBench {
             material_name: format!("a Lambertian target of albedo {albedo:?}"),
             material: Arc::new(MerlBrdf::from_cells(|_, _, _| albedo.map(|a| a / PI))),
@@ -149,6 +146,16 @@ impl SimulatedRig for Running {
 /// The bench's renderer's error, as the rig carries it.
 fn simulator_error(e: impl std::error::Error + Send + Sync + 'static) -> RigError {
     RigError::Simulator(Box::new(e))
+}
+
+/// `scene` (as the rig believes it) where the simulated bench truly has it: its camera and
+/// its object placed as [`truth_camera`] and [`truth_shape`] say.
+fn truth_scene(rig: &Rig, scene: &SceneGeometry) -> SceneGeometry {
+    SceneGeometry {
+        camera: truth_camera(rig, &scene.camera),
+        shape: truth_shape(rig, scene.shape.as_ref()),
+        ..scene.clone()
+    }
 }
 
 /// The camera the simulated bench photographs through, for a scene whose camera is `believed`

@@ -25,7 +25,7 @@ use brdfd_rig::turning::turned;
 use brdfd_rig::Plan;
 
 use super::simulators::Simulators;
-use super::{truth_camera, truth_shape};
+use super::truth_scene;
 
 /// The virtual bench, once the sample is placed, and the truth the estimate is relit against,
 /// rendered in the background once the first view is in front of the camera.
@@ -65,11 +65,7 @@ impl Stage for SimulatedStage {
         let p = phases.start("simulated bench: place the sample", 1);
         // The bench photographs the object where it truly stands; the estimate uses where the
         // rig says it is.
-        let scene = SceneGeometry {
-            camera: truth_camera(cx.rig, &s.scene.camera),
-            shape: truth_shape(cx.rig, s.scene.shape.as_ref()),
-            ..s.scene.clone()
-        };
+        let scene = truth_scene(cx.rig, &s.scene);
         let mut bench = simulated_bench(&s.plan, s.preset.as_ref(), &scene, s.yaw, basis)?;
         bench.stop = cx.cancel.stop();
         rig.show_light(&bench);
