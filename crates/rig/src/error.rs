@@ -98,6 +98,30 @@ impl RigError {
         }
     }
 
+    /// What a transparent variant holds: another layer's error, said as its own.
+    fn transparent(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        Some(match self {
+            RigError::Device(e) => e,
+            RigError::Session(e) => e,
+            RigError::Config(e) => e,
+            RigError::RigFile(e) => e,
+            RigError::Core(e) => e,
+            RigError::Radiometry(e) => e,
+            RigError::Pose(e) => e,
+            RigError::Simulator(e) => e.as_ref(),
+            RigError::Refused(e) => e,
+            RigError::Io(e) => e,
+            RigError::Plan(e) => e,
+            RigError::Json(e) => e,
+            RigError::Toml(e) => e,
+            RigError::TomlWrite(e) => e,
+            RigError::Invalid(_)
+            | RigError::Cancelled
+            | RigError::Unrecorded { .. }
+            | RigError::In { .. } => return None,
+        })
+    }
+
     /// The failure the manifest could not record, if this error carries one under its steps.
     pub fn unrecorded(&self) -> Option<&Unrecorded> {
         match self {
@@ -292,7 +316,9 @@ pub(crate) fn failure_code(e: &(dyn std::error::Error + 'static)) -> FailureCode
 
 /// `e`, then each of its causes, each as its own type: a step's cause is boxed
 /// (`Box<RigError>`), and a box's `source` is its content's, which would leave the content
-/// itself out of a plain walk of `source`.
+/// itself out of a plain walk of `source`; a transparent variant of [`RigError`] (a lower
+/// layer's error) is likewise its content. So a caller looks for a `DeviceError` or a
+/// `CoreError` as itself, wherever it sits.
 pub fn chain<'a>(
     e: &'a (dyn std::error::Error + 'static),
 ) -> impl Iterator<Item = &'a (dyn std::error::Error + 'static)> {
@@ -301,10 +327,15 @@ pub fn chain<'a>(
 
 fn unboxed<'a>(e: &'a (dyn std::error::Error + 'static)) -> &'a (dyn std::error::Error + 'static) {
     if let Some(b) = e.downcast_ref::<Box<RigError>>() {
-        return b.as_ref();
+        return unboxed(b.as_ref());
     }
     if let Some(b) = e.downcast_ref::<Box<DeviceError>>() {
         return b.as_ref();
+    }
+    // A transparent variant's `source` is its content's source, which would leave the content
+    // itself out of the walk: the chain holds the content instead.
+    if let Some(inner) = e.downcast_ref::<RigError>().and_then(RigError::transparent) {
+        return unboxed(inner);
     }
     e
 }
@@ -319,11 +350,6 @@ pub fn disk_full(e: &(dyn std::error::Error + 'static)) -> bool {
             .and_then(std::io::Error::raw_os_error)
             == Some(ENOSPC)
             || c.downcast_ref::<CoreError>().is_some_and(core_full)
-            || match c.downcast_ref::<RigError>() {
-                Some(RigError::Core(core)) => core_full(core),
-                Some(RigError::Io(io)) => io.raw_os_error() == Some(ENOSPC),
-                _ => false,
-            }
             || c.to_string().contains("the disk is full")
     })
 }
@@ -332,11 +358,6 @@ pub fn disk_full(e: &(dyn std::error::Error + 'static)) -> bool {
 /// errors hold a driver's error inside [`DeviceError`]; a bare one is a link of the chain only
 /// where a caller put it under contexts of its own (the command line, the tests).
 fn typed_code(cause: &(dyn std::error::Error + 'static)) -> Option<FailureCode> {
-    // The rig's own error says a device's code through its transparent variant; its steps
-    // are the chain's next links.
-    if let Some(RigError::Device(d)) = cause.downcast_ref::<RigError>() {
-        return d.code();
-    }
     if let Some(d) = cause.downcast_ref::<DeviceError>() {
         return d.code();
     }

@@ -196,13 +196,11 @@ pub(crate) fn shoot_view(
 pub(super) fn the_dslrs_fault(cx: &Context, e: &RigError) -> bool {
     !cx.cancel.is_cancelled()
         && !chain(e).any(|c| {
-            matches!(
-                c.downcast_ref::<RigError>(),
-                Some(RigError::Session(_) | RigError::Device(DeviceError::ShutterFailed { .. }))
-            ) || matches!(
-                c.downcast_ref::<DeviceError>(),
-                Some(DeviceError::ShutterFailed { .. })
-            )
+            c.is::<crate::session::SessionError>()
+                || matches!(
+                    c.downcast_ref::<DeviceError>(),
+                    Some(DeviceError::ShutterFailed { .. })
+                )
         })
 }
 
