@@ -6,7 +6,10 @@ use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::brdf::{dot, normalize, IsotropicBrdf, Vec3};
 use brdfd_core::envmap::{EnvMap, LightSet};
-use brdfd_core::estimate::{estimate, EstimateOptions, Model, SelectionMethod, View};
+use brdfd_core::estimate::{
+    estimate, BasisOptions, BasisOutcome, Estimate, EstimateOptions, Model, ModelOptions, Outcome,
+    SelectionMethod, View,
+};
 use brdfd_core::geometry::{Camera, GeomPixel, PixelGeometry, Shape};
 use brdfd_core::merl::MerlBrdf;
 use brdfd_core::raster::Raster;
@@ -17,6 +20,11 @@ use brdfd_core::stop::Stop;
 use brdfd_eval::paper::brdf_error;
 
 /// The embedded basis's rendering matrix for a sphere under the studio map.
+/// The basis model's own outcome of an estimate that must be one.
+fn of_basis(e: &Estimate) -> &BasisOutcome {
+    e.outcome.basis().expect("a basis estimate")
+}
+
 fn studio_matrix(basis: &Basis, size: usize) -> RenderingMatrix {
     let g = sphere(size);
     basis.rendering_matrix(&g.pixels, &studio_envmap(256).compressed(2048, 0.0))
@@ -277,10 +285,12 @@ fn per_channel_colour_recovers_what_the_joint_basis_cannot() {
     for pixels in [Some(20), None] {
         let run = |colour| {
             let opts = EstimateOptions {
-                model: Model::Basis,
-                pixel_count: pixels,
-                solver: Solver::LeastSquares,
-                colour,
+                model: ModelOptions::Basis(BasisOptions {
+                    pixel_count: pixels,
+                    solver: Solver::LeastSquares,
+                    colour,
+                    ..BasisOptions::default()
+                }),
                 ..Default::default()
             };
             estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap()
@@ -303,14 +313,17 @@ fn per_channel_colour_recovers_what_the_joint_basis_cannot() {
         // The automatic choice tries both and keeps per channel, the better fit: the same
         // pixels and coefficients as asking for it.
         let auto = run(ColourChoice::Auto);
-        assert_eq!(auto.colour, Colour::PerChannel);
+        assert_eq!(auto.colour(), Colour::PerChannel);
         assert_eq!(
             auto.solution.coefficients,
             per_channel.solution.coefficients
         );
-        assert_eq!(auto.selection.pixels, per_channel.selection.pixels);
         assert_eq!(
-            auto.colour_fits,
+            of_basis(&auto).selection.pixels,
+            of_basis(&per_channel).selection.pixels
+        );
+        assert_eq!(
+            of_basis(&auto).colour_fits,
             [
                 (Colour::Joint, joint.fit_error),
                 (Colour::PerChannel, per_channel.fit_error)
@@ -337,18 +350,20 @@ fn auto_colour_keeps_joint_on_a_tie() {
     let basis = Basis::embedded();
     let (c_true, g, lights, photo) = in_span_photo(&basis);
     let opts = EstimateOptions {
-        model: Model::Basis,
-        solver: Solver::LeastSquares,
-        colour: ColourChoice::Auto,
+        model: ModelOptions::Basis(BasisOptions {
+            solver: Solver::LeastSquares,
+            colour: ColourChoice::Auto,
+            ..BasisOptions::default()
+        }),
         ..Default::default()
     };
     let est = estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap();
-    let fits: Vec<(Colour, f64)> = est.colour_fits.clone();
+    let fits: Vec<(Colour, f64)> = of_basis(&est).colour_fits.clone();
     eprintln!("in span: fits {fits:?}");
     // Measured: joint 1.01e-6, per channel 1.05e-6.
     assert_eq!(fits.len(), 2);
     assert!(fits.iter().all(|(_, f)| *f < COLOUR_FIT_MARGIN));
-    assert_eq!(est.colour, Colour::Joint);
+    assert_eq!(est.colour(), Colour::Joint);
     assert!(relative_error(&est.solution.coefficients, &c_true) < 1e-4);
 }
 
@@ -367,11 +382,13 @@ fn clipped_pixels_are_left_out() {
     }
     let error = |white: Option<f32>| {
         let opts = EstimateOptions {
-            model: Model::Basis,
-            pixel_count: None,
-            solver: Solver::LeastSquares,
-            // The truth is a joint-colour BRDF; per channel would fit the clipped values too.
-            colour: ColourChoice::Joint,
+            model: ModelOptions::Basis(BasisOptions {
+                pixel_count: None,
+                solver: Solver::LeastSquares,
+                // The truth is a joint-colour BRDF; per channel would fit the clipped values too.
+                colour: ColourChoice::Joint,
+                ..BasisOptions::default()
+            }),
             white,
             ..Default::default()
         };
@@ -413,12 +430,14 @@ fn the_prior_steadies_few_pixel_estimates_under_grace() {
         let truth = Bivariate::reduce(&table, basis.header.grid);
         let error = |solver, nonnegative| {
             let opts = EstimateOptions {
-                model: Model::Basis,
-                pixel_count: Some(5),
-                solver,
-                // The paper's model: its least squares solves 5 pixels, per channel cannot.
-                colour: ColourChoice::Joint,
-                nonnegative,
+                model: ModelOptions::Basis(BasisOptions {
+                    pixel_count: Some(5),
+                    solver,
+                    // The paper's model: its least squares solves 5 pixels, per channel cannot.
+                    colour: ColourChoice::Joint,
+                    nonnegative,
+                    ..BasisOptions::default()
+                }),
                 ..Default::default()
             };
             let est = estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap();
@@ -778,14 +797,16 @@ fn estimate_recovers_an_embedded_material_on_the_virtual_bench() {
     let basis = Basis::embedded();
     for method in [SelectionMethod::Fast, SelectionMethod::Paper] {
         let opts = EstimateOptions {
-            model: Model::Basis,
-            pixel_count: Some(20),
-            method,
-            swap: SwapParams {
-                restarts: 2,
-                seed: 1,
-                max_evaluations: 50_000,
-            },
+            model: ModelOptions::Basis(BasisOptions {
+                pixel_count: Some(20),
+                method,
+                swap: SwapParams {
+                    restarts: 2,
+                    seed: 1,
+                    max_evaluations: 50_000,
+                },
+                ..BasisOptions::default()
+            }),
             ..Default::default()
         };
         let est = estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap();
@@ -978,12 +999,14 @@ fn turntable_views_recover_the_coefficients_and_improve_conditioning() {
     // The truth is a joint-colour BRDF, and the coarse rows' compression error could make
     // an automatic choice pick per channel.
     let twenty = EstimateOptions {
-        model: Model::Basis,
-        colour: ColourChoice::Joint,
+        model: ModelOptions::Basis(BasisOptions {
+            colour: ColourChoice::Joint,
+            ..BasisOptions::default()
+        }),
         ..EstimateOptions::default()
     };
     let est = estimate_views(&basis, &as_views(3, true), &twenty).unwrap();
-    assert_eq!(est.chosen_lights, views[0].2.len());
+    assert_eq!(of_basis(&est).chosen_lights, views[0].2.len());
     let err = relative_error(&est.solution.coefficients, &c_true);
     let coarse = estimate_views(&basis, &as_views(3, false), &twenty).unwrap();
     let coarse_err = relative_error(&coarse.solution.coefficients, &c_true);
@@ -995,22 +1018,23 @@ fn turntable_views_recover_the_coefficients_and_improve_conditioning() {
         coarse_err > 10.0 * err,
         "coarse rows did as well: {coarse_err}"
     );
-    let views_used: std::collections::BTreeSet<_> = est.chosen_views.iter().collect();
+    let views_used: std::collections::BTreeSet<_> = of_basis(&est).chosen_views.iter().collect();
     assert!(views_used.len() > 1, "selection used views {views_used:?}");
 
     let all = EstimateOptions {
-        model: Model::Basis,
-        pixel_count: None,
+        model: ModelOptions::Basis(BasisOptions {
+            pixel_count: None,
+            colour: ColourChoice::Joint,
+            ..BasisOptions::default()
+        }),
         ..twenty.clone()
     };
     let one = estimate_views(&basis, &as_views(1, true), &all)
         .unwrap()
-        .selection
-        .condition;
+        .condition();
     let three = estimate_views(&basis, &as_views(3, true), &all)
         .unwrap()
-        .selection
-        .condition;
+        .condition();
     eprintln!("all-pixel condition number: 1 view {one:.2}, 3 views {three:.2}");
     assert!(
         three < one,
@@ -1033,12 +1057,13 @@ fn analytic_model_recovers_a_tabulated_ggx_material() {
     let photo = render_merl(&g, &env.compressed(8192, 0.0), &table);
     let lights = env.compressed(brdfd_core::envmap::DEFAULT_LIGHTS, 0.0);
     let opts = EstimateOptions {
-        model: Model::Analytic,
-        lobes: 1,
+        model: ModelOptions::Analytic { lobes: 1 },
         ..Default::default()
     };
     let est = estimate(&Basis::embedded(), one_view(&g, &lights, &photo), &opts).unwrap();
-    let got = est.analytic.expect("analytic parameters");
+    let Outcome::Analytic(got) = est.outcome else {
+        panic!("analytic parameters: {:?}", est.outcome);
+    };
     let (lobe, true_lobe) = (got.lobes[0], truth.lobes[0]);
     assert!(
         (lobe.alpha / true_lobe.alpha - 1.0).abs() < 0.05,
@@ -1098,8 +1123,10 @@ fn default_estimates_are_plausible_on_every_evaluation_material() {
         // albedo is reported, not bounded: coefficients.json's plausibility).
         for pixel_count in [Some(20), None] {
             let options = EstimateOptions {
-                model: Model::Basis,
-                pixel_count,
+                model: ModelOptions::Basis(BasisOptions {
+                    pixel_count,
+                    ..BasisOptions::default()
+                }),
                 ..EstimateOptions::default()
             };
             let est = estimate(&basis, one_view(&g, &lights, &photo), &options).unwrap();
@@ -1140,17 +1167,19 @@ fn hybrid_model_recovers_a_measured_material_in_its_mix() {
     let photo = render_bivariate(&g, &env.compressed(8192, 0.0), &truth);
     let lights = env.compressed(brdfd_core::envmap::DEFAULT_LIGHTS, 0.0);
     let opts = EstimateOptions {
-        model: Model::Hybrid,
+        model: ModelOptions::of(Model::Hybrid),
         ..Default::default()
     };
     let est = estimate(&basis, one_view(&g, &lights, &photo), &opts).unwrap();
     assert!(est.fit_error < 0.02, "fit {}", est.fit_error);
-    let main = est
-        .mixture
+    let Outcome::Hybrid { analytic, mixture } = &est.outcome else {
+        panic!("a hybrid estimate: {:?}", est.outcome);
+    };
+    let main = mixture
         .iter()
         .max_by(|a, b| a.weight[1].total_cmp(&b.weight[1]))
         .expect("a mix");
-    assert_eq!(main.material, name, "{:?}", est.mixture);
+    assert_eq!(main.material, name, "{mixture:?}");
     assert!(est.brdf.values.iter().all(|v| *v >= 0.0));
     // Relit under the map turned 120°, against the truth relit there.
     let turned = env.compressed(8192, 120f64.to_radians());
@@ -1158,7 +1187,7 @@ fn hybrid_model_recovers_a_measured_material_in_its_mix() {
     let error = relit.relative_rmse(&render_bivariate(&g, &turned, &truth));
     assert!(error < 0.05, "relight {error}");
     // What `render --coefficients` rebuilds from coefficients.json is the estimate itself.
-    let rebuilt = HybridFit::rebuild(est.analytic.as_ref().unwrap(), &est.mixture, &basis).unwrap();
+    let rebuilt = HybridFit::rebuild(analytic, mixture, &basis).unwrap();
     let most = rebuilt
         .values
         .iter()
@@ -1188,7 +1217,7 @@ fn renders_prepared_before_the_photo_leave_the_estimate_unchanged() {
     let p = &g.pixels[g.pixels.len() / 2];
     gap.set(p.x as usize, p.y as usize, [f32::NAN; 3]);
     let options = EstimateOptions {
-        model: Model::Hybrid,
+        model: ModelOptions::of(Model::Hybrid),
         checks: false,
         ..EstimateOptions::default()
     };
@@ -1276,7 +1305,7 @@ fn a_requested_stop_ends_every_models_estimate_and_the_render() {
     let basis = Basis::embedded();
     for model in [Model::Basis, Model::Analytic, Model::Hybrid] {
         let options = EstimateOptions {
-            model,
+            model: ModelOptions::of(model),
             ..EstimateOptions::default()
         };
         options.stop.request();

@@ -225,7 +225,7 @@ fn grooved_block() -> SceneGeometry {
 /// the coefficients when the estimate knows what the part hides, and not when it does not.
 #[test]
 fn turned_views_of_a_concave_part_recover_the_material_only_with_occlusion() {
-    use brdfd_core::estimate::{estimate_views, EstimateOptions, Model, View};
+    use brdfd_core::estimate::{estimate_views, BasisOptions, EstimateOptions, ModelOptions, View};
     use brdfd_core::solve::ColourChoice;
     let basis = Basis::embedded();
     let c_true: Vec<f64> = basis
@@ -259,8 +259,10 @@ fn turned_views_of_a_concave_part_recover_the_material_only_with_occlusion() {
         .collect();
     // The photos hold direct light only: nothing bounced to take out.
     let options = EstimateOptions {
-        model: Model::Basis,
-        colour: ColourChoice::Joint,
+        model: ModelOptions::Basis(BasisOptions {
+            colour: ColourChoice::Joint,
+            ..BasisOptions::default()
+        }),
         bounce: false,
         ..EstimateOptions::default()
     };

@@ -11,8 +11,8 @@ use brdfd_core::brdf::{tangent_frame, IsotropicBrdf};
 use brdfd_core::envmap::LightSet;
 use brdfd_core::envmap::{CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd_core::estimate::{
-    unused_basis_settings, EstimateOptions, Model, SelectionMethod, Shared, View, DEFAULT_LOBES,
-    DEFAULT_MAX_CANDIDATES,
+    BasisOptions, EstimateOptions, Model, ModelOptions, SelectionMethod, Shared, View,
+    DEFAULT_LOBES, DEFAULT_MAX_CANDIDATES,
 };
 use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::hybrid::{HybridFit, MixWeight};
@@ -26,6 +26,7 @@ use brdfd_core::solve::{ColourChoice, Solver};
 use brdfd_report::html::Context as ReportContext;
 use brdfd_report::materials::{commoner, folder, painted, write_all};
 use brdfd_report::visibility::Visibility;
+use brdfd_rig::settings::unused_basis_settings;
 
 use super::GeometryArgs;
 
@@ -230,22 +231,27 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         MethodArg::Fast => SelectionMethod::Fast,
         MethodArg::Paper => SelectionMethod::Paper,
     };
+    let lobes = a.lobes as usize;
     let options = EstimateOptions {
-        model,
-        lobes: a.lobes as usize,
-        pixel_count: a
-            .pixels
-            .map_or(Some(brdfd_rig::settings::DEFAULT_PIXELS), |p| p.limit()),
-        method,
-        swap: SwapParams {
-            seed: a.seed,
-            ..SwapParams::default()
+        model: match model {
+            Model::Basis => ModelOptions::Basis(BasisOptions {
+                pixel_count: a
+                    .pixels
+                    .map_or(Some(brdfd_rig::settings::DEFAULT_PIXELS), |p| p.limit()),
+                method,
+                swap: SwapParams {
+                    seed: a.seed,
+                    ..SwapParams::default()
+                },
+                solver: a.solve.unwrap_or(SolveArg::Prior).into(),
+                colour: a.colour.unwrap_or(ColourArg::Auto).into(),
+                nonnegative: !a.allow_negative,
+            }),
+            Model::Analytic => ModelOptions::Analytic { lobes },
+            Model::Hybrid => ModelOptions::Hybrid { lobes },
         },
         max_candidates: a.max_candidates,
-        solver: a.solve.unwrap_or(SolveArg::Prior).into(),
-        colour: a.colour.unwrap_or(ColourArg::Auto).into(),
         white: a.white.or(file_white),
-        nonnegative: !a.allow_negative,
         checks: true,
         bounce: !a.no_bounce,
         materials: !a.one_material,

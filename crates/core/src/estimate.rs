@@ -82,27 +82,17 @@ impl Model {
 /// over a rougher base, or a metal's core and halo (measured: docs/evaluation.md).
 pub const DEFAULT_LOBES: usize = 2;
 
-/// What to estimate with.
+/// What to estimate with: the model, with its own settings, and what every model shares (the
+/// candidates, the checks, the bounce, the split into materials).
 #[derive(Clone, Debug)]
 pub struct EstimateOptions {
-    pub model: Model,
-    /// Specular lobes of [`Model::Analytic`] and [`Model::Hybrid`] (1 or 2).
-    pub lobes: usize,
-    /// Pixels to use; `None` for every candidate.
-    pub pixel_count: Option<usize>,
-    pub method: SelectionMethod,
-    pub swap: SwapParams,
+    pub model: ModelOptions,
+    /// Candidate pixels considered at most, shared evenly between the views.
     pub max_candidates: usize,
-    pub solver: Solver,
-    pub colour: ColourChoice,
     /// The photo's white level, if it has one: a value at or above it was clipped, so it is
     /// only a lower bound on the radiance. Pixels with a clipped channel are not candidates.
     /// 8-bit photos have one (1.0 after decoding); an HDR merge or a linear EXR usually not.
     pub white: Option<f32>,
-    /// Keep the basis model's BRDF ≥ 0 in every cell, in the solve (the default). Off only for
-    /// the paper's method exactly as published (`--allow-negative`), whose least squares can
-    /// leave cells negative. The other models are non-negative by construction.
-    pub nonnegative: bool,
     /// Check the model's assumptions on the photo: compare an isotropic and an anisotropic
     /// lobe ([`crate::anisotropy`], [`Estimate::anisotropy`]) and, when the fit is not good,
     /// the light turned about the vertical ([`crate::registration`],
@@ -126,20 +116,84 @@ pub struct EstimateOptions {
 impl Default for EstimateOptions {
     fn default() -> Self {
         EstimateOptions {
-            model: Model::default(),
-            lobes: DEFAULT_LOBES,
-            pixel_count: Some(20),
-            method: SelectionMethod::Fast,
-            swap: SwapParams::default(),
+            model: ModelOptions::default(),
             max_candidates: DEFAULT_MAX_CANDIDATES,
-            solver: Solver::default(),
-            colour: ColourChoice::default(),
             white: None,
-            nonnegative: true,
             checks: true,
             bounce: true,
             materials: true,
             stop: Stop::default(),
+        }
+    }
+}
+
+/// The model an estimate fits, with the settings only that model has (after kornia-rs's
+/// `PnPMethod`): a combination no model reads, say a pixel count for the hybrid, cannot be
+/// written.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ModelOptions {
+    /// [`Model::Basis`]: the paper's pixel selection and solve.
+    Basis(BasisOptions),
+    /// [`Model::Analytic`], with this many specular lobes (1 or 2).
+    Analytic { lobes: usize },
+    /// [`Model::Hybrid`], with this many specular lobes (1 or 2).
+    Hybrid { lobes: usize },
+}
+
+impl Default for ModelOptions {
+    fn default() -> Self {
+        ModelOptions::of(Model::default())
+    }
+}
+
+impl ModelOptions {
+    /// `model` with its default settings.
+    pub fn of(model: Model) -> Self {
+        match model {
+            Model::Basis => ModelOptions::Basis(BasisOptions::default()),
+            Model::Analytic => ModelOptions::Analytic {
+                lobes: DEFAULT_LOBES,
+            },
+            Model::Hybrid => ModelOptions::Hybrid {
+                lobes: DEFAULT_LOBES,
+            },
+        }
+    }
+
+    /// The model these settings are of.
+    pub fn model(&self) -> Model {
+        match self {
+            ModelOptions::Basis(_) => Model::Basis,
+            ModelOptions::Analytic { .. } => Model::Analytic,
+            ModelOptions::Hybrid { .. } => Model::Hybrid,
+        }
+    }
+}
+
+/// The basis model's settings: how its pixels are chosen and how its coefficients are solved.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BasisOptions {
+    /// Pixels to use; `None` for every candidate.
+    pub pixel_count: Option<usize>,
+    pub method: SelectionMethod,
+    pub swap: SwapParams,
+    pub solver: Solver,
+    pub colour: ColourChoice,
+    /// Keep the BRDF ≥ 0 in every cell, in the solve (the default). Off only for the paper's
+    /// method exactly as published (`--allow-negative`), whose least squares can leave cells
+    /// negative. The other models are non-negative by construction.
+    pub nonnegative: bool,
+}
+
+impl Default for BasisOptions {
+    fn default() -> Self {
+        BasisOptions {
+            pixel_count: Some(20),
+            method: SelectionMethod::Fast,
+            swap: SwapParams::default(),
+            solver: Solver::default(),
+            colour: ColourChoice::default(),
+            nonnegative: true,
         }
     }
 }
@@ -156,34 +210,19 @@ pub struct Timings {
     pub prepared: bool,
 }
 
-/// The result, as written to `coefficients.json` (plus the basis id the caller adds).
+/// The result, as written to `coefficients.json` (plus the basis id the caller adds): what every
+/// model gives, and what only its model gives in [`Estimate::outcome`].
 #[derive(Clone, Debug)]
 pub struct Estimate {
-    /// The model fitted.
-    pub model: Model,
     /// The estimated BRDF, reduced to the bivariate grid.
     pub brdf: Bivariate,
-    /// The analytic model's parameters, for [`Model::Analytic`]; the analytic part, for
-    /// [`Model::Hybrid`].
-    pub analytic: Option<Microfacet>,
-    /// The measured materials of a [`Model::Hybrid`] estimate and their weights.
-    pub mixture: Vec<MixWeight>,
+    /// What only the fitted model gives, and so which model it was.
+    pub outcome: Outcome,
     /// How sure the estimate is (its coefficients' spread and the BRDF's 1-σ band).
-    pub uncertainty: Option<Uncertainty>,
+    pub uncertainty: Uncertainty,
     /// Names of the solution's coefficients (per channel for [`Colour::PerChannel`]).
     pub names: Vec<String>,
     pub solution: Solution,
-    pub solver: Solver,
-    /// The model that gave this estimate (with [`ColourChoice::Auto`], the better fit).
-    pub colour: Colour,
-    /// Each model tried, with its fit ([`Estimate::fit_error`]); one unless the choice was
-    /// [`ColourChoice::Auto`].
-    pub colour_fits: Vec<(Colour, f64)>,
-    pub selection: Selection,
-    /// Image positions (x, y) of the chosen pixels.
-    pub chosen: Vec<(u32, u32)>,
-    /// Which view (0 for the first) each chosen pixel is from.
-    pub chosen_views: Vec<usize>,
     pub candidates: usize,
     /// Pixels the model's weights were solved on: the chosen ones (basis), every candidate
     /// (analytic), or the roughness search's spread pixels (hybrid).
@@ -201,9 +240,6 @@ pub struct Estimate {
     /// chosen anisotropic lobe's, when there is one).
     pub rerender: Vec<Rerendered>,
     pub lights: usize,
-    /// Lights the chosen pixels' rows were rebuilt with (first view); 0 if they kept the
-    /// candidates' rows.
-    pub chosen_lights: usize,
     pub timings: Timings,
     /// Whether an anisotropic lobe re-renders the photo closer than an isotropic one
     /// ([`crate::anisotropy`]); `None` with too few pixels or a black photo, and when
@@ -216,6 +252,75 @@ pub struct Estimate {
     /// The light the part throws on itself, taken out of the photo before the fit; `None`
     /// off a mesh, on a convex one, and when [`EstimateOptions::bounce`] is off.
     pub bounce: Option<BounceFit>,
+}
+
+/// What one model's estimate gives beside the shared result.
+#[derive(Clone, Debug)]
+pub enum Outcome {
+    /// The basis model's chosen pixels and its solve.
+    Basis(BasisOutcome),
+    /// The analytic model's parameters.
+    Analytic(Microfacet),
+    /// The hybrid model's analytic part and the measured materials mixed into it, with their
+    /// weights.
+    Hybrid {
+        analytic: Microfacet,
+        mixture: Vec<MixWeight>,
+    },
+}
+
+/// What the basis model chose and solved with.
+#[derive(Clone, Debug)]
+pub struct BasisOutcome {
+    pub solver: Solver,
+    /// The colour model that gave this estimate (with [`ColourChoice::Auto`], the better fit).
+    pub colour: Colour,
+    /// Each colour model tried, with its fit ([`Estimate::fit_error`]); one unless the choice
+    /// was [`ColourChoice::Auto`].
+    pub colour_fits: Vec<(Colour, f64)>,
+    pub selection: Selection,
+    /// Image positions (x, y) of the chosen pixels.
+    pub chosen: Vec<(u32, u32)>,
+    /// Which view (0 for the first) each chosen pixel is from.
+    pub chosen_views: Vec<usize>,
+    /// Lights the chosen pixels' rows were rebuilt with (first view); 0 if they kept the
+    /// candidates' rows.
+    pub chosen_lights: usize,
+}
+
+impl Outcome {
+    /// The model fitted.
+    pub fn model(&self) -> Model {
+        match self {
+            Outcome::Basis(_) => Model::Basis,
+            Outcome::Analytic(_) => Model::Analytic,
+            Outcome::Hybrid { .. } => Model::Hybrid,
+        }
+    }
+
+    /// The analytic model's parameters, or the hybrid's analytic part.
+    pub fn analytic(&self) -> Option<&Microfacet> {
+        match self {
+            Outcome::Analytic(m) | Outcome::Hybrid { analytic: m, .. } => Some(m),
+            Outcome::Basis(_) => None,
+        }
+    }
+
+    /// The hybrid model's measured materials and their weights.
+    pub fn mixture(&self) -> Option<&[MixWeight]> {
+        match self {
+            Outcome::Hybrid { mixture, .. } => Some(mixture),
+            _ => None,
+        }
+    }
+
+    /// The basis model's pixels and solve.
+    pub fn basis(&self) -> Option<&BasisOutcome> {
+        match self {
+            Outcome::Basis(b) => Some(b),
+            _ => None,
+        }
+    }
 }
 
 /// What the bounces ([`crate::bounce`]) took out of the photo before the fit.
@@ -358,15 +463,16 @@ pub(crate) fn candidate_pixels(
 pub(crate) fn select_pixels(
     basis: &Basis,
     a: &RenderingMatrix,
-    options: &EstimateOptions,
+    options: &BasisOptions,
     colour: Colour,
+    stop: &Stop,
 ) -> Result<Selection> {
     let blocks = Blocks::for_colour(a, &basis.column_scales(), colour);
     match options.pixel_count {
         None => Ok(select::all_pixels(&blocks)),
         Some(l) => match options.method {
-            SelectionMethod::Paper => select::paper_swap(&blocks, l, &options.swap, &options.stop),
-            SelectionMethod::Fast => select::fast_exchange(&blocks, l, &options.stop),
+            SelectionMethod::Paper => select::paper_swap(&blocks, l, &options.swap, stop),
+            SelectionMethod::Fast => select::fast_exchange(&blocks, l, stop),
         },
     }
 }
@@ -421,7 +527,7 @@ fn estimate_from_matrix<'l>(
     basis: &Basis,
     a: &RenderingMatrix,
     observed: &[[f64; 3]],
-    options: &EstimateOptions,
+    options: &BasisOptions,
     colour: Colour,
     lights: &LightSet,
     lights_of: impl Fn(usize) -> Option<&'l LightSet>,
@@ -656,7 +762,7 @@ impl Shared {
         views: &[(&PixelGeometry, &LightSet)],
         options: &EstimateOptions,
     ) -> Result<()> {
-        if options.model != Model::Hybrid || views.is_empty() {
+        if options.model.model() != Model::Hybrid || views.is_empty() {
             return Ok(());
         }
         let per_view = candidates_per_view(options, views.len());
@@ -681,8 +787,9 @@ impl Shared {
         matrix: usize,
         basis: &Basis,
         a: &RenderingMatrix,
-        options: &EstimateOptions,
+        options: &BasisOptions,
         colour: Colour,
+        stop: &Stop,
     ) -> Result<Selection> {
         let key = SelectionKey {
             matrix,
@@ -697,7 +804,7 @@ impl Shared {
                 return Ok(s.clone());
             }
         }
-        let s = select_pixels(basis, a, options, colour)?;
+        let s = select_pixels(basis, a, options, colour, stop)?;
         self.selections
             .lock()
             .expect("not poisoned")
@@ -1007,18 +1114,13 @@ fn model_estimate(
     options: &EstimateOptions,
     shared: &Shared,
 ) -> Result<Estimate> {
-    match options.model {
-        Model::Basis => basis_estimate(basis, candidates, options, shared),
-        Model::Analytic => analytic_estimate(basis, candidates, options.lobes, &options.stop),
-        Model::Hybrid => {
+    let stop = &options.stop;
+    match &options.model {
+        ModelOptions::Basis(b) => basis_estimate(basis, candidates, b, shared, stop),
+        &ModelOptions::Analytic { lobes } => analytic_estimate(basis, candidates, lobes, stop),
+        &ModelOptions::Hybrid { lobes } => {
             let prepared = shared.hybrid();
-            hybrid_estimate(
-                basis,
-                candidates,
-                options.lobes,
-                prepared.as_deref(),
-                &options.stop,
-            )
+            hybrid_estimate(basis, candidates, lobes, prepared.as_deref(), stop)
         }
     }
 }
@@ -1067,8 +1169,12 @@ fn hybrid_estimate(
     let fit = hybrid::fit(&view_pixels(candidates), basis, lobes, prepared, stop)?;
     let n = fit.candidates;
     Ok(Estimate {
-        model: Model::Hybrid,
         brdf: fit.brdf,
+        outcome: Outcome::Hybrid {
+            analytic: fit.analytic,
+            mixture: fit.mixture,
+        },
+        uncertainty: fit.uncertainty,
         names: fit.names,
         solution: Solution {
             coefficients: fit.coefficients,
@@ -1083,32 +1189,17 @@ fn hybrid_estimate(
             relative_residual: fit.solved_misfit,
             condition: fit.condition,
         },
-        solver: Solver::LeastSquares,
-        colour: Colour::PerChannel,
-        colour_fits: vec![(Colour::PerChannel, fit.fit_error)],
-        selection: Selection {
-            pixels: (0..n).collect(),
-            condition: fit.condition,
-            evaluations: 0,
-            elapsed: Duration::ZERO,
-        },
-        chosen: Vec::new(),
-        chosen_views: Vec::new(),
         candidates: n,
+        solved: fit.solved,
         clipped: 0,
         fit_error: fit.fit_error,
         rerender: rerendered(candidates, &fit.predicted),
         lights: candidates.first().map_or(0, |c| c.view.lights.len()),
-        chosen_lights: 0,
-        solved: fit.solved,
         timings: Timings {
             solve_s: secs(t.elapsed()),
             prepared: fit.prepared,
             ..Timings::default()
         },
-        analytic: Some(fit.analytic),
-        mixture: fit.mixture,
-        uncertainty: Some(fit.uncertainty),
         anisotropy: None,
         registration: None,
         bounce: None,
@@ -1132,7 +1223,6 @@ fn analytic_estimate(
     let y2: f64 = fit.observed.iter().flatten().map(|v| v * v).sum();
     let residual = fit_error * y2.sqrt();
     Ok(Estimate {
-        model: Model::Analytic,
         brdf: fit.model.bivariate(grid),
         names: fit.model.names(),
         solution: Solution {
@@ -1141,32 +1231,19 @@ fn analytic_estimate(
             relative_residual: fit_error,
             condition: fit.condition,
         },
-        solver: Solver::LeastSquares,
-        colour: Colour::PerChannel,
-        colour_fits: vec![(Colour::PerChannel, fit_error)],
-        selection: Selection {
-            pixels: (0..n).collect(),
-            condition: fit.condition,
-            evaluations: fit.search.len() as u64,
-            elapsed: Duration::ZERO,
-        },
+        outcome: Outcome::Analytic(fit.model),
+        uncertainty: fit.uncertainty,
         // Every candidate is used: no pixel is singled out.
-        chosen: Vec::new(),
-        chosen_views: Vec::new(),
         candidates: n,
+        solved: n,
         clipped: 0,
         fit_error,
         rerender: rerendered(candidates, &predicted),
         lights: candidates.first().map_or(0, |c| c.view.lights.len()),
-        chosen_lights: 0,
-        solved: n,
         timings: Timings {
             solve_s: secs(t.elapsed()),
             ..Timings::default()
         },
-        analytic: Some(fit.model),
-        mixture: Vec::new(),
-        uncertainty: Some(fit.uncertainty),
         anisotropy: None,
         registration: None,
         bounce: None,
@@ -1178,8 +1255,9 @@ fn analytic_estimate(
 fn basis_estimate(
     basis: &Basis,
     candidates: &[Candidates],
-    options: &EstimateOptions,
+    options: &BasisOptions,
     shared: &Shared,
+    stop: &Stop,
 ) -> Result<Estimate> {
     let t = Instant::now();
     let mut observed = Vec::new();
@@ -1189,7 +1267,7 @@ fn basis_estimate(
         observed.extend_from_slice(&c.observed);
     }
     let (matrix, a) = shared.matrix(basis, candidates, || {
-        stacked_matrix(basis, candidates, &options.stop)
+        stacked_matrix(basis, candidates, stop)
     })?;
     let matrix_s = secs(t.elapsed());
     // Each model the choice names, fewer unknowns first, keeping the one that re-renders the
@@ -1204,7 +1282,7 @@ fn basis_estimate(
     let mut colour_fits = Vec::new();
     let mut failure = None;
     for &colour in options.colour.models() {
-        options.stop.check()?;
+        stop.check()?;
         let lights = candidates[0].view.lights;
         let tried = estimate_from_matrix(
             basis,
@@ -1214,7 +1292,7 @@ fn basis_estimate(
             colour,
             lights,
             |p| candidates[view_of_pixel[p]].view.chosen_lights,
-            || shared.selection(matrix, basis, &a, options, colour),
+            || shared.selection(matrix, basis, &a, options, colour, stop),
         );
         let (selection, solution, uncertainty, t) = match tried {
             Ok(done) => done,
@@ -1252,26 +1330,25 @@ fn basis_estimate(
         .collect();
     let chosen_views = selection.pixels.iter().map(|&p| view_of_pixel[p]).collect();
     Ok(Estimate {
-        model: Model::Basis,
         brdf: basis.reconstruct_solution(&solution.coefficients)?,
-        analytic: None,
-        mixture: Vec::new(),
-        uncertainty: Some(uncertainty),
+        uncertainty,
         names: colour.names(&basis.model().names),
         solution,
-        solver: options.solver,
-        colour,
-        colour_fits,
-        solved: selection.pixels.len(),
-        selection,
-        chosen,
-        chosen_views,
         candidates: a.pixels.len(),
+        solved: selection.pixels.len(),
+        outcome: Outcome::Basis(BasisOutcome {
+            solver: options.solver,
+            colour,
+            colour_fits,
+            selection,
+            chosen,
+            chosen_views,
+            chosen_lights,
+        }),
         clipped: 0,
         fit_error,
         rerender: rerendered(candidates, &predicted),
         lights: candidates.first().map_or(0, |c| c.view.lights.len()),
-        chosen_lights,
         timings,
         anisotropy: None,
         registration: None,
@@ -1298,25 +1375,6 @@ fn stacked_matrix(
         });
     }
     stacked.ok_or_else(|| CoreError::Invalid("no views to estimate from".into()))
-}
-
-/// The warning for basis-model settings given to an estimate that uses another model: the
-/// names of the settings that were given (`(name, given)`), or `None` if none was or the model
-/// is the basis. The CLI's flags and a capture's plan both say it this way.
-pub fn unused_basis_settings(model: Model, settings: &[(&str, bool)]) -> Option<String> {
-    let given: Vec<&str> = settings
-        .iter()
-        .filter_map(|(name, set)| set.then_some(*name))
-        .collect();
-    (model != Model::Basis && !given.is_empty()).then(|| {
-        format!(
-            "{} set{} the basis model, which this estimate does not use (--model basis uses {}); the {} model selects no pixels",
-            given.join(", "),
-            if given.len() == 1 { "s" } else { "" },
-            if given.len() == 1 { "it" } else { "them" },
-            model.name()
-        )
-    })
 }
 
 /// A fit to the photo ([`Estimate::fit_error`]) at or below this is called good: the estimate
@@ -1366,50 +1424,85 @@ impl Estimate {
         }
     }
 
+    /// The model fitted.
+    pub fn model(&self) -> Model {
+        self.outcome.model()
+    }
+
+    /// The condition number the estimate reports: of the chosen pixels' system for the basis
+    /// model (its selection's criterion; the prior's own solve is underdetermined by design),
+    /// of the weights' solve for the others.
+    pub fn condition(&self) -> f64 {
+        match &self.outcome {
+            Outcome::Basis(b) => b.selection.condition,
+            _ => self.solution.condition,
+        }
+    }
+
+    /// The pixels the estimate used: the basis model's chosen ones; every candidate for the
+    /// analytic and hybrid models, which single none out.
+    pub fn pixel_count(&self) -> usize {
+        self.outcome
+            .basis()
+            .map_or(self.candidates, |b| b.selection.pixels.len())
+    }
+
+    /// [`Estimate::condition`] for a person to read.
+    pub fn condition_text(&self) -> String {
+        select::condition_text(self.condition())
+    }
+
+    /// The colour model of the coefficients: the basis model's choice; the other models
+    /// weigh each channel on its own.
+    pub fn colour(&self) -> Colour {
+        self.outcome
+            .basis()
+            .map_or(Colour::PerChannel, |b| b.colour)
+    }
+
     /// The model and its settings, for a person to read.
     pub fn method_text(&self) -> String {
-        match (self.model, &self.analytic) {
-            (Model::Analytic, Some(m)) => {
-                let alphas: Vec<String> =
-                    m.lobes.iter().map(|l| format!("{:.4}", l.alpha)).collect();
-                format!(
-                    "model analytic (Lambert + {} GGX lobe{}, roughness α {}), every one of {} pixels",
-                    m.lobes.len(),
-                    if m.lobes.len() == 1 { "" } else { "s" },
-                    alphas.join(" and "),
-                    self.candidates
-                )
-            }
-            (Model::Hybrid, Some(m)) => {
-                let alphas: Vec<String> =
-                    m.lobes.iter().map(|l| format!("{:.4}", l.alpha)).collect();
+        let alphas = |m: &Microfacet| {
+            let alphas: Vec<String> = m.lobes.iter().map(|l| format!("{:.4}", l.alpha)).collect();
+            format!(
+                "Lambert + {} GGX lobe{}, roughness α {}",
+                m.lobes.len(),
+                if m.lobes.len() == 1 { "" } else { "s" },
+                alphas.join(" and ")
+            )
+        };
+        match &self.outcome {
+            Outcome::Analytic(m) => format!(
+                "model analytic ({}), every one of {} pixels",
+                alphas(m),
+                self.candidates
+            ),
+            Outcome::Hybrid { analytic, mixture } => {
                 // The measured atoms are not what the object is made of (a gold estimate
                 // may mix in a walnut's table): they are counted, not named.
-                let atoms = self.mixture.len();
+                let atoms = mixture.len();
                 format!(
-                    "model hybrid (Lambert + {} GGX lobe{}, roughness α {}, and {} measured atom{} of the MERL database), solved on {} pixels spread over all {}",
-                    m.lobes.len(),
-                    if m.lobes.len() == 1 { "" } else { "s" },
-                    alphas.join(" and "),
+                    "model hybrid ({}, and {} measured atom{} of the MERL database), solved on {} pixels spread over all {}",
+                    alphas(analytic),
                     atoms,
                     if atoms == 1 { "" } else { "s" },
                     self.solved,
                     self.candidates
                 )
             }
-            _ => format!(
+            Outcome::Basis(b) => format!(
                 "model basis, {} of {} pixels, solver {}, {}",
-                self.selection.pixels.len(),
+                b.selection.pixels.len(),
                 self.candidates,
-                self.solver.name(),
-                self.colour_text()
+                b.solver.name(),
+                b.colour_text(self.fit_error)
             ),
         }
     }
 
     /// How sure the estimate is, in words, where it was measured; and whether to distrust it.
-    pub fn certainty_text(&self) -> Option<(String, bool)> {
-        let u = self.uncertainty.as_ref()?;
+    pub fn certainty_text(&self) -> (String, bool) {
+        let u = &self.uncertainty;
         let unsteady = u.bootstrap_spread > UNSTEADY_SPREAD;
         // A fit that is not a number is as untrustworthy as a poor one.
         let poor = self.fit_error.is_nan() || self.fit_error > POOR_FIT;
@@ -1429,11 +1522,14 @@ impl Estimate {
                 ""
             }
         );
-        Some((text, poor || unsteady))
+        (text, poor || unsteady)
     }
+}
 
-    /// The colour model for a person to read, and when several were tried, why this one.
-    pub(crate) fn colour_text(&self) -> String {
+impl BasisOutcome {
+    /// The colour model for a person to read, and when several were tried, why this one
+    /// (`fit` being the kept model's).
+    fn colour_text(&self, fit: f64) -> String {
         let others: Vec<String> = self
             .colour_fits
             .iter()
@@ -1444,9 +1540,8 @@ impl Estimate {
             format!("colour {}", self.colour.name())
         } else {
             format!(
-                "colour {} (the better fit to the photo: {:.4} against {})",
+                "colour {} (the better fit to the photo: {fit:.4} against {})",
                 self.colour.name(),
-                self.fit_error,
                 others.join(", ")
             )
         }

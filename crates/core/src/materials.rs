@@ -24,7 +24,9 @@ use std::collections::HashMap;
 
 use super::basis::Basis;
 use super::error::{CoreError, Result};
-use super::estimate::{estimate_views_shared, Estimate, EstimateOptions, Rerendered, Shared, View};
+use super::estimate::{
+    estimate_views_shared, Estimate, EstimateOptions, Outcome, Rerendered, Shared, View,
+};
 use super::geometry::{GeomPixel, PixelGeometry};
 use super::render::render_bivariates;
 
@@ -241,8 +243,10 @@ fn estimate_parts(
         for r in &mut estimate.rerender {
             r.view = kept[r.view];
         }
-        for v in &mut estimate.chosen_views {
-            *v = kept[*v];
+        if let Outcome::Basis(b) = &mut estimate.outcome {
+            for v in &mut b.chosen_views {
+                *v = kept[*v];
+            }
         }
         parts.push(estimate);
     }

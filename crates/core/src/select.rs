@@ -51,11 +51,16 @@ pub struct Selection {
 impl Selection {
     /// κ for a person to read: infinite says why rather than printing `inf`.
     pub fn condition_text(&self) -> String {
-        if self.condition.is_finite() {
-            format!("{:.2}", self.condition)
-        } else {
-            "infinite (fewer equations than unknowns in a system; only the prior solves it)".into()
-        }
+        condition_text(self.condition)
+    }
+}
+
+/// A condition number for a person to read.
+pub fn condition_text(condition: f64) -> String {
+    if condition.is_finite() {
+        format!("{condition:.2}")
+    } else {
+        "infinite (fewer equations than unknowns in a system; only the prior solves it)".into()
     }
 }
 

@@ -33,7 +33,8 @@ use brdfd_core::bivariate::{Bivariate, Grid, GRID_CELLS};
 use brdfd_core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd_core::error::{CoreError, Result};
 use brdfd_core::estimate::{
-    estimate_views_shared, EstimateOptions, Model, SelectionMethod, Shared, View,
+    estimate_views_shared, BasisOptions, EstimateOptions, ModelOptions, SelectionMethod, Shared,
+    View,
 };
 use brdfd_core::geometry::{Camera, PixelGeometry, Shape};
 use brdfd_core::merl::MerlBrdf;
@@ -91,13 +92,15 @@ impl Method {
     /// others keep the BRDF ≥ 0 in every cell, as `brdfd estimate` does.
     pub fn options(self, pixels: Option<usize>, white: Option<f32>) -> EstimateOptions {
         EstimateOptions {
-            model: Model::Basis,
-            pixel_count: pixels,
-            method: SelectionMethod::Fast,
-            solver: self.solver,
-            colour: self.colour,
+            model: ModelOptions::Basis(BasisOptions {
+                pixel_count: pixels,
+                method: SelectionMethod::Fast,
+                solver: self.solver,
+                colour: self.colour,
+                nonnegative: self != METHODS[0],
+                ..BasisOptions::default()
+            }),
             white,
-            nonnegative: self != METHODS[0],
             checks: false,
             ..EstimateOptions::default()
         }
@@ -312,7 +315,8 @@ fn estimate_all(
             let per_channel = channel_coefficients(&est.solution.coefficients, scene.a.columns)?;
             let predicted = scene.a.predict_per_channel(per_channel);
             let img = predicted_image(&scene.a, &predicted, photo.width, photo.height);
-            out.push((l, method, est.brdf, img, est.selection.condition));
+            let condition = est.condition();
+            out.push((l, method, est.brdf, img, condition));
         }
     }
     Ok(out)

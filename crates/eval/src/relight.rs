@@ -28,7 +28,7 @@ use brdfd_core::analytic::Microfacet;
 use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::brdf::IsotropicBrdf;
 use brdfd_core::error::{CoreError, Result};
-use brdfd_core::estimate::{estimate, EstimateOptions, Model, View};
+use brdfd_core::estimate::{estimate, BasisOptions, EstimateOptions, ModelOptions, View};
 use brdfd_core::geometry::{Camera, PixelGeometry, Shape};
 use brdfd_core::merl::MerlBrdf;
 use brdfd_core::nbrdf::NbrdfSet;
@@ -62,61 +62,39 @@ pub struct Method {
 /// and with every pixel, the analytic model (the baseline) and the hybrid model (the default),
 /// each with one and two lobes.
 pub fn methods() -> Vec<Method> {
-    let basis = |pixels, solver, colour| EstimateOptions {
-        model: Model::Basis,
-        pixel_count: pixels,
-        solver,
-        colour,
-        ..EstimateOptions::default()
+    let basis = |pixel_count, solver, colour, nonnegative| {
+        ModelOptions::Basis(BasisOptions {
+            pixel_count,
+            solver,
+            colour,
+            nonnegative,
+            ..BasisOptions::default()
+        })
+    };
+    let method = |name, model| Method {
+        name,
+        options: EstimateOptions {
+            model,
+            ..EstimateOptions::default()
+        },
     };
     vec![
-        Method {
-            name: "paper",
-            options: EstimateOptions {
-                nonnegative: false,
-                ..basis(Some(20), Solver::LeastSquares, ColourChoice::Joint)
-            },
-        },
-        Method {
-            name: "basis-20",
-            options: basis(Some(20), Solver::Prior, ColourChoice::Auto),
-        },
-        Method {
-            name: "basis-all",
-            options: basis(None, Solver::Prior, ColourChoice::Auto),
-        },
-        Method {
-            name: "analytic",
-            options: EstimateOptions {
-                model: Model::Analytic,
-                lobes: 1,
-                ..EstimateOptions::default()
-            },
-        },
-        Method {
-            name: "analytic-2",
-            options: EstimateOptions {
-                model: Model::Analytic,
-                lobes: 2,
-                ..EstimateOptions::default()
-            },
-        },
-        Method {
-            name: "hybrid",
-            options: EstimateOptions {
-                model: Model::Hybrid,
-                lobes: 1,
-                ..EstimateOptions::default()
-            },
-        },
-        Method {
-            name: "hybrid-2",
-            options: EstimateOptions {
-                model: Model::Hybrid,
-                lobes: 2,
-                ..EstimateOptions::default()
-            },
-        },
+        method(
+            "paper",
+            basis(Some(20), Solver::LeastSquares, ColourChoice::Joint, false),
+        ),
+        method(
+            "basis-20",
+            basis(Some(20), Solver::Prior, ColourChoice::Auto, true),
+        ),
+        method(
+            "basis-all",
+            basis(None, Solver::Prior, ColourChoice::Auto, true),
+        ),
+        method("analytic", ModelOptions::Analytic { lobes: 1 }),
+        method("analytic-2", ModelOptions::Analytic { lobes: 2 }),
+        method("hybrid", ModelOptions::Hybrid { lobes: 1 }),
+        method("hybrid-2", ModelOptions::Hybrid { lobes: 2 }),
     ]
 }
 
@@ -384,11 +362,8 @@ pub fn run(cfg: &RelightConfig, progress: OnProgress) -> Result<String> {
                 };
                 let est = estimate(basis, view, &options)?;
                 let log = log_error(&est.brdf, &material.table, 11 + mi as u64);
-                let flagged = est.certainty_text().is_some_and(|(_, distrust)| distrust);
-                let spread = est
-                    .uncertainty
-                    .as_ref()
-                    .map_or(f64::NAN, |u| u.bootstrap_spread);
+                let flagged = est.certainty_text().1;
+                let spread = est.uncertainty.bootstrap_spread;
                 for (li, other) in lightings.iter().enumerate() {
                     if li == ci {
                         continue;

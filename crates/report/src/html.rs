@@ -137,13 +137,14 @@ fn page(
     match cx.photo {
         Some(photo) => {
             let mut img = crate::compare::picture(photo, &est.rerender, 0);
-            let chosen: Vec<(u32, u32)> = est
-                .chosen
-                .iter()
-                .zip(&est.chosen_views)
-                .filter(|(_, v)| **v == 0)
-                .map(|(p, _)| *p)
-                .collect();
+            let chosen: Vec<(u32, u32)> = est.outcome.basis().map_or(Vec::new(), |b| {
+                b.chosen
+                    .iter()
+                    .zip(&b.chosen_views)
+                    .filter(|(_, v)| **v == 0)
+                    .map(|(p, _)| *p)
+                    .collect()
+            });
             crate::compare::mark(&mut img, photo, &chosen);
             let _ = writeln!(
                 h,
@@ -224,7 +225,7 @@ fn page(
         h,
         "</div>\n<p class=\"note\">The estimate's BRDF against the half-angle θh at three \
          difference angles θd, per channel, on a log axis against √θh{}{}.</p>",
-        if est.uncertainty.as_ref().is_some_and(|u| !u.band.is_empty()) {
+        if !est.uncertainty.band.is_empty() {
             "; the shaded band is its 1-σ uncertainty"
         } else {
             ""
@@ -275,12 +276,12 @@ fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec
             "model".to_string(),
             match est.chosen_lobe() {
                 Some(l) => {
-                    let ((smooth, rough), model) = (l.smooth_and_rough(), est.model.name());
+                    let ((smooth, rough), model) = (l.smooth_and_rough(), est.model().name());
                     format!(
                         "an anisotropic GGX lobe (α {smooth:.3} and {rough:.3}), chosen over the {model} model: what the estimate relights with (brdf-anisotropic.binary); the BRDF slices and brdf.binary are the {model} model's, isotropic"
                     )
                 }
-                None => est.model.name().to_string(),
+                None => est.model().name().to_string(),
             },
         ),
         (
@@ -305,10 +306,7 @@ fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec
     } else {
         ""
     };
-    rows.push((
-        format!("condition number{of_model}"),
-        est.selection.condition_text(),
-    ));
+    rows.push((format!("condition number{of_model}"), est.condition_text()));
     rows.push((
         "material.gltf, material.mtlx".into(),
         format!(
@@ -316,9 +314,7 @@ fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec
             export.relight_error, export.verdict
         ),
     ));
-    if let Some((text, _)) = est.certainty_text() {
-        rows.push((format!("steadiness{of_model}"), text));
-    }
+    rows.push((format!("steadiness{of_model}"), est.certainty_text().0));
     rows.push((
         "clipped pixels".into(),
         if est.clipped == 0 {
@@ -357,11 +353,7 @@ fn slice_svg(est: &Estimate, truth: Option<&Bivariate>, theta_d_deg: f64) -> Res
             d(a).total_cmp(&d(b))
         })
         .expect("θd bins");
-    let band = est
-        .uncertainty
-        .as_ref()
-        .map(|u| u.band.as_slice())
-        .filter(|b| b.len() == brdf.values.len());
+    let band = Some(est.uncertainty.band.as_slice()).filter(|b| b.len() == brdf.values.len());
     let cells: Vec<(f64, usize)> = (0..N_THETA_H)
         .map(|ih| (ih, ih * N_THETA_D + jd))
         .filter(|&(_, g)| brdf.valid[g])

@@ -14,7 +14,7 @@ use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::{Bivariate, Grid, ThetaHBinning, GRID_CELLS, N_THETA_D, N_THETA_H};
 use brdfd_core::brdf::directional_albedo;
 use brdfd_core::envmap::{write_exr_attributed, ExrAttribute, LightSet};
-use brdfd_core::estimate::{Estimate, Model, Timings};
+use brdfd_core::estimate::{Estimate, Timings};
 use brdfd_core::hybrid::MixWeight;
 use brdfd_core::uncertainty::Uncertainty;
 use brdfd_core::{CoreError, Result};
@@ -111,8 +111,7 @@ pub struct CoefficientsFile<'a> {
     /// How sure the estimate is: each coefficient's 1-σ (in the order of `columns`), their
     /// covariance, and the relit sphere's bootstrap spread (the BRDF's per-cell band is
     /// `brdf-sigma.exr`).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub uncertainty: Option<&'a Uncertainty>,
+    pub uncertainty: &'a Uncertainty,
     /// The estimate as a glTF material and an OpenPBR `.mtlx`, fitted to it, and how far they
     /// relight from the estimate itself.
     pub exports: Export,
@@ -560,7 +559,9 @@ fn write_records(
     files: &ResultFiles,
 ) -> Result<Vec<PathBuf>> {
     let brdf = &estimate.brdf;
-    let all = estimate.selection.pixels.len() == estimate.candidates;
+    let basis_outcome = estimate.outcome.basis();
+    let pixel_count = estimate.pixel_count();
+    let all = pixel_count == estimate.candidates;
     let file = CoefficientsFile {
         format: COEFFICIENTS_FORMAT,
         format_version: COEFFICIENTS_VERSION,
@@ -572,37 +573,30 @@ fn write_records(
             grid: brdf.grid,
             unit: "1/sr",
         },
-        model: estimate.model.name(),
-        analytic: estimate.analytic.as_ref(),
-        mixture: (estimate.model == Model::Hybrid).then_some(estimate.mixture.as_slice()),
+        model: estimate.model().name(),
+        analytic: estimate.outcome.analytic(),
+        mixture: estimate.outcome.mixture(),
         basis_id: &basis.header.id,
         k: basis.header.k,
         columns: &estimate.names,
         coefficients: &estimate.solution.coefficients,
-        pixel_count: estimate.selection.pixels.len(),
+        pixel_count,
         selection_method: if all { "all" } else { method },
         // The analytic weights are solved by non-negative least squares, whatever `--solve`.
-        solver: match estimate.model {
-            Model::Analytic | Model::Hybrid => "non-negative-least-squares",
-            Model::Basis => estimate.solver.name(),
+        solver: basis_outcome.map_or("non-negative-least-squares", |b| b.solver.name()),
+        colour: estimate.colour().name(),
+        colour_fits: match basis_outcome {
+            Some(b) => b.colour_fits.iter().map(|(c, f)| (c.name(), *f)).collect(),
+            // One colour model, per channel, by construction.
+            None => BTreeMap::from([(estimate.colour().name(), estimate.fit_error)]),
         },
-        colour: estimate.colour.name(),
-        colour_fits: estimate
-            .colour_fits
-            .iter()
-            .map(|(c, fit)| (c.name(), *fit))
-            .collect(),
-        chosen_pixels: if all {
-            Vec::new()
-        } else {
-            estimate.chosen.clone()
-        },
-        chosen_views: if all {
-            Vec::new()
-        } else {
-            estimate.chosen_views.clone()
-        },
-        condition_number: estimate.selection.condition,
+        chosen_pixels: basis_outcome
+            .filter(|_| !all)
+            .map_or(Vec::new(), |b| b.chosen.clone()),
+        chosen_views: basis_outcome
+            .filter(|_| !all)
+            .map_or(Vec::new(), |b| b.chosen_views.clone()),
+        condition_number: estimate.condition(),
         residual_rms: estimate.solution.residual_rms,
         relative_residual: estimate.solution.relative_residual,
         fit_error: estimate.fit_error,
@@ -611,10 +605,10 @@ fn write_records(
         candidates: estimate.candidates,
         clipped_pixels: estimate.clipped,
         lights: estimate.lights,
-        chosen_lights: estimate.chosen_lights,
+        chosen_lights: basis_outcome.map_or(0, |b| b.chosen_lights),
         timings: &estimate.timings,
         plausibility: Plausibility::of(brdf),
-        uncertainty: estimate.uncertainty.as_ref(),
+        uncertainty: &estimate.uncertainty,
         exports: files.exports.clone(),
         flags: &files.flags,
         anisotropy: estimate.anisotropy.as_ref(),
@@ -636,11 +630,8 @@ fn write_records(
     write_bivariate_exr(&files.brdf_exr, brdf, "BRDF (the estimate)", basis_id)?;
     // Every resample may fail to solve (least squares on a few repeated pixels): then there is
     // no band to write.
-    if let Some(u) = estimate
-        .uncertainty
-        .as_ref()
-        .filter(|u| u.band.len() == brdf.values.len())
-    {
+    let u = &estimate.uncertainty;
+    if u.band.len() == brdf.values.len() {
         let band = Bivariate::from_values(brdf.grid, u.band.clone(), brdf.valid.clone());
         let sigma = "BRDF 1-sigma (bootstrap over the pixels)";
         write_bivariate_exr(&dir.join("brdf-sigma.exr"), &band, sigma, basis_id)?;

@@ -103,7 +103,8 @@ fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
     } else {
         ""
     };
-    if let Some(u) = &estimate.uncertainty {
+    {
+        let u = &estimate.uncertainty;
         let s = u.bootstrap_spread;
         let (grade, word) = if s <= UNSTEADY_SPREAD {
             (Grade::Good, "steady: at most")
@@ -125,7 +126,7 @@ fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
         grade: Grade::Fair,
         text: f.text.clone(),
     }));
-    let k = estimate.selection.condition;
+    let k = estimate.condition();
     // The prior solves a system with fewer equations than unknowns: its κ is infinite by
     // construction and says nothing of noise, so it is reported, not judged.
     if k.is_finite() {
@@ -155,7 +156,7 @@ pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String
     }
     let judged = judged(estimate, extras);
     let worst = judged.iter().map(|l| l.grade).max().unwrap_or(Grade::Poor);
-    let model = match estimate.model {
+    let model = match estimate.model() {
         Model::Hybrid => "hybrid model",
         Model::Analytic => "analytic model",
         Model::Basis => "basis model",

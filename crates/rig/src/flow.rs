@@ -314,7 +314,7 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> Result<Outco
         names: est.names.clone(),
         coefficients: est.solution.coefficients.clone(),
         summary: super::Summary {
-            model: est.model.name().to_string(),
+            model: est.model().name().to_string(),
             anisotropic_lobe: est.chosen_lobe().is_some(),
             columns: est.names.clone(),
             coefficients: super::Summary::numbers(&est.solution.coefficients),
@@ -337,8 +337,8 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> Result<Outco
                 .unwrap_or_default(),
         },
         truth: judged.coefficients,
-        pixels: est.selection.pixels.len(),
-        condition: est.selection.condition,
+        pixels: est.pixel_count(),
+        condition: est.condition(),
         fit_error: est.fit_error,
     })
 }

@@ -17,7 +17,7 @@ use crate::config::{MaterialPreset, PixelCount, Rig};
 use crate::error::{refuse, Result, RigError};
 use crate::session::Session;
 use brdfd_core::basis::DEFAULT_K;
-use brdfd_core::estimate::{unused_basis_settings, EstimateOptions, Model};
+use brdfd_core::estimate::{BasisOptions, EstimateOptions, Model, ModelOptions};
 use brdfd_core::geometry::{SceneGeometry, Shape};
 
 /// The rig's text as a session keeps it: its mesh and normal map named by the paths this
@@ -174,16 +174,22 @@ impl CaptureSettings {
             (None, Some(p)) => p.pixels.limit(),
             (None, None) => Some(DEFAULT_PIXELS),
         };
+        let model = plan.model.or(p.map(|p| p.model)).unwrap_or_default();
         let estimate = EstimateOptions {
-            model: plan.model.or(p.map(|p| p.model)).unwrap_or_default(),
-            pixel_count,
-            solver: plan.solve.or(p.map(|p| p.solve)).unwrap_or_default(),
-            colour: plan.colour.or(p.map(|p| p.colour)).unwrap_or_default(),
+            model: match model {
+                Model::Basis => ModelOptions::Basis(BasisOptions {
+                    pixel_count,
+                    solver: plan.solve.or(p.map(|p| p.solve)).unwrap_or_default(),
+                    colour: plan.colour.or(p.map(|p| p.colour)).unwrap_or_default(),
+                    ..BasisOptions::default()
+                }),
+                other => ModelOptions::of(other),
+            },
             materials: !plan.one_material,
             ..EstimateOptions::default()
         };
         let warnings = unused_basis_settings(
-            estimate.model,
+            model,
             &[
                 ("pixels", plan.pixels.is_some()),
                 ("solve", plan.solve.is_some()),
@@ -249,7 +255,7 @@ impl CaptureSettings {
     pub(crate) fn preset_line(&self, simulated: bool) -> Option<String> {
         let p = self.preset.as_ref()?;
         // The preset's pixel count only matters to the basis model.
-        let model = match self.estimate.model {
+        let model = match self.estimate.model.model() {
             Model::Analytic => "analytic model".to_string(),
             Model::Hybrid => "hybrid model".to_string(),
             Model::Basis => match p.pixels {
@@ -290,6 +296,28 @@ pub(crate) fn light_plan(rig: &Rig) -> BracketPlan {
             })
             .collect(),
     }
+}
+
+/// The warning for basis-model settings given to an estimate that uses another model: the
+/// names of the settings that were given (`(name, given)`), or `None` if none was or the model
+/// is the basis. The estimate's options cannot carry them ([`ModelOptions`] holds the basis
+/// model's settings in its variant), but a plan's fields and the CLI's flags can name them, and
+/// the user is told they go unused rather than have them dropped in silence. The CLI's flags
+/// and a capture's plan both say it this way.
+pub fn unused_basis_settings(model: Model, settings: &[(&str, bool)]) -> Option<String> {
+    let given: Vec<&str> = settings
+        .iter()
+        .filter_map(|(name, set)| set.then_some(*name))
+        .collect();
+    (model != Model::Basis && !given.is_empty()).then(|| {
+        format!(
+            "{} set{} the basis model, which this estimate does not use (--model basis uses {}); the {} model selects no pixels",
+            given.join(", "),
+            if given.len() == 1 { "s" } else { "" },
+            if given.len() == 1 { "it" } else { "them" },
+            model.name()
+        )
+    })
 }
 
 #[cfg(test)]
@@ -371,9 +399,16 @@ mod tests {
         let s = CaptureSettings::resolve(&asked, &rig).unwrap();
         assert_eq!(s.dslr.exposures_s, [0.01, 0.1]);
         assert_eq!((s.views, s.turning), (2, Turning::Turntable));
-        // Neither: the defaults.
+        // Neither: the defaults, and the basis model's pixels when it is asked for.
         let none = CaptureSettings::resolve(&plan("nickel"), &rig).unwrap();
-        assert_eq!(none.estimate.pixel_count, Some(DEFAULT_PIXELS));
+        assert_eq!(none.estimate.model, ModelOptions::of(Model::Hybrid));
+        let mut basis = plan("nickel");
+        basis.model = Some(Model::Basis);
+        let basis = CaptureSettings::resolve(&basis, &rig).unwrap();
+        let ModelOptions::Basis(b) = basis.estimate.model else {
+            panic!("the basis model was asked for: {:?}", basis.estimate.model);
+        };
+        assert_eq!(b.pixel_count, Some(DEFAULT_PIXELS));
         assert_eq!((none.views, none.turn_step), (1, DEFAULT_TURN_DEG));
         assert_eq!(none.scene.camera.size(), (256, 256));
     }

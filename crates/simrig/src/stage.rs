@@ -9,7 +9,7 @@ use std::sync::Arc;
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::Bivariate;
 use brdfd_core::envmap::EnvMap;
-use brdfd_core::estimate::{Estimate, Model};
+use brdfd_core::estimate::Estimate;
 use brdfd_core::geometry::SceneGeometry;
 use brdfd_core::merl::MerlBrdf;
 use brdfd_core::nbrdf::NbrdfSet;
@@ -141,11 +141,9 @@ impl SimulatedStage {
         reduced: &Bivariate,
         phases: &mut Phases,
     ) -> Option<Vec<f64>> {
-        if est.model != Model::Basis {
-            return None;
-        }
+        let basis_outcome = est.outcome.basis()?;
         let p = phases.start("compare with the ground truth (simulator)", 1);
-        let truth = match est.colour {
+        let truth = match basis_outcome.colour {
             Colour::Joint => basis.project(reduced),
             Colour::PerChannel => basis.project_channels(reduced),
         };
