@@ -286,6 +286,7 @@ fn the_mitsuba_set_lines_up_and_each_part_is_flagged_for_what_it_breaks() {
         );
         if scene == "two-tone" {
             materials_are_found(&d, &out, &json, &format!("{stderr}{stdout}"));
+            sessions_name_the_materials(&d.join(&out));
             continue;
         }
         if let Some(reason) = flag {
@@ -310,6 +311,72 @@ fn the_mitsuba_set_lines_up_and_each_part_is_flagged_for_what_it_breaks() {
         1.75 * with <= without,
         "with its bounces {with}, without {without}"
     );
+}
+
+/// A session whose result is the two-material dome's (`result`, a split estimate's folder) is
+/// listed with its two materials and shown with each one's share, fit and folder, where it
+/// was listed and shown as one estimate.
+fn sessions_name_the_materials(result: &Path) {
+    use brdfd_rig::session::{session_dir, Session, State};
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let mut session =
+        Session::create(&state, "two-tone", "simulated", None, serde_json::json!({})).unwrap();
+    for next in [
+        State::Capturing,
+        State::Captured,
+        State::Estimating,
+        State::Done,
+    ] {
+        session.set_state(next, None).unwrap();
+    }
+    let id = session.manifest().id.clone();
+    let copied = session_dir(&state, &id).join("result");
+    std::fs::create_dir_all(&copied).unwrap();
+    for entry in walk(result) {
+        let to = copied.join(entry.strip_prefix(result).unwrap());
+        std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+        std::fs::copy(&entry, to).unwrap();
+    }
+    let state = state.to_str().unwrap();
+    let said = |args: &[&str]| {
+        let o = common::brdfd(args, dir.path());
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let list = said(&["session", "list", "--state-dir", state]);
+    assert!(list.contains("hybrid×2"), "{list}");
+    let json: serde_json::Value =
+        serde_json::from_str(&said(&["session", "list", "--json", "--state-dir", state])).unwrap();
+    let parts = json[0]["materials"].as_array().unwrap();
+    assert_eq!(parts.len(), 2, "{json}");
+    let share: f64 = parts.iter().map(|p| p["share"].as_f64().unwrap()).sum();
+    assert!((share - 1.0).abs() < 1e-6, "{json}");
+    let shown = said(&["session", "show", &id, "--state-dir", state]);
+    assert!(
+        shown.contains("split into 2 materials, each estimated on its own pixels:"),
+        "{shown}"
+    );
+    for folder in ["material-1", "material-2"] {
+        assert!(
+            shown.contains(&format!("its results in result/{folder}/")),
+            "{shown}"
+        );
+    }
+}
+
+/// Every file under `dir`, at any depth.
+fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            files.extend(walk(&path));
+        } else {
+            files.push(path);
+        }
+    }
+    files
 }
 
 /// The two-material dome's split (issue 43, item 3): each of the truth's regions matches a

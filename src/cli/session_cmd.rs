@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
+use brdfd_report::materials::PartRecord;
 use brdfd_rig::session::{Manifest, Session, State};
 
 #[derive(clap::Args)]
@@ -184,6 +185,9 @@ struct Outcome {
     fit: f64,
     /// The assumptions of the model the photo says are broken.
     flags: Vec<brdfd_report::results::StoredFlag>,
+    /// The materials the part was split into, each estimated on its own pixels; empty for a
+    /// part of one material.
+    materials: Vec<PartRecord>,
 }
 
 /// The result a session wrote, if it got that far.
@@ -195,6 +199,7 @@ fn result_of(dir: &Path) -> Option<Outcome> {
         fit: r.fit_error?,
         model: r.model,
         flags: r.flags,
+        materials: r.materials.map_or(Vec::new(), |m| m.parts),
     })
 }
 
@@ -219,6 +224,11 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
                     "model": r.as_ref().map(|r| &r.model),
                     "anisotropic_lobe": r.as_ref().map(|r| r.anisotropic_lobe),
                     "fit_error": r.as_ref().map(|r| r.fit),
+                    "materials": r.as_ref().map(|r| r.materials.iter().map(|p| serde_json::json!({
+                        "folder": p.folder,
+                        "share": p.share,
+                        "fit_error": p.fit_error.is_finite().then_some(p.fit_error),
+                    })).collect::<Vec<_>>()),
                 })
             })
             .collect();
@@ -236,18 +246,23 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
         .unwrap_or(2)
         .max(2);
     println!(
-        "{:<width$}  {:<10}  {:<12}  {:<8}  {:>6}  created",
+        "{:<width$}  {:<10}  {:<12}  {:<10}  {:>6}  created",
         "ID", "STATE", "MATERIAL", "MODEL", "FIT"
     );
     for (m, r) in &rows {
         let (model, fit) = match r {
             // The lobe relights, and the fit is its own.
-            Some(r) if r.anisotropic_lobe => ("aniso", format!("{:.3}", r.fit)),
-            Some(r) => (r.model.as_str(), format!("{:.3}", r.fit)),
-            None => ("-", "-".to_string()),
+            Some(r) if r.anisotropic_lobe => ("aniso".to_string(), format!("{:.3}", r.fit)),
+            // A part split into materials: one estimate of the model per material.
+            Some(r) if !r.materials.is_empty() => (
+                format!("{}×{}", r.model, r.materials.len()),
+                format!("{:.3}", r.fit),
+            ),
+            Some(r) => (r.model.clone(), format!("{:.3}", r.fit)),
+            None => ("-".to_string(), "-".to_string()),
         };
         println!(
-            "{:<width$}  {:<10}  {:<12}  {:<8}  {:>6}  {}",
+            "{:<width$}  {:<10}  {:<12}  {:<10}  {:>6}  {}",
             m.id,
             m.state.name(),
             m.material,
@@ -291,6 +306,22 @@ fn summary(s: &Session) -> Vec<String> {
             ));
             // A broken assumption makes the fit's word optimistic: said right under it.
             lines.extend(r.flags.iter().map(|f| format!("  flagged: {}", f.text)));
+            if !r.materials.is_empty() {
+                lines.push(format!(
+                    "split into {} materials, each estimated on its own pixels:",
+                    r.materials.len()
+                ));
+                lines.extend(r.materials.iter().map(|p| {
+                    format!(
+                        "  {}: {:.0}% of the pixels, fit to its photo {:.4} ({}); its results in result/{}/",
+                        p.folder.replace('-', " "),
+                        100.0 * p.share,
+                        p.fit_error,
+                        brdfd_core::estimate::fit_verdict(p.fit_error),
+                        p.folder
+                    )
+                }));
+            }
         }
         None if m.state != State::Done => lines.push(format!(
             "no estimate yet: `brdfd session resume {}` continues it",
