@@ -50,9 +50,10 @@ fn outside_validators_accept_the_exports() {
     };
     let dir = tempfile::tempdir().unwrap();
     let out = capture_gold(dir.path(), &["--simulate"]);
-    // The summary names the exports' verdict with its figure.
+    // The summary names each export's verdict with its figure, the .mtlx's measured with
+    // OpenPBR's own BRDF.
     assert!(
-        out.contains("material.gltf, material.mtlx: relit "),
+        out.contains("material.gltf relit ") && out.contains("material.mtlx (OpenPBR) 0."),
         "{out}"
     );
 
@@ -79,6 +80,7 @@ fn outside_validators_accept_the_exports() {
         base_color: coated.base_color,
         base_metalness: 1.0,
         specular_weight: 1.0,
+        specular_color: [1.0; 3],
         specular_roughness: 0.5,
         specular_ior: 1.5,
         coat_weight: 0.9,

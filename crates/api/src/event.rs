@@ -105,6 +105,13 @@ pub struct Summary {
     /// That figure in words (`faithful`, `close` or `approximate`), with its threshold.
     #[serde(default)]
     pub export_verdict: Option<String>,
+    /// How far `material.mtlx` relights from the estimate under the same light, rendered with
+    /// OpenPBR's own BRDF; absent for an anisotropic lobe, and in results written before.
+    #[serde(default)]
+    pub mtlx_relight_error: Option<f64>,
+    /// That figure in words, as `export_verdict`.
+    #[serde(default)]
+    pub mtlx_verdict: Option<String>,
     /// The assumptions of brdfd's model that the photo says are broken (`coefficients.json`'s
     /// `flags`); empty when none is.
     #[serde(default)]

@@ -109,7 +109,7 @@ impl Microfacet {
 }
 
 /// GGX (Trowbridge–Reitz) normal distribution for cos θh.
-fn ggx_d(cos_h: f64, alpha: f64) -> f64 {
+pub fn ggx_d(cos_h: f64, alpha: f64) -> f64 {
     let a2 = alpha * alpha;
     let t = (a2 - 1.0) * cos_h * cos_h + 1.0;
     a2 / (std::f64::consts::PI * t * t)

@@ -308,11 +308,20 @@ fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec
     };
     rows.push((format!("condition number{of_model}"), est.condition_text()));
     rows.push((
-        "material.gltf, material.mtlx".into(),
+        "material.gltf".into(),
         format!(
-            "relit {:.4} from the estimate under light their fit did not see ({})",
+            "relit {:.4} from the estimate under light its fit did not see ({})",
             export.relight_error, export.verdict
         ),
+    ));
+    rows.push((
+        "material.mtlx (OpenPBR)".into(),
+        match (export.mtlx_relight_error, &export.mtlx_verdict) {
+            (Some(e), Some(v)) => format!(
+                "relit {e:.4} from the estimate under the same light, rendered with OpenPBR's BRDF ({v})"
+            ),
+            _ => "not measured: OpenPBR's BRDF in brdfd holds no anisotropic lobe".into(),
+        },
     ));
     rows.push((format!("steadiness{of_model}"), est.certainty_text().0));
     rows.push((

@@ -193,6 +193,11 @@ pub struct StoredFlag {
 pub struct StoredExports {
     pub relight_error: Option<f64>,
     pub verdict: Option<String>,
+    /// Absent in files written before the `.mtlx` was measured, and for an anisotropic lobe.
+    #[serde(default)]
+    pub mtlx_relight_error: Option<f64>,
+    #[serde(default)]
+    pub mtlx_verdict: Option<String>,
 }
 
 fn basis_model() -> String {

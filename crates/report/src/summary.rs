@@ -189,11 +189,7 @@ pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String
     }
     out.extend(clipped_line(estimate, extras));
     if let Some(e) = extras.export {
-        out.push(format!(
-            "  material.gltf, material.mtlx: relit {:.3} from the estimate, {} (faithful at most {FAITHFUL}, close at most {CLOSE})",
-            e.relight_error,
-            export_word(e.relight_error),
-        ));
+        out.push(format!("  {}", exports_text("", e)));
         if e.relight_error > CLOSE {
             out.push(
                 "    the glTF/OpenPBR model cannot hold this material; brdf.binary (MERL) keeps it whole"
@@ -205,6 +201,20 @@ pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String
         out.push(format!("  report: {}", r.display()));
     }
     out
+}
+
+/// The exports' line: each file in `folder` (empty, or a material's folder and a slash), how
+/// far it relights from the estimate under light its fit did not see, and the words for it.
+fn exports_text(folder: &str, e: &Export) -> String {
+    let mtlx = match e.mtlx_relight_error {
+        Some(m) => format!("{m:.3}, {}", export_word(m)),
+        None => "not measured (an anisotropic lobe)".into(),
+    };
+    format!(
+        "{folder}material.gltf relit {:.3} from the estimate, {}; {folder}material.mtlx (OpenPBR) {mtlx} (faithful at most {FAITHFUL}, close at most {CLOSE})",
+        e.relight_error,
+        export_word(e.relight_error),
+    )
 }
 
 /// The summary of a part split into materials: the verdict of the worst material first, then
@@ -249,10 +259,8 @@ fn materials_lines(
             ));
         }
         body.push(format!(
-            "    {}/material.gltf, material.mtlx: relit {:.3} from its estimate, {} (faithful at most {FAITHFUL}, close at most {CLOSE})",
-            p.folder,
-            files.exports.relight_error,
-            export_word(files.exports.relight_error),
+            "    {}",
+            exports_text(&format!("{}/", p.folder), &files.exports)
         ));
     }
     // What the whole part's photo says beside its colours (the light turned, the part

@@ -324,6 +324,8 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> Result<Outco
             fallback: captured.fallback,
             export_relight_error: Some(exports.relight_error),
             export_verdict: Some(exports.verdict.clone()),
+            mtlx_relight_error: exports.mtlx_relight_error,
+            mtlx_verdict: exports.mtlx_verdict.clone(),
             flags: flags
                 .iter()
                 .map(|f| super::SummaryFlag {

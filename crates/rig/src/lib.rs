@@ -80,6 +80,8 @@ pub fn stored_summary(coefficients_json: &std::path::Path) -> Option<Summary> {
         fallback: r.fallback,
         export_relight_error: exports.relight_error,
         export_verdict: exports.verdict,
+        mtlx_relight_error: exports.mtlx_relight_error,
+        mtlx_verdict: exports.mtlx_verdict,
         flags: r
             .flags
             .into_iter()

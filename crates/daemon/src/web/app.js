@@ -297,6 +297,9 @@ function finished(e) {
         (r.export_relight_error != null
           ? `; material.gltf relights ${r.export_relight_error.toFixed(3)} from the estimate (${r.export_verdict})`
           : "") +
+        (r.mtlx_relight_error != null
+          ? `, material.mtlx (OpenPBR) ${r.mtlx_relight_error.toFixed(3)} (${r.mtlx_verdict})`
+          : "") +
         ". ",
       resultLinks(e.session)
     );

@@ -96,7 +96,8 @@ pub struct Fitted {
 }
 
 impl Fitted {
-    fn f0_max(&self) -> f64 {
+    /// The largest channel's dielectric F₀: the IOR's.
+    pub fn f0_max(&self) -> f64 {
         self.f0.iter().copied().fold(0.0, f64::max)
     }
 

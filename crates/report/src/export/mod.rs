@@ -32,11 +32,11 @@ use brdfd_core::anisotropic::AnisotropicLobe;
 use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::envmap::{EnvMap, LightSet};
 use brdfd_core::geometry::{Camera, PixelGeometry, Shape};
-use brdfd_core::render::render_anisotropic;
+use brdfd_core::render::{render_anisotropic, render_bivariates};
 use brdfd_core::{CoreError, Result};
 
 pub use gltf::{GltfBrdf, GltfMaterial};
-pub use openpbr::OpenPbrMaterial;
+pub use openpbr::{OpenPbrBrdf, OpenPbrMaterial, OpenPbrTables};
 
 /// The sphere and lights the material is fitted on: coarser than the check's, since the fit
 /// compares many candidate materials (48² pixels and 1,024 lights), and the check below
@@ -98,6 +98,12 @@ pub struct Export {
     pub relight_error: f64,
     /// [`export_verdict`] of `relight_error`.
     pub verdict: String,
+    /// The same for the `.mtlx`, rendered with OpenPBR's own BRDF ([`OpenPbrBrdf`]) under the
+    /// same maps; `None` for an anisotropic lobe, which brdfd's OpenPBR BRDF does not hold.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mtlx_relight_error: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mtlx_verdict: Option<String>,
     /// The maps the material was fitted under.
     pub fitted_under: Vec<String>,
     /// The maps it was checked under, each with its relight error.
@@ -114,6 +120,8 @@ pub struct Export {
 pub struct CheckedUnder {
     pub map: String,
     pub relight_error: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mtlx_relight_error: Option<f64>,
 }
 
 /// A map's lights for the fit or the check, with its name.
@@ -219,36 +227,51 @@ pub fn write_exports(
     let target = isotropic_lobe.as_ref().unwrap_or(estimate);
     let scenes = fit::Scenes::new(&p.fit_sphere.pixels, &p.fit_lights, target)?;
     let fitted = scenes.fit(Some(&p.coarse));
-    let (mut material, mut openpbr) = (
-        GltfMaterial::from_fit(&fitted),
-        OpenPbrMaterial::from_fit(&fitted),
-    );
+    // The readings of the fit in OpenPBR's inputs; the one its own BRDF renders closest to
+    // the target under the fit's maps is written.
+    let candidates = OpenPbrMaterial::readings(&fitted);
+    let (openpbr, mtlx) = closest_openpbr(&candidates, &p.fit_sphere, &p.fit_lights, target);
+    let (mut material, mut openpbr) = (GltfMaterial::from_fit(&fitted), openpbr);
     if let Some(l) = lobe {
         (material, openpbr) = (material.with_lobe(l), openpbr.with_lobe(l));
     }
 
-    let per_map: Vec<f64> = match (lobe, material.anisotropy) {
+    // Each map's relight error of the glTF material and, when isotropic, of the `.mtlx`.
+    let per_map: Vec<(f64, Option<f64>)> = match (lobe, material.anisotropy) {
         (Some(l), Some(_)) => p
             .checks
             .iter()
             .map(|c| {
                 let image = material.render_full(&p.check_sphere, &c.lights);
-                image.relative_rmse(&render_anisotropic(&p.check_sphere, &c.lights, l))
+                let e = image.relative_rmse(&render_anisotropic(&p.check_sphere, &c.lights, l));
+                (e, None)
             })
             .collect(),
         _ => {
             let exported = material.tables(estimate.grid);
+            // The estimate and the `.mtlx`'s parts in the glTF material's pass.
+            let mut others = vec![estimate];
+            others.extend(mtlx.parts());
             p.checks
                 .iter()
                 .map(|c| {
-                    let (image, reference) =
-                        exported.render_beside(&p.check_sphere, &c.lights, &[estimate]);
-                    image.relative_rmse(&reference[0])
+                    let (image, rest) = exported.render_beside(&p.check_sphere, &c.lights, &others);
+                    let open = mtlx.combine(&p.check_sphere, &rest[1..]);
+                    (
+                        image.relative_rmse(&rest[0]),
+                        Some(open.relative_rmse(&rest[0])),
+                    )
                 })
                 .collect()
         }
     };
-    let relight_error = per_map.iter().sum::<f64>() / per_map.len() as f64;
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let relight_error = mean(&per_map.iter().map(|e| e.0).collect::<Vec<_>>());
+    let mtlx_relight_error = per_map
+        .iter()
+        .map(|e| e.1)
+        .collect::<Option<Vec<f64>>>()
+        .map(|v| mean(&v));
 
     let gltf = dir.join("material.gltf");
     let mtlx = dir.join("material.mtlx");
@@ -262,18 +285,27 @@ pub fn write_exports(
         fit_error: fitted.fit_error,
         relight_error,
         verdict: export_verdict(relight_error),
+        mtlx_relight_error,
+        mtlx_verdict: mtlx_relight_error.map(export_verdict),
         fitted_under: p.fitted_under.clone(),
         checked_under: p
             .checks
             .iter()
             .zip(per_map)
-            .map(|(m, e)| CheckedUnder {
+            .map(|(m, (e, mtlx))| CheckedUnder {
                 map: m.name.clone(),
                 relight_error: e,
+                mtlx_relight_error: mtlx,
             })
             .collect(),
-        mtlx_note: "the .mtlx holds the glTF fit's parameters in OpenPBR's inputs; \
-                    relight_error is the glTF material's",
+        mtlx_note: if mtlx_relight_error.is_some() {
+            "the .mtlx holds the glTF fit's parameters in OpenPBR's inputs; relight_error is \
+             the glTF material's, mtlx_relight_error the OpenPBR material's, each rendered \
+             with its own format's BRDF"
+        } else {
+            "the .mtlx holds the glTF fit's parameters in OpenPBR's inputs; its anisotropic \
+             lobe is not rendered with OpenPBR's BRDF, so relight_error is the glTF material's"
+        },
         fitted_to: if lobe.is_some() {
             "the estimate's anisotropic lobe: its colours and Fresnel through the lobe made \
              isotropic at the geometric mean of its roughnesses (fit_error is that fit's), then \
@@ -282,6 +314,39 @@ pub fn write_exports(
             "the estimate's BRDF"
         },
     })
+}
+
+/// Of `candidates`, the one whose render with OpenPBR's BRDF comes closest to `target`'s on
+/// `sphere` under `lights` (the mean relative RMSE over the maps), with its tables. Every
+/// candidate's parts and the target are rendered in one pass per map.
+fn closest_openpbr(
+    candidates: &[OpenPbrMaterial],
+    sphere: &PixelGeometry,
+    lights: &[LightSet],
+    target: &Bivariate,
+) -> (OpenPbrMaterial, OpenPbrTables) {
+    use rayon::prelude::*;
+    let tables: Vec<OpenPbrTables> = candidates
+        .par_iter()
+        .map(|m| OpenPbrBrdf::new(m).tables(target.grid))
+        .collect();
+    let mut brdfs = vec![target];
+    brdfs.extend(tables.iter().flat_map(OpenPbrTables::parts));
+    let mut errors = vec![0.0; candidates.len()];
+    for l in lights {
+        let images = render_bivariates(sphere, l, &brdfs);
+        let mut next = 1;
+        for (e, t) in errors.iter_mut().zip(&tables) {
+            let parts = &images[next..next + t.parts().count()];
+            next += parts.len();
+            *e += t.combine(sphere, parts).relative_rmse(&images[0]);
+        }
+    }
+    let best = (0..candidates.len())
+        .min_by(|&a, &b| errors[a].total_cmp(&errors[b]))
+        .expect("a candidate");
+    let tables = tables.into_iter().nth(best).expect("the best's tables");
+    (candidates[best], tables)
 }
 
 #[cfg(test)]
@@ -323,6 +388,13 @@ mod tests {
             let target = Bivariate::reduce(&GltfBrdf(truth), grid);
             let e = write_exports(dir.path(), "test", &target, None, &prepared).unwrap();
             assert!(e.relight_error < 0.01, "{truth:?}: {e:?}");
+            // The same parameters through OpenPBR's BRDF: its exact Fresnel, albedo scaling
+            // and multiple-scattering compensation against glTF's.
+            let mtlx = e
+                .mtlx_relight_error
+                .expect("an isotropic material is measured");
+            eprintln!("{truth:?}: .mtlx relit {mtlx:.4}");
+            assert!(mtlx < 0.10, "{mtlx}");
             let m = e.material;
             assert!((m.roughness - truth.roughness).abs() < 0.02, "{m:?}");
             for c in 0..3 {
@@ -551,7 +623,7 @@ mod figures {
 
     #[test]
     #[ignore]
-    fn gltf_export_of_the_test_materials_under_the_reference_maps() {
+    fn gltf_and_openpbr_exports_of_the_test_materials_under_the_reference_maps() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/envmaps");
         let names = ["grace", "courtyard", "interior", "sunrise", "city"];
         let maps: Vec<EnvMap> = names
@@ -571,13 +643,19 @@ mod figures {
             "merl_nbrdf.json",
         )
         .unwrap();
-        let mut all = vec![];
+        let (mut all, mut all_mtlx) = (vec![], vec![]);
         for name in brdfd_eval::paper::TEST_SET {
             let target = Bivariate::reduce(set.get(name).unwrap(), Grid::default());
             let fitted = fit::Scenes::new(&fit_sphere.pixels, &fit_lights, &target)
                 .unwrap()
                 .fit(None);
             let exported = GltfMaterial::from_fit(&fitted).tables(Grid::default());
+            let (_, mtlx) = closest_openpbr(
+                &OpenPbrMaterial::readings(&fitted),
+                &fit_sphere,
+                &fit_lights,
+                &target,
+            );
             let mut line = format!(
                 "{name:22} fit {:.3} coat {:.2} at α {:.4}, base α {:.4}:",
                 fitted.fit_error, fitted.coat, fitted.coat_alpha, fitted.alpha
@@ -586,16 +664,21 @@ mod figures {
                 let lights = map.compressed(CHECK_LIGHTS, 0.0);
                 let (image, reference) = exported.render_beside(&check_sphere, &lights, &[&target]);
                 let e = image.relative_rmse(&reference[0]);
+                let (open, _) = mtlx.render_beside(&check_sphere, &lights, &[]);
+                let m = open.relative_rmse(&reference[0]);
                 all.push(e);
-                line += &format!(" {n} {e:.3}");
+                all_mtlx.push(m);
+                line += &format!(" {n} {e:.3} (.mtlx {m:.3})");
             }
             println!("{line}");
         }
-        all.sort_by(f64::total_cmp);
-        println!(
-            "median {:.3}, worst {:.3}",
-            all[all.len() / 2],
-            all[all.len() - 1]
-        );
+        for (format, mut all) in [("glTF", all), (".mtlx", all_mtlx)] {
+            all.sort_by(f64::total_cmp);
+            println!(
+                "{format}: median {:.3}, worst {:.3}",
+                all[all.len() / 2],
+                all[all.len() - 1]
+            );
+        }
     }
 }
