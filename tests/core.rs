@@ -19,12 +19,12 @@ use brdfd_core::solve::{Colour, ColourChoice, Solver};
 use brdfd_core::stop::Stop;
 use brdfd_eval::paper::brdf_error;
 
-/// The embedded basis's rendering matrix for a sphere under the studio map.
 /// The basis model's own outcome of an estimate that must be one.
 fn of_basis(e: &Estimate) -> &BasisOutcome {
     e.outcome.basis().expect("a basis estimate")
 }
 
+/// The embedded basis's rendering matrix for a sphere under the studio map.
 fn studio_matrix(basis: &Basis, size: usize) -> RenderingMatrix {
     let g = sphere(size);
     basis.rendering_matrix(&g.pixels, &studio_envmap(256).compressed(2048, 0.0))

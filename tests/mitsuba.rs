@@ -354,7 +354,7 @@ fn sessions_name_the_materials(result: &Path) {
     assert!((share - 1.0).abs() < 1e-6, "{json}");
     let shown = said(&["session", "show", &id, "--state-dir", state]);
     assert!(
-        shown.contains("split into 2 materials, each estimated on its own pixels:"),
+        shown.contains("split into 2 materials, each estimated on its own pixels, which fit the photo together to 0."),
         "{shown}"
     );
     for folder in ["material-1", "material-2"] {

@@ -188,6 +188,9 @@ struct Outcome {
     /// The materials the part was split into, each estimated on its own pixels; empty for a
     /// part of one material.
     materials: Vec<PartRecord>,
+    /// The materials' re-render of the photo together, when split: what the split is judged
+    /// by, where `fit` is the one BRDF fitted to the whole part.
+    split_fit: Option<f64>,
 }
 
 /// The result a session wrote, if it got that far.
@@ -199,6 +202,7 @@ fn result_of(dir: &Path) -> Option<Outcome> {
         fit: r.fit_error?,
         model: r.model,
         flags: r.flags,
+        split_fit: r.materials.as_ref().map(|m| m.fit_error),
         materials: r.materials.map_or(Vec::new(), |m| m.parts),
     })
 }
@@ -224,6 +228,7 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
                     "model": r.as_ref().map(|r| &r.model),
                     "anisotropic_lobe": r.as_ref().map(|r| r.anisotropic_lobe),
                     "fit_error": r.as_ref().map(|r| r.fit),
+                    "materials_fit_error": r.as_ref().and_then(|r| r.split_fit),
                     "materials": r.as_ref().map(|r| r.materials.iter().map(|p| serde_json::json!({
                         "folder": p.folder,
                         "share": p.share,
@@ -251,13 +256,14 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
     );
     for (m, r) in &rows {
         let (model, fit) = match r {
-            // The lobe relights, and the fit is its own.
-            Some(r) if r.anisotropic_lobe => ("aniso".to_string(), format!("{:.3}", r.fit)),
-            // A part split into materials: one estimate of the model per material.
+            // A part split into materials: one estimate of the model per material, and their
+            // fit together.
             Some(r) if !r.materials.is_empty() => (
                 format!("{}×{}", r.model, r.materials.len()),
-                format!("{:.3}", r.fit),
+                format!("{:.3}", r.split_fit.unwrap_or(r.fit)),
             ),
+            // The lobe relights, and the fit is its own.
+            Some(r) if r.anisotropic_lobe => ("aniso".to_string(), format!("{:.3}", r.fit)),
             Some(r) => (r.model.clone(), format!("{:.3}", r.fit)),
             None => ("-".to_string(), "-".to_string()),
         };
@@ -308,8 +314,9 @@ fn summary(s: &Session) -> Vec<String> {
             lines.extend(r.flags.iter().map(|f| format!("  flagged: {}", f.text)));
             if !r.materials.is_empty() {
                 lines.push(format!(
-                    "split into {} materials, each estimated on its own pixels:",
-                    r.materials.len()
+                    "split into {} materials, each estimated on its own pixels, which fit the photo together to {:.4} (the fit above is of one BRDF for the whole part):",
+                    r.materials.len(),
+                    r.split_fit.unwrap_or(f64::NAN)
                 ));
                 lines.extend(r.materials.iter().map(|p| {
                     format!(

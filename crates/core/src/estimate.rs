@@ -235,6 +235,11 @@ pub struct Estimate {
     /// bounce taken out ([`Estimate::bounce`]), the render A·c has its bounce added back, and
     /// y is the whole photo.
     pub fit_error: f64,
+    /// The model's own fit, as [`Estimate::fit_error`] measured it when the model was fitted:
+    /// to the photo less the bounce when one is taken out, and of the model, not of a lobe
+    /// chosen over it. What `coefficients.json`'s `colour_fits` records for the analytic and
+    /// hybrid models (the basis model's are in its [`BasisOutcome::colour_fits`]).
+    pub model_fit: f64,
     /// What the estimate renders at each candidate pixel, beside what the photo measured
     /// there: the re-render [`Estimate::fit_error`] is measured on, every view's in turn (the
     /// chosen anisotropic lobe's, when there is one).
@@ -1193,6 +1198,7 @@ fn hybrid_estimate(
         solved: fit.solved,
         clipped: 0,
         fit_error: fit.fit_error,
+        model_fit: fit.fit_error,
         rerender: rerendered(candidates, &fit.predicted),
         lights: candidates.first().map_or(0, |c| c.view.lights.len()),
         timings: Timings {
@@ -1238,6 +1244,7 @@ fn analytic_estimate(
         solved: n,
         clipped: 0,
         fit_error,
+        model_fit: fit_error,
         rerender: rerendered(candidates, &predicted),
         lights: candidates.first().map_or(0, |c| c.view.lights.len()),
         timings: Timings {
@@ -1347,6 +1354,7 @@ fn basis_estimate(
         }),
         clipped: 0,
         fit_error,
+        model_fit: fit_error,
         rerender: rerendered(candidates, &predicted),
         lights: candidates.first().map_or(0, |c| c.view.lights.len()),
         timings,

@@ -593,7 +593,7 @@ fn write_records(
         colour_fits: match basis_outcome {
             Some(b) => b.colour_fits.iter().map(|(c, f)| (c.name(), *f)).collect(),
             // One colour model, per channel, by construction.
-            None => BTreeMap::from([(estimate.colour().name(), estimate.fit_error)]),
+            None => BTreeMap::from([(estimate.colour().name(), estimate.model_fit)]),
         },
         chosen_pixels: basis_outcome
             .filter(|_| !all)

@@ -195,6 +195,11 @@ pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String
                 "    the glTF/OpenPBR model cannot hold this material; brdf.binary (MERL) keeps it whole"
                     .into(),
             );
+        } else if e.mtlx_relight_error.is_some_and(|m| m > CLOSE) {
+            out.push(
+                "    OpenPBR, as brdfd reads the fit into it, does not hold this material as glTF does; material.gltf and brdf.binary (MERL) keep it closer"
+                    .into(),
+            );
         }
     }
     if let Some(r) = extras.report {

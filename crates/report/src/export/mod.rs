@@ -299,12 +299,13 @@ pub fn write_exports(
             })
             .collect(),
         mtlx_note: if mtlx_relight_error.is_some() {
-            "the .mtlx holds the glTF fit's parameters in OpenPBR's inputs; relight_error is \
-             the glTF material's, mtlx_relight_error the OpenPBR material's, each rendered \
-             with its own format's BRDF"
+            "the .mtlx is the reading of the glTF fit in OpenPBR's inputs that OpenPBR's BRDF \
+             renders closest to the estimate under the fit's maps; relight_error is the glTF \
+             material's, mtlx_relight_error the OpenPBR material's, each rendered with its own \
+             format's BRDF"
         } else {
-            "the .mtlx holds the glTF fit's parameters in OpenPBR's inputs; its anisotropic \
-             lobe is not rendered with OpenPBR's BRDF, so relight_error is the glTF material's"
+            "the .mtlx is a reading of the glTF fit in OpenPBR's inputs; its anisotropic lobe \
+             is not rendered with OpenPBR's BRDF, so relight_error is the glTF material's"
         },
         fitted_to: if lobe.is_some() {
             "the estimate's anisotropic lobe: its colours and Fresnel through the lobe made \

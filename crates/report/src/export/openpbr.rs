@@ -162,16 +162,17 @@ impl OpenPbrMaterial {
         }
     }
 
-    /// The material with the roughnesses of an anisotropic lobe, through OpenPBR's mapping.
+    /// The material with the roughnesses of an anisotropic lobe, through OpenPBR's mapping,
+    /// the roughness being the one the base needs under the coat, as for an isotropic one.
     pub fn with_lobe(self, lobe: &AnisotropicLobe) -> OpenPbrMaterial {
         let (smooth, rough) = lobe.smooth_and_rough();
         let a = (1.0 - smooth / rough).clamp(0.0, 1.0);
         let r2 = rough / (2.0 / (1.0 + (1.0 - a) * (1.0 - a))).sqrt();
         OpenPbrMaterial {
-            specular_roughness: r2.sqrt().clamp(0.0, 1.0),
             specular_roughness_anisotropy: a,
             ..self
         }
+        .with_base_roughness(r2.sqrt())
     }
 
     /// The document: one `open_pbr_surface` and the `surfacematerial` that uses it.
@@ -349,12 +350,14 @@ impl OpenPbrBrdf {
         let mut p = Parts::default();
         for k in 0..3 {
             let schlick = m.base_color[k] + (1.0 - m.base_color[k]) * w;
-            let f82 = (m.specular_weight * (schlick - self.f82_b[k] * g)).clamp(0.0, 1.0);
-            let (dielectric, metal) = (m.specular_color[k] * f_d, f82);
+            // The weight scales the metal's lobe after its compensation, which is of the
+            // unweighted Fresnel (as MaterialX's generalized Schlick BSDF has it).
+            let f82 = (schlick - self.f82_b[k] * g).clamp(0.0, 1.0);
+            let (dielectric, metal) = (m.specular_color[k] * f_d, m.specular_weight * f82);
             let (d, mt) = (1.0 - m.base_metalness, m.base_metalness);
             p.specular[k] = (
                 d * dielectric * lobe + mt * metal * lobe,
-                d * dielectric * f_d * lobe + mt * metal * metal * lobe,
+                d * dielectric * f_d * lobe + mt * metal * f82 * lobe,
             );
             p.diffuse[k] = d * m.base_color[k] / std::f64::consts::PI;
         }
