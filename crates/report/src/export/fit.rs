@@ -748,8 +748,13 @@ fn finer(
 
 /// The coat's Fresnel at a pixel: at its N·V.
 pub fn coat_fresnel_at(px: &GeomPixel) -> f64 {
+    coat_fresnel(view_cosine(px))
+}
+
+/// N·V at a pixel, in [0, 1]: what the formats' factors of the view hang on.
+pub fn view_cosine(px: &GeomPixel) -> f64 {
     let d: f32 = (0..3).map(|k| px.normal[k] * px.view[k]).sum();
-    coat_fresnel(f64::from(d).clamp(0.0, 1.0))
+    f64::from(d).clamp(0.0, 1.0)
 }
 
 /// One material's roughnesses, shape, colours and squared misfit.

@@ -18,7 +18,7 @@ use brdfd_core::envmap::LightSet;
 use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::mesh::Mesh;
 use brdfd_core::raster::Raster;
-use brdfd_core::render::{render_bivariates, render_in_frames};
+use brdfd_core::render::render_in_frames;
 use brdfd_core::{CoreError, Result};
 
 use super::fit::{coat_fresnel_at, Fitted};
@@ -654,20 +654,17 @@ impl GltfTables {
     }
 
     /// [`GltfTables::render`], and each of `others` rendered under the same lights in the
-    /// same pass ([`render_bivariates`]): each image as it renders alone.
+    /// same pass ([`brdfd_core::render::render_bivariates`]): each image as it renders alone.
     pub fn render_beside(
         &self,
         geometry: &PixelGeometry,
         lights: &LightSet,
         others: &[&Bivariate],
     ) -> (Raster, Vec<Raster>) {
-        let mut brdfs = vec![&self.base];
-        brdfs.extend(self.coat.as_ref().map(|(_, lobe)| lobe));
-        let own = brdfs.len();
-        brdfs.extend(others);
-        let mut images = render_bivariates(geometry, lights, &brdfs);
-        let rest = images.split_off(own);
-        (self.mixed(geometry, images), rest)
+        let mut own = vec![&self.base];
+        own.extend(self.coat.as_ref().map(|(_, lobe)| lobe));
+        let (own, rest) = super::render_with(geometry, lights, own, others);
+        (self.mixed(geometry, own), rest)
     }
 
     /// The base's render (first) and the coat's, if any, mixed at each pixel.

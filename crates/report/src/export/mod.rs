@@ -32,6 +32,7 @@ use brdfd_core::anisotropic::AnisotropicLobe;
 use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::envmap::{EnvMap, LightSet};
 use brdfd_core::geometry::{Camera, PixelGeometry, Shape};
+use brdfd_core::raster::Raster;
 use brdfd_core::render::{render_anisotropic, render_bivariates};
 use brdfd_core::{CoreError, Result};
 
@@ -315,6 +316,21 @@ pub fn write_exports(
             "the estimate's BRDF"
         },
     })
+}
+
+/// A format's own tables (`own`) and `others` rendered on `geometry` under `lights` in one
+/// pass ([`render_bivariates`]): the own tables' images, then the others'.
+fn render_with<'a>(
+    geometry: &PixelGeometry,
+    lights: &LightSet,
+    mut own: Vec<&'a Bivariate>,
+    others: &[&'a Bivariate],
+) -> (Vec<Raster>, Vec<Raster>) {
+    let n = own.len();
+    own.extend(others);
+    let mut images = render_bivariates(geometry, lights, &own);
+    let rest = images.split_off(n);
+    (images, rest)
 }
 
 /// Of `candidates`, the one whose render with OpenPBR's BRDF comes closest to `target`'s on

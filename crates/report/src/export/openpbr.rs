@@ -34,11 +34,10 @@ use brdfd_core::anisotropic::AnisotropicLobe;
 use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::brdf::{Cosines, IsotropicBrdf};
 use brdfd_core::envmap::LightSet;
-use brdfd_core::geometry::{GeomPixel, PixelGeometry};
+use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::raster::Raster;
-use brdfd_core::render::render_bivariates;
 
-use super::fit::Fitted;
+use super::fit::{view_cosine, Fitted};
 
 /// An OpenPBR Surface's base and specular inputs.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -447,7 +446,8 @@ pub struct OpenPbrTables {
 }
 
 impl OpenPbrTables {
-    /// The tables of the parts, to render in one pass with others ([`render_bivariates`]).
+    /// The tables of the parts, to render in one pass with others
+    /// ([`brdfd_core::render::render_bivariates`]).
     pub fn parts(&self) -> impl Iterator<Item = &Bivariate> {
         self.tables.iter()
     }
@@ -460,11 +460,8 @@ impl OpenPbrTables {
         lights: &LightSet,
         others: &[&Bivariate],
     ) -> (Raster, Vec<Raster>) {
-        let mut brdfs: Vec<&Bivariate> = self.parts().collect();
-        brdfs.extend(others);
-        let mut images = render_bivariates(geometry, lights, &brdfs);
-        let rest = images.split_off(self.tables.len());
-        (self.combine(geometry, &images), rest)
+        let (own, rest) = super::render_with(geometry, lights, self.parts().collect(), others);
+        (self.combine(geometry, &own), rest)
     }
 
     /// The material's image from its parts' renders on `geometry` (in [`OpenPbrTables::parts`]'
@@ -483,12 +480,6 @@ impl OpenPbrTables {
         }
         image
     }
-}
-
-/// N·V at a pixel.
-fn view_cosine(px: &GeomPixel) -> f64 {
-    let d: f32 = (0..3).map(|k| px.normal[k] * px.view[k]).sum();
-    f64::from(d).clamp(0.0, 1.0)
 }
 
 impl IsotropicBrdf for OpenPbrBrdf {
