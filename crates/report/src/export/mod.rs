@@ -228,10 +228,7 @@ pub fn write_exports(
     let target = isotropic_lobe.as_ref().unwrap_or(estimate);
     let scenes = fit::Scenes::new(&p.fit_sphere.pixels, &p.fit_lights, target)?;
     let fitted = scenes.fit(Some(&p.coarse));
-    // The readings of the fit in OpenPBR's inputs; the one its own BRDF renders closest to
-    // the target under the fit's maps is written.
-    let candidates = OpenPbrMaterial::readings(&fitted);
-    let (openpbr, mtlx) = closest_openpbr(&candidates, &p.fit_sphere, &p.fit_lights, target);
+    let (openpbr, mtlx) = closest_openpbr(&fitted, &p.fit_sphere, &p.fit_lights, target);
     let (mut material, mut openpbr) = (GltfMaterial::from_fit(&fitted), openpbr);
     if let Some(l) = lobe {
         (material, openpbr) = (material.with_lobe(l), openpbr.with_lobe(l));
@@ -300,13 +297,14 @@ pub fn write_exports(
             })
             .collect(),
         mtlx_note: if mtlx_relight_error.is_some() {
-            "the .mtlx is the reading of the glTF fit in OpenPBR's inputs that OpenPBR's BRDF \
-             renders closest to the estimate under the fit's maps; relight_error is the glTF \
-             material's, mtlx_relight_error the OpenPBR material's, each rendered with its own \
-             format's BRDF"
+            "the .mtlx is whichever of the glTF fit's readings in OpenPBR's inputs and OpenPBR's \
+             dielectric fitted to the estimate OpenPBR's BRDF renders closest to the estimate \
+             under the fit's maps; relight_error is the glTF material's, mtlx_relight_error the \
+             OpenPBR material's, each rendered with its own format's BRDF"
         } else {
-            "the .mtlx is a reading of the glTF fit in OpenPBR's inputs; its anisotropic lobe \
-             is not rendered with OpenPBR's BRDF, so relight_error is the glTF material's"
+            "the .mtlx is chosen as for an isotropic estimate, through the lobe made isotropic, \
+             and takes the lobe's stretch; its anisotropic lobe is not rendered with OpenPBR's \
+             BRDF, so relight_error is the glTF material's"
         },
         fitted_to: if lobe.is_some() {
             "the estimate's anisotropic lobe: its colours and Fresnel through the lobe made \
@@ -333,37 +331,56 @@ fn render_with<'a>(
     (images, rest)
 }
 
-/// Of `candidates`, the one whose render with OpenPBR's BRDF comes closest to `target`'s on
+/// The `.mtlx` for the glTF fit `fitted`: of its readings in OpenPBR's inputs
+/// ([`OpenPbrMaterial::readings`]) and OpenPBR's dielectric fitted to `target`
+/// ([`openpbr::fit`]), the one whose render with OpenPBR's BRDF comes closest to `target`'s on
 /// `sphere` under `lights` (the mean relative RMSE over the maps), with its tables. Every
 /// candidate's parts and the target are rendered in one pass per map.
 fn closest_openpbr(
-    candidates: &[OpenPbrMaterial],
+    fitted: &fit::Fitted,
     sphere: &PixelGeometry,
     lights: &[LightSet],
     target: &Bivariate,
 ) -> (OpenPbrMaterial, OpenPbrTables) {
     use rayon::prelude::*;
-    let tables: Vec<OpenPbrTables> = candidates
-        .par_iter()
-        .map(|m| OpenPbrBrdf::new(m).tables(target.grid))
-        .collect();
+    let readings = OpenPbrMaterial::readings(fitted);
+    let (tables, dielectric): (Vec<OpenPbrTables>, _) = rayon::join(
+        || {
+            readings
+                .par_iter()
+                .map(|m| OpenPbrBrdf::new(m).tables(target.grid))
+                .collect()
+        },
+        || openpbr::DielectricFit::new(fitted, target.grid),
+    );
     let mut brdfs = vec![target];
     brdfs.extend(tables.iter().flat_map(OpenPbrTables::parts));
-    let mut errors = vec![0.0; candidates.len()];
+    let first_fitted = brdfs.len();
+    brdfs.extend(dielectric.parts());
+    let mut errors = vec![0.0; readings.len()];
+    let (mut targets, mut fit_renders) = (vec![], vec![]);
     for l in lights {
-        let images = render_bivariates(sphere, l, &brdfs);
+        let mut images = render_bivariates(sphere, l, &brdfs);
+        fit_renders.push(images.split_off(first_fitted));
         let mut next = 1;
         for (e, t) in errors.iter_mut().zip(&tables) {
             let parts = &images[next..next + t.parts().count()];
             next += parts.len();
             *e += t.combine(sphere, parts).relative_rmse(&images[0]);
         }
+        targets.push(images.swap_remove(0));
     }
-    let best = (0..candidates.len())
+    let best = (0..readings.len())
         .min_by(|&a, &b| errors[a].total_cmp(&errors[b]))
-        .expect("a candidate");
-    let tables = tables.into_iter().nth(best).expect("the best's tables");
-    (candidates[best], tables)
+        .expect("a reading");
+    let reading_error = errors[best] / lights.len() as f64;
+    match dielectric.solve(sphere, &fit_renders, &targets) {
+        Some((m, error)) if error < reading_error => (m, OpenPbrBrdf::new(&m).tables(target.grid)),
+        _ => {
+            let tables = tables.into_iter().nth(best).expect("the best's tables");
+            (readings[best], tables)
+        }
+    }
 }
 
 #[cfg(test)]
@@ -667,12 +684,7 @@ mod figures {
                 .unwrap()
                 .fit(None);
             let exported = GltfMaterial::from_fit(&fitted).tables(Grid::default());
-            let (_, mtlx) = closest_openpbr(
-                &OpenPbrMaterial::readings(&fitted),
-                &fit_sphere,
-                &fit_lights,
-                &target,
-            );
+            let (_, mtlx) = closest_openpbr(&fitted, &fit_sphere, &fit_lights, &target);
             let mut line = format!(
                 "{name:22} fit {:.3} coat {:.2} at α {:.4}, base α {:.4}:",
                 fitted.fit_error, fitted.coat, fitted.coat_alpha, fitted.alpha

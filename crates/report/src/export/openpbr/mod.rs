@@ -1,24 +1,23 @@
 //! `material.mtlx`: the fitted material as an OpenPBR Surface (MaterialX 1.39), and OpenPBR's
-//! own BRDF for the inputs brdfd writes ([`OpenPbrBrdf`]), which measures how the `.mtlx`
-//! relights.
+//! own BRDF for the inputs brdfd writes ([`OpenPbrBrdf`]), which chooses the `.mtlx` and
+//! measures how it relights.
 //!
-//! The shared model's parameters go into OpenPBR's inputs so that each part keeps its
-//! reflectivity: base colour and metalness; the dielectric's normal-incidence reflectance,
-//! glTF's specular weight times the IOR's, folded into `specular_ior` (OpenPBR's
-//! `specular_weight` would also dim the metal, which glTF's does not, so it stays 1); the
-//! dielectric's specular colour (the fit's per-channel F₀ over the largest), or white, which
-//! keeps the metal glTF's Schlick metal (OpenPBR reads `specular_color` as the metal's F82 tint
-//! too); the roughness (√α) and IOR the base needs for the coat to leave it the fit's (OpenPBR
-//! roughens a coated base and measures its IOR against the coat's); and the clear coat's weight,
-//! roughness and IOR (1.5, glTF's). A fit whose specular is a dim dielectric's (glTF's weight
-//! holds its grazing reflectance down, which OpenPBR's dielectric cannot) may read closer as
-//! OpenPBR's metal. Of these readings ([`OpenPbrMaterial::readings`]) the one OpenPBR's BRDF
-//! renders closest to the estimate under the fit's maps is written, and measured under the
-//! maps the fit did not see: [`super::Export::mtlx_relight_error`]. OpenPBR's BRDF still
-//! differs from glTF's (the dielectric's exact Fresnel rising to 1 at grazing, albedo-scaled
-//! layering of the specular over the diffuse and of the coat over the base, the compensation
-//! for multiple scattering), so a fit of OpenPBR's own parameters would come closer: this is a
-//! reading of glTF's.
+//! The candidates are readings of the glTF fit in OpenPBR's inputs
+//! ([`OpenPbrMaterial::readings`]) and OpenPBR's dielectric fitted to the estimate
+//! ([`DielectricFit`], in [`fit`]); the one OpenPBR's BRDF renders closest to the estimate under
+//! the fit's maps is written, and measured under the maps the fit did not see:
+//! [`super::Export::mtlx_relight_error`]. A reading keeps each part's reflectivity: base colour
+//! and metalness; the dielectric's normal-incidence reflectance, glTF's specular weight times
+//! the IOR's, folded into `specular_ior` (OpenPBR's `specular_weight` would also dim the metal,
+//! which glTF's does not, so it stays 1); the dielectric's specular colour (the fit's
+//! per-channel F₀ over the largest), or white, which keeps the metal glTF's Schlick metal
+//! (OpenPBR reads `specular_color` as the metal's F82 tint too); the roughness (√α) and IOR the
+//! base needs for the coat to leave it the fit's (OpenPBR roughens a coated base and measures
+//! its IOR against the coat's); and the clear coat's weight, roughness and IOR (1.5, glTF's). A
+//! fit whose specular is a dim dielectric's may read closer as OpenPBR's metal. OpenPBR's BRDF
+//! still differs from glTF's (the dielectric's exact Fresnel rising to 1 at grazing,
+//! albedo-scaled layering of the specular over the diffuse and of the coat over the base, the
+//! compensation for multiple scattering), which is what the dielectric's own fit takes up.
 //! `coat_darkening` is 0: glTF's coat dims the base by its Fresnel alone, not by light trapped
 //! inside the coat.
 //!
@@ -38,6 +37,9 @@ use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::raster::Raster;
 
 use super::fit::{view_cosine, Fitted};
+
+pub mod fit;
+pub use fit::DielectricFit;
 
 /// An OpenPBR Surface's base and specular inputs.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -431,9 +433,18 @@ struct Factors {
 impl Factors {
     /// One channel from its parts: the base's lobe and its F² term, the diffuse, the coat's
     /// lobe and its F² term.
-    fn combine(&self, [s, s2, diffuse, coat, coat2]: [f64; 5]) -> f64 {
-        let base = s + self.compensation * s2 + self.diffuse * diffuse;
-        coat + self.coat_compensation * coat2 + self.coat_through * base
+    fn combine(&self, parts: [f64; 5]) -> f64 {
+        self.split(parts).iter().sum()
+    }
+
+    /// One channel's specular, diffuse and coat, each seen as it leaves the material: what
+    /// [`Factors::combine`] adds up.
+    fn split(&self, [s, s2, diffuse, coat, coat2]: [f64; 5]) -> [f64; 3] {
+        [
+            self.coat_through * (s + self.compensation * s2),
+            self.coat_through * self.diffuse * diffuse,
+            coat + self.coat_compensation * coat2,
+        ]
     }
 }
 
@@ -467,18 +478,39 @@ impl OpenPbrTables {
     /// The material's image from its parts' renders on `geometry` (in [`OpenPbrTables::parts`]'
     /// order): each pixel's view gives what multiplies them.
     pub fn combine(&self, geometry: &PixelGeometry, parts: &[Raster]) -> Raster {
-        assert_eq!(parts.len(), self.tables.len(), "a render per part");
-        let mut image = Raster::black(geometry.width, geometry.height);
-        for px in &geometry.pixels {
-            let i = px.y as usize * image.width + px.x as usize;
-            let f = self.brdf.factors(view_cosine(px));
-            image.pixels[i] = std::array::from_fn(|k| {
-                f.combine(std::array::from_fn(|t| {
-                    parts.get(t).map_or(0.0, |p| f64::from(p.pixels[i][k]))
-                })) as f32
-            });
+        let [specular, diffuse, coat] = self.split(geometry, parts);
+        let mut image = specular;
+        for ((p, d), c) in image
+            .pixels
+            .iter_mut()
+            .zip(&diffuse.pixels)
+            .zip(&coat.pixels)
+        {
+            *p = std::array::from_fn(|k| p[k] + d[k] + c[k]);
         }
         image
+    }
+
+    /// The material's specular, diffuse and coat images from its parts' renders on
+    /// `geometry`, each as it leaves the material (they add up to [`OpenPbrTables::combine`]'s
+    /// image).
+    pub fn split(&self, geometry: &PixelGeometry, parts: &[Raster]) -> [Raster; 3] {
+        assert_eq!(parts.len(), self.tables.len(), "a render per part");
+        let mut images: [Raster; 3] =
+            std::array::from_fn(|_| Raster::black(geometry.width, geometry.height));
+        for px in &geometry.pixels {
+            let i = px.y as usize * geometry.width + px.x as usize;
+            let f = self.brdf.factors(view_cosine(px));
+            let split: [[f64; 3]; 3] = std::array::from_fn(|k| {
+                f.split(std::array::from_fn(|t| {
+                    parts.get(t).map_or(0.0, |p| f64::from(p.pixels[i][k]))
+                }))
+            });
+            for (j, image) in images.iter_mut().enumerate() {
+                image.pixels[i] = std::array::from_fn(|k| split[k][j] as f32);
+            }
+        }
+        images
     }
 }
 
