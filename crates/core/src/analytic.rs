@@ -270,12 +270,12 @@ pub fn lambert_column(grid: Grid) -> Vec<f64> {
     plane.iter().chain(&plane).chain(&plane).copied().collect()
 }
 
-/// The model's columns for roughness α, each a grey bivariate vector (the same in R, G and B):
-/// Lambert (1/π), the lobe weighted by (1 − w), and by w. A BRDF is Σ weightᵢ · columnᵢ per
-/// channel.
-pub fn columns(grid: Grid, alpha: f64) -> [Vec<f64>; 3] {
+/// [`ggx_lobe`] of roughness α reduced to `grid` as [`Bivariate::reduce`] reduces a BRDF,
+/// one plane (`GRID_CELLS` long, 0 where a cell has no sample): D hangs on θh alone, so a
+/// cell's mean is D at its θh times the mean of G₂/(4 cos θi cos θo) over its samples.
+pub fn lobe_plane(grid: Grid, alpha: f64) -> Vec<f64> {
     let s = cell_samples(grid);
-    let lobe: Vec<f64> = (0..GRID_CELLS)
+    (0..GRID_CELLS)
         .into_par_iter()
         .map(|g| {
             let cell = &s.cosines[s.start[g]..s.start[g + 1]];
@@ -289,7 +289,15 @@ pub fn columns(grid: Grid, alpha: f64) -> [Vec<f64>; 3] {
                 / cell.len() as f64;
             ggx_d(s.cos_h[g], alpha) * mean_v
         })
-        .collect();
+        .collect()
+}
+
+/// The model's columns for roughness α, each a grey bivariate vector (the same in R, G and B):
+/// Lambert (1/π), the lobe weighted by (1 − w), and by w. A BRDF is Σ weightᵢ · columnᵢ per
+/// channel.
+pub fn columns(grid: Grid, alpha: f64) -> [Vec<f64>; 3] {
+    let s = cell_samples(grid);
+    let lobe = lobe_plane(grid, alpha);
     let grey = |f: &dyn Fn(usize) -> f64| -> Vec<f64> {
         let plane: Vec<f64> = (0..GRID_CELLS).map(f).collect();
         plane.iter().chain(&plane).chain(&plane).copied().collect()

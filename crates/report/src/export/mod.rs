@@ -297,9 +297,9 @@ pub fn write_exports(
             })
             .collect(),
         mtlx_note: if mtlx_relight_error.is_some() {
-            "the .mtlx is whichever of the glTF fit's readings in OpenPBR's inputs and OpenPBR's \
-             dielectric fitted to the estimate OpenPBR's BRDF renders closest to the estimate \
-             under the fit's maps; relight_error is the glTF material's, mtlx_relight_error the \
+            "the .mtlx is OpenPBR's own parameters fitted to the estimate, or the glTF fit's \
+             specular read as OpenPBR's metal, whichever OpenPBR's BRDF renders closer to the \
+             estimate under the fit's maps; relight_error is the glTF material's, mtlx_relight_error the \
              OpenPBR material's, each rendered with its own format's BRDF"
         } else {
             "the .mtlx is chosen as for an isotropic estimate, through the lobe made isotropic, \
@@ -331,55 +331,42 @@ fn render_with<'a>(
     (images, rest)
 }
 
-/// The `.mtlx` for the glTF fit `fitted`: of its readings in OpenPBR's inputs
-/// ([`OpenPbrMaterial::readings`]) and OpenPBR's dielectric fitted to `target`
-/// ([`openpbr::fit`]), the one whose render with OpenPBR's BRDF comes closest to `target`'s on
-/// `sphere` under `lights` (the mean relative RMSE over the maps), with its tables. Every
-/// candidate's parts and the target are rendered in one pass per map.
+/// The `.mtlx` for the glTF fit `fitted`: OpenPBR's own parameters fitted to `target`
+/// ([`openpbr::fit`]) or the fit's specular read as OpenPBR's metal
+/// ([`OpenPbrMaterial::specular_as_metal`]), whichever OpenPBR's BRDF renders closer to
+/// `target` on `sphere` under `lights` (the mean relative RMSE over the maps), with its tables.
+/// Both candidates' parts and the target are rendered in one pass per map.
 fn closest_openpbr(
     fitted: &fit::Fitted,
     sphere: &PixelGeometry,
     lights: &[LightSet],
     target: &Bivariate,
 ) -> (OpenPbrMaterial, OpenPbrTables) {
-    use rayon::prelude::*;
-    let readings = OpenPbrMaterial::readings(fitted);
-    let (tables, dielectric): (Vec<OpenPbrTables>, _) = rayon::join(
-        || {
-            readings
-                .par_iter()
-                .map(|m| OpenPbrBrdf::new(m).tables(target.grid))
-                .collect()
-        },
-        || openpbr::DielectricFit::new(fitted, target.grid),
+    let metal = OpenPbrMaterial::specular_as_metal(fitted);
+    let (metal_tables, own_fit) = rayon::join(
+        || OpenPbrBrdf::new(&metal).tables(target.grid),
+        || openpbr::OpenPbrFit::new(fitted, target.grid),
     );
     let mut brdfs = vec![target];
-    brdfs.extend(tables.iter().flat_map(OpenPbrTables::parts));
-    let first_fitted = brdfs.len();
-    brdfs.extend(dielectric.parts());
-    let mut errors = vec![0.0; readings.len()];
+    brdfs.extend(own_fit.parts());
+    let first_metal = brdfs.len();
+    brdfs.extend(metal_tables.parts());
+    let mut metal_error = 0.0;
     let (mut targets, mut fit_renders) = (vec![], vec![]);
     for l in lights {
         let mut images = render_bivariates(sphere, l, &brdfs);
-        fit_renders.push(images.split_off(first_fitted));
-        let mut next = 1;
-        for (e, t) in errors.iter_mut().zip(&tables) {
-            let parts = &images[next..next + t.parts().count()];
-            next += parts.len();
-            *e += t.combine(sphere, parts).relative_rmse(&images[0]);
-        }
-        targets.push(images.swap_remove(0));
+        let metal_parts = images.split_off(first_metal);
+        metal_error += metal_tables
+            .combine(sphere, &metal_parts)
+            .relative_rmse(&images[0]);
+        targets.push(images.remove(0));
+        fit_renders.push(images);
     }
-    let best = (0..readings.len())
-        .min_by(|&a, &b| errors[a].total_cmp(&errors[b]))
-        .expect("a reading");
-    let reading_error = errors[best] / lights.len() as f64;
-    match dielectric.solve(sphere, &fit_renders, &targets) {
-        Some((m, error)) if error < reading_error => (m, OpenPbrBrdf::new(&m).tables(target.grid)),
-        _ => {
-            let tables = tables.into_iter().nth(best).expect("the best's tables");
-            (readings[best], tables)
-        }
+    let (own, own_error) = own_fit.solve(sphere, &fit_renders, &targets);
+    if own_error <= metal_error / lights.len() as f64 {
+        (own, OpenPbrBrdf::new(&own).tables(target.grid))
+    } else {
+        (metal, metal_tables)
     }
 }
 

@@ -2,22 +2,16 @@
 //! own BRDF for the inputs brdfd writes ([`OpenPbrBrdf`]), which chooses the `.mtlx` and
 //! measures how it relights.
 //!
-//! The candidates are readings of the glTF fit in OpenPBR's inputs
-//! ([`OpenPbrMaterial::readings`]) and OpenPBR's dielectric fitted to the estimate
-//! ([`DielectricFit`], in [`fit`]); the one OpenPBR's BRDF renders closest to the estimate under
-//! the fit's maps is written, and measured under the maps the fit did not see:
-//! [`super::Export::mtlx_relight_error`]. A reading keeps each part's reflectivity: base colour
-//! and metalness; the dielectric's normal-incidence reflectance, glTF's specular weight times
-//! the IOR's, folded into `specular_ior` (OpenPBR's `specular_weight` would also dim the metal,
-//! which glTF's does not, so it stays 1); the dielectric's specular colour (the fit's
-//! per-channel F₀ over the largest), or white, which keeps the metal glTF's Schlick metal
-//! (OpenPBR reads `specular_color` as the metal's F82 tint too); the roughness (√α) and IOR the
-//! base needs for the coat to leave it the fit's (OpenPBR roughens a coated base and measures
-//! its IOR against the coat's); and the clear coat's weight, roughness and IOR (1.5, glTF's). A
-//! fit whose specular is a dim dielectric's may read closer as OpenPBR's metal. OpenPBR's BRDF
-//! still differs from glTF's (the dielectric's exact Fresnel rising to 1 at grazing,
-//! albedo-scaled layering of the specular over the diffuse and of the coat over the base, the
-//! compensation for multiple scattering), which is what the dielectric's own fit takes up.
+//! The `.mtlx` is OpenPBR's own parameters fitted to the estimate ([`OpenPbrFit`], in [`fit`]):
+//! its metalness and each channel's base and specular colours, at IORs around the glTF fit's,
+//! with the glTF fit's roughness and coat (the roughness and IOR the base needs for the coat to
+//! leave it the fit's: OpenPBR roughens a coated base and measures its IOR against the
+//! coat's), and the coat's weight, roughness and IOR (1.5, glTF's). Its `specular_weight` is
+//! 1, which leaves out a metal whose grazing reflectance stays below 1; so the glTF fit's
+//! specular read as such a metal ([`OpenPbrMaterial::specular_as_metal`]) is the other
+//! candidate, and the one OpenPBR's BRDF renders closer to the estimate under the fit's maps is
+//! written, and measured under the maps the fit did not see:
+//! [`super::Export::mtlx_relight_error`].
 //! `coat_darkening` is 0: glTF's coat dims the base by its Fresnel alone, not by light trapped
 //! inside the coat.
 //!
@@ -39,7 +33,7 @@ use brdfd_core::raster::Raster;
 use super::fit::{view_cosine, Fitted};
 
 pub mod fit;
-pub use fit::DielectricFit;
+pub use fit::OpenPbrFit;
 
 /// An OpenPBR Surface's base and specular inputs.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -65,52 +59,13 @@ const COAT_IOR: f64 = 1.5;
 const MAX_F0: f64 = 0.99;
 
 impl OpenPbrMaterial {
-    /// The readings of the fit in OpenPBR's inputs that [`super::write_exports`] chooses
-    /// from by how OpenPBR's BRDF renders them: part for part with `specular_color` as the
-    /// dielectric's tint; the same with it white, when there is a metal for the tint to dim
-    /// at grazing (OpenPBR's metal reads it as its F82 tint, so one input cannot be both);
-    /// and the specular alone as a metal ([`OpenPbrMaterial::specular_as_metal`]).
-    pub fn readings(f: &Fitted) -> Vec<OpenPbrMaterial> {
-        let tinted = OpenPbrMaterial::from_fit(f);
-        let mut readings = vec![tinted];
-        if f.metallic > 0.0 && tinted.specular_color != [1.0; 3] {
-            readings.push(OpenPbrMaterial {
-                specular_color: [1.0; 3],
-                ..tinted
-            });
-        }
-        readings.push(OpenPbrMaterial::specular_as_metal(f));
-        readings
-    }
-
-    /// The fit's parameters in OpenPBR's inputs, part for part: its base colour and
-    /// metalness, its dielectric's reflectance in the IOR and its tint in `specular_color`,
-    /// its coat.
-    pub fn from_fit(f: &Fitted) -> OpenPbrMaterial {
-        // glTF's specular weight scales the dielectric's reflectance alone: folded into the
-        // IOR, with OpenPBR's weight left at 1, which would scale the metal's too.
-        let f0 = (f.specular * f.f0_max()).clamp(0.0, MAX_F0);
-        let r = f0.sqrt();
-        OpenPbrMaterial {
-            base_color: f.base_color,
-            base_metalness: f.metallic,
-            specular_weight: 1.0,
-            specular_color: f.specular_color(),
-            specular_roughness: 0.0,
-            specular_ior: (1.0 + r) / (1.0 - r),
-            coat_weight: f.coat,
-            coat_roughness: f.coat_alpha.sqrt().clamp(0.0, 1.0),
-            specular_roughness_anisotropy: 0.0,
-        }
-        .with_base_roughness(f.alpha.sqrt())
-        .with_base_ior_under_coat()
-    }
-
     /// The fit's dielectric specular as OpenPBR's metal, its base colour the dielectric's F₀
     /// and `specular_weight` glTF's: glTF's weighted dielectric Fresnel q·(F₀ + (1 − F₀)·w)
     /// rises to q at grazing, as OpenPBR's weighted metal does, where OpenPBR's dielectric
     /// rises to 1 whatever its IOR. What a fit with no diffuse to speak of (a metal that glTF
     /// held as a dim dielectric) is closest to; its diffuse and metal parts are left out.
+    /// [`OpenPbrFit`] holds metals with `specular_weight` 1 alone, so this is the candidate
+    /// [`super::write_exports`] weighs it against (chrome's estimate is closer so).
     pub fn specular_as_metal(f: &Fitted) -> OpenPbrMaterial {
         OpenPbrMaterial {
             base_color: f.f0,
@@ -343,11 +298,28 @@ impl OpenPbrBrdf {
     /// through the lobes alone; what multiplies them depends on the view's cosine only
     /// ([`OpenPbrBrdf::factors`]).
     fn parts(&self, c: Cosines) -> Parts {
-        let m = &self.m;
+        let f = self.by_theta_d(c.d);
         let lobe = ggx_lobe(c.h, c.i, c.o, self.alpha);
-        let f_d = fresnel_dielectric(c.d, self.eta);
-        let w = (1.0 - c.d).clamp(0.0, 1.0).powi(5);
-        let g = c.d * (1.0 - c.d).clamp(0.0, 1.0).powi(6);
+        let coat = if self.m.coat_weight > 0.0 {
+            ggx_lobe(c.h, c.i, c.o, self.coat_alpha)
+        } else {
+            0.0
+        };
+        Parts {
+            specular: f.specular.map(|(a, b)| (a * lobe, b * lobe)),
+            diffuse: f.diffuse,
+            coat: (f.coat.0 * coat, f.coat.1 * coat),
+        }
+    }
+
+    /// The parts as functions of cos θd, each to be multiplied by its lobe: the base's for the
+    /// specular, the coat's for the coat (the diffuse's is 1). So a table of the parts is a
+    /// table of the lobes times functions of θd, which a cell's φd average leaves alone.
+    fn by_theta_d(&self, mu: f64) -> Parts {
+        let m = &self.m;
+        let f_d = fresnel_dielectric(mu, self.eta);
+        let w = (1.0 - mu).clamp(0.0, 1.0).powi(5);
+        let g = mu * (1.0 - mu).clamp(0.0, 1.0).powi(6);
         let mut p = Parts::default();
         for k in 0..3 {
             let schlick = m.base_color[k] + (1.0 - m.base_color[k]) * w;
@@ -357,15 +329,14 @@ impl OpenPbrBrdf {
             let (dielectric, metal) = (m.specular_color[k] * f_d, m.specular_weight * f82);
             let (d, mt) = (1.0 - m.base_metalness, m.base_metalness);
             p.specular[k] = (
-                d * dielectric * lobe + mt * metal * lobe,
-                d * dielectric * f_d * lobe + mt * metal * f82 * lobe,
+                d * dielectric + mt * metal,
+                d * dielectric * f_d + mt * metal * f82,
             );
             p.diffuse[k] = d * m.base_color[k] / std::f64::consts::PI;
         }
         if m.coat_weight > 0.0 {
-            let f_c = fresnel_dielectric(c.d, COAT_IOR);
-            let lobe = m.coat_weight * f_c * ggx_lobe(c.h, c.i, c.o, self.coat_alpha);
-            p.coat = (lobe, f_c * lobe);
+            let f_c = fresnel_dielectric(mu, COAT_IOR);
+            p.coat = (m.coat_weight * f_c, m.coat_weight * f_c * f_c);
         }
         p
     }
@@ -390,23 +361,93 @@ impl OpenPbrBrdf {
     /// The material as bivariate tables of its parts, for rendering as brdfd renders the
     /// estimate ([`OpenPbrTables::render_beside`]).
     pub fn tables(&self, grid: Grid) -> OpenPbrTables {
-        let tables = Bivariate::reduce_parts(grid, |th, td, pd| {
-            let c = Cosines::of_angles(th, td, pd)?;
-            let p = self.parts(c);
-            Some([
+        let lobes = Lobes::reduce(self.alpha, self.coat_alpha, grid);
+        let parts = |mu: f64| {
+            let p = self.by_theta_d(mu);
+            [
                 p.specular.map(|s| s.0),
                 p.specular.map(|s| s.1),
                 p.diffuse,
                 [p.coat.0; 3],
                 [p.coat.1; 3],
-            ])
-        });
+            ]
+        };
+        let [s, s2, diffuse, coat, coat2] = lobes.scaled(
+            parts,
+            [Lobe::Base, Lobe::Base, Lobe::One, Lobe::Coat, Lobe::Coat],
+        );
         // Without a coat its two parts are zero, and not rendered.
-        let kept = if self.m.coat_weight > 0.0 { 5 } else { 3 };
+        let mut tables = vec![s, s2, diffuse];
+        if self.m.coat_weight > 0.0 {
+            tables.extend([coat, coat2]);
+        }
         OpenPbrTables {
             brdf: self.clone(),
-            tables: tables.into_iter().take(kept).collect(),
+            tables,
         }
+    }
+}
+
+/// Which lobe a part multiplies: the base's, the coat's, or none (the diffuse).
+#[derive(Clone, Copy)]
+enum Lobe {
+    One,
+    Base,
+    Coat,
+}
+
+/// The lobes the tables of OpenPBR's parts are made of, each reduced to the grid once
+/// ([`brdfd_core::analytic::lobe_plane`]): every other factor of a part is a function of θd
+/// ([`OpenPbrBrdf::by_theta_d`]), constant over a cell's φd average, so a part's table is its
+/// lobe's times that function at the cell's θd.
+struct Lobes {
+    grid: Grid,
+    /// Whether a cell has a φd above both horizons.
+    valid: Vec<bool>,
+    base: Vec<f64>,
+    coat: Vec<f64>,
+}
+
+impl Lobes {
+    fn reduce(alpha: f64, coat_alpha: f64, grid: Grid) -> Lobes {
+        use brdfd_core::analytic::{lambert_column, lobe_plane};
+        use brdfd_core::bivariate::GRID_CELLS;
+        Lobes {
+            grid,
+            valid: lambert_column(grid)[..GRID_CELLS]
+                .iter()
+                .map(|v| *v > 0.0)
+                .collect(),
+            base: lobe_plane(grid, alpha),
+            coat: lobe_plane(grid, coat_alpha),
+        }
+    }
+
+    /// `N` tables, part n being `parts(cos θd)[n]` per channel times the lobe `lobes[n]`.
+    fn scaled<const N: usize>(
+        &self,
+        parts: impl Fn(f64) -> [[f64; 3]; N],
+        lobes: [Lobe; N],
+    ) -> [Bivariate; N] {
+        use brdfd_core::bivariate::{GRID_CELLS, N_THETA_D};
+        let by_theta_d: Vec<[[f64; 3]; N]> = (0..N_THETA_D)
+            .map(|jd| parts(brdfd_core::merl::theta_d_center(jd).cos()))
+            .collect();
+        std::array::from_fn(|n| {
+            let lobe = |g: usize| match lobes[n] {
+                Lobe::One => f64::from(u8::from(self.valid[g])),
+                Lobe::Base => self.base[g],
+                Lobe::Coat => self.coat[g],
+            };
+            let mut values = vec![0.0; 3 * GRID_CELLS];
+            for g in 0..GRID_CELLS {
+                let (l, f) = (lobe(g), by_theta_d[g % N_THETA_D][n]);
+                for c in 0..3 {
+                    values[c * GRID_CELLS + g] = l * f[c];
+                }
+            }
+            Bivariate::from_values(self.grid, values, self.valid.clone())
+        })
     }
 }
 
