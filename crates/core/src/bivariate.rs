@@ -7,8 +7,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::brdf::{add, angle_between, normalize, IsotropicBrdf, Vec3};
+use super::brdf::{add, normalize, IsotropicBrdf, Vec3};
 use super::merl::{self, MerlBrdf};
+use super::render::BinLut;
 
 pub const N_THETA_H: usize = 90;
 pub const N_THETA_D: usize = 90;
@@ -207,6 +208,18 @@ impl Bivariate {
     }
 }
 
+/// The θh and θd bin tables of `binning`, made once per process.
+fn bin_luts(binning: ThetaHBinning) -> &'static (BinLut, BinLut) {
+    use std::sync::OnceLock;
+    static SQRT: OnceLock<(BinLut, BinLut)> = OnceLock::new();
+    static UNIFORM: OnceLock<(BinLut, BinLut)> = OnceLock::new();
+    let cell = match binning {
+        ThetaHBinning::Sqrt => &SQRT,
+        ThetaHBinning::Uniform => &UNIFORM,
+    };
+    cell.get_or_init(|| (BinLut::theta_h(binning), BinLut::theta_d()))
+}
+
 impl IsotropicBrdf for Bivariate {
     fn eval_angles(&self, theta_h: f64, theta_d: f64, _phi_d: f64) -> [f64; 3] {
         self.cell(
@@ -215,13 +228,72 @@ impl IsotropicBrdf for Bivariate {
         )
     }
 
-    /// θh and θd only, straight from the half vector: the table does not vary with φd, so
-    /// the frame that gives it is not worked out (the bounce's grids evaluate millions).
+    /// θh's and θd's bins only, straight from the half vector: the table does not vary with
+    /// φd, so the frame that gives it is not worked out, and the bins are read from the
+    /// squared chords |h − n|² and |ωi − h|² by the renderers' tables ([`BinLut`]) instead of
+    /// from the angles (two arctangents a call; the bounce's grids evaluate millions).
     fn eval_dirs(&self, wi: Vec3, wo: Vec3) -> [f64; 3] {
         if wi[2] <= 0.0 || wo[2] <= 0.0 {
             return [0.0; 3];
         }
         let h = normalize(add(wi, wo));
-        self.eval_angles(angle_between(h, [0.0, 0.0, 1.0]), angle_between(wi, h), 0.0)
+        // Differences, not 2 − 2 cos θ: near the peak the cosine's rounding would swamp
+        // the first bins.
+        let chord2 = |a: Vec3, b: Vec3| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>() as f32;
+        let luts = bin_luts(self.grid.theta_h_binning);
+        self.cell(
+            luts.0.bin(chord2(h, [0.0, 0.0, 1.0])),
+            luts.1.bin(chord2(wi, h)),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::brdf::{dot, fibonacci_sphere};
+
+    #[test]
+    fn directions_read_the_cells_their_angles_do() {
+        // A table holding each cell's own index, read through `eval_dirs` (the bins of the
+        // squared chords, by the renderers' tables) and through `eval_angles` at the pair's
+        // angles, for pairs spread over the hemisphere: the same cell, but within a
+        // millionth of a radian of a bin's edge, where an f32 chord and an f64 angle may round
+        // apart.
+        let upper: Vec<Vec3> = fibonacci_sphere(400)
+            .into_iter()
+            .filter(|d| d[2] > 0.0)
+            .collect();
+        for binning in [ThetaHBinning::Sqrt, ThetaHBinning::Uniform] {
+            let grid = Grid {
+                theta_h_binning: binning,
+                phi_reduction: PhiReduction::ValidMean,
+            };
+            let values = (0..VALUES).map(|i| (i % GRID_CELLS) as f64).collect();
+            let table = Bivariate::from_values(grid, values, vec![true; GRID_CELLS]);
+            let near_edge = |theta: f64, edges: &dyn Fn(usize) -> f64| {
+                (0..N_THETA_H).any(|b| (theta - edges(b)).abs() < 1e-6)
+            };
+            let mut checked = 0;
+            for wi in &upper {
+                for wo in &upper {
+                    let h = normalize(add(*wi, *wo));
+                    let theta_h = h[2].clamp(-1.0, 1.0).acos();
+                    let theta_d = dot(*wi, h).clamp(-1.0, 1.0).acos();
+                    if near_edge(theta_h, &|b| binning.lower_edge(b))
+                        || near_edge(theta_d, &theta_d_lower_edge)
+                    {
+                        continue;
+                    }
+                    assert_eq!(
+                        table.eval_dirs(*wi, *wo),
+                        table.eval_angles(theta_h, theta_d, 0.0),
+                        "{binning:?}: θh {theta_h}, θd {theta_d}"
+                    );
+                    checked += 1;
+                }
+            }
+            assert!(checked > 30_000, "{checked}");
+        }
     }
 }
