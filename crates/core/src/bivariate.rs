@@ -116,8 +116,7 @@ impl Bivariate {
 
     /// Reduces `N` BRDFs to the grid in one pass, `eval` giving each one's value at
     /// (θh, θd, φd), or `None` where none is measured: the parts of one material, which share
-    /// most of their work at each sample (a tenth of the cost of `N` reductions, for
-    /// OpenPBR's five parts).
+    /// most of their work at each sample.
     pub fn reduce_parts<const N: usize>(
         grid: Grid,
         eval: impl Fn(f64, f64, f64) -> Option<[[f64; 3]; N]> + Sync,
