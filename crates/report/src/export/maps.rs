@@ -5,7 +5,7 @@
 //! interior, sunrise, city; `LICENSE.blender-studiolights` in the reference data), averaged
 //! down to 256 × 128 and stored as Radiance RGBE by
 //! `regenerate_the_embedded_maps` below. Averaging keeps each region's power, which is what a
-//! sphere's render under 1,024–4,096 compressed lights reads.
+//! sphere's render under 512–4,096 compressed lights reads.
 
 use brdfd_core::envmap::EnvMap;
 use brdfd_core::{CoreError, Result};
