@@ -101,10 +101,9 @@ impl Fitted {
         self.f0.iter().copied().fold(0.0, f64::max)
     }
 
-    /// The IOR whose normal-incidence reflectance is the largest F₀: ((η − 1)/(η + 1))² = F.
+    /// The IOR whose normal-incidence reflectance is the largest F₀.
     pub fn ior(&self) -> f64 {
-        let r = self.f0_max().clamp(0.0, 0.99).sqrt();
-        (1.0 + r) / (1.0 - r)
+        ior_of_f0(self.f0_max().clamp(0.0, 0.99))
     }
 
     /// The specular colour, each channel's F₀ relative to the IOR's (the largest is 1).
@@ -112,6 +111,12 @@ impl Fitted {
         let top = self.f0_max();
         self.f0.map(|f| if top > 0.0 { f / top } else { 1.0 })
     }
+}
+
+/// The IOR η whose normal-incidence reflectance ((η − 1)/(η + 1))² is `f0` (below 1).
+pub fn ior_of_f0(f0: f64) -> f64 {
+    let r = f0.sqrt();
+    (1.0 + r) / (1.0 - r)
 }
 
 /// The terms in the Gram matrix's order: the base's four (L, Lw, S0, S1), the same four seen

@@ -35,8 +35,8 @@ use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::geometry::PixelGeometry;
 use brdfd_core::raster::Raster;
 
-use super::{fresnel_dielectric, Lobe, Lobes, OpenPbrBrdf, OpenPbrMaterial, MAX_F0, MU_BAR};
-use crate::export::fit::{view_cosine, Fitted};
+use super::{f82_b, fresnel_dielectric, Lobe, Lobes, OpenPbrBrdf, OpenPbrMaterial, MAX_F0};
+use crate::export::fit::{ior_of_f0, view_cosine, Fitted};
 
 /// The normal-incidence reflectances tried, as multiples of the glTF fit's (at full weight):
 /// OpenPBR's exact Fresnel and its albedo-scaled diffuse move the best IOR a little from
@@ -83,14 +83,13 @@ impl OpenPbrFit {
         let grey: Vec<OpenPbrMaterial> = F0_STEPS
             .iter()
             .map(|s| {
-                let r = (s * start).clamp(MIN_F0, MAX_F0).sqrt();
                 OpenPbrMaterial {
                     base_color: [1.0; 3],
                     base_metalness: 0.0,
                     specular_weight: 1.0,
                     specular_color: [1.0; 3],
                     specular_roughness: 0.0,
-                    specular_ior: (1.0 + r) / (1.0 - r),
+                    specular_ior: ior_of_f0((s * start).clamp(MIN_F0, MAX_F0)),
                     coat_weight: f.coat,
                     coat_roughness: f.coat_alpha.sqrt().clamp(0.0, 1.0),
                     specular_roughness_anisotropy: 0.0,
@@ -260,10 +259,7 @@ impl Images {
 /// The images' weights for metalness `m`, base colour `c` and specular colour `t` (one
 /// channel): F82 = c·(1 − w) + w − β·g, and its square through the products.
 fn weights(m: f64, c: f64, t: f64) -> [f64; TERMS] {
-    let w_bar = (1.0 - MU_BAR).powi(5);
-    let g_bar = MU_BAR * (1.0 - MU_BAR).powi(6);
-    let beta = (1.0 - t) * (c * (1.0 - w_bar) + w_bar) / g_bar;
-    let x = [c, 1.0, -beta];
+    let x = [c, 1.0, -f82_b(c, t)];
     let mut e = [0.0; TERMS];
     e[0] = (1.0 - m) * t;
     e[1] = (1.0 - m) * c;
@@ -357,13 +353,6 @@ fn search(grams: &[Gram; 3]) -> (f64, [(f64, f64); 3]) {
 /// One channel's (c, T) of least misfit at metalness `m`, with the misfit, among those whose
 /// F82 stays above 0 ([`least_tint`]) when there is a metal.
 fn colours(gram: &Gram, m: f64) -> ((f64, f64), f64) {
-    let cost = |c: f64, t: f64| {
-        if m > 0.0 && t < least_tint(c) {
-            f64::INFINITY
-        } else {
-            gram.misfit(&weights(m, c, t))
-        }
-    };
     let coarse: Vec<f64> = (0..=COLOUR_COARSE_STEPS)
         .map(|i| i as f64 / COLOUR_COARSE_STEPS as f64)
         .collect();
@@ -372,8 +361,9 @@ fn colours(gram: &Gram, m: f64) -> ((f64, f64), f64) {
     let mut step = 1.0 / COLOUR_COARSE_STEPS as f64;
     for _ in 0..LEVELS {
         for &c in &cs {
-            for &t in &ts {
-                let e = cost(c, t);
+            let least = if m > 0.0 { least_tint(c) } else { 0.0 };
+            for &t in ts.iter().filter(|t| **t >= least) {
+                let e = gram.misfit(&weights(m, c, t));
                 if e < best.1 {
                     best = ((c, t), e);
                 }
@@ -387,7 +377,7 @@ fn colours(gram: &Gram, m: f64) -> ((f64, f64), f64) {
 
 /// The least specular colour T for which F82 = c·(1 − w) + w − β·g stays above 0 at every θd
 /// centre of the grid with base colour `c`: β ≤ (c·(1 − w) + w)/g at each, β being
-/// (1 − T)·(c·(1 − w̄) + w̄)/ḡ.
+/// (1 − T) times its value at T = 0.
 fn least_tint(c: f64) -> f64 {
     use std::sync::OnceLock;
     // (1 − w)/g and w/g at each θd centre.
@@ -401,13 +391,11 @@ fn least_tint(c: f64) -> f64 {
             })
             .collect()
     });
-    let w_bar = (1.0 - MU_BAR).powi(5);
-    let g_bar = MU_BAR * (1.0 - MU_BAR).powi(6);
     let most = ratios
         .iter()
         .map(|(a, b)| c * a + b)
         .fold(f64::INFINITY, f64::min);
-    (1.0 - most * g_bar / (c * (1.0 - w_bar) + w_bar)).max(0.0)
+    (1.0 - most / f82_b(c, 0.0)).max(0.0)
 }
 
 /// The points `step` apart within one coarser step (`REFINE` steps) either side of `x`, on
@@ -422,6 +410,7 @@ fn around(x: f64, step: f64) -> Vec<f64> {
 
 #[cfg(test)]
 mod tests {
+    use super::super::MU_BAR;
     use super::*;
     use brdfd_core::geometry::{Camera, Shape};
     use brdfd_core::render::render_bivariates;

@@ -240,6 +240,14 @@ fn effective_roughness(r: f64, rc: f64, c: f64) -> f64 {
 /// reflectivity as a share of Schlick's.
 const MU_BAR: f64 = 1.0 / 7.0;
 
+/// The F82-tint model's b for base colour `c` and tint `t` (one channel): F82 = F_s(μ) −
+/// b·μ(1 − μ)⁶ is t·F_s at μ̄, so b = F_s(μ̄)·(1 − t)/(μ̄(1 − μ̄)⁶). The fit
+/// ([`fit::OpenPbrFit`]) writes F82 with the same b.
+fn f82_b(c: f64, t: f64) -> f64 {
+    let schlick = c + (1.0 - c) * (1.0 - MU_BAR).powi(5);
+    schlick * (1.0 - t) / (MU_BAR * (1.0 - MU_BAR).powi(6))
+}
+
 impl OpenPbrBrdf {
     pub fn new(m: &OpenPbrMaterial) -> OpenPbrBrdf {
         let r_eff = effective_roughness(m.specular_roughness, m.coat_roughness, m.coat_weight);
@@ -258,12 +266,7 @@ impl OpenPbrBrdf {
         let f_s = ((eta_s - 1.0) / (eta_s + 1.0)).powi(2);
         let eps = (eta_s - 1.0).signum() * (m.specular_weight * f_s).clamp(0.0, 0.99999).sqrt();
         let eta = (1.0 + eps) / (1.0 - eps);
-        let edge = MU_BAR * (1.0 - MU_BAR).powi(6);
-        let f82_b = std::array::from_fn(|k| {
-            let c = m.base_color[k];
-            let schlick = c + (1.0 - c) * (1.0 - MU_BAR).powi(5);
-            schlick * (1.0 - m.specular_color[k]) / edge
-        });
+        let f82_b = std::array::from_fn(|k| f82_b(m.base_color[k], m.specular_color[k]));
         let lobe_one = Albedo::of(alpha, |_| 1.0, None);
         let dielectric = Albedo::of(alpha, |mu| fresnel_dielectric(mu, eta), Some(&lobe_one));
         let coat_one = Albedo::of(coat_alpha, |_| 1.0, None);
