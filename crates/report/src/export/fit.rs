@@ -27,8 +27,8 @@
 //! render is linear in each channel's c_k and F₀_k, which are solved exactly on their box;
 //! (m, q, largest F₀) are searched on a grid and refined, all through the 10 × 10 Gram matrix
 //! of the nine images and the target (no image is formed in the search). The roughnesses are
-//! searched on a log grid (every pair for a coat, its weight refined from the uncoated best),
-//! then on finer grids with new renders.
+//! searched on a log grid (every pair for a coat, its weight refined from the uncoated best)
+//! under some of the maps ([`Coarse`]), then on finer grids with new renders under all.
 //!
 //! Not here: the formats' writers ([`super::gltf`], [`super::openpbr`]), and measuring the
 //! result under maps the fit did not see ([`super::write_exports`]).
@@ -402,7 +402,7 @@ struct Lobe {
 /// image is rendered for the coat; the Gram matrix weighs the inner products by the Fresnel.
 pub struct Scenes<'a> {
     pixels: &'a [GeomPixel],
-    maps: &'a [LightSet],
+    maps: Vec<&'a LightSet>,
     grid: Grid,
     /// L, Lw and the target.
     fixed: [Vec<f64>; 3],
@@ -456,7 +456,7 @@ impl<'a> Scenes<'a> {
             std::array::from_fn(|i| std::array::from_fn(|j| dots(&fixed[i], &fixed[j], &fresnel)));
         Ok(Scenes {
             pixels,
-            maps,
+            maps: maps.iter().collect(),
             grid,
             fixed,
             fixed_dots,
@@ -465,11 +465,35 @@ impl<'a> Scenes<'a> {
         })
     }
 
+    /// The same scenes under `maps` alone (indices into this one's maps, ascending): their
+    /// rows of the images, already rendered, and the inner products over them.
+    fn only(&self, maps: &[usize]) -> Scenes<'a> {
+        let rows = self.pixels.len() * 3;
+        let fixed: [Vec<f64>; 3] = std::array::from_fn(|j| {
+            maps.iter()
+                .flat_map(|m| &self.fixed[j][m * rows..(m + 1) * rows])
+                .copied()
+                .collect()
+        });
+        let fixed_dots = std::array::from_fn(|i| {
+            std::array::from_fn(|j| dots(&fixed[i], &fixed[j], &self.fresnel))
+        });
+        Scenes {
+            pixels: self.pixels,
+            maps: maps.iter().map(|m| self.maps[*m]).collect(),
+            grid: self.grid,
+            fixed,
+            fixed_dots,
+            fresnel: self.fresnel.clone(),
+            scale: maps.iter().map(|m| self.scale[*m]).collect(),
+        }
+    }
+
     /// The lobe images at each of `alphas`.
     fn lobes(&self, alphas: &[f64]) -> Vec<Lobe> {
         self.lobes_from(
             alphas,
-            &render_lobes(self.pixels, self.maps, self.grid, alphas),
+            &render_lobes(self.pixels, &self.maps, self.grid, alphas),
         )
     }
 
@@ -558,14 +582,17 @@ impl<'a> Scenes<'a> {
     }
 
     /// Fits the shared model to the target: every coarse roughness without a coat, and every
-    /// pair of them with one; then finer grids about the best's roughnesses.
-    pub fn fit(&self, coarse: Option<&Coarse>) -> Fitted {
+    /// pair of them with one, under the coarse search's maps ([`Coarse`]); then finer grids
+    /// about the best's roughnesses under every map.
+    pub fn fit(&self, coarse: &Coarse) -> Fitted {
+        assert!(
+            coarse.is_for(self),
+            "the coarse grid is rendered on these scenes' sphere, maps and grid"
+        );
         let alphas = coarse_alphas();
-        let lobes = match coarse.filter(|c| c.is_for(self)) {
-            Some(c) => self.lobes_from(&alphas, &c.images),
-            None => self.lobes(&alphas),
-        };
-        let plain: Vec<Candidate> = lobes.par_iter().map(|l| self.plain(l)).collect();
+        let searched = self.only(&coarse.maps);
+        let lobes = searched.lobes_from(&alphas, &coarse.images);
+        let plain: Vec<Candidate> = lobes.par_iter().map(|l| searched.plain(l)).collect();
         let pairs: Vec<(usize, usize)> = (0..COARSE_ALPHAS)
             .flat_map(|b| (0..COARSE_ALPHAS).map(move |c| (b, c)))
             .collect();
@@ -576,7 +603,7 @@ impl<'a> Scenes<'a> {
                     k: COAT_START,
                     ..plain[b].shape
                 };
-                self.coated(&lobes[b], &lobes[c], start, COARSE_LAST_STEP)
+                searched.coated(&lobes[b], &lobes[c], start, COARSE_LAST_STEP)
             })
             .collect();
         let best = |c: &[Candidate]| {
@@ -591,9 +618,9 @@ impl<'a> Scenes<'a> {
                 alphas[(i + 1).min(COARSE_ALPHAS - 1)],
             )
         };
-        let plain = finer(
+        let plain_found = finer(
             bracket(best_plain),
-            plain[best_plain],
+            alphas[best_plain],
             |c| c.alpha,
             |alphas| {
                 self.lobes(alphas)
@@ -602,26 +629,26 @@ impl<'a> Scenes<'a> {
                     .collect()
             },
         );
-        let found = if coated[best_coated].misfit < plain.misfit * (1.0 - COAT_GAIN) {
+        let found = if coated[best_coated].misfit < plain[best_plain].misfit * (1.0 - COAT_GAIN) {
             let (b, c) = pairs[best_coated];
-            let start = coated[best_coated];
-            let coat = &lobes[c];
+            let start = coated[best_coated].shape;
+            let coat = self.lobes(&[alphas[c]]).remove(0);
             let found = finer(
                 bracket(b),
-                start,
+                alphas[b],
                 |c| c.alpha,
                 |alphas| {
                     let lobes = self.lobes(alphas);
                     lobes
                         .par_iter()
-                        .map(|l| self.coated(l, coat, start.shape, REFINE_LAST_STEP))
+                        .map(|l| self.coated(l, &coat, start, REFINE_LAST_STEP))
                         .collect()
                 },
             );
             let base = self.lobes(&[found.alpha]).remove(0);
             let found = finer(
                 bracket(c),
-                found,
+                found.coat_alpha,
                 |c| c.coat_alpha,
                 |alphas| {
                     let lobes = self.lobes(alphas);
@@ -632,13 +659,13 @@ impl<'a> Scenes<'a> {
                 },
             );
             // The finer grids may have found a coat that no longer pays for itself.
-            if found.misfit < plain.misfit * (1.0 - COAT_GAIN) {
+            if found.misfit < plain_found.misfit * (1.0 - COAT_GAIN) {
                 found
             } else {
-                plain
+                plain_found
             }
         } else {
-            plain
+            plain_found
         };
         Fitted {
             base_color: found.colour,
@@ -665,7 +692,7 @@ fn coarse_alphas() -> Vec<f64> {
 /// turn: renders of the formats' own lobe alone, the same whatever the estimate.
 fn render_lobes(
     pixels: &[GeomPixel],
-    maps: &[LightSet],
+    maps: &[&LightSet],
     grid: Grid,
     alphas: &[f64],
 ) -> Vec<[Vec<f64>; 2]> {
@@ -694,61 +721,79 @@ fn render_lobes(
     images
 }
 
-/// The coarse grid's lobe images for a fit's sphere, maps and grid: the fit's largest
-/// render, and one that needs no estimate. A capture renders it while the camera shoots.
+/// The coarse grid's lobe images for a fit's sphere and grid, under some of its maps: the
+/// fit's largest render, and one that needs no estimate. A capture renders it while the camera
+/// shoots. The coarse grid only brackets the roughnesses, which each map's first turn does
+/// as well as all three (the finer grids then see every map): rendered under all, it took
+/// as much of the cores as the capture's estimate.
 pub struct Coarse {
     pixels: usize,
-    maps: usize,
+    /// Which of the fit's maps it is rendered under, ascending, and how many the fit has.
+    maps: Vec<usize>,
+    of: usize,
     grid: Grid,
     images: Vec<[Vec<f64>; 2]>,
 }
 
 impl Coarse {
-    pub fn render(pixels: &[GeomPixel], maps: &[LightSet], grid: Grid) -> Coarse {
+    /// The coarse grid on `pixels` under those of `maps` that `searched` names.
+    pub fn render(
+        pixels: &[GeomPixel],
+        maps: &[LightSet],
+        searched: Vec<usize>,
+        grid: Grid,
+    ) -> Coarse {
+        let lit: Vec<&LightSet> = searched.iter().map(|m| &maps[*m]).collect();
         Coarse {
             pixels: pixels.len(),
-            maps: maps.len(),
+            of: maps.len(),
             grid,
-            images: render_lobes(pixels, maps, grid, &coarse_alphas()),
+            images: render_lobes(pixels, &lit, grid, &coarse_alphas()),
+            maps: searched,
         }
     }
 
-    /// Whether these are the renders `scenes` would make: the same grid and as many pixels
-    /// and maps (the caller keeps the sphere and the maps themselves the same).
+    /// Whether these are renders of `scenes`: the same grid and as many pixels and maps (the
+    /// caller keeps the sphere and the maps themselves the same).
     fn is_for(&self, scenes: &Scenes) -> bool {
         self.grid == scenes.grid
             && self.pixels == scenes.pixels.len()
-            && self.maps == scenes.maps.len()
+            && self.of == scenes.maps.len()
     }
 }
 
-/// The best of `start` and of finer grids of one roughness within `bracket`: each grid's
-/// points, evenly spaced in log α and rendered in one pass by `at`, then a grid between the
-/// best point's neighbours. Two grids of [`FINER_POINTS`] place α within 1.3% of the best.
-/// `of` reads the roughness searched from a candidate.
+/// The best of finer grids of one roughness within `bracket`: each grid's points, evenly
+/// spaced in log α and rendered in one pass by `at`, then a grid between the best point's
+/// neighbours. The first grid holds the coarse grid's best, `centre`, too: the coarse
+/// search saw fewer maps, so its candidate is measured again beside the others. Two grids
+/// of [`FINER_POINTS`] place α within 1.3% of the best. `of` reads the roughness searched
+/// from a candidate.
 fn finer(
     bracket: (f64, f64),
-    start: Candidate,
+    centre: f64,
     of: fn(&Candidate) -> f64,
     at: impl Fn(&[f64]) -> Vec<Candidate>,
 ) -> Candidate {
     let bounds = (bracket.0.ln(), bracket.1.ln());
     let (mut lo, mut hi) = bounds;
-    let mut found = start;
-    for _ in 0..FINER_GRIDS {
+    let mut found: Option<Candidate> = None;
+    for grid in 0..FINER_GRIDS {
         let step = (hi - lo) / (FINER_POINTS + 1) as f64;
-        let alphas: Vec<f64> = (1..=FINER_POINTS)
+        let mut alphas: Vec<f64> = (1..=FINER_POINTS)
             .map(|i| (lo + step * i as f64).exp())
             .collect();
+        if grid == 0 {
+            alphas.push(centre);
+        }
         for c in at(&alphas) {
-            if c.misfit < found.misfit {
-                found = c;
+            if found.is_none_or(|f| c.misfit < f.misfit) {
+                found = Some(c);
             }
         }
-        let centre = of(&found).ln();
-        (lo, hi) = ((centre - step).max(bounds.0), (centre + step).min(bounds.1));
+        let best = of(&found.expect("a grid has points")).ln();
+        (lo, hi) = ((best - step).max(bounds.0), (best + step).min(bounds.1));
     }
-    found
+    found.expect("a grid has points")
 }
 
 /// The coat's Fresnel at a pixel: at its N·V.

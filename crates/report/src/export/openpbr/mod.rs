@@ -231,7 +231,7 @@ pub struct OpenPbrBrdf {
 
 /// The base's roughness under a coat of weight `c` and roughness `rc` (the reference graph's
 /// `effective_specular_roughness`): light through a rough coat sees a rougher base.
-fn effective_roughness(r: f64, rc: f64, c: f64) -> f64 {
+pub(super) fn effective_roughness(r: f64, rc: f64, c: f64) -> f64 {
     let coated = (2.0 * rc.powi(4) + r.powi(4)).min(1.0).powf(0.25);
     (1.0 - c) * r + c * coated
 }
