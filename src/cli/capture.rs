@@ -260,8 +260,7 @@ fn in_process(
     };
     if let Err(e) = flow::execute(session, settings, &cx) {
         // Stopped by Ctrl-C, not by a failure of its own (which is reported as it is).
-        let cancelled = brdfd_rig::error::chain(&e).any(|c| c.to_string() == "cancelled");
-        if cancel.is_cancelled() && cancelled {
+        if cancel.is_cancelled() && brdfd_rig::error::is_cancellation(&e) {
             let id = &session.manifest().id;
             bail!("session {id} interrupted; what was captured is kept: `brdfd session resume {id}` continues it");
         }

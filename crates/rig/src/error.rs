@@ -314,6 +314,19 @@ pub(crate) fn failure_code(e: &(dyn std::error::Error + 'static)) -> FailureCode
         .unwrap_or(FailureCode::Failed)
 }
 
+/// Whether `e` is a cancellation, by itself or through a cause: the capture's, the device's
+/// or the core's stop (each says "cancelled", which another error's words may say too).
+pub fn is_cancellation(e: &(dyn std::error::Error + 'static)) -> bool {
+    chain(e).any(|c| {
+        matches!(c.downcast_ref::<RigError>(), Some(RigError::Cancelled))
+            || matches!(
+                c.downcast_ref::<DeviceError>(),
+                Some(DeviceError::Cancelled)
+            )
+            || matches!(c.downcast_ref::<CoreError>(), Some(CoreError::Stopped))
+    })
+}
+
 /// `e`, then each of its causes, each as its own type: a step's cause is boxed
 /// (`Box<RigError>`), and a box's `source` is its content's, which would leave the content
 /// itself out of a plain walk of `source`; a transparent variant of [`RigError`] (a lower
@@ -624,6 +637,30 @@ mod tests {
         };
         let core = Err::<(), _>(core).step("results").unwrap_err();
         assert_eq!(core.code(), FailureCode::DiskFull);
+    }
+
+    /// A cancellation is told by its type wherever it sits under the steps, not by its
+    /// words: an error that only says "cancelled" is not one.
+    #[test]
+    fn a_cancellation_is_known_by_its_type_under_the_steps() {
+        let under_steps = |e: RigError| {
+            Err::<(), _>(e)
+                .step("view 2: object bracket")
+                .step("view 2")
+                .unwrap_err()
+        };
+        assert!(is_cancellation(&under_steps(RigError::Cancelled)));
+        assert!(is_cancellation(&under_steps(RigError::Core(
+            CoreError::Stopped
+        ))));
+        let device = Err::<(), _>(DeviceError::Cancelled)
+            .step("downloading the bracket")
+            .unwrap_err();
+        assert!(is_cancellation(&under_steps(device)));
+        assert!(!is_cancellation(&under_steps(RigError::invalid(
+            "cancelled"
+        ))));
+        assert!(!is_cancellation(&RigError::invalid("no pixels")));
     }
     use anyhow::Context as _;
     use std::time::Duration;
