@@ -324,6 +324,10 @@ pub fn is_cancellation(e: &(dyn std::error::Error + 'static)) -> bool {
                 Some(DeviceError::Cancelled)
             )
             || matches!(c.downcast_ref::<CoreError>(), Some(CoreError::Stopped))
+            || matches!(
+                c.downcast_ref::<RadiometryError>(),
+                Some(RadiometryError::Core(CoreError::Stopped))
+            )
     })
 }
 
@@ -652,6 +656,9 @@ mod tests {
         assert!(is_cancellation(&under_steps(RigError::Cancelled)));
         assert!(is_cancellation(&under_steps(RigError::Core(
             CoreError::Stopped
+        ))));
+        assert!(is_cancellation(&under_steps(RigError::Radiometry(
+            RadiometryError::Core(CoreError::Stopped)
         ))));
         let device = Err::<(), _>(DeviceError::Cancelled)
             .step("downloading the bracket")
