@@ -179,9 +179,9 @@ fn fit_maps(
 }
 
 /// What the exports' fit and check need before there is an estimate: the maps they light the
-/// sphere with, and the fit's coarse grid of lobes rendered under some of them ([`fit_maps`]). A capture prepares it
-/// while its camera shoots ([`Prepared::new`] on another thread), which takes it out of the
-/// wait for the results.
+/// sphere with, and the fit's coarse grid of lobes rendered under some of them (each map at
+/// its first turn, and the capture's). A capture prepares it while its camera shoots
+/// ([`Prepared::new`] on another thread), which takes it out of the wait for the results.
 pub struct Prepared {
     /// The capture's map and its turn (radians) it was made for, if any.
     capture: Option<(EnvMap, f64)>,
