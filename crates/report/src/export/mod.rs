@@ -701,37 +701,52 @@ mod figures {
             .collect()
     }
 
-    /// `target` fitted as a capture fits it, under `references` at the fit's turns and Grace
-    /// Cathedral (the capture's map) once: the glTF material's tables and the `.mtlx`'s.
-    fn fitted(
-        target: &Bivariate,
-        references: &[(&str, EnvMap)],
-        grace: &EnvMap,
-    ) -> (fit::Fitted, gltf::GltfTables, OpenPbrTables) {
-        let (_, fit_lights, searched) = fit_maps(references, Some((grace, 0.0)));
-        let fit_sphere = sphere(FIT_SIZE).unwrap();
-        let coarse =
-            fit::Coarse::render(&fit_sphere.pixels, &fit_lights, searched, Grid::default());
-        let fitted = fit::Scenes::new(&fit_sphere.pixels, &fit_lights, target)
-            .unwrap()
-            .fit(&coarse);
-        let exported = GltfMaterial::from_fit(&fitted).tables(Grid::default());
-        let (_, mtlx) = closest_openpbr(&fitted, &fit_sphere, &fit_lights, target);
-        (fitted, exported, mtlx)
+    /// What a capture's fit lights: `references` at the fit's turns and Grace Cathedral (the
+    /// capture's map) once, on the fit's sphere, with the coarse grid rendered under them.
+    struct FitUnder {
+        lights: Vec<LightSet>,
+        sphere: PixelGeometry,
+        coarse: fit::Coarse,
     }
 
-    /// The relight errors of the glTF material and the `.mtlx` against `target` under `map`
-    /// turned as the check turns it.
+    impl FitUnder {
+        fn new(references: &[(&str, EnvMap)], grace: &EnvMap) -> FitUnder {
+            let (_, lights, searched) = fit_maps(references, Some((grace, 0.0)));
+            let sphere = sphere(FIT_SIZE).unwrap();
+            let coarse = fit::Coarse::render(&sphere.pixels, &lights, searched, Grid::default());
+            FitUnder {
+                lights,
+                sphere,
+                coarse,
+            }
+        }
+
+        /// `target` fitted as a capture fits it: the glTF material's tables and the `.mtlx`'s.
+        fn fitted(&self, target: &Bivariate) -> (fit::Fitted, gltf::GltfTables, OpenPbrTables) {
+            let fitted = fit::Scenes::new(&self.sphere.pixels, &self.lights, target)
+                .unwrap()
+                .fit(&self.coarse);
+            let exported = GltfMaterial::from_fit(&fitted).tables(Grid::default());
+            let (_, mtlx) = closest_openpbr(&fitted, &self.sphere, &self.lights, target);
+            (fitted, exported, mtlx)
+        }
+    }
+
+    /// The check's lights: `map` turned as the check turns it.
+    fn check_lights(map: &EnvMap) -> LightSet {
+        map.compressed(CHECK_LIGHTS, CHECK_YAW_DEG.to_radians())
+    }
+
+    /// The relight errors of the glTF material and the `.mtlx` against `target` on
+    /// `check_sphere` under `lights`.
     fn checked(
         target: &Bivariate,
-        gltf: &gltf::GltfTables,
-        mtlx: &OpenPbrTables,
-        map: &EnvMap,
+        (gltf, mtlx): (&gltf::GltfTables, &OpenPbrTables),
+        check_sphere: &PixelGeometry,
+        lights: &LightSet,
     ) -> (f64, f64) {
-        let check_sphere = sphere(CHECK_SIZE).unwrap();
-        let lights = map.compressed(CHECK_LIGHTS, CHECK_YAW_DEG.to_radians());
-        let (image, reference) = gltf.render_beside(&check_sphere, &lights, &[target]);
-        let (open, _) = mtlx.render_beside(&check_sphere, &lights, &[]);
+        let (image, reference) = gltf.render_beside(check_sphere, lights, &[target]);
+        let (open, _) = mtlx.render_beside(check_sphere, lights, &[]);
         (
             image.relative_rmse(&reference[0]),
             open.relative_rmse(&reference[0]),
@@ -757,15 +772,18 @@ mod figures {
         let maps = maps();
         let references: Vec<(&str, EnvMap)> =
             NAMES[1..].iter().copied().zip(maps[1..].to_vec()).collect();
+        let fit = FitUnder::new(&references, &maps[0]);
+        let check_sphere = sphere(CHECK_SIZE).unwrap();
+        let checks: Vec<LightSet> = maps[1..].iter().map(check_lights).collect();
         let (mut all, mut all_mtlx) = (vec![], vec![]);
         for (name, target) in test_materials() {
-            let (fitted, exported, mtlx) = fitted(&target, &references, &maps[0]);
+            let (fitted, exported, mtlx) = fit.fitted(&target);
             let mut line = format!(
                 "{name:22} fit {:.3} coat {:.2} at α {:.4}, base α {:.4}:",
                 fitted.fit_error, fitted.coat, fitted.coat_alpha, fitted.alpha
             );
-            for (n, map) in NAMES.iter().zip(&maps).skip(1) {
-                let (e, m) = checked(&target, &exported, &mtlx, map);
+            for (n, lights) in NAMES[1..].iter().zip(&checks) {
+                let (e, m) = checked(&target, (&exported, &mtlx), &check_sphere, lights);
                 all.push(e);
                 all_mtlx.push(m);
                 line += &format!(" {n} {e:.3} (.mtlx {m:.3})");
@@ -782,16 +800,19 @@ mod figures {
     fn exports_relight_under_a_map_left_out_of_their_fit() {
         let maps = maps();
         let materials = test_materials();
+        let check_sphere = sphere(CHECK_SIZE).unwrap();
         let (mut all, mut all_mtlx) = (vec![], vec![]);
         for left_out in 1..NAMES.len() {
             let references: Vec<(&str, EnvMap)> = (1..NAMES.len())
                 .filter(|k| *k != left_out)
                 .map(|k| (NAMES[k], maps[k].clone()))
                 .collect();
+            let fit = FitUnder::new(&references, &maps[0]);
+            let lights = check_lights(&maps[left_out]);
             let mut line = format!("{} left out:", NAMES[left_out]);
             for (name, target) in &materials {
-                let (_, exported, mtlx) = fitted(target, &references, &maps[0]);
-                let (e, m) = checked(target, &exported, &mtlx, &maps[left_out]);
+                let (_, exported, mtlx) = fit.fitted(target);
+                let (e, m) = checked(target, (&exported, &mtlx), &check_sphere, &lights);
                 all.push(e);
                 all_mtlx.push(m);
                 line += &format!(" {name} {e:.3} ({m:.3})");
