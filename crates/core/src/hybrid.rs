@@ -51,25 +51,14 @@ pub struct MixWeight {
 /// those.
 pub struct Prepared {
     coarse: analytic::CoarseRenders,
-    /// The measured materials the rows are of ([`atoms_digest`]): a basis id names its
-    /// training data but not its tables.
-    atoms: u64,
+    /// The measured materials the rows are of, names and tables: a basis id names its
+    /// training data but not its tables. Kept whole rather than as a digest: comparing them
+    /// with the fit's takes a few milliseconds, where hashing them took about 18, on the
+    /// capture's way to its results.
+    atoms: (Vec<String>, Vec<Vec<f64>>),
     atom_rows: Vec<f64>,
     /// Per channel, the rows' Gram matrix ([`Mix`]'s): it needs no photo either.
     atom_gram: [DMatrix<f64>; 3],
-}
-
-/// A digest of the basis's measured materials, names and tables to the bit.
-fn atoms_digest(basis: &Basis) -> u64 {
-    use std::hash::{Hash, Hasher};
-    let mut h = std::collections::hash_map::DefaultHasher::new();
-    for (name, table) in basis.atoms() {
-        name.hash(&mut h);
-        for v in table {
-            v.to_bits().hash(&mut h);
-        }
-    }
-    h.finish()
 }
 
 impl Prepared {
@@ -88,7 +77,7 @@ impl Prepared {
         let atom_gram = Mix::grams(&atom_rows, atoms.len());
         Ok(Prepared {
             coarse,
-            atoms: atoms_digest(basis),
+            atoms: (basis.header.materials.clone(), basis.atoms.clone()),
             atom_rows,
             atom_gram,
         })
@@ -350,7 +339,8 @@ pub fn fit(
     let prepared = prepared.filter(|p| {
         p.atom_rows.len() == 3 * observed.len() * atom_columns.len()
             && p.coarse.is_for(&pixel_sets, views, grid)
-            && p.atoms == atoms_digest(basis)
+            && p.atoms.0 == basis.header.materials
+            && p.atoms.1 == basis.atoms
     });
     let (atom_rows, atom_gram) = match prepared {
         Some(p) => (Cow::Borrowed(&p.atom_rows[..]), Some(p.atom_gram.clone())),

@@ -548,7 +548,11 @@ fn shoot_views(
             merged.white,
         )?;
         phases.end(p);
-        let (lights, chosen_lights) = env.estimate_lights(DEFAULT_LIGHTS, CHOSEN_LIGHTS, view_yaw);
+        let (lights, chosen_lights) = captured
+            .preparing
+            .as_mut()
+            .and_then(|p| p.take_lights(view_yaw))
+            .unwrap_or_else(|| env.estimate_lights(DEFAULT_LIGHTS, CHOSEN_LIGHTS, view_yaw));
         captured.views.push(CapturedView {
             geometry: pixels,
             lights,

@@ -10,11 +10,12 @@
 //! lost. The exports' renders are for the capture's map at the first view's turn, which the
 //! results check ([`Prepared::is_for`]).
 
+use std::sync::mpsc::{channel, Receiver};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
 use brdfd_core::basis::Basis;
-use brdfd_core::envmap::{EnvMap, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
+use brdfd_core::envmap::{EnvMap, LightSet, CHOSEN_LIGHTS, DEFAULT_LIGHTS};
 use brdfd_core::estimate::{EstimateOptions, Shared};
 use brdfd_core::geometry::SceneGeometry;
 use brdfd_core::CoreError;
@@ -27,7 +28,13 @@ use brdfd_report::export::Prepared;
 pub(super) struct Preparing {
     thread: Option<JoinHandle<Option<Prepared>>>,
     shared: Arc<Shared>,
+    /// The first view's lights, sent as soon as they are made: the view's merge needs the
+    /// same ones, and making them again took about 45 ms of the wait for the results.
+    lights: Option<(f64, Receiver<ViewLights>)>,
 }
+
+/// A view's lights for the estimate: for every candidate, and for the chosen pixels.
+pub(super) type ViewLights = (LightSet, Option<LightSet>);
 
 /// The work done: the exports' renders if they could be made, and what the estimate shares.
 pub(super) struct Ready {
@@ -50,10 +57,15 @@ impl Preparing {
         let (env, scene, basis, options) =
             (env.clone(), scene.clone(), basis.clone(), options.clone());
         let for_estimate = shared.clone();
+        let (send, lights_made) = channel();
         let work = move || {
             // The estimate's lights first: then the map itself can go to the exports' part.
-            let lights =
-                single_view.then(|| env.estimate_lights(DEFAULT_LIGHTS, CHOSEN_LIGHTS, yaw).0);
+            let lights = single_view.then(|| {
+                let lights = env.estimate_lights(DEFAULT_LIGHTS, CHOSEN_LIGHTS, yaw);
+                // Nobody waiting (the capture ended) is no error.
+                let _ = send.send(lights.clone());
+                lights.0
+            });
             let grid = basis.header.grid;
             let (exports, estimate) = rayon::join(
                 move || Prepared::new(Some((env, yaw)), grid),
@@ -80,7 +92,19 @@ impl Preparing {
             .spawn(work)
             .inspect_err(|e| tracing::warn!("no thread to prepare renders on: {e}"))
             .ok();
-        Preparing { thread, shared }
+        Preparing {
+            thread,
+            shared,
+            lights: single_view.then_some((yaw, lights_made)),
+        }
+    }
+
+    /// The first view's lights if it is seen with the map turned `yaw` (radians), as the
+    /// thread made them, waiting for them if they are not made yet; `None` if they were made
+    /// for another turn, taken already, or never made (the thread failed).
+    pub(super) fn take_lights(&mut self, yaw: f64) -> Option<ViewLights> {
+        let (made_for, made) = self.lights.take()?;
+        (made_for == yaw).then(|| made.recv().ok()).flatten()
     }
 
     /// Waits for the work; what of it failed is left to the steps that need it.
