@@ -83,8 +83,8 @@ fn simulated_capture_prints_coefficients() {
     let mixed = json["mixture"].as_array().unwrap().len();
     assert!(mixed > 0 && n == 17 + 3 * mixed, "{json}");
     assert_eq!(json["chosen_pixels"].as_array().unwrap().len(), 0);
-    // The estimate took the renders made while the camera shot: the lights handed over by
-    // the work that made them, and the same measured materials, are the ones it checks.
+    // The estimate took the renders made while the camera shot: its lights and measured
+    // materials are the ones they were made for.
     assert_eq!(json["timings"]["prepared"], true, "{}", json["timings"]);
     // Measured 0.060 at 256² (the analytic model alone: 0.137; the paper's 20-pixel method:
     // 0.55).
