@@ -781,6 +781,46 @@ impl ColumnTable {
         GRID_CELLS * 3 * m
     }
 
+    /// One pass over `pixels` under `lights` (whose footprints are `footprints`, with this
+    /// table's radii): every column's sum per pixel and channel, row `3·p + c`, and the cap's
+    /// part where it is given.
+    fn pass(
+        &self,
+        pixels: &[GeomPixel],
+        lights: &LightSet,
+        footprints: &Footprints,
+        cap: Option<&(Cap, CapColumns)>,
+    ) -> Vec<f32> {
+        let m = self.m;
+        let packed = pack(lights, footprints, Self::stride(m));
+        let mirrors = Mirrors::new(&packed);
+        let mut raw = vec![0f32; pixels.len() * 3 * m];
+        let shared = pixels
+            .first()
+            .filter(|first| pixels.iter().all(|p| p.view == first.view))
+            .map(|first| self.shared_view(first.view, &packed));
+        let lanes = match &shared {
+            Some(lights) => ViewLight::lanes(lights),
+            None => PackedLight::lanes(&packed),
+        };
+        let seen = Seen::new(pixels, lights);
+        raw.par_chunks_mut(PIXELS_PER_TASK * 3 * m)
+            .zip(pixels.par_chunks(PIXELS_PER_TASK))
+            .for_each(|(out, px)| {
+                for (o, p) in out.chunks_mut(3 * m).zip(px) {
+                    let row = seen.row(p);
+                    match &shared {
+                        Some(lights) => self.pixel(p, lights, &lanes, row, o),
+                        None => self.pixel(p, &packed, &lanes, row, o),
+                    }
+                    if let Some((cap, columns)) = cap.filter(|_| mirrors.seen_by(p, row)) {
+                        columns.add(cap, p, m, &self.luts, o);
+                    }
+                }
+            });
+        raw
+    }
+
     /// Σⱼ over lights of column values × L·Δω·cos, for one pixel: out[c·m + col].
     fn pixel<L: Lit>(
         &self,
@@ -945,65 +985,84 @@ impl RenderingMatrix {
         offset: Option<&[f64]>,
         binning: ThetaHBinning,
     ) -> RenderingMatrix {
+        Self::build_under(pixels, &[lights], columns, offset, binning)
+            .pop()
+            .expect("a matrix for the one light set")
+    }
+
+    /// [`RenderingMatrix::build`] under each of `maps` in turn, each matrix the one `build`
+    /// makes. Maps whose lights have the same footprints and cap read one table of the
+    /// columns, smoothed once: a map's turns are such maps (turning moves its lights, not
+    /// their sizes), and the exports' fit renders the same columns under three turns of each
+    /// map, where the tables cost as much as the passes over the pixels.
+    pub fn build_under(
+        pixels: &[GeomPixel],
+        maps: &[&LightSet],
+        columns: &[&[f64]],
+        offset: Option<&[f64]>,
+        binning: ThetaHBinning,
+    ) -> Vec<RenderingMatrix> {
         let mut all: Vec<&[f64]> = columns.to_vec();
         if let Some(o) = offset {
             all.push(o);
         }
-        let footprints = Footprints::of(lights);
-        // Each column takes the cap or not by its own shape, so that whether it reads the map
-        // does not depend on which columns share its pass (a photo rendered alone and the
-        // same BRDF among a fit's columns must agree). Which of the cap's rings are read is
-        // judged on the pass's capped columns together (`Cap::pruned_for`): a column beside
-        // a sharper one may read rings it would leave out alone, which hold below 0.2% of
-        // its light.
-        let cap = Cap::of(lights, binning);
-        let capped: Vec<usize> = cap.as_ref().map_or_else(Vec::new, |cap| {
-            (0..all.len())
-                .filter(|j| cap.needed_by(&[all[*j]]))
-                .collect()
-        });
-        let cap = cap.filter(|_| !capped.is_empty());
-        let cap_bins: Vec<usize> = (0..all.len())
-            .map(|j| match &cap {
-                Some(c) if capped.contains(&j) => c.bins,
-                _ => 0,
-            })
-            .collect();
-        let table = ColumnTable::new(&all, binning, &footprints, &cap_bins);
-        let cap = cap.map(|cap| {
-            let cap = cap.pruned_for(&capped.iter().map(|j| all[*j]).collect::<Vec<_>>());
-            let columns = CapColumns::new(&cap, &all, capped);
-            (cap, columns)
-        });
-        let m = all.len();
-        let packed = pack(lights, &footprints, ColumnTable::stride(m));
-        let mirrors = Mirrors::new(&packed);
-        let mut raw = vec![0f32; pixels.len() * 3 * m];
-        let shared = pixels
-            .first()
-            .filter(|first| pixels.iter().all(|p| p.view == first.view))
-            .map(|first| table.shared_view(first.view, &packed));
-        let lanes = match &shared {
-            Some(lights) => ViewLight::lanes(lights),
-            None => PackedLight::lanes(&packed),
-        };
-        let seen = Seen::new(pixels, lights);
-        raw.par_chunks_mut(PIXELS_PER_TASK * 3 * m)
-            .zip(pixels.par_chunks(PIXELS_PER_TASK))
-            .for_each(|(out, px)| {
-                for (o, p) in out.chunks_mut(3 * m).zip(px) {
-                    let row = seen.row(p);
-                    match &shared {
-                        Some(lights) => table.pixel(p, lights, &lanes, row, o),
-                        None => table.pixel(p, &packed, &lanes, row, o),
-                    }
-                    if let Some((cap, columns)) = cap.as_ref().filter(|_| mirrors.seen_by(p, row)) {
-                        columns.add(cap, p, m, &table.luts, o);
-                    }
-                }
+        // Each table with the footprints' radii and the cap's bins per column it was made for.
+        let mut tables: Vec<(Vec<f64>, Vec<usize>, ColumnTable)> = Vec::new();
+        let mut out = Vec::with_capacity(maps.len());
+        for lights in maps {
+            let footprints = Footprints::of(lights);
+            // Each column takes the cap or not by its own shape, so that whether it reads the
+            // map does not depend on which columns share its pass (a photo rendered alone and
+            // the same BRDF among a fit's columns must agree). Which of the cap's rings are
+            // read is judged on the pass's capped columns together (`Cap::pruned_for`): a
+            // column beside a sharper one may read rings it would leave out alone, which hold
+            // below 0.2% of its light.
+            let cap = Cap::of(lights, binning);
+            let capped: Vec<usize> = cap.as_ref().map_or_else(Vec::new, |cap| {
+                (0..all.len())
+                    .filter(|j| cap.needed_by(&[all[*j]]))
+                    .collect()
             });
-        let k = columns.len();
-        let (rows, offset) = if offset.is_some() {
+            let cap = cap.filter(|_| !capped.is_empty());
+            let cap_bins: Vec<usize> = (0..all.len())
+                .map(|j| match &cap {
+                    Some(c) if capped.contains(&j) => c.bins,
+                    _ => 0,
+                })
+                .collect();
+            let found = tables
+                .iter()
+                .position(|(radii, bins, _)| *radii == footprints.radii && *bins == cap_bins);
+            let t = found.unwrap_or_else(|| {
+                let table = ColumnTable::new(&all, binning, &footprints, &cap_bins);
+                tables.push((footprints.radii.clone(), cap_bins, table));
+                tables.len() - 1
+            });
+            let cap = cap.map(|cap| {
+                let cap = cap.pruned_for(&capped.iter().map(|j| all[*j]).collect::<Vec<_>>());
+                let columns = CapColumns::new(&cap, &all, capped);
+                (cap, columns)
+            });
+            let raw = tables[t].2.pass(pixels, lights, &footprints, cap.as_ref());
+            out.push(Self::split_offset(
+                pixels,
+                raw,
+                columns.len(),
+                offset.is_some(),
+            ));
+        }
+        out
+    }
+
+    /// The matrix of a pass's raw rows (`k` columns, then the offset's if `offset`).
+    fn split_offset(
+        pixels: &[GeomPixel],
+        raw: Vec<f32>,
+        k: usize,
+        offset: bool,
+    ) -> RenderingMatrix {
+        let (rows, offset) = if offset {
+            let m = k + 1;
             let mut rows = Vec::with_capacity(pixels.len() * 3 * k);
             let mut off = Vec::with_capacity(pixels.len() * 3);
             for r in raw.chunks(m) {
@@ -1089,31 +1148,48 @@ pub fn render_bivariate(geom: &PixelGeometry, lights: &LightSet, brdf: &Bivariat
 /// sharper neighbour has it read, which hold below 0.2% of its light. The BRDFs share a θh
 /// binning.
 pub fn render_bivariates(
-    geom: &PixelGeometry,
+    geometry: &PixelGeometry,
     lights: &LightSet,
     brdfs: &[&Bivariate],
 ) -> Vec<Raster> {
+    render_bivariates_under(geometry, &[lights], brdfs)
+        .pop()
+        .unwrap_or_default()
+}
+
+/// [`render_bivariates`] under each of `maps`: per map, each BRDF's image. Maps whose lights
+/// are alike in size (a map's turns) share the BRDFs' tables ([`RenderingMatrix::build_under`]).
+pub fn render_bivariates_under(
+    geom: &PixelGeometry,
+    maps: &[&LightSet],
+    brdfs: &[&Bivariate],
+) -> Vec<Vec<Raster>> {
+    let mut images: Vec<Vec<Raster>> = maps
+        .iter()
+        .map(|_| Vec::with_capacity(brdfs.len()))
+        .collect();
     let Some(first) = brdfs.first() else {
-        return Vec::new();
+        return images;
     };
     let binning = first.grid.theta_h_binning;
     assert!(
         brdfs.iter().all(|b| b.grid.theta_h_binning == binning),
         "BRDFs rendered in one pass share a θh binning"
     );
-    let mut images = Vec::with_capacity(brdfs.len());
     // A pass holds at most PASS_COLUMNS columns: more BRDFs take more passes.
     for chunk in brdfs.chunks(PASS_COLUMNS) {
         let tables: Vec<&[f64]> = chunk.iter().map(|b| b.values.as_slice()).collect();
-        let a = RenderingMatrix::build(&geom.pixels, lights, &tables, None, binning);
-        images.extend((0..tables.len()).map(|j| {
-            let mut img = Raster::black(geom.width, geom.height);
-            for (p, px) in geom.pixels.iter().enumerate() {
-                let rgb = std::array::from_fn(|c| a.row(3 * p + c)[j]);
-                img.set(px.x as usize, px.y as usize, rgb);
-            }
-            img
-        }));
+        let passes = RenderingMatrix::build_under(&geom.pixels, maps, &tables, None, binning);
+        for (per_map, a) in images.iter_mut().zip(passes) {
+            per_map.extend((0..tables.len()).map(|j| {
+                let mut img = Raster::black(geom.width, geom.height);
+                for (p, px) in geom.pixels.iter().enumerate() {
+                    let rgb = std::array::from_fn(|c| a.row(3 * p + c)[j]);
+                    img.set(px.x as usize, px.y as usize, rgb);
+                }
+                img
+            }));
+        }
     }
     images
 }
@@ -2004,6 +2080,80 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Under several maps at once, each matrix is the one its map's pass makes alone, to the
+    /// bit, whether its table is its own or shared: a map at three turns (whose lights are
+    /// alike in size, so they share one), beside another map and a hand-placed light set.
+    #[test]
+    fn matrices_under_several_maps_are_each_map_s_own() {
+        use crate::analytic::Microfacet;
+        use crate::bivariate::Grid;
+        let textured = textured_map();
+        let other = crate::envmap::EnvMap::from_pixels(
+            64,
+            32,
+            (0..64 * 32)
+                .map(|i| [1.0 + (i % 7) as f32, 0.5, 2.0 * ((i / 64) % 3) as f32])
+                .collect(),
+            "another map",
+        )
+        .unwrap();
+        let sphere =
+            PixelGeometry::rasterize(&Camera::eval_orthographic(24), &Shape::unit_sphere())
+                .unwrap();
+        let tables: Vec<Bivariate> = [
+            sharp_mirror(0.01),
+            Microfacet::one_lobe([0.3; 3], [0.04; 3], [1.0; 3], 0.3),
+        ]
+        .iter()
+        .map(|m| Bivariate::reduce(m, Grid::default()))
+        .collect();
+        let columns: Vec<&[f64]> = tables.iter().map(|t| t.values.as_slice()).collect();
+        let hand = LightSet {
+            directions: vec![[0.0, 0.6, 0.8], [0.6, 0.0, 0.8]],
+            radiance: vec![[2.0; 3], [0.5, 1.0, 1.5]],
+            solid_angle: vec![0.05, 0.2],
+            ..LightSet::default()
+        };
+        let maps = [
+            textured.compressed(256, 0.0),
+            textured.compressed(256, 1.3),
+            other.compressed(128, 0.2),
+            textured.compressed(256, 4.0),
+            hand,
+        ];
+        let lit: Vec<&LightSet> = maps.iter().collect();
+        let binning = ThetaHBinning::Sqrt;
+        let offset = columns[1];
+        let together = RenderingMatrix::build_under(
+            &sphere.pixels,
+            &lit,
+            &columns[..1],
+            Some(offset),
+            binning,
+        );
+        for (i, (lights, a)) in maps.iter().zip(&together).enumerate() {
+            let alone = RenderingMatrix::build(
+                &sphere.pixels,
+                lights,
+                &columns[..1],
+                Some(offset),
+                binning,
+            );
+            let bits = |v: &[f32]| -> Vec<u32> { v.iter().map(|x| x.to_bits()).collect() };
+            assert_eq!(bits(&a.rows), bits(&alone.rows), "map {i}");
+            assert_eq!(
+                bits(a.offset.as_ref().unwrap()),
+                bits(alone.offset.as_ref().unwrap()),
+                "map {i}"
+            );
+        }
+        // The turns' lights are alike in size: what lets them share a table.
+        assert_eq!(
+            Footprints::of(&maps[0]).radii,
+            Footprints::of(&maps[3]).radii
+        );
     }
 
     /// The preview's scale: a white Lambertian sphere reaches full white, a grey one its

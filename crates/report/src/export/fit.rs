@@ -432,8 +432,8 @@ impl<'a> Scenes<'a> {
         let cols: [&[f64]; 3] = [&lambert, &lambert_w, &target.values];
         let mut fixed: [Vec<f64>; 3] = Default::default();
         let mut scale = Vec::with_capacity(maps.len());
-        for lights in maps {
-            let a = RenderingMatrix::build(pixels, lights, &cols, None, grid.theta_h_binning);
+        let lit: Vec<&LightSet> = maps.iter().collect();
+        for a in RenderingMatrix::build_under(pixels, &lit, &cols, None, grid.theta_h_binning) {
             let rows = pixels.len() * 3;
             let norm = (0..rows)
                 .map(|r| (a.row(r)[2] as f64).powi(2))
@@ -713,10 +713,11 @@ fn render_lobes(
         .map(|_| std::array::from_fn(|_| Vec::with_capacity(rows * maps.len())))
         .collect();
     let per_pass = PASS_COLUMNS / 2;
-    for lights in maps {
-        for (p, chunk) in cols.chunks(per_pass).enumerate() {
-            let refs: Vec<&[f64]> = chunk.iter().flat_map(|c| [&c[1][..], &c[2][..]]).collect();
-            let a = RenderingMatrix::build(pixels, lights, &refs, None, grid.theta_h_binning);
+    // A chunk's lobes under every map, map after map: each lobe's images stay in the maps'
+    // order, and the maps' turns share the chunk's table.
+    for (p, chunk) in cols.chunks(per_pass).enumerate() {
+        let refs: Vec<&[f64]> = chunk.iter().flat_map(|c| [&c[1][..], &c[2][..]]).collect();
+        for a in RenderingMatrix::build_under(pixels, maps, &refs, None, grid.theta_h_binning) {
             for (i, lobe) in images[p * per_pass..p * per_pass + chunk.len()]
                 .iter_mut()
                 .enumerate()

@@ -33,7 +33,7 @@ use brdfd_core::bivariate::{Bivariate, Grid};
 use brdfd_core::envmap::{EnvMap, LightSet};
 use brdfd_core::geometry::{Camera, PixelGeometry, Shape};
 use brdfd_core::raster::Raster;
-use brdfd_core::render::{render_anisotropic, render_bivariates};
+use brdfd_core::render::{render_anisotropic, render_bivariates, render_bivariates_under};
 use brdfd_core::{CoreError, Result};
 
 pub use gltf::{GltfBrdf, GltfMaterial};
@@ -379,8 +379,8 @@ fn closest_openpbr(
     brdfs.extend(metal_tables.parts());
     let mut metal_error = 0.0;
     let (mut targets, mut fit_renders) = (vec![], vec![]);
-    for l in lights {
-        let mut images = render_bivariates(sphere, l, &brdfs);
+    let lit: Vec<&LightSet> = lights.iter().collect();
+    for mut images in render_bivariates_under(sphere, &lit, &brdfs) {
         let metal_parts = images.split_off(first_metal);
         metal_error += metal_tables
             .combine(sphere, &metal_parts)
