@@ -1148,11 +1148,11 @@ pub fn render_bivariate(geom: &PixelGeometry, lights: &LightSet, brdf: &Bivariat
 /// sharper neighbour has it read, which hold below 0.2% of its light. The BRDFs share a θh
 /// binning.
 pub fn render_bivariates(
-    geometry: &PixelGeometry,
+    geom: &PixelGeometry,
     lights: &LightSet,
     brdfs: &[&Bivariate],
 ) -> Vec<Raster> {
-    render_bivariates_under(geometry, &[lights], brdfs)
+    render_bivariates_under(geom, &[lights], brdfs)
         .pop()
         .unwrap_or_default()
 }

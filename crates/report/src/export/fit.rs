@@ -432,8 +432,8 @@ impl<'a> Scenes<'a> {
         let cols: [&[f64]; 3] = [&lambert, &lambert_w, &target.values];
         let mut fixed: [Vec<f64>; 3] = Default::default();
         let mut scale = Vec::with_capacity(maps.len());
-        let lit: Vec<&LightSet> = maps.iter().collect();
-        for a in RenderingMatrix::build_under(pixels, &lit, &cols, None, grid.theta_h_binning) {
+        let maps: Vec<&LightSet> = maps.iter().collect();
+        for a in RenderingMatrix::build_under(pixels, &maps, &cols, None, grid.theta_h_binning) {
             let rows = pixels.len() * 3;
             let norm = (0..rows)
                 .map(|r| (a.row(r)[2] as f64).powi(2))
@@ -457,7 +457,7 @@ impl<'a> Scenes<'a> {
             std::array::from_fn(|i| std::array::from_fn(|j| dots(&fixed[i], &fixed[j], &fresnel)));
         Ok(Scenes {
             pixels,
-            maps: maps.iter().collect(),
+            maps,
             grid,
             fixed,
             fixed_dots,
