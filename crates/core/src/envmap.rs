@@ -750,36 +750,57 @@ const SUMS: usize = 10;
 
 impl CellSums {
     fn new(map: &EnvMap, yaw: f64) -> CellSums {
+        use rayon::prelude::*;
         let (w, h) = (map.width, map.height);
+        // `direction`'s sines and cosines, once per column (φ) and row (θ) instead of once per
+        // pixel, with the same expressions, so the same values: per pixel they were most of
+        // the cost, and a 2048 × 1024 map is compressed several times per estimate.
+        let phi: Vec<(f64, f64)> = (0..w)
+            .map(|x| {
+                let phi = 2.0 * std::f64::consts::PI * ((x as f64 + 0.5) / w as f64 - 0.5) - yaw;
+                (phi.sin(), phi.cos())
+            })
+            .collect();
         let mut table = vec![[0.0; SUMS]; (w + 1) * (h + 1)];
-        for y in 0..h {
-            let dw = map.pixel_solid_angle(y);
-            let mut row = [0.0; SUMS];
-            for x in 0..w {
-                let d = direction(
-                    (x as f64 + 0.5) / w as f64,
-                    (y as f64 + 0.5) / h as f64,
-                    yaw,
-                );
-                let l = map.pixels[y * w + x].map(|c| c as f64);
-                let lum = (l[0] + l[1] + l[2]) / 3.0;
-                let v = [
-                    dw,
-                    dw * l[0],
-                    dw * l[1],
-                    dw * l[2],
-                    dw * lum * d[0],
-                    dw * lum * d[1],
-                    dw * lum * d[2],
-                    dw * d[0],
-                    dw * d[1],
-                    dw * d[2],
-                ];
-                let above = table[y * (w + 1) + x + 1];
-                let out = &mut table[(y + 1) * (w + 1) + x + 1];
+        // Each row's running sums, rows side by side; then each row adds the one above, as
+        // `row + above` per entry, in the order the one-pass loop added them.
+        table
+            .par_chunks_mut(w + 1)
+            .skip(1)
+            .enumerate()
+            .for_each(|(y, out)| {
+                let dw = map.pixel_solid_angle(y);
+                let theta = std::f64::consts::PI * ((y as f64 + 0.5) / h as f64);
+                let (st, ct) = (theta.sin(), theta.cos());
+                let mut row = [0.0; SUMS];
+                for (x, out) in out[1..].iter_mut().enumerate() {
+                    let (sp, cp) = phi[x];
+                    let d = [st * sp, ct, -st * cp];
+                    let l = map.pixels[y * w + x].map(|c| c as f64);
+                    let lum = (l[0] + l[1] + l[2]) / 3.0;
+                    let v = [
+                        dw,
+                        dw * l[0],
+                        dw * l[1],
+                        dw * l[2],
+                        dw * lum * d[0],
+                        dw * lum * d[1],
+                        dw * lum * d[2],
+                        dw * d[0],
+                        dw * d[1],
+                        dw * d[2],
+                    ];
+                    for k in 0..SUMS {
+                        row[k] += v[k];
+                    }
+                    *out = row;
+                }
+            });
+        for y in 1..h {
+            let (above, rest) = table[y * (w + 1)..].split_at_mut(w + 1);
+            for (out, above) in rest[..w + 1].iter_mut().zip(above.iter()).skip(1) {
                 for k in 0..SUMS {
-                    row[k] += v[k];
-                    out[k] = row[k] + above[k];
+                    out[k] += above[k];
                 }
             }
         }

@@ -62,6 +62,24 @@ impl Panel {
         self.count[i] += 1;
     }
 
+    /// [`Panel::add`] for a whole row of the image, `factor` pixels at a time: a photo of
+    /// 16 megapixels took a fifth of a second pixel by pixel. The sums round as
+    /// [`Panel::add`]'s do, in the same order.
+    fn add_row(&mut self, y: usize, row: &[[f32; 3]]) {
+        let start = (y / self.factor) * self.width;
+        let cells = self.sum[start..start + self.width]
+            .iter_mut()
+            .zip(&mut self.count[start..start + self.width]);
+        for ((sum, count), block) in cells.zip(row.chunks(self.factor)) {
+            for v in block {
+                for c in 0..3 {
+                    sum[c] += v[c];
+                }
+            }
+            *count += block.len() as u32;
+        }
+    }
+
     /// The averages; `None` where nothing was added. A lone empty pixel between two filled
     /// ones on its row (a candidate left out by the spread, not a region) takes their mean.
     fn averages(&self) -> Vec<Option<[f32; 3]>> {
@@ -99,10 +117,8 @@ fn srgb8(v: [f32; 3]) -> Rgb<u8> {
 pub fn picture(photo: &Raster, rerender: &[Rerendered], view: usize) -> RgbImage {
     let factor = photo.width.max(photo.height).div_ceil(PANEL_MAX).max(1);
     let mut shot = Panel::new(photo.width, photo.height, factor);
-    for y in 0..photo.height {
-        for x in 0..photo.width {
-            shot.add(x, y, photo.get(x, y));
-        }
+    for (y, row) in photo.pixels.chunks(photo.width).enumerate() {
+        shot.add_row(y, row);
     }
     let mut estimate = Panel::new(photo.width, photo.height, factor);
     let mut observed = Panel::new(photo.width, photo.height, factor);
