@@ -23,6 +23,7 @@ use brdfd_core::raster::Raster;
 use brdfd_core::render::{render_anisotropic, render_bivariate, render_merl};
 use brdfd_core::select::SwapParams;
 use brdfd_core::solve::{ColourChoice, Solver};
+use brdfd_report::export::Prepared;
 use brdfd_report::html::Context as ReportContext;
 use brdfd_report::materials::{commoner, folder, painted, write_all};
 use brdfd_report::visibility::Visibility;
@@ -264,7 +265,25 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         chosen_lights: chosen_lights.as_ref(),
         photo: &photo,
     };
-    let found = estimate_materials(&basis, &[view], &options, &Shared::default())?;
+    // The exports' maps and coarse renders need only the map: made on a thread of their own
+    // while the estimate runs, in the share of the cores its serial steps leave idle, as a
+    // capture makes them while its camera shoots. If they fail, the results make them.
+    let yaw = a.yaw.to_radians();
+    let grid = basis.header.grid;
+    let (found, exports) = std::thread::scope(|s| {
+        let exports = s.spawn(|| Prepared::new(Some((env.clone(), yaw)), grid));
+        let found = estimate_materials(&basis, &[view], &options, &Shared::default());
+        let exports = exports
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+        (found, exports)
+    });
+    let found = found?;
+    let exports = exports
+        .inspect_err(|e| {
+            tracing::warn!("preparing the exports' renders: {e}; made with the results")
+        })
+        .ok();
     let method_name = match method_arg {
         MethodArg::Fast => "fast",
         MethodArg::Paper => "paper",
@@ -276,7 +295,8 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         title: format!("{} under {}", a.photo.display(), a.env.display()),
         photo: Some(&photo),
         env: Some(&env),
-        yaw: a.yaw.to_radians(),
+        yaw,
+        exports: exports.as_ref(),
         record: vec![
             ("photo".into(), a.photo.display().to_string()),
             ("environment map".into(), a.env.display().to_string()),

@@ -458,19 +458,21 @@ pub fn write_results(
         let merl = s.spawn(|| brdf.to_merl().write(&merl_path));
         // The export's fit and the preview's render need nothing of each other: run side by
         // side, each fills the cores while the other is in a serial step.
+        let capture = cx.env.map(|m| (m, cx.yaw));
+        let prepared = cx.exports.filter(|p| p.is_for(capture));
         let (exports, preview) = rayon::join(
-            || {
-                let capture = cx.env.map(|m| (m, cx.yaw));
-                match cx.exports.filter(|p| p.is_for(capture)) {
-                    Some(prepared) => write_exports(dir, "brdfd_estimate", brdf, lobe, prepared),
-                    None => {
-                        let capture = capture.map(|(m, yaw)| (m.clone(), yaw));
-                        let prepared = Prepared::new(capture, brdf.grid)?;
-                        write_exports(dir, "brdfd_estimate", brdf, lobe, &prepared)
-                    }
+            || match prepared {
+                Some(prepared) => write_exports(dir, "brdfd_estimate", brdf, lobe, prepared),
+                None => {
+                    let capture = capture.map(|(m, yaw)| (m.clone(), yaw));
+                    let prepared = Prepared::new(capture, brdf.grid)?;
+                    write_exports(dir, "brdfd_estimate", brdf, lobe, &prepared)
                 }
             },
-            || write_preview(dir, &dir.join("preview.png"), estimate, lights, cx),
+            || {
+                let made = prepared.and_then(Prepared::preview_lights);
+                write_preview(dir, &dir.join("preview.png"), estimate, (lights, made), cx)
+            },
         );
         let files = write_the_rest(
             dir,
@@ -702,16 +704,21 @@ fn write_records(
 }
 
 /// `preview.png` (on the fixed scale of `preview.json`) and `preview.exr` (linear): the
-/// estimate on a sphere under the first view's light, seen from the front.
+/// estimate on a sphere under the first view's light, seen from the front: the map's
+/// [`PREVIEW_LIGHTS`] (`made` beforehand from `cx.env` at `cx.yaw`, or compressed here), or
+/// the estimate's `lights` without a map.
 fn write_preview(
     dir: &Path,
     png: &Path,
     estimate: &Estimate,
-    lights: &LightSet,
+    (lights, made): (&LightSet, Option<&LightSet>),
     cx: &Context,
 ) -> Result<image::RgbImage> {
-    let fewer = cx.env.map(|map| map.compressed(PREVIEW_LIGHTS, cx.yaw));
-    let lights = fewer.as_ref().unwrap_or(lights);
+    let fewer = match made {
+        Some(_) => None,
+        None => cx.env.map(|map| map.compressed(PREVIEW_LIGHTS, cx.yaw)),
+    };
+    let lights = made.or(fewer.as_ref()).unwrap_or(lights);
     let picture = estimate.sphere_picture(lights, PREVIEW_SIZE)?;
     picture.radiance.write_exr(&dir.join("preview.exr"))?;
     let image = picture.to_srgb8();

@@ -36,6 +36,8 @@ use brdfd_core::raster::Raster;
 use brdfd_core::render::{render_anisotropic, render_bivariates, render_bivariates_under};
 use brdfd_core::{CoreError, Result};
 
+use crate::results::PREVIEW_LIGHTS;
+
 pub use gltf::{GltfBrdf, GltfMaterial};
 pub use openpbr::{OpenPbrBrdf, OpenPbrMaterial, OpenPbrTables};
 
@@ -46,6 +48,8 @@ pub use openpbr::{OpenPbrBrdf, OpenPbrMaterial, OpenPbrTables};
 /// grid under every map in both); a 40² sphere (at 512 lights) relit the `.mtlx` at 0.110.
 const FIT_SIZE: usize = 48;
 const FIT_LIGHTS: usize = 256;
+// The capture's map is compressed for the fit and the preview in one pass, coarser first.
+const _: () = assert!(FIT_LIGHTS <= PREVIEW_LIGHTS);
 /// Each reference map is fitted under at these turns (degrees), none of them the check's:
 /// fitted at one turn, a material matched those four lightings and relit under the check's
 /// far from the estimate (on the MERL test materials the glTF's median 0.133, the `.mtlx`'s
@@ -149,12 +153,13 @@ fn sphere(size: usize) -> Result<PixelGeometry> {
     PixelGeometry::rasterize(&Camera::eval_orthographic(size), &Shape::unit_sphere())
 }
 
-/// The fit's maps: each of `references` at each of [`FIT_YAWS_DEG`], then `capture` (a map
-/// and its turn in radians) once, as a capture's map was lit; with their names, and which of
-/// them the coarse search of roughness lights with (each map at its first turn).
+/// The fit's maps: each of `references` at each of [`FIT_YAWS_DEG`], then `capture` (a
+/// capture's map compressed to [`FIT_LIGHTS`] at its turn) once, as a capture's map was lit;
+/// with their names, and which of them the coarse search of roughness lights with (each map
+/// at its first turn).
 fn fit_maps(
     references: &[(&str, EnvMap)],
-    capture: Option<(&EnvMap, f64)>,
+    capture: Option<LightSet>,
 ) -> (Vec<String>, Vec<LightSet>, Vec<usize>) {
     let mut fit_maps: Vec<Lit> = references
         .iter()
@@ -167,11 +172,11 @@ fn fit_maps(
     let mut coarse: Vec<usize> = (0..references.len())
         .map(|r| r * FIT_YAWS_DEG.len())
         .collect();
-    if let Some((map, yaw)) = capture {
+    if let Some(lights) = capture {
         coarse.push(fit_maps.len());
         fit_maps.push(Lit {
             name: "the capture's map".into(),
-            lights: map.compressed(FIT_LIGHTS, yaw),
+            lights,
         });
     }
     let (names, lights) = fit_maps.into_iter().map(|m| (m.name, m.lights)).unzip();
@@ -185,6 +190,8 @@ fn fit_maps(
 pub struct Prepared {
     /// The capture's map and its turn (radians) it was made for, if any.
     capture: Option<(EnvMap, f64)>,
+    /// The capture's map compressed for the preview, at the same turn.
+    preview_lights: Option<LightSet>,
     fitted_under: Vec<String>,
     fit_lights: Vec<LightSet>,
     fit_sphere: PixelGeometry,
@@ -198,12 +205,22 @@ impl Prepared {
     /// (the map the estimate was made under, with its turn in radians).
     pub fn new(capture: Option<(EnvMap, f64)>, grid: Grid) -> Result<Prepared> {
         let references = maps::reference_maps()?;
-        let (fitted_under, fit_lights, searched) =
-            fit_maps(&references, capture.as_ref().map(|(m, yaw)| (m, *yaw)));
+        // The capture's map compressed once for the fit and the preview: on a large map most
+        // of the cost is the map's sums, which one pass builds for both.
+        let (capture_fit, preview_lights) = match &capture {
+            Some((map, yaw)) => {
+                let mut sets = map.compressed_levels(&[FIT_LIGHTS, PREVIEW_LIGHTS], *yaw);
+                let preview = sets.pop();
+                (sets.pop(), preview)
+            }
+            None => (None, None),
+        };
+        let (fitted_under, fit_lights, searched) = fit_maps(&references, capture_fit);
         let fit_sphere = sphere(FIT_SIZE)?;
         let coarse = fit::Coarse::render(&fit_sphere.pixels, &fit_lights, searched, grid);
         Ok(Prepared {
             capture,
+            preview_lights,
             fitted_under,
             fit_lights,
             fit_sphere,
@@ -214,6 +231,12 @@ impl Prepared {
                 .collect(),
             check_sphere: sphere(CHECK_SIZE)?,
         })
+    }
+
+    /// The capture's map compressed for `preview.png` ([`PREVIEW_LIGHTS`]), if it was
+    /// prepared with one.
+    pub fn preview_lights(&self) -> Option<&LightSet> {
+        self.preview_lights.as_ref()
     }
 
     /// Whether this was prepared with this capture's map at this turn (or without a
@@ -711,7 +734,8 @@ mod figures {
 
     impl FitUnder {
         fn new(references: &[(&str, EnvMap)], grace: &EnvMap) -> FitUnder {
-            let (_, lights, searched) = fit_maps(references, Some((grace, 0.0)));
+            let (_, lights, searched) =
+                fit_maps(references, Some(grace.compressed(FIT_LIGHTS, 0.0)));
             let sphere = sphere(FIT_SIZE).unwrap();
             let coarse = fit::Coarse::render(&sphere.pixels, &lights, searched, Grid::default());
             FitUnder {
