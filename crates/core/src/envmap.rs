@@ -850,6 +850,56 @@ impl CellSums {
 mod tests {
     use super::*;
 
+    #[test]
+    fn cell_sums_made_row_by_row_equal_the_one_pass_table_to_the_bit() {
+        let (w, h) = (37, 19);
+        let pixels = (0..w * h)
+            .map(|i| {
+                let f = i as f32;
+                [(f * 0.37).sin().abs(), (f * 0.11).cos().abs(), f % 7.0]
+            })
+            .collect();
+        let map = EnvMap::from_pixels(w, h, pixels, "test").unwrap();
+        let yaw = 0.7;
+        let sums = CellSums::new(&map, yaw);
+        // The summed-area table in one pass, pixel by pixel, as `direction` gives each
+        // pixel's direction.
+        let mut table = vec![[0.0; SUMS]; (w + 1) * (h + 1)];
+        for y in 0..h {
+            let dw = map.pixel_solid_angle(y);
+            let mut row = [0.0; SUMS];
+            for x in 0..w {
+                let d = direction(
+                    (x as f64 + 0.5) / w as f64,
+                    (y as f64 + 0.5) / h as f64,
+                    yaw,
+                );
+                let l = map.pixels[y * w + x].map(|c| c as f64);
+                let lum = (l[0] + l[1] + l[2]) / 3.0;
+                let v = [
+                    dw,
+                    dw * l[0],
+                    dw * l[1],
+                    dw * l[2],
+                    dw * lum * d[0],
+                    dw * lum * d[1],
+                    dw * lum * d[2],
+                    dw * d[0],
+                    dw * d[1],
+                    dw * d[2],
+                ];
+                let above = table[y * (w + 1) + x + 1];
+                let out = &mut table[(y + 1) * (w + 1) + x + 1];
+                for k in 0..SUMS {
+                    row[k] += v[k];
+                    out[k] = row[k] + above[k];
+                }
+            }
+        }
+        assert_eq!(sums.width, w);
+        assert!(sums.table == table, "the tables differ");
+    }
+
     /// A 32 × 32 image in tiles of 117 million × 64 pixels (found by fuzzing `image_files`:
     /// 2 KB that cost 800 MB) is refused as damaged.
     #[test]

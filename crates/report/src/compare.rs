@@ -200,6 +200,25 @@ pub fn write(path: &Path, photo: &Raster, rerender: &[Rerendered]) -> Result<()>
 mod tests {
     use super::*;
 
+    #[test]
+    fn a_row_added_at_once_sums_as_its_pixels_one_by_one() {
+        // 1100 across, in blocks of 3: the last block of each row holds two pixels.
+        let (w, h, factor) = (1100, 4, 3);
+        let pixel = |x: usize, y: usize| [(x * 7 + y) as f32 * 0.1, x as f32, 1.0 / (1 + y) as f32];
+        let (mut by_row, mut by_pixel) = (Panel::new(w, h, factor), Panel::new(w, h, factor));
+        for y in 0..h {
+            let row: Vec<[f32; 3]> = (0..w).map(|x| pixel(x, y)).collect();
+            by_row.add_row(y, &row);
+            for x in 0..w {
+                by_pixel.add(x, y, pixel(x, y));
+            }
+        }
+        assert_eq!(by_row.count, by_pixel.count);
+        assert_eq!(by_row.sum, by_pixel.sum);
+        // Two pixels of each of the first three rows.
+        assert_eq!(by_row.count[by_row.width - 1], 2 * factor as u32);
+    }
+
     fn rerendered(x: u32, y: u32, predicted: f32, observed: f32) -> Rerendered {
         Rerendered {
             view: 0,
