@@ -201,6 +201,7 @@ pub fn load_basis(path: &Option<PathBuf>) -> anyhow::Result<Basis> {
 pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
     let total = std::time::Instant::now();
     let basis = load_basis(&a.basis)?;
+    let yaw = a.yaw.to_radians();
     // The photo, and the map with its lights, side by side: each read has a serial part
     // (a 16-megapixel photo's decoding leaves most of a core idle). The photo's error first.
     let (photo, env) = rayon::join(
@@ -208,7 +209,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         || {
             let env = brdfd_radiometry::panorama::load_envmap(&a.env)
                 .with_context(|| "reading the environment map")?;
-            let lights = env.estimate_lights(a.lights, a.chosen_lights, a.yaw.to_radians());
+            let lights = env.estimate_lights(a.lights, a.chosen_lights, yaw);
             anyhow::Ok((env, lights))
         },
     );
@@ -274,15 +275,17 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
     };
     // The exports' maps and coarse renders need only the map: made on a thread of their own
     // while the estimate runs, in the share of the cores its serial steps leave idle, as a
-    // capture makes them while its camera shoots. If they fail, the results make them.
-    let yaw = a.yaw.to_radians();
+    // capture makes them while its camera shoots. If they fail (or panic, which the panic's
+    // own message reports), the results make them, as a capture's do.
     let grid = basis.header.grid;
     let (found, exports) = std::thread::scope(|s| {
         let exports = s.spawn(|| Prepared::new(Some((env.clone(), yaw)), grid));
         let found = estimate_materials(&basis, &[view], &options, &Shared::default());
-        let exports = exports
-            .join()
-            .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+        let exports = exports.join().unwrap_or_else(|_| {
+            Err(brdfd_core::CoreError::Invalid(
+                "the thread preparing them panicked".into(),
+            ))
+        });
         (found, exports)
     });
     let found = found?;

@@ -117,7 +117,8 @@ fn srgb8(v: [f32; 3]) -> Rgb<u8> {
 pub fn picture(photo: &Raster, rerender: &[Rerendered], view: usize) -> RgbImage {
     let factor = photo.width.max(photo.height).div_ceil(PANEL_MAX).max(1);
     let mut shot = Panel::new(photo.width, photo.height, factor);
-    for (y, row) in photo.pixels.chunks(photo.width).enumerate() {
+    // At least 1: a photo no pixel wide has no rows to add, and `chunks` takes no 0.
+    for (y, row) in photo.pixels.chunks(photo.width.max(1)).enumerate() {
         shot.add_row(y, row);
     }
     let mut estimate = Panel::new(photo.width, photo.height, factor);
