@@ -776,20 +776,7 @@ impl CellSums {
                 for (x, out) in out[1..].iter_mut().enumerate() {
                     let (sp, cp) = phi[x];
                     let d = [st * sp, ct, -st * cp];
-                    let l = map.pixels[y * w + x].map(|c| c as f64);
-                    let lum = (l[0] + l[1] + l[2]) / 3.0;
-                    let v = [
-                        dw,
-                        dw * l[0],
-                        dw * l[1],
-                        dw * l[2],
-                        dw * lum * d[0],
-                        dw * lum * d[1],
-                        dw * lum * d[2],
-                        dw * d[0],
-                        dw * d[1],
-                        dw * d[2],
-                    ];
+                    let v = CellSums::of_pixel(dw, map.pixels[y * w + x], d);
                     for k in 0..SUMS {
                         row[k] += v[k];
                     }
@@ -805,6 +792,24 @@ impl CellSums {
             }
         }
         CellSums { width: w, table }
+    }
+
+    /// One pixel's share of the sums: its solid angle `dw`, radiance `l` and direction `d`.
+    fn of_pixel(dw: f64, l: [f32; 3], d: [f64; 3]) -> [f64; SUMS] {
+        let l = l.map(|c| c as f64);
+        let lum = (l[0] + l[1] + l[2]) / 3.0;
+        [
+            dw,
+            dw * l[0],
+            dw * l[1],
+            dw * l[2],
+            dw * lum * d[0],
+            dw * lum * d[1],
+            dw * lum * d[2],
+            dw * d[0],
+            dw * d[1],
+            dw * d[2],
+        ]
     }
 
     fn cell(&self, r: Rect) -> Cell {
@@ -874,20 +879,7 @@ mod tests {
                     (y as f64 + 0.5) / h as f64,
                     yaw,
                 );
-                let l = map.pixels[y * w + x].map(|c| c as f64);
-                let lum = (l[0] + l[1] + l[2]) / 3.0;
-                let v = [
-                    dw,
-                    dw * l[0],
-                    dw * l[1],
-                    dw * l[2],
-                    dw * lum * d[0],
-                    dw * lum * d[1],
-                    dw * lum * d[2],
-                    dw * d[0],
-                    dw * d[1],
-                    dw * d[2],
-                ];
+                let v = CellSums::of_pixel(dw, map.pixels[y * w + x], d);
                 let above = table[y * (w + 1) + x + 1];
                 let out = &mut table[(y + 1) * (w + 1) + x + 1];
                 for k in 0..SUMS {
