@@ -101,13 +101,27 @@ impl LightSet {
 
 /// Direction of the point (u, v) of the map, u across and v down, both in [0, 1].
 pub fn direction(u: f64, v: f64, yaw: f64) -> [f64; 3] {
-    let theta = std::f64::consts::PI * v;
-    let phi = 2.0 * std::f64::consts::PI * (u - 0.5) - yaw;
-    [
-        theta.sin() * phi.sin(),
-        theta.cos(),
-        -theta.sin() * phi.cos(),
-    ]
+    direction_of(sin_cos(polar(v)), sin_cos(azimuth(u, yaw)))
+}
+
+/// The polar angle θ (from +Y) of the map's row coordinate `v`.
+fn polar(v: f64) -> f64 {
+    std::f64::consts::PI * v
+}
+
+/// The azimuth φ of the map's column coordinate `u`, turned by `yaw`.
+fn azimuth(u: f64, yaw: f64) -> f64 {
+    2.0 * std::f64::consts::PI * (u - 0.5) - yaw
+}
+
+fn sin_cos(angle: f64) -> (f64, f64) {
+    (angle.sin(), angle.cos())
+}
+
+/// [`direction`] from the sines and cosines of θ and φ: what a table made row by row and
+/// column by column computes once per row and column, with the same values.
+fn direction_of((sin_t, cos_t): (f64, f64), (sin_p, cos_p): (f64, f64)) -> [f64; 3] {
+    [sin_t * sin_p, cos_t, -sin_t * cos_p]
 }
 
 /// Inverse of [`direction`] with yaw 0: (u, v) for a unit world direction.
@@ -753,13 +767,10 @@ impl CellSums {
         use rayon::prelude::*;
         let (w, h) = (map.width, map.height);
         // `direction`'s sines and cosines, once per column (φ) and row (θ) instead of once per
-        // pixel, with the same expressions, so the same values: per pixel they were most of
+        // pixel, through the same functions, so the same values: per pixel they were most of
         // the cost, and a 2048 × 1024 map is compressed several times per estimate.
         let phi: Vec<(f64, f64)> = (0..w)
-            .map(|x| {
-                let phi = 2.0 * std::f64::consts::PI * ((x as f64 + 0.5) / w as f64 - 0.5) - yaw;
-                (phi.sin(), phi.cos())
-            })
+            .map(|x| sin_cos(azimuth((x as f64 + 0.5) / w as f64, yaw)))
             .collect();
         let mut table = vec![[0.0; SUMS]; (w + 1) * (h + 1)];
         // Each row's running sums, rows side by side; then each row adds the one above, as
@@ -770,12 +781,10 @@ impl CellSums {
             .enumerate()
             .for_each(|(y, out)| {
                 let dw = map.pixel_solid_angle(y);
-                let theta = std::f64::consts::PI * ((y as f64 + 0.5) / h as f64);
-                let (st, ct) = (theta.sin(), theta.cos());
+                let theta = sin_cos(polar((y as f64 + 0.5) / h as f64));
                 let mut row = [0.0; SUMS];
                 for (x, out) in out[1..].iter_mut().enumerate() {
-                    let (sp, cp) = phi[x];
-                    let d = [st * sp, ct, -st * cp];
+                    let d = direction_of(theta, phi[x]);
                     let v = CellSums::of_pixel(dw, map.pixels[y * w + x], d);
                     for k in 0..SUMS {
                         row[k] += v[k];

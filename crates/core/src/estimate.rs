@@ -404,10 +404,10 @@ fn secs(d: Duration) -> f64 {
 
 /// At most `max` of `pixels`, spread evenly over them: the candidates of a view whose usable
 /// pixels these are.
-fn spread_pixels(pixels: &[GeomPixel], max: usize) -> Vec<GeomPixel> {
+fn spread_pixels<P: std::borrow::Borrow<GeomPixel>>(pixels: &[P], max: usize) -> Vec<GeomPixel> {
     spread(pixels.len(), max)
         .into_iter()
-        .map(|i| pixels[i].clone())
+        .map(|i| pixels[i].borrow().clone())
         .collect()
 }
 
@@ -455,10 +455,7 @@ pub(crate) fn candidate_pixels(
             "no object pixel of the photo is usable (mask empty, or all values negative/NaN)".into()
         }));
     }
-    let picked: Vec<GeomPixel> = spread(usable.len(), max_candidates)
-        .into_iter()
-        .map(|i| usable[i].clone())
-        .collect();
+    let picked = spread_pixels(&usable, max_candidates);
     let observed = picked
         .iter()
         .map(|p| photo.get(p.x as usize, p.y as usize).map(|v| v as f64))

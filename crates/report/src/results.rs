@@ -714,11 +714,15 @@ fn write_preview(
     (lights, made): (&LightSet, Option<&LightSet>),
     cx: &Context,
 ) -> Result<image::RgbImage> {
-    let fewer = match made {
-        Some(_) => None,
-        None => cx.env.map(|map| map.compressed(PREVIEW_LIGHTS, cx.yaw)),
+    let compressed;
+    let lights = match (made, cx.env) {
+        (Some(made), _) => made,
+        (None, Some(map)) => {
+            compressed = map.compressed(PREVIEW_LIGHTS, cx.yaw);
+            &compressed
+        }
+        (None, None) => lights,
     };
-    let lights = made.or(fewer.as_ref()).unwrap_or(lights);
     let picture = estimate.sphere_picture(lights, PREVIEW_SIZE)?;
     picture.radiance.write_exr(&dir.join("preview.exr"))?;
     let image = picture.to_srgb8();
