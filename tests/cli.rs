@@ -131,6 +131,30 @@ fn simulated_capture_prints_coefficients() {
     let report = check_report(&dir.path().join("result/report.html"), 5);
     assert!(report.contains("truth (dashed)"), "no truth on the slices");
     assert!(report.contains("relit under light it was not fitted to"));
+    // The verdict the summary opened with is kept, and is the report's top line; every
+    // number there is judged, the conditioning and the relit error among them.
+    let verdict = json["verdict"].as_str().unwrap();
+    let headline = json["verdict_text"].as_str().unwrap();
+    assert!(
+        headline.starts_with(&format!("{verdict} estimate (hybrid model)")),
+        "{json}"
+    );
+    assert!(
+        format!("{out}{err}").contains(&format!("gold: {headline}")),
+        "{out}{err}"
+    );
+    assert!(
+        report.contains(&format!("<p class=\"verdict\">Verdict: {headline}</p>")),
+        "no verdict at the top of the report"
+    );
+    assert!(
+        report.contains("conditioned: at most") || report.contains("conditioned: above"),
+        "the condition number is not judged"
+    );
+    assert!(
+        report.contains("judged as the fit, good at most 0.1"),
+        "the relit error is not judged"
+    );
     assert!(
         report.contains("Nikon Corporation D5100"),
         "no device record"
@@ -858,7 +882,16 @@ fn a_rig_file_drives_the_devices_it_names() {
         .and_then(|s| s.parse().ok())
         .unwrap_or_else(|| panic!("no fit reported:\n{stdout}"));
     assert!(fit > 0.0 && fit < 1.0, "fit {fit}\n{stdout}");
-    // The listing: a header, then one row with the state, the model and the fit.
+    // The verdict the summary opened with (a poor one is a warning, on stderr), which the
+    // listing and `session show` must give as said, not the fit's word alone.
+    let said = format!("{stdout}{stderr}");
+    let headline = said
+        .lines()
+        .find_map(|l| l.trim_start_matches("warning: ").strip_prefix("gold: "))
+        .unwrap_or_else(|| panic!("no verdict:\n{said}"));
+    let verdict = headline.split_whitespace().next().unwrap();
+    assert!(["good", "fair", "poor"].contains(&verdict), "{said}");
+    // The listing: a header, then one row with the state, the model, the verdict and the fit.
     let list = text(&brdfd(
         &["session", "list", "--state-dir", "state"],
         dir.path(),
@@ -874,6 +907,10 @@ fn a_rig_file_drives_the_devices_it_names() {
         "{list}"
     );
     assert!(rows[1].contains(&format!("{fit:.3}")), "{list}");
+    assert!(
+        rows[0].contains("VERDICT") && rows[1].contains(&format!(" {verdict} ")),
+        "{list}"
+    );
     let json = text(&brdfd(
         &["session", "list", "--json", "--state-dir", "state"],
         dir.path(),
@@ -882,6 +919,7 @@ fn a_rig_file_drives_the_devices_it_names() {
     let listed: serde_json::Value = serde_json::from_str(&json).unwrap();
     let id = listed[0]["id"].as_str().unwrap().to_string();
     assert_eq!(listed[0]["state"], "done", "{json}");
+    assert_eq!(listed[0]["verdict"], verdict, "{json}");
     // `latest` is this session; its summary comes before the manifest.
     let show = brdfd(
         &["session", "show", "latest", "--state-dir", "state"],
@@ -893,7 +931,9 @@ fn a_rig_file_drives_the_devices_it_names() {
         "{shown}"
     );
     assert!(
-        shown.contains("estimate: hybrid model, fit to the photo"),
+        shown.contains(&format!(
+            "verdict: {headline}\nestimate: hybrid model, fit to the photo"
+        )),
         "{shown}"
     );
     assert!(shown.contains("RICOH THETA V (serial"), "{shown}");

@@ -208,6 +208,26 @@ fn bad_session_ids_and_material_names_are_refused() {
     );
     assert!(!text.contains("resume"), "{text}");
     assert!(!dir.path().join("sessions").exists(), "nothing was created");
+    // A capital is taken as its lower-case letter, and a slip of the keyboard is answered
+    // with the name it is nearest: `GLOD` is `glod`, which is not `gold`.
+    let o = brdfd(
+        &[
+            "capture",
+            "--simulate",
+            "--material",
+            "GLOD",
+            "--state-dir",
+            state,
+        ],
+        dir.path(),
+    );
+    assert!(!o.status.success());
+    let text = out(&o);
+    assert!(
+        text.contains("no material \"glod\". Did you mean \"gold\"?"),
+        "{text}"
+    );
+    assert!(!dir.path().join("sessions").exists(), "nothing was created");
 }
 
 /// Issue 42: a session is named by any start of its id that only it has, as git names a

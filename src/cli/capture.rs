@@ -23,9 +23,10 @@ use super::progress::{Bars, Terminal};
 
 #[derive(clap::Args)]
 pub struct CaptureArgs {
-    /// Material name (a preset in config/materials, a MERL name, or an alias: gold, chrome,
-    /// plastic, paint, fabric, latex).
-    #[arg(short, long)]
+    /// Material name: a preset (gold, gold-part, chrome, paint, fabric; config/materials), a
+    /// test material's short name (plastic, latex) or its MERL name (e.g. nickel). Names are
+    /// lower-case; capitals are taken as the same letters.
+    #[arg(short, long, value_parser = lower_case)]
     pub material: String,
     /// Use the simulated rig: the devices' simulators on loopback, rendering the material.
     #[arg(long, conflicts_with = "rig")]
@@ -133,6 +134,17 @@ impl DaemonArgs {
         }
         Ok(d)
     }
+}
+
+/// A name as brdfd spells names, in lower case: `Gold` is `gold`, where a name with a capital
+/// would only be refused. A name that is no valid name either way is left as typed, for its
+/// error to quote.
+fn lower_case(name: &str) -> Result<String, std::convert::Infallible> {
+    let lower = name.to_lowercase();
+    Ok(match brdfd_api::plan::is_valid_name(&lower) {
+        true => lower,
+        false => name.to_string(),
+    })
 }
 
 /// The plan as the daemon takes it: scene files (`--env`, `--nbrdf`) by bare name, which the

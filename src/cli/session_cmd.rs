@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use brdfd_report::materials::PartRecord;
+use brdfd_report::summary::Grade;
 use brdfd_rig::session::{Manifest, Session, State};
 
 #[derive(clap::Args)]
@@ -191,6 +192,9 @@ struct Outcome {
     /// The materials' re-render of the photo together, when split: what the split is judged
     /// by, where `fit` is the one BRDF fitted to the whole part.
     split_fit: Option<f64>,
+    /// The verdict the estimate was given, and in words; absent for results written before
+    /// it was kept.
+    verdict: Option<(Grade, String)>,
 }
 
 /// The result a session wrote, if it got that far.
@@ -204,6 +208,7 @@ fn result_of(dir: &Path) -> Option<Outcome> {
         flags: r.flags,
         split_fit: r.materials.as_ref().map(|m| m.fit_error),
         materials: r.materials.map_or(Vec::new(), |m| m.parts),
+        verdict: r.verdict.zip(r.verdict_text),
     })
 }
 
@@ -227,6 +232,7 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
                     "created": m.created,
                     "model": r.as_ref().map(|r| &r.model),
                     "anisotropic_lobe": r.as_ref().map(|r| r.anisotropic_lobe),
+                    "verdict": r.as_ref().and_then(|r| r.verdict.as_ref().map(|v| v.0)),
                     "fit_error": r.as_ref().map(|r| r.fit),
                     "materials_fit_error": r.as_ref().and_then(|r| r.split_fit),
                     "materials": r.as_ref().map(|r| r.materials.iter().map(|p| serde_json::json!({
@@ -251,10 +257,15 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
         .unwrap_or(2)
         .max(2);
     println!(
-        "{:<width$}  {:<10}  {:<12}  {:<10}  {:>6}  created",
-        "ID", "STATE", "MATERIAL", "MODEL", "FIT"
+        "{:<width$}  {:<10}  {:<12}  {:<10}  {:<7}  {:>6}  CREATED",
+        "ID", "STATE", "MATERIAL", "MODEL", "VERDICT", "FIT"
     );
     for (m, r) in &rows {
+        // The verdict, not the fit alone: a good fit can be an unsteady estimate.
+        let verdict = r
+            .as_ref()
+            .and_then(|r| r.verdict.as_ref())
+            .map_or("-", |v| v.0.word());
         let (model, fit) = match r {
             // A part split into materials: one estimate of the model per material, and their
             // fit together.
@@ -268,11 +279,12 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
             None => ("-".to_string(), "-".to_string()),
         };
         println!(
-            "{:<width$}  {:<10}  {:<12}  {:<10}  {:>6}  {}",
+            "{:<width$}  {:<10}  {:<12}  {:<10}  {:<7}  {:>6}  {}",
             m.id,
             m.state.name(),
             m.material,
             model,
+            verdict,
             fit,
             m.created
         );
@@ -300,6 +312,11 @@ fn summary(s: &Session) -> Vec<String> {
     }
     match result_of(&s.dir) {
         Some(r) => {
+            // The verdict first, as the capture said it: the fit below is one of the numbers
+            // it weighs, and a good fit can be an unsteady or flagged estimate.
+            if let Some((_, text)) = &r.verdict {
+                lines.push(format!("verdict: {text}"));
+            }
             let model = if r.anisotropic_lobe {
                 format!("an anisotropic GGX lobe, chosen over the {} model", r.model)
             } else {

@@ -89,6 +89,15 @@ pub struct Summary {
     pub columns: Vec<String>,
     /// The coefficients; `null` for one that is not a number (JSON has no NaN).
     pub coefficients: Vec<Option<f64>>,
+    /// The verdict on the estimate, `good`, `fair` or `poor`: the worst of its judged figures
+    /// (the fit, a simulation's relit error, the steadiness, the conditioning) and of its
+    /// flags, as the command line's summary opens with it. Absent in results written before
+    /// it was kept.
+    #[serde(default)]
+    pub verdict: Option<String>,
+    /// The verdict in words, with what to do when it is not good.
+    #[serde(default)]
+    pub verdict_text: Option<String>,
     /// How well the estimate re-renders the photo (relative RMSE; `null` if not a number).
     pub fit_error: Option<f64>,
     /// The fit in words: `good`, `fair` or `poor`, with its threshold.

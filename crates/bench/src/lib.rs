@@ -72,6 +72,11 @@ pub fn aliases() -> Vec<String> {
     ALIASES.iter().map(|(a, m)| format!("{a} ({m})")).collect()
 }
 
+/// The short names alone.
+pub fn alias_names() -> impl Iterator<Item = &'static str> {
+    ALIASES.iter().map(|(a, _)| *a)
+}
+
 /// MERL name for a material name or alias.
 pub fn resolve_material(name: &str) -> &str {
     ALIASES

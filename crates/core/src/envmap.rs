@@ -513,6 +513,22 @@ pub(crate) fn check_exr_size(
     Ok(())
 }
 
+/// Why the OpenEXR library could not read a file of `len` bytes as `part`, in words: a file
+/// that ends early (the library's "reference to missing bytes", or the end of the file where
+/// more was due) is called truncated, as the size check above calls it when it can tell.
+fn exr_failure(part: &str, e: &exr::error::Error, len: usize) -> String {
+    let ended = match e {
+        exr::error::Error::Io(io) => io.kind() == std::io::ErrorKind::UnexpectedEof,
+        exr::error::Error::Invalid(why) => why.contains("missing bytes"),
+        _ => false,
+    };
+    if ended {
+        format!("the file ends before its {part} does, at {len} bytes: it is truncated or corrupt (OpenEXR: {e})")
+    } else {
+        format!("not a readable OpenEXR {part}: {e}")
+    }
+}
+
 pub(crate) fn read_exr_rgb(path: &Path) -> Result<ExrRgb> {
     let file = std::fs::File::open(path).map_err(|e| CoreError::io(path, e))?;
     let len = file.metadata().map_err(|e| CoreError::io(path, e))?.len();
@@ -538,7 +554,7 @@ fn read_exr_rgb_from(
 ) -> Result<(ExrRgb, std::collections::BTreeMap<String, f32>)> {
     use exr::prelude::*;
     let meta = exr::meta::MetaData::read_from_buffered(&mut reader, false)
-        .map_err(|e| CoreError::format(what, format!("not a readable OpenEXR header: {e}")))?;
+        .map_err(|e| CoreError::format(what, exr_failure("header", &e, len)))?;
     check_exr_size(&meta, what, len)?;
     reader
         .seek(std::io::SeekFrom::Start(0))
@@ -563,7 +579,7 @@ fn read_exr_rgb_from(
         .first_valid_layer()
         .all_attributes()
         .from_buffered(reader)
-        .map_err(|e| CoreError::format(what, format!("not a readable OpenEXR RGB image: {e}")))?;
+        .map_err(|e| CoreError::format(what, exr_failure("RGB image", &e, len)))?;
     let floats: std::collections::BTreeMap<String, f32> = image
         .layer_data
         .attributes
@@ -935,6 +951,28 @@ mod tests {
             e.contains("cut.exr") && e.contains("more than a file of 2000 bytes can hold"),
             "{e}"
         );
+    }
+
+    /// A file cut short where its size cannot tell (a small image, cut after its header, or
+    /// inside it) is called truncated too, with the size it was cut at, not in the OpenEXR
+    /// library's words alone.
+    #[test]
+    fn an_exr_cut_short_is_called_truncated() {
+        let (w, h) = (64, 64);
+        let pixels: Vec<[f32; 3]> = (0..w * h).map(|i| [i as f32, 0.25, 0.125]).collect();
+        let bytes = exr_bytes(w, h, &pixels, &[]).unwrap();
+        for (cut, part) in [(bytes.len() / 2, "RGB image"), (100, "header")] {
+            let e = read_exr_rgb_bytes(&bytes[..cut], "cut.exr")
+                .err()
+                .unwrap()
+                .to_string();
+            assert!(
+                e.contains(&format!(
+                    "cut.exr: the file ends before its {part} does, at {cut} bytes: it is truncated"
+                )),
+                "{e}"
+            );
+        }
     }
 
     #[test]

@@ -19,7 +19,7 @@ use crate::visibility::Visibility;
 use brdfd_core::bivariate::{Bivariate, GRID_CELLS, N_THETA_D, N_THETA_H};
 use brdfd_core::envmap::{uv_of, EnvMap, LightSet};
 use brdfd_core::error::{CoreError, Result};
-use brdfd_core::estimate::{fit_verdict, Estimate};
+use brdfd_core::estimate::{fit_verdict, Estimate, GOOD_FIT, POOR_FIT};
 use brdfd_core::merl;
 use brdfd_core::raster::Raster;
 
@@ -76,6 +76,8 @@ const CHANNELS: [(&str, RGBColor); 3] = [
 /// What brdfd judged of the estimate beyond its fit: how its exports relight, and the
 /// assumptions the photo says are broken.
 pub struct Judged<'a> {
+    /// The verdict in words ([`crate::summary::headline`]).
+    pub headline: &'a str,
     pub export: &'a Export,
     pub flags: &'a [Flag],
 }
@@ -103,7 +105,11 @@ fn page(
     judged: &Judged,
     cx: &Context,
 ) -> Result<String> {
-    let Judged { export, flags } = *judged;
+    let Judged {
+        headline,
+        export,
+        flags,
+    } = *judged;
     // The page's costly parts, the relit spheres' renders and the slices' plots, made side by
     // side: the plots are serial work.
     let (relit, slices) = rayon::join(
@@ -121,7 +127,9 @@ fn page(
         h,
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
          <title>brdfd report: {title}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n\
-         <h1>brdfd report: {title}</h1>\n<p class=\"summary\">{}</p>",
+         <h1>brdfd report: {title}</h1>\n<p class=\"verdict\">Verdict: {}</p>\n\
+         <p class=\"summary\">{}</p>",
+        escape(headline),
         escape(&est.method_text())
     );
     // A broken assumption comes before any picture: the numbers below are judged as if
@@ -267,7 +275,7 @@ figure{margin:0.5em 1em 0.5em 0;display:inline-block;vertical-align:top;max-widt
 figure img{max-width:100%;height:auto;image-rendering:pixelated}figcaption{font-size:0.85em;color:#555;\
 max-width:780px}.row{display:flex;flex-wrap:wrap;gap:0.5em}table{border-collapse:collapse}\
 th,td{text-align:left;padding:0.2em 0.8em;border-bottom:1px solid #eee;vertical-align:top}\
-th{font-weight:normal;color:#555}.summary{font-size:1.05em}.flag{border-left:4px solid #c60;padding-left:0.6em}.note{font-size:0.85em;color:#555}";
+th{font-weight:normal;color:#555}.verdict{font-size:1.2em;font-weight:bold}.summary{font-size:1.05em}.flag{border-left:4px solid #c60;padding-left:0.6em}.note{font-size:0.85em;color:#555}";
 
 /// The numbers, each with its verdict where brdfd has one.
 fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec<(String, String)> {
@@ -297,7 +305,10 @@ fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec
     if let Some(e) = cx.relight_error {
         rows.push((
             "relit under light it was not fitted to".into(),
-            format!("{e:.4} relative RMSE against the truth"),
+            format!(
+                "{e:.4} relative RMSE against the truth ({}: a simulation's figure, judged as the fit, good at most {GOOD_FIT} and poor above {POOR_FIT})",
+                crate::summary::relight_grade(e).word()
+            ),
         ));
     }
     // The conditioning and the bootstrap are the model's, when a lobe relights instead.
@@ -306,7 +317,13 @@ fn numbers(est: &Estimate, basis_id: &str, export: &Export, cx: &Context) -> Vec
     } else {
         ""
     };
-    rows.push((format!("condition number{of_model}"), est.condition_text()));
+    rows.push((
+        format!("condition number{of_model}"),
+        match crate::summary::condition_judged(est.condition()) {
+            Some((_, words)) => format!("{} ({words})", est.condition_text()),
+            None => est.condition_text(),
+        },
+    ));
     rows.push((
         "material.gltf".into(),
         format!(

@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::export::{write_exports, Export, Prepared};
 use crate::flags::Flag;
 use crate::html::Context;
+use crate::summary::Grade;
 use brdfd_core::analytic::Microfacet;
 use brdfd_core::basis::Basis;
 use brdfd_core::bivariate::{Bivariate, Grid, ThetaHBinning, GRID_CELLS, N_THETA_D, N_THETA_H};
@@ -47,6 +48,12 @@ pub struct CoefficientsFile<'a> {
     /// The session the estimate belongs to (absent for `brdfd estimate` on files).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub session: Option<&'a str>,
+    /// `good`, `fair` or `poor`: the worst of the judged figures and flags below, as the
+    /// summary's first line says it ([`crate::summary::grade`]). For a part split into
+    /// materials, the worst material's.
+    pub verdict: Grade,
+    /// The verdict in words, with what to do when it is not good.
+    pub verdict_text: &'a str,
     /// The (θh, θd) grid the estimate's BRDF is tabulated on.
     pub grid: GridRecord,
     /// `basis` (the PCA basis's coefficients, as in the paper), `analytic` (Lambert plus GGX
@@ -162,6 +169,11 @@ pub struct StoredResult {
     /// `null` where a coefficient was not a number (JSON has no NaN).
     pub coefficients: Vec<Option<f64>>,
     pub fit_error: Option<f64>,
+    /// Absent in files written before the verdict was kept.
+    #[serde(default)]
+    pub verdict: Option<Grade>,
+    #[serde(default)]
+    pub verdict_text: Option<String>,
     #[serde(default)]
     pub relight_error: Option<f64>,
     #[serde(default)]
@@ -379,6 +391,10 @@ pub struct ResultFiles {
     pub exports: Export,
     /// The assumptions of the model the photo says are broken ([`crate::flags`]).
     pub flags: Vec<Flag>,
+    /// The verdict on the estimate ([`crate::summary::grade`]), and in words
+    /// ([`crate::summary::headline`]).
+    pub verdict: Grade,
+    pub headline: String,
     /// Every file written, the report first (what a person opens first), then the files a
     /// program reads, then the pictures.
     pub written: Vec<PathBuf>,
@@ -517,7 +533,20 @@ fn write_the_rest(
             }
         }
     }
+    let verdict = match cx.materials {
+        Some(m) => {
+            let parts: Vec<Grade> = m.files.iter().map(|f| f.verdict).collect();
+            crate::summary::parts_grade(&parts, &flags, cx.relight_error)
+        }
+        None => crate::summary::grade(estimate, cx.relight_error, &flags),
+    };
+    let headline = match cx.materials {
+        Some(m) => crate::summary::parts_headline(m.record.parts.len(), verdict),
+        None => crate::summary::headline(estimate, verdict),
+    };
     let files = ResultFiles {
+        verdict,
+        headline,
         coefficients: dir.join("coefficients.json"),
         brdf_exr: dir.join("brdf-bivariate.exr"),
         merl: dir.join("brdf.binary"),
@@ -540,6 +569,7 @@ fn write_the_rest(
                 &preview,
                 lights,
                 &crate::html::Judged {
+                    headline: &files.headline,
                     export: &files.exports,
                     flags: &files.flags,
                 },
@@ -570,6 +600,8 @@ fn write_records(
     let pixel_count = estimate.pixel_count();
     let all = pixel_count == estimate.candidates;
     let file = CoefficientsFile {
+        verdict: files.verdict,
+        verdict_text: &files.headline,
         format: COEFFICIENTS_FORMAT,
         format_version: COEFFICIENTS_VERSION,
         software: format!("brdfd {}", env!("CARGO_PKG_VERSION")),

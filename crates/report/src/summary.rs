@@ -16,15 +16,19 @@ use crate::flags::Flag;
 use brdfd_core::estimate::{fit_verdict, Estimate, Model, GOOD_FIT, POOR_FIT, UNSTEADY_SPREAD};
 
 /// Condition numbers at or below this are good: the presets' estimates on the sphere measure
-/// 300–2,000, and the hybrid's many columns make a few thousand usual.
+/// about 300 (276–351 at 256²), and the hybrid's many columns can make a few thousand usual.
 pub const WELL_CONDITIONED: f64 = 1e4;
 /// Above this a system is ill-conditioned: noise in the photo is amplified more than
 /// 100,000-fold in the direction the pixels pin worst. More views, or pixels facing more
 /// directions, pin it better (the gold part's mesh from one view measures 16,000: fair).
 pub const ILL_CONDITIONED: f64 = 1e5;
 
-/// How a number was judged, from best to worst.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+/// How a number was judged, from best to worst; an estimate's verdict is the worst of its
+/// numbers' ([`grade`]).
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
 pub enum Grade {
     Good,
     Fair,
@@ -32,7 +36,7 @@ pub enum Grade {
 }
 
 impl Grade {
-    fn word(self) -> &'static str {
+    pub fn word(self) -> &'static str {
         match self {
             Grade::Good => "good",
             Grade::Fair => "fair",
@@ -91,7 +95,7 @@ fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
     });
     if let Some((e, under)) = &extras.relight {
         lines.push(Line {
-            grade: Grade::of(*e, GOOD_FIT, POOR_FIT),
+            grade: relight_grade(*e),
             text: format!(
                 "relit under {under} (light it was not fitted to), the estimate is {e:.4} from the truth (a simulation's figure, judged as the fit)"
             ),
@@ -126,36 +130,82 @@ fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
         grade: Grade::Fair,
         text: f.text.clone(),
     }));
-    let k = estimate.condition();
-    // The prior solves a system with fewer equations than unknowns: its κ is infinite by
-    // construction and says nothing of noise, so it is reported, not judged.
-    if k.is_finite() {
-        let grade = Grade::of(k, WELL_CONDITIONED, ILL_CONDITIONED);
+    if let Some((grade, words)) = condition_judged(estimate.condition()) {
         lines.push(Line {
             grade,
             text: format!(
-                "{of_model}condition number {k:.0} ({})",
-                match grade {
-                    Grade::Good => format!("well conditioned: at most {WELL_CONDITIONED:.0}"),
-                    Grade::Fair => format!("noise is amplified: above {WELL_CONDITIONED:.0}"),
-                    Grade::Poor => format!(
-                        "ill-conditioned: above {ILL_CONDITIONED:.0}; more views or pixels facing more ways pin it better"
-                    ),
-                }
+                "{of_model}condition number {:.0} ({words})",
+                estimate.condition()
             ),
         });
     }
     lines
 }
 
-/// The summary's lines: the verdict first, then each judged number, the exports and where the
-/// report is.
-pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String> {
-    if let Some((parts, estimates)) = extras.materials {
-        return materials_lines(material, estimate, extras, parts, estimates);
+/// A simulation's relit error against the truth, judged as the fit is.
+pub fn relight_grade(e: f64) -> Grade {
+    Grade::of(e, GOOD_FIT, POOR_FIT)
+}
+
+/// A condition number's grade and words, or `None` for an infinite one: the prior solves a
+/// system with fewer equations than unknowns, whose κ is infinite by construction and says
+/// nothing of noise, so it is reported, not judged.
+pub fn condition_judged(k: f64) -> Option<(Grade, String)> {
+    if !k.is_finite() {
+        return None;
     }
-    let judged = judged(estimate, extras);
-    let worst = judged.iter().map(|l| l.grade).max().unwrap_or(Grade::Poor);
+    let grade = Grade::of(k, WELL_CONDITIONED, ILL_CONDITIONED);
+    let words = match grade {
+        Grade::Good => format!("well conditioned: at most {WELL_CONDITIONED:.0}"),
+        Grade::Fair => format!("noise is amplified: above {WELL_CONDITIONED:.0}"),
+        Grade::Poor => format!(
+            "ill-conditioned: above {ILL_CONDITIONED:.0}; more views or pixels facing more ways pin it better"
+        ),
+    };
+    Some((grade, words))
+}
+
+/// The verdict on one estimate: the worst of its judged numbers (the fit, a simulation's
+/// relit error against the truth, the steadiness, the conditioning) and of the broken
+/// assumptions its photo shows, each of which makes it fair at best. [`lines`] opens with it,
+/// and `coefficients.json` and the report keep it.
+pub fn grade(estimate: &Estimate, relight: Option<f64>, flags: &[Flag]) -> Grade {
+    let extras = Extras {
+        relight: relight.map(|e| (e, String::new())),
+        views: 1,
+        bracketed: false,
+        export: None,
+        flags,
+        report: None,
+        materials: None,
+    };
+    worst(&judged(estimate, &extras))
+}
+
+fn worst(judged: &[Line]) -> Grade {
+    judged.iter().map(|l| l.grade).max().unwrap_or(Grade::Poor)
+}
+
+/// The verdict on a part split into materials: the worst material's ([`grade`] of each on
+/// its own), fair at best when the whole part's photo shows a broken assumption beside its
+/// colours, and no better than a simulation's relit error of the whole part.
+pub fn parts_grade(parts: &[Grade], whole_flags: &[Flag], relight: Option<f64>) -> Grade {
+    let mut worst = parts.iter().copied().fold(Grade::Good, Grade::max);
+    if whole_flags
+        .iter()
+        .any(|f| f.reason != crate::flags::Reason::SeveralMaterials)
+    {
+        worst = worst.max(Grade::Fair);
+    }
+    match relight {
+        Some(e) => worst.max(relight_grade(e)),
+        None => worst,
+    }
+}
+
+/// The verdict in words, as the summary's first line and the report's top give it: e.g.
+/// "good estimate (hybrid model)", with what to do when it is not good.
+pub fn headline(estimate: &Estimate, grade: Grade) -> String {
     let model = match estimate.model() {
         Model::Hybrid => "hybrid model",
         Model::Analytic => "analytic model",
@@ -165,14 +215,40 @@ pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String
         Some(_) => format!("an anisotropic GGX lobe, chosen over the {model}"),
         None => model.to_string(),
     };
-    let mut out = vec![format!(
-        "{material}: {} estimate ({model}){}",
-        worst.word(),
-        match worst {
+    format!(
+        "{} estimate ({model}){}",
+        grade.word(),
+        match grade {
             Grade::Good => "",
             Grade::Fair => "; look at the report before relying on it",
             Grade::Poor => "; do not trust it under other light",
         }
+    )
+}
+
+/// [`headline`] for a part split into `parts` materials.
+pub fn parts_headline(parts: usize, grade: Grade) -> String {
+    format!(
+        "{parts} materials, {} estimates{}",
+        grade.word(),
+        match grade {
+            Grade::Good => "",
+            Grade::Fair => "; look at the reports before relying on them",
+            Grade::Poor => "; do not trust them under other light",
+        }
+    )
+}
+
+/// The summary's lines: the verdict first, then each judged number, the exports and where the
+/// report is.
+pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String> {
+    if let Some((parts, estimates)) = extras.materials {
+        return materials_lines(material, estimate, extras, parts, estimates);
+    }
+    let judged = judged(estimate, extras);
+    let mut out = vec![format!(
+        "{material}: {}",
+        headline(estimate, worst(&judged))
     )];
     out.extend(
         judged
@@ -233,7 +309,7 @@ fn materials_lines(
     estimates: &[Estimate],
 ) -> Vec<String> {
     let r = &parts.record;
-    let mut worst = Grade::Good;
+    let mut grades = Vec::new();
     let mut body = Vec::new();
     for ((p, files), estimate) in r.parts.iter().zip(&parts.files).zip(estimates) {
         let own = Extras {
@@ -245,7 +321,7 @@ fn materials_lines(
             ..*extras
         };
         let judged = judged(estimate, &own);
-        worst = judged.iter().map(|l| l.grade).fold(worst, Grade::max);
+        grades.push(worst(&judged));
         body.push(format!(
             "  {} ({:.0}% of the pixels; its results in {}/):",
             p.folder.replace('-', " "),
@@ -275,26 +351,16 @@ fn materials_lines(
         .iter()
         .filter(|f| f.reason != crate::flags::Reason::SeveralMaterials)
         .collect();
-    if !whole_flags.is_empty() {
-        worst = worst.max(Grade::Fair);
-    }
     let relight = extras.relight.as_ref().map(|(e, under)| {
-        let grade = Grade::of(*e, GOOD_FIT, POOR_FIT);
-        worst = worst.max(grade);
         format!(
             "  {}: relit under {under} (light it was not fitted to), the whole part's estimate is {e:.4} from the truth (a simulation's figure, judged as the fit)",
-            grade.word()
+            relight_grade(*e).word()
         )
     });
+    let grade = parts_grade(&grades, extras.flags, extras.relight.as_ref().map(|r| r.0));
     let mut out = vec![format!(
-        "{material}: {} materials, {} estimates{}",
-        r.parts.len(),
-        worst.word(),
-        match worst {
-            Grade::Good => "",
-            Grade::Fair => "; look at the reports before relying on them",
-            Grade::Poor => "; do not trust them under other light",
-        }
+        "{material}: {}",
+        parts_headline(r.parts.len(), grade)
     )];
     out.push(format!(
         "  the photo's colour departs from one BRDF's by {:.2} from place to place (split from {}): each material was estimated on its own pixels, and together they re-render the photo to {:.4} ({})",

@@ -296,8 +296,8 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> Result<Outco
     report.visibility = visibility.as_ref();
     report.object = object.as_ref();
     report.exports = exports.as_ref();
-    let (exports, flags, parts) =
-        write_result(session, &basis, &found, &captured.views[0].lights, report)?;
+    let (files, parts) = write_result(session, &basis, &found, &captured.views[0].lights, report)?;
+    let (exports, flags) = (&files.exports, &files.flags);
     phases.end(p);
     say_result(
         cx,
@@ -305,7 +305,7 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> Result<Outco
         &found,
         captured.views.len(),
         judged.relight,
-        (&exports, &flags, parts.as_ref()),
+        (exports, flags, parts.as_ref()),
     );
     session.set_phases(phases.done);
     session.set_state(State::Done, None)?;
@@ -318,6 +318,8 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> Result<Outco
             anisotropic_lobe: est.chosen_lobe().is_some(),
             columns: est.names.clone(),
             coefficients: super::Summary::numbers(&est.solution.coefficients),
+            verdict: Some(files.verdict.word().to_string()),
+            verdict_text: Some(files.headline.clone()),
             fit_error: fit.is_finite().then_some(fit),
             fit_verdict: fit_verdict(fit),
             relight_error: relight,
@@ -685,8 +687,7 @@ fn write_result(
     lights: &brdfd_core::envmap::LightSet,
     report: ReportContext,
 ) -> Result<(
-    brdfd_report::export::Export,
-    Vec<brdfd_report::flags::Flag>,
+    brdfd_report::results::ResultFiles,
     Option<brdfd_report::materials::Parts>,
 )> {
     let fresh = session.dir.join("result.partial");
@@ -696,7 +697,7 @@ fn write_result(
     let result = session.dir.join("result");
     let _ = std::fs::remove_dir_all(&result);
     std::fs::rename(&fresh, &result).step("moving the results into place")?;
-    Ok((files.exports, files.flags, parts))
+    Ok((files, parts))
 }
 
 /// A step's files from the session (checksums verified), under the names the camera gave

@@ -158,7 +158,7 @@ impl CaptureSettings {
             }
         }
         if rig.simulated {
-            crate::simulation::simulator()?.check_material(plan)?;
+            crate::simulation::simulator()?.check_scene(plan)?;
         }
         let p = preset.as_ref();
         let b = &rig.brackets;
@@ -343,7 +343,7 @@ mod tests {
                     "the settings' tests start no simulated rig",
                 ))
             }
-            fn check_material(&self, _: &Plan) -> Result<()> {
+            fn check_scene(&self, _: &Plan) -> Result<()> {
                 Ok(())
             }
         }

@@ -28,9 +28,11 @@ pub trait Simulator: Send + Sync {
     /// the cameras.
     fn start(&self, rig: &Rig) -> Result<Box<dyn SimulatedRig>>;
 
-    /// Refuses a plan whose material the simulator cannot render: checked before a session
-    /// exists, so that a typo leaves nothing behind.
-    fn check_material(&self, plan: &Plan) -> Result<()>;
+    /// Refuses a plan whose scene the simulator cannot show: a material it cannot render, or
+    /// a light map (the plan's `env`) it cannot read. Checked before a session exists, so
+    /// that a typo leaves nothing behind (a session that failed on it would fail the same
+    /// way on every resume).
+    fn check_scene(&self, plan: &Plan) -> Result<()>;
 }
 
 /// A simulated rig, started: its devices, the time they spent, and the bench in front of them.

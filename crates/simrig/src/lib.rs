@@ -49,32 +49,66 @@ impl Simulator for VirtualRig {
     }
 
     /// The plan's material must be one the bench can render: a shipped preset, an alias or
-    /// embedded test material, or one of the plan's NBRDF file.
-    fn check_material(&self, plan: &Plan) -> Result<()> {
-        let preset = MaterialPreset::embedded(&plan.material).map_err(RigError::invalid)?;
-        let name = preset
-            .as_ref()
-            .map_or(plan.material.as_str(), |p| p.simulate_as.as_str());
-        let merl = brdfd_bench::resolve_material(name);
-        let embedded = brdfd_bench::embedded_materials();
-        if embedded.get(merl).is_ok() {
-            return Ok(());
+    /// embedded test material, or one of the plan's NBRDF file; and its light map, when it
+    /// names one, must read.
+    fn check_scene(&self, plan: &Plan) -> Result<()> {
+        check_material(plan)?;
+        if let Some(path) = &plan.env {
+            // Read whole: a truncated map fails only where its pixels run out.
+            brdfd_radiometry::panorama::load_envmap(path).map_err(|e| {
+                RigError::invalid(format!(
+                    "the simulated bench's light map (--env; the plan's `env`) cannot be read: {e}"
+                ))
+            })?;
         }
-        if let Some(path) = &plan.nbrdf {
-            let set = brdfd_core::nbrdf::NbrdfSet::read(path)?;
-            set.get(merl)?;
-            return Ok(());
-        }
-        Err(RigError::invalid(format!(
-            "the simulator has no material {:?}. Use a preset ({}), a short name ({}), a test \
-             material ({}), or an NBRDF file holding it (the plan's `nbrdf`; `--nbrdf FILE` \
-             on the command line)",
-            plan.material,
-            brdfd_rig::config::preset_names().join(", "),
-            brdfd_bench::aliases().join(", "),
-            embedded.names().join(", ")
-        )))
+        Ok(())
     }
+}
+
+/// Refuses a plan whose material the simulator cannot render ([`Simulator::check_scene`]).
+fn check_material(plan: &Plan) -> Result<()> {
+    let preset = MaterialPreset::embedded(&plan.material).map_err(RigError::invalid)?;
+    let name = preset
+        .as_ref()
+        .map_or(plan.material.as_str(), |p| p.simulate_as.as_str());
+    let merl = brdfd_bench::resolve_material(name);
+    let embedded = brdfd_bench::embedded_materials();
+    if embedded.get(merl).is_ok() {
+        return Ok(());
+    }
+    if let Some(path) = &plan.nbrdf {
+        let set = brdfd_core::nbrdf::NbrdfSet::read(path)?;
+        set.get(merl)?;
+        return Ok(());
+    }
+    let presets = brdfd_rig::config::preset_names();
+    let mut known = embedded.names();
+    for name in presets.iter().copied().chain(brdfd_bench::alias_names()) {
+        known.push(name);
+    }
+    let suggestion = match nearest_name(&plan.material, known.into_iter()) {
+        Some(n) => format!(" Did you mean {n:?}?"),
+        None => String::new(),
+    };
+    Err(RigError::invalid(format!(
+        "the simulator has no material {:?}.{suggestion} Use a preset ({}), a short name ({}), \
+         a test material ({}), or an NBRDF file holding it (the plan's `nbrdf`; `--nbrdf FILE` \
+         on the command line)",
+        plan.material,
+        presets.join(", "),
+        brdfd_bench::aliases().join(", "),
+        embedded.names().join(", ")
+    )))
+}
+
+/// The known name nearest `name`, if one is near enough to be a slip of the keyboard: at most
+/// two letters' edits away, and fewer than half of its letters.
+fn nearest_name<'a>(name: &str, known: impl Iterator<Item = &'a str>) -> Option<&'a str> {
+    known
+        .map(|k| (strsim::damerau_levenshtein(name, k), k))
+        .filter(|(d, k)| *d <= 2 && 2 * d < k.len())
+        .min_by_key(|(d, _)| *d)
+        .map(|(_, k)| k)
 }
 
 /// The simulators of a started rig, shared with the stage of each capture on it.
@@ -214,5 +248,51 @@ mod tests {
                 "{name}"
             );
         }
+        // A slip of the keyboard is answered with the name it is nearest; a name far from
+        // every one is not.
+        let e = CaptureSettings::resolve(&plan("platsic"), &rig).unwrap_err();
+        assert!(
+            said(&e).contains("Did you mean \"plastic\"?"),
+            "{}",
+            said(&e)
+        );
+        let e = CaptureSettings::resolve(&plan("unobtainium"), &rig).unwrap_err();
+        assert!(!said(&e).contains("Did you mean"), "{}", said(&e));
+    }
+
+    /// A light map the bench cannot read is refused before a session exists, named as the
+    /// plan's `env`: a session that failed on it would fail the same way on every resume.
+    #[test]
+    fn a_light_map_the_bench_cannot_read_is_refused_before_a_session_exists() {
+        provide();
+        let dir = std::env::temp_dir().join(format!("brdfd-simrig-env-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let garbled = dir.join("garbled.hdr");
+        std::fs::write(&garbled, "not a Radiance picture").unwrap();
+        for path in [dir.join("missing.exr"), garbled] {
+            let mut p = plan("gold");
+            p.env = Some(path.clone());
+            let e = CaptureSettings::resolve(&p, &Rig::simulated()).unwrap_err();
+            let words = said(&e);
+            assert!(
+                words.contains("the simulated bench's light map (--env; the plan's `env`)")
+                    && words.contains(&path.display().to_string()),
+                "{words}"
+            );
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn only_a_near_name_is_suggested() {
+        let known = ["gold", "gold-part", "chrome", "plastic"];
+        assert_eq!(nearest_name("glod", known.into_iter()), Some("gold"));
+        assert_eq!(
+            nearest_name("gold-prat", known.into_iter()),
+            Some("gold-part")
+        );
+        assert_eq!(nearest_name("chrom", known.into_iter()), Some("chrome"));
+        assert_eq!(nearest_name("paper", known.into_iter()), None);
+        assert_eq!(nearest_name("ab", known.into_iter()), None);
     }
 }

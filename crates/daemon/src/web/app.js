@@ -289,6 +289,11 @@ function finished(e) {
   if (e.state === "done" && e.result) {
     const r = e.result;
     const fit = r.fit_error === null ? "not a number" : r.fit_error.toFixed(4);
+    // The verdict first, as the command line's summary gives it: the fit is one of the
+    // numbers it weighs, and a good fit can be an unsteady or flagged estimate.
+    if (r.verdict_text) {
+      out.append(el("p", `Verdict: ${r.verdict_text}`, { class: `verdict ${r.verdict}` }));
+    }
     out.append(
       `Done: model ${r.model}` +
         (r.anisotropic_lobe ? ", relit with the anisotropic lobe it chose" : "") +
