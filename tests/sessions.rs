@@ -170,38 +170,30 @@ fn bad_session_ids_and_material_names_are_refused() {
         "{}",
         out(&o)
     );
-    let o = brdfd(
-        &[
-            "capture",
-            "--simulate",
-            "--material",
-            "Gold/../x",
-            "--state-dir",
-            state,
-        ],
-        dir.path(),
-    );
-    assert!(!o.status.success());
-    assert!(
-        out(&o).contains("material \"Gold/../x\" is not a valid name"),
-        "{}",
+    // A capture of `material` on the simulated rig, which must be refused: what it said.
+    let refused = |material: &str| {
+        let o = brdfd(
+            &[
+                "capture",
+                "--simulate",
+                "--material",
+                material,
+                "--state-dir",
+                state,
+            ],
+            dir.path(),
+        );
+        assert!(!o.status.success());
         out(&o)
+    };
+    let text = refused("Gold/../x");
+    assert!(
+        text.contains("material \"Gold/../x\" is not a valid name"),
+        "{text}"
     );
     assert!(!dir.path().join("sessions").exists(), "nothing was created");
     // A well-formed name the simulator does not have is refused before a session exists too.
-    let o = brdfd(
-        &[
-            "capture",
-            "--simulate",
-            "--material",
-            "unobtainium",
-            "--state-dir",
-            state,
-        ],
-        dir.path(),
-    );
-    assert!(!o.status.success());
-    let text = out(&o);
+    let text = refused("unobtainium");
     assert!(
         text.contains("no material \"unobtainium\"") && text.contains("gold-metallic-paint"),
         "{text}"
@@ -210,19 +202,7 @@ fn bad_session_ids_and_material_names_are_refused() {
     assert!(!dir.path().join("sessions").exists(), "nothing was created");
     // A capital is taken as its lower-case letter, and a slip of the keyboard is answered
     // with the name it is nearest: `GLOD` is `glod`, which is not `gold`.
-    let o = brdfd(
-        &[
-            "capture",
-            "--simulate",
-            "--material",
-            "GLOD",
-            "--state-dir",
-            state,
-        ],
-        dir.path(),
-    );
-    assert!(!o.status.success());
-    let text = out(&o);
+    let text = refused("GLOD");
     assert!(
         text.contains("no material \"glod\". Did you mean \"gold\"?"),
         "{text}"
