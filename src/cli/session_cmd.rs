@@ -5,7 +5,6 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use brdfd_report::materials::PartRecord;
-use brdfd_report::summary::Grade;
 use brdfd_rig::session::{Manifest, Session, State};
 
 #[derive(clap::Args)]
@@ -194,7 +193,7 @@ struct Outcome {
     split_fit: Option<f64>,
     /// The verdict the estimate was given, and in words; absent for results written before
     /// it was kept.
-    verdict: Option<(Grade, String)>,
+    verdict: Option<(String, String)>,
 }
 
 /// The result a session wrote, if it got that far.
@@ -232,7 +231,7 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
                     "created": m.created,
                     "model": r.as_ref().map(|r| &r.model),
                     "anisotropic_lobe": r.as_ref().map(|r| r.anisotropic_lobe),
-                    "verdict": r.as_ref().and_then(|r| r.verdict.as_ref().map(|v| v.0)),
+                    "verdict": r.as_ref().and_then(|r| r.verdict.as_ref().map(|v| &v.0)),
                     "fit_error": r.as_ref().map(|r| r.fit),
                     "materials_fit_error": r.as_ref().and_then(|r| r.split_fit),
                     "materials": r.as_ref().map(|r| r.materials.iter().map(|p| serde_json::json!({
@@ -265,7 +264,7 @@ fn list(state: &Path, json: bool) -> anyhow::Result<()> {
         let verdict = r
             .as_ref()
             .and_then(|r| r.verdict.as_ref())
-            .map_or("-", |v| v.0.word());
+            .map_or("-", |v| v.0.as_str());
         let (model, fit) = match r {
             // A part split into materials: one estimate of the model per material, and their
             // fit together.

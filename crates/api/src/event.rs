@@ -126,8 +126,8 @@ pub struct Summary {
     #[serde(default)]
     pub flags: Vec<SummaryFlag>,
     /// When the part was split into two materials (`coefficients.json`'s `materials`), each
-    /// material's results, share and fit; empty for one material. The figures above are then
-    /// of the one BRDF fitted to the whole part.
+    /// material's results, share and fit; empty for one material. The fit and exports above
+    /// are then of the one BRDF fitted to the whole part, and `verdict` is the split's.
     #[serde(default)]
     pub materials: Vec<SummaryMaterial>,
 }

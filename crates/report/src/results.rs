@@ -50,7 +50,8 @@ pub struct CoefficientsFile<'a> {
     pub session: Option<&'a str>,
     /// `good`, `fair` or `poor`: the worst of the judged figures and flags below, as the
     /// summary's first line says it ([`crate::summary::grade`]). For a part split into
-    /// materials, the worst material's.
+    /// materials, the worst material's, and no better than the whole part's other flags and
+    /// relit error allow ([`crate::summary::parts_grade`]).
     pub verdict: Grade,
     /// The verdict in words, with what to do when it is not good.
     pub verdict_text: &'a str,
@@ -169,9 +170,10 @@ pub struct StoredResult {
     /// `null` where a coefficient was not a number (JSON has no NaN).
     pub coefficients: Vec<Option<f64>>,
     pub fit_error: Option<f64>,
-    /// Absent in files written before the verdict was kept.
+    /// Absent in files written before the verdict was kept. A word, not a [`Grade`]: a word a
+    /// later version adds is shown as written rather than making the file unreadable.
     #[serde(default)]
-    pub verdict: Option<Grade>,
+    pub verdict: Option<String>,
     #[serde(default)]
     pub verdict_text: Option<String>,
     #[serde(default)]

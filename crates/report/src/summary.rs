@@ -167,8 +167,8 @@ pub fn condition_judged(k: f64) -> Option<(Grade, String)> {
 
 /// The verdict on one estimate: the worst of its judged numbers (the fit, a simulation's
 /// relit error against the truth, the steadiness, the conditioning) and of the broken
-/// assumptions its photo shows, each of which makes it fair at best. [`lines`] opens with it,
-/// and `coefficients.json` and the report keep it.
+/// assumptions its photo shows, each of which makes it fair at best: the worst of the lines
+/// [`lines`] prints, which opens with it; `coefficients.json` and the report keep it.
 pub fn grade(estimate: &Estimate, relight: Option<f64>, flags: &[Flag]) -> Grade {
     let extras = Extras {
         relight: relight.map(|e| (e, String::new())),

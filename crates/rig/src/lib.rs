@@ -71,7 +71,7 @@ pub fn stored_summary(coefficients_json: &std::path::Path) -> Option<Summary> {
     let anisotropic_lobe = matches!(r.chosen_lobe(), Ok(Some(_)));
     Some(Summary {
         anisotropic_lobe,
-        verdict: r.verdict.map(|v| v.word().to_string()),
+        verdict: r.verdict,
         verdict_text: r.verdict_text,
         fit_verdict: brdfd_core::estimate::fit_verdict(r.fit_error.unwrap_or(f64::NAN)),
         model: r.model,

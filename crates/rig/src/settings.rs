@@ -331,8 +331,8 @@ mod tests {
     }
 
     /// These tests resolve plans on simulated rigs, which ask the program's simulator
-    /// whether it renders the plan's material; the simulated rig is a crate above this one
-    /// (`brdfd-simrig`), whose own tests check its answer. This one renders any material and
+    /// whether it shows the plan's scene (its material and light map); the simulated rig is a crate above this one
+    /// (`brdfd-simrig`), whose own tests check its answer. This one shows any scene and
     /// starts no rig.
     fn provide_a_simulator() {
         use crate::simulation::{SimulatedRig, Simulator};

@@ -310,7 +310,7 @@ function finished(e) {
     );
     // A part of two materials: each estimated on its own, with its own results.
     if ((r.materials || []).length > 0) {
-      const p = el("p", `${r.materials.length} materials, each estimated on its own pixels (the figures above are of one BRDF for the whole part): `);
+      const p = el("p", `${r.materials.length} materials, each estimated on its own pixels (the fit and exports above are of one BRDF for the whole part, the verdict is theirs): `);
       const base = `/api/v1/sessions/${encodeURIComponent(e.session)}/result`;
       for (const m of r.materials) {
         const fit = m.fit_error === null ? "not a number" : m.fit_error.toFixed(4);
