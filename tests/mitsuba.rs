@@ -385,8 +385,12 @@ fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
 /// under the photo's own light it re-renders the photo as closely as the materials together
 /// fit it, where the one BRDF for the whole part missed it by 0.5.
 fn materials_are_found(scene: &Path, estimate: &str, json: &serde_json::Value, said: &str) {
-    // The summary's first line (on stderr when it warns).
+    // The summary's first line (on stderr when it warns): the split's verdict, as the
+    // results keep it.
     assert!(said.contains(": 2 materials, "), "{said}");
+    let headline = json["verdict_text"].as_str().unwrap();
+    assert!(headline.starts_with("2 materials, "), "{json}");
+    assert!(said.contains(&format!(": {headline}")), "{said}");
     let parts = json["materials"]["parts"].as_array().unwrap();
     assert_eq!(parts.len(), 2);
     let mask = image::open(scene.join(estimate).join("materials-mask.png"))

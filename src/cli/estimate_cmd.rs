@@ -329,6 +329,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         total.elapsed().as_secs_f64()
     );
     let extras = brdfd_report::summary::Extras {
+        headline: &files.headline,
         relight: None,
         views: 1,
         bracketed: false,

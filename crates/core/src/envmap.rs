@@ -514,14 +514,11 @@ pub(crate) fn check_exr_size(
 }
 
 /// Why the OpenEXR library could not read a file of `len` bytes as `part`, in words: a file
-/// that ends early (the library's "reference to missing bytes", or the end of the file where
-/// more was due) is called truncated, as the size check above calls it when it can tell.
+/// that ends early is called truncated, as the size check above calls it when it can tell.
+/// The library reports the end of the file where more was due as "reference to missing
+/// bytes", an `Invalid` error.
 fn exr_failure(part: &str, e: &exr::error::Error, len: usize) -> String {
-    let ended = match e {
-        exr::error::Error::Io(io) => io.kind() == std::io::ErrorKind::UnexpectedEof,
-        exr::error::Error::Invalid(why) => why.contains("missing bytes"),
-        _ => false,
-    };
+    let ended = matches!(e, exr::error::Error::Invalid(why) if why.contains("missing bytes"));
     if ended {
         format!("the file ends before its {part} does, at {len} bytes: it is truncated or corrupt (OpenEXR: {e})")
     } else {

@@ -25,9 +25,7 @@ pub const ILL_CONDITIONED: f64 = 1e5;
 
 /// How a number was judged, from best to worst; an estimate's verdict is the worst of its
 /// numbers' ([`grade`]).
-#[derive(
-    Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
-)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Grade {
     Good,
@@ -64,6 +62,10 @@ struct Line {
 
 /// What the summary knows beside the estimate.
 pub struct Extras<'a> {
+    /// The verdict in words as the written results hold it (`ResultFiles::headline`, worked
+    /// out by [`grade`] or [`parts_grade`] where they were written): the summary opens with
+    /// it, so that it says what `coefficients.json`, the report and the web page say.
+    pub headline: &'a str,
     /// A simulated capture's relit error against the truth, and the light it was relit
     /// under.
     pub relight: Option<(f64, String)>,
@@ -80,7 +82,14 @@ pub struct Extras<'a> {
     pub materials: Option<(&'a crate::materials::Parts, &'a [Estimate])>,
 }
 
-fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
+/// The judged lines of an estimate fitted to `views` photos, with a simulation's relit error
+/// and the light it was relit under, and the broken assumptions its photo shows.
+fn judged(
+    estimate: &Estimate,
+    relight: Option<(f64, &str)>,
+    flags: &[Flag],
+    views: usize,
+) -> Vec<Line> {
     let mut lines = Vec::new();
     // The fit of what the estimate relights with: the anisotropic lobe's, when it chose one.
     let fit = estimate.fit_error;
@@ -88,14 +97,14 @@ fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
         grade: Grade::of(fit, GOOD_FIT, POOR_FIT),
         text: format!(
             "re-renders the photo{} to a relative RMSE of {fit:.4} over {} pixels ({})",
-            if extras.views > 1 { "s" } else { "" },
+            if views > 1 { "s" } else { "" },
             estimate.candidates,
             fit_verdict(fit)
         ),
     });
-    if let Some((e, under)) = &extras.relight {
+    if let Some((e, under)) = relight {
         lines.push(Line {
-            grade: relight_grade(*e),
+            grade: relight_grade(e),
             text: format!(
                 "relit under {under} (light it was not fitted to), the estimate is {e:.4} from the truth (a simulation's figure, judged as the fit)"
             ),
@@ -126,7 +135,7 @@ fn judged(estimate: &Estimate, extras: &Extras) -> Vec<Line> {
         });
     }
     // A broken assumption makes the figures above optimistic: fair at best, whatever they say.
-    lines.extend(extras.flags.iter().map(|f| Line {
+    lines.extend(flags.iter().map(|f| Line {
         grade: Grade::Fair,
         text: f.text.clone(),
     }));
@@ -168,21 +177,10 @@ pub fn condition_judged(k: f64) -> Option<(Grade, String)> {
 /// The verdict on one estimate: the worst of its judged numbers (the fit, a simulation's
 /// relit error against the truth, the steadiness, the conditioning) and of the broken
 /// assumptions its photo shows, each of which makes it fair at best: the worst of the lines
-/// [`lines`] prints, which opens with it; `coefficients.json` and the report keep it.
+/// [`lines`] prints. Worked out where the results are written, which keep it; the summary
+/// opens with what they kept ([`Extras::headline`]).
 pub fn grade(estimate: &Estimate, relight: Option<f64>, flags: &[Flag]) -> Grade {
-    let extras = Extras {
-        relight: relight.map(|e| (e, String::new())),
-        views: 1,
-        bracketed: false,
-        export: None,
-        flags,
-        report: None,
-        materials: None,
-    };
-    worst(&judged(estimate, &extras))
-}
-
-fn worst(judged: &[Line]) -> Grade {
+    let judged = judged(estimate, relight.map(|e| (e, "")), flags, 1);
     judged.iter().map(|l| l.grade).max().unwrap_or(Grade::Poor)
 }
 
@@ -245,11 +243,12 @@ pub fn lines(material: &str, estimate: &Estimate, extras: &Extras) -> Vec<String
     if let Some((parts, estimates)) = extras.materials {
         return materials_lines(material, estimate, extras, parts, estimates);
     }
-    let judged = judged(estimate, extras);
-    let mut out = vec![format!(
-        "{material}: {}",
-        headline(estimate, worst(&judged))
-    )];
+    let relight = extras
+        .relight
+        .as_ref()
+        .map(|(e, under)| (*e, under.as_str()));
+    let judged = judged(estimate, relight, extras.flags, extras.views);
+    let mut out = vec![format!("{material}: {}", extras.headline)];
     out.extend(
         judged
             .iter()
@@ -309,19 +308,9 @@ fn materials_lines(
     estimates: &[Estimate],
 ) -> Vec<String> {
     let r = &parts.record;
-    let mut grades = Vec::new();
     let mut body = Vec::new();
     for ((p, files), estimate) in r.parts.iter().zip(&parts.files).zip(estimates) {
-        let own = Extras {
-            flags: &files.flags,
-            export: Some(&files.exports),
-            report: None,
-            materials: None,
-            relight: None,
-            ..*extras
-        };
-        let judged = judged(estimate, &own);
-        grades.push(worst(&judged));
+        let judged = judged(estimate, None, &files.flags, extras.views);
         body.push(format!(
             "  {} ({:.0}% of the pixels; its results in {}/):",
             p.folder.replace('-', " "),
@@ -357,11 +346,7 @@ fn materials_lines(
             relight_grade(*e).word()
         )
     });
-    let grade = parts_grade(&grades, extras.flags, extras.relight.as_ref().map(|r| r.0));
-    let mut out = vec![format!(
-        "{material}: {}",
-        parts_headline(r.parts.len(), grade)
-    )];
+    let mut out = vec![format!("{material}: {}", extras.headline)];
     out.push(format!(
         "  the photo's colour departs from one BRDF's by {:.2} from place to place (split from {}): each material was estimated on its own pixels, and together they re-render the photo to {:.4} ({})",
         r.departure,

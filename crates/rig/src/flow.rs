@@ -297,7 +297,6 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> Result<Outco
     report.object = object.as_ref();
     report.exports = exports.as_ref();
     let (files, parts) = write_result(session, &basis, &found, &captured.views[0].lights, report)?;
-    let (exports, flags) = (&files.exports, &files.flags);
     phases.end(p);
     say_result(
         cx,
@@ -305,8 +304,9 @@ fn run(session: &mut Session, s: &CaptureSettings, cx: &Context) -> Result<Outco
         &found,
         captured.views.len(),
         judged.relight,
-        (exports, flags, parts.as_ref()),
+        (&files, parts.as_ref()),
     );
+    let (exports, flags) = (&files.exports, &files.flags);
     session.set_phases(phases.done);
     session.set_state(State::Done, None)?;
     let fit = est.fit_error;
@@ -653,19 +653,20 @@ fn say_result(
     found: &Materials,
     views: usize,
     relight: Option<(f64, String)>,
-    (exports, flags, parts): (
-        &brdfd_report::export::Export,
-        &[brdfd_report::flags::Flag],
+    (files, parts): (
+        &brdfd_report::results::ResultFiles,
         Option<&brdfd_report::materials::Parts>,
     ),
 ) {
+    // Where the results were moved to, not where they were written.
     let report = session.dir.join("result/report.html");
     let extras = brdfd_report::summary::Extras {
+        headline: &files.headline,
         relight,
         views,
         bracketed: true,
-        export: Some(exports),
-        flags,
+        export: Some(&files.exports),
+        flags: &files.flags,
         report: Some(&report),
         materials: parts.zip(found.split.as_ref().map(|s| s.parts.as_slice())),
     };
