@@ -208,6 +208,13 @@ fn bad_session_ids_and_material_names_are_refused() {
         "{text}"
     );
     assert!(!dir.path().join("sessions").exists(), "nothing was created");
+    // A surface the presets are not named for is pointed to the preset whose notes name it.
+    let text = refused("paper");
+    assert!(
+        text.contains("no material \"paper\". The preset \"paint\" covers it: Matte"),
+        "{text}"
+    );
+    assert!(!dir.path().join("sessions").exists(), "nothing was created");
 }
 
 /// Issue 42: a session is named by any start of its id that only it has, as git names a

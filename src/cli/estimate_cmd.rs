@@ -328,6 +328,8 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         est.solution.relative_residual,
         total.elapsed().as_secs_f64()
     );
+    // Whole, as a capture prints it: a terminal opens it from anywhere.
+    let report = std::path::absolute(&files.report).unwrap_or_else(|_| files.report.clone());
     let extras = brdfd_report::summary::Extras {
         headline: &files.headline,
         relight: None,
@@ -335,7 +337,7 @@ pub fn estimate(a: EstimateArgs) -> anyhow::Result<()> {
         bracketed: false,
         export: Some(&files.exports),
         flags: &files.flags,
-        report: Some(&files.report),
+        report: Some(&report),
         materials: parts
             .as_ref()
             .zip(found.split.as_ref().map(|s| s.parts.as_slice())),

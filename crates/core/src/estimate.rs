@@ -1404,13 +1404,29 @@ pub const UNSTEADY_SPREAD: f64 = 0.05;
 /// The verdict in words on a fit to the photo, with the thresholds it was judged by.
 pub fn fit_verdict(fit: f64) -> String {
     if !fit.is_finite() {
-        "no verdict: the fit is not a number".into()
-    } else if fit <= GOOD_FIT {
-        format!("good: at most {GOOD_FIT}")
+        return "no verdict: the fit is not a number".into();
+    }
+    let word = if fit <= GOOD_FIT {
+        "good"
     } else if fit <= POOR_FIT {
-        format!("fair: above {GOOD_FIT}; compare the preview with the photo")
+        "fair"
     } else {
-        format!("poor: above {POOR_FIT}, the estimate does not reproduce the photo; check the geometry, the exposure and the light map")
+        "poor"
+    };
+    format!("{word}: {}", fit_bounds(fit))
+}
+
+/// The threshold a fit to the photo was judged by, and what to do when it is not good: the
+/// words after [`fit_verdict`]'s grade, for lines that already lead with it.
+pub fn fit_bounds(fit: f64) -> String {
+    if !fit.is_finite() {
+        "the fit is not a number".into()
+    } else if fit <= GOOD_FIT {
+        format!("at most {GOOD_FIT} is good")
+    } else if fit <= POOR_FIT {
+        format!("above {GOOD_FIT}; compare the preview with the photo")
+    } else {
+        format!("above {POOR_FIT}, the estimate does not reproduce the photo; check the geometry, the exposure and the light map")
     }
 }
 

@@ -13,7 +13,7 @@ use std::path::Path;
 
 use crate::export::{export_word, Export, CLOSE, FAITHFUL};
 use crate::flags::Flag;
-use brdfd_core::estimate::{fit_verdict, Estimate, Model, GOOD_FIT, POOR_FIT, UNSTEADY_SPREAD};
+use brdfd_core::estimate::{fit_bounds, fit_verdict, Estimate, Model, GOOD_FIT, POOR_FIT, UNSTEADY_SPREAD};
 
 /// Condition numbers at or below this are good: the presets' estimates on the sphere measure
 /// about 300 (276–351 at 256²), and the hybrid's many columns can make a few thousand usual.
@@ -99,7 +99,7 @@ fn judged(
             "re-renders the photo{} to a relative RMSE of {fit:.4} over {} pixels ({})",
             if views > 1 { "s" } else { "" },
             estimate.candidates,
-            fit_verdict(fit)
+            fit_bounds(fit)
         ),
     });
     if let Some((e, under)) = relight {

@@ -18,13 +18,16 @@ pub(crate) fn light_bracket(
     plan: BracketPlan,
 ) -> Result<RawFiles> {
     let probe = &cx.devices.light_probe;
-    let progress = cx.progress.clone();
-    let frames = probe.call(move |probe| shoot_panorama(probe, &plan, progress.as_ref()))?;
+    // The heading names the camera before the shoot's progress lines: its worker opens it
+    // first, with an empty job.
+    probe.call(|_| Ok(()))?;
     let status = probe.status();
     cx.say(format!(
         "panorama: {}",
         status.identity.as_deref().unwrap_or(&status.selector)
     ));
+    let progress = cx.progress.clone();
+    let frames = probe.call(move |probe| shoot_panorama(probe, &plan, progress.as_ref()))?;
     let mut files = Vec::with_capacity(frames.len());
     for f in frames {
         check_exposure(cx.progress.as_ref(), &f);

@@ -88,7 +88,10 @@ fn check_material(plan: &Plan) -> Result<()> {
     }
     let suggestion = match nearest_name(&plan.material, known.into_iter()) {
         Some(n) => format!(" Did you mean {n:?}?"),
-        None => String::new(),
+        None => covering_presets(&plan.material)
+            .into_iter()
+            .map(|(preset, notes)| format!(" The preset {preset:?} covers it: {notes}"))
+            .collect(),
     };
     Err(RigError::invalid(format!(
         "the simulator has no material {:?}.{suggestion} Use a preset ({}), a short name ({}), \
@@ -109,6 +112,26 @@ fn nearest_name<'a>(name: &str, known: impl Iterator<Item = &'a str>) -> Option<
         .filter(|(d, k)| *d <= 2 && 2 * d < k.len())
         .min_by_key(|(d, _)| *d)
         .map(|(_, k)| k)
+}
+
+/// The shipped presets whose notes name `word` (a surface such as "paper" that is no
+/// material's name), with their notes: a user names what is on the bench, and the presets are
+/// named for what they simulate.
+fn covering_presets(word: &str) -> Vec<(&'static str, String)> {
+    if word.len() < 4 || !word.chars().all(|c| c.is_ascii_alphabetic()) {
+        return Vec::new();
+    }
+    brdfd_rig::config::preset_names()
+        .into_iter()
+        .filter_map(|name| {
+            let preset = MaterialPreset::embedded(name).ok().flatten()?;
+            preset
+                .notes
+                .split(|c: char| !c.is_ascii_alphabetic())
+                .any(|w| w.eq_ignore_ascii_case(word))
+                .then_some((name, preset.notes))
+        })
+        .collect()
 }
 
 /// The simulators of a started rig, shared with the stage of each capture on it.
@@ -294,5 +317,22 @@ mod tests {
         assert_eq!(nearest_name("chrom", known.into_iter()), Some("chrome"));
         assert_eq!(nearest_name("paper", known.into_iter()), None);
         assert_eq!(nearest_name("ab", known.into_iter()), None);
+    }
+
+    #[test]
+    fn a_surface_no_name_matches_is_pointed_to_the_preset_that_covers_it() {
+        let paper = covering_presets("Paper");
+        assert_eq!(
+            paper.iter().map(|(n, _)| *n).collect::<Vec<_>>(),
+            ["paint"],
+            "{paper:?}"
+        );
+        assert!(paper[0].1.contains("paper"), "{paper:?}");
+        let metal = covering_presets("metal");
+        assert!(metal.iter().any(|(n, _)| *n == "gold"), "{metal:?}");
+        // Short words and other characters are never read as surfaces.
+        assert!(covering_presets("and").is_empty());
+        assert!(covering_presets("paper/x").is_empty());
+        assert!(covering_presets("velvet").is_empty());
     }
 }

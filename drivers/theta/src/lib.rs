@@ -425,8 +425,11 @@ async fn capture_http(
         client
             .set_options(json!({ "exposureProgram": 1, "shutterSpeed": e.shutter_s, "iso": e.iso }))
             .await?;
+        // The phase is said in the bench's words; the OSC command's name is for the log.
         let done = client
-            .run("camera.takePicture", json!({}), progress)
+            .run("camera.takePicture", json!({}), &mut |_, f| {
+                progress("shooting one frame", f)
+            })
             .await?;
         let files = done.file_urls();
         let [url] = files.as_slice() else {
@@ -445,11 +448,12 @@ async fn capture_http(
             client
                 .set_options(json!({ "_autoBracket": bracket }))
                 .await?;
+            let label = format!("shooting a bracket of {}", chunk.len());
             let done = client
                 .run(
                     "camera.startCapture",
                     json!({ "_mode": "bracket" }),
-                    progress,
+                    &mut |_, f| progress(&label, f),
                 )
                 .await?;
             let files = done.file_urls();
