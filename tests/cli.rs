@@ -90,7 +90,10 @@ fn simulated_capture_prints_coefficients() {
     // 0.55).
     let fit = json["fit_error"].as_f64().unwrap();
     assert!(fit > 0.0 && fit < 0.1, "fit_error {fit}");
-    assert!(out.contains("good: re-renders the photo to a relative RMSE of"), "{out}");
+    assert!(
+        out.contains("good: re-renders the photo to a relative RMSE of"),
+        "{out}"
+    );
     assert!(out.contains("(at most 0.1 is good)"), "{out}");
     // The simulator knows the material, so the capture says how the estimate relights.
     assert!(

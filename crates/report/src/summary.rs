@@ -13,7 +13,9 @@ use std::path::Path;
 
 use crate::export::{export_word, Export, CLOSE, FAITHFUL};
 use crate::flags::Flag;
-use brdfd_core::estimate::{fit_bounds, fit_verdict, Estimate, Model, GOOD_FIT, POOR_FIT, UNSTEADY_SPREAD};
+use brdfd_core::estimate::{
+    fit_bounds, fit_verdict, Estimate, Model, GOOD_FIT, POOR_FIT, UNSTEADY_SPREAD,
+};
 
 /// Condition numbers at or below this are good: the presets' estimates on the sphere measure
 /// about 300 (276–351 at 256²), and the hybrid's many columns can make a few thousand usual.
