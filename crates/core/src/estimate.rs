@@ -1403,30 +1403,33 @@ pub const UNSTEADY_SPREAD: f64 = 0.05;
 
 /// The verdict in words on a fit to the photo, with the thresholds it was judged by.
 pub fn fit_verdict(fit: f64) -> String {
-    if !fit.is_finite() {
-        return "no verdict: the fit is not a number".into();
-    }
-    let word = if fit <= GOOD_FIT {
-        "good"
-    } else if fit <= POOR_FIT {
-        "fair"
-    } else {
-        "poor"
-    };
-    format!("{word}: {}", fit_bounds(fit))
+    let (word, bounds) = fit_judged(fit);
+    format!("{word}: {bounds}")
 }
 
 /// The threshold a fit to the photo was judged by, and what to do when it is not good: the
-/// words after [`fit_verdict`]'s grade, for lines that already lead with it.
+/// words after [`fit_verdict`]'s grade, for lines that already lead with it (so a good fit's
+/// threshold says what it is the threshold of).
 pub fn fit_bounds(fit: f64) -> String {
+    match fit_judged(fit) {
+        ("good", bounds) => format!("{bounds} is good"),
+        (_, bounds) => bounds,
+    }
+}
+
+/// A fit's grade word and the words that follow it in [`fit_verdict`].
+fn fit_judged(fit: f64) -> (&'static str, String) {
     if !fit.is_finite() {
-        "the fit is not a number".into()
+        ("no verdict", "the fit is not a number".into())
     } else if fit <= GOOD_FIT {
-        format!("at most {GOOD_FIT} is good")
+        ("good", format!("at most {GOOD_FIT}"))
     } else if fit <= POOR_FIT {
-        format!("above {GOOD_FIT}; compare the preview with the photo")
+        (
+            "fair",
+            format!("above {GOOD_FIT}; compare the preview with the photo"),
+        )
     } else {
-        format!("above {POOR_FIT}, the estimate does not reproduce the photo; check the geometry, the exposure and the light map")
+        ("poor", format!("above {POOR_FIT}, the estimate does not reproduce the photo; check the geometry, the exposure and the light map"))
     }
 }
 
@@ -1569,6 +1572,31 @@ impl BasisOutcome {
                 self.colour.name(),
                 others.join(", ")
             )
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_fits_grade_is_said_once() {
+        assert_eq!(fit_verdict(0.05), "good: at most 0.1");
+        assert_eq!(fit_bounds(0.05), "at most 0.1 is good");
+        assert!(fit_verdict(0.2).starts_with("fair: above 0.1; "));
+        assert!(fit_bounds(0.2).starts_with("above 0.1; "));
+        assert!(fit_verdict(0.3).starts_with("poor: above 0.25, "));
+        assert_eq!(fit_verdict(f64::NAN), "no verdict: the fit is not a number");
+        for fit in [0.05, 0.2, 0.3, f64::NAN] {
+            let (verdict, bounds) = (fit_verdict(fit), fit_bounds(fit));
+            assert!(verdict.matches("good").count() <= 1, "{verdict}");
+            assert!(
+                !bounds.starts_with("good")
+                    && !bounds.starts_with("fair")
+                    && !bounds.starts_with("poor"),
+                "{bounds}"
+            );
         }
     }
 }
