@@ -183,11 +183,23 @@ fn cell_samples(grid: Grid) -> Arc<CellSamples> {
     let cache = SAMPLES.get_or_init(|| Mutex::new(Vec::new()));
     // A poisoned lock only means another thread panicked while making samples; the list itself
     // is still whole.
-    let mut made = cache.lock().unwrap_or_else(|e| e.into_inner());
-    if let Some((_, s)) = made.iter().find(|(g, _)| *g == grid) {
-        return Arc::clone(s);
+    let found = |made: &[(Grid, Arc<CellSamples>)]| {
+        made.iter()
+            .find(|(g, _)| *g == grid)
+            .map(|(_, s)| Arc::clone(s))
+    };
+    if let Some(s) = found(&cache.lock().unwrap_or_else(|e| e.into_inner())) {
+        return s;
     }
+    // Made unlocked: the samples are made on rayon's pool, and a worker that waited on the
+    // lock while another made them could hold, further down its own stack, a job the maker
+    // waits for (an estimate hung so in CI). Two threads may both make them; the first kept
+    // is shared.
     let s = Arc::new(CellSamples::new(grid));
+    let mut made = cache.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(first) = found(&made) {
+        return first;
+    }
     made.push((grid, Arc::clone(&s)));
     s
 }
